@@ -1,0 +1,3 @@
+//! PLACEHOLDER firmware (filled by the firmware work).
+#![no_std]
+#![no_main]

@@ -1,0 +1,139 @@
+//! Hardware traits: the only way control code reaches a board.
+//!
+//! Each trait is narrow, has its own `Error` type and never needs to allocate
+//! or block. Boards (`board-support`), the emulated board and the host test
+//! bench implement them; the control loops never know which.
+//!
+//! ```
+//! use foc_core::hal::{PwmDriver, PhaseCurrents};
+//! struct FakePwm { cmp: [u16; 3], on: bool }
+//! impl PwmDriver for FakePwm {
+//!     type Error = core::convert::Infallible;
+//!     fn period_counts(&self) -> u16 { 4200 }
+//!     fn set_compare(&mut self, cmp: [u16; 3]) -> Result<(), Self::Error> { self.cmp = cmp; Ok(()) }
+//!     fn enable(&mut self) -> Result<(), Self::Error> { self.on = true; Ok(()) }
+//!     fn disable(&mut self) { self.on = false; }
+//!     fn is_enabled(&self) -> bool { self.on }
+//! }
+//! let mut pwm = FakePwm { cmp: [0; 3], on: false };
+//! pwm.set_duties([0.5, 0.25, 0.75]).unwrap();
+//! assert_eq!(pwm.cmp, [2100, 1050, 3150]);
+//! ```
+
+use crate::angle::MechanicalAngle;
+use crate::frames::Abc;
+
+/// Three-phase PWM stage (timer plus gate driver).
+///
+/// Duty convention: fraction of the PWM period during which the phase's
+/// high-side switch conducts. Compare values are for centre-aligned
+/// counting from 0 to [`PwmDriver::period_counts`] and back.
+pub trait PwmDriver {
+    /// Error reported by the driver.
+    type Error;
+
+    /// Timer period in counts (the auto-reload value of a centre-aligned timer).
+    fn period_counts(&self) -> u16;
+
+    /// Set the three compare values (phase A, B, C), each `<= period_counts()`.
+    fn set_compare(&mut self, compare: [u16; 3]) -> Result<(), Self::Error>;
+
+    /// Set the three duties in `[0, 1]` (values outside are clamped, non-finite
+    /// ones centred).
+    fn set_duties(&mut self, duties: [f32; 3]) -> Result<(), Self::Error> {
+        let cmp = crate::svpwm::compare_values(duties, self.period_counts());
+        self.set_compare(cmp)
+    }
+
+    /// Enable the bridge outputs (leave the safe state).
+    fn enable(&mut self) -> Result<(), Self::Error>;
+
+    /// Put the bridge in its safe state (all switches off, high impedance).
+    ///
+    /// Infallible on purpose: an implementation must reach the safe state
+    /// whatever else has failed, from any context (also a panic handler).
+    fn disable(&mut self);
+
+    /// True while the outputs are enabled.
+    fn is_enabled(&self) -> bool;
+}
+
+/// One phase-current sample [A], as a board measures it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum PhaseCurrents {
+    /// Two shunts (phases A and B); the third is derived as `c = -a - b`.
+    TwoPhase {
+        /// Phase A current [A].
+        a_a: f32,
+        /// Phase B current [A].
+        b_a: f32,
+    },
+    /// Three shunts; `a + b + c` is a plausibility check (source section 2).
+    ThreePhase(Abc),
+}
+
+impl PhaseCurrents {
+    /// The three phase currents, deriving the third from two if needed.
+    #[inline]
+    pub fn to_abc(self) -> Abc {
+        match self {
+            PhaseCurrents::TwoPhase { a_a, b_a } => Abc::new(a_a, b_a, -a_a - b_a),
+            PhaseCurrents::ThreePhase(abc) => abc,
+        }
+    }
+    /// `a + b + c` when three phases are measured, `None` with two shunts.
+    #[inline]
+    pub fn measured_sum_a(&self) -> Option<f32> {
+        match self {
+            PhaseCurrents::TwoPhase { .. } => None,
+            PhaseCurrents::ThreePhase(abc) => Some(abc.sum()),
+        }
+    }
+}
+
+/// Phase-current measurement, sampled in step with the PWM.
+pub trait CurrentSense {
+    /// Error reported by the sensor (e.g. ADC overrun, sample not ready).
+    type Error;
+
+    /// The latest sample in amperes, offsets already subtracted.
+    fn read_currents(&mut self) -> Result<PhaseCurrents, Self::Error>;
+
+    /// Offsets [A] currently subtracted from the raw readings (A, B, C; C is 0
+    /// with two shunts).
+    fn offsets_a(&self) -> Abc;
+
+    /// Replace the offsets [A] subtracted from the raw readings. Offset
+    /// calibration reads with the bridge off, averages, and calls this.
+    fn set_offsets_a(&mut self, offsets: Abc);
+}
+
+/// A rotor angle sensor (encoder, hall, magnetic sensor, or an observer).
+pub trait AngleSensor {
+    /// Error reported by the sensor (bad frame, parity, magnet missing...).
+    type Error;
+
+    /// Mechanical angle of the rotor. A reading the sensor knows to be bad
+    /// is an error, never an angle.
+    fn read_angle(&mut self) -> Result<MechanicalAngle, Self::Error>;
+
+    /// Mechanical velocity [rad/s] if the sensor measures it itself.
+    fn velocity_rad_s(&mut self) -> Option<f32> {
+        None
+    }
+}
+
+/// DC-bus voltage (and temperature where the board has it).
+pub trait BusVoltage {
+    /// Error reported by the measurement.
+    type Error;
+
+    /// The latest bus voltage [V].
+    fn read_bus_voltage_v(&mut self) -> Result<f32, Self::Error>;
+
+    /// Power-stage temperature [deg C] if the board measures it.
+    fn read_temperature_c(&mut self) -> Option<Result<f32, Self::Error>> {
+        None
+    }
+}

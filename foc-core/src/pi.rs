@@ -1,0 +1,170 @@
+//! PI controller with output limits and anti-windup (source section 6).
+//!
+//! Discrete parallel form, sampled every `ts_s` seconds, with the error taken
+//! as `e = setpoint - measurement`:
+//!
+//! ```text
+//! I[k]   = clamp(I[k-1] + ki * ts * e[k], lo, hi)     (forward Euler)
+//! u_raw  = kp * e[k] + I[k]
+//! u[k]   = clamp(u_raw, lo, hi)
+//! ```
+//!
+//! The integrator never leaves `[lo, hi]`. On top of that, when the output
+//! saturates, anti-windup acts:
+//! - [`AntiWindup::Clamp`]: conditional integration. The integration step
+//!   of this sample is undone when it would push further into the limit.
+//! - [`AntiWindup::BackCalculation`]: `I += kb * ts * (u - u_raw)`, which
+//!   bleeds the integrator towards the value that just reaches the limit
+//!   (`kb` in 1/s; `kb = ki / kp` is the usual choice).
+//!
+//! ```
+//! use foc_core::pi::{Pi, PiConfig, AntiWindup};
+//! let mut pi = Pi::new(PiConfig {
+//!     kp: 2.0, ki_per_s: 100.0, ts_s: 1e-3,
+//!     out_min: -10.0, out_max: 10.0, anti_windup: AntiWindup::Clamp,
+//! });
+//! let u = pi.step(1.0, 0.0); // error +1 -> positive output
+//! assert!(u > 0.0 && u <= 10.0);
+//! ```
+
+use crate::clamp;
+
+/// Anti-windup strategy.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum AntiWindup {
+    /// Conditional integration (integrator also clamped to the output range).
+    Clamp,
+    /// Back-calculation with tracking gain `kb_per_s` [1/s].
+    BackCalculation {
+        /// Tracking gain [1/s].
+        kb_per_s: f32,
+    },
+}
+
+/// PI configuration (gains, sample time, limits).
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct PiConfig {
+    /// Proportional gain [output unit / input unit].
+    pub kp: f32,
+    /// Continuous-time integral gain [output unit / (input unit * s)].
+    pub ki_per_s: f32,
+    /// Sample period [s].
+    pub ts_s: f32,
+    /// Lower output limit.
+    pub out_min: f32,
+    /// Upper output limit.
+    pub out_max: f32,
+    /// Anti-windup strategy.
+    pub anti_windup: AntiWindup,
+}
+
+/// PI state.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct PiState {
+    /// Integrator value (same unit as the output).
+    pub integral: f32,
+    /// Last output.
+    pub output: f32,
+    /// True when the last output was limited.
+    pub saturated: bool,
+}
+
+/// A PI controller: configuration plus state.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Pi {
+    /// Gains and limits.
+    pub config: PiConfig,
+    /// Integrator and last output.
+    pub state: PiState,
+}
+
+impl Pi {
+    /// New controller with zero state.
+    pub const fn new(config: PiConfig) -> Self {
+        Self {
+            config,
+            state: PiState {
+                integral: 0.0,
+                output: 0.0,
+                saturated: false,
+            },
+        }
+    }
+
+    /// Zero the integrator and the output.
+    pub fn reset(&mut self) {
+        self.state = PiState::default();
+    }
+
+    /// Bumpless start: preload the integrator so that a zero error gives
+    /// `output` (clamped to the configured limits).
+    pub fn preload(&mut self, output: f32) {
+        let o = if output.is_finite() { output } else { 0.0 };
+        let o = clamp(o, self.config.out_min, self.config.out_max);
+        self.state.integral = o;
+        self.state.output = o;
+    }
+
+    /// One step with the configured limits; `e = setpoint - measurement`.
+    #[inline]
+    pub fn step(&mut self, setpoint: f32, measurement: f32) -> f32 {
+        let (lo, hi) = (self.config.out_min, self.config.out_max);
+        self.step_error(setpoint - measurement, lo, hi)
+    }
+
+    /// One step on a given error with limits `[lo, hi]` for this sample
+    /// (for a limit that moves, e.g. the current loop's voltage circle).
+    ///
+    /// A non-finite error, or `lo > hi`, or non-finite limits leave the
+    /// state unchanged and return the last integrator value clamped into the
+    /// limits (or 0 when the limits themselves are unusable).
+    #[inline]
+    pub fn step_error(&mut self, error: f32, lo: f32, hi: f32) -> f32 {
+        if !(lo <= hi) || !lo.is_finite() || !hi.is_finite() {
+            self.state.saturated = true;
+            self.state.output = 0.0;
+            return 0.0;
+        }
+        if !error.is_finite() {
+            let u = clamp(self.state.integral, lo, hi);
+            self.state.saturated = true;
+            self.state.output = u;
+            return u;
+        }
+        let c = &self.config;
+        let i_prev = clamp(self.state.integral, lo, hi);
+        let p = c.kp * error;
+        let mut i = clamp(i_prev + c.ki_per_s * c.ts_s * error, lo, hi);
+        let u_raw = p + i;
+        let u = clamp(u_raw, lo, hi);
+        let saturated = u != u_raw;
+        if saturated {
+            match c.anti_windup {
+                AntiWindup::Clamp => {
+                    // Undo this sample's integration if it pushes further
+                    // into the limit that is active.
+                    if (u_raw > hi && i > i_prev) || (u_raw < lo && i < i_prev) {
+                        i = i_prev;
+                    }
+                }
+                AntiWindup::BackCalculation { kb_per_s } => {
+                    i = clamp(i + kb_per_s * c.ts_s * (u - u_raw), lo, hi);
+                }
+            }
+        }
+        if !i.is_finite() {
+            // Only reachable with non-finite gains: fall back to neutral.
+            i = 0.0;
+        }
+        self.state = PiState {
+            integral: i,
+            output: if u.is_finite() { u } else { 0.0 },
+            saturated,
+        };
+        self.state.output
+    }
+}
