@@ -1,1 +1,107 @@
-fn main() {}
+//! `cargo xtask`: the project's tasks (build, size, test, ci, ...).
+//!
+//! One module per subcommand; this file only parses the command line and
+//! dispatches. To add a subcommand: a module with its `Args` and a `run_cmd`,
+//! a variant in [`Command`], and its arm in [`main`].
+
+mod boards;
+mod build;
+mod check;
+mod size;
+mod toolchain;
+mod util;
+
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+
+/// Tasks of the Rust FOC project: build, size, test, ci.
+#[derive(Debug, Parser)]
+#[command(name = "cargo xtask", bin_name = "cargo xtask")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Build the firmware (release) for a board or all boards, one cargo
+    /// invocation per board, and print its flash and RAM use.
+    Build(build::BuildArgs),
+    /// Print flash (text+data) and static RAM (data+bss) of the firmware per
+    /// board, against the default board's goals (building it if needed).
+    Size(size::SizeArgs),
+    /// The full check: fmt, clippy (host crates and every board), host tests,
+    /// foc-core bare-metal build, release build of every board.
+    Test,
+    /// What CI runs: toolchain set-up and versions, then exactly `test`.
+    Ci,
+    /// Install the thumb target and the llvm-tools, rustfmt and clippy
+    /// components if they are missing, and print the versions.
+    Toolchain,
+    /// List the boards: name (= cargo feature), probe-rs chip, QEMU support.
+    Boards,
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let result = match &cli.command {
+        Command::Build(args) => build::run_cmd(args),
+        Command::Size(args) => size::run_cmd(args),
+        Command::Test => check::test(),
+        Command::Ci => check::ci(),
+        Command::Toolchain => toolchain::ensure(true, toolchain::ALL_COMPONENTS)
+            .and_then(|()| toolchain::print_versions()),
+        Command::Boards => {
+            list_boards();
+            Ok(())
+        }
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn list_boards() {
+    println!(
+        "{:<24} {:<15} {:<5} description",
+        "board (feature)", "probe-rs chip", "qemu"
+    );
+    for b in &boards::BOARDS {
+        println!(
+            "{:<24} {:<15} {:<5} {}",
+            b.name,
+            b.chip,
+            if b.qemu { "yes" } else { "no" },
+            b.description
+        );
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::CommandFactory;
+
+    #[test]
+    fn cli_is_consistent() {
+        Cli::command().debug_assert();
+    }
+
+    #[test]
+    fn parses_board_all() {
+        let cli = Cli::try_parse_from(["xtask", "build", "--board", "all", "--debug"]).unwrap();
+        match cli.command {
+            Command::Build(args) => {
+                assert_eq!(args.board, boards::Selection::All);
+                assert!(args.debug);
+            }
+            other => panic!("parsed as {other:?}"),
+        }
+        assert!(Cli::try_parse_from(["xtask", "build", "--board", "nope"]).is_err());
+    }
+}

@@ -1,0 +1,207 @@
+//! `cargo xtask test` and `cargo xtask ci`: the full check, as a list of steps.
+//!
+//! Each [`Step`] is a name and an action. [`steps`] builds the list; to add a
+//! check (QEMU emulation, a simulation smoke run, ...) push another `Step`
+//! there. The runner prints a banner and the time of each step, stops at the
+//! first failure and ends with a summary line.
+
+use std::time::Instant;
+
+use crate::boards::BOARDS;
+use crate::build::{self, Profile};
+use crate::toolchain;
+use crate::util::{banner, cargo, fmt_duration, run, Error, Result, THUMB_TARGET};
+
+/// The host crates (the workspace's default members): everything but the
+/// thumb-only firmware.
+pub const HOST_PACKAGES: &[&str] = &["foc-core", "board-support", "xtask", "foc-bench"];
+
+/// One step of the check.
+pub struct Step {
+    /// Shown in the banner and the summary.
+    pub name: String,
+    action: Box<dyn Fn() -> Result>,
+}
+
+impl Step {
+    /// A step that runs a function.
+    pub fn new(name: impl Into<String>, action: impl Fn() -> Result + 'static) -> Self {
+        Step {
+            name: name.into(),
+            action: Box::new(action),
+        }
+    }
+
+    /// A step that runs `cargo <args>` at the workspace root.
+    pub fn cargo(name: impl Into<String>, args: Vec<String>) -> Self {
+        Step::new(name, move || run(cargo(&args)))
+    }
+}
+
+/// `-p a -p b ...` for the host packages.
+fn host_package_args() -> Vec<String> {
+    HOST_PACKAGES
+        .iter()
+        .flat_map(|p| ["-p".to_string(), (*p).to_string()])
+        .collect()
+}
+
+fn strings(args: &[&str]) -> Vec<String> {
+    args.iter().map(|s| (*s).to_string()).collect()
+}
+
+/// The steps of `cargo xtask test`, in order.
+pub fn steps() -> Vec<Step> {
+    let mut steps = vec![Step::cargo(
+        "rustfmt (cargo fmt --all --check)",
+        strings(&["fmt", "--all", "--check"]),
+    )];
+
+    let mut args = strings(&["clippy"]);
+    args.extend(host_package_args());
+    args.extend(strings(&["--all-targets", "--", "-D", "warnings"]));
+    steps.push(Step::cargo("clippy, host crates", args));
+
+    for board in &BOARDS {
+        steps.push(Step::cargo(
+            format!("clippy, firmware for {}", board.name),
+            strings(&[
+                "clippy",
+                "-p",
+                "firmware",
+                "--target",
+                THUMB_TARGET,
+                "--features",
+                board.feature,
+                "--",
+                "-D",
+                "warnings",
+            ]),
+        ));
+    }
+
+    let mut args = strings(&["test"]);
+    args.extend(host_package_args());
+    steps.push(Step::cargo("tests, host crates", args));
+
+    steps.push(Step::cargo(
+        format!("foc-core bare-metal build ({THUMB_TARGET}, no default features)"),
+        strings(&[
+            "build",
+            "-p",
+            "foc-core",
+            "--no-default-features",
+            "--target",
+            THUMB_TARGET,
+        ]),
+    ));
+
+    for board in &BOARDS {
+        steps.push(Step::new(
+            format!("firmware build for {} (release)", board.name),
+            move || build::build_board(board, Profile::Release).map(|_| ()),
+        ));
+    }
+
+    steps
+}
+
+/// Runs the steps in order, stopping at the first failure.
+pub fn run_steps(title: &str, steps: &[Step]) -> Result {
+    let total = steps.len();
+    let start = Instant::now();
+    let mut done: Vec<(&str, String)> = Vec::new();
+    for (i, step) in steps.iter().enumerate() {
+        banner(&format!("[{}/{total}] {}", i + 1, step.name));
+        let t = Instant::now();
+        let result = (step.action)();
+        let took = fmt_duration(t.elapsed());
+        match result {
+            Ok(()) => {
+                println!("---- ok: {} ({took})", step.name);
+                done.push((&step.name, took));
+            }
+            Err(e) => {
+                println!("---- FAILED: {} ({took})", step.name);
+                print_times(&done);
+                println!(
+                    "{title}: FAILED at step {}/{total} ({}) after {}",
+                    i + 1,
+                    step.name,
+                    fmt_duration(start.elapsed())
+                );
+                return Err(Error(format!("step `{}` failed: {e}", step.name)));
+            }
+        }
+    }
+    print_times(&done);
+    println!(
+        "{title}: all {total} steps passed in {}",
+        fmt_duration(start.elapsed())
+    );
+    Ok(())
+}
+
+fn print_times(done: &[(&str, String)]) {
+    if done.is_empty() {
+        return;
+    }
+    println!();
+    println!("steps passed:");
+    for (name, took) in done {
+        println!("  {took:>12}  {name}");
+    }
+}
+
+/// `cargo xtask test`: toolchain check, then every step.
+pub fn test() -> Result {
+    banner("toolchain");
+    toolchain::ensure(true, &["rustfmt", "clippy"])?;
+    run_steps("cargo xtask test", &steps())
+}
+
+/// `cargo xtask ci`: the full toolchain set-up and versions, then exactly
+/// `cargo xtask test`.
+pub fn ci() -> Result {
+    banner("toolchain set-up");
+    toolchain::ensure(true, toolchain::ALL_COMPONENTS)?;
+    toolchain::print_versions()?;
+    test()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_board_is_linted_and_built_once() {
+        let steps = steps();
+        for board in &BOARDS {
+            let n = steps.iter().filter(|s| s.name.contains(board.name)).count();
+            assert_eq!(n, 2, "{}", board.name);
+        }
+        assert!(steps[0].name.starts_with("rustfmt"));
+    }
+
+    #[test]
+    fn runner_stops_at_first_failure() {
+        use std::cell::Cell;
+        use std::rc::Rc;
+        let ran = Rc::new(Cell::new(0));
+        let (a, b) = (ran.clone(), ran.clone());
+        let steps = [
+            Step::new("ok", move || {
+                a.set(a.get() + 1);
+                Ok(())
+            }),
+            Step::new("fails", || Err(Error("boom".into()))),
+            Step::new("never", move || {
+                b.set(b.get() + 100);
+                Ok(())
+            }),
+        ];
+        let err = run_steps("t", &steps).unwrap_err();
+        assert!(err.0.contains("fails"));
+        assert_eq!(ran.get(), 1);
+    }
+}
