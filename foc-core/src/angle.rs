@@ -202,7 +202,10 @@ mod tests {
 
     #[test]
     fn non_finite_is_zero() {
-        assert_eq!(ElectricalAngle::from_radians(f32::NAN), ElectricalAngle::ZERO);
+        assert_eq!(
+            ElectricalAngle::from_radians(f32::NAN),
+            ElectricalAngle::ZERO
+        );
         assert_eq!(ElectricalAngle::try_from_radians(f32::INFINITY), None);
     }
 
