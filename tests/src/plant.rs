@@ -1,0 +1,1207 @@
+//! PMSM + three-phase inverter + sensors, simulated one PWM period at a time.
+//!
+//! This module is `no_std` (core + `libm`) so the same plant can run on an
+//! emulated Cortex-M4F. Its scalar is [`Real`] (`f64`, or `f32` with the
+//! `plant-f32` feature).
+//!
+//! # Frame (independent of `foc-core`)
+//!
+//! Phase A's axis is at electrical angle 0, B at +120 deg, C at +240 deg;
+//! positive rotation goes A -> B -> C. The rotor d axis is at
+//! `theta_e = pole_pairs * theta_m`. Phase `k` (axis angle `phi_k`) relates to
+//! the rotor frame through
+//!
+//! ```text
+//! i_k = i_d cos(theta_e - phi_k) - i_q sin(theta_e - phi_k)
+//! v_d =  2/3 sum_k v_k cos(theta_e - phi_k)
+//! v_q = -2/3 sum_k v_k sin(theta_e - phi_k)
+//! e_k = -omega_e psi sin(theta_e - phi_k)          (open-circuit back-EMF)
+//! ```
+//!
+//! written here with `cos(theta - 2 pi/3)` sums, never through
+//! `foc_core::transforms`, so a frame error on either side shows up in a
+//! closed-loop test. Zero-sequence voltage (the floating star point) drops out
+//! of the sums by construction.
+//!
+//! # Model
+//!
+//! - Electrical: `Ld did/dt = vd - R id + w_e Lq iq`,
+//!   `Lq diq/dt = vq - R iq - w_e Ld id - w_e psi`.
+//! - Torque: `Te = 1.5 p (psi iq + (Ld - Lq) id iq)`.
+//! - Mechanical: `J dw/dt = Te - B w - Tc sgn(w) - T_load`, with stiction
+//!   (the rotor stays stopped while `|Te - T_load| <= Tc`). Or [`Mechanics`]
+//!   `Locked` / `ConstantSpeed` for tests.
+//! - Integration: classic RK4 at [`BenchConfig::substeps`] sub-steps per PWM
+//!   period, terminal voltages held over each sub-step.
+//! - Inverter: each phase terminal is connected to the bus for a fraction `h`
+//!   of the sub-step (`v_k = h V_bus`). [`PwmMode::Averaged`] uses the
+//!   period-average fraction in every sub-step; [`PwmMode::CarrierCompared`]
+//!   compares with a centre-aligned triangle carrier and uses the exact overlap
+//!   of the switch intervals with each sub-step (so ripple is resolved at
+//!   sub-step resolution and duty is not quantised to sub-steps).
+//!   Carrier: the high-side pulse of width `d T` is centred in the period;
+//!   the period boundary (where [`Plant::step_period`] samples) is the centre
+//!   of the zero vector 000 (all low sides on).
+//! - Dead time `t_d`: each rising edge (of high and low side) is delayed by
+//!   `t_d`; during the dead interval the phase follows its current through the
+//!   body diodes: low (0 V) when the current flows into the motor (`i > 0`),
+//!   bus when `i < 0`. The sign is taken at the start of each sub-step. The
+//!   average error is `-sgn(i) V_bus t_d / T`.
+//! - Computation delay: with `compute_delay_periods = 1` (default) the duties
+//!   passed to [`Plant::step_period`] are applied in the *next* period, as a
+//!   timer's shadow compare registers do. Enable/disable acts at once.
+//! - Disabled bridge (all six switches off): each phase is modelled by its two
+//!   body diodes (no forward drop): a phase carrying current conducts through
+//!   the diode its current sign selects until the current reaches zero, then
+//!   it is open. With one phase open the remaining two carry equal and opposite
+//!   currents (the open phase's terminal voltage is solved from `di/dt = 0`);
+//!   with two open no current flows. An open phase starts conducting again only
+//!   when its terminal voltage would leave `[0, V_bus]`, and with all three
+//!   open, only when the line-to-line back-EMF exceeds `V_bus`: below the bus
+//!   the back-EMF cannot drive current, above it the bridge rectifies and brakes.
+//! - DC source: `V_bus = V_source - bus_sag - R_source i_dc`, where
+//!   `i_dc = sum_k h_k i_k` is the (sub-step average) supply current. Regenerated
+//!   current is absorbed by the source (no capacitor, no over-voltage).
+//! - Sensors: see [`SensorConfig`] and [`Faults`].
+//!
+//! ```
+//! use foc_bench::plant::{BenchConfig, MotorParams, Plant};
+//! let mut plant = Plant::new(MotorParams::example(), BenchConfig::default());
+//! let mut duties = [0.5f32; 3];
+//! for _ in 0..10 {
+//!     let m = plant.step_period(duties, true, 0.0);
+//!     assert!(m.v_bus_v > 0.0);
+//!     duties = [0.5, 0.5, 0.5]; // a controller would compute these from `m`
+//! }
+//! assert!(plant.time_s() > 0.0);
+//! ```
+
+use crate::real::{self, Real, TAU, TWO_PI_3};
+use crate::rng::Rng;
+use foc_core::angle::{ElectricalAngle, MechanicalAngle};
+use foc_core::frames::Abc;
+use foc_core::hal::PhaseCurrents;
+
+/// Axis angles of phases A, B, C.
+const PHASE_AXIS: [Real; 3] = [0.0, TWO_PI_3, -TWO_PI_3];
+
+/// A current below this is zero for the diode model [A].
+const I_ZERO_A: Real = 1e-9;
+
+/// One of the three phases.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Phase {
+    /// Phase A.
+    A,
+    /// Phase B.
+    B,
+    /// Phase C.
+    C,
+}
+
+impl Phase {
+    /// Index 0, 1, 2.
+    pub const fn index(self) -> usize {
+        match self {
+            Phase::A => 0,
+            Phase::B => 1,
+            Phase::C => 2,
+        }
+    }
+}
+
+/// Motor parameters (per phase, star equivalent, amplitude-invariant dq).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MotorParams {
+    /// Pole pairs `p`.
+    pub pole_pairs: u8,
+    /// Phase resistance [ohm].
+    pub r_ohm: Real,
+    /// d-axis inductance [H].
+    pub ld_h: Real,
+    /// q-axis inductance [H].
+    pub lq_h: Real,
+    /// Permanent-magnet flux linkage `psi` [Wb] (peak phase back-EMF over `w_e`).
+    pub flux_linkage_wb: Real,
+    /// Rotor (plus load) inertia [kg m^2].
+    pub inertia_kg_m2: Real,
+    /// Viscous friction [N m s/rad].
+    pub viscous_friction_nm_s_per_rad: Real,
+    /// Coulomb (dry) friction [N m].
+    pub coulomb_friction_nm: Real,
+}
+
+/// Why a parameter set was rejected.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ParamError {
+    /// The named field must be finite and strictly positive.
+    NotPositive(&'static str),
+    /// The named field must be finite and zero or positive.
+    Negative(&'static str),
+}
+
+impl core::fmt::Display for ParamError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            ParamError::NotPositive(n) => write!(f, "`{n}` must be finite and > 0"),
+            ParamError::Negative(n) => write!(f, "`{n}` must be finite and >= 0"),
+        }
+    }
+}
+
+fn positive(x: Real, name: &'static str) -> Result<(), ParamError> {
+    if x.is_finite() && x > 0.0 {
+        Ok(())
+    } else {
+        Err(ParamError::NotPositive(name))
+    }
+}
+
+fn non_negative(x: Real, name: &'static str) -> Result<(), ParamError> {
+    if x.is_finite() && x >= 0.0 {
+        Ok(())
+    } else {
+        Err(ParamError::Negative(name))
+    }
+}
+
+impl MotorParams {
+    /// A small 7-pole-pair outrunner (about 0.1 ohm, 30 uH), for examples and tests.
+    pub const fn example() -> Self {
+        Self {
+            pole_pairs: 7,
+            r_ohm: 0.1,
+            ld_h: 30e-6,
+            lq_h: 30e-6,
+            flux_linkage_wb: 0.0024,
+            inertia_kg_m2: 1e-4,
+            viscous_friction_nm_s_per_rad: 1e-5,
+            coulomb_friction_nm: 0.0,
+        }
+    }
+
+    /// Check every field is physical.
+    pub fn validate(&self) -> Result<(), ParamError> {
+        if self.pole_pairs == 0 {
+            return Err(ParamError::NotPositive("pole_pairs"));
+        }
+        positive(self.r_ohm, "r_ohm")?;
+        positive(self.ld_h, "ld_h")?;
+        positive(self.lq_h, "lq_h")?;
+        non_negative(self.flux_linkage_wb, "flux_linkage_wb")?;
+        positive(self.inertia_kg_m2, "inertia_kg_m2")?;
+        non_negative(
+            self.viscous_friction_nm_s_per_rad,
+            "viscous_friction_nm_s_per_rad",
+        )?;
+        non_negative(self.coulomb_friction_nm, "coulomb_friction_nm")
+    }
+
+    /// Torque `1.5 p (psi iq + (Ld - Lq) id iq)` [N m].
+    pub fn torque_nm(&self, id_a: Real, iq_a: Real) -> Real {
+        1.5 * self.pole_pairs as Real
+            * (self.flux_linkage_wb * iq_a + (self.ld_h - self.lq_h) * id_a * iq_a)
+    }
+}
+
+/// How the inverter output is modelled.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PwmMode {
+    /// Period-average terminal voltage in every sub-step (no ripple).
+    Averaged,
+    /// Centre-aligned triangle carrier compared per sub-step (ripple resolved).
+    CarrierCompared,
+}
+
+/// Current-shunt arrangement.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Shunts {
+    /// Phases A and B measured ([`PhaseCurrents::TwoPhase`]).
+    Two,
+    /// All three measured ([`PhaseCurrents::ThreePhase`]).
+    Three,
+}
+
+/// Sensor models.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SensorConfig {
+    /// ADC resolution [bits] (12 on an STM32F4).
+    pub adc_bits: u8,
+    /// Current ADC range: `-fs .. +fs` maps to `0 .. 2^bits - 1` [A].
+    pub current_full_scale_a: Real,
+    /// Current-ADC noise, RMS [LSB].
+    pub current_noise_lsb_rms: Real,
+    /// Hardware offset of each current channel [A] (what calibration removes).
+    pub current_offset_a: [Real; 3],
+    /// Shunt arrangement.
+    pub shunts: Shunts,
+    /// Encoder counts per mechanical revolution.
+    pub encoder_counts_per_rev: u32,
+    /// Encoder zero relative to the rotor d axis (mechanical) [rad].
+    pub encoder_offset_rad: Real,
+    /// Bus-voltage ADC range `0 .. fs` [V].
+    pub bus_full_scale_v: Real,
+    /// Bus-voltage ADC noise, RMS [LSB].
+    pub bus_noise_lsb_rms: Real,
+    /// Seed of the noise generator.
+    pub seed: u64,
+}
+
+impl Default for SensorConfig {
+    fn default() -> Self {
+        Self {
+            adc_bits: 12,
+            current_full_scale_a: 60.0,
+            current_noise_lsb_rms: 0.0,
+            current_offset_a: [0.0; 3],
+            shunts: Shunts::Three,
+            encoder_counts_per_rev: 16_384,
+            encoder_offset_rad: 0.0,
+            bus_full_scale_v: 72.0,
+            bus_noise_lsb_rms: 0.0,
+            seed: 1,
+        }
+    }
+}
+
+impl SensorConfig {
+    /// Ideal sensors: 24-bit ADCs, no noise, 2^24-count encoder.
+    pub fn ideal() -> Self {
+        Self {
+            adc_bits: 24,
+            current_full_scale_a: 1000.0,
+            encoder_counts_per_rev: 1 << 24,
+            bus_full_scale_v: 1000.0,
+            ..Self::default()
+        }
+    }
+}
+
+/// Inverter, supply and timing configuration.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BenchConfig {
+    /// PWM frequency [Hz] (one control period per PWM period).
+    pub pwm_frequency_hz: Real,
+    /// RK4 sub-steps per PWM period (8..32 typical).
+    pub substeps: u32,
+    /// DC source open-circuit voltage [V].
+    pub bus_voltage_v: Real,
+    /// DC source internal resistance [ohm] (the bus sags under load).
+    pub source_resistance_ohm: Real,
+    /// Dead time per switching edge [s].
+    pub dead_time_s: Real,
+    /// Inverter model.
+    pub pwm_mode: PwmMode,
+    /// Periods between the sample and the application of the duties (0 or 1).
+    pub compute_delay_periods: u8,
+    /// Sensor models.
+    pub sensors: SensorConfig,
+}
+
+impl Default for BenchConfig {
+    fn default() -> Self {
+        Self {
+            pwm_frequency_hz: 15_000.0,
+            substeps: 16,
+            bus_voltage_v: 24.0,
+            source_resistance_ohm: 0.0,
+            dead_time_s: 0.0,
+            pwm_mode: PwmMode::Averaged,
+            compute_delay_periods: 1,
+            sensors: SensorConfig::default(),
+        }
+    }
+}
+
+impl BenchConfig {
+    /// PWM period [s].
+    pub fn period_s(&self) -> Real {
+        1.0 / self.pwm_frequency_hz
+    }
+}
+
+/// A short between two motor terminals (through `r_ohm`, switches included).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PhaseShort {
+    /// First phase.
+    pub a: Phase,
+    /// Second phase.
+    pub b: Phase,
+    /// Resistance of the short [ohm].
+    pub r_ohm: Real,
+}
+
+/// Encoder fault.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum EncoderFault {
+    /// Healthy.
+    #[default]
+    None,
+    /// The reading freezes at its last value.
+    Stuck,
+    /// The reading is offset by this many counts (set it once: a jump).
+    Jump(i32),
+}
+
+/// Fault injection hooks (all off by default). Change them any time through
+/// [`Plant::faults_mut`]; they act from the next sub-step / sample.
+#[derive(Clone, Copy, Debug, PartialEq, Default)]
+pub struct Faults {
+    /// Phase-to-phase short at the motor terminals. The two terminals see the
+    /// mean of their two bridge voltages; the legs carry the extra current
+    /// `(v_a - v_b) / r_ohm` (measured by the shunts, drawn from the bus).
+    pub phase_short: Option<PhaseShort>,
+    /// A phase lead disconnected (its current is zero; the others carry all).
+    pub disconnected_phase: Option<Phase>,
+    /// Drop of the source voltage [V].
+    pub bus_sag_v: Real,
+    /// Encoder fault.
+    pub encoder: EncoderFault,
+    /// Encoder counts the wrong way.
+    pub encoder_reversed: bool,
+    /// This current channel reads NaN.
+    pub nan_current: Option<Phase>,
+    /// This current channel is wired with the wrong sign.
+    pub current_reversed: Option<Phase>,
+    /// Extra offset on each current channel, e.g. after calibration [A].
+    pub current_offset_error_a: [Real; 3],
+}
+
+/// What the controller samples at the period boundary (centre of the zero
+/// vector 000).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Measurements {
+    /// Phase currents [A] as the ADC reads them (quantised, noisy, with the
+    /// hardware offsets: offset calibration is the controller's job).
+    pub currents: PhaseCurrents,
+    /// Encoder reading.
+    pub angle: MechanicalAngle,
+    /// Bus voltage [V] as the ADC reads it.
+    pub v_bus_v: f32,
+    /// Time of the sample [s].
+    pub time_s: f64,
+    /// Index of the period that just ended (0 for the first).
+    pub period: u64,
+}
+
+/// Energy integrals since construction (or [`Plant::reset_energy`]) [J].
+#[derive(Clone, Copy, Debug, PartialEq, Default)]
+pub struct EnergyAccount {
+    /// Delivered by the DC bus to the inverter (`V_bus i_dc`).
+    pub supply_j: Real,
+    /// Dissipated in the winding resistance.
+    pub copper_j: Real,
+    /// Converted to mechanical (`Te w`).
+    pub shaft_j: Real,
+    /// Dissipated in viscous and coulomb friction.
+    pub friction_j: Real,
+    /// Delivered to the load torque (`T_load w`).
+    pub load_j: Real,
+    /// Dissipated in an injected phase short.
+    pub short_j: Real,
+}
+
+/// How the rotor moves.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Mechanics {
+    /// Free rotor: inertia, friction, load.
+    Free,
+    /// Rotor held at its present angle (locked-rotor tests).
+    Locked,
+    /// Rotor driven at this mechanical speed [rad/s] (infinite inertia).
+    ConstantSpeed(Real),
+}
+
+/// Per-phase state of the bridge while it is disabled.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Diode {
+    /// Not conducting.
+    Open,
+    /// High-side diode (terminal at the bus, current out of the motor).
+    High,
+    /// Low-side diode (terminal at 0 V, current into the motor).
+    Low,
+}
+
+/// How one phase terminal is driven over a sub-step.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Drive {
+    /// Connected to the bus a fraction `h` of the time, else to 0 V.
+    Bus(Real),
+    /// Not connected (current held at zero).
+    Open,
+}
+
+/// Derivative of the integrated state and its energy integrands.
+#[derive(Clone, Copy, Debug, Default)]
+struct Deriv {
+    id: Real,
+    iq: Real,
+    omega: Real,
+    theta: Real,
+    p_supply: Real,
+    p_copper: Real,
+    p_shaft: Real,
+    p_friction: Real,
+    p_load: Real,
+    p_short: Real,
+    i_dc: Real,
+}
+
+/// The simulated motor, inverter and sensors.
+#[derive(Clone, Debug)]
+pub struct Plant {
+    motor: MotorParams,
+    cfg: BenchConfig,
+    faults: Faults,
+    mechanics: Mechanics,
+    rng: Rng,
+    // Electrical and mechanical state.
+    id: Real,
+    iq: Real,
+    theta_m: Real,
+    turns: i64,
+    omega_m: Real,
+    // Inverter.
+    pending: [f32; 3],
+    applied: [f32; 3],
+    enabled: bool,
+    diodes: [Diode; 3],
+    // Outputs of the last period.
+    v_bus: Real,
+    i_dc_avg: Real,
+    p_in_avg: Real,
+    v_terminal_avg: [Real; 3],
+    load_nm: Real,
+    last_encoder_counts: u32,
+    time_s: f64,
+    period: u64,
+    energy: EnergyAccount,
+}
+
+impl Plant {
+    /// New plant at rest (rotor at `theta_m = 0`, currents zero, bridge off).
+    ///
+    /// Parameters are used as given; call [`MotorParams::validate`] first
+    /// when they come from a user.
+    pub fn new(motor: MotorParams, cfg: BenchConfig) -> Self {
+        Self {
+            motor,
+            cfg,
+            faults: Faults::default(),
+            mechanics: Mechanics::Free,
+            rng: Rng::new(cfg.sensors.seed),
+            id: 0.0,
+            iq: 0.0,
+            theta_m: 0.0,
+            turns: 0,
+            omega_m: 0.0,
+            pending: [0.5; 3],
+            applied: [0.5; 3],
+            enabled: false,
+            diodes: [Diode::Open; 3],
+            v_bus: cfg.bus_voltage_v,
+            i_dc_avg: 0.0,
+            p_in_avg: 0.0,
+            v_terminal_avg: [0.0; 3],
+            load_nm: 0.0,
+            last_encoder_counts: 0,
+            time_s: 0.0,
+            period: 0,
+            energy: EnergyAccount::default(),
+        }
+    }
+
+    /// Motor parameters.
+    pub fn motor(&self) -> &MotorParams {
+        &self.motor
+    }
+    /// Bench configuration.
+    pub fn config(&self) -> &BenchConfig {
+        &self.cfg
+    }
+    /// Change the bench configuration (e.g. the source voltage) on the fly.
+    pub fn config_mut(&mut self) -> &mut BenchConfig {
+        &mut self.cfg
+    }
+    /// Injected faults.
+    pub fn faults(&self) -> &Faults {
+        &self.faults
+    }
+    /// Inject or clear faults.
+    pub fn faults_mut(&mut self) -> &mut Faults {
+        &mut self.faults
+    }
+    /// Choose free, locked or constant-speed mechanics.
+    pub fn set_mechanics(&mut self, m: Mechanics) {
+        self.mechanics = m;
+        match m {
+            Mechanics::Free => {}
+            Mechanics::Locked => self.omega_m = 0.0,
+            Mechanics::ConstantSpeed(w) => self.omega_m = w,
+        }
+    }
+    /// Put the rotor at mechanical angle `theta_m` [rad].
+    pub fn set_rotor_angle(&mut self, theta_m_rad: Real) {
+        let (r, _) = real::wrap_tau(theta_m_rad);
+        self.theta_m = r;
+    }
+    /// Set the rotor speed [rad/s] (free mechanics keeps evolving from it).
+    pub fn set_speed(&mut self, omega_m_rad_s: Real) {
+        self.omega_m = omega_m_rad_s;
+    }
+    /// Set the dq currents directly [A] (initial conditions for tests).
+    pub fn set_currents_dq(&mut self, id_a: Real, iq_a: Real) {
+        self.id = id_a;
+        self.iq = iq_a;
+    }
+
+    // ----- true state -----
+
+    /// True d-axis current [A].
+    pub fn id_a(&self) -> Real {
+        self.id
+    }
+    /// True q-axis current [A].
+    pub fn iq_a(&self) -> Real {
+        self.iq
+    }
+    /// True phase currents [A] (into the motor).
+    pub fn phase_currents_a(&self) -> [Real; 3] {
+        let th = self.theta_e_rad();
+        let (id, iq) = (self.id, self.iq);
+        PHASE_AXIS.map(|phi| id * real::cos(th - phi) - iq * real::sin(th - phi))
+    }
+    /// True electrical angle [rad] in `[0, 2 pi)`.
+    pub fn theta_e_rad(&self) -> Real {
+        real::wrap_tau(self.theta_m * self.motor.pole_pairs as Real).0
+    }
+    /// True electrical angle.
+    pub fn theta_e(&self) -> ElectricalAngle {
+        ElectricalAngle::from_radians(self.theta_e_rad() as f32)
+    }
+    /// True mechanical angle [rad] in `[0, 2 pi)`.
+    pub fn theta_m_rad(&self) -> Real {
+        self.theta_m
+    }
+    /// True mechanical position over many turns [rad].
+    pub fn position_rad(&self) -> Real {
+        self.turns as Real * TAU + self.theta_m
+    }
+    /// True mechanical speed [rad/s].
+    pub fn omega_m_rad_s(&self) -> Real {
+        self.omega_m
+    }
+    /// True electrical speed [rad/s].
+    pub fn omega_e_rad_s(&self) -> Real {
+        self.omega_m * self.motor.pole_pairs as Real
+    }
+    /// Electromagnetic torque at the present currents [N m].
+    pub fn torque_nm(&self) -> Real {
+        self.motor.torque_nm(self.id, self.iq)
+    }
+    /// Bus voltage at the end of the last sub-step [V].
+    pub fn v_bus_v(&self) -> Real {
+        self.v_bus
+    }
+    /// Supply (DC) current averaged over the last period [A].
+    pub fn supply_current_a(&self) -> Real {
+        self.i_dc_avg
+    }
+    /// Input power `V_bus i_dc` averaged over the last period [W].
+    pub fn input_power_w(&self) -> Real {
+        self.p_in_avg
+    }
+    /// Mechanical output power at the shaft `Te w` [W] (before friction).
+    pub fn shaft_power_w(&self) -> Real {
+        self.torque_nm() * self.omega_m
+    }
+    /// Terminal voltages (to the bus minus rail) averaged over the last period [V].
+    pub fn terminal_voltages_avg_v(&self) -> [Real; 3] {
+        self.v_terminal_avg
+    }
+    /// Magnetic energy stored in the windings, `0.75 (Ld id^2 + Lq iq^2)` [J].
+    pub fn magnetic_energy_j(&self) -> Real {
+        0.75 * (self.motor.ld_h * self.id * self.id + self.motor.lq_h * self.iq * self.iq)
+    }
+    /// Kinetic energy `J w^2 / 2` [J].
+    pub fn kinetic_energy_j(&self) -> Real {
+        0.5 * self.motor.inertia_kg_m2 * self.omega_m * self.omega_m
+    }
+    /// Energy integrals.
+    pub fn energy(&self) -> &EnergyAccount {
+        &self.energy
+    }
+    /// Zero the energy integrals.
+    pub fn reset_energy(&mut self) {
+        self.energy = EnergyAccount::default();
+    }
+    /// Simulated time [s].
+    pub fn time_s(&self) -> f64 {
+        self.time_s
+    }
+    /// Periods simulated so far.
+    pub fn periods(&self) -> u64 {
+        self.period
+    }
+    /// Duties applied during the last period.
+    pub fn applied_duties(&self) -> [f32; 3] {
+        self.applied
+    }
+    /// True when the bridge was enabled during the last period.
+    pub fn bridge_enabled(&self) -> bool {
+        self.enabled
+    }
+
+    // ----- stepping -----
+
+    /// Simulate one PWM period and return what the controller samples at its end.
+    ///
+    /// `duties` (high-side on fraction per phase, clamped to `[0, 1]`, NaN
+    /// centred) take effect after [`BenchConfig::compute_delay_periods`];
+    /// `bridge_enabled = false` puts the bridge in high impedance at once.
+    /// `load_torque_nm` opposes positive rotation.
+    pub fn step_period(
+        &mut self,
+        duties: [f32; 3],
+        bridge_enabled: bool,
+        load_torque_nm: f32,
+    ) -> Measurements {
+        let clean = duties.map(|d| if d.is_finite() { d.clamp(0.0, 1.0) } else { 0.5 });
+        if self.cfg.compute_delay_periods == 0 {
+            self.applied = clean;
+        } else {
+            self.applied = self.pending;
+            self.pending = clean;
+        }
+        if bridge_enabled != self.enabled {
+            self.diodes = [Diode::Open; 3];
+        }
+        self.enabled = bridge_enabled;
+        self.load_nm = load_torque_nm as Real;
+
+        let n = self.cfg.substeps.max(1);
+        let t_period = self.cfg.period_s();
+        let dt = t_period / n as Real;
+        let mut e_in = 0.0;
+        let mut q_dc = 0.0;
+        let mut v_term = [0.0; 3];
+        for j in 0..n {
+            let u0 = j as Real / n as Real;
+            let u1 = (j + 1) as Real / n as Real;
+            let (de_in, dq_dc, vt) = self.substep(u0, u1, dt);
+            e_in += de_in;
+            q_dc += dq_dc;
+            for k in 0..3 {
+                v_term[k] += vt[k] / n as Real;
+            }
+        }
+        self.p_in_avg = e_in / t_period;
+        self.i_dc_avg = q_dc / t_period;
+        self.v_terminal_avg = v_term;
+        self.time_s += t_period as f64;
+        let m = self.sample();
+        self.period += 1;
+        m
+    }
+
+    /// Drive of each phase over the sub-step `[u0, u1]` (fractions of the period).
+    fn drives(&self, u0: Real, u1: Real, i_abc: [Real; 3]) -> [Drive; 3] {
+        let mut out = [Drive::Open; 3];
+        let delta = self.cfg.dead_time_s * self.cfg.pwm_frequency_hz;
+        for k in 0..3 {
+            out[k] = if self.enabled {
+                let (a, b) = match self.cfg.pwm_mode {
+                    PwmMode::Averaged => (0.0, 1.0),
+                    PwmMode::CarrierCompared => (u0, u1),
+                };
+                let (high, low) = phase_fractions(self.applied[k] as Real, delta, a, b);
+                let dead = (b - a) - high - low;
+                let dead_high = if i_abc[k] > 0.0 {
+                    0.0
+                } else if i_abc[k] < 0.0 {
+                    dead
+                } else {
+                    0.5 * dead
+                };
+                Drive::Bus((high + dead_high) / (b - a))
+            } else {
+                match self.diodes[k] {
+                    Diode::Open => Drive::Open,
+                    Diode::High => Drive::Bus(1.0),
+                    Diode::Low => Drive::Bus(0.0),
+                }
+            };
+        }
+        if let Some(p) = self.faults.disconnected_phase {
+            out[p.index()] = Drive::Open;
+        }
+        out
+    }
+
+    /// One RK4 sub-step. Returns (supply energy, supply charge, terminal voltages).
+    fn substep(&mut self, u0: Real, u1: Real, dt: Real) -> (Real, Real, [Real; 3]) {
+        let i_abc = self.phase_currents_a();
+        if !self.enabled {
+            self.update_diodes(i_abc);
+        }
+        let drives = self.drives(u0, u1, i_abc);
+        let open = drives.iter().filter(|d| matches!(d, Drive::Open)).count();
+
+        let x0 = [self.id, self.iq, self.omega_m, self.theta_m];
+        let f = |x: [Real; 4]| self.deriv(x, &drives, open);
+        let k1 = f(x0);
+        let k2 = f(add(x0, &k1, 0.5 * dt));
+        let k3 = f(add(x0, &k2, 0.5 * dt));
+        let k4 = f(add(x0, &k3, dt));
+        let w = |a: Real, b: Real, c: Real, d: Real| (a + 2.0 * b + 2.0 * c + d) * dt / 6.0;
+        let mut id = self.id + w(k1.id, k2.id, k3.id, k4.id);
+        let mut iq = self.iq + w(k1.iq, k2.iq, k3.iq, k4.iq);
+        let mut omega = self.omega_m + w(k1.omega, k2.omega, k3.omega, k4.omega);
+        let theta = self.theta_m + w(k1.theta, k2.theta, k3.theta, k4.theta);
+        self.energy.supply_j += w(k1.p_supply, k2.p_supply, k3.p_supply, k4.p_supply);
+        self.energy.copper_j += w(k1.p_copper, k2.p_copper, k3.p_copper, k4.p_copper);
+        self.energy.shaft_j += w(k1.p_shaft, k2.p_shaft, k3.p_shaft, k4.p_shaft);
+        self.energy.friction_j += w(
+            k1.p_friction,
+            k2.p_friction,
+            k3.p_friction,
+            k4.p_friction,
+        );
+        self.energy.load_j += w(k1.p_load, k2.p_load, k3.p_load, k4.p_load);
+        self.energy.short_j += w(k1.p_short, k2.p_short, k3.p_short, k4.p_short);
+        let e_in = w(k1.p_supply, k2.p_supply, k3.p_supply, k4.p_supply);
+        let q_dc = w(k1.i_dc, k2.i_dc, k3.i_dc, k4.i_dc);
+
+        // Coulomb friction and stiction: the speed does not cross zero under friction.
+        if matches!(self.mechanics, Mechanics::Free)
+            && self.motor.coulomb_friction_nm > 0.0
+            && ((self.omega_m > 0.0 && omega < 0.0) || (self.omega_m < 0.0 && omega > 0.0))
+        {
+            let te = self.motor.torque_nm(id, iq);
+            if (te - self.load_nm).abs() <= self.motor.coulomb_friction_nm {
+                omega = 0.0;
+            }
+        }
+        let (th, turns) = real::wrap_tau(theta);
+        self.theta_m = th;
+        self.turns += turns;
+        self.omega_m = omega;
+
+        // Constraints: open phases carry no current; a diode stops at zero current.
+        let th_e = self.theta_e_rad();
+        if open >= 2 {
+            id = 0.0;
+            iq = 0.0;
+        } else {
+            let mut n_crossed = 0;
+            for k in 0..3 {
+                let (c, s) = (real::cos(th_e - PHASE_AXIS[k]), real::sin(th_e - PHASE_AXIS[k]));
+                let ik = id * c - iq * s;
+                let crossed = match (drives[k], self.enabled, self.diodes[k]) {
+                    (Drive::Open, _, _) => true,
+                    (_, false, Diode::High) => ik > 0.0,
+                    (_, false, Diode::Low) => ik < 0.0,
+                    _ => false,
+                };
+                if crossed {
+                    // Remove the phase-k component: a_k = (c, -s) in dq, |a_k| = 1.
+                    id -= ik * c;
+                    iq += ik * s;
+                    n_crossed += 1;
+                }
+            }
+            if n_crossed >= 2 {
+                id = 0.0;
+                iq = 0.0;
+            }
+        }
+        self.id = id;
+        self.iq = iq;
+
+        // Bus and terminal voltages at the end of the sub-step (for outputs).
+        let v_bus = self.bus_voltage(&drives, self.phase_currents_a());
+        self.v_bus = v_bus;
+        let mut vt = [0.0; 3];
+        for k in 0..3 {
+            vt[k] = match drives[k] {
+                Drive::Bus(h) => h * v_bus,
+                Drive::Open => self.open_terminal_voltage(k, &drives, v_bus),
+            };
+        }
+        (e_in, q_dc, vt)
+    }
+
+    /// Source voltage after the injected sag.
+    fn source_v(&self) -> Real {
+        self.cfg.bus_voltage_v - self.faults.bus_sag_v
+    }
+
+    /// Bus voltage with source resistance, given drives and phase currents.
+    fn bus_voltage(&self, drives: &[Drive; 3], i_abc: [Real; 3]) -> Real {
+        let mut i_dc = 0.0;
+        for k in 0..3 {
+            if let Drive::Bus(h) = drives[k] {
+                i_dc += h * i_abc[k];
+            }
+        }
+        let rs = self.cfg.source_resistance_ohm;
+        // A short adds (h_a - h_b)^2 V_bus / r: solve the linear equation for V_bus.
+        let g_short = match self.faults.phase_short {
+            Some(s) if s.r_ohm > 0.0 => match (drives[s.a.index()], drives[s.b.index()]) {
+                (Drive::Bus(ha), Drive::Bus(hb)) => (ha - hb) * (ha - hb) / s.r_ohm,
+                _ => 0.0,
+            },
+            _ => 0.0,
+        };
+        (self.source_v() - rs * i_dc) / (1.0 + rs * g_short)
+    }
+
+    /// Extra DC current drawn by a phase short.
+    fn short_dc_current(&self, drives: &[Drive; 3], v_bus: Real) -> Real {
+        match self.faults.phase_short {
+            Some(s) if s.r_ohm > 0.0 => match (drives[s.a.index()], drives[s.b.index()]) {
+                (Drive::Bus(ha), Drive::Bus(hb)) => (ha - hb) * (ha - hb) * v_bus / s.r_ohm,
+                _ => 0.0,
+            },
+            _ => 0.0,
+        }
+    }
+
+    /// Current in the short from leg `a` to leg `b` [A] (0 without a short).
+    fn short_current(&self, drives: &[Drive; 3], v_bus: Real) -> Real {
+        match self.faults.phase_short {
+            Some(s) if s.r_ohm > 0.0 => match (drives[s.a.index()], drives[s.b.index()]) {
+                (Drive::Bus(ha), Drive::Bus(hb)) => (ha - hb) * v_bus / s.r_ohm,
+                _ => 0.0,
+            },
+            _ => 0.0,
+        }
+    }
+
+    /// Terminal voltages seen by the motor (a short ties its two terminals).
+    fn motor_terminal_v(&self, drives: &[Drive; 3], v_bus: Real) -> [Real; 3] {
+        let mut v = [0.0; 3];
+        for k in 0..3 {
+            if let Drive::Bus(h) = drives[k] {
+                v[k] = h * v_bus;
+            }
+        }
+        if let Some(s) = self.faults.phase_short {
+            let (a, b) = (s.a.index(), s.b.index());
+            if let (Drive::Bus(_), Drive::Bus(_)) = (drives[a], drives[b]) {
+                let m = 0.5 * (v[a] + v[b]);
+                v[a] = m;
+                v[b] = m;
+            }
+        }
+        v
+    }
+
+    /// State derivative. `x = [id, iq, omega_m, theta_m]`.
+    fn deriv(&self, x: [Real; 4], drives: &[Drive; 3], open: usize) -> Deriv {
+        let m = &self.motor;
+        let [id0, iq0, omega, theta] = x;
+        let p = m.pole_pairs as Real;
+        let th_e = p * theta;
+        let we = p * omega;
+        let (id, iq) = if open >= 2 { (0.0, 0.0) } else { (id0, iq0) };
+        let mut cs = [(0.0, 0.0); 3];
+        let mut i_abc = [0.0; 3];
+        for k in 0..3 {
+            let c = real::cos(th_e - PHASE_AXIS[k]);
+            let s = real::sin(th_e - PHASE_AXIS[k]);
+            cs[k] = (c, s);
+            i_abc[k] = id * c - iq * s;
+        }
+        let v_bus = self.bus_voltage(drives, i_abc);
+        let v = self.motor_terminal_v(drives, v_bus);
+        let (mut vd, mut vq) = (0.0, 0.0);
+        for k in 0..3 {
+            if let Drive::Bus(_) = drives[k] {
+                vd += (2.0 / 3.0) * v[k] * cs[k].0;
+                vq -= (2.0 / 3.0) * v[k] * cs[k].1;
+            }
+        }
+        let mut did = (vd - m.r_ohm * id + we * m.lq_h * iq) / m.ld_h;
+        let mut diq = (vq - m.r_ohm * iq - we * m.ld_h * id - we * m.flux_linkage_wb) / m.lq_h;
+        if open >= 2 {
+            did = 0.0;
+            diq = 0.0;
+        } else if open == 1 {
+            // Solve the open phase's terminal voltage so that its current stays 0.
+            if let Some(z) = drives.iter().position(|d| matches!(d, Drive::Open)) {
+                let (c, s) = cs[z];
+                let (ad, aq) = (c, -s);
+                let (gd, gq) = (ad / m.ld_h, aq / m.lq_h);
+                let (add, adq) = (-we * s, -we * c);
+                let den = ad * gd + aq * gq;
+                let mu = -(ad * did + aq * diq + add * id + adq * iq) / den;
+                did += mu * gd;
+                diq += mu * gq;
+            }
+        }
+        let te = if open >= 2 { 0.0 } else { m.torque_nm(id, iq) };
+        let domega = match self.mechanics {
+            Mechanics::Free => {
+                let tc = if omega > 0.0 {
+                    m.coulomb_friction_nm
+                } else if omega < 0.0 {
+                    -m.coulomb_friction_nm
+                } else {
+                    // Stiction: friction cancels the net torque up to its limit.
+                    let net = te - self.load_nm;
+                    net.clamp(-m.coulomb_friction_nm, m.coulomb_friction_nm)
+                };
+                (te - m.viscous_friction_nm_s_per_rad * omega - tc - self.load_nm) / m.inertia_kg_m2
+            }
+            Mechanics::Locked | Mechanics::ConstantSpeed(_) => 0.0,
+        };
+        let mut i_dc = 0.0;
+        for k in 0..3 {
+            if let Drive::Bus(h) = drives[k] {
+                i_dc += h * i_abc[k];
+            }
+        }
+        let i_short = self.short_current(drives, v_bus);
+        let p_short = match self.faults.phase_short {
+            Some(s) => i_short * i_short * s.r_ohm,
+            None => 0.0,
+        };
+        let copper = m.r_ohm * (i_abc[0] * i_abc[0] + i_abc[1] * i_abc[1] + i_abc[2] * i_abc[2]);
+        let friction = if matches!(self.mechanics, Mechanics::Free) {
+            m.viscous_friction_nm_s_per_rad * omega * omega + m.coulomb_friction_nm * omega.abs()
+        } else {
+            0.0
+        };
+        Deriv {
+            id: did,
+            iq: diq,
+            omega: domega,
+            theta: omega,
+            // Supply power: motor legs plus the short (both fed from the bus).
+            p_supply: v_bus * (i_dc + self.short_dc_current(drives, v_bus)),
+            p_copper: copper,
+            p_shaft: te * omega,
+            p_friction: friction,
+            p_load: self.load_nm * omega,
+            p_short,
+            i_dc: i_dc + self.short_dc_current(drives, v_bus),
+        }
+    }
+
+    /// Terminal voltage of open phase `z`, from the constraint `di_z/dt = 0`
+    /// (one open phase) or the star point (all open: back-EMF about the mean).
+    fn open_terminal_voltage(&self, z: usize, drives: &[Drive; 3], v_bus: Real) -> Real {
+        let m = &self.motor;
+        let th_e = self.theta_e_rad();
+        let we = self.omega_e_rad_s();
+        let e = PHASE_AXIS.map(|phi| -we * m.flux_linkage_wb * real::sin(th_e - phi));
+        let open = drives.iter().filter(|d| matches!(d, Drive::Open)).count();
+        if open >= 2 {
+            // No current: terminals float at star point + EMF; the star point is
+            // set by the conducting phase (if any), else by the bus midpoint.
+            let v = self.motor_terminal_v(drives, v_bus);
+            let star = match drives.iter().position(|d| matches!(d, Drive::Bus(_))) {
+                Some(k) => v[k] - e[k],
+                None => 0.5 * v_bus,
+            };
+            return star + e[z];
+        }
+        // One open phase: recompute the multiplier of `deriv` at the present state.
+        let d = self.deriv([self.id, self.iq, self.omega_m, self.theta_m], drives, 0);
+        let (c, s) = (real::cos(th_e - PHASE_AXIS[z]), real::sin(th_e - PHASE_AXIS[z]));
+        let (ad, aq) = (c, -s);
+        let (gd, gq) = (ad / m.ld_h, aq / m.lq_h);
+        let (add, adq) = (-we * s, -we * c);
+        let den = ad * gd + aq * gq;
+        let mu = -(ad * d.id + aq * d.iq + add * self.id + adq * self.iq) / den;
+        // `d` was computed with the open terminal at 0 V; the open terminal adds
+        // (2/3) v_z a_z to v_dq, i.e. mu = (2/3) v_z. Zero sequence cancels, so
+        // v_z is referred to the same rail as the driven terminals.
+        let _ = v_bus;
+        1.5 * mu
+    }
+
+    /// Diode state machine for the disabled bridge.
+    fn update_diodes(&mut self, i_abc: [Real; 3]) {
+        for k in 0..3 {
+            self.diodes[k] = if i_abc[k] > I_ZERO_A {
+                Diode::Low
+            } else if i_abc[k] < -I_ZERO_A {
+                Diode::High
+            } else {
+                Diode::Open
+            };
+        }
+        if let Some(p) = self.faults.disconnected_phase {
+            self.diodes[p.index()] = Diode::Open;
+        }
+        let open = self.diodes.iter().filter(|d| **d == Diode::Open).count();
+        let v_bus = self.source_v();
+        let drives = self.drives(0.0, 1.0, i_abc);
+        if open == 3 {
+            // All open: conduction starts when the line-to-line EMF exceeds the bus.
+            let th_e = self.theta_e_rad();
+            let we = self.omega_e_rad_s();
+            let e = PHASE_AXIS.map(|phi| -we * self.motor.flux_linkage_wb * real::sin(th_e - phi));
+            let (mut hi, mut lo) = (0, 0);
+            for k in 0..3 {
+                if e[k] > e[hi] {
+                    hi = k;
+                }
+                if e[k] < e[lo] {
+                    lo = k;
+                }
+            }
+            let disconnected = self.faults.disconnected_phase.map(Phase::index);
+            if e[hi] - e[lo] > v_bus && Some(hi) != disconnected && Some(lo) != disconnected {
+                self.diodes[hi] = Diode::High;
+                self.diodes[lo] = Diode::Low;
+            }
+        } else if open == 1 {
+            if let Some(z) = self.diodes.iter().position(|d| *d == Diode::Open) {
+                if Some(z) != self.faults.disconnected_phase.map(Phase::index) {
+                    let vz = self.open_terminal_voltage(z, &drives, v_bus);
+                    if vz > v_bus {
+                        self.diodes[z] = Diode::High;
+                    } else if vz < 0.0 {
+                        self.diodes[z] = Diode::Low;
+                    }
+                }
+            }
+        }
+    }
+
+    /// What the ADCs and the encoder read now.
+    fn sample(&mut self) -> Measurements {
+        let s = self.cfg.sensors;
+        let i_abc = self.phase_currents_a();
+        let drives = self.drives(0.0, 1.0, i_abc);
+        let i_short = self.short_current(&drives, self.v_bus);
+        let mut legs = i_abc;
+        if let Some(sh) = self.faults.phase_short {
+            legs[sh.a.index()] += i_short;
+            legs[sh.b.index()] -= i_short;
+        }
+        let levels = (1u64 << s.adc_bits.min(31)) as Real;
+        let lsb_i = 2.0 * s.current_full_scale_a / levels;
+        let mut read = [0.0f32; 3];
+        for k in 0..3 {
+            let raw = legs[k] + s.current_offset_a[k] + self.faults.current_offset_error_a[k];
+            let sign = if self.faults.current_reversed.map(Phase::index) == Some(k) {
+                -1.0
+            } else {
+                1.0
+            };
+            let noise = s.current_noise_lsb_rms * self.rng.gaussian() as Real;
+            let counts = real::floor(sign * raw / lsb_i + levels / 2.0 + noise + 0.5)
+                .clamp(0.0, levels - 1.0);
+            read[k] = ((counts - levels / 2.0) * lsb_i) as f32;
+        }
+        if let Some(p) = self.faults.nan_current {
+            read[p.index()] = f32::NAN;
+        }
+        let currents = match s.shunts {
+            Shunts::Two => PhaseCurrents::TwoPhase {
+                a_a: read[0],
+                b_a: read[1],
+            },
+            Shunts::Three => PhaseCurrents::ThreePhase(Abc::new(read[0], read[1], read[2])),
+        };
+
+        // Encoder.
+        let cpr = s.encoder_counts_per_rev.max(1);
+        let dir = if self.faults.encoder_reversed { -1.0 } else { 1.0 };
+        let turns = (dir * self.theta_m - s.encoder_offset_rad) / TAU;
+        let frac = turns - real::floor(turns);
+        let mut counts = (real::floor(frac * cpr as Real) as i64).rem_euclid(cpr as i64);
+        match self.faults.encoder {
+            EncoderFault::None => {}
+            EncoderFault::Stuck => counts = self.last_encoder_counts as i64,
+            EncoderFault::Jump(j) => counts = (counts + j as i64).rem_euclid(cpr as i64),
+        }
+        self.last_encoder_counts = counts as u32;
+        let bits = ((counts as u128) << 32) / cpr as u128;
+        let angle = MechanicalAngle::from_bits(bits as u32);
+
+        // Bus voltage.
+        let lsb_v = s.bus_full_scale_v / levels;
+        let noise = s.bus_noise_lsb_rms * self.rng.gaussian() as Real;
+        let vc = real::floor(self.v_bus / lsb_v + noise + 0.5).clamp(0.0, levels - 1.0);
+
+        Measurements {
+            currents,
+            angle,
+            v_bus_v: (vc * lsb_v) as f32,
+            time_s: self.time_s,
+            period: self.period,
+        }
+    }
+}
+
+fn add(x: [Real; 4], d: &Deriv, h: Real) -> [Real; 4] {
+    [
+        x[0] + h * d.id,
+        x[1] + h * d.iq,
+        x[2] + h * d.omega,
+        x[3] + h * d.theta,
+    ]
+}
+
+/// Fractions of the window `[u0, u1]` (fractions of the period) during which
+/// a phase with duty `d` and dead time `delta` (fraction of the period) has
+/// its high side on and its low side on; the rest is dead time.
+///
+/// Centre-aligned: the ideal high pulse is `[0.5 - d/2, 0.5 + d/2]`; each
+/// rising edge (high side at the pulse start, low side at its end) is delayed
+/// by `delta`.
+pub fn phase_fractions(d: Real, delta: Real, u0: Real, u1: Real) -> (Real, Real) {
+    let overlap = |a: Real, b: Real| -> Real {
+        let lo = if a > u0 { a } else { u0 };
+        let hi = if b < u1 { b } else { u1 };
+        if hi > lo {
+            hi - lo
+        } else {
+            0.0
+        }
+    };
+    if d >= 1.0 {
+        return (u1 - u0, 0.0);
+    }
+    if d <= 0.0 {
+        return (0.0, u1 - u0);
+    }
+    let on = 0.5 - 0.5 * d;
+    let off = 0.5 + 0.5 * d;
+    let high = overlap(on + delta, off);
+    let low = overlap(0.0, on) + overlap(off + delta, 1.0);
+    (high, low)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fractions_sum_and_dead_time() {
+        let (h, l) = phase_fractions(0.3, 0.0, 0.0, 1.0);
+        assert!((h - 0.3).abs() < 1e-12 && (l - 0.7).abs() < 1e-12);
+        let (h, l) = phase_fractions(0.3, 0.01, 0.0, 1.0);
+        assert!((h - 0.29).abs() < 1e-12 && (l - 0.69).abs() < 1e-12);
+        // Windows add up to the whole period.
+        let mut hs = 0.0;
+        for j in 0..16 {
+            hs += phase_fractions(0.37, 0.01, j as Real / 16.0, (j + 1) as Real / 16.0).0;
+        }
+        assert!((hs - 0.36).abs() < 1e-12);
+    }
+
+    #[test]
+    fn validate_rejects_negative_resistance() {
+        let mut m = MotorParams::example();
+        assert!(m.validate().is_ok());
+        m.r_ohm = -1.0;
+        assert_eq!(m.validate(), Err(ParamError::NotPositive("r_ohm")));
+    }
+}
