@@ -121,6 +121,20 @@ macro_rules! angle_type {
     };
 }
 
+#[cfg(feature = "defmt")]
+impl defmt::Format for ElectricalAngle {
+    fn format(&self, f: defmt::Formatter) {
+        defmt::write!(f, "{=f32} deg(e)", self.to_degrees())
+    }
+}
+
+#[cfg(feature = "defmt")]
+impl defmt::Format for MechanicalAngle {
+    fn format(&self, f: defmt::Formatter) {
+        defmt::write!(f, "{=f32} deg(m)", self.to_degrees())
+    }
+}
+
 angle_type!(
     /// Electrical angle `theta_e` of the rotor d axis, measured from the
     /// phase-A axis, as a wrapping fraction of one electrical turn.

@@ -36,6 +36,7 @@
 )]
 
 pub mod angle;
+pub mod control;
 pub mod frames;
 pub mod hal;
 pub mod pi;

@@ -124,7 +124,7 @@ impl Pi {
     /// limits (or 0 when the limits themselves are unusable).
     #[inline]
     pub fn step_error(&mut self, error: f32, lo: f32, hi: f32) -> f32 {
-        if !(lo <= hi) || !lo.is_finite() || !hi.is_finite() {
+        if !lo.is_finite() || !hi.is_finite() || lo > hi {
             self.state.saturated = true;
             self.state.output = 0.0;
             return 0.0;

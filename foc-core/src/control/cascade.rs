@@ -1,0 +1,192 @@
+//! The whole cascade stepped in one place, in the firmware's order.
+//!
+//! The firmware runs the three stages as separate prioritised tasks; this
+//! struct runs the very same stages in the same order for the simulator,
+//! the SIL runner and tests: every period the current stage, then (every N)
+//! the speed stage, then (every M) the position stage, each slower stage's
+//! output being used from the next period on, exactly as when the current
+//! task pends the lower-priority tasks and returns.
+
+use super::current::CurrentLoopConfig;
+use super::estimator::AngleTrackerConfig;
+use super::position::PositionLoopConfig;
+use super::speed::SpeedLoopConfig;
+use super::stage::{
+    AngleCalibration, CurrentStage, CurrentStageConfig, PositionStage, Sample, SpeedStage,
+    TimeoutReaction,
+};
+use super::supervisor::{Fault, SupervisorConfig};
+use super::{
+    BridgeCommand, Command, CommandError, CommandSlot, Feedback, Limits, MotorParams, Rates,
+};
+use crate::angle::ElectricalAngle;
+
+/// Configuration of the whole cascade.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CascadeConfig {
+    /// Loop rates.
+    pub rates: Rates,
+    /// Current stage (current loop, tracker, supervisor, limits, angle).
+    pub current: CurrentStageConfig,
+    /// Speed loop.
+    pub speed: SpeedLoopConfig,
+    /// Position loop.
+    pub position: PositionLoopConfig,
+}
+
+impl CascadeConfig {
+    /// Reasonable defaults for a motor: source tuning of the current loop
+    /// (technical optimum), speed loop at about 1/20 of the current-loop
+    /// bandwidth for an assumed small inertia, position loop a fifth of that,
+    /// supervisor at 1.5x the current limit. `angle` is assumed aligned
+    /// (zero offset, not reversed): calibrate before closing the loop.
+    pub fn for_motor(motor: MotorParams, pwm_frequency_hz: f32, max_current_a: f32) -> Self {
+        Self::for_motor_with_inertia(motor, pwm_frequency_hz, max_current_a, 1e-5)
+    }
+
+    /// As [`Self::for_motor`] with the rotor (plus load) inertia [kg m^2].
+    pub fn for_motor_with_inertia(
+        motor: MotorParams,
+        pwm_frequency_hz: f32,
+        max_current_a: f32,
+        inertia_kg_m2: f32,
+    ) -> Self {
+        let rates = Rates::for_pwm(pwm_frequency_hz);
+        let kt = motor.torque_constant_nm_per_a();
+        let speed_bw = 2.0 * core::f32::consts::PI * 20.0;
+        let max_velocity = 1.0e4;
+        Self {
+            rates,
+            current: CurrentStageConfig {
+                current: CurrentLoopConfig::technical_optimum(motor, pwm_frequency_hz),
+                tracker: AngleTrackerConfig::with_bandwidth(
+                    2.0 * core::f32::consts::PI * 80.0,
+                    rates.current_ts_s(),
+                ),
+                supervisor: SupervisorConfig {
+                    max_phase_current_a: 1.5 * max_current_a,
+                    max_vector_current_a: 1.5 * max_current_a,
+                    ..SupervisorConfig::default()
+                },
+                limits: Limits {
+                    max_current_a,
+                    max_velocity_rad_s: max_velocity,
+                    min_position_rad: -1.0e5,
+                    max_position_rad: 1.0e5,
+                    max_open_loop_voltage_v: 60.0,
+                    max_open_loop_omega_e_rad_s: 1.0e4,
+                },
+                angle: AngleCalibration {
+                    pole_pairs: motor.pole_pairs,
+                    zero_offset: ElectricalAngle::ZERO,
+                    reversed: false,
+                },
+                command_timeout_periods: 0,
+                timeout_reaction: TimeoutReaction::Disable,
+            },
+            speed: SpeedLoopConfig::from_bandwidth(
+                inertia_kg_m2,
+                kt,
+                speed_bw,
+                rates.speed_ts_s(),
+                max_current_a,
+            ),
+            position: PositionLoopConfig {
+                ts_s: rates.position_ts_s(),
+                kp_per_s: speed_bw * 0.25,
+                max_velocity_rad_s: 100.0,
+                max_acceleration_rad_s2: 1000.0,
+            },
+        }
+    }
+}
+
+/// All three stages and their rate dividers.
+#[derive(Clone, Copy, Debug)]
+pub struct Cascade {
+    config: CascadeConfig,
+    /// Current stage.
+    pub current: CurrentStage,
+    /// Speed stage.
+    pub speed: SpeedStage,
+    /// Position stage.
+    pub position: PositionStage,
+    slot: CommandSlot,
+    tick: u32,
+    iq_ref_a: f32,
+    w_ref_rad_s: f32,
+    feedback: Feedback,
+}
+
+impl Cascade {
+    /// New cascade, disabled.
+    pub fn new(config: CascadeConfig) -> Self {
+        Self {
+            config,
+            current: CurrentStage::new(config.current),
+            speed: SpeedStage::new(config.speed),
+            position: PositionStage::new(config.position),
+            slot: CommandSlot::INIT,
+            tick: 0,
+            iq_ref_a: 0.0,
+            w_ref_rad_s: 0.0,
+            feedback: Feedback::INIT,
+        }
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &CascadeConfig {
+        &self.config
+    }
+
+    /// Post a command (validated now; the current stage re-checks it).
+    pub fn command(&mut self, cmd: Command) -> Result<(), CommandError> {
+        if self.current.supervisor().is_faulted() && cmd != Command::Disable {
+            return Err(CommandError::Faulted);
+        }
+        cmd.validate(&self.current.config().limits)?;
+        self.slot.post(cmd);
+        Ok(())
+    }
+
+    /// Request a fault clear (takes effect at the next step).
+    pub fn clear_faults(&mut self) {
+        self.slot.request_clear();
+    }
+
+    /// Latch a fault found outside the loops (e.g. overrun).
+    pub fn report_fault(&mut self, f: Fault) {
+        self.current.report_fault(f);
+    }
+
+    /// The feedback of the last step.
+    pub fn feedback(&self) -> &Feedback {
+        &self.feedback
+    }
+
+    /// The q-current reference from the speed stage [A].
+    pub fn iq_ref_a(&self) -> f32 {
+        self.iq_ref_a
+    }
+
+    /// The velocity reference from the position stage [rad/s].
+    pub fn w_ref_rad_s(&self) -> f32 {
+        self.w_ref_rad_s
+    }
+
+    /// One PWM period.
+    pub fn step(&mut self, sample: &Sample) -> BridgeCommand {
+        let (bridge, fb) = self.current.step(&self.slot, self.iq_ref_a, sample);
+        self.tick = self.tick.wrapping_add(1);
+        let n = self.config.rates.speed_divider.max(1) as u32;
+        let m = self.config.rates.position_divider.max(1) as u32;
+        if self.tick % n == 0 {
+            self.iq_ref_a = self.speed.step(&fb, self.w_ref_rad_s);
+        }
+        if self.tick % m == 0 {
+            self.w_ref_rad_s = self.position.step(&fb);
+        }
+        self.feedback = fb;
+        bridge
+    }
+}

@@ -1,0 +1,406 @@
+//! The current loop (source sections 4-8, 10): measured phase currents and
+//! the electrical angle in, three PWM duties out, every PWM period.
+//!
+//! ```text
+//! i_abc --Clarke--> i_ab --Park(theta_e)--> i_dq
+//! e_d = id_ref - id,  e_q = iq_ref - iq                 (source section 6)
+//! v_d = PI_d(e_d) + ff_d,  ff_d = -w_e Lq iq            (decoupling, optional)
+//! v_q = PI_q(e_q) + ff_q,  ff_q =  w_e (Ld id + psi)
+//! |v_dq| <= m_max * Udc / sqrt(3)   circle, d axis first, PI limits follow it
+//! v_dq --inverse Park--> v_ab --SVPWM(Udc)--> duties    (source sections 7, 8)
+//! ```
+//!
+//! The voltage limit is a circle (not a square) of the *measured* bus
+//! voltage, so loop gains do not change with the bus. The d axis gets the
+//! voltage it needs first (flux control), the q axis the rest. Each PI's
+//! integrator is bounded by the same per-sample limit, which is the
+//! anti-windup informed by the voltage circle.
+//!
+//! ```
+//! use foc_core::control::current::{CurrentLoop, CurrentLoopConfig, CurrentLoopInput};
+//! use foc_core::control::MotorParams;
+//! use foc_core::{angle::ElectricalAngle, frames::{Abc, Dq}};
+//! let motor = MotorParams { pole_pairs: 7, r_ohm: 0.1, ld_h: 50e-6, lq_h: 50e-6, flux_linkage_wb: 0.005 };
+//! let mut cl = CurrentLoop::new(CurrentLoopConfig::technical_optimum(motor, 20_000.0));
+//! let out = cl.step(&CurrentLoopInput {
+//!     i_abc_a: Abc::new(0.0, 0.0, 0.0),
+//!     theta_e: ElectricalAngle::ZERO,
+//!     omega_e_rad_s: 0.0,
+//!     v_bus_v: 24.0,
+//!     i_dq_ref_a: Dq::new(0.0, 1.0),
+//! });
+//! assert!(out.v_dq_v.q > 0.0); // positive q error -> positive q voltage
+//! assert!(out.duties.iter().all(|d| (0.0..=1.0).contains(d)));
+//! ```
+
+use super::MotorParams;
+use crate::angle::ElectricalAngle;
+use crate::frames::{Abc, AlphaBeta, Dq};
+use crate::pi::{AntiWindup, Pi, PiConfig};
+use crate::svpwm::{self, SvpwmOutput};
+use crate::tuning::{self, CurrentPiGains};
+use crate::{sqrtf, transforms, trig, FRAC_1_SQRT_3};
+
+/// Current-loop configuration.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct CurrentLoopConfig {
+    /// Loop period = PWM period [s].
+    pub ts_s: f32,
+    /// d-axis PI gains.
+    pub d_gains: CurrentPiGains,
+    /// q-axis PI gains.
+    pub q_gains: CurrentPiGains,
+    /// Motor parameters (for decoupling feed-forward).
+    pub motor: MotorParams,
+    /// Add the decoupling / back-EMF feed-forward terms.
+    pub decoupling: bool,
+    /// Fraction of the linear range `Udc/sqrt(3)` the dq voltage may use (0..=1).
+    pub max_modulation: f32,
+    /// Anti-windup of both PIs.
+    pub anti_windup: AntiWindup,
+}
+
+impl CurrentLoopConfig {
+    /// The source's tuning (section 11): technical optimum for both axes at
+    /// the given PWM frequency, decoupling on, 95 % of the linear range.
+    pub fn technical_optimum(motor: MotorParams, pwm_frequency_hz: f32) -> Self {
+        let ts_s = 1.0 / pwm_frequency_hz;
+        Self {
+            ts_s,
+            d_gains: tuning::technical_optimum(motor.ld_h, motor.r_ohm, ts_s),
+            q_gains: tuning::technical_optimum(motor.lq_h, motor.r_ohm, ts_s),
+            motor,
+            decoupling: true,
+            max_modulation: 0.95,
+            anti_windup: AntiWindup::Clamp,
+        }
+    }
+}
+
+/// Inputs of one current-loop step.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CurrentLoopInput {
+    /// Phase currents [A].
+    pub i_abc_a: Abc,
+    /// Electrical angle of the rotor d axis.
+    pub theta_e: ElectricalAngle,
+    /// Electrical angular velocity [rad/s] (for decoupling).
+    pub omega_e_rad_s: f32,
+    /// Measured bus voltage [V].
+    pub v_bus_v: f32,
+    /// Current reference [A].
+    pub i_dq_ref_a: Dq,
+}
+
+/// Outputs of one current-loop step.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CurrentLoopOutput {
+    /// Duties for phases A, B, C in `[0, 1]`.
+    pub duties: [f32; 3],
+    /// Measured currents in the dq frame [A].
+    pub i_dq_a: Dq,
+    /// Commanded dq voltage [V] (after the circle limit).
+    pub v_dq_v: Dq,
+    /// Commanded alpha/beta voltage [V].
+    pub v_ab_v: AlphaBeta,
+    /// Modulator report (sector, times, saturation, validity).
+    pub svpwm: SvpwmOutput,
+    /// True when the voltage circle limited the output.
+    pub voltage_limited: bool,
+    /// True when an input was unusable: duties are centred, state untouched.
+    pub invalid: bool,
+}
+
+/// The current loop: two PIs plus the frame transforms and modulator.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CurrentLoop {
+    config: CurrentLoopConfig,
+    pi_d: Pi,
+    pi_q: Pi,
+}
+
+fn pi_config(g: CurrentPiGains, c: &CurrentLoopConfig) -> PiConfig {
+    PiConfig {
+        kp: g.kp_v_per_a,
+        ki_per_s: g.ki_v_per_a_s,
+        ts_s: c.ts_s,
+        out_min: -1.0e9,
+        out_max: 1.0e9,
+        anti_windup: c.anti_windup,
+    }
+}
+
+impl CurrentLoop {
+    /// New loop with zero integrators.
+    pub fn new(config: CurrentLoopConfig) -> Self {
+        Self {
+            pi_d: Pi::new(pi_config(config.d_gains, &config)),
+            pi_q: Pi::new(pi_config(config.q_gains, &config)),
+            config,
+        }
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &CurrentLoopConfig {
+        &self.config
+    }
+
+    /// Replace the configuration (gains), keeping the integrators.
+    pub fn set_config(&mut self, config: CurrentLoopConfig) {
+        self.pi_d.config = pi_config(config.d_gains, &config);
+        self.pi_q.config = pi_config(config.q_gains, &config);
+        self.config = config;
+    }
+
+    /// Zero both integrators.
+    pub fn reset(&mut self) {
+        self.pi_d.reset();
+        self.pi_q.reset();
+    }
+
+    /// Bumpless entry from an open-loop voltage: preload the integrators so
+    /// that zero current error reproduces `v_dq_v` (less the feed-forward the
+    /// next step adds at `omega_e_rad_s` and currents `i_dq_a`).
+    pub fn preload(&mut self, v_dq_v: Dq, i_dq_a: Dq, omega_e_rad_s: f32) {
+        let ff = self.feed_forward(i_dq_a, omega_e_rad_s);
+        self.pi_d.preload(v_dq_v.d - ff.d);
+        self.pi_q.preload(v_dq_v.q - ff.q);
+    }
+
+    /// Integrator values [V] (d, q).
+    pub fn integrators(&self) -> Dq {
+        Dq::new(self.pi_d.state.integral, self.pi_q.state.integral)
+    }
+
+    #[inline]
+    fn feed_forward(&self, i: Dq, omega_e: f32) -> Dq {
+        if self.config.decoupling {
+            let m = &self.config.motor;
+            Dq::new(
+                -omega_e * m.lq_h * i.q,
+                omega_e * (m.ld_h * i.d + m.flux_linkage_wb),
+            )
+        } else {
+            Dq::ZERO
+        }
+    }
+
+    /// One step. Non-finite inputs or a bus at or below zero give centred
+    /// duties with `invalid = true` and leave the integrators untouched.
+    #[inline]
+    pub fn step(&mut self, inp: &CurrentLoopInput) -> CurrentLoopOutput {
+        let blank = self.step_invalid_or(inp);
+        if blank.invalid {
+            return blank;
+        }
+        let (sin, cos) = trig::sin_cos(inp.theta_e);
+        let i_dq = transforms::park(transforms::clarke(inp.i_abc_a), sin, cos);
+        let ff = self.feed_forward(i_dq, inp.omega_e_rad_s);
+        let v_max = self.config.max_modulation * inp.v_bus_v * FRAC_1_SQRT_3;
+
+        // d axis first: total v_d = u_d + ff_d within [-v_max, v_max].
+        let u_d = self
+            .pi_d
+            .step_error(inp.i_dq_ref_a.d - i_dq.d, -v_max - ff.d, v_max - ff.d);
+        let v_d = u_d + ff.d;
+        // q axis: what is left of the circle.
+        let rem = v_max * v_max - v_d * v_d;
+        let v_q_max = if rem > 0.0 { sqrtf(rem) } else { 0.0 };
+        let u_q = self
+            .pi_q
+            .step_error(inp.i_dq_ref_a.q - i_dq.q, -v_q_max - ff.q, v_q_max - ff.q);
+        let v_dq = Dq::new(v_d, u_q + ff.q);
+        let v_ab = transforms::inverse_park(v_dq, sin, cos);
+        let sv = svpwm::svpwm(v_ab, inp.v_bus_v);
+        CurrentLoopOutput {
+            duties: sv.duties,
+            i_dq_a: i_dq,
+            v_dq_v: v_dq,
+            v_ab_v: v_ab,
+            svpwm: sv,
+            voltage_limited: self.pi_d.state.saturated || self.pi_q.state.saturated,
+            invalid: sv.invalid,
+        }
+    }
+}
+
+impl CurrentLoop {
+    /// Open-loop voltage step (alignment, bring-up): applies `v_dq_v` at
+    /// `theta_e`, limited to the same voltage circle, and reports the
+    /// measured dq currents. The PIs are not stepped.
+    pub fn step_voltage(
+        &mut self,
+        i_abc_a: Abc,
+        theta_e: ElectricalAngle,
+        v_dq_v: Dq,
+        v_bus_v: f32,
+    ) -> CurrentLoopOutput {
+        let mut inp = CurrentLoopInput {
+            i_abc_a,
+            theta_e,
+            omega_e_rad_s: 0.0,
+            v_bus_v,
+            i_dq_ref_a: Dq::ZERO,
+        };
+        if !v_dq_v.is_finite() {
+            inp.v_bus_v = f32::NAN; // force the invalid, centred output
+        }
+        let mut out = self.step_invalid_or(&inp);
+        if out.invalid {
+            return out;
+        }
+        let (sin, cos) = trig::sin_cos(theta_e);
+        let v_max = self.config.max_modulation * v_bus_v * FRAC_1_SQRT_3;
+        let mag = v_dq_v.magnitude();
+        let (v_dq, limited) = if mag > v_max {
+            let k = v_max / mag;
+            (Dq::new(v_dq_v.d * k, v_dq_v.q * k), true)
+        } else {
+            (v_dq_v, false)
+        };
+        let v_ab = transforms::inverse_park(v_dq, sin, cos);
+        let sv = svpwm::svpwm(v_ab, v_bus_v);
+        out.i_dq_a = transforms::park(transforms::clarke(i_abc_a), sin, cos);
+        out.v_dq_v = v_dq;
+        out.v_ab_v = v_ab;
+        out.duties = sv.duties;
+        out.svpwm = sv;
+        out.voltage_limited = limited;
+        out.invalid = sv.invalid;
+        out
+    }
+
+    /// The invalid (centred) output when `inp` is unusable, else a blank
+    /// valid output to fill in.
+    fn step_invalid_or(&self, inp: &CurrentLoopInput) -> CurrentLoopOutput {
+        let usable = inp.i_abc_a.is_finite()
+            && inp.i_dq_ref_a.is_finite()
+            && inp.omega_e_rad_s.is_finite()
+            && inp.v_bus_v.is_finite()
+            && inp.v_bus_v > 0.0;
+        CurrentLoopOutput {
+            duties: [0.5; 3],
+            i_dq_a: Dq::ZERO,
+            v_dq_v: Dq::ZERO,
+            v_ab_v: AlphaBeta::default(),
+            svpwm: SvpwmOutput::NEUTRAL_INVALID,
+            voltage_limited: false,
+            invalid: !usable,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn motor() -> MotorParams {
+        MotorParams {
+            pole_pairs: 7,
+            r_ohm: 0.2,
+            ld_h: 100e-6,
+            lq_h: 120e-6,
+            flux_linkage_wb: 0.01,
+        }
+    }
+
+    fn input(iq_ref: f32) -> CurrentLoopInput {
+        CurrentLoopInput {
+            i_abc_a: Abc::default(),
+            theta_e: ElectricalAngle::from_degrees(33.0),
+            omega_e_rad_s: 0.0,
+            v_bus_v: 24.0,
+            i_dq_ref_a: Dq::new(0.0, iq_ref),
+        }
+    }
+
+    #[test]
+    fn voltage_stays_inside_circle_and_d_has_priority() {
+        let mut cl = CurrentLoop::new(CurrentLoopConfig::technical_optimum(motor(), 20e3));
+        let mut inp = input(1000.0); // absurd reference: saturate
+        inp.i_dq_ref_a.d = -1000.0;
+        let v_max = 0.95 * 24.0 * FRAC_1_SQRT_3;
+        for _ in 0..100 {
+            let o = cl.step(&inp);
+            assert!(o.v_dq_v.magnitude() <= v_max * 1.0001);
+            assert!(o.voltage_limited);
+            assert!(!o.svpwm.saturated, "circle is inside the hexagon");
+        }
+        // d demanded the full circle: it gets it, q gets nothing.
+        let o = cl.step(&inp);
+        assert!((o.v_dq_v.d + v_max).abs() < 1e-3);
+        assert!(o.v_dq_v.q.abs() < 1e-2);
+        // Integrators bounded by the circle (no windup).
+        assert!(cl.integrators().d.abs() <= v_max * 1.0001);
+    }
+
+    #[test]
+    fn recovers_quickly_after_saturation() {
+        let mut cl = CurrentLoop::new(CurrentLoopConfig::technical_optimum(motor(), 20e3));
+        for _ in 0..10_000 {
+            cl.step(&input(1000.0));
+        }
+        // Error reverses: the q voltage must go negative on the next step
+        // (a wound-up integrator would keep it positive for many steps).
+        let o = cl.step(&input(-1.0));
+        assert!(o.v_dq_v.q < 2.0, "integrator wound up: {}", o.v_dq_v.q);
+        let mut neg = false;
+        for _ in 0..3 {
+            neg |= cl.step(&input(-1.0)).v_dq_v.q < 0.0;
+        }
+        assert!(neg);
+    }
+
+    #[test]
+    fn nan_input_gives_centred_duties_and_keeps_state() {
+        let mut cl = CurrentLoop::new(CurrentLoopConfig::technical_optimum(motor(), 20e3));
+        cl.step(&input(1.0));
+        let before = cl.integrators();
+        for bad in [
+            {
+                let mut i = input(1.0);
+                i.i_abc_a.a = f32::NAN;
+                i
+            },
+            {
+                let mut i = input(1.0);
+                i.v_bus_v = 0.0;
+                i
+            },
+            {
+                let mut i = input(f32::INFINITY);
+                i.omega_e_rad_s = 1.0;
+                i
+            },
+        ] {
+            let o = cl.step(&bad);
+            assert!(o.invalid);
+            assert_eq!(o.duties, [0.5; 3]);
+            assert_eq!(cl.integrators(), before);
+        }
+    }
+
+    #[test]
+    fn decoupling_feed_forward_at_speed() {
+        // At speed with zero current and zero error, v_q equals w psi.
+        let m = motor();
+        let mut cl = CurrentLoop::new(CurrentLoopConfig::technical_optimum(m, 20e3));
+        let mut inp = input(0.0);
+        inp.omega_e_rad_s = 500.0;
+        let o = cl.step(&inp);
+        assert!((o.v_dq_v.q - 500.0 * m.flux_linkage_wb).abs() < 1e-4);
+        assert!(o.v_dq_v.d.abs() < 1e-6);
+    }
+
+    #[test]
+    fn bumpless_preload_reproduces_voltage() {
+        let mut cl = CurrentLoop::new(CurrentLoopConfig::technical_optimum(motor(), 20e3));
+        let v = Dq::new(1.5, -0.5);
+        cl.preload(v, Dq::ZERO, 0.0);
+        let mut inp = input(0.0);
+        inp.i_dq_ref_a = Dq::ZERO;
+        let o = cl.step(&inp);
+        assert!((o.v_dq_v.d - v.d).abs() < 1e-5 && (o.v_dq_v.q - v.q).abs() < 1e-5);
+    }
+}

@@ -1,0 +1,377 @@
+//! The control cascade (source section 10): current loop (inner, every PWM
+//! period) <- speed loop (every N periods) <- position loop (every M periods).
+//!
+//! Each loop is a plain struct with a `Config`, a state, `reset()` and a
+//! `step`; none knows who calls it. Three *stages* add the mode logic:
+//!
+//! | stage | runs | owns | reads | writes |
+//! |---|---|---|---|---|
+//! | [`stage::CurrentStage`] | every PWM period (highest priority) | current loop, angle tracker, fault supervisor | [`CommandSlot`], `iq_ref` from the speed stage, [`stage::Sample`] | [`BridgeCommand`], [`Feedback`] |
+//! | [`stage::SpeedStage`] | every N periods | speed loop | [`Feedback`], `w_ref` from the position stage | `iq_ref` |
+//! | [`stage::PositionStage`] | every M periods | position loop + trajectory | [`Feedback`] | `w_ref` |
+//!
+//! Everything that crosses between stages is a small `Copy` value, so the
+//! firmware can run the stages as separate prioritised tasks sharing those
+//! values, and the simulator can step them deterministically ([`cascade::Cascade`]
+//! does exactly what the firmware does, in the same order: current stage,
+//! then the speed stage, then the position stage).
+//!
+//! The current stage is the single decider: it accepts or rejects commands,
+//! applies the command timeout, latches faults and publishes the *active*
+//! command and mode in [`Feedback`]; the slower stages follow it and make
+//! every mode change bumpless (their integrators are preloaded from what the
+//! faster loop is doing).
+//!
+//! # Wiring a board
+//!
+//! ```
+//! use foc_core::control::{cascade::{Cascade, CascadeConfig}, Command, MotorParams, drive};
+//! # use foc_core::{hal::*, angle::MechanicalAngle, frames::Abc};
+//! # struct Pwm(bool); struct Cs; struct Enc; struct Bus;
+//! # impl PwmDriver for Pwm { type Error = (); fn period_counts(&self) -> u16 { 4200 }
+//! #   fn set_compare(&mut self, _: [u16; 3]) -> Result<(), ()> { Ok(()) }
+//! #   fn enable(&mut self) -> Result<(), ()> { self.0 = true; Ok(()) } fn disable(&mut self) { self.0 = false }
+//! #   fn is_enabled(&self) -> bool { self.0 } }
+//! # impl CurrentSense for Cs { type Error = (); fn read_currents(&mut self) -> Result<PhaseCurrents, ()> { Ok(PhaseCurrents::TwoPhase { a_a: 0.0, b_a: 0.0 }) }
+//! #   fn offsets_a(&self) -> Abc { Abc::default() } fn set_offsets_a(&mut self, _: Abc) {} }
+//! # impl AngleSensor for Enc { type Error = (); fn read_angle(&mut self) -> Result<MechanicalAngle, ()> { Ok(MechanicalAngle::ZERO) } }
+//! # impl BusVoltage for Bus { type Error = (); fn read_bus_voltage_v(&mut self) -> Result<f32, ()> { Ok(24.0) } }
+//! let (mut pwm, mut cs, mut enc, mut bus) = (Pwm(false), Cs, Enc, Bus);
+//! let motor = MotorParams { pole_pairs: 7, r_ohm: 0.1, ld_h: 40e-6, lq_h: 40e-6, flux_linkage_wb: 0.004 };
+//! let mut drive_ctl = Cascade::new(CascadeConfig::for_motor(motor, 20_000.0, 10.0));
+//! drive_ctl.command(Command::Torque { iq_a: 1.0 }).unwrap();
+//! // In the PWM-synchronous interrupt (ADC end of conversion):
+//! let sample = drive::read_sample(&mut cs, &mut enc, &mut bus);
+//! let bridge = drive_ctl.step(&sample);
+//! drive::apply(&mut pwm, bridge).unwrap();
+//! assert!(pwm.is_enabled());
+//! ```
+
+pub mod cascade;
+pub mod current;
+pub mod drive;
+pub mod estimator;
+pub mod position;
+pub mod speed;
+pub mod stage;
+pub mod supervisor;
+pub mod trajectory;
+
+use crate::angle::ElectricalAngle;
+use crate::frames::Dq;
+pub use supervisor::{Fault, FaultSet};
+
+/// Electrical parameters of a PMSM.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct MotorParams {
+    /// Pole pairs `p` (`theta_e = p theta_m`).
+    pub pole_pairs: u8,
+    /// Phase resistance [ohm].
+    pub r_ohm: f32,
+    /// d-axis inductance [H].
+    pub ld_h: f32,
+    /// q-axis inductance [H].
+    pub lq_h: f32,
+    /// Permanent-magnet flux linkage `psi` [Wb] (peak, per phase).
+    pub flux_linkage_wb: f32,
+}
+
+impl MotorParams {
+    /// Torque constant `kt = 1.5 p psi` [N m / A] (with `id = 0`).
+    pub fn torque_constant_nm_per_a(&self) -> f32 {
+        1.5 * self.pole_pairs as f32 * self.flux_linkage_wb
+    }
+}
+
+/// Loop rates: the current loop runs every PWM period, the speed loop every
+/// `speed_divider` periods, the position loop every `position_divider`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Rates {
+    /// PWM (= current-loop) frequency [Hz].
+    pub pwm_frequency_hz: f32,
+    /// Speed loop every N current-loop periods (>= 1).
+    pub speed_divider: u16,
+    /// Position loop every M current-loop periods (>= 1).
+    pub position_divider: u16,
+}
+
+impl Rates {
+    /// Defaults for a PWM frequency: speed loop near 2 kHz, position near 1 kHz.
+    pub fn for_pwm(pwm_frequency_hz: f32) -> Self {
+        let div = |target: f32| -> u16 {
+            let n = pwm_frequency_hz / target + 0.5;
+            if (1.0..65_535.0).contains(&n) {
+                n as u16
+            } else {
+                1
+            }
+        };
+        Self {
+            pwm_frequency_hz,
+            speed_divider: div(2_000.0),
+            position_divider: div(1_000.0),
+        }
+    }
+    /// Current-loop period [s].
+    pub fn current_ts_s(&self) -> f32 {
+        1.0 / self.pwm_frequency_hz
+    }
+    /// Speed-loop period [s].
+    pub fn speed_ts_s(&self) -> f32 {
+        self.speed_divider.max(1) as f32 / self.pwm_frequency_hz
+    }
+    /// Position-loop period [s].
+    pub fn position_ts_s(&self) -> f32 {
+        self.position_divider.max(1) as f32 / self.pwm_frequency_hz
+    }
+}
+
+/// Control mode.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[repr(u8)]
+pub enum Mode {
+    /// Bridge off (safe state).
+    Disabled = 0,
+    /// Current (torque) control.
+    Torque = 1,
+    /// Velocity control.
+    Velocity = 2,
+    /// Position control with a trapezoidal trajectory.
+    Position = 3,
+    /// Open-loop voltage at a given (optionally rotating) electrical angle.
+    OpenLoop = 4,
+}
+
+/// What the drive is asked to do. Speeds and positions are mechanical.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Command {
+    /// Bridge off.
+    Disable,
+    /// q-current reference [A] with `id = 0` (source section 6).
+    Torque {
+        /// q-axis current [A].
+        iq_a: f32,
+    },
+    /// Velocity reference [rad/s].
+    Velocity {
+        /// Mechanical velocity [rad/s].
+        rad_s: f32,
+    },
+    /// Move to an absolute mechanical position [rad] along a trapezoid.
+    Position {
+        /// Target position [rad].
+        rad: f32,
+    },
+    /// Open-loop dq voltage at `theta_e`, rotating at `omega_e_rad_s`.
+    OpenLoop {
+        /// d-axis voltage [V].
+        v_d_v: f32,
+        /// q-axis voltage [V].
+        v_q_v: f32,
+        /// Starting electrical angle.
+        theta_e: ElectricalAngle,
+        /// Electrical angular velocity [rad/s] (0 holds the angle).
+        omega_e_rad_s: f32,
+    },
+}
+
+impl Command {
+    /// The mode this command selects.
+    pub const fn mode(&self) -> Mode {
+        match self {
+            Command::Disable => Mode::Disabled,
+            Command::Torque { .. } => Mode::Torque,
+            Command::Velocity { .. } => Mode::Velocity,
+            Command::Position { .. } => Mode::Position,
+            Command::OpenLoop { .. } => Mode::OpenLoop,
+        }
+    }
+
+    /// Check a command against the limits.
+    pub fn validate(&self, l: &Limits) -> Result<(), CommandError> {
+        let fin = |x: f32| {
+            if x.is_finite() {
+                Ok(())
+            } else {
+                Err(CommandError::NonFinite)
+            }
+        };
+        match *self {
+            Command::Disable => Ok(()),
+            Command::Torque { iq_a } => {
+                fin(iq_a)?;
+                if iq_a.abs() > l.max_current_a {
+                    return Err(CommandError::CurrentOutOfRange);
+                }
+                Ok(())
+            }
+            Command::Velocity { rad_s } => {
+                fin(rad_s)?;
+                if rad_s.abs() > l.max_velocity_rad_s {
+                    return Err(CommandError::VelocityOutOfRange);
+                }
+                Ok(())
+            }
+            Command::Position { rad } => {
+                fin(rad)?;
+                if rad < l.min_position_rad || rad > l.max_position_rad {
+                    return Err(CommandError::PositionOutOfRange);
+                }
+                Ok(())
+            }
+            Command::OpenLoop {
+                v_d_v,
+                v_q_v,
+                omega_e_rad_s,
+                ..
+            } => {
+                fin(v_d_v)?;
+                fin(v_q_v)?;
+                fin(omega_e_rad_s)?;
+                if Dq::new(v_d_v, v_q_v).magnitude() > l.max_open_loop_voltage_v {
+                    return Err(CommandError::VoltageOutOfRange);
+                }
+                if omega_e_rad_s.abs() > l.max_open_loop_omega_e_rad_s {
+                    return Err(CommandError::VelocityOutOfRange);
+                }
+                Ok(())
+            }
+        }
+    }
+}
+
+/// Why a command was refused.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum CommandError {
+    /// A value was NaN or infinite.
+    NonFinite,
+    /// Current reference beyond the current limit.
+    CurrentOutOfRange,
+    /// Velocity beyond the velocity limit.
+    VelocityOutOfRange,
+    /// Position outside the allowed range.
+    PositionOutOfRange,
+    /// Open-loop voltage beyond its limit.
+    VoltageOutOfRange,
+    /// A fault is latched: clear it first.
+    Faulted,
+}
+
+/// Limits that commands are checked against.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Limits {
+    /// Largest q-current reference [A] (also the speed loop's output limit).
+    pub max_current_a: f32,
+    /// Largest velocity [rad/s, mechanical].
+    pub max_velocity_rad_s: f32,
+    /// Position range [rad, mechanical].
+    pub min_position_rad: f32,
+    /// Position range [rad, mechanical].
+    pub max_position_rad: f32,
+    /// Largest open-loop voltage magnitude [V].
+    pub max_open_loop_voltage_v: f32,
+    /// Largest open-loop electrical speed [rad/s].
+    pub max_open_loop_omega_e_rad_s: f32,
+}
+
+/// What the current stage tells the bridge to do this period.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum BridgeCommand {
+    /// All switches off (high impedance).
+    SafeState,
+    /// Apply these duties (phases A, B, C, each in `[0, 1]`) and enable.
+    Duties([f32; 3]),
+}
+
+/// The shared command mailbox written by the command handler and read by
+/// the current stage. Bump `seq` for a new command, `clear_seq` to clear
+/// latched faults.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct CommandSlot {
+    /// The latest command.
+    pub command: Command,
+    /// Incremented for every new command (also a keep-alive).
+    pub seq: u32,
+    /// Incremented to request a fault clear.
+    pub clear_seq: u32,
+}
+
+impl CommandSlot {
+    /// Empty mailbox (disabled).
+    pub const INIT: Self = Self {
+        command: Command::Disable,
+        seq: 0,
+        clear_seq: 0,
+    };
+    /// Post a new command.
+    pub fn post(&mut self, command: Command) {
+        self.command = command;
+        self.seq = self.seq.wrapping_add(1);
+    }
+    /// Request a fault clear.
+    pub fn request_clear(&mut self) {
+        self.clear_seq = self.clear_seq.wrapping_add(1);
+    }
+}
+
+/// Everything the current stage publishes each period (plain `Copy` data).
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Feedback {
+    /// Active mode.
+    pub mode: Mode,
+    /// Active command (after validation, timeout reaction and faults).
+    pub active: Command,
+    /// Multi-turn mechanical position [rad].
+    pub position_rad: f32,
+    /// Estimated mechanical velocity [rad/s].
+    pub velocity_rad_s: f32,
+    /// Electrical angle used this period.
+    pub theta_e: ElectricalAngle,
+    /// Measured dq currents [A].
+    pub i_dq_a: Dq,
+    /// dq current reference [A].
+    pub i_dq_ref_a: Dq,
+    /// Commanded dq voltage [V].
+    pub v_dq_v: Dq,
+    /// Bus voltage [V].
+    pub v_bus_v: f32,
+    /// Duties applied (centred when in the safe state).
+    pub duties: [f32; 3],
+    /// Latched faults.
+    pub faults: FaultSet,
+    /// First latched fault.
+    pub first_fault: Option<Fault>,
+    /// Voltage limit active.
+    pub voltage_limited: bool,
+    /// Periods since start (wraps).
+    pub period: u32,
+}
+
+impl Feedback {
+    /// Feedback before the first period.
+    pub const INIT: Self = Self {
+        mode: Mode::Disabled,
+        active: Command::Disable,
+        position_rad: 0.0,
+        velocity_rad_s: 0.0,
+        theta_e: ElectricalAngle::ZERO,
+        i_dq_a: Dq::ZERO,
+        i_dq_ref_a: Dq::ZERO,
+        v_dq_v: Dq::ZERO,
+        v_bus_v: 0.0,
+        duties: [0.5; 3],
+        faults: FaultSet::EMPTY,
+        first_fault: None,
+        voltage_limited: false,
+        period: 0,
+    };
+}

@@ -1,0 +1,461 @@
+//! The three stages of the cascade: loops plus mode logic (see [`super`]).
+
+use super::current::{CurrentLoop, CurrentLoopConfig, CurrentLoopInput, CurrentLoopOutput};
+use super::estimator::{AngleTracker, AngleTrackerConfig};
+use super::position::{PositionLoop, PositionLoopConfig};
+use super::speed::{SpeedLoop, SpeedLoopConfig};
+use super::supervisor::{Checks, Fault, Supervisor, SupervisorConfig};
+use super::{BridgeCommand, Command, CommandSlot, Feedback, Limits, Mode};
+use crate::angle::{ElectricalAngle, MechanicalAngle};
+use crate::clamp;
+use crate::frames::Dq;
+use crate::hal::PhaseCurrents;
+use crate::transforms;
+
+/// How the angle sensor relates to the motor's electrical angle.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct AngleCalibration {
+    /// Pole pairs.
+    pub pole_pairs: u8,
+    /// Electrical angle the sensor reads (after direction and pole-pair
+    /// scaling) when the rotor d axis is on phase A.
+    pub zero_offset: ElectricalAngle,
+    /// True when the sensor counts backwards relative to A -> B -> C.
+    pub reversed: bool,
+}
+
+impl AngleCalibration {
+    /// Mechanical angle in the motor's positive direction.
+    #[inline]
+    pub fn mechanical(&self, raw: MechanicalAngle) -> MechanicalAngle {
+        if self.reversed {
+            MechanicalAngle::from_bits(raw.to_bits().wrapping_neg())
+        } else {
+            raw
+        }
+    }
+    /// Electrical angle of the d axis from a direction-corrected mechanical angle.
+    #[inline]
+    pub fn electrical(&self, mech: MechanicalAngle) -> ElectricalAngle {
+        mech.to_electrical(self.pole_pairs)
+            .wrapping_sub(self.zero_offset)
+    }
+}
+
+/// What to do when commands stop arriving.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum TimeoutReaction {
+    /// Latch [`Fault::CommandTimeout`] (bridge off).
+    Disable,
+    /// Switch to velocity 0.
+    Stop,
+    /// Hold the current position.
+    Hold,
+}
+
+/// Configuration of the current stage.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CurrentStageConfig {
+    /// Current loop.
+    pub current: CurrentLoopConfig,
+    /// Speed/position tracker (runs every period).
+    pub tracker: AngleTrackerConfig,
+    /// Fault limits.
+    pub supervisor: SupervisorConfig,
+    /// Command limits.
+    pub limits: Limits,
+    /// Sensor to electrical angle.
+    pub angle: AngleCalibration,
+    /// Periods without a new command before the timeout reaction (0: off).
+    pub command_timeout_periods: u32,
+    /// The timeout reaction.
+    pub timeout_reaction: TimeoutReaction,
+}
+
+/// One period's measurements; `None` where the read failed.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Sample {
+    /// Phase currents [A].
+    pub currents: Option<PhaseCurrents>,
+    /// Raw mechanical angle from the sensor.
+    pub angle: Option<MechanicalAngle>,
+    /// Bus voltage [V].
+    pub v_bus_v: Option<f32>,
+    /// Temperature [deg C] if measured.
+    pub temperature_c: Option<f32>,
+}
+
+/// The current stage: runs every PWM period at the highest priority.
+#[derive(Clone, Copy, Debug)]
+pub struct CurrentStage {
+    config: CurrentStageConfig,
+    current: CurrentLoop,
+    tracker: AngleTracker,
+    supervisor: Supervisor,
+    active: Command,
+    last_seq: u32,
+    last_clear_seq: u32,
+    age_periods: u32,
+    ol_theta: ElectricalAngle,
+    last_out_v_dq: Dq,
+    last_i_dq: Dq,
+    period: u32,
+    rejected: u32,
+}
+
+impl CurrentStage {
+    /// New stage, disabled, no fault.
+    pub fn new(config: CurrentStageConfig) -> Self {
+        Self {
+            current: CurrentLoop::new(config.current),
+            tracker: AngleTracker::new(config.tracker),
+            supervisor: Supervisor::new(config.supervisor),
+            config,
+            active: Command::Disable,
+            last_seq: 0,
+            last_clear_seq: 0,
+            age_periods: 0,
+            ol_theta: ElectricalAngle::ZERO,
+            last_out_v_dq: Dq::ZERO,
+            last_i_dq: Dq::ZERO,
+            period: 0,
+            rejected: 0,
+        }
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &CurrentStageConfig {
+        &self.config
+    }
+
+    /// Replace the current-loop configuration (e.g. gains after identification).
+    pub fn set_current_config(&mut self, c: CurrentLoopConfig) {
+        self.config.current = c;
+        self.current.set_config(c);
+    }
+
+    /// Replace the angle calibration.
+    pub fn set_angle_calibration(&mut self, a: AngleCalibration) {
+        self.config.angle = a;
+        self.tracker.reset();
+    }
+
+    /// Replace the command limits.
+    pub fn set_limits(&mut self, l: Limits) {
+        self.config.limits = l;
+    }
+
+    /// The fault supervisor.
+    pub fn supervisor(&self) -> &Supervisor {
+        &self.supervisor
+    }
+
+    /// Latch a fault found by the caller (overrun, gate driver, PWM error...).
+    /// The next [`Self::step`] returns the safe state.
+    pub fn report_fault(&mut self, f: Fault) {
+        self.supervisor.trip(f);
+        self.active = Command::Disable;
+    }
+
+    /// Commands refused so far (invalid, or sent while faulted).
+    pub fn rejected_commands(&self) -> u32 {
+        self.rejected
+    }
+
+    /// The active command.
+    pub fn active(&self) -> Command {
+        self.active
+    }
+
+    fn accept(&mut self, cmd: Command) {
+        if self.supervisor.is_faulted() {
+            self.rejected = self.rejected.wrapping_add(1);
+            return;
+        }
+        if cmd.validate(&self.config.limits).is_err() {
+            self.rejected = self.rejected.wrapping_add(1);
+            return;
+        }
+        let (old, new) = (self.active.mode(), cmd.mode());
+        match (old, new) {
+            (_, Mode::OpenLoop) => {
+                if let Command::OpenLoop { theta_e, .. } = cmd {
+                    if old != Mode::OpenLoop {
+                        self.ol_theta = theta_e;
+                    }
+                }
+            }
+            (Mode::OpenLoop, Mode::Torque | Mode::Velocity | Mode::Position) => {
+                // Bumpless: the PIs continue from the open-loop voltage.
+                let w_e = self.tracker.velocity_rad_s() * self.config.angle.pole_pairs as f32;
+                self.current
+                    .preload(self.last_out_v_dq, self.last_i_dq, w_e);
+            }
+            (Mode::Disabled, _) => self.current.reset(),
+            _ => {}
+        }
+        self.active = cmd;
+    }
+
+    /// One PWM period: commands, sensors, supervision, control. Returns what
+    /// the bridge must do and the feedback for the slower stages.
+    pub fn step(
+        &mut self,
+        slot: &CommandSlot,
+        iq_ref_from_speed_a: f32,
+        s: &Sample,
+    ) -> (BridgeCommand, Feedback) {
+        self.period = self.period.wrapping_add(1);
+        // 1. Operator actions: clear first, then a new command.
+        if slot.clear_seq != self.last_clear_seq {
+            self.last_clear_seq = slot.clear_seq;
+            self.supervisor.clear();
+        }
+        if slot.seq != self.last_seq {
+            self.last_seq = slot.seq;
+            self.age_periods = 0;
+            self.accept(slot.command);
+        }
+
+        // 2. Sensors and supervision.
+        let mut theta_e = ElectricalAngle::ZERO;
+        let mut i_abc = crate::frames::Abc::default();
+        let v_bus = s.v_bus_v.unwrap_or(0.0);
+        match (s.currents, s.angle, s.v_bus_v) {
+            (None, _, _) => self.supervisor.trip(Fault::CurrentSenseError),
+            (_, None, _) => self.supervisor.trip(Fault::AngleSensorError),
+            (_, _, None) => self.supervisor.trip(Fault::BusSenseError),
+            (Some(cur), Some(raw), Some(v_bus_v)) => {
+                let mech = self.config.angle.mechanical(raw);
+                let innovation = self.tracker.update(mech);
+                theta_e = self.config.angle.electrical(mech);
+                i_abc = cur.to_abc();
+                let vector = transforms::clarke(i_abc).magnitude();
+                self.supervisor.check(&Checks {
+                    i_abc_a: i_abc,
+                    measured_sum_a: cur.measured_sum_a(),
+                    vector_current_a: vector,
+                    v_bus_v,
+                    angle_innovation_rad: innovation,
+                    temperature_c: s.temperature_c,
+                });
+            }
+        }
+
+        // 3. Command timeout.
+        if self.active.mode() != Mode::Disabled && self.config.command_timeout_periods > 0 {
+            self.age_periods = self.age_periods.saturating_add(1);
+            if self.age_periods > self.config.command_timeout_periods {
+                self.age_periods = 0;
+                match self.config.timeout_reaction {
+                    TimeoutReaction::Disable => self.supervisor.trip(Fault::CommandTimeout),
+                    TimeoutReaction::Stop => self.accept(Command::Velocity { rad_s: 0.0 }),
+                    TimeoutReaction::Hold => {
+                        let p = self.tracker.position().to_radians();
+                        self.active = Command::Position { rad: p };
+                    }
+                }
+            }
+        }
+
+        // 4. Control.
+        let pp = self.config.angle.pole_pairs as f32;
+        let w_e = self.tracker.velocity_rad_s() * pp;
+        let mut i_ref = Dq::ZERO;
+        let out: Option<CurrentLoopOutput> = if self.supervisor.is_faulted() {
+            self.active = Command::Disable;
+            None
+        } else {
+            match self.active {
+                Command::Disable => None,
+                Command::OpenLoop {
+                    v_d_v,
+                    v_q_v,
+                    omega_e_rad_s,
+                    ..
+                } => {
+                    let th = self.ol_theta;
+                    self.ol_theta = th.add_radians(omega_e_rad_s * self.config.current.ts_s);
+                    theta_e = th;
+                    Some(
+                        self.current
+                            .step_voltage(i_abc, th, Dq::new(v_d_v, v_q_v), v_bus),
+                    )
+                }
+                Command::Torque { iq_a } => {
+                    i_ref = Dq::new(0.0, iq_a);
+                    Some(self.run_current(i_abc, theta_e, w_e, v_bus, i_ref))
+                }
+                Command::Velocity { .. } | Command::Position { .. } => {
+                    let lim = self.config.limits.max_current_a;
+                    let iq = if iq_ref_from_speed_a.is_finite() {
+                        clamp(iq_ref_from_speed_a, -lim, lim)
+                    } else {
+                        0.0
+                    };
+                    i_ref = Dq::new(0.0, iq);
+                    Some(self.run_current(i_abc, theta_e, w_e, v_bus, i_ref))
+                }
+            }
+        };
+        // A control output that is itself invalid is a fault too.
+        let out = match out {
+            Some(o) if o.invalid => {
+                self.supervisor.trip(Fault::NonFinite);
+                self.active = Command::Disable;
+                None
+            }
+            o => o,
+        };
+        let (bridge, duties, v_dq, i_dq, limited) = match out {
+            Some(o) => (
+                BridgeCommand::Duties(o.duties),
+                o.duties,
+                o.v_dq_v,
+                o.i_dq_a,
+                o.voltage_limited,
+            ),
+            None => {
+                self.current.reset();
+                (
+                    BridgeCommand::SafeState,
+                    [0.5; 3],
+                    Dq::ZERO,
+                    Dq::ZERO,
+                    false,
+                )
+            }
+        };
+        self.last_out_v_dq = v_dq;
+        self.last_i_dq = i_dq;
+        let fb = Feedback {
+            mode: self.active.mode(),
+            active: self.active,
+            position_rad: self.tracker.position().to_radians(),
+            velocity_rad_s: self.tracker.velocity_rad_s(),
+            theta_e,
+            i_dq_a: i_dq,
+            i_dq_ref_a: i_ref,
+            v_dq_v: v_dq,
+            v_bus_v: v_bus,
+            duties,
+            faults: self.supervisor.faults(),
+            first_fault: self.supervisor.first_fault(),
+            voltage_limited: limited,
+            period: self.period,
+        };
+        (bridge, fb)
+    }
+
+    #[inline]
+    fn run_current(
+        &mut self,
+        i_abc: crate::frames::Abc,
+        theta_e: ElectricalAngle,
+        w_e: f32,
+        v_bus: f32,
+        i_ref: Dq,
+    ) -> CurrentLoopOutput {
+        self.current.step(&CurrentLoopInput {
+            i_abc_a: i_abc,
+            theta_e,
+            omega_e_rad_s: w_e,
+            v_bus_v: v_bus,
+            i_dq_ref_a: i_ref,
+        })
+    }
+}
+
+/// The speed stage: runs every N periods.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SpeedStage {
+    speed: SpeedLoop,
+    last_mode: Mode,
+    iq_ref_a: f32,
+}
+
+impl SpeedStage {
+    /// New stage.
+    pub fn new(config: SpeedLoopConfig) -> Self {
+        Self {
+            speed: SpeedLoop::new(config),
+            last_mode: Mode::Disabled,
+            iq_ref_a: 0.0,
+        }
+    }
+    /// The speed loop.
+    pub fn speed_loop(&mut self) -> &mut SpeedLoop {
+        &mut self.speed
+    }
+    /// One step: returns the q-current reference [A] for the current stage.
+    /// Outside velocity/position modes it tracks the active current
+    /// reference so that entering those modes is bumpless.
+    pub fn step(&mut self, fb: &Feedback, w_ref_from_position_rad_s: f32) -> f32 {
+        let w_ref = match fb.active {
+            Command::Velocity { rad_s } => Some(rad_s),
+            Command::Position { .. } => Some(w_ref_from_position_rad_s),
+            _ => None,
+        };
+        let entering = !matches!(self.last_mode, Mode::Velocity | Mode::Position);
+        self.last_mode = fb.mode;
+        self.iq_ref_a = match w_ref {
+            Some(w) => {
+                if entering {
+                    self.speed.preload(fb.i_dq_ref_a.q);
+                }
+                self.speed.step(w, fb.velocity_rad_s, 0.0)
+            }
+            None => {
+                self.speed.preload(fb.i_dq_ref_a.q);
+                fb.i_dq_ref_a.q
+            }
+        };
+        self.iq_ref_a
+    }
+}
+
+/// The position stage: runs every M periods.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PositionStage {
+    pos: PositionLoop,
+    last_mode: Mode,
+    last_target: f32,
+}
+
+impl PositionStage {
+    /// New stage.
+    pub fn new(config: PositionLoopConfig) -> Self {
+        Self {
+            pos: PositionLoop::new(config),
+            last_mode: Mode::Disabled,
+            last_target: 0.0,
+        }
+    }
+    /// The position loop.
+    pub fn position_loop(&self) -> &PositionLoop {
+        &self.pos
+    }
+    /// Replace the position-loop configuration.
+    pub fn set_config(&mut self, c: PositionLoopConfig) {
+        self.pos.set_config(c);
+    }
+    /// One step: returns the velocity reference [rad/s] for the speed stage.
+    /// Outside position mode it returns the measured velocity.
+    pub fn step(&mut self, fb: &Feedback) -> f32 {
+        let w = if let Command::Position { rad } = fb.active {
+            if self.last_mode != Mode::Position {
+                self.pos.start_move(fb.position_rad, fb.velocity_rad_s, rad);
+            } else if rad != self.last_target {
+                self.pos.retarget(rad);
+            }
+            self.last_target = rad;
+            self.pos.step(fb.position_rad)
+        } else {
+            fb.velocity_rad_s
+        };
+        self.last_mode = fb.mode;
+        w
+    }
+}

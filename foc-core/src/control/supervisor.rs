@@ -1,0 +1,378 @@
+//! Fault supervision: one place decides, boards only act.
+//!
+//! The [`Supervisor`] checks every current-loop sample against its
+//! [`SupervisorConfig`] limits. A fault *latches*: from the step it is
+//! detected in, the current stage commands the bridge's safe state, and it
+//! stays there until [`Supervisor::clear`] is called explicitly. If the
+//! condition persists, the next sample trips again.
+//!
+//! ```
+//! use foc_core::control::supervisor::{Fault, Supervisor, SupervisorConfig};
+//! let mut sup = Supervisor::new(SupervisorConfig::default());
+//! sup.trip(Fault::LoopOverrun);
+//! assert!(sup.is_faulted());
+//! assert_eq!(sup.first_fault(), Some(Fault::LoopOverrun));
+//! assert_eq!(Fault::LoopOverrun.name(), "current-loop overrun");
+//! sup.clear();
+//! assert!(!sup.is_faulted());
+//! ```
+
+use crate::frames::Abc;
+
+/// A fault the supervisor can latch. Each has a stable numeric code.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[repr(u8)]
+pub enum Fault {
+    /// A phase current exceeded the per-phase limit.
+    OverCurrentPhase = 1,
+    /// The current vector magnitude exceeded its limit.
+    OverCurrentVector = 2,
+    /// Bus voltage above the limit.
+    BusOverVoltage = 3,
+    /// Bus voltage below the limit.
+    BusUnderVoltage = 4,
+    /// `|ia + ib + ic|` too large with three shunts (source section 2).
+    CurrentSumMismatch = 5,
+    /// The angle sensor reported an error.
+    AngleSensorError = 6,
+    /// The angle reading jumped away from the tracked angle.
+    AngleSensorImplausible = 7,
+    /// A non-finite number in a measurement or in the control path.
+    NonFinite = 8,
+    /// The current loop did not finish within its budget (reported by the caller).
+    LoopOverrun = 9,
+    /// No command arrived within the timeout in a mode that needs them.
+    CommandTimeout = 10,
+    /// The current measurement failed (ADC error, no sample).
+    CurrentSenseError = 11,
+    /// The bus-voltage measurement failed.
+    BusSenseError = 12,
+    /// Power-stage temperature above the limit.
+    OverTemperature = 13,
+    /// The gate driver or the timer break input signalled a fault.
+    GateDriverFault = 14,
+    /// Writing the PWM failed.
+    PwmError = 15,
+    /// A calibration routine failed.
+    CalibrationFailed = 16,
+    /// The watchdog or an unexpected reset (reported by the firmware).
+    Watchdog = 17,
+}
+
+impl Fault {
+    /// Every fault, in code order.
+    pub const ALL: [Fault; 17] = [
+        Fault::OverCurrentPhase,
+        Fault::OverCurrentVector,
+        Fault::BusOverVoltage,
+        Fault::BusUnderVoltage,
+        Fault::CurrentSumMismatch,
+        Fault::AngleSensorError,
+        Fault::AngleSensorImplausible,
+        Fault::NonFinite,
+        Fault::LoopOverrun,
+        Fault::CommandTimeout,
+        Fault::CurrentSenseError,
+        Fault::BusSenseError,
+        Fault::OverTemperature,
+        Fault::GateDriverFault,
+        Fault::PwmError,
+        Fault::CalibrationFailed,
+        Fault::Watchdog,
+    ];
+
+    /// Stable numeric code (1..).
+    pub const fn code(self) -> u8 {
+        self as u8
+    }
+
+    /// The fault with this code, if any.
+    pub fn from_code(code: u8) -> Option<Fault> {
+        Fault::ALL.iter().copied().find(|f| f.code() == code)
+    }
+
+    /// Human-readable name.
+    pub const fn name(self) -> &'static str {
+        match self {
+            Fault::OverCurrentPhase => "phase over-current",
+            Fault::OverCurrentVector => "current-vector over-current",
+            Fault::BusOverVoltage => "bus over-voltage",
+            Fault::BusUnderVoltage => "bus under-voltage",
+            Fault::CurrentSumMismatch => "phase-current sum mismatch",
+            Fault::AngleSensorError => "angle-sensor error",
+            Fault::AngleSensorImplausible => "angle-sensor implausible jump",
+            Fault::NonFinite => "non-finite value",
+            Fault::LoopOverrun => "current-loop overrun",
+            Fault::CommandTimeout => "command timeout",
+            Fault::CurrentSenseError => "current-sense error",
+            Fault::BusSenseError => "bus-voltage sense error",
+            Fault::OverTemperature => "over-temperature",
+            Fault::GateDriverFault => "gate-driver / break fault",
+            Fault::PwmError => "PWM write error",
+            Fault::CalibrationFailed => "calibration failed",
+            Fault::Watchdog => "watchdog",
+        }
+    }
+
+    const fn bit(self) -> u32 {
+        1u32 << (self as u8)
+    }
+}
+
+/// A set of latched faults (bit `code` set for each).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct FaultSet(pub u32);
+
+impl FaultSet {
+    /// No fault.
+    pub const EMPTY: Self = Self(0);
+    /// True when `f` is in the set.
+    pub const fn contains(self, f: Fault) -> bool {
+        self.0 & f.bit() != 0
+    }
+    /// True when no fault is set.
+    pub const fn is_empty(self) -> bool {
+        self.0 == 0
+    }
+    /// Add a fault.
+    pub fn insert(&mut self, f: Fault) {
+        self.0 |= f.bit();
+    }
+    /// Iterate over the faults in the set.
+    pub fn iter(self) -> impl Iterator<Item = Fault> {
+        Fault::ALL.into_iter().filter(move |f| self.contains(*f))
+    }
+}
+
+/// Supervisor limits. Each limit is checked with a strict `>` (or `<`), so a
+/// value exactly at the limit is still normal.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct SupervisorConfig {
+    /// Per-phase current limit [A].
+    pub max_phase_current_a: f32,
+    /// Current-vector magnitude limit (`|i_alpha_beta|`) [A].
+    pub max_vector_current_a: f32,
+    /// Bus over-voltage threshold [V].
+    pub bus_over_voltage_v: f32,
+    /// Bus under-voltage threshold [V].
+    pub bus_under_voltage_v: f32,
+    /// Largest tolerated `|ia + ib + ic|` with three shunts [A].
+    pub max_current_sum_a: f32,
+    /// Largest tolerated difference between the angle reading and the
+    /// tracked (predicted) mechanical angle [rad].
+    pub max_angle_innovation_rad: f32,
+    /// Over-temperature threshold [deg C].
+    pub max_temperature_c: f32,
+}
+
+impl Default for SupervisorConfig {
+    /// Conservative limits for a small drive (10 A, 8..30 V).
+    fn default() -> Self {
+        Self {
+            max_phase_current_a: 10.0,
+            max_vector_current_a: 10.0,
+            bus_over_voltage_v: 30.0,
+            bus_under_voltage_v: 8.0,
+            max_current_sum_a: 1.0,
+            max_angle_innovation_rad: 0.5,
+            max_temperature_c: 90.0,
+        }
+    }
+}
+
+/// Measurements the supervisor checks in one current-loop period.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Checks {
+    /// Phase currents [A] (third derived with two shunts).
+    pub i_abc_a: Abc,
+    /// Measured `ia + ib + ic` with three shunts, `None` with two.
+    pub measured_sum_a: Option<f32>,
+    /// `|i_alpha_beta|` [A].
+    pub vector_current_a: f32,
+    /// Bus voltage [V].
+    pub v_bus_v: f32,
+    /// `|theta_measured - theta_predicted|` [rad, mechanical].
+    pub angle_innovation_rad: f32,
+    /// Temperature [deg C], if measured.
+    pub temperature_c: Option<f32>,
+}
+
+/// The fault supervisor: limits plus latched state.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Supervisor {
+    /// Limits.
+    pub config: SupervisorConfig,
+    latched: FaultSet,
+    first: Option<Fault>,
+}
+
+impl Supervisor {
+    /// New supervisor with no fault latched.
+    pub const fn new(config: SupervisorConfig) -> Self {
+        Self {
+            config,
+            latched: FaultSet::EMPTY,
+            first: None,
+        }
+    }
+
+    /// Latch a fault (also used by callers for overrun, driver faults, ...).
+    pub fn trip(&mut self, fault: Fault) {
+        if self.first.is_none() {
+            self.first = Some(fault);
+        }
+        self.latched.insert(fault);
+    }
+
+    /// True while any fault is latched.
+    pub fn is_faulted(&self) -> bool {
+        !self.latched.is_empty()
+    }
+
+    /// The first fault latched since the last clear.
+    pub fn first_fault(&self) -> Option<Fault> {
+        self.first
+    }
+
+    /// Every fault latched since the last clear.
+    pub fn faults(&self) -> FaultSet {
+        self.latched
+    }
+
+    /// Clear every latched fault (explicit operator action).
+    pub fn clear(&mut self) {
+        self.latched = FaultSet::EMPTY;
+        self.first = None;
+    }
+
+    /// Check one period's measurements; latches and returns the first new
+    /// fault found. Non-finite values trip [`Fault::NonFinite`].
+    pub fn check(&mut self, m: &Checks) -> Option<Fault> {
+        let c = &self.config;
+        let fault = if !m.i_abc_a.is_finite()
+            || !m.vector_current_a.is_finite()
+            || !m.v_bus_v.is_finite()
+            || !m.angle_innovation_rad.is_finite()
+            || m.measured_sum_a.is_some_and(|s| !s.is_finite())
+            || m.temperature_c.is_some_and(|t| !t.is_finite())
+        {
+            Some(Fault::NonFinite)
+        } else if m.i_abc_a.a.abs() > c.max_phase_current_a
+            || m.i_abc_a.b.abs() > c.max_phase_current_a
+            || m.i_abc_a.c.abs() > c.max_phase_current_a
+        {
+            Some(Fault::OverCurrentPhase)
+        } else if m.vector_current_a > c.max_vector_current_a {
+            Some(Fault::OverCurrentVector)
+        } else if m
+            .measured_sum_a
+            .is_some_and(|s| s.abs() > c.max_current_sum_a)
+        {
+            Some(Fault::CurrentSumMismatch)
+        } else if m.v_bus_v > c.bus_over_voltage_v {
+            Some(Fault::BusOverVoltage)
+        } else if m.v_bus_v < c.bus_under_voltage_v {
+            Some(Fault::BusUnderVoltage)
+        } else if m.angle_innovation_rad > c.max_angle_innovation_rad {
+            Some(Fault::AngleSensorImplausible)
+        } else if m.temperature_c.is_some_and(|t| t > c.max_temperature_c) {
+            Some(Fault::OverTemperature)
+        } else {
+            None
+        };
+        if let Some(f) = fault {
+            self.trip(f);
+        }
+        fault
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn normal() -> Checks {
+        Checks {
+            i_abc_a: Abc::new(1.0, -0.5, -0.5),
+            measured_sum_a: Some(0.0),
+            vector_current_a: 1.0,
+            v_bus_v: 24.0,
+            angle_innovation_rad: 0.01,
+            temperature_c: Some(40.0),
+        }
+    }
+
+    #[test]
+    fn normal_sample_passes() {
+        let mut s = Supervisor::new(SupervisorConfig::default());
+        assert_eq!(s.check(&normal()), None);
+        assert!(!s.is_faulted());
+    }
+
+    /// Each condition trips its own fault just past the limit and not at it.
+    #[test]
+    fn each_check_trips_past_its_limit_only() {
+        let c = SupervisorConfig::default();
+        type Case = (Fault, fn(&mut Checks, &SupervisorConfig, f32));
+        let cases: [Case; 7] = [
+            (Fault::OverCurrentPhase, |m, c, e| {
+                m.i_abc_a = Abc::new(c.max_phase_current_a + e, 0.0, 0.0);
+                m.vector_current_a = 0.0;
+            }),
+            (Fault::OverCurrentVector, |m, c, e| {
+                m.vector_current_a = c.max_vector_current_a + e
+            }),
+            (Fault::CurrentSumMismatch, |m, c, e| {
+                m.measured_sum_a = Some(-(c.max_current_sum_a + e))
+            }),
+            (Fault::BusOverVoltage, |m, c, e| {
+                m.v_bus_v = c.bus_over_voltage_v + e
+            }),
+            (Fault::BusUnderVoltage, |m, c, e| {
+                m.v_bus_v = c.bus_under_voltage_v - e
+            }),
+            (Fault::AngleSensorImplausible, |m, c, e| {
+                m.angle_innovation_rad = c.max_angle_innovation_rad + e
+            }),
+            (Fault::OverTemperature, |m, c, e| {
+                m.temperature_c = Some(c.max_temperature_c + e)
+            }),
+        ];
+        for (fault, set) in cases {
+            let mut at = normal();
+            set(&mut at, &c, 0.0);
+            let mut s = Supervisor::new(c);
+            assert_eq!(s.check(&at), None, "{fault:?} tripped at its limit");
+            let mut past = normal();
+            set(&mut past, &c, 0.01);
+            assert_eq!(s.check(&past), Some(fault));
+            assert!(s.faults().contains(fault));
+        }
+    }
+
+    #[test]
+    fn nan_trips_non_finite_and_latches_until_clear() {
+        let mut s = Supervisor::new(SupervisorConfig::default());
+        let mut m = normal();
+        m.i_abc_a.b = f32::NAN;
+        assert_eq!(s.check(&m), Some(Fault::NonFinite));
+        assert_eq!(s.check(&normal()), None);
+        assert!(s.is_faulted(), "a fault must stay latched");
+        s.clear();
+        assert!(!s.is_faulted());
+    }
+
+    #[test]
+    fn codes_round_trip_and_names_are_distinct() {
+        for (i, f) in Fault::ALL.iter().enumerate() {
+            assert_eq!(Fault::from_code(f.code()), Some(*f));
+            for g in &Fault::ALL[i + 1..] {
+                assert_ne!(f.name(), g.name());
+            }
+        }
+        assert_eq!(Fault::from_code(0), None);
+    }
+}
