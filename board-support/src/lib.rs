@@ -1,3 +1,93 @@
-//! STM32F4 board support for foc-core (PLACEHOLDER, filled by the board work).
+//! STM32F4 board support for `foc-core`: one module per board, selected by
+//! cargo feature, all with the same API.
+//!
+//! # Layout
+//!
+//! - [`logic`]: pure logic (register encodings, unit conversions, sensor
+//!   decoding). Always compiled, tested on the host with
+//!   `cargo test -p board-support` (no feature).
+//! - `hw` (feature `_hal`, set by every board feature): drivers implementing
+//!   `foc_core::hal::{PwmDriver, CurrentSense, AngleSensor, BusVoltage}` on
+//!   the STM32F4 (stm32f4xx-hal 0.23 where it has the API, PAC for the rest;
+//!   every `unsafe` names its reference-manual section).
+//! - `boards::*`: one module per board; the selected one is re-exported as
+//!   `board`.
+//!
+//! # Boards (exactly one feature per build)
+//!
+//! | feature                  | board                                      |
+//! |--------------------------|--------------------------------------------|
+//! | `nucleo-f446re-ihm07m1`  | NUCLEO-F446RE + X-NUCLEO-IHM07M1 (default) |
+//! | `nucleo-f401re-ihm07m1`  | NUCLEO-F401RE + X-NUCLEO-IHM07M1           |
+//! | `odrive-v3`              | ODrive v3.x (STM32F405RG), axis M0         |
+//!
+//! Never build two boards in one cargo invocation: the HAL chip features
+//! clash. The linker memory layout of each board is in
+//! `board-support/memory/<feature>.x`.
+//!
+//! # The uniform API (identical names on every board)
+//!
+//! `board_support::pac` is `stm32f4xx_hal::pac`. `board_support::board` is
+//! the selected board module and provides:
+//!
+//! - constants: `NAME: &str`, `SYSCLK_HZ: u32`, `PWM_FREQUENCY_HZ: u32`
+//!   (20 kHz; `PWM_FREQUENCY_15K_HZ` is the source's 15 kHz alternative,
+//!   swap it in the board module to use it), `DEAD_TIME_NS: u32`,
+//!   `CURRENT_IRQ: pac::Interrupt` (ADC: end of the injected conversion of
+//!   the phase currents, once per PWM period), `BREAK_IRQ: pac::Interrupt`
+//!   (`TIM1_BRK_TIM9`), `MAX_PHASE_CURRENT_A: f32` (power stage, peak),
+//!   `MAX_MEASURABLE_CURRENT_A: f32` (current-sense range),
+//!   `BUS_VOLTAGE_MIN_V: f32`, `BUS_VOLTAGE_MAX_V: f32`, `HAS_BREAK_INPUT: bool`;
+//! - type aliases `Pwm`, `Currents`, `Angle`, `Bus` implementing
+//!   [`foc_core::hal::PwmDriver`], [`foc_core::hal::CurrentSense`],
+//!   [`foc_core::hal::AngleSensor`], [`foc_core::hal::BusVoltage`];
+//! - `pub struct Board { pub pwm: Pwm, pub currents: Currents, pub angle: Angle,
+//!   pub bus: Bus, pub led: Led }` and `pub fn init(dp: pac::Peripherals) -> Board`:
+//!   clocks, pins, timers, ADC (and the DRV8301 over SPI on the ODrive). On
+//!   return the bridge is **disabled** (safe state), the PWM counter runs
+//!   (so the ADC is triggered every period and `CURRENT_IRQ` becomes pending
+//!   once the NVIC line is unmasked, which is left to the RTIC app);
+//! - `pub fn emergency_disable()`: safe state from any context (steals the
+//!   peripherals; for panic / HardFault handlers);
+//! - `pub fn break_isr_ack()`: clears the TIM1 break flag, outputs stay off;
+//! - `pub fn gate_driver_fault() -> bool`: the power stage's fault pin is
+//!   asserted (DRV8301 nFAULT on the ODrive, L6230 DIAG/EN on the IHM07M1).
+//!
+//! Safe state = TIM1 `BDTR.MOE = 0` (outputs forced to their idle level,
+//! low: every switch off) **and** the power stage's enable pins low.
+//!
+//! Phase currents are sampled by ADC1 injected conversions triggered by
+//! TIM1 (`TRGO = OC4REF`, channel 4 compare just before the counter peak,
+//! where all low-side switches conduct). `Currents::read_currents` reads
+//! the `JDRx` registers, converts to amperes and clears `JEOC`: call it from
+//! the `CURRENT_IRQ` handler.
 #![no_std]
 #![warn(missing_docs)]
+
+pub mod logic;
+
+#[cfg(feature = "_hal")]
+pub mod hw;
+
+#[cfg(feature = "_hal")]
+pub mod boards;
+
+/// The peripheral access crate of the selected chip.
+#[cfg(feature = "_hal")]
+pub use stm32f4xx_hal::pac;
+
+#[cfg(all(feature = "_hal", feature = "nucleo-f446re-ihm07m1"))]
+pub use boards::nucleo_f446re_ihm07m1 as board;
+
+#[cfg(all(feature = "_hal", feature = "nucleo-f401re-ihm07m1"))]
+pub use boards::nucleo_f401re_ihm07m1 as board;
+
+#[cfg(all(feature = "_hal", feature = "odrive-v3"))]
+pub use boards::odrive_v3 as board;
+
+#[cfg(any(
+    all(feature = "nucleo-f446re-ihm07m1", feature = "nucleo-f401re-ihm07m1"),
+    all(feature = "nucleo-f446re-ihm07m1", feature = "odrive-v3"),
+    all(feature = "nucleo-f401re-ihm07m1", feature = "odrive-v3"),
+))]
+compile_error!("board-support: select exactly one board feature per build");
