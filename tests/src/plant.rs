@@ -469,6 +469,7 @@ pub struct Plant {
     diodes: [Diode; 3],
     // Outputs of the last period.
     v_bus: Real,
+    v_bus_avg: Real,
     i_dc_avg: Real,
     p_in_avg: Real,
     v_terminal_avg: [Real; 3],
@@ -501,6 +502,7 @@ impl Plant {
             enabled: false,
             diodes: [Diode::Open; 3],
             v_bus: cfg.bus_voltage_v,
+            v_bus_avg: cfg.bus_voltage_v,
             i_dc_avg: 0.0,
             p_in_avg: 0.0,
             v_terminal_avg: [0.0; 3],
@@ -604,6 +606,14 @@ impl Plant {
     pub fn v_bus_v(&self) -> Real {
         self.v_bus
     }
+    /// Bus voltage averaged over the sub-steps of the last period [V].
+    ///
+    /// There is no DC-link capacitor in the model: with a source resistance
+    /// and carrier-compared PWM the instantaneous bus voltage (and so the
+    /// sampled one) moves with the switching state.
+    pub fn v_bus_avg_v(&self) -> Real {
+        self.v_bus_avg
+    }
     /// Supply (DC) current averaged over the last period [A].
     pub fn supply_current_a(&self) -> Real {
         self.i_dc_avg
@@ -686,16 +696,19 @@ impl Plant {
         let mut e_in = 0.0;
         let mut q_dc = 0.0;
         let mut v_term = [0.0; 3];
+        let mut v_bus_sum = 0.0;
         for j in 0..n {
             let u0 = j as Real / n as Real;
             let u1 = (j + 1) as Real / n as Real;
             let (de_in, dq_dc, vt) = self.substep(u0, u1, dt);
             e_in += de_in;
             q_dc += dq_dc;
+            v_bus_sum += self.v_bus;
             for k in 0..3 {
                 v_term[k] += vt[k] / n as Real;
             }
         }
+        self.v_bus_avg = v_bus_sum / n as Real;
         self.p_in_avg = e_in / t_period;
         self.i_dc_avg = q_dc / t_period;
         self.v_terminal_avg = v_term;
