@@ -13,7 +13,7 @@ use super::position::PositionLoopConfig;
 use super::speed::SpeedLoopConfig;
 use super::stage::{
     AngleCalibration, CurrentStage, CurrentStageConfig, PositionStage, Sample, SpeedStage,
-    TimeoutReaction,
+    TimeoutReaction, VelocityRef,
 };
 use super::supervisor::{Fault, SupervisorConfig};
 use super::{
@@ -96,6 +96,7 @@ impl CascadeConfig {
                 kp_per_s: speed_bw * 0.25,
                 max_velocity_rad_s: 100.0,
                 max_acceleration_rad_s2: 1000.0,
+                accel_ff_a_per_rad_s2: if kt > 0.0 { inertia_kg_m2 / kt } else { 0.0 },
             },
         }
     }
@@ -114,7 +115,7 @@ pub struct Cascade {
     slot: CommandSlot,
     tick: u32,
     iq_ref_a: f32,
-    w_ref_rad_s: f32,
+    w_ref: VelocityRef,
     feedback: Feedback,
 }
 
@@ -129,7 +130,7 @@ impl Cascade {
             slot: CommandSlot::INIT,
             tick: 0,
             iq_ref_a: 0.0,
-            w_ref_rad_s: 0.0,
+            w_ref: VelocityRef::default(),
             feedback: Feedback::INIT,
         }
     }
@@ -169,9 +170,9 @@ impl Cascade {
         self.iq_ref_a
     }
 
-    /// The velocity reference from the position stage [rad/s].
-    pub fn w_ref_rad_s(&self) -> f32 {
-        self.w_ref_rad_s
+    /// The velocity reference from the position stage.
+    pub fn velocity_ref(&self) -> VelocityRef {
+        self.w_ref
     }
 
     /// One PWM period.
@@ -181,10 +182,10 @@ impl Cascade {
         let n = self.config.rates.speed_divider.max(1) as u32;
         let m = self.config.rates.position_divider.max(1) as u32;
         if self.tick % n == 0 {
-            self.iq_ref_a = self.speed.step(&fb, self.w_ref_rad_s);
+            self.iq_ref_a = self.speed.step(&fb, self.w_ref);
         }
         if self.tick % m == 0 {
-            self.w_ref_rad_s = self.position.step(&fb);
+            self.w_ref = self.position.step(&fb);
         }
         self.feedback = fb;
         bridge

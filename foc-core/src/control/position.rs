@@ -8,7 +8,7 @@
 //!
 //! ```
 //! use foc_core::control::position::{PositionLoop, PositionLoopConfig};
-//! let mut p = PositionLoop::new(PositionLoopConfig { ts_s: 1e-3, kp_per_s: 20.0, max_velocity_rad_s: 50.0, max_acceleration_rad_s2: 500.0 });
+//! let mut p = PositionLoop::new(PositionLoopConfig { ts_s: 1e-3, kp_per_s: 20.0, max_velocity_rad_s: 50.0, max_acceleration_rad_s2: 500.0, accel_ff_a_per_rad_s2: 0.0 });
 //! p.start_move(0.0, 0.0, 1.0);
 //! let _at_start = p.step(0.0); // the reference starts at rest
 //! let w = p.step(0.0);           // then accelerates towards the target
@@ -30,6 +30,9 @@ pub struct PositionLoopConfig {
     pub max_velocity_rad_s: f32,
     /// Trajectory acceleration limit [rad/s^2].
     pub max_acceleration_rad_s2: f32,
+    /// Acceleration feed-forward gain `J / kt` [A / (rad/s^2)]: the q current
+    /// the trajectory's acceleration needs (0 disables it).
+    pub accel_ff_a_per_rad_s2: f32,
 }
 
 /// Position loop with its trajectory generator.
@@ -87,6 +90,16 @@ impl PositionLoop {
         self.traj.target()
     }
 
+    /// q-current feed-forward [A] for the last reference's acceleration.
+    pub fn current_feed_forward_a(&self) -> f32 {
+        let ff = self.config.accel_ff_a_per_rad_s2 * self.last_ref.acceleration;
+        if ff.is_finite() {
+            ff
+        } else {
+            0.0
+        }
+    }
+
     /// The reference point used by the last step.
     pub fn reference(&self) -> TrajectoryPoint {
         self.last_ref
@@ -131,6 +144,7 @@ mod tests {
             kp_per_s: 30.0,
             max_velocity_rad_s: 20.0,
             max_acceleration_rad_s2: 200.0,
+            accel_ff_a_per_rad_s2: 0.0,
         };
         let mut pl = PositionLoop::new(c);
         let mut p = 0.0f32;

@@ -368,6 +368,16 @@ impl CurrentStage {
     }
 }
 
+/// What the position stage hands the speed stage.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct VelocityRef {
+    /// Velocity reference [rad/s, mechanical].
+    pub rad_s: f32,
+    /// Torque feed-forward as a q current [A].
+    pub iq_ff_a: f32,
+}
+
 /// The speed stage: runs every N periods.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct SpeedStage {
@@ -392,11 +402,11 @@ impl SpeedStage {
     /// One step: returns the q-current reference [A] for the current stage.
     /// Outside velocity/position modes it tracks the active current
     /// reference so that entering those modes is bumpless.
-    pub fn step(&mut self, fb: &Feedback, w_ref_from_position_rad_s: f32) -> f32 {
-        let w_ref = match fb.active {
-            Command::Velocity { rad_s } => Some(rad_s),
-            Command::Position { .. } => Some(w_ref_from_position_rad_s),
-            _ => None,
+    pub fn step(&mut self, fb: &Feedback, from_position: VelocityRef) -> f32 {
+        let (w_ref, ff) = match fb.active {
+            Command::Velocity { rad_s } => (Some(rad_s), 0.0),
+            Command::Position { .. } => (Some(from_position.rad_s), from_position.iq_ff_a),
+            _ => (None, 0.0),
         };
         let entering = !matches!(self.last_mode, Mode::Velocity | Mode::Position);
         self.last_mode = fb.mode;
@@ -405,7 +415,7 @@ impl SpeedStage {
                 if entering {
                     self.speed.preload(fb.i_dq_ref_a.q);
                 }
-                self.speed.step(w, fb.velocity_rad_s, 0.0)
+                self.speed.step(w, fb.velocity_rad_s, ff)
             }
             None => {
                 self.speed.preload(fb.i_dq_ref_a.q);
@@ -441,9 +451,10 @@ impl PositionStage {
     pub fn set_config(&mut self, c: PositionLoopConfig) {
         self.pos.set_config(c);
     }
-    /// One step: returns the velocity reference [rad/s] for the speed stage.
-    /// Outside position mode it returns the measured velocity.
-    pub fn step(&mut self, fb: &Feedback) -> f32 {
+    /// One step: returns the velocity reference (and acceleration
+    /// feed-forward) for the speed stage. Outside position mode it returns
+    /// the measured velocity and no feed-forward.
+    pub fn step(&mut self, fb: &Feedback) -> VelocityRef {
         let w = if let Command::Position { rad } = fb.active {
             if self.last_mode != Mode::Position {
                 self.pos.start_move(fb.position_rad, fb.velocity_rad_s, rad);
@@ -451,9 +462,16 @@ impl PositionStage {
                 self.pos.retarget(rad);
             }
             self.last_target = rad;
-            self.pos.step(fb.position_rad)
+            let w = self.pos.step(fb.position_rad);
+            VelocityRef {
+                rad_s: w,
+                iq_ff_a: self.pos.current_feed_forward_a(),
+            }
         } else {
-            fb.velocity_rad_s
+            VelocityRef {
+                rad_s: fb.velocity_rad_s,
+                iq_ff_a: 0.0,
+            }
         };
         self.last_mode = fb.mode;
         w
