@@ -48,6 +48,14 @@ macro_rules! angle_type {
                 if !turns.is_finite() {
                     return Self::ZERO;
                 }
+                // Small magnitudes (typical per-period increments): scale
+                // directly, exact to one LSB. Wrapping a small negative value
+                // into [0, 1) first would round it to the f32 grid near 1.0
+                // (6e-8 turn), i.e. a relative error of 0.4 % for a step of
+                // -1e-4 rad, and a speed-dependent drift in one direction only.
+                if turns > -0.5 && turns < 0.5 {
+                    return Self::from_bits((turns * 4_294_967_296.0) as i32 as u32);
+                }
                 // Keep the fractional part in f32 first so that large inputs
                 // do not lose the bits that matter, then scale to 2^32.
                 let frac = turns - libm::floorf(turns); // [0, 1]
@@ -212,6 +220,23 @@ mod tests {
         let c = b.add_radians(-30f32.to_radians());
         assert!((c.to_degrees() - 340.0).abs() < 1e-3);
         assert!((c.diff_radians(a).to_degrees() + 10.0).abs() < 1e-3);
+    }
+
+    #[test]
+    fn small_negative_steps_are_as_exact_as_positive_ones() {
+        // 10_000 steps of -+1e-4 rad must come back to the start, and each
+        // must be accurate to about f32 precision of the step itself.
+        for rad in [1e-4f32, 3.3e-6, 0.01] {
+            let up = ElectricalAngle::from_radians(rad).to_bits() as i64;
+            let down = ElectricalAngle::from_radians(-rad).to_bits() as i32 as i64;
+            assert!((up + down).abs() <= 1, "{rad}: {up} vs {down}");
+            let exact = rad as f64 / core::f64::consts::TAU * 4_294_967_296.0;
+            assert!(((up as f64) - exact).abs() <= exact * 2.5e-7 + 1.0);
+        }
+        assert_eq!(ElectricalAngle::from_turns(-0.25).to_bits(), 3 << 30);
+        assert_eq!(ElectricalAngle::from_turns(0.25).to_bits(), 1 << 30);
+        assert_eq!(ElectricalAngle::from_turns(-0.5).to_bits(), 1 << 31);
+        assert_eq!(ElectricalAngle::from_turns(2.75).to_bits(), 3 << 30);
     }
 
     #[test]
