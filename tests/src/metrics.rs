@@ -1,0 +1,149 @@
+//! Step-response and tracking metrics, pure functions on sampled traces.
+//!
+//! Times are in samples (one sample per control period); multiply by the
+//! period for seconds. A step goes from `initial` to `target` (either sign).
+//!
+//! ```
+//! use foc_bench::metrics;
+//! let y = [0.0, 0.5, 0.9, 1.05, 1.01, 1.0, 1.0];
+//! assert!((metrics::overshoot_percent(&y, 0.0, 1.0) - 5.0).abs() < 1e-9);
+//! assert_eq!(metrics::settling_index(&y, 0.0, 1.0, 0.02), Some(4));
+//! ```
+
+/// Overshoot past `target` in percent of the step `target - initial`
+/// (0 when the response never passes the target; NaN for a zero step).
+pub fn overshoot_percent(y: &[f64], initial: f64, target: f64) -> f64 {
+    let step = target - initial;
+    if step == 0.0 {
+        return f64::NAN;
+    }
+    let peak = y
+        .iter()
+        .map(|v| (v - target) / step)
+        .fold(0.0f64, f64::max);
+    100.0 * peak
+}
+
+/// First sample index from which `y` stays within `band` (fraction of the
+/// step, 0.02 for the 2 % criterion) of `target` until the end; `None` if it
+/// does not settle.
+pub fn settling_index(y: &[f64], initial: f64, target: f64, band: f64) -> Option<usize> {
+    let tol = band * (target - initial).abs();
+    let last_out = y.iter().rposition(|v| (v - target).abs() > tol);
+    match last_out {
+        None => Some(0),
+        Some(i) if i + 1 < y.len() => Some(i + 1),
+        Some(_) => None,
+    }
+}
+
+/// Rise time in samples from `lo` to `hi` (fractions of the step, e.g. 0.1
+/// and 0.9), linearly interpolated between samples; `None` if not reached.
+pub fn rise_time(y: &[f64], initial: f64, target: f64, lo: f64, hi: f64) -> Option<f64> {
+    let step = target - initial;
+    if step == 0.0 {
+        return None;
+    }
+    let crossing = |frac: f64| -> Option<f64> {
+        let level = frac;
+        let mut prev = 0.0;
+        for (i, v) in y.iter().enumerate() {
+            let x = (v - initial) / step;
+            if x >= level {
+                if i == 0 {
+                    return Some(0.0);
+                }
+                return Some(i as f64 - 1.0 + (level - prev) / (x - prev));
+            }
+            prev = x;
+        }
+        None
+    };
+    Some(crossing(hi)? - crossing(lo)?)
+}
+
+/// Steady-state error `target - mean(last n samples)` (error = setpoint -
+/// measurement). NaN for an empty trace.
+pub fn steady_state_error(y: &[f64], target: f64, last_n: usize) -> f64 {
+    let n = last_n.min(y.len());
+    if n == 0 {
+        return f64::NAN;
+    }
+    let tail = &y[y.len() - n..];
+    target - tail.iter().sum::<f64>() / n as f64
+}
+
+/// RMS of `reference - y` over the common length. NaN when empty.
+pub fn rms_error(reference: &[f64], y: &[f64]) -> f64 {
+    let n = reference.len().min(y.len());
+    if n == 0 {
+        return f64::NAN;
+    }
+    let s: f64 = reference
+        .iter()
+        .zip(y)
+        .map(|(r, v)| (r - v) * (r - v))
+        .sum();
+    (s / n as f64).sqrt()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Second-order step response with damping `z`, natural frequency `wn` [rad/sample].
+    fn second_order(z: f64, wn: f64, n: usize) -> Vec<f64> {
+        let wd = wn * (1.0 - z * z).sqrt();
+        let phi = (z / (1.0 - z * z).sqrt()).atan();
+        (0..n)
+            .map(|k| {
+                let t = k as f64;
+                1.0 - (-z * wn * t).exp() * (wd * t).cos() - (-z * wn * t).exp() * phi.tan() * (wd * t).sin()
+            })
+            .collect()
+    }
+
+    #[test]
+    fn second_order_matches_textbook() {
+        // z = 1/sqrt2 (technical optimum): overshoot exp(-pi z / sqrt(1 - z^2)) = 4.32 %.
+        let z = std::f64::consts::FRAC_1_SQRT_2;
+        let wn = 0.05;
+        let y = second_order(z, wn, 4000);
+        let os = overshoot_percent(&y, 0.0, 1.0);
+        let expected = 100.0 * (-std::f64::consts::PI * z / (1.0 - z * z).sqrt()).exp();
+        assert!((os - expected).abs() < 0.01, "{os} vs {expected}");
+        // 2 % settling of the envelope: about 4 / (z wn) samples (within 25 %).
+        let ts = settling_index(&y, 0.0, 1.0, 0.02).unwrap() as f64;
+        let approx = 4.0 / (z * wn);
+        assert!((ts - approx).abs() < 0.25 * approx, "{ts} vs {approx}");
+        // Same for a negative step.
+        let yn: Vec<f64> = y.iter().map(|v| 2.0 - 2.0 * v).collect();
+        assert!((overshoot_percent(&yn, 2.0, 0.0) - expected).abs() < 0.01);
+    }
+
+    #[test]
+    fn first_order_rise_time() {
+        // 10-90 % rise time of 1 - exp(-t/tau) is tau ln 9.
+        let tau = 50.0;
+        let y: Vec<f64> = (0..1000).map(|k| 1.0 - (-(k as f64) / tau).exp()).collect();
+        let tr = rise_time(&y, 0.0, 1.0, 0.1, 0.9).unwrap();
+        assert!((tr - tau * 9f64.ln()).abs() < 0.5, "{tr}");
+        assert_eq!(overshoot_percent(&y, 0.0, 1.0), 0.0);
+        assert!(rise_time(&y[..10], 0.0, 1.0, 0.1, 0.9).is_none());
+    }
+
+    #[test]
+    fn settling_needs_to_stay_inside() {
+        let y = [0.0, 1.0, 1.0, 1.5, 1.0, 1.0];
+        assert_eq!(settling_index(&y, 0.0, 1.0, 0.02), Some(4));
+        assert_eq!(settling_index(&[0.0, 0.5], 0.0, 1.0, 0.02), None);
+    }
+
+    #[test]
+    fn errors() {
+        let y = [0.0, 0.9, 0.9, 0.9];
+        assert!((steady_state_error(&y, 1.0, 3) - 0.1).abs() < 1e-12);
+        assert!((rms_error(&[1.0, 1.0], &[0.0, 2.0]) - 1.0).abs() < 1e-12);
+        assert!(rms_error(&[], &[]).is_nan());
+    }
+}

@@ -1,0 +1,405 @@
+//! Report writers: CSV traces, stacked SVG plots, dynamometer reports.
+//!
+//! ```no_run
+//! use foc_bench::report::{Trace, Panel, plot_svg};
+//! let mut t = Trace::new(&["iq_ref_a", "iq_a"]);
+//! t.push(0.0, &[1.0, 0.0]);
+//! t.push(1e-4, &[1.0, 0.6]);
+//! t.write_csv("out/trace.csv").unwrap();
+//! plot_svg("out/trace.svg", "current step", &t, &[Panel::new("q current", "A", &["iq_ref_a", "iq_a"])]).unwrap();
+//! ```
+
+use plotters::prelude::*;
+use std::fmt::Write as _;
+use std::io;
+use std::path::Path;
+
+fn other(e: impl std::fmt::Display) -> io::Error {
+    io::Error::other(e.to_string())
+}
+
+/// Time series: a time column [s] and named signal columns.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Trace {
+    names: Vec<String>,
+    time_s: Vec<f64>,
+    columns: Vec<Vec<f64>>,
+}
+
+impl Trace {
+    /// Empty trace with these column names (units in the names: `iq_a`, `speed_rad_s`).
+    pub fn new(names: &[&str]) -> Self {
+        Self {
+            names: names.iter().map(|s| s.to_string()).collect(),
+            time_s: Vec::new(),
+            columns: vec![Vec::new(); names.len()],
+        }
+    }
+    /// Append one row; missing values are NaN, extra ones ignored.
+    pub fn push(&mut self, time_s: f64, values: &[f64]) {
+        self.time_s.push(time_s);
+        for (k, c) in self.columns.iter_mut().enumerate() {
+            c.push(values.get(k).copied().unwrap_or(f64::NAN));
+        }
+    }
+    /// Column names.
+    pub fn names(&self) -> &[String] {
+        &self.names
+    }
+    /// Time column [s].
+    pub fn time_s(&self) -> &[f64] {
+        &self.time_s
+    }
+    /// A column by name.
+    pub fn column(&self, name: &str) -> Option<&[f64]> {
+        let i = self.names.iter().position(|n| n == name)?;
+        self.columns.get(i).map(|c| c.as_slice())
+    }
+    /// Number of rows.
+    pub fn len(&self) -> usize {
+        self.time_s.len()
+    }
+    /// True without rows.
+    pub fn is_empty(&self) -> bool {
+        self.time_s.is_empty()
+    }
+
+    /// CSV text: header `time_s,<names>`, one row per sample.
+    pub fn to_csv(&self) -> String {
+        let mut s = String::from("time_s");
+        for n in &self.names {
+            s.push(',');
+            s.push_str(n);
+        }
+        s.push('\n');
+        for (r, t) in self.time_s.iter().enumerate() {
+            let _ = write!(s, "{t}");
+            for c in &self.columns {
+                let _ = write!(s, ",{}", c[r]);
+            }
+            s.push('\n');
+        }
+        s
+    }
+    /// Write the CSV (creating parent directories).
+    pub fn write_csv(&self, path: impl AsRef<Path>) -> io::Result<()> {
+        write_file(path.as_ref(), &self.to_csv())
+    }
+    /// Parse CSV written by [`Trace::to_csv`].
+    pub fn from_csv(text: &str) -> io::Result<Self> {
+        let mut lines = text.lines();
+        let header = lines.next().ok_or_else(|| other("empty CSV"))?;
+        let mut cols = header.split(',');
+        if cols.next() != Some("time_s") {
+            return Err(other("first column must be time_s"));
+        }
+        let names: Vec<&str> = cols.collect();
+        let mut t = Trace::new(&names);
+        for (i, line) in lines.enumerate() {
+            let vals: Result<Vec<f64>, _> = line.split(',').map(str::parse::<f64>).collect();
+            let vals = vals.map_err(|e| other(format!("row {}: {e}", i + 1)))?;
+            if vals.len() != names.len() + 1 {
+                return Err(other(format!("row {}: {} fields", i + 1, vals.len())));
+            }
+            t.push(vals[0], &vals[1..]);
+        }
+        Ok(t)
+    }
+}
+
+fn write_file(path: &Path, text: &str) -> io::Result<()> {
+    if let Some(dir) = path.parent() {
+        std::fs::create_dir_all(dir)?;
+    }
+    std::fs::write(path, text)
+}
+
+/// One panel of a stacked plot: signals (trace column names) sharing a y axis.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Panel {
+    /// Panel title.
+    pub title: String,
+    /// Unit of the y axis.
+    pub unit: String,
+    /// Column names drawn in this panel (e.g. a reference and a measurement).
+    pub signals: Vec<String>,
+}
+
+impl Panel {
+    /// New panel.
+    pub fn new(title: &str, unit: &str, signals: &[&str]) -> Self {
+        Self {
+            title: title.into(),
+            unit: unit.into(),
+            signals: signals.iter().map(|s| s.to_string()).collect(),
+        }
+    }
+}
+
+fn range(values: impl Iterator<Item = f64>) -> (f64, f64) {
+    let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+    for v in values.filter(|v| v.is_finite()) {
+        lo = lo.min(v);
+        hi = hi.max(v);
+    }
+    if !lo.is_finite() {
+        return (0.0, 1.0);
+    }
+    let pad = ((hi - lo) * 0.05).max(1e-9);
+    (lo - pad, hi + pad)
+}
+
+const COLORS: [RGBColor; 6] = [BLUE, RED, GREEN, MAGENTA, CYAN, BLACK];
+
+/// SVG with one panel per [`Panel`], stacked, all against time [s].
+/// Unknown signal names are an error.
+pub fn plot_svg(path: impl AsRef<Path>, title: &str, trace: &Trace, panels: &[Panel]) -> io::Result<()> {
+    let path = path.as_ref();
+    if let Some(dir) = path.parent() {
+        std::fs::create_dir_all(dir)?;
+    }
+    for p in panels {
+        for s in &p.signals {
+            if trace.column(s).is_none() {
+                return Err(other(format!("unknown signal `{s}`")));
+            }
+        }
+    }
+    let h = 60 + 260 * panels.len().max(1) as u32;
+    let root = SVGBackend::new(path, (900, h)).into_drawing_area();
+    root.fill(&WHITE).map_err(other)?;
+    let root = root.titled(title, ("sans-serif", 22)).map_err(other)?;
+    let areas = root.split_evenly((panels.len().max(1), 1));
+    let (t0, t1) = range(trace.time_s().iter().copied());
+    for (area, p) in areas.iter().zip(panels) {
+        let (y0, y1) = range(
+            p.signals
+                .iter()
+                .filter_map(|s| trace.column(s))
+                .flat_map(|c| c.iter().copied()),
+        );
+        let mut chart = ChartBuilder::on(area)
+            .caption(&p.title, ("sans-serif", 16))
+            .margin(8)
+            .x_label_area_size(30)
+            .y_label_area_size(60)
+            .build_cartesian_2d(t0..t1, y0..y1)
+            .map_err(other)?;
+        chart
+            .configure_mesh()
+            .x_desc("time [s]")
+            .y_desc(p.unit.as_str())
+            .draw()
+            .map_err(other)?;
+        for (k, s) in p.signals.iter().enumerate() {
+            let col = trace.column(s).unwrap_or(&[]);
+            let color = COLORS[k % COLORS.len()];
+            chart
+                .draw_series(LineSeries::new(
+                    trace
+                        .time_s()
+                        .iter()
+                        .zip(col)
+                        .filter(|(_, v)| v.is_finite())
+                        .map(|(t, v)| (*t, *v)),
+                    &color,
+                ))
+                .map_err(other)?
+                .label(s.as_str())
+                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], color));
+        }
+        chart
+            .configure_series_labels()
+            .background_style(WHITE.mix(0.8))
+            .border_style(BLACK)
+            .draw()
+            .map_err(other)?;
+    }
+    root.present().map_err(other)
+}
+
+/// Header of a dynamometer "Performance Curve Report" (source section 12).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct DynoHeader {
+    /// Project number.
+    pub project_no: String,
+    /// Report number.
+    pub report_no: String,
+    /// Motor model (e.g. "M153").
+    pub motor_model: String,
+    /// Test motor number.
+    pub test_motor_no: String,
+    /// Report date (ISO 8601).
+    pub report_date: String,
+    /// Tested by.
+    pub tested_by: String,
+    /// Approved by.
+    pub approved_by: String,
+}
+
+impl DynoHeader {
+    fn fields(&self) -> [(&'static str, &str); 7] {
+        [
+            ("Project No.", &self.project_no),
+            ("Report No.", &self.report_no),
+            ("Motor Model", &self.motor_model),
+            ("Test Motor No.", &self.test_motor_no),
+            ("Report Date", &self.report_date),
+            ("Tested By", &self.tested_by),
+            ("Approved By", &self.approved_by),
+        ]
+    }
+}
+
+/// One operating point of a dynamometer run.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DynoRow {
+    /// Supply voltage [V].
+    pub supply_voltage_v: f64,
+    /// Supply current [A].
+    pub supply_current_a: f64,
+    /// Input power [W].
+    pub input_power_w: f64,
+    /// Speed [rpm].
+    pub speed_rpm: f64,
+    /// Shaft torque [N m].
+    pub torque_nm: f64,
+    /// Mechanical output power [W].
+    pub mechanical_power_w: f64,
+    /// Efficiency, mechanical / input [%].
+    pub efficiency_percent: f64,
+}
+
+impl DynoRow {
+    /// Row from measured values; mechanical power and efficiency are derived
+    /// (`P = T w`, efficiency 0 when no power goes in).
+    pub fn new(
+        supply_voltage_v: f64,
+        supply_current_a: f64,
+        input_power_w: f64,
+        speed_rpm: f64,
+        torque_nm: f64,
+    ) -> Self {
+        let mech = torque_nm * speed_rpm * std::f64::consts::TAU / 60.0;
+        let eff = if input_power_w > 0.0 {
+            100.0 * mech / input_power_w
+        } else {
+            0.0
+        };
+        Self {
+            supply_voltage_v,
+            supply_current_a,
+            input_power_w,
+            speed_rpm,
+            torque_nm,
+            mechanical_power_w: mech,
+            efficiency_percent: eff,
+        }
+    }
+    fn values(&self) -> [f64; 7] {
+        [
+            self.supply_voltage_v,
+            self.supply_current_a,
+            self.input_power_w,
+            self.speed_rpm,
+            self.torque_nm,
+            self.mechanical_power_w,
+            self.efficiency_percent,
+        ]
+    }
+}
+
+/// Column headings of the dynamometer table.
+pub const DYNO_COLUMNS: [&str; 7] = [
+    "Supply voltage [V]",
+    "Supply current [A]",
+    "Input power [W]",
+    "Speed [rpm]",
+    "Torque [N m]",
+    "Mechanical power [W]",
+    "Efficiency [%]",
+];
+
+/// CSV: `# key: value` header lines, then the table.
+pub fn dyno_csv(header: &DynoHeader, rows: &[DynoRow]) -> String {
+    let mut s = String::new();
+    for (k, v) in header.fields() {
+        let _ = writeln!(s, "# {k}: {v}");
+    }
+    s.push_str(&DYNO_COLUMNS.join(","));
+    s.push('\n');
+    for r in rows {
+        let v: Vec<String> = r.values().iter().map(|x| format!("{x:.3}")).collect();
+        s.push_str(&v.join(","));
+        s.push('\n');
+    }
+    s
+}
+
+/// Markdown: title, header table, data table.
+pub fn dyno_markdown(header: &DynoHeader, rows: &[DynoRow]) -> String {
+    let mut s = String::from("# Performance Curve Report\n\n| Field | Value |\n|---|---|\n");
+    for (k, v) in header.fields() {
+        let _ = writeln!(s, "| {k} | {v} |");
+    }
+    s.push_str("\n| ");
+    s.push_str(&DYNO_COLUMNS.join(" | "));
+    s.push_str(" |\n|");
+    s.push_str(&"---:|".repeat(DYNO_COLUMNS.len()));
+    s.push('\n');
+    for r in rows {
+        let v = r.values();
+        let _ = writeln!(
+            s,
+            "| {:.1} | {:.2} | {:.1} | {:.0} | {:.3} | {:.1} | {:.1} |",
+            v[0], v[1], v[2], v[3], v[4], v[5], v[6]
+        );
+    }
+    s
+}
+
+/// SVG curves against speed: torque, supply current, input/mechanical power, efficiency.
+pub fn dyno_svg(path: impl AsRef<Path>, header: &DynoHeader, rows: &[DynoRow]) -> io::Result<()> {
+    let mut t = Trace::new(&[
+        "torque_nm",
+        "supply_current_a",
+        "input_power_w",
+        "mechanical_power_w",
+        "efficiency_percent",
+    ]);
+    let mut sorted: Vec<DynoRow> = rows.to_vec();
+    sorted.sort_by(|a, b| a.speed_rpm.total_cmp(&b.speed_rpm));
+    for r in &sorted {
+        let v = r.values();
+        t.push(r.speed_rpm / 60.0, &[v[4], v[1], v[2], v[5], v[6]]);
+    }
+    let title = format!("Performance Curve Report: {} (x axis: speed [rev/s])", header.motor_model);
+    plot_svg(
+        path,
+        &title,
+        &t,
+        &[
+            Panel::new("Torque", "N m", &["torque_nm"]),
+            Panel::new("Supply current", "A", &["supply_current_a"]),
+            Panel::new("Power", "W", &["input_power_w", "mechanical_power_w"]),
+            Panel::new("Efficiency", "%", &["efficiency_percent"]),
+        ],
+    )
+}
+
+/// Write `<stem>.csv`, `<stem>.md` and `<stem>.svg` into `dir`.
+pub fn write_dyno_report(
+    dir: impl AsRef<Path>,
+    stem: &str,
+    header: &DynoHeader,
+    rows: &[DynoRow],
+) -> io::Result<[std::path::PathBuf; 3]> {
+    let dir = dir.as_ref();
+    let csv = dir.join(format!("{stem}.csv"));
+    let md = dir.join(format!("{stem}.md"));
+    let svg = dir.join(format!("{stem}.svg"));
+    write_file(&csv, &dyno_csv(header, rows))?;
+    write_file(&md, &dyno_markdown(header, rows))?;
+    dyno_svg(&svg, header, rows)?;
+    Ok([csv, md, svg])
+}
