@@ -36,6 +36,7 @@
 )]
 
 pub mod angle;
+pub mod calibration;
 pub mod control;
 pub mod frames;
 pub mod hal;
