@@ -179,7 +179,11 @@ pub struct BenchAngleSensor<'s, 'a> {
 impl AngleSensor for BenchAngleSensor<'_, '_> {
     type Error = BenchError;
     fn read_angle(&mut self) -> Result<MechanicalAngle, BenchError> {
-        self.s.latest.get().map(|m| m.angle).ok_or(BenchError::NoSample)
+        self.s
+            .latest
+            .get()
+            .map(|m| m.angle)
+            .ok_or(BenchError::NoSample)
     }
 }
 

@@ -30,6 +30,8 @@
 #![cfg_attr(not(feature = "std"), no_std)]
 #![forbid(unsafe_code)]
 #![warn(missing_docs)]
+// `Real` is f64 or f32 by feature: a cast to or from it is a no-op in one of the two.
+#![allow(clippy::unnecessary_cast)]
 
 pub mod adapters;
 pub mod plant;

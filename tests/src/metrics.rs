@@ -17,10 +17,7 @@ pub fn overshoot_percent(y: &[f64], initial: f64, target: f64) -> f64 {
     if step == 0.0 {
         return f64::NAN;
     }
-    let peak = y
-        .iter()
-        .map(|v| (v - target) / step)
-        .fold(0.0f64, f64::max);
+    let peak = y.iter().map(|v| (v - target) / step).fold(0.0f64, f64::max);
     100.0 * peak
 }
 
@@ -98,7 +95,8 @@ mod tests {
         (0..n)
             .map(|k| {
                 let t = k as f64;
-                1.0 - (-z * wn * t).exp() * (wd * t).cos() - (-z * wn * t).exp() * phi.tan() * (wd * t).sin()
+                1.0 - (-z * wn * t).exp() * (wd * t).cos()
+                    - (-z * wn * t).exp() * phi.tan() * (wd * t).sin()
             })
             .collect()
     }

@@ -107,8 +107,7 @@ impl MotorFile {
     /// Read, parse and validate a motor file.
     pub fn load(path: impl AsRef<Path>) -> Result<Self, MotorFileError> {
         let path = path.as_ref();
-        let text =
-            std::fs::read_to_string(path).map_err(|e| MotorFileError::Io(path.into(), e))?;
+        let text = std::fs::read_to_string(path).map_err(|e| MotorFileError::Io(path.into(), e))?;
         Self::parse(&text, path)
     }
 
@@ -152,14 +151,23 @@ impl MotorFile {
             (Some(psi), None) => pos(psi, "flux_linkage_wb")?,
             (None, Some(kv)) => pos(kv, "kv_rpm_per_v")?,
             (Some(_), Some(_)) => {
-                return Err(bad("flux_linkage_wb", "and `kv_rpm_per_v` are both given: give one"))
+                return Err(bad(
+                    "flux_linkage_wb",
+                    "and `kv_rpm_per_v` are both given: give one",
+                ))
             }
             (None, None) => {
-                return Err(bad("flux_linkage_wb", "is missing (or give `kv_rpm_per_v`)"))
+                return Err(bad(
+                    "flux_linkage_wb",
+                    "is missing (or give `kv_rpm_per_v`)",
+                ))
             }
         }
         pos(f.inertia_kg_m2, "inertia_kg_m2")?;
-        nonneg(f.viscous_friction_nm_s_per_rad, "viscous_friction_nm_s_per_rad")?;
+        nonneg(
+            f.viscous_friction_nm_s_per_rad,
+            "viscous_friction_nm_s_per_rad",
+        )?;
         nonneg(f.coulomb_friction_nm, "coulomb_friction_nm")?;
         pos(f.rated_current_a, "rated_current_a")?;
         pos(f.max_current_a, "max_current_a")?;
@@ -249,9 +257,14 @@ encoder_counts_per_rev = 4096
     fn clear_errors() {
         let neg = GOOD.replace("r_ohm = 0.1", "r_ohm = -0.1");
         let e = MotorFile::parse(&neg, "neg.toml").unwrap_err().to_string();
-        assert!(e.contains("neg.toml") && e.contains("r_ohm") && e.contains("> 0"), "{e}");
+        assert!(
+            e.contains("neg.toml") && e.contains("r_ohm") && e.contains("> 0"),
+            "{e}"
+        );
         let missing = GOOD.replace("ld_h = 1e-5\n", "");
-        let e = MotorFile::parse(&missing, "m.toml").unwrap_err().to_string();
+        let e = MotorFile::parse(&missing, "m.toml")
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("ld_h"), "{e}");
         let none = GOOD.replace("kv_rpm_per_v = 100.0\n", "");
         let e = MotorFile::parse(&none, "n.toml").unwrap_err().to_string();
@@ -261,7 +274,9 @@ encoder_counts_per_rev = 4096
         let unknown = format!("{GOOD}\nfoo = 1\n");
         let e = MotorFile::parse(&unknown, "u").unwrap_err().to_string();
         assert!(e.contains("foo"), "{e}");
-        let e = MotorFile::load("/nonexistent/x.toml").unwrap_err().to_string();
+        let e = MotorFile::load("/nonexistent/x.toml")
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("cannot read"), "{e}");
     }
 }

@@ -76,6 +76,9 @@
 //! assert!(plant.time_s() > 0.0);
 //! ```
 
+// Loops over the three phases index several parallel arrays.
+#![allow(clippy::needless_range_loop)]
+
 use crate::real::{self, Real, TAU, TWO_PI_3};
 use crate::rng::Rng;
 use foc_core::angle::{ElectricalAngle, MechanicalAngle};
@@ -677,7 +680,13 @@ impl Plant {
         bridge_enabled: bool,
         load_torque_nm: f32,
     ) -> Measurements {
-        let clean = duties.map(|d| if d.is_finite() { d.clamp(0.0, 1.0) } else { 0.5 });
+        let clean = duties.map(|d| {
+            if d.is_finite() {
+                d.clamp(0.0, 1.0)
+            } else {
+                0.5
+            }
+        });
         if self.cfg.compute_delay_periods == 0 {
             self.applied = clean;
         } else {
@@ -775,12 +784,7 @@ impl Plant {
         self.energy.supply_j += w(k1.p_supply, k2.p_supply, k3.p_supply, k4.p_supply);
         self.energy.copper_j += w(k1.p_copper, k2.p_copper, k3.p_copper, k4.p_copper);
         self.energy.shaft_j += w(k1.p_shaft, k2.p_shaft, k3.p_shaft, k4.p_shaft);
-        self.energy.friction_j += w(
-            k1.p_friction,
-            k2.p_friction,
-            k3.p_friction,
-            k4.p_friction,
-        );
+        self.energy.friction_j += w(k1.p_friction, k2.p_friction, k3.p_friction, k4.p_friction);
         self.energy.load_j += w(k1.p_load, k2.p_load, k3.p_load, k4.p_load);
         self.energy.short_j += w(k1.p_short, k2.p_short, k3.p_short, k4.p_short);
         let e_in = w(k1.p_supply, k2.p_supply, k3.p_supply, k4.p_supply);
@@ -809,7 +813,10 @@ impl Plant {
         } else {
             let mut n_crossed = 0;
             for k in 0..3 {
-                let (c, s) = (real::cos(th_e - PHASE_AXIS[k]), real::sin(th_e - PHASE_AXIS[k]));
+                let (c, s) = (
+                    real::cos(th_e - PHASE_AXIS[k]),
+                    real::sin(th_e - PHASE_AXIS[k]),
+                );
                 let ik = id * c - iq * s;
                 let crossed = match (drives[k], self.enabled, self.diodes[k]) {
                     (Drive::Open, _, _) => true,
@@ -1023,7 +1030,10 @@ impl Plant {
         }
         // One open phase: recompute the multiplier of `deriv` at the present state.
         let d = self.deriv([self.id, self.iq, self.omega_m, self.theta_m], drives, 0);
-        let (c, s) = (real::cos(th_e - PHASE_AXIS[z]), real::sin(th_e - PHASE_AXIS[z]));
+        let (c, s) = (
+            real::cos(th_e - PHASE_AXIS[z]),
+            real::sin(th_e - PHASE_AXIS[z]),
+        );
         let (ad, aq) = (c, -s);
         let (gd, gq) = (ad / m.ld_h, aq / m.lq_h);
         let (add, adq) = (-we * s, -we * c);
@@ -1125,7 +1135,11 @@ impl Plant {
 
         // Encoder.
         let cpr = s.encoder_counts_per_rev.max(1);
-        let dir = if self.faults.encoder_reversed { -1.0 } else { 1.0 };
+        let dir = if self.faults.encoder_reversed {
+            -1.0
+        } else {
+            1.0
+        };
         let turns = (dir * self.theta_m - s.encoder_offset_rad) / TAU;
         let frac = turns - real::floor(turns);
         let mut counts = (real::floor(frac * cpr as Real) as i64).rem_euclid(cpr as i64);

@@ -153,7 +153,12 @@ const COLORS: [RGBColor; 6] = [BLUE, RED, GREEN, MAGENTA, CYAN, BLACK];
 
 /// SVG with one panel per [`Panel`], stacked, all against time [s].
 /// Unknown signal names are an error.
-pub fn plot_svg(path: impl AsRef<Path>, title: &str, trace: &Trace, panels: &[Panel]) -> io::Result<()> {
+pub fn plot_svg(
+    path: impl AsRef<Path>,
+    title: &str,
+    trace: &Trace,
+    panels: &[Panel],
+) -> io::Result<()> {
     let path = path.as_ref();
     if let Some(dir) = path.parent() {
         std::fs::create_dir_all(dir)?;
@@ -373,7 +378,10 @@ pub fn dyno_svg(path: impl AsRef<Path>, header: &DynoHeader, rows: &[DynoRow]) -
         let v = r.values();
         t.push(r.speed_rpm / 60.0, &[v[4], v[1], v[2], v[5], v[6]]);
     }
-    let title = format!("Performance Curve Report: {} (x axis: speed [rev/s])", header.motor_model);
+    let title = format!(
+        "Performance Curve Report: {} (x axis: speed [rev/s])",
+        header.motor_model
+    );
     plot_svg(
         path,
         &title,

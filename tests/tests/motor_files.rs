@@ -22,7 +22,11 @@ fn every_motor_file_loads_and_simulates() {
         let mut p = Plant::new(m, cfg);
         p.set_mechanics(Mechanics::Locked);
         let delta = 0.1 * f.rated_current_a * f.r_ohm / f.bus_voltage_v;
-        let d = [0.5 + delta as f32, 0.5 - delta as f32 / 2.0, 0.5 - delta as f32 / 2.0];
+        let d = [
+            0.5 + delta as f32,
+            0.5 - delta as f32 / 2.0,
+            0.5 - delta as f32 / 2.0,
+        ];
         let tau = f.ld_h.max(f.lq_h) / f.r_ohm;
         let periods = (12.0 * tau * f.pwm_frequency_hz) as usize + 10;
         for _ in 0..periods {
@@ -30,9 +34,16 @@ fn every_motor_file_loads_and_simulates() {
         }
         let expected = f.bus_voltage_v * (delta as f32 as f64) / f.r_ohm;
         let ia = p.phase_currents_a()[0];
-        assert!((ia - expected).abs() < 0.01 * expected, "{}: {ia} vs {expected}", f.name);
+        assert!(
+            (ia - expected).abs() < 0.01 * expected,
+            "{}: {ia} vs {expected}",
+            f.name
+        );
         names.push(f.name);
     }
-    assert!(names.len() >= 4, "expected at least 4 motor files, found {names:?}");
+    assert!(
+        names.len() >= 4,
+        "expected at least 4 motor files, found {names:?}"
+    );
     assert!(names.iter().any(|n| n.starts_with("M153")));
 }

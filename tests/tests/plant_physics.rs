@@ -52,7 +52,10 @@ fn duties_for(plant: &Plant, vd: Real, vq: Real) -> [f32; 3] {
 #[test]
 fn locked_rotor_step_is_first_order_with_ld_and_lq() {
     let m = motor();
-    for (axis, theta_e, l) in [("d", 0.0, m.ld_h), ("q", -core::f64::consts::FRAC_PI_2, m.lq_h)] {
+    for (axis, theta_e, l) in [
+        ("d", 0.0, m.ld_h),
+        ("q", -core::f64::consts::FRAC_PI_2, m.lq_h),
+    ] {
         let mut p = Plant::new(m, cfg());
         p.set_rotor_angle(theta_e / m.pole_pairs as Real);
         p.set_mechanics(Mechanics::Locked);
@@ -70,10 +73,21 @@ fn locked_rotor_step_is_first_order_with_ld_and_lq() {
             let ia = meas.currents.to_abc().a as Real;
             worst = worst.max((ia - expected).abs() / i_final);
             // The current lies on the A axis: d at theta_e = 0, q at -90 deg.
-            let (on, off) = if axis == "d" { (p.id_a(), p.iq_a()) } else { (p.iq_a(), -p.id_a()) };
-            assert!((on - ia).abs() < 1e-3 * i_final && off.abs() < 1e-3 * i_final, "{axis}");
+            let (on, off) = if axis == "d" {
+                (p.id_a(), p.iq_a())
+            } else {
+                (p.iq_a(), -p.id_a())
+            };
+            assert!(
+                (on - ia).abs() < 1e-3 * i_final && off.abs() < 1e-3 * i_final,
+                "{axis}"
+            );
         }
-        assert!(worst < 0.01, "{axis} axis: worst error {:.3} %", worst * 100.0);
+        assert!(
+            worst < 0.01,
+            "{axis} axis: worst error {:.3} %",
+            worst * 100.0
+        );
     }
 }
 
@@ -87,7 +101,10 @@ fn computation_delay_holds_new_duties_one_period() {
     let m1 = p.step_period(step, true, 0.0);
     assert!(m1.currents.to_abc().a.abs() < 1e-4, "applied without delay");
     let m2 = p.step_period(step, true, 0.0);
-    assert!(m2.currents.to_abc().a > 0.05, "not applied after one period");
+    assert!(
+        m2.currents.to_abc().a > 0.05,
+        "not applied after one period"
+    );
 }
 
 /// Phasor of `x(t)` at `w` [rad/s] by correlation over whole cycles.
@@ -124,20 +141,29 @@ fn open_circuit_back_emf_amplitude_and_phase_order() {
             va.push((tm, v[0] - mean));
             vb.push((tm, v[1] - mean));
             vc.push((tm, v[2] - mean));
-            assert!(p.phase_currents_a().iter().all(|i| *i == 0.0), "EMF below bus drove current");
+            assert!(
+                p.phase_currents_a().iter().all(|i| *i == 0.0),
+                "EMF below bus drove current"
+            );
         }
         let (amp_a, ph_a) = phasor(&va, we.abs());
         let (amp_b, ph_b) = phasor(&vb, we.abs());
         let (_, ph_c) = phasor(&vc, we.abs());
         let expected = we.abs() * m.flux_linkage_wb;
         for amp in [amp_a, amp_b] {
-            assert!((amp - expected).abs() < 0.01 * expected, "amplitude {amp} vs {expected}");
+            assert!(
+                (amp - expected).abs() < 0.01 * expected,
+                "amplitude {amp} vs {expected}"
+            );
         }
         // B lags A by 120 deg and C lags B by 120 deg for positive speed.
         let lag = |x: Real, y: Real| (x - y).rem_euclid(core::f64::consts::TAU).to_degrees();
         let (ab, bc) = (lag(ph_a, ph_b), lag(ph_b, ph_c));
         let want = if dir > 0.0 { 120.0 } else { 240.0 };
-        assert!((ab - want).abs() < 1.0 && (bc - want).abs() < 1.0, "dir {dir}: {ab} {bc}");
+        assert!(
+            (ab - want).abs() < 1.0 && (bc - want).abs() < 1.0,
+            "dir {dir}: {ab} {bc}"
+        );
     }
 }
 
@@ -157,7 +183,10 @@ fn applying_the_back_emf_gives_zero_current() {
     }
     // Short-circuit current for scale.
     let isc = we * m.flux_linkage_wb / m.r_ohm.hypot(we * m.lq_h);
-    assert!(worst < 0.02 * isc, "residual {worst} A vs short-circuit {isc} A");
+    assert!(
+        worst < 0.02 * isc,
+        "residual {worst} A vs short-circuit {isc} A"
+    );
 }
 
 #[test]
@@ -175,7 +204,10 @@ fn constant_iq_accelerates_at_te_over_j() {
         // Steady-state voltages for (0, iq) at the present speed.
         let d = duties_for(&p, -we * m.lq_h * iq, m.r_ohm * iq + we * m.flux_linkage_wb);
         p.step_period(d, true, 0.0);
-        assert!((p.iq_a() - iq).abs() < 0.03 * iq && p.id_a().abs() < 0.03 * iq, "k {k}");
+        assert!(
+            (p.iq_a() - iq).abs() < 0.03 * iq && p.id_a().abs() < 0.03 * iq,
+            "k {k}"
+        );
         if k == 499 {
             w_start = Some(p.omega_m_rad_s());
         }
@@ -183,8 +215,14 @@ fn constant_iq_accelerates_at_te_over_j() {
     let w0 = w_start.unwrap();
     let accel = (p.omega_m_rad_s() - w0) / ((n - 500) as Real * t);
     let expected = 1.5 * m.pole_pairs as Real * m.flux_linkage_wb * iq / m.inertia_kg_m2;
-    assert!((accel - expected).abs() < 0.01 * expected, "{accel} vs {expected}");
-    assert!(p.omega_m_rad_s() > 0.0, "positive iq must turn the rotor forward");
+    assert!(
+        (accel - expected).abs() < 0.01 * expected,
+        "{accel} vs {expected}"
+    );
+    assert!(
+        p.omega_m_rad_s() > 0.0,
+        "positive iq must turn the rotor forward"
+    );
 }
 
 fn energy_balance(mode: PwmMode, dead_time_s: Real) {
@@ -296,8 +334,14 @@ fn dead_time_voltage_error_opposes_current() {
             let dv = -ideal.signum() * 24.0 * td * 15_000.0 * 4.0 / 3.0;
             let expected = dv / m.r_ohm;
             let got = with - ideal;
-            assert!(got.signum() == -ideal.signum(), "{mode:?}: error must oppose the current");
-            assert!((got - expected).abs() < 0.02 * expected.abs(), "{mode:?} {got} vs {expected}");
+            assert!(
+                got.signum() == -ideal.signum(),
+                "{mode:?}: error must oppose the current"
+            );
+            assert!(
+                (got - expected).abs() < 0.02 * expected.abs(),
+                "{mode:?} {got} vs {expected}"
+            );
         }
     }
 }
@@ -315,7 +359,11 @@ fn disabled_bridge_currents_decay_to_zero_and_stay() {
             e_before = Some(p.energy().supply_j);
         }
     }
-    assert!(p.phase_currents_a().iter().all(|i| *i == 0.0), "{:?}", p.phase_currents_a());
+    assert!(
+        p.phase_currents_a().iter().all(|i| *i == 0.0),
+        "{:?}",
+        p.phase_currents_a()
+    );
     // The inductive energy went back to the bus through the diodes.
     assert!(e_before.unwrap() < 0.0);
 }
@@ -334,11 +382,18 @@ fn disabled_bridge_rectifies_when_emf_exceeds_bus() {
     assert!(e.supply_j < -0.5, "no regeneration: {e:?}");
     assert!(p.omega_m_rad_s() < 300.0 * 0.9, "no braking");
     // Kinetic energy lost = returned to bus + copper loss.
-    let lost = 0.5 * m.inertia_kg_m2 * (300.0f64 * 300.0) - p.kinetic_energy_j() - p.magnetic_energy_j();
-    assert!((lost - (-e.supply_j + e.copper_j)).abs() < 0.005 * lost, "{lost} vs {e:?}");
+    let lost =
+        0.5 * m.inertia_kg_m2 * (300.0f64 * 300.0) - p.kinetic_energy_j() - p.magnetic_energy_j();
+    assert!(
+        (lost - (-e.supply_j + e.copper_j)).abs() < 0.005 * lost,
+        "{lost} vs {e:?}"
+    );
     // Below the bus the rotor coasts with no current.
     let line_peak = 3f64.sqrt() * p.omega_e_rad_s().abs() * m.flux_linkage_wb;
-    assert!(line_peak > 11.0 && line_peak < 12.5, "settled EMF {line_peak}");
+    assert!(
+        line_peak > 11.0 && line_peak < 12.5,
+        "settled EMF {line_peak}"
+    );
 }
 
 #[test]
@@ -380,11 +435,17 @@ fn sensors_quantise_and_faults_show_up() {
     // Faults.
     p.faults_mut().encoder_reversed = true;
     let r = p.step_period(d, true, 0.0).angle.to_radians() as Real;
-    assert!((r - (core::f64::consts::TAU - 1.0)).abs() < 2.0 * step, "reversed {r}");
+    assert!(
+        (r - (core::f64::consts::TAU - 1.0)).abs() < 2.0 * step,
+        "reversed {r}"
+    );
     p.faults_mut().encoder_reversed = false;
     p.faults_mut().encoder = EncoderFault::Jump(1024);
     let j = p.step_period(d, true, 0.0).angle.to_radians() as Real;
-    assert!((j - (1.0 + core::f64::consts::FRAC_PI_2)).abs() < 2.0 * step, "jump {j}");
+    assert!(
+        (j - (1.0 + core::f64::consts::FRAC_PI_2)).abs() < 2.0 * step,
+        "jump {j}"
+    );
     p.faults_mut().encoder = EncoderFault::Stuck;
     p.set_rotor_angle(2.0);
     let s = p.step_period(d, true, 0.0).angle.to_radians() as Real;
@@ -417,14 +478,24 @@ fn disconnected_phase_and_phase_short() {
     assert!(i[2].abs() < 1e-6, "open phase carries {}", i[2]);
     // A and B in series: 2R, driven by the A-B line voltage 0.2 * 24 V.
     let expected = 0.2 * 24.0 / (2.0 * m.r_ohm);
-    assert!((i[0] - expected).abs() < 0.01 * expected && (i[1] + i[0]).abs() < 1e-6, "{i:?}");
+    assert!(
+        (i[0] - expected).abs() < 0.01 * expected && (i[1] + i[0]).abs() < 1e-6,
+        "{i:?}"
+    );
 
     let mut p = Plant::new(m, cfg());
     p.set_mechanics(Mechanics::Locked);
     let normal = p.step_period(d, true, 0.0).currents.to_abc();
-    p.faults_mut().phase_short = Some(PhaseShort { a: Phase::A, b: Phase::B, r_ohm: 0.01 });
+    p.faults_mut().phase_short = Some(PhaseShort {
+        a: Phase::A,
+        b: Phase::B,
+        r_ohm: 0.01,
+    });
     let short = p.step_period(d, true, 0.0).currents.to_abc();
-    assert!(short.a > 100.0 && short.b < -100.0, "{short:?} vs {normal:?}");
+    assert!(
+        short.a > 100.0 && short.b < -100.0,
+        "{short:?} vs {normal:?}"
+    );
     assert!(p.supply_current_a() > 50.0);
 }
 

@@ -43,8 +43,17 @@ fn trace_csv_round_trip_and_svg() {
     for name in ["iq_ref_a", "iq_a", "speed_rad_s", "q current"] {
         assert!(s.contains(name), "{name} missing in SVG");
     }
-    assert!(s.matches("<polyline").count() >= 3, "expected one polyline per series");
-    assert!(report::plot_svg(dir.join("x.svg"), "x", &t, &[Panel::new("p", "u", &["nope"])]).is_err());
+    assert!(
+        s.matches("<polyline").count() >= 3,
+        "expected one polyline per series"
+    );
+    assert!(report::plot_svg(
+        dir.join("x.svg"),
+        "x",
+        &t,
+        &[Panel::new("p", "u", &["nope"])]
+    )
+    .is_err());
 }
 
 #[test]
@@ -95,10 +104,20 @@ fn dyno_report_files() {
         .filter(|l| l.starts_with("| ") && l.split('|').count() == 9 && !l.contains("Supply"))
         .collect();
     assert_eq!(data_rows.len(), 10);
-    assert!(data_rows[0].starts_with("| 26.0 | 42.00 | 930.0 | 260 |"), "{}", data_rows[0]);
+    assert!(
+        data_rows[0].starts_with("| 26.0 | 42.00 | 930.0 | 260 |"),
+        "{}",
+        data_rows[0]
+    );
 
     let svg = std::fs::read_to_string(svg).unwrap();
-    for name in ["torque_nm", "input_power_w", "mechanical_power_w", "efficiency_percent", "M153"] {
+    for name in [
+        "torque_nm",
+        "input_power_w",
+        "mechanical_power_w",
+        "efficiency_percent",
+        "M153",
+    ] {
         assert!(svg.contains(name), "{name}");
     }
 }
