@@ -14,8 +14,13 @@
 //! - [`AntiWindup::Clamp`]: conditional integration. The integration step
 //!   of this sample is undone when it would push further into the limit.
 //! - [`AntiWindup::BackCalculation`]: `I += kb * ts * (u - u_raw)`, which
-//!   bleeds the integrator towards the value that just reaches the limit
-//!   (`kb` in 1/s; `kb = ki / kp` is the usual choice).
+//!   bleeds the integrator back towards the value that just reaches the
+//!   limit (`kb` in 1/s; `kb = ki / kp` is the usual choice). While the
+//!   error persists the integrator settles where integration and tracking
+//!   balance, `I = hi - kp e + ki e / kb` (clamped to `[lo, hi]`): with
+//!   `kb = ki / kp` that is the limit itself, so the *bound* on the
+//!   integrator is what ends windup there; a larger `kb` keeps it closer to
+//!   `hi - kp e` and recovers faster (see `tests/pi_props.rs`).
 //!
 //! ```
 //! use foc_core::pi::{Pi, PiConfig, AntiWindup};
@@ -130,7 +135,10 @@ impl Pi {
             return 0.0;
         }
         if !error.is_finite() {
+            // Hold the integrator, but inside this sample's limits (which may
+            // have moved), so that the stored state never leaves them.
             let u = clamp(self.state.integral, lo, hi);
+            self.state.integral = u;
             self.state.saturated = true;
             self.state.output = u;
             return u;
