@@ -294,7 +294,10 @@ mod tests {
             ocp_mode: OcpMode::Disabled,
             oc_adj_set: 99,
         };
-        assert_eq!(c1.bits(), 0b11111_11_1_1_10);
+        assert_eq!(
+            c1.bits(),
+            (31 << 6) | (0b11 << 4) | (1 << 3) | (1 << 2) | 0b10
+        );
         for (g, bits) in [(10, 0), (20, 1), (40, 2), (80, 3)] {
             let c2 = Control2 {
                 octw_mode: OctwMode::OcOnly,

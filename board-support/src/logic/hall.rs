@@ -324,7 +324,7 @@ mod tests {
             prop_assert!(r.velocity_elec_rad_s.is_finite());
             let e = r.mechanical.to_electrical(7).to_degrees();
             let d = (e - deg).abs();
-            prop_assert!(d < 0.1 || d > 359.9, "mech->elec {} vs {}", e, deg);
+            prop_assert!(!(0.1..=359.9).contains(&d), "mech->elec {} vs {}", e, deg);
         }
     }
 }

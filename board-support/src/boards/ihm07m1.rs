@@ -1,0 +1,220 @@
+//! X-NUCLEO-IHM07M1 (L6230 three-phase driver) on a NUCLEO-64 board: the
+//! part shared by the F446RE and F401RE boards.
+//!
+//! Pin map. Sources: ST UM1943 (X-NUCLEO-IHM07M1 user manual) via the
+//! Apache NuttX board documentation of this shield on NUCLEO-64 boards
+//! (`Documentation/platforms/arm/stm32f3/boards/nucleo-f302r8/index.rst`,
+//! `boards/arm/stm32/nucleo-f103rb/README.txt`; the NUCLEO-64 morpho
+//! connectors route the same pins on every LQFP64 part, ST UM1724), and the
+//! STM32F401/F446 datasheets' alternate-function tables:
+//!
+//! | signal                 | pin   | function here                 |
+//! |------------------------|-------|-------------------------------|
+//! | IN1 / IN2 / IN3        | PA8 / PA9 / PA10 | TIM1_CH1..3 (AF1) |
+//! | EN1 / EN2 / EN3        | PC10 / PC11 / PC12 | GPIO out, high = phase on |
+//! | DIAG/EN (L6230 fault)  | PA11  | GPIO in, low = fault          |
+//! | current U / V / W      | PA0 / PC1 / PC0 | ADC1_IN0 / IN11 / IN10 |
+//! | VBUS                   | PA1   | ADC1_IN1                      |
+//! | temperature (NTC)      | PC2   | ADC1_IN12 (not converted)     |
+//! | ENC A / H1             | PA15  | TIM2_CH1 (AF1) or GPIO        |
+//! | ENC B / H2             | PB3   | TIM2_CH2 (AF1) or GPIO        |
+//! | ENC Z / H3             | PB10  | TIM2_CH3 (AF1, index capture) or GPIO |
+//! | user LED LD2 (NUCLEO)  | PA5   | GPIO out (ST UM1724)          |
+//!
+//! Power stage (same sources): shunts 0.33 ohm, current amplifier gain
+//! -1.53 (inverting, biased), bus divider 169k / 9.31k (ratio 19.152),
+//! bus 8..48 V, L6230 output 1.4 A rms (2.8 A peak).
+//!
+//! No TIM1 break input: the shield's BKIN1 signal lands on PB14, which is
+//! TIM1_CH2N on the F4, not BKIN. The L6230's own over-current/thermal
+//! protection pulls DIAG/EN low and disables the bridge by itself; that pin
+//! is what [`gate_driver_fault`] reports.
+
+use super::Led;
+use crate::hw::adc::{setup_adc1, InjectedCurrents, RegularBus, SampleTime, Shunts};
+use crate::hw::angle::{AngleInput, AngleSource, HallSensor, QuadEncoder};
+use crate::hw::pwm::{PwmConfig, Tim1Pwm, Topology};
+use crate::hw::{enable_cycle_counter, PinId, Port};
+use crate::logic::hall::HallConfig;
+use crate::logic::scaling::{CurrentScale, VoltageScale};
+use crate::pac;
+use stm32f4xx_hal::gpio::{GpioExt, PinState};
+use stm32f4xx_hal::qei::Qei;
+use stm32f4xx_hal::rcc::{Config, Enable, RccExt, Reset};
+
+/// The L6230 enable pins EN1..3 (PC10, PC11, PC12).
+pub const ENABLE_PINS: [PinId; 3] = [
+    PinId::new(Port::C, 10),
+    PinId::new(Port::C, 11),
+    PinId::new(Port::C, 12),
+];
+/// L6230 DIAG/EN (open drain, low = over-current or over-temperature).
+pub const DIAG_PIN: PinId = PinId::new(Port::A, 11);
+/// NUCLEO user LED LD2.
+pub const LED_PIN: PinId = PinId::new(Port::A, 5);
+/// Hall inputs H1, H2, H3 (phase A, B, C sensors).
+pub const HALL_PINS: [PinId; 3] = [
+    PinId::new(Port::A, 15),
+    PinId::new(Port::B, 3),
+    PinId::new(Port::B, 10),
+];
+
+/// ADC channels of the three shunts (U, V, W).
+pub const CURRENT_CHANNELS: [u8; 3] = [0, 11, 10];
+/// ADC channel of the bus voltage.
+pub const BUS_CHANNEL: u8 = 1;
+
+/// Shunt resistance [ohm].
+pub const SHUNT_OHM: f32 = 0.33;
+/// Current amplifier gain magnitude [V/V] (the amplifier inverts).
+pub const CURRENT_GAIN: f32 = 1.53;
+/// Bus divider ratio `(169k + 9.31k) / 9.31k`.
+pub const BUS_DIVIDER_RATIO: f32 = (169_000.0 + 9_310.0) / 9_310.0;
+/// ADC reference [V] (VDDA = 3.3 V on the NUCLEO-64).
+pub const VREF_V: f32 = 3.3;
+
+/// Current conversion: nominal mid-scale bias; the residual offset is the
+/// firmware's calibration (`CurrentSense::set_offsets_a`).
+pub const CURRENT_SCALE: CurrentScale =
+    CurrentScale::new(SHUNT_OHM, CURRENT_GAIN, VREF_V, 12, 2048.0, -1.0);
+/// Bus-voltage conversion.
+pub const BUS_SCALE: VoltageScale = VoltageScale::ratio(BUS_DIVIDER_RATIO, VREF_V, 12);
+
+/// The PWM stage.
+pub type Pwm = Tim1Pwm;
+/// Phase-current sensing (three shunts).
+pub type Currents = InjectedCurrents;
+/// Rotor angle: encoder on TIM2 or halls (see `ANGLE_SOURCE`).
+pub type Angle = AngleInput<pac::TIM2>;
+/// Bus voltage.
+pub type Bus = RegularBus;
+
+/// Everything `init` sets up.
+pub struct Board {
+    /// TIM1 PWM (3-PWM + EN pins), disabled.
+    pub pwm: Pwm,
+    /// Phase currents (ADC1 injected, TIM1-triggered).
+    pub currents: Currents,
+    /// Rotor angle.
+    pub angle: Angle,
+    /// Bus voltage (ADC1 regular).
+    pub bus: Bus,
+    /// NUCLEO LED LD2.
+    pub led: Led,
+}
+
+/// Parameters that differ between the NUCLEO boards.
+pub(crate) struct Params {
+    pub rcc: Config,
+    pub sysclk_hz: u32,
+    pub pwm_hz: u32,
+    pub angle: AngleSource,
+}
+
+pub(crate) fn init(dp: pac::Peripherals, p: Params) -> Board {
+    // Safe state first: EN pins low before anything else.
+    let mut rcc = dp.RCC.freeze(p.rcc);
+    let gpioa = dp.GPIOA.split(&mut rcc);
+    let gpiob = dp.GPIOB.split(&mut rcc);
+    let gpioc = dp.GPIOC.split(&mut rcc);
+    let _en1 = gpioc.pc10.into_push_pull_output_in_state(PinState::Low);
+    let _en2 = gpioc.pc11.into_push_pull_output_in_state(PinState::Low);
+    let _en3 = gpioc.pc12.into_push_pull_output_in_state(PinState::Low);
+    let _diag = gpioa.pa11.into_pull_up_input();
+    let _led = gpioa.pa5.into_push_pull_output_in_state(PinState::Low);
+    enable_cycle_counter();
+
+    // TIM1: CH1..3 on PA8..10 (AF1).
+    let _ch1 = gpioa.pa8.into_alternate::<1>();
+    let _ch2 = gpioa.pa9.into_alternate::<1>();
+    let _ch3 = gpioa.pa10.into_alternate::<1>();
+    pac::TIM1::enable(&mut rcc);
+    pac::TIM1::reset(&mut rcc);
+    let tim_clk = rcc.clocks.timclk2().raw();
+    let pwm = match Tim1Pwm::new(
+        dp.TIM1,
+        tim_clk,
+        PwmConfig {
+            frequency_hz: p.pwm_hz,
+            topology: Topology::ThreePwm,
+            break_input: None,
+            enable_pins: &ENABLE_PINS,
+            enable_pins_in_disable: true,
+        },
+    ) {
+        Ok(pwm) => pwm,
+        // Only a PWM_FREQUENCY_HZ const out of range gets here: a build-time
+        // configuration error, before the bridge was ever enabled.
+        Err(e) => panic!("PWM timing: {:?}", e),
+    };
+
+    // ADC1.
+    let _ia = gpioa.pa0.into_analog();
+    let _ib = gpioc.pc1.into_analog();
+    let _ic = gpioc.pc0.into_analog();
+    let _vbus = gpioa.pa1.into_analog();
+    pac::ADC1::enable(&mut rcc);
+    pac::ADC1::reset(&mut rcc);
+    setup_adc1(
+        &dp.ADC1,
+        &dp.ADC_COMMON,
+        &CURRENT_CHANNELS,
+        SampleTime::Cycles15,
+        BUS_CHANNEL,
+        SampleTime::Cycles144,
+    );
+    let currents = InjectedCurrents::new(Shunts::Three(CURRENT_CHANNELS), CURRENT_SCALE);
+    let bus = RegularBus::new(BUS_SCALE);
+
+    // Angle input on PA15 / PB3 / PB10.
+    let angle = match p.angle {
+        AngleSource::Encoder { cpr } => {
+            let qei = Qei::new(
+                dp.TIM2,
+                (
+                    gpioa.pa15.into_alternate::<1>(),
+                    gpiob.pb3.into_alternate::<1>(),
+                ),
+                &mut rcc,
+            );
+            let _z = gpiob.pb10.into_alternate::<1>();
+            let _ = qei.release();
+            AngleInput::Encoder(QuadEncoder::new(cpr, true))
+        }
+        AngleSource::Hall(cfg) => {
+            let _h1 = gpioa.pa15.into_pull_up_input();
+            let _h2 = gpiob.pb3.into_pull_up_input();
+            let _h3 = gpiob.pb10.into_pull_up_input();
+            AngleInput::Hall(HallSensor::new(
+                HALL_PINS,
+                HallConfig {
+                    ticks_per_second: p.sysclk_hz,
+                    ..cfg
+                },
+            ))
+        }
+    };
+
+    Board {
+        pwm,
+        currents,
+        angle,
+        bus,
+        led: Led::new(Some(LED_PIN)),
+    }
+}
+
+/// Safe state from any context: `MOE = 0` and EN1..3 low.
+pub fn emergency_disable() {
+    crate::hw::pwm::safe_state_hard(&ENABLE_PINS);
+}
+
+/// Clear the TIM1 break flag; the outputs stay off.
+pub fn break_isr_ack() {
+    crate::hw::pwm::break_flag_clear();
+}
+
+/// True while the L6230 pulls DIAG/EN low (over-current / over-temperature).
+pub fn gate_driver_fault() -> bool {
+    !DIAG_PIN.is_high()
+}

@@ -1,0 +1,312 @@
+//! ODrive v3.x (STM32F405RG, two DRV8301), axis M0 only.
+//!
+//! Pin map. Sources: ODrive firmware `Board/v3/Inc/main.h` (CubeMX pin
+//! defines for v3.5/v3.6) and `board_config.h`, cross-checked with the
+//! Apache NuttX ODrive V3.6 board documentation:
+//!
+//! | signal               | pin              | function here                  |
+//! |----------------------|------------------|--------------------------------|
+//! | M0 AH / BH / CH      | PA8 / PA9 / PA10 | TIM1_CH1..3 (AF1)              |
+//! | M0 AL / BL / CL      | PB13 / PB14 / PB15 | TIM1_CH1N..3N (AF1)          |
+//! | EN_GATE (both DRVs)  | PB12             | GPIO out                       |
+//! | nFAULT (both DRVs)   | PD2              | GPIO in, pull-up, low = fault  |
+//! | SPI3 SCK/MISO/MOSI   | PC10 / PC11 / PC12 | AF6, DRV8301 configuration   |
+//! | M0 nCS / M1 nCS      | PC13 / PC14      | GPIO out, idle high            |
+//! | M0 SO1 (phase B)     | PC0              | ADC1_IN10                      |
+//! | M0 SO2 (phase C)     | PC1              | ADC1_IN11                      |
+//! | VBUS_S               | PA6              | ADC1_IN6                       |
+//! | M0 ENC A / B         | PB4 / PB5        | TIM3_CH1 / CH2 (AF2)           |
+//! | M0 ENC Z             | PC9              | TIM3_CH4 (AF2, index capture)  |
+//! | M1 AH/BH/CH, AL/BL/CL| PC6-8, PA7/PB0/PB1 | GPIO out low (M1 unused)     |
+//!
+//! Power stage: shunts 0.5 mOhm (v3.4 and later; 0.675 mOhm on v3.1-3.3),
+//! DRV8301 amplifier gain 10/20/40/80 (40 used: +-82 A range), VBUS divider
+//! ratio 19 (v3.5+ 56 V variant; 11 on older boards), 8 MHz HSE crystal,
+//! 168 MHz. NuttX lists 40 A output without MOSFET cooling.
+//!
+//! No TIM1 break input is wired (PB12, the F405's TIM1_BKIN pin, is
+//! EN_GATE). The DRV8301 latches its own over-current shut-down (OCP
+//! latch mode, V_DS threshold 0.730 V as the ODrive firmware sets) and
+//! reports on nFAULT: [`gate_driver_fault`].
+//!
+//! `Pwm::disable` clears MOE only (all gate inputs low = every FET off) and
+//! keeps EN_GATE high, because EN_GATE low resets the DRV8301's SPI
+//! configuration; [`emergency_disable`] also pulls EN_GATE low (gate
+//! drivers shut down), after which `Pwm::enable` refuses until `init` runs
+//! again.
+
+pub use super::Led;
+use crate::hw::adc::{setup_adc1, InjectedCurrents, RegularBus, SampleTime, Shunts};
+pub use crate::hw::angle::AngleSource;
+use crate::hw::angle::{AngleInput, HallSensor, QuadEncoder};
+use crate::hw::drv8301::{Drv8301, Drv8301Error};
+use crate::hw::pwm::{PwmConfig, Tim1Pwm, Topology};
+use crate::hw::{delay_us, enable_cycle_counter, PinId, Port};
+use crate::logic::drv8301::{Control1, Control2, Gain, GateCurrent, OcpMode, OctwMode, PwmMode};
+use crate::logic::hall::HallConfig;
+use crate::logic::scaling::{CurrentScale, VoltageScale};
+use crate::pac;
+use fugit::RateExtU32;
+use stm32f4xx_hal::gpio::{GpioExt, Output, PinState, PC13};
+use stm32f4xx_hal::qei::Qei;
+use stm32f4xx_hal::rcc::{Config, Enable, RccExt, Reset};
+use stm32f4xx_hal::spi::{Spi, SpiExt};
+
+/// Board name.
+pub const NAME: &str = "ODrive v3.x (M0)";
+/// Core clock [Hz].
+pub const SYSCLK_HZ: u32 = 168_000_000;
+/// The source's alternative PWM frequency [Hz].
+pub const PWM_FREQUENCY_15K_HZ: u32 = 15_000;
+/// PWM frequency [Hz] (set to [`PWM_FREQUENCY_15K_HZ`] for 15 kHz).
+pub const PWM_FREQUENCY_HZ: u32 = 20_000;
+/// TIM1 dead time [ns] (ODrive: 20 clocks at 168 MHz = 119 ns; rounded up
+/// by the DTG encoding to 21 clocks = 125 ns).
+pub const DEAD_TIME_NS: u32 = 120;
+/// ADC interrupt (injected end of conversion of the phase currents).
+pub const CURRENT_IRQ: pac::Interrupt = pac::Interrupt::ADC;
+/// TIM1 break interrupt (never fires here: no BKIN on this board).
+pub const BREAK_IRQ: pac::Interrupt = pac::Interrupt::TIM1_BRK_TIM9;
+/// TIM1 BKIN wired to a hardware fault signal.
+pub const HAS_BREAK_INPUT: bool = false;
+/// Largest phase current of the power stage [A] (without MOSFET cooling).
+pub const MAX_PHASE_CURRENT_A: f32 = 40.0;
+/// Largest current the sensing can measure [A] (1.65 V / (40 * 0.5 mOhm)).
+pub const MAX_MEASURABLE_CURRENT_A: f32 = 82.0;
+/// Lowest bus voltage [V].
+pub const BUS_VOLTAGE_MIN_V: f32 = 12.0;
+/// Highest bus voltage [V] (56 V variant; 24 V on the 24 V variant).
+pub const BUS_VOLTAGE_MAX_V: f32 = 56.0;
+/// Rotor angle input chosen at `init`: the M0 encoder (CUI AMT102 at 2048
+/// lines = 8192 counts, the usual ODrive encoder; change to suit).
+pub const ANGLE_SOURCE: AngleSource = AngleSource::Encoder { cpr: 8192 };
+
+/// Shunt resistance [ohm] (v3.4+).
+pub const SHUNT_OHM: f32 = 0.0005;
+/// DRV8301 amplifier gain.
+pub const CURRENT_GAIN: Gain = Gain::G40;
+/// VBUS divider ratio (v3.5+).
+pub const BUS_DIVIDER_RATIO: f32 = 19.0;
+/// Current conversion (DRV8301 output `Vref/2 - G (SN - SP)`, ODrive's
+/// sign convention: positive).
+pub const CURRENT_SCALE: CurrentScale =
+    CurrentScale::new(SHUNT_OHM, CURRENT_GAIN.value(), 3.3, 12, 2048.0, 1.0);
+/// Bus-voltage conversion.
+pub const BUS_SCALE: VoltageScale = VoltageScale::ratio(BUS_DIVIDER_RATIO, 3.3, 12);
+
+/// DRV8301 control register 1 as the ODrive firmware sets it.
+pub const DRV_CONTROL1: Control1 = Control1 {
+    gate_current: GateCurrent::A1_7,
+    gate_reset: false,
+    pwm_mode: PwmMode::SixInputs,
+    ocp_mode: OcpMode::LatchShutdown,
+    oc_adj_set: 21, // 0.730 V
+};
+/// DRV8301 control register 2.
+pub const DRV_CONTROL2: Control2 = Control2 {
+    octw_mode: OctwMode::OtAndOc,
+    gain: CURRENT_GAIN,
+    dc_cal_ch1: false,
+    dc_cal_ch2: false,
+    oc_toff: false,
+};
+
+/// EN_GATE (both DRV8301).
+pub const EN_GATE: PinId = PinId::new(Port::B, 12);
+/// nFAULT (both DRV8301, open drain).
+pub const NFAULT_PIN: PinId = PinId::new(Port::D, 2);
+/// Hall inputs when `ANGLE_SOURCE` is halls (encoder A, B, Z pins).
+pub const HALL_PINS: [PinId; 3] = [
+    PinId::new(Port::B, 4),
+    PinId::new(Port::B, 5),
+    PinId::new(Port::C, 9),
+];
+const ENABLE_PINS: [PinId; 1] = [EN_GATE];
+/// ADC channels of the shunts (phase B, phase C).
+pub const CURRENT_CHANNELS: [u8; 2] = [10, 11];
+/// ADC channel of VBUS.
+pub const BUS_CHANNEL: u8 = 6;
+
+/// The PWM stage.
+pub type Pwm = Tim1Pwm;
+/// Phase currents (shunts on B and C, A derived).
+pub type Currents = InjectedCurrents;
+/// Rotor angle: encoder on TIM3 or halls.
+pub type Angle = AngleInput<pac::TIM3>;
+/// Bus voltage.
+pub type Bus = RegularBus;
+/// The M0 DRV8301 on SPI3.
+pub type GateDriver = Drv8301<Spi<pac::SPI3>, PC13<Output>>;
+
+/// Everything `init` sets up.
+pub struct Board {
+    /// TIM1 6-PWM with dead time, disabled.
+    pub pwm: Pwm,
+    /// Phase currents (ADC1 injected, TIM1-triggered).
+    pub currents: Currents,
+    /// Rotor angle.
+    pub angle: Angle,
+    /// Bus voltage (ADC1 regular).
+    pub bus: Bus,
+    /// No user LED on the ODrive: a no-op.
+    pub led: Led,
+    /// The M0 gate driver (status reads).
+    pub gate_driver: GateDriver,
+    /// Result of the DRV8301 configuration at init. On error EN_GATE is
+    /// left low and `pwm.enable()` fails.
+    pub gate_driver_config: Result<(), Drv8301Error>,
+}
+
+/// Set up clocks, pins, TIM1, ADC1, the DRV8301 and the angle input.
+/// Bridge disabled (MOE = 0; EN_GATE high if the DRV8301 was configured),
+/// PWM counter running, NVIC untouched.
+pub fn init(dp: pac::Peripherals) -> Board {
+    let mut rcc = dp.RCC.freeze(
+        Config::hse(8.MHz())
+            .sysclk(SYSCLK_HZ.Hz())
+            .hclk(SYSCLK_HZ.Hz())
+            .pclk1(42.MHz())
+            .pclk2(84.MHz()),
+    );
+    let gpioa = dp.GPIOA.split(&mut rcc);
+    let gpiob = dp.GPIOB.split(&mut rcc);
+    let gpioc = dp.GPIOC.split(&mut rcc);
+    let gpiod = dp.GPIOD.split(&mut rcc);
+    // Gate drivers off, M1 inputs low.
+    let _en_gate = gpiob.pb12.into_push_pull_output_in_state(PinState::Low);
+    let _m1 = (
+        gpioc.pc6.into_push_pull_output_in_state(PinState::Low),
+        gpioc.pc7.into_push_pull_output_in_state(PinState::Low),
+        gpioc.pc8.into_push_pull_output_in_state(PinState::Low),
+        gpioa.pa7.into_push_pull_output_in_state(PinState::Low),
+        gpiob.pb0.into_push_pull_output_in_state(PinState::Low),
+        gpiob.pb1.into_push_pull_output_in_state(PinState::Low),
+    );
+    let _nfault = gpiod.pd2.into_pull_up_input();
+    let m0_ncs = gpioc.pc13.into_push_pull_output_in_state(PinState::High);
+    let _m1_ncs = gpioc.pc14.into_push_pull_output_in_state(PinState::High);
+    enable_cycle_counter();
+
+    // TIM1 6-PWM.
+    let _h = (
+        gpioa.pa8.into_alternate::<1>(),
+        gpioa.pa9.into_alternate::<1>(),
+        gpioa.pa10.into_alternate::<1>(),
+    );
+    let _l = (
+        gpiob.pb13.into_alternate::<1>(),
+        gpiob.pb14.into_alternate::<1>(),
+        gpiob.pb15.into_alternate::<1>(),
+    );
+    pac::TIM1::enable(&mut rcc);
+    pac::TIM1::reset(&mut rcc);
+    let tim_clk = rcc.clocks.timclk2().raw();
+    let pwm = match Tim1Pwm::new(
+        dp.TIM1,
+        tim_clk,
+        PwmConfig {
+            frequency_hz: PWM_FREQUENCY_HZ,
+            topology: Topology::SixPwm {
+                dead_time_ns: DEAD_TIME_NS,
+            },
+            break_input: None,
+            enable_pins: &ENABLE_PINS,
+            enable_pins_in_disable: false,
+        },
+    ) {
+        Ok(pwm) => pwm,
+        // Only a PWM_FREQUENCY_HZ const out of range gets here.
+        Err(e) => panic!("PWM timing: {:?}", e),
+    };
+
+    // DRV8301: EN_GATE high (MOE = 0 keeps every gate input low), let it
+    // start, configure over SPI3 (mode 1, 1 MHz) and read back.
+    let spi = dp.SPI3.spi(
+        (
+            Some(gpioc.pc10.into_alternate::<6>()),
+            Some(gpioc.pc11.into_alternate::<6>()),
+            Some(gpioc.pc12.into_alternate::<6>()),
+        ),
+        embedded_hal::spi::MODE_1,
+        1.MHz(),
+        &mut rcc,
+    );
+    EN_GATE.set(true);
+    delay_us(SYSCLK_HZ, 20_000);
+    let mut gate_driver = Drv8301::new(spi, m0_ncs, SYSCLK_HZ / 1_000_000);
+    let gate_driver_config = gate_driver.configure(DRV_CONTROL1, DRV_CONTROL2);
+    if gate_driver_config.is_err() {
+        EN_GATE.set(false);
+    }
+
+    // ADC1: B and C shunts, VBUS.
+    let _ib = gpioc.pc0.into_analog();
+    let _ic = gpioc.pc1.into_analog();
+    let _vbus = gpioa.pa6.into_analog();
+    pac::ADC1::enable(&mut rcc);
+    pac::ADC1::reset(&mut rcc);
+    setup_adc1(
+        &dp.ADC1,
+        &dp.ADC_COMMON,
+        &CURRENT_CHANNELS,
+        SampleTime::Cycles15,
+        BUS_CHANNEL,
+        SampleTime::Cycles144,
+    );
+    let currents = InjectedCurrents::new(Shunts::BC(CURRENT_CHANNELS), CURRENT_SCALE);
+    let bus = RegularBus::new(BUS_SCALE);
+
+    let angle = match ANGLE_SOURCE {
+        AngleSource::Encoder { cpr } => {
+            let qei = Qei::new(
+                dp.TIM3,
+                (
+                    gpiob.pb4.into_alternate::<2>(),
+                    gpiob.pb5.into_alternate::<2>(),
+                ),
+                &mut rcc,
+            );
+            let _z = gpioc.pc9.into_alternate::<2>();
+            let _ = qei.release();
+            AngleInput::Encoder(QuadEncoder::new(cpr, true))
+        }
+        AngleSource::Hall(cfg) => {
+            let _h1 = gpiob.pb4.into_pull_up_input();
+            let _h2 = gpiob.pb5.into_pull_up_input();
+            let _h3 = gpioc.pc9.into_pull_up_input();
+            AngleInput::Hall(HallSensor::new(
+                HALL_PINS,
+                HallConfig {
+                    ticks_per_second: SYSCLK_HZ,
+                    ..cfg
+                },
+            ))
+        }
+    };
+
+    Board {
+        pwm,
+        currents,
+        angle,
+        bus,
+        led: Led::new(None),
+        gate_driver,
+        gate_driver_config,
+    }
+}
+
+/// Safe state from any context: `MOE = 0` and EN_GATE low (both DRV8301
+/// shut down; `init` must run again before the bridge can be enabled).
+pub fn emergency_disable() {
+    crate::hw::pwm::safe_state_hard(&ENABLE_PINS);
+}
+
+/// Clear the TIM1 break flag; the outputs stay off.
+pub fn break_isr_ack() {
+    crate::hw::pwm::break_flag_clear();
+}
+
+/// True while a DRV8301 pulls nFAULT low.
+pub fn gate_driver_fault() -> bool {
+    !NFAULT_PIN.is_high()
+}

@@ -1,0 +1,252 @@
+//! ADC1: phase currents by injected conversions triggered by TIM1, bus
+//! voltage by software-started regular conversions.
+//!
+//! The HAL has no injected-conversion API, so this is register-level (RM0090
+//! section 13 / RM0390 section 13 / RM0368 section 11, ADC):
+//!
+//! - `ADC_CCR.ADCPRE = 01`: ADCCLK = PCLK2 / 4 (21 MHz at PCLK2 = 84 MHz,
+//!   22.5 MHz at 90 MHz; the limit is 36 MHz);
+//! - `CR1.SCAN = 1` (needed for a sequence), `JEOCIE = 1`, 12 bits;
+//! - `CR2.JEXTSEL = 0001` (TIM1_TRGO), `JEXTEN = 01` (rising edge), `ADON`;
+//! - `JSQR`: with `JL = n - 1` the sequence occupies the *last* n `JSQx`
+//!   fields (RM0090 13.13.12); results land in `JDR1..n` in order;
+//! - the regular group (one channel, `SQ1`) is started by `SWSTART`;
+//!   a trigger of the injected group interrupts it and it resumes after.
+//!
+//! `read_currents` must run after `JEOC` (the `CURRENT_IRQ` handler).
+
+use crate::logic::scaling::{CurrentScale, VoltageScale};
+use crate::pac;
+use foc_core::frames::Abc;
+use foc_core::hal::{BusVoltage, CurrentSense, PhaseCurrents};
+
+/// ADC sample time codes (`SMPx`), in ADC clock cycles.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SampleTime {
+    /// 3 cycles.
+    Cycles3 = 0,
+    /// 15 cycles.
+    Cycles15 = 1,
+    /// 28 cycles.
+    Cycles28 = 2,
+    /// 56 cycles.
+    Cycles56 = 3,
+    /// 84 cycles.
+    Cycles84 = 4,
+    /// 112 cycles.
+    Cycles112 = 5,
+    /// 144 cycles.
+    Cycles144 = 6,
+    /// 480 cycles.
+    Cycles480 = 7,
+}
+
+/// Which phases the shunts measure.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Shunts {
+    /// Three shunts: channels for A, B, C.
+    Three([u8; 3]),
+    /// Two shunts on phases B and C (A = -B - C): channels for B, C.
+    BC([u8; 2]),
+}
+
+/// Current-sense error.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "_hal", derive(defmt::Format))]
+pub enum AdcError {
+    /// No new injected sample since the last read (`JEOC` clear).
+    NotReady,
+}
+
+/// Phase currents from ADC1 injected conversions.
+pub struct InjectedCurrents {
+    shunts: Shunts,
+    scale: CurrentScale,
+    offsets: Abc,
+}
+
+fn set_sample_time(adc: &pac::adc1::RegisterBlock, ch: u8, smp: SampleTime) {
+    let s = smp as u32;
+    // SAFETY: SMPR1 holds channels 10..18, SMPR2 0..9, 3 bits each
+    // (RM0090 13.13.4-5); every 3-bit value is a valid sample time.
+    unsafe {
+        if ch >= 10 {
+            let sh = 3 * (ch as u32 - 10);
+            adc.smpr1()
+                .modify(|r, w| w.bits((r.bits() & !(7 << sh)) | (s << sh)));
+        } else {
+            let sh = 3 * ch as u32;
+            adc.smpr2()
+                .modify(|r, w| w.bits((r.bits() & !(7 << sh)) | (s << sh)));
+        }
+    }
+}
+
+/// Configure ADC1 (clock already enabled and reset by the caller, analog
+/// pins already in analog mode): injected `channels` triggered by TIM1 TRGO,
+/// one regular channel `bus_channel`, and start the first bus conversion.
+pub fn setup_adc1(
+    adc: &pac::ADC1,
+    common: &pac::ADC_COMMON,
+    injected: &[u8],
+    current_smp: SampleTime,
+    bus_channel: u8,
+    bus_smp: SampleTime,
+) {
+    let n = injected.len().clamp(1, 4);
+    // SAFETY (whole block): ADC1 / ADC common registers, RM0090 13.13; all
+    // `bits` values are in range (channels < 19, JL < 4, prescaler code).
+    unsafe {
+        common.ccr().modify(|_, w| w.adcpre().bits(0b01));
+        adc.cr2().write(|w| w.adon().clear_bit());
+        adc.cr1()
+            .write(|w| w.scan().set_bit().jeocie().set_bit().res().bits(0b00));
+        for ch in injected.iter().take(n) {
+            set_sample_time(adc, *ch, current_smp);
+        }
+        set_sample_time(adc, bus_channel, bus_smp);
+        // Injected sequence in the last n JSQ fields (JSQ(4-n+1)..JSQ4).
+        let mut jsqr: u32 = ((n as u32) - 1) << 20;
+        for (i, ch) in injected.iter().take(n).enumerate() {
+            let field = 4 - n + i; // 0-based JSQ index
+            jsqr |= ((*ch as u32) & 0x1F) << (5 * field);
+        }
+        adc.jsqr().write(|w| w.bits(jsqr));
+        // Regular: one conversion, channel in SQ1.
+        adc.sqr1().write(|w| w.l().bits(0));
+        adc.sqr3().write(|w| w.sq1().bits(bus_channel & 0x1F));
+        adc.cr2().write(|w| {
+            w.adon().set_bit().eocs().set_bit();
+            w.jextsel().bits(0b0001).jexten().bits(0b01)
+        });
+    }
+    // t_STAB after ADON (RM0090 13.3.6): a few microseconds; the caller's
+    // later set-up takes longer, and the first result is discarded anyway.
+    cortex_m::asm::delay(1_000);
+    // SAFETY: clear the flags (rc_w0), start the first regular conversion.
+    unsafe {
+        adc.sr().write(|w| w.bits(0));
+        adc.cr2().modify(|_, w| w.swstart().set_bit());
+    }
+}
+
+impl InjectedCurrents {
+    /// Phase currents from an ADC set up by [`setup_adc1`] with the shunt
+    /// channels in the order of `shunts`.
+    pub const fn new(shunts: Shunts, scale: CurrentScale) -> Self {
+        Self {
+            shunts,
+            scale,
+            offsets: Abc::new(0.0, 0.0, 0.0),
+        }
+    }
+
+    /// Raw `JDR1..3` values (for diagnostics / calibration).
+    pub fn raw(&self) -> [u16; 3] {
+        // SAFETY: read-only access to ADC1 JDRx (RM0090 13.13.10).
+        let adc = unsafe { &*pac::ADC1::ptr() };
+        [
+            adc.jdr(0).read().jdata().bits(),
+            adc.jdr(1).read().jdata().bits(),
+            adc.jdr(2).read().jdata().bits(),
+        ]
+    }
+
+    /// The conversion from counts to amperes.
+    pub const fn scale(&self) -> &CurrentScale {
+        &self.scale
+    }
+}
+
+impl CurrentSense for InjectedCurrents {
+    type Error = AdcError;
+
+    fn read_currents(&mut self) -> Result<PhaseCurrents, AdcError> {
+        // SAFETY: ADC1 SR / JDRx (RM0090 13.13.1, 13.13.10). SR bits are
+        // rc_w0 and the PAC's write() puts 1 in the untouched ones, so only
+        // JEOC (and JSTRT) are cleared, never the regular group's EOC.
+        let adc = unsafe { &*pac::ADC1::ptr() };
+        if adc.sr().read().jeoc().bit_is_clear() {
+            return Err(AdcError::NotReady);
+        }
+        let r = self.raw();
+        adc.sr().write(|w| w.jeoc().clear_bit().jstrt().clear_bit());
+        let s = &self.scale;
+        Ok(match self.shunts {
+            Shunts::Three(_) => PhaseCurrents::ThreePhase(Abc::new(
+                s.amps(r[0]) - self.offsets.a,
+                s.amps(r[1]) - self.offsets.b,
+                s.amps(r[2]) - self.offsets.c,
+            )),
+            Shunts::BC(_) => {
+                let b = s.amps(r[0]) - self.offsets.b;
+                let c = s.amps(r[1]) - self.offsets.c;
+                // Phase A derived; foc-core's TwoPhase derives c = -a - b,
+                // which gives back the measured c.
+                PhaseCurrents::TwoPhase {
+                    a_a: -b - c,
+                    b_a: b,
+                }
+            }
+        })
+    }
+
+    fn offsets_a(&self) -> Abc {
+        self.offsets
+    }
+
+    fn set_offsets_a(&mut self, offsets: Abc) {
+        self.offsets = match self.shunts {
+            Shunts::Three(_) => offsets,
+            // B and C are measured; A has no offset of its own.
+            Shunts::BC(_) => Abc::new(0.0, offsets.b, offsets.c),
+        };
+    }
+}
+
+/// Bus-voltage error.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "_hal", derive(defmt::Format))]
+pub enum BusError {
+    /// No conversion has completed yet.
+    NotReady,
+}
+
+/// Bus voltage from the ADC1 regular group, one software-started
+/// conversion at a time: each read returns the newest completed result and
+/// starts the next conversion.
+pub struct RegularBus {
+    scale: VoltageScale,
+    last_v: Option<f32>,
+}
+
+impl RegularBus {
+    /// Bus voltage reader (ADC set up by [`setup_adc1`]).
+    pub const fn new(scale: VoltageScale) -> Self {
+        Self {
+            scale,
+            last_v: None,
+        }
+    }
+}
+
+impl BusVoltage for RegularBus {
+    type Error = BusError;
+
+    fn read_bus_voltage_v(&mut self) -> Result<f32, BusError> {
+        // SAFETY: ADC1 SR/DR/CR2 (RM0090 13.13.1-3, 13.13.14). Reading DR
+        // clears EOC; SWSTART is only written here; CR2 is not written by
+        // the current-sense ISR.
+        let adc = unsafe { &*pac::ADC1::ptr() };
+        if adc.sr().read().eoc().bit_is_set() {
+            let counts = adc.dr().read().data().bits();
+            self.last_v = Some(self.scale.volts(counts));
+            adc.cr2().modify(|_, w| w.swstart().set_bit());
+        } else if adc.sr().read().ovr().bit_is_set() {
+            // Overrun (RM0090 13.8.2): conversions stopped; start again.
+            adc.sr().write(|w| w.ovr().clear_bit());
+            adc.cr2().modify(|_, w| w.swstart().set_bit());
+        }
+        self.last_v.ok_or(BusError::NotReady)
+    }
+}
