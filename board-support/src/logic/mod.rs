@@ -1,6 +1,6 @@
 //! Pure logic, no hardware: always compiled, tested on the host.
 //!
-//! Every register encoding and unit conversion the drivers in [`crate::hw`]
+//! Every register encoding and unit conversion the drivers in `crate::hw`
 //! use lives here, where `cargo test -p board-support` can check it.
 
 pub mod as5047p;
