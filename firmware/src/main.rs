@@ -1,3 +1,329 @@
-//! PLACEHOLDER firmware (filled by the firmware work).
+//! # The RTIC v2 FOC application
+//!
+//! One binary per board (`cargo xtask build --board <name>`). Tasks, from
+//! the highest priority down:
+//!
+//! | task | bound to | priority | rate (20 kHz PWM) | does |
+//! |---|---|---|---|---|
+//! | `bridge_break` | `TIM1_BRK_TIM9` | 5 | on fault | timer break / gate-driver fault: bridge off, latch `GateDriverFault` |
+//! | `current_loop` | `ADC` (injected end of conversion, triggered by TIM1 at the PWM centre) | 4 | every PWM period, 20 kHz | start-up calibration, then read currents/angle/bus, `CurrentStage::step`, write PWM, pend the slower loops, measure its own time |
+//! | `speed_loop` | `EXTI1` (pended by `current_loop`) | 3 | every `SPEED_DIVIDER` = 10 periods, 2 kHz | `SpeedStage::step`: velocity PI -> `iq_ref` |
+//! | `position_loop` | `EXTI2` (pended by `current_loop`) | 2 | every `POSITION_DIVIDER` = 20 periods, 1 kHz | `PositionStage::step`: trajectory + P -> velocity reference |
+//! | `housekeeping` | `EXTI3` (pended by `current_loop`) | 1 | every 400 periods, 50 Hz | start-up command, telemetry log |
+//! | `idle` | - | 0 | background | feeds the watchdog only while the current loop runs |
+//!
+//! `EXTI1..3` are used only as software-pended vectors: no EXTI line is
+//! configured, so nothing else can trigger them.
+//!
+//! Start-up: clocks and pins (`board::init`, bridge off), current-offset
+//! calibration (1024 periods with the bridge off, rejected when far from
+//! mid-scale or noisy), an angle-sensor check, then the disabled mode,
+//! waiting for a command (`config::START_COMMAND` is `None` by default).
+//!
+//! Safety: any fault latched by the supervisor puts the bridge in the safe
+//! state in the same period. The panic and HardFault handlers call
+//! `board::emergency_disable()` before anything else, then log.
 #![no_std]
 #![no_main]
+
+mod config;
+mod timing;
+mod watchdog;
+
+use board_support::board;
+use core::sync::atomic::AtomicU32;
+use defmt_rtt as _;
+
+/// Current-loop runs; `idle` feeds the watchdog only when this advances.
+static CURRENT_LOOP_RUNS: AtomicU32 = AtomicU32::new(0);
+
+#[rtic::app(device = board_support::pac, peripherals = true)]
+mod app {
+    use super::{config, timing, watchdog, CURRENT_LOOP_RUNS};
+    use board_support::board;
+    use board_support::pac::Interrupt;
+    use core::sync::atomic::Ordering;
+    use foc_core::calibration::offsets::{OffsetCalibrator, OffsetLimits, OffsetStep};
+    use foc_core::control::stage::{CurrentStage, PositionStage, SpeedStage, VelocityRef};
+    use foc_core::control::{drive, CommandSlot, Fault, Feedback};
+    use foc_core::frames::Abc;
+    use foc_core::hal::{CurrentSense, PwmDriver};
+
+    /// Start-up phase of the current-loop task.
+    #[derive(Clone, Copy, PartialEq, Eq, defmt::Format)]
+    pub enum Phase {
+        /// Averaging the current-sensor offsets with the bridge off.
+        OffsetCalibration,
+        /// Checking that the angle sensor answers.
+        SensorCheck(u32),
+        /// Control running.
+        Run,
+    }
+
+    #[shared]
+    struct Shared {
+        /// Command mailbox. Written by `housekeeping` (prio 1; later the
+        /// command channel); read by `current_loop` (prio 4).
+        command: CommandSlot,
+        /// Feedback published every period. Written by `current_loop` (4);
+        /// read by `speed_loop` (3), `position_loop` (2), `housekeeping` (1).
+        feedback: Feedback,
+        /// q-current reference [A]. Written by `speed_loop` (3); read by
+        /// `current_loop` (4).
+        iq_ref_a: f32,
+        /// Velocity reference and torque feed-forward. Written by
+        /// `position_loop` (2); read by `speed_loop` (3).
+        velocity_ref: VelocityRef,
+        /// Current-loop timing. Written by `current_loop` (4); read by
+        /// `housekeeping` (1).
+        timing: timing::LoopTiming,
+        /// Set by `bridge_break` (5) when the break input fired; taken
+        /// (cleared) by `current_loop` (4), which latches the fault.
+        break_fired: bool,
+        /// Start-up phase. Written by `current_loop` (4); read by
+        /// `housekeeping` (1).
+        phase: Phase,
+    }
+
+    #[local]
+    struct Local {
+        /// `current_loop` only: the board's drivers and the current stage.
+        pwm: board::Pwm,
+        currents: board::Currents,
+        angle: board::Angle,
+        bus: board::Bus,
+        stage: CurrentStage,
+        offsets: OffsetCalibrator,
+        tick: u32,
+        /// `speed_loop` only.
+        speed: SpeedStage,
+        /// `position_loop` only.
+        position: PositionStage,
+        /// `housekeeping` only: start command posted.
+        started: bool,
+        /// `idle` only: last run count seen.
+        seen_runs: u32,
+    }
+
+    #[init]
+    fn init(cx: init::Context) -> (Shared, Local) {
+        let mut cp = cx.core;
+        cp.DCB.enable_trace();
+        cp.DWT.enable_cycle_counter();
+        let b = board::init(cx.device);
+        let cfg = config::cascade(board::PWM_FREQUENCY_HZ as f32);
+        let mut currents = b.currents;
+        currents.set_offsets_a(Abc::default());
+        let budget = (board::SYSCLK_HZ as f32 / board::PWM_FREQUENCY_HZ as f32)
+            * config::CURRENT_LOOP_BUDGET_FRACTION;
+        defmt::info!(
+            "{}: {} Hz PWM, speed /{}, position /{}, budget {} cycles",
+            board::NAME,
+            board::PWM_FREQUENCY_HZ,
+            config::SPEED_DIVIDER,
+            config::POSITION_DIVIDER,
+            budget as u32
+        );
+        watchdog::start(config::WATCHDOG_TIMEOUT_MS);
+        (
+            Shared {
+                command: CommandSlot::INIT,
+                feedback: Feedback::INIT,
+                iq_ref_a: 0.0,
+                velocity_ref: VelocityRef::default(),
+                timing: timing::LoopTiming {
+                    budget_cycles: budget as u32,
+                    ..Default::default()
+                },
+                break_fired: false,
+                phase: Phase::OffsetCalibration,
+            },
+            Local {
+                pwm: b.pwm,
+                currents,
+                angle: b.angle,
+                bus: b.bus,
+                stage: CurrentStage::new(cfg.current),
+                offsets: OffsetCalibrator::new(OffsetLimits {
+                    samples: config::OFFSET_CAL_SAMPLES,
+                    max_offset_a: config::OFFSET_CAL_MAX_A,
+                    max_noise_a: config::OFFSET_CAL_MAX_NOISE_A,
+                }),
+                tick: 0,
+                speed: SpeedStage::new(cfg.speed),
+                position: PositionStage::new(cfg.position),
+                started: false,
+                seen_runs: 0,
+            },
+        )
+    }
+
+    #[idle(local = [seen_runs])]
+    fn idle(cx: idle::Context) -> ! {
+        loop {
+            let runs = CURRENT_LOOP_RUNS.load(Ordering::Relaxed);
+            if runs != *cx.local.seen_runs {
+                *cx.local.seen_runs = runs;
+                watchdog::feed();
+            }
+            cortex_m::asm::wfi();
+        }
+    }
+
+    /// Timer break input / gate-driver fault: bridge off at once.
+    #[task(binds = TIM1_BRK_TIM9, priority = 5, shared = [break_fired])]
+    fn bridge_break(mut cx: bridge_break::Context) {
+        board::emergency_disable();
+        board::break_isr_ack();
+        cx.shared.break_fired.lock(|b| *b = true);
+    }
+
+    /// The current loop: every PWM period, at the ADC end of conversion.
+    #[task(
+        binds = ADC,
+        priority = 4,
+        shared = [command, feedback, iq_ref_a, timing, break_fired, phase],
+        local = [pwm, currents, angle, bus, stage, offsets, tick]
+    )]
+    fn current_loop(mut cx: current_loop::Context) {
+        let t0 = timing::now_cycles();
+        let l = cx.local;
+        let sample = drive::read_sample(l.currents, l.angle, l.bus);
+        let phase = cx.shared.phase.lock(|p| *p);
+        let next_phase = match phase {
+            Phase::OffsetCalibration => {
+                l.pwm.disable();
+                let reading = sample.currents.map(|c| c.to_abc());
+                match reading.map(|r| l.offsets.step(r)) {
+                    Some(OffsetStep::InProgress) => phase,
+                    Some(OffsetStep::Done(o)) => {
+                        l.currents.set_offsets_a(o);
+                        defmt::info!("current offsets [A]: {}", o);
+                        Phase::SensorCheck(0)
+                    }
+                    Some(OffsetStep::Failed(e)) => {
+                        defmt::error!("offset calibration failed: {}", e);
+                        l.stage.report_fault(Fault::CalibrationFailed);
+                        Phase::Run
+                    }
+                    None => {
+                        l.stage.report_fault(Fault::CurrentSenseError);
+                        Phase::Run
+                    }
+                }
+            }
+            Phase::SensorCheck(n) => {
+                l.pwm.disable();
+                if sample.angle.is_none() {
+                    defmt::error!("angle sensor check failed");
+                    l.stage.report_fault(Fault::AngleSensorError);
+                    Phase::Run
+                } else if n + 1 >= config::SENSOR_CHECK_READS {
+                    defmt::info!("start-up done: disabled, waiting for a command");
+                    Phase::Run
+                } else {
+                    Phase::SensorCheck(n + 1)
+                }
+            }
+            Phase::Run => {
+                if cx.shared.break_fired.lock(core::mem::take) || board::gate_driver_fault() {
+                    l.stage.report_fault(Fault::GateDriverFault);
+                }
+                let slot = cx.shared.command.lock(|c| *c);
+                let iq = cx.shared.iq_ref_a.lock(|x| *x);
+                let (bridge, fb) = l.stage.step(&slot, iq, &sample);
+                if let Err(f) = drive::apply(l.pwm, bridge) {
+                    l.stage.report_fault(f);
+                }
+                cx.shared.feedback.lock(|f| *f = fb);
+                phase
+            }
+        };
+        if next_phase != phase {
+            cx.shared.phase.lock(|p| *p = next_phase);
+        }
+        *l.tick = l.tick.wrapping_add(1);
+        let t = *l.tick;
+        if t % config::SPEED_DIVIDER as u32 == 0 {
+            rtic::pend(Interrupt::EXTI1);
+        }
+        if t % config::POSITION_DIVIDER as u32 == 0 {
+            rtic::pend(Interrupt::EXTI2);
+        }
+        if t % config::HOUSEKEEPING_DIVIDER == 0 {
+            rtic::pend(Interrupt::EXTI3);
+        }
+        CURRENT_LOOP_RUNS.fetch_add(1, Ordering::Relaxed);
+        let dt = timing::now_cycles().wrapping_sub(t0);
+        if cx.shared.timing.lock(|tm| tm.record(dt)) {
+            // Takes effect (safe state) at the next period at the latest.
+            l.stage.report_fault(Fault::LoopOverrun);
+            l.pwm.disable();
+        }
+    }
+
+    /// The speed loop: every `SPEED_DIVIDER` periods.
+    #[task(binds = EXTI1, priority = 3, shared = [feedback, iq_ref_a, velocity_ref], local = [speed])]
+    fn speed_loop(mut cx: speed_loop::Context) {
+        let fb = cx.shared.feedback.lock(|f| *f);
+        let vr = cx.shared.velocity_ref.lock(|v| *v);
+        let iq = cx.local.speed.step(&fb, vr);
+        cx.shared.iq_ref_a.lock(|x| *x = iq);
+    }
+
+    /// The position loop: every `POSITION_DIVIDER` periods.
+    #[task(binds = EXTI2, priority = 2, shared = [feedback, velocity_ref], local = [position])]
+    fn position_loop(mut cx: position_loop::Context) {
+        let fb = cx.shared.feedback.lock(|f| *f);
+        let vr = cx.local.position.step(&fb);
+        cx.shared.velocity_ref.lock(|v| *v = vr);
+    }
+
+    /// Housekeeping: start-up command and telemetry, at 50 Hz.
+    #[task(binds = EXTI3, priority = 1, shared = [command, feedback, timing, phase], local = [started])]
+    fn housekeeping(mut cx: housekeeping::Context) {
+        let phase = cx.shared.phase.lock(|p| *p);
+        if phase == Phase::Run && !*cx.local.started {
+            *cx.local.started = true;
+            if let Some(cmd) = config::START_COMMAND {
+                cx.shared.command.lock(|c| c.post(cmd));
+            }
+        }
+        let fb = cx.shared.feedback.lock(|f| *f);
+        let tm = cx.shared.timing.lock(|t| *t);
+        defmt::debug!(
+            "mode {} w {} rad/s p {} rad iq {} A fault {} loop max {} cyc",
+            fb.mode,
+            fb.velocity_rad_s,
+            fb.position_rad,
+            fb.i_dq_a.q,
+            fb.first_fault,
+            tm.max_cycles
+        );
+    }
+}
+
+/// Panic: bridge off first, then log, then stop in a HardFault.
+#[panic_handler]
+fn panic(info: &core::panic::PanicInfo) -> ! {
+    board::emergency_disable();
+    defmt::error!("panic: {}", defmt::Display2Format(info));
+    cortex_m::asm::udf()
+}
+
+/// HardFault: bridge off first, then log, then wait for the watchdog.
+#[cortex_m_rt::exception]
+unsafe fn HardFault(ef: &cortex_m_rt::ExceptionFrame) -> ! {
+    board::emergency_disable();
+    defmt::error!("HardFault at pc {=u32:#x}", ef.pc());
+    loop {
+        cortex_m::asm::nop();
+    }
+}
+
+/// Runs in `defmt::panic!` and friends: same path as a Rust panic.
+#[defmt::panic_handler]
+fn defmt_panic() -> ! {
+    board::emergency_disable();
+    cortex_m::asm::udf()
+}

@@ -1,0 +1,77 @@
+//! Build-time configuration of the drive: the motor attached to each board,
+//! loop rates, limits. Every value carries its unit in its name.
+//!
+//! The motor values are the defaults for the motor each board is usually
+//! paired with; a different motor needs its own values (or the
+//! identification routines).
+
+use foc_core::control::cascade::CascadeConfig;
+use foc_core::control::{Command, MotorParams};
+
+/// Speed loop every N current-loop periods (20 kHz / 10 = 2 kHz).
+pub const SPEED_DIVIDER: u16 = 10;
+/// Position loop every M current-loop periods (20 kHz / 20 = 1 kHz).
+pub const POSITION_DIVIDER: u16 = 20;
+/// Housekeeping (telemetry, start-up sequencing) every K periods (50 Hz at 20 kHz).
+pub const HOUSEKEEPING_DIVIDER: u32 = 400;
+/// Current-loop budget as a fraction of the PWM period; a longer run raises
+/// the overrun fault (moteus fails builds beyond about 66 %).
+pub const CURRENT_LOOP_BUDGET_FRACTION: f32 = 0.6;
+/// PWM periods of bridge-off averaging for the current-offset calibration.
+pub const OFFSET_CAL_SAMPLES: u32 = 1024;
+/// Largest acceptable current-sensor offset [A].
+pub const OFFSET_CAL_MAX_A: f32 = 0.5;
+/// Largest acceptable current-sensor noise (standard deviation) [A].
+pub const OFFSET_CAL_MAX_NOISE_A: f32 = 0.1;
+/// Consecutive good angle readings required by the start-up sensor check.
+pub const SENSOR_CHECK_READS: u32 = 64;
+/// Independent-watchdog timeout [ms].
+pub const WATCHDOG_TIMEOUT_MS: u32 = 50;
+
+/// Command applied once start-up has finished. `None`: stay disabled and
+/// wait for a command (the default, and the only safe choice for a board
+/// whose motor is unknown). A slow velocity demo would be
+/// `Some(Command::Velocity { rad_s: 5.0 })`.
+pub const START_COMMAND: Option<Command> = None;
+
+/// The motor on the board and its current limit [A].
+#[cfg(any(
+    feature = "nucleo-f446re-ihm07m1",
+    feature = "nucleo-f401re-ihm07m1",
+    not(any(feature = "odrive-v3"))
+))]
+pub const MOTOR: (MotorParams, f32) = (
+    // iPower GM4108H-120T gimbal motor (11 pole pairs, about 11 ohm):
+    // the class of motor the X-NUCLEO-IHM07M1 (L6230, 1.4 A rms) drives.
+    MotorParams {
+        pole_pairs: 11,
+        r_ohm: 11.1,
+        ld_h: 5.0e-3,
+        lq_h: 5.0e-3,
+        flux_linkage_wb: 0.028,
+    },
+    1.0,
+);
+
+/// The motor on the board and its current limit [A].
+#[cfg(feature = "odrive-v3")]
+pub const MOTOR: (MotorParams, f32) = (
+    // ODrive D5065-270KV (7 pole pairs, 39 mohm, about 16 uH).
+    MotorParams {
+        pole_pairs: 7,
+        r_ohm: 0.039,
+        ld_h: 16.0e-6,
+        lq_h: 16.0e-6,
+        flux_linkage_wb: 0.0029,
+    },
+    20.0,
+);
+
+/// The cascade configuration for this board and motor.
+pub fn cascade(pwm_frequency_hz: f32) -> CascadeConfig {
+    let (motor, max_current_a) = MOTOR;
+    let mut c = CascadeConfig::for_motor(motor, pwm_frequency_hz, max_current_a);
+    c.rates.speed_divider = SPEED_DIVIDER;
+    c.rates.position_divider = POSITION_DIVIDER;
+    c
+}

@@ -1,0 +1,35 @@
+//! Independent watchdog (IWDG), fed only while the control loops run.
+//!
+//! Register sequence per RM0090 section 21.3 (identical on RM0390 / RM0368):
+//! start with key 0xCCCC, unlock PR/RLR with 0x5555, program prescaler and
+//! reload, feed with 0xAAAA. The IWDG runs from the ~32 kHz LSI; with /32
+//! one reload count is about 1 ms. Once started it cannot be stopped.
+
+use board_support::pac;
+
+/// Start the watchdog with a timeout of `timeout_ms` (1..=4095 ms).
+pub fn start(timeout_ms: u32) {
+    // SAFETY: the IWDG is used only here and in `feed` (single writer per
+    // call, KR writes are atomic); no other code owns it.
+    let iwdg = unsafe { &*pac::IWDG::ptr() };
+    let reload = timeout_ms.clamp(1, 0x0FFF) as u16;
+    iwdg.kr().write(|w| w.key().start());
+    iwdg.kr().write(|w| w.key().unlock());
+    iwdg.pr().write(|w| w.pr().divide_by32());
+    iwdg.rlr().write(|w| w.rl().set(reload));
+    // PR/RLR updates complete when SR.PVU/RVU clear (a few LSI cycles);
+    // bounded wait so emulators that do not model the IWDG cannot hang us.
+    let mut n = 0u32;
+    while iwdg.sr().read().bits() != 0 && n < 100_000 {
+        n += 1;
+    }
+    feed();
+}
+
+/// Reload the watchdog counter.
+#[inline]
+pub fn feed() {
+    // SAFETY: see `start`; a KR write has no other effect.
+    let iwdg = unsafe { &*pac::IWDG::ptr() };
+    iwdg.kr().write(|w| w.key().feed());
+}
