@@ -1,0 +1,156 @@
+//! [`Calibrated`]: the type-level proof that the angle calibration and the
+//! current-loop gains are known, required to run closed-loop modes.
+//!
+//! A `Calibrated` has private fields. There are exactly two ways to get one:
+//! - a successful [`super::identification::Identification`] (its `Done`
+//!   value carries one; its [`permit`](super::identification::Identification::permit)
+//!   method also gives a provisional one for the flux step), or
+//! - [`Calibrated::supplied`], from values the integrator states explicitly
+//!   (e.g. stored in flash after an earlier identification); they are
+//!   checked for plausibility.
+//!
+//! **How the firmware must use it.** Start the drive in open-loop or
+//! disabled mode only. Build the closed-loop controller through
+//! [`CalibratedCascade::new`] (which installs the permit's angle
+//! calibration and gains before the first step), or, when the stages are run
+//! as separate RTIC tasks, call [`Calibrated::apply_to`] on the current
+//! stage before posting the first `Torque`, `Velocity` or `Position`
+//! command. Never post closed-loop commands to a stage that has not been
+//! given a permit: `Cascade::command` itself cannot check this (its
+//! signature is shared with the rest of the crate).
+//!
+//! ```
+//! use foc_core::calibration::{Calibrated, CalError};
+//! use foc_core::calibration::permit::CalibratedCascade;
+//! use foc_core::control::{cascade::CascadeConfig, current::CurrentLoopConfig, stage::AngleCalibration, Command, MotorParams};
+//! use foc_core::angle::ElectricalAngle;
+//! let motor = MotorParams { pole_pairs: 7, r_ohm: 0.2, ld_h: 60e-6, lq_h: 60e-6, flux_linkage_wb: 0.004 };
+//! let angle = AngleCalibration { pole_pairs: 7, zero_offset: ElectricalAngle::from_degrees(42.0), reversed: true };
+//! let permit = Calibrated::supplied(angle, CurrentLoopConfig::technical_optimum(motor, 20_000.0)).unwrap();
+//! let mut drive = CalibratedCascade::new(CascadeConfig::for_motor(motor, 20_000.0, 5.0), &permit);
+//! drive.command(Command::Torque { iq_a: 1.0 }).unwrap();
+//! assert_eq!(drive.cascade().current.config().angle, angle);
+//! // Implausible supplied values are refused.
+//! let bad = AngleCalibration { pole_pairs: 0, ..angle };
+//! assert_eq!(Calibrated::supplied(bad, CurrentLoopConfig::technical_optimum(motor, 20_000.0)), Err(CalError::InvalidConfig));
+//! ```
+
+use super::common::CalError;
+use crate::control::cascade::{Cascade, CascadeConfig};
+use crate::control::current::CurrentLoopConfig;
+use crate::control::stage::{AngleCalibration, CurrentStage, Sample};
+use crate::control::{BridgeCommand, Command, CommandError, Fault, Feedback};
+
+/// Proof that the angle calibration and the current-loop configuration are
+/// known (measured or explicitly supplied and checked).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Calibrated {
+    angle: AngleCalibration,
+    current: CurrentLoopConfig,
+}
+
+impl Calibrated {
+    /// From explicitly supplied values. [`CalError::InvalidConfig`] unless
+    /// the pole pairs are at least 1, the period, gains and motor values are
+    /// finite and positive (flux linkage may be zero), the pole pairs of the
+    /// angle and of the motor agree, and `max_modulation` is in `(0, 1]`.
+    pub fn supplied(angle: AngleCalibration, current: CurrentLoopConfig) -> Result<Self, CalError> {
+        let pos = |x: f32| x.is_finite() && x > 0.0;
+        let m = &current.motor;
+        let ok = angle.pole_pairs > 0
+            && m.pole_pairs == angle.pole_pairs
+            && pos(current.ts_s)
+            && pos(current.d_gains.kp_v_per_a)
+            && pos(current.d_gains.ki_v_per_a_s)
+            && pos(current.q_gains.kp_v_per_a)
+            && pos(current.q_gains.ki_v_per_a_s)
+            && pos(m.r_ohm)
+            && pos(m.ld_h)
+            && pos(m.lq_h)
+            && m.flux_linkage_wb.is_finite()
+            && m.flux_linkage_wb >= 0.0
+            && pos(current.max_modulation)
+            && current.max_modulation <= 1.0;
+        if ok {
+            Ok(Self { angle, current })
+        } else {
+            Err(CalError::InvalidConfig)
+        }
+    }
+
+    /// From an identification (same checks as [`Self::supplied`]).
+    pub(crate) fn identified(
+        angle: AngleCalibration,
+        current: CurrentLoopConfig,
+    ) -> Result<Self, CalError> {
+        Self::supplied(angle, current).map_err(|_| CalError::ImplausibleResult)
+    }
+
+    /// The angle calibration.
+    pub fn angle(&self) -> AngleCalibration {
+        self.angle
+    }
+
+    /// The current-loop configuration (gains and motor parameters).
+    pub fn current_config(&self) -> CurrentLoopConfig {
+        self.current
+    }
+
+    /// Install the angle calibration and the current-loop configuration in
+    /// a current stage (through `set_angle_calibration` and
+    /// `set_current_config`). Call once, before the first closed-loop
+    /// command; it resets the stage's angle tracker.
+    pub fn apply_to(&self, stage: &mut CurrentStage) {
+        stage.set_angle_calibration(self.angle);
+        stage.set_current_config(self.current);
+    }
+}
+
+/// A [`Cascade`] that can only be built with a [`Calibrated`] permit: the
+/// closed-loop entry point for the firmware and the bench.
+#[derive(Clone, Copy, Debug)]
+pub struct CalibratedCascade {
+    inner: Cascade,
+}
+
+impl CalibratedCascade {
+    /// The cascade of `config` with the permit's angle calibration and
+    /// current-loop configuration installed.
+    pub fn new(mut config: CascadeConfig, permit: &Calibrated) -> Self {
+        config.current.angle = permit.angle;
+        config.current.current = permit.current;
+        Self {
+            inner: Cascade::new(config),
+        }
+    }
+
+    /// Post a command (see `Cascade::command`).
+    pub fn command(&mut self, cmd: Command) -> Result<(), CommandError> {
+        self.inner.command(cmd)
+    }
+
+    /// One PWM period (see `Cascade::step`).
+    pub fn step(&mut self, sample: &Sample) -> BridgeCommand {
+        self.inner.step(sample)
+    }
+
+    /// The feedback of the last step.
+    pub fn feedback(&self) -> &Feedback {
+        self.inner.feedback()
+    }
+
+    /// Request a fault clear.
+    pub fn clear_faults(&mut self) {
+        self.inner.clear_faults();
+    }
+
+    /// Latch a fault found outside the loops.
+    pub fn report_fault(&mut self, f: Fault) {
+        self.inner.report_fault(f);
+    }
+
+    /// Read access to the cascade.
+    pub fn cascade(&self) -> &Cascade {
+        &self.inner
+    }
+}
