@@ -1,0 +1,576 @@
+//! `foc-ctl`: command-line host tool for the drive's command channel.
+
+use clap::{Parser, Subcommand, ValueEnum};
+use foc_core::angle::ElectricalAngle;
+use foc_core::control::stage::TimeoutReaction;
+use foc_core::control::{Command, Fault, Limits};
+use foc_ctl::{sim::SimServer, Client, ClientError, StreamSample};
+use foc_protocol::message::{
+    Calibration, CurrentGains, ParamId, PositionGains, SpeedGains, TelemetryRate, WatchdogConfig,
+};
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::time::Duration;
+
+#[derive(Parser)]
+#[command(
+    name = "foc-ctl",
+    version,
+    about = "Command and telemetry tool for the FOC drive"
+)]
+struct Cli {
+    /// Connect over TCP, e.g. QEMU's `-serial tcp:127.0.0.1:4444,server,nowait`.
+    #[arg(
+        long,
+        value_name = "HOST:PORT",
+        global = true,
+        conflicts_with = "serial"
+    )]
+    tcp: Option<String>,
+    /// Serial port of a real board, e.g. /dev/ttyACM0.
+    #[arg(long, value_name = "PATH", global = true)]
+    serial: Option<String>,
+    /// Serial baud rate.
+    #[arg(long, default_value_t = 115_200, global = true)]
+    baud: u32,
+    /// Reply timeout per attempt [ms].
+    #[arg(long, default_value_t = 250, global = true)]
+    timeout_ms: u64,
+    /// Retransmissions after the first attempt.
+    #[arg(long, default_value_t = 3, global = true)]
+    retries: u32,
+    #[command(subcommand)]
+    cmd: Cmd,
+}
+
+#[derive(Subcommand)]
+enum Cmd {
+    /// Protocol and firmware version.
+    Ping,
+    /// Set mode and target.
+    Mode {
+        #[command(subcommand)]
+        mode: ModeCmd,
+    },
+    /// Send keep-alives (feeds the device's watchdog) for a while.
+    KeepAlive {
+        /// Interval [ms].
+        #[arg(long, default_value_t = 100)]
+        interval_ms: u64,
+        /// How long [s].
+        #[arg(long, default_value_t = 10.0)]
+        duration: f64,
+    },
+    /// Clear latched faults.
+    Clear,
+    /// Show latched faults.
+    Faults,
+    /// Read a parameter (`all` for every one).
+    Param {
+        /// pole-pairs, r, ld, lq, psi, pwm-frequency, speed-divider,
+        /// position-divider, firmware-version, protocol-version, bus-voltage,
+        /// calibrated, max-loop-cycles, telemetry-divider, watchdog-timeout, all
+        name: String,
+    },
+    /// Stream telemetry.
+    Telemetry {
+        /// Rate [Hz] (converted by the device to whole current-loop periods).
+        #[arg(long, default_value_t = 100.0, conflicts_with = "every")]
+        rate: f64,
+        /// Instead of a rate: one sample every K current-loop periods.
+        #[arg(long, value_name = "K")]
+        every: Option<u32>,
+        /// How long [s].
+        #[arg(long, default_value_t = 5.0)]
+        duration: f64,
+        /// Write the samples to a CSV file.
+        #[arg(long, value_name = "FILE")]
+        csv: Option<PathBuf>,
+        /// Live terminal sparklines of velocity and iq (on stderr).
+        #[arg(long)]
+        plot: bool,
+        /// Write an SVG plot at the end.
+        #[arg(long, value_name = "FILE")]
+        svg: Option<PathBuf>,
+    },
+    /// Set the command limits (all six).
+    Limits {
+        /// Current limit [A].
+        #[arg(long)]
+        max_current: f32,
+        /// Velocity limit [rad/s].
+        #[arg(long)]
+        max_velocity: f32,
+        /// Lowest position [rad].
+        #[arg(long, allow_hyphen_values = true)]
+        min_position: f32,
+        /// Highest position [rad].
+        #[arg(long, allow_hyphen_values = true)]
+        max_position: f32,
+        /// Open-loop voltage limit [V].
+        #[arg(long)]
+        max_ol_voltage: f32,
+        /// Open-loop electrical speed limit [rad/s].
+        #[arg(long)]
+        max_ol_omega_e: f32,
+    },
+    /// Set loop gains.
+    Gains {
+        #[command(subcommand)]
+        which: GainsCmd,
+    },
+    /// Loop dividers: speed loop every N, position loop every M periods (drive disabled).
+    Dividers {
+        /// N.
+        speed: u16,
+        /// M.
+        position: u16,
+    },
+    /// Link watchdog: reaction after TIMEOUT periods without a command or keep-alive (0 = off).
+    Watchdog {
+        /// Timeout [current-loop periods].
+        timeout_periods: u32,
+        /// Reaction.
+        #[arg(value_enum, default_value_t = Reaction::Disable)]
+        reaction: Reaction,
+    },
+    /// Start a calibration routine.
+    Calibrate {
+        /// Routine.
+        #[arg(value_enum)]
+        routine: Routine,
+    },
+    /// Serve a simulated device (kinematic model) on a TCP address, for trying the tool.
+    Simulate {
+        /// Address to listen on.
+        #[arg(long, default_value = "127.0.0.1:4444")]
+        listen: String,
+    },
+}
+
+#[derive(Subcommand)]
+enum ModeCmd {
+    /// Bridge off.
+    Disable,
+    /// Torque: q current [A].
+    Torque {
+        #[arg(allow_hyphen_values = true)]
+        iq_a: f32,
+    },
+    /// Velocity [rad/s, mechanical].
+    Velocity {
+        #[arg(allow_hyphen_values = true)]
+        rad_s: f32,
+    },
+    /// Position [rad, mechanical].
+    Position {
+        #[arg(allow_hyphen_values = true)]
+        rad: f32,
+    },
+    /// Open-loop dq voltage [V] at an electrical angle, rotating at omega_e.
+    OpenLoop {
+        #[arg(allow_hyphen_values = true)]
+        v_d: f32,
+        #[arg(allow_hyphen_values = true)]
+        v_q: f32,
+        /// Starting electrical angle [deg].
+        #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+        theta_deg: f32,
+        /// Electrical speed [rad/s].
+        #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+        omega_e: f32,
+    },
+}
+
+#[derive(Subcommand)]
+enum GainsCmd {
+    /// Current loop [V/A, V/(A s)].
+    Current {
+        #[arg(long)]
+        kp_d: f32,
+        #[arg(long)]
+        ki_d: f32,
+        #[arg(long)]
+        kp_q: f32,
+        #[arg(long)]
+        ki_q: f32,
+    },
+    /// Speed loop [A/(rad/s), A/rad].
+    Speed {
+        #[arg(long)]
+        kp: f32,
+        #[arg(long)]
+        ki: f32,
+    },
+    /// Position loop [1/s] and trajectory limits.
+    Position {
+        #[arg(long)]
+        kp: f32,
+        /// [rad/s]
+        #[arg(long)]
+        max_velocity: f32,
+        /// [rad/s^2]
+        #[arg(long)]
+        max_acceleration: f32,
+    },
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum Reaction {
+    Disable,
+    Stop,
+    Hold,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum Routine {
+    Offsets,
+    Identification,
+    Alignment,
+}
+
+fn connect(cli: &Cli) -> Result<Client, Box<dyn std::error::Error>> {
+    let mut c = match (&cli.tcp, &cli.serial) {
+        (Some(addr), _) => Client::connect_tcp(addr.as_str())?,
+        #[cfg(feature = "serial")]
+        (None, Some(path)) => Client::open_serial(path, cli.baud)?,
+        #[cfg(not(feature = "serial"))]
+        (None, Some(_)) => return Err("built without the `serial` feature".into()),
+        (None, None) => return Err("give --tcp HOST:PORT or --serial PATH".into()),
+    };
+    c.set_timeout(Duration::from_millis(cli.timeout_ms));
+    c.set_retries(cli.retries);
+    Ok(c)
+}
+
+fn fault_list(bits: u32) -> String {
+    let names: Vec<String> = Fault::ALL
+        .iter()
+        .filter(|f| bits & (1 << f.code()) != 0)
+        .map(|f| format!("{} ({})", f.name(), f.code()))
+        .collect();
+    if names.is_empty() {
+        "none".into()
+    } else {
+        names.join(", ")
+    }
+}
+
+const SPARK: [char; 8] = ['▁', '▂', '▃', '▄', '▅', '▆', '▇', '█'];
+
+fn sparkline(v: &[f32]) -> String {
+    let (lo, hi) = v
+        .iter()
+        .fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), &x| {
+            (a.min(x), b.max(x))
+        });
+    v.iter()
+        .map(|&x| {
+            let t = if hi > lo { (x - lo) / (hi - lo) } else { 0.5 };
+            SPARK[((t * 7.0).round() as usize).min(7)]
+        })
+        .collect()
+}
+
+fn write_csv(path: &Path, samples: &[StreamSample]) -> std::io::Result<()> {
+    let mut f = std::io::BufWriter::new(std::fs::File::create(path)?);
+    writeln!(
+        f,
+        "host_time_s,seq,period,i_d_a,i_q_a,v_d_v,v_q_v,velocity_rad_s,position_rad,mode,fault_code,max_loop_cycles,v_bus_v"
+    )?;
+    for s in samples {
+        let t = &s.sample;
+        writeln!(
+            f,
+            "{:.6},{},{},{},{},{},{},{},{},{},{},{},{}",
+            s.host_time.as_secs_f64(),
+            s.seq,
+            t.period,
+            t.i_d_a,
+            t.i_q_a,
+            t.v_d_v,
+            t.v_q_v,
+            t.velocity_rad_s,
+            t.position_rad,
+            t.mode as u8,
+            t.fault_code,
+            t.max_loop_cycles,
+            t.v_bus_v
+        )?;
+    }
+    f.flush()
+}
+
+fn write_svg(path: &Path, samples: &[StreamSample]) -> Result<(), Box<dyn std::error::Error>> {
+    use plotters::prelude::*;
+    let root = SVGBackend::new(path, (1000, 750)).into_drawing_area();
+    root.fill(&WHITE)?;
+    let panels = root.split_evenly((3, 1));
+    let t0 = samples.first().map_or(0.0, |s| s.host_time.as_secs_f64());
+    type Series = (&'static str, &'static str, fn(&StreamSample) -> f32);
+    let series: [Series; 3] = [
+        ("velocity", "rad/s", |s| s.sample.velocity_rad_s),
+        ("position", "rad", |s| s.sample.position_rad),
+        ("i_q", "A", |s| s.sample.i_q_a),
+    ];
+    for (area, (name, unit, get)) in panels.iter().zip(series) {
+        let pts: Vec<(f64, f64)> = samples
+            .iter()
+            .map(|s| (s.host_time.as_secs_f64() - t0, f64::from(get(s))))
+            .collect();
+        let t1 = pts.last().map_or(1.0, |p| p.0.max(1e-3));
+        let (lo, hi) = pts
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| {
+                (a.min(p.1), b.max(p.1))
+            });
+        let (lo, hi) = if lo.is_finite() && hi > lo {
+            (lo, hi)
+        } else {
+            (lo.min(0.0) - 1.0, hi.max(0.0) + 1.0)
+        };
+        let pad = 0.05 * (hi - lo);
+        let mut chart = ChartBuilder::on(area)
+            .caption(format!("{name} [{unit}]"), ("sans-serif", 18))
+            .margin(8)
+            .x_label_area_size(28)
+            .y_label_area_size(60)
+            .build_cartesian_2d(0.0..t1, (lo - pad)..(hi + pad))?;
+        chart.configure_mesh().x_desc("host time [s]").draw()?;
+        chart.draw_series(LineSeries::new(pts, &BLUE))?;
+    }
+    root.present()?;
+    Ok(())
+}
+
+fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
+    if let Cmd::Simulate { listen } = &cli.cmd {
+        let server = SimServer::spawn(std::net::TcpListener::bind(listen)?)?;
+        eprintln!("simulated device on {} (Ctrl-C to stop)", server.addr());
+        server.wait();
+        return Ok(());
+    }
+    let mut c = connect(&cli)?;
+    match cli.cmd {
+        Cmd::Simulate { .. } => {}
+        Cmd::Ping => {
+            let h = c.ping()?;
+            let [a, b, p] = h.firmware_version;
+            println!(
+                "protocol {} (host {}), firmware {a}.{b}.{p}, max payload {} bytes",
+                h.protocol_version,
+                foc_protocol::PROTOCOL_VERSION,
+                h.max_payload
+            );
+            if h.protocol_version != foc_protocol::PROTOCOL_VERSION {
+                return Err("protocol version mismatch".into());
+            }
+        }
+        Cmd::Mode { mode } => {
+            let cmd = match mode {
+                ModeCmd::Disable => Command::Disable,
+                ModeCmd::Torque { iq_a } => Command::Torque { iq_a },
+                ModeCmd::Velocity { rad_s } => Command::Velocity { rad_s },
+                ModeCmd::Position { rad } => Command::Position { rad },
+                ModeCmd::OpenLoop {
+                    v_d,
+                    v_q,
+                    theta_deg,
+                    omega_e,
+                } => Command::OpenLoop {
+                    v_d_v: v_d,
+                    v_q_v: v_q,
+                    theta_e: ElectricalAngle::from_degrees(theta_deg),
+                    omega_e_rad_s: omega_e,
+                },
+            };
+            c.set_command(cmd)?;
+            println!("ok: {cmd:?}");
+        }
+        Cmd::KeepAlive {
+            interval_ms,
+            duration,
+        } => {
+            let end = std::time::Instant::now() + Duration::from_secs_f64(duration.max(0.0));
+            while std::time::Instant::now() < end {
+                c.keep_alive()?;
+                std::thread::sleep(Duration::from_millis(interval_ms));
+            }
+        }
+        Cmd::Clear => {
+            c.clear_faults()?;
+            println!("ok");
+        }
+        Cmd::Faults => {
+            let f = c.faults()?;
+            println!("latched: {}", fault_list(f.set.0));
+            match f.first() {
+                Some(first) => println!("first:   {} ({})", first.name(), first.code()),
+                None if f.first_code != 0 => println!("first:   code {}", f.first_code),
+                None => {}
+            }
+        }
+        Cmd::Param { name } => {
+            let ids: Vec<ParamId> = if name == "all" {
+                ParamId::ALL.to_vec()
+            } else {
+                vec![ParamId::from_name(&name).ok_or_else(|| {
+                    let names: Vec<&str> = ParamId::ALL.iter().map(|p| p.name()).collect();
+                    format!(
+                        "unknown parameter `{name}`; one of: {}, all",
+                        names.join(", ")
+                    )
+                })?]
+            };
+            for id in ids {
+                match c.param(id) {
+                    Ok(v) => println!("{:<18} {v}", id.name()),
+                    Err(ClientError::Nack(foc_protocol::ErrorCode::Unsupported)) => {
+                        println!("{:<18} (not supported)", id.name())
+                    }
+                    Err(e) => return Err(e.into()),
+                }
+            }
+        }
+        Cmd::Telemetry {
+            rate,
+            every,
+            duration,
+            csv,
+            plot,
+            svg,
+        } => {
+            let r = match every {
+                Some(k) => TelemetryRate::EveryPeriods(k),
+                None => TelemetryRate::Hz(rate as f32),
+            };
+            let mut samples: Vec<StreamSample> = Vec::new();
+            let mut stderr = std::io::stderr();
+            c.telemetry_with(r, Duration::from_secs_f64(duration.max(0.0)), |s| {
+                samples.push(*s);
+                if plot && samples.len() % 5 == 0 {
+                    let tail = &samples[samples.len().saturating_sub(60)..];
+                    let w: Vec<f32> = tail.iter().map(|s| s.sample.velocity_rad_s).collect();
+                    let i: Vec<f32> = tail.iter().map(|s| s.sample.i_q_a).collect();
+                    let _ = write!(
+                        stderr,
+                        "\rw {:>9.2} rad/s {}  iq {:>7.3} A {}",
+                        s.sample.velocity_rad_s,
+                        sparkline(&w),
+                        s.sample.i_q_a,
+                        sparkline(&i)
+                    );
+                } else if !plot && csv.is_none() {
+                    let t = &s.sample;
+                    println!(
+                        "{:>10} {:?} w={:.3} p={:.4} id={:.3} iq={:.3} vd={:.3} vq={:.3} vbus={:.2} fault={} cyc={}",
+                        t.period, t.mode, t.velocity_rad_s, t.position_rad, t.i_d_a, t.i_q_a,
+                        t.v_d_v, t.v_q_v, t.v_bus_v, t.fault_code, t.max_loop_cycles
+                    );
+                }
+            })?;
+            if plot {
+                eprintln!();
+            }
+            let st = c.stats();
+            eprintln!(
+                "{} samples, {} lost in the stream",
+                samples.len(),
+                st.stream_lost
+            );
+            if let Some(p) = csv {
+                write_csv(&p, &samples)?;
+                eprintln!("wrote {}", p.display());
+            }
+            if let Some(p) = svg {
+                write_svg(&p, &samples)?;
+                eprintln!("wrote {}", p.display());
+            }
+        }
+        Cmd::Limits {
+            max_current,
+            max_velocity,
+            min_position,
+            max_position,
+            max_ol_voltage,
+            max_ol_omega_e,
+        } => {
+            c.set_limits(Limits {
+                max_current_a: max_current,
+                max_velocity_rad_s: max_velocity,
+                min_position_rad: min_position,
+                max_position_rad: max_position,
+                max_open_loop_voltage_v: max_ol_voltage,
+                max_open_loop_omega_e_rad_s: max_ol_omega_e,
+            })?;
+            println!("ok");
+        }
+        Cmd::Gains { which } => {
+            match which {
+                GainsCmd::Current {
+                    kp_d,
+                    ki_d,
+                    kp_q,
+                    ki_q,
+                } => c.set_current_gains(CurrentGains {
+                    kp_d,
+                    ki_d,
+                    kp_q,
+                    ki_q,
+                })?,
+                GainsCmd::Speed { kp, ki } => c.set_speed_gains(SpeedGains {
+                    kp_a_per_rad_s: kp,
+                    ki_a_per_rad: ki,
+                })?,
+                GainsCmd::Position {
+                    kp,
+                    max_velocity,
+                    max_acceleration,
+                } => c.set_position_gains(PositionGains {
+                    kp_per_s: kp,
+                    max_velocity_rad_s: max_velocity,
+                    max_acceleration_rad_s2: max_acceleration,
+                })?,
+            }
+            println!("ok");
+        }
+        Cmd::Dividers { speed, position } => {
+            c.set_dividers(speed, position)?;
+            println!("ok");
+        }
+        Cmd::Watchdog {
+            timeout_periods,
+            reaction,
+        } => {
+            c.set_watchdog(WatchdogConfig {
+                timeout_periods,
+                reaction: match reaction {
+                    Reaction::Disable => TimeoutReaction::Disable,
+                    Reaction::Stop => TimeoutReaction::Stop,
+                    Reaction::Hold => TimeoutReaction::Hold,
+                },
+            })?;
+            println!("ok");
+        }
+        Cmd::Calibrate { routine } => {
+            c.calibrate(match routine {
+                Routine::Offsets => Calibration::Offsets,
+                Routine::Identification => Calibration::Identification,
+                Routine::Alignment => Calibration::Alignment,
+            })?;
+            println!("started");
+        }
+    }
+    Ok(())
+}
+
+fn main() -> ExitCode {
+    match run(Cli::parse()) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("foc-ctl: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}

@@ -1,0 +1,747 @@
+//! The device side: requests in, replies out, through a [`DeviceContext`].
+//!
+//! [`DeviceState`] is what the firmware's communication task owns. For every
+//! decoded request it validates *everything* first (finite numbers, ranges,
+//! limits, mode, faults, calibration) and only then calls the context, so a
+//! Nack always means nothing changed. It also owns the link
+//! [`CommandWatchdog`] and the telemetry schedule, both counted in
+//! current-loop periods (the [`foc_core::control::Feedback::period`] counter
+//! handed to [`DeviceState::poll`]).
+//!
+//! Retransmissions: a host that got no reply sends the very same frame
+//! again (same `seq`, same CRC). For requests that change something the
+//! state remembers the last one and answers a repeat with the cached reply
+//! instead of running it twice (a calibration is not started twice, a fault
+//! latched in between is not cleared by a stale clear).
+//!
+//! ```
+//! use foc_protocol::device::{DeviceState, tests_support::RecordingContext};
+//! use foc_protocol::message::{Request, Response, ErrorCode};
+//! use foc_core::control::Command;
+//!
+//! let mut ctx = RecordingContext::default();
+//! let mut dev = DeviceState::new();
+//! // 1e6 A is beyond the limits: Nack, field 1 (the value after the mode), nothing posted.
+//! let r = dev.handle(&mut ctx, 1, 0, &Request::SetCommand(Command::Torque { iq_a: 1e6 }));
+//! assert_eq!(r, Response::Nack(ErrorCode::OutOfRange { field: 1 }));
+//! assert_eq!(ctx.calls, 0);
+//! let r = dev.handle(&mut ctx, 2, 0, &Request::SetCommand(Command::Torque { iq_a: 1.0 }));
+//! assert_eq!(r, Response::Ack);
+//! assert_eq!(ctx.posted, Some(Command::Torque { iq_a: 1.0 }));
+//! ```
+
+use crate::frame::{
+    encode, FrameDecoder, FrameError, FrameErrorKind, Packet, MAX_FRAME, MAX_PAYLOAD,
+};
+pub use crate::message::WatchdogConfig;
+use crate::message::{
+    Calibration, CurrentGains, ErrorCode, FaultReport, Hello, ParamId, PositionGains, Request,
+    Response, SpeedGains, Telemetry, TelemetryRate,
+};
+use foc_core::control::stage::TimeoutReaction;
+use foc_core::control::{Command, CommandError, Fault, FaultSet, Limits, Mode};
+
+/// Why the context refused an operation. A refusing context must not have
+/// changed anything.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Refusal {
+    /// Busy (a calibration is running...).
+    Busy,
+    /// Needs calibration first.
+    NotCalibrated,
+    /// Only while disabled.
+    NotDisabled,
+    /// A fault is latched.
+    Faulted,
+    /// Not supported by this device.
+    Unsupported,
+}
+
+impl From<Refusal> for ErrorCode {
+    fn from(r: Refusal) -> Self {
+        match r {
+            Refusal::Busy => ErrorCode::Busy,
+            Refusal::NotCalibrated => ErrorCode::NotCalibrated,
+            Refusal::NotDisabled => ErrorCode::NotDisabled,
+            Refusal::Faulted => ErrorCode::Faulted,
+            Refusal::Unsupported => ErrorCode::Unsupported,
+        }
+    }
+}
+
+/// What the firmware (or a simulator) gives the protocol. Every method is
+/// called only after the request was fully validated.
+///
+/// In the RTIC firmware the methods map onto shared resources: `post` and
+/// `keep_alive` onto the [`foc_core::control::CommandSlot`] (`slot.post(cmd)`,
+/// `slot.post(slot.command)`), `clear_faults` onto `slot.request_clear()`,
+/// `mode`/`faults`/`telemetry` onto the latest
+/// [`foc_core::control::Feedback`], the setters onto the loop configs
+/// (applied by the task that owns each loop).
+pub trait DeviceContext {
+    /// Hand a validated command to the current stage (e.g.
+    /// `CommandSlot::post`). Called only with commands that passed
+    /// [`Command::validate`] against [`Self::limits`].
+    fn post(&mut self, cmd: Command) -> Result<(), CommandError>;
+    /// Refresh the active command so the current stage's own command
+    /// timeout restarts (e.g. `slot.post(slot.command)`, which bumps
+    /// [`foc_core::control::CommandSlot::seq`]).
+    fn keep_alive(&mut self);
+    /// Active mode ([`foc_core::control::Feedback::mode`]).
+    fn mode(&self) -> Mode;
+    /// Latched faults and the first one.
+    fn faults(&self) -> (FaultSet, Option<Fault>);
+    /// Request a fault clear (e.g. `CommandSlot::request_clear`).
+    fn clear_faults(&mut self);
+    /// Latch a fault (the watchdog's `Disable` reaction reports
+    /// [`Fault::CommandTimeout`]).
+    fn report_fault(&mut self, fault: Fault);
+    /// The command limits in force.
+    fn limits(&self) -> Limits;
+    /// Replace the limits (already checked: finite, positive, min < max).
+    fn set_limits(&mut self, limits: Limits) -> Result<(), Refusal>;
+    /// Replace the current-loop gains (finite, >= 0).
+    fn set_current_gains(&mut self, gains: CurrentGains) -> Result<(), Refusal>;
+    /// Replace the speed-loop gains (finite, >= 0).
+    fn set_speed_gains(&mut self, gains: SpeedGains) -> Result<(), Refusal>;
+    /// Replace the position gain and trajectory limits (finite, > 0).
+    fn set_position_gains(&mut self, gains: PositionGains) -> Result<(), Refusal>;
+    /// Replace the loop dividers (>= 1; only called while disabled).
+    fn set_dividers(&mut self, speed: u16, position: u16) -> Result<(), Refusal>;
+    /// Start a calibration routine (only called while disabled and not
+    /// faulted); return [`Refusal::Busy`] if one is running.
+    fn start_calibration(&mut self, routine: Calibration) -> Result<(), Refusal>;
+    /// True once the drive may run closed loop (offsets and alignment done).
+    fn is_calibrated(&self) -> bool;
+    /// A parameter value, `None` if this device does not have it.
+    fn param(&self, id: ParamId) -> Option<f32>;
+    /// The latest telemetry sample (e.g. [`Telemetry::from_feedback`]).
+    fn telemetry(&self) -> Telemetry;
+    /// Firmware version `[major, minor, patch]`.
+    fn firmware_version(&self) -> [u8; 3];
+}
+
+/// Link watchdog: counts current-loop periods since the last valid command
+/// or keep-alive and, when the count passes the timeout while the drive is
+/// enabled, reacts once as configured (the reactions of
+/// [`foc_core::control::stage::TimeoutReaction`]):
+///
+/// - `Disable`: latch [`Fault::CommandTimeout`] (bridge off until cleared);
+/// - `Stop`: post velocity 0;
+/// - `Hold`: post a position command at the measured position.
+///
+/// This watches the *link* from the communication task; the current stage's
+/// `command_timeout_periods` stays as the backstop for a dead communication
+/// task. Keep-alives refresh both (see [`DeviceContext::keep_alive`]).
+///
+/// ```
+/// use foc_protocol::device::{CommandWatchdog, WatchdogConfig};
+/// use foc_core::control::stage::TimeoutReaction;
+/// let mut wd = CommandWatchdog::new(WatchdogConfig { timeout_periods: 100, reaction: TimeoutReaction::Stop });
+/// assert_eq!(wd.tick(60, true), None);
+/// wd.feed();
+/// assert_eq!(wd.tick(60, true), None);
+/// assert_eq!(wd.tick(60, true), Some(TimeoutReaction::Stop)); // 120 > 100
+/// assert_eq!(wd.tick(60, true), None); // reacts once until fed again
+/// ```
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct CommandWatchdog {
+    config: WatchdogConfig,
+    age_periods: u32,
+    expired: bool,
+}
+
+impl CommandWatchdog {
+    /// New watchdog, fed.
+    pub const fn new(config: WatchdogConfig) -> Self {
+        Self {
+            config,
+            age_periods: 0,
+            expired: false,
+        }
+    }
+    /// The configuration.
+    pub const fn config(&self) -> WatchdogConfig {
+        self.config
+    }
+    /// Replace the configuration (and feed).
+    pub fn configure(&mut self, config: WatchdogConfig) {
+        self.config = config;
+        self.feed();
+    }
+    /// A valid command or keep-alive arrived.
+    pub fn feed(&mut self) {
+        self.age_periods = 0;
+        self.expired = false;
+    }
+    /// Periods since the last feed (saturating).
+    pub const fn age_periods(&self) -> u32 {
+        self.age_periods
+    }
+    /// True after it fired, until fed.
+    pub const fn expired(&self) -> bool {
+        self.expired
+    }
+    /// Advance by `periods`; `enabled` is false while the drive is disabled
+    /// (then the age is held at 0). Returns the reaction once when the
+    /// timeout passes.
+    pub fn tick(&mut self, periods: u32, enabled: bool) -> Option<TimeoutReaction> {
+        if self.config.timeout_periods == 0 || !enabled {
+            self.age_periods = 0;
+            return None;
+        }
+        self.age_periods = self.age_periods.saturating_add(periods);
+        if !self.expired && self.age_periods > self.config.timeout_periods {
+            self.expired = true;
+            Some(self.config.reaction)
+        } else {
+            None
+        }
+    }
+}
+
+/// The protocol's device-side state: replies, watchdog, telemetry schedule.
+#[derive(Clone, Copy, Debug)]
+pub struct DeviceState {
+    watchdog: CommandWatchdog,
+    telemetry_every: u32,
+    last_telemetry: u32,
+    telemetry_seq: u16,
+    last_poll: Option<u32>,
+    last_command: Option<(u16, u32, Response)>,
+}
+
+impl Default for DeviceState {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// Largest `|value|` accepted for a gain (a sanity bound, not physics).
+pub const MAX_GAIN: f32 = 1.0e9;
+
+fn out_of_range(field: u8) -> Response {
+    Response::Nack(ErrorCode::OutOfRange { field })
+}
+
+/// Check that `x` is finite and within `[lo, hi]`; field number on error.
+fn check(x: f32, lo: f32, hi: f32, field: u8) -> Result<(), Response> {
+    if x.is_finite() && x >= lo && x <= hi {
+        Ok(())
+    } else {
+        Err(out_of_range(field))
+    }
+}
+
+/// Map a [`Command::validate`] error on `cmd` to the offending field.
+fn command_field(cmd: &Command, e: CommandError) -> ErrorCode {
+    match (cmd, e) {
+        (_, CommandError::Faulted) => ErrorCode::Faulted,
+        (
+            Command::OpenLoop {
+                v_d_v,
+                v_q_v,
+                omega_e_rad_s,
+                ..
+            },
+            CommandError::NonFinite,
+        ) => {
+            let field = if !v_d_v.is_finite() {
+                1
+            } else if !v_q_v.is_finite() {
+                2
+            } else if !omega_e_rad_s.is_finite() {
+                4
+            } else {
+                1
+            };
+            ErrorCode::OutOfRange { field }
+        }
+        (Command::OpenLoop { .. }, CommandError::VelocityOutOfRange) => {
+            ErrorCode::OutOfRange { field: 4 }
+        }
+        // Voltage magnitude (v_d, v_q together): the first of the pair.
+        _ => ErrorCode::OutOfRange { field: 1 },
+    }
+}
+
+fn validate_limits(l: &Limits) -> Result<(), Response> {
+    let big = f32::MAX;
+    check(l.max_current_a, f32::MIN_POSITIVE, big, 0)?;
+    check(l.max_velocity_rad_s, f32::MIN_POSITIVE, big, 1)?;
+    check(l.min_position_rad, -big, big, 2)?;
+    check(l.max_position_rad, -big, big, 3)?;
+    if l.min_position_rad >= l.max_position_rad {
+        return Err(out_of_range(3));
+    }
+    check(l.max_open_loop_voltage_v, 0.0, big, 4)?;
+    check(l.max_open_loop_omega_e_rad_s, 0.0, big, 5)?;
+    Ok(())
+}
+
+impl DeviceState {
+    /// Watchdog off, telemetry off.
+    pub const fn new() -> Self {
+        Self {
+            watchdog: CommandWatchdog::new(WatchdogConfig::OFF),
+            telemetry_every: 0,
+            last_telemetry: 0,
+            telemetry_seq: 0,
+            last_poll: None,
+            last_command: None,
+        }
+    }
+
+    /// With a watchdog configuration (the firmware's default).
+    pub const fn with_watchdog(config: WatchdogConfig) -> Self {
+        let mut s = Self::new();
+        s.watchdog = CommandWatchdog::new(config);
+        s
+    }
+
+    /// The link watchdog.
+    pub const fn watchdog(&self) -> &CommandWatchdog {
+        &self.watchdog
+    }
+
+    /// Telemetry divider in force (periods; 0 = off).
+    pub const fn telemetry_every(&self) -> u32 {
+        self.telemetry_every
+    }
+
+    /// Handle one decoded request with sequence number `seq` and frame CRC
+    /// `crc` (from [`Packet::crc`]; used to recognise a retransmission).
+    /// Returns the reply to send with the same `seq`.
+    pub fn handle<C: DeviceContext>(
+        &mut self,
+        ctx: &mut C,
+        seq: u16,
+        crc: u32,
+        req: &Request,
+    ) -> Response {
+        if !req.is_query() {
+            if let Some((s, c, reply)) = self.last_command {
+                if s == seq && c == crc {
+                    return reply;
+                }
+            }
+        }
+        let reply = match self.execute(ctx, req) {
+            Ok(r) => r,
+            Err(nack) => nack,
+        };
+        if !req.is_query() {
+            self.last_command = Some((seq, crc, reply));
+        }
+        reply
+    }
+
+    /// Handle a decoder result: the `(seq, reply)` to send. Frame errors
+    /// become Nacks (with `seq = 0` when the CRC was bad, so the sequence
+    /// number could not be trusted).
+    pub fn handle_frame<C: DeviceContext>(
+        &mut self,
+        ctx: &mut C,
+        frame: Result<Packet<Request>, FrameError>,
+    ) -> (u16, Response) {
+        match frame {
+            Ok(p) => (p.seq, self.handle(ctx, p.seq, p.crc, &p.msg)),
+            Err(e) => {
+                let code = match e.kind {
+                    FrameErrorKind::BadCrc => ErrorCode::BadCrc,
+                    FrameErrorKind::UnknownTag(_) => ErrorCode::UnknownMessage,
+                    FrameErrorKind::BadField(field) => ErrorCode::OutOfRange { field },
+                    FrameErrorKind::TooLong
+                    | FrameErrorKind::Cobs
+                    | FrameErrorKind::Truncated
+                    | FrameErrorKind::ShortBody
+                    | FrameErrorKind::LongBody => ErrorCode::Malformed,
+                };
+                (e.seq.unwrap_or(0), Response::Nack(code))
+            }
+        }
+    }
+
+    /// Feed one received byte; when it completes a frame, the encoded reply
+    /// is written to `tx` and its length returned.
+    pub fn on_byte<C: DeviceContext>(
+        &mut self,
+        ctx: &mut C,
+        decoder: &mut FrameDecoder,
+        byte: u8,
+        tx: &mut [u8; MAX_FRAME],
+    ) -> Option<usize> {
+        let frame = decoder.feed::<Request>(byte)?;
+        let (seq, reply) = self.handle_frame(ctx, frame);
+        encode(seq, &reply, tx).ok()
+    }
+
+    /// Call regularly (any rate) with the current-loop period counter
+    /// (wrapping): runs the watchdog and returns a telemetry sample (with
+    /// its stream counter for `seq`) when one is due.
+    pub fn poll<C: DeviceContext>(
+        &mut self,
+        ctx: &mut C,
+        now_period: u32,
+    ) -> Option<(u16, Response)> {
+        let elapsed = match self.last_poll {
+            Some(p) => now_period.wrapping_sub(p),
+            None => 0,
+        };
+        self.last_poll = Some(now_period);
+        let enabled = ctx.mode() != Mode::Disabled;
+        if let Some(reaction) = self.watchdog.tick(elapsed, enabled) {
+            let cmd = match reaction {
+                TimeoutReaction::Disable => None,
+                TimeoutReaction::Stop => Some(Command::Velocity { rad_s: 0.0 }),
+                TimeoutReaction::Hold => Some(Command::Position {
+                    rad: ctx.telemetry().position_rad,
+                }),
+            };
+            let ok = match cmd {
+                Some(c) if c.validate(&ctx.limits()).is_ok() => ctx.post(c).is_ok(),
+                _ => false,
+            };
+            if !ok {
+                ctx.report_fault(Fault::CommandTimeout);
+            }
+        }
+        if self.telemetry_every == 0 {
+            return None;
+        }
+        let since = now_period.wrapping_sub(self.last_telemetry);
+        if since >= self.telemetry_every {
+            // Keep the average rate when polled late; resynchronise when far behind.
+            self.last_telemetry = if since >= self.telemetry_every.saturating_mul(2) {
+                now_period
+            } else {
+                self.last_telemetry.wrapping_add(self.telemetry_every)
+            };
+            let seq = self.telemetry_seq;
+            self.telemetry_seq = self.telemetry_seq.wrapping_add(1);
+            return Some((seq, Response::Stream(ctx.telemetry())));
+        }
+        None
+    }
+
+    fn execute<C: DeviceContext>(
+        &mut self,
+        ctx: &mut C,
+        req: &Request,
+    ) -> Result<Response, Response> {
+        let nack = |e: ErrorCode| Response::Nack(e);
+        let refused = |r: Refusal| Response::Nack(r.into());
+        match *req {
+            Request::Ping => Ok(Response::Hello(Hello {
+                protocol_version: crate::PROTOCOL_VERSION,
+                firmware_version: ctx.firmware_version(),
+                max_payload: MAX_PAYLOAD as u8,
+            })),
+            Request::KeepAlive => {
+                ctx.keep_alive();
+                self.watchdog.feed();
+                Ok(Response::Ack)
+            }
+            Request::SetCommand(cmd) => {
+                if let Command::OpenLoop {
+                    v_d_v,
+                    v_q_v,
+                    omega_e_rad_s,
+                    ..
+                } = cmd
+                {
+                    // Field-exact reporting of non-finite values.
+                    for (x, f) in [(v_d_v, 1), (v_q_v, 2), (omega_e_rad_s, 4)] {
+                        if !x.is_finite() {
+                            return Err(out_of_range(f));
+                        }
+                    }
+                }
+                cmd.validate(&ctx.limits())
+                    .map_err(|e| nack(command_field(&cmd, e)))?;
+                if cmd != Command::Disable && !ctx.faults().0.is_empty() {
+                    return Err(nack(ErrorCode::Faulted));
+                }
+                if matches!(cmd.mode(), Mode::Torque | Mode::Velocity | Mode::Position)
+                    && !ctx.is_calibrated()
+                {
+                    return Err(nack(ErrorCode::NotCalibrated));
+                }
+                ctx.post(cmd).map_err(|e| nack(command_field(&cmd, e)))?;
+                self.watchdog.feed();
+                Ok(Response::Ack)
+            }
+            Request::SetLimits(l) => {
+                validate_limits(&l)?;
+                ctx.set_limits(l).map_err(refused)?;
+                Ok(Response::Ack)
+            }
+            Request::SetCurrentGains(g) => {
+                for (i, x) in [g.kp_d, g.ki_d, g.kp_q, g.ki_q].into_iter().enumerate() {
+                    check(x, 0.0, MAX_GAIN, i as u8)?;
+                }
+                ctx.set_current_gains(g).map_err(refused)?;
+                Ok(Response::Ack)
+            }
+            Request::SetSpeedGains(g) => {
+                check(g.kp_a_per_rad_s, 0.0, MAX_GAIN, 0)?;
+                check(g.ki_a_per_rad, 0.0, MAX_GAIN, 1)?;
+                ctx.set_speed_gains(g).map_err(refused)?;
+                Ok(Response::Ack)
+            }
+            Request::SetPositionGains(g) => {
+                check(g.kp_per_s, 0.0, MAX_GAIN, 0)?;
+                check(g.max_velocity_rad_s, f32::MIN_POSITIVE, f32::MAX, 1)?;
+                check(g.max_acceleration_rad_s2, f32::MIN_POSITIVE, f32::MAX, 2)?;
+                ctx.set_position_gains(g).map_err(refused)?;
+                Ok(Response::Ack)
+            }
+            Request::SetDividers { speed, position } => {
+                if speed == 0 {
+                    return Err(out_of_range(0));
+                }
+                if position == 0 {
+                    return Err(out_of_range(1));
+                }
+                if ctx.mode() != Mode::Disabled {
+                    return Err(nack(ErrorCode::NotDisabled));
+                }
+                ctx.set_dividers(speed, position).map_err(refused)?;
+                Ok(Response::Ack)
+            }
+            Request::SetWatchdog(c) => {
+                self.watchdog.configure(c);
+                Ok(Response::Ack)
+            }
+            Request::RunCalibration(routine) => {
+                if ctx.mode() != Mode::Disabled {
+                    return Err(nack(ErrorCode::NotDisabled));
+                }
+                if !ctx.faults().0.is_empty() {
+                    return Err(nack(ErrorCode::Faulted));
+                }
+                ctx.start_calibration(routine).map_err(refused)?;
+                Ok(Response::Ack)
+            }
+            Request::ReadFaults => {
+                let (set, first) = ctx.faults();
+                Ok(Response::Faults(FaultReport::new(set, first)))
+            }
+            Request::ClearFaults => {
+                ctx.clear_faults();
+                Ok(Response::Ack)
+            }
+            Request::ReadParam(id) => {
+                let value = match id {
+                    ParamId::ProtocolVersion => Some(f32::from(crate::PROTOCOL_VERSION)),
+                    ParamId::TelemetryDivider => Some(self.telemetry_every as f32),
+                    ParamId::WatchdogTimeout => Some(self.watchdog.config().timeout_periods as f32),
+                    _ => ctx.param(id),
+                };
+                value
+                    .map(|value| Response::Param { id, value })
+                    .ok_or(nack(ErrorCode::Unsupported))
+            }
+            Request::ReadTelemetry => Ok(Response::Telemetry(ctx.telemetry())),
+            Request::StartTelemetry(rate) => {
+                let every = match rate {
+                    TelemetryRate::EveryPeriods(0) => return Err(out_of_range(1)),
+                    TelemetryRate::EveryPeriods(k) => k,
+                    TelemetryRate::Hz(hz) => {
+                        let pwm = ctx
+                            .param(ParamId::PwmFrequencyHz)
+                            .filter(|f| f.is_finite() && *f > 0.0)
+                            .ok_or(nack(ErrorCode::Unsupported))?;
+                        check(hz, f32::MIN_POSITIVE, pwm, 1)?;
+                        let k = pwm / hz + 0.5;
+                        // hz <= pwm, so k >= 1.5 > 1; bounded above by u32.
+                        if k >= u32::MAX as f32 {
+                            return Err(out_of_range(1));
+                        }
+                        (k as u32).max(1)
+                    }
+                };
+                self.telemetry_every = every;
+                // First sample at the next poll.
+                self.last_telemetry = self.last_poll.unwrap_or(0).wrapping_sub(every);
+                Ok(Response::Ack)
+            }
+            Request::StopTelemetry => {
+                self.telemetry_every = 0;
+                Ok(Response::Ack)
+            }
+        }
+    }
+}
+
+/// A recording [`DeviceContext`] for tests and examples: stores everything
+/// it is given and counts mutating calls, so a test can check that a
+/// Nack'd request touched nothing.
+pub mod tests_support {
+    use super::*;
+
+    /// Records every call; sensible defaults (calibrated, disabled).
+    #[derive(Clone, Copy, Debug, PartialEq)]
+    pub struct RecordingContext {
+        /// Number of mutating calls (post, keep_alive, clear, report, set_*, start_*).
+        pub calls: u32,
+        /// Last posted command.
+        pub posted: Option<Command>,
+        /// Keep-alives received.
+        pub keep_alives: u32,
+        /// Mode reported by [`DeviceContext::mode`].
+        pub mode: Mode,
+        /// Latched faults.
+        pub faults: FaultSet,
+        /// First fault.
+        pub first_fault: Option<Fault>,
+        /// Fault clears requested.
+        pub clears: u32,
+        /// Limits in force.
+        pub limits: Limits,
+        /// Last current gains.
+        pub current_gains: Option<CurrentGains>,
+        /// Last speed gains.
+        pub speed_gains: Option<SpeedGains>,
+        /// Last position gains.
+        pub position_gains: Option<PositionGains>,
+        /// Last dividers.
+        pub dividers: (u16, u16),
+        /// Last calibration started.
+        pub calibration: Option<Calibration>,
+        /// Answer to `is_calibrated`.
+        pub calibrated: bool,
+        /// Answer to `start_calibration` etc. when set.
+        pub refuse: Option<Refusal>,
+        /// PWM frequency [Hz].
+        pub pwm_hz: f32,
+        /// Telemetry sample returned.
+        pub sample: Telemetry,
+    }
+
+    impl Default for RecordingContext {
+        fn default() -> Self {
+            Self {
+                calls: 0,
+                posted: None,
+                keep_alives: 0,
+                mode: Mode::Disabled,
+                faults: FaultSet::EMPTY,
+                first_fault: None,
+                clears: 0,
+                limits: Limits {
+                    max_current_a: 10.0,
+                    max_velocity_rad_s: 500.0,
+                    min_position_rad: -100.0,
+                    max_position_rad: 100.0,
+                    max_open_loop_voltage_v: 12.0,
+                    max_open_loop_omega_e_rad_s: 1000.0,
+                },
+                current_gains: None,
+                speed_gains: None,
+                position_gains: None,
+                dividers: (10, 20),
+                calibration: None,
+                calibrated: true,
+                refuse: None,
+                pwm_hz: 20_000.0,
+                sample: Telemetry::ZERO,
+            }
+        }
+    }
+
+    impl RecordingContext {
+        fn mutate(&mut self) -> Result<(), Refusal> {
+            self.calls = self.calls.saturating_add(1);
+            match self.refuse {
+                Some(r) => Err(r),
+                None => Ok(()),
+            }
+        }
+    }
+
+    impl DeviceContext for RecordingContext {
+        fn post(&mut self, cmd: Command) -> Result<(), CommandError> {
+            self.calls = self.calls.saturating_add(1);
+            self.posted = Some(cmd);
+            self.mode = cmd.mode();
+            Ok(())
+        }
+        fn keep_alive(&mut self) {
+            self.calls = self.calls.saturating_add(1);
+            self.keep_alives = self.keep_alives.saturating_add(1);
+        }
+        fn mode(&self) -> Mode {
+            self.mode
+        }
+        fn faults(&self) -> (FaultSet, Option<Fault>) {
+            (self.faults, self.first_fault)
+        }
+        fn clear_faults(&mut self) {
+            self.calls = self.calls.saturating_add(1);
+            self.clears = self.clears.saturating_add(1);
+            self.faults = FaultSet::EMPTY;
+            self.first_fault = None;
+        }
+        fn report_fault(&mut self, fault: Fault) {
+            self.calls = self.calls.saturating_add(1);
+            self.faults.insert(fault);
+            self.first_fault = self.first_fault.or(Some(fault));
+            self.mode = Mode::Disabled;
+        }
+        fn limits(&self) -> Limits {
+            self.limits
+        }
+        fn set_limits(&mut self, limits: Limits) -> Result<(), Refusal> {
+            self.mutate()?;
+            self.limits = limits;
+            Ok(())
+        }
+        fn set_current_gains(&mut self, gains: CurrentGains) -> Result<(), Refusal> {
+            self.mutate()?;
+            self.current_gains = Some(gains);
+            Ok(())
+        }
+        fn set_speed_gains(&mut self, gains: SpeedGains) -> Result<(), Refusal> {
+            self.mutate()?;
+            self.speed_gains = Some(gains);
+            Ok(())
+        }
+        fn set_position_gains(&mut self, gains: PositionGains) -> Result<(), Refusal> {
+            self.mutate()?;
+            self.position_gains = Some(gains);
+            Ok(())
+        }
+        fn set_dividers(&mut self, speed: u16, position: u16) -> Result<(), Refusal> {
+            self.mutate()?;
+            self.dividers = (speed, position);
+            Ok(())
+        }
+        fn start_calibration(&mut self, routine: Calibration) -> Result<(), Refusal> {
+            self.mutate()?;
+            self.calibration = Some(routine);
+            Ok(())
+        }
+        fn is_calibrated(&self) -> bool {
+            self.calibrated
+        }
+        fn param(&self, id: ParamId) -> Option<f32> {
+            match id {
+                ParamId::PolePairs => Some(7.0),
+                ParamId::PwmFrequencyHz => Some(self.pwm_hz),
+                ParamId::SpeedDivider => Some(f32::from(self.dividers.0)),
+                ParamId::PositionDivider => Some(f32::from(self.dividers.1)),
+                ParamId::Calibrated => Some(if self.calibrated { 1.0 } else { 0.0 }),
+                _ => None,
+            }
+        }
+        fn telemetry(&self) -> Telemetry {
+            self.sample
+        }
+        fn firmware_version(&self) -> [u8; 3] {
+            [0, 1, 0]
+        }
+    }
+}

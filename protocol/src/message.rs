@@ -1,0 +1,828 @@
+//! Messages and their wire layout.
+//!
+//! Every body is a fixed sequence of little-endian fields (`f32` as IEEE 754
+//! bits). Field numbers (0-based, in body order) are what a
+//! [`ErrorCode::OutOfRange`] Nack points at.
+//!
+//! Host to device ([`Request`]); every one is answered with the same `seq`:
+//!
+//! | tag | request | body | reply |
+//! |---|---|---|---|
+//! | 0x01 | `Ping` | - | `Hello` |
+//! | 0x02 | `KeepAlive` | - | `Ack` (feeds the watchdog, refreshes the command) |
+//! | 0x10 | `SetCommand` | `mode:u8`, then per mode: disable -; torque `iq_a:f32`; velocity `rad_s:f32`; position `rad:f32`; open loop `v_d_v:f32 v_q_v:f32 theta_e:u32 (turn/2^32) omega_e_rad_s:f32` | `Ack` |
+//! | 0x11 | `SetLimits` | `max_current_a max_velocity_rad_s min_position_rad max_position_rad max_open_loop_voltage_v max_open_loop_omega_e_rad_s` (6 x f32) | `Ack` |
+//! | 0x12 | `SetCurrentGains` | `kp_d ki_d kp_q ki_q` (f32, V/A and V/(A s)) | `Ack` |
+//! | 0x13 | `SetSpeedGains` | `kp_a_per_rad_s ki_a_per_rad` (f32) | `Ack` |
+//! | 0x14 | `SetPositionGains` | `kp_per_s max_velocity_rad_s max_acceleration_rad_s2` (f32) | `Ack` |
+//! | 0x15 | `SetDividers` | `speed:u16 position:u16` (current-loop periods per run) | `Ack` |
+//! | 0x16 | `SetWatchdog` | `timeout_periods:u32` (0 = off), `reaction:u8` (0 disable, 1 stop, 2 hold) | `Ack` |
+//! | 0x20 | `RunCalibration` | `routine:u8` (0 offsets, 1 identification, 2 alignment) | `Ack` (started) |
+//! | 0x21 | `ReadFaults` | - | `Faults` |
+//! | 0x22 | `ClearFaults` | - | `Ack` |
+//! | 0x23 | `ReadParam` | `id:u8` ([`ParamId`]) | `Param` |
+//! | 0x24 | `ReadTelemetry` | - | `Telemetry` (one sample, `seq` echoed) |
+//! | 0x30 | `StartTelemetry` | `kind:u8` (0 every K periods, 1 rate in Hz), `value:u32 K` or `f32 Hz` | `Ack` |
+//! | 0x31 | `StopTelemetry` | - | `Ack` |
+//!
+//! Device to host ([`Response`]):
+//!
+//! | tag | response | body |
+//! |---|---|---|
+//! | 0x80 | `Ack` | - |
+//! | 0x81 | `Nack` | `code:u8 field:u8` ([`ErrorCode`]; `field` only for out-of-range, else 0) |
+//! | 0x82 | `Hello` | `protocol_version:u8 fw_major:u8 fw_minor:u8 fw_patch:u8 max_payload:u8` |
+//! | 0x83 | `Faults` | `bits:u32` ([`FaultSet`], bit n = fault code n), `first:u8` (first fault code, 0 none) |
+//! | 0x84 | `Param` | `id:u8 value:f32` |
+//! | 0x85 | `Telemetry` | `period:u32 i_d_a i_q_a v_d_v v_q_v velocity_rad_s position_rad (f32) mode:u8 fault:u8 max_loop_cycles:u32 v_bus_v:f32` (reply to `ReadTelemetry`) |
+//! | 0x86 | `Stream` | as `Telemetry`; unsolicited, after `StartTelemetry`, `seq` = wrapping stream counter |
+//!
+//! A frame-level error (bad CRC, bad COBS, too long, too short) cannot be
+//! trusted to carry a sequence number: its Nack goes out with `seq = 0`, and
+//! hosts never use 0 for a request. Streamed telemetry has its own tag (so
+//! it is never taken for a reply) and a wrapping stream counter in `seq` (so
+//! the host can count lost frames).
+
+use crate::frame::{Reader, Writer};
+use foc_core::angle::ElectricalAngle;
+use foc_core::control::stage::TimeoutReaction;
+use foc_core::control::{Command, Fault, FaultSet, Feedback, Limits, Mode};
+
+/// Why a body could not be decoded (mapped to a
+/// [`crate::frame::FrameErrorKind`] by the frame layer).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum DecodeError {
+    /// Unknown tag.
+    UnknownTag,
+    /// Body too short.
+    Short,
+    /// Bytes left over after the body.
+    Long,
+    /// Field `n` holds an invalid code.
+    BadField(u8),
+}
+
+/// A message type of one direction.
+pub trait Message: Sized {
+    /// The tag byte.
+    fn tag(&self) -> u8;
+    /// Write the body (after tag and seq).
+    fn encode_body(&self, w: &mut Writer<'_>);
+    /// Read the body of a message with `tag`.
+    fn decode_body(tag: u8, r: &mut Reader<'_>) -> Result<Self, DecodeError>;
+}
+
+/// Current-loop PI gains of both axes.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct CurrentGains {
+    /// d-axis proportional gain [V/A].
+    pub kp_d: f32,
+    /// d-axis integral gain [V/(A s)].
+    pub ki_d: f32,
+    /// q-axis proportional gain [V/A].
+    pub kp_q: f32,
+    /// q-axis integral gain [V/(A s)].
+    pub ki_q: f32,
+}
+
+impl CurrentGains {
+    /// The gains of a current-loop configuration.
+    pub fn from_config(c: &foc_core::control::current::CurrentLoopConfig) -> Self {
+        Self {
+            kp_d: c.d_gains.kp_v_per_a,
+            ki_d: c.d_gains.ki_v_per_a_s,
+            kp_q: c.q_gains.kp_v_per_a,
+            ki_q: c.q_gains.ki_v_per_a_s,
+        }
+    }
+    /// Write these gains into a current-loop configuration.
+    pub fn apply(&self, c: &mut foc_core::control::current::CurrentLoopConfig) {
+        c.d_gains.kp_v_per_a = self.kp_d;
+        c.d_gains.ki_v_per_a_s = self.ki_d;
+        c.q_gains.kp_v_per_a = self.kp_q;
+        c.q_gains.ki_v_per_a_s = self.ki_q;
+    }
+}
+
+/// Speed-loop PI gains.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct SpeedGains {
+    /// Proportional gain [A / (rad/s)].
+    pub kp_a_per_rad_s: f32,
+    /// Integral gain [A / rad].
+    pub ki_a_per_rad: f32,
+}
+
+impl SpeedGains {
+    /// Write these gains into a speed-loop configuration.
+    pub fn apply(&self, c: &mut foc_core::control::speed::SpeedLoopConfig) {
+        c.kp_a_per_rad_s = self.kp_a_per_rad_s;
+        c.ki_a_per_rad = self.ki_a_per_rad;
+    }
+}
+
+/// Position-loop gain and trajectory limits.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct PositionGains {
+    /// Proportional gain [(rad/s) / rad].
+    pub kp_per_s: f32,
+    /// Trajectory velocity limit [rad/s].
+    pub max_velocity_rad_s: f32,
+    /// Trajectory acceleration limit [rad/s^2].
+    pub max_acceleration_rad_s2: f32,
+}
+
+impl PositionGains {
+    /// Write these into a position-loop configuration.
+    pub fn apply(&self, c: &mut foc_core::control::position::PositionLoopConfig) {
+        c.kp_per_s = self.kp_per_s;
+        c.max_velocity_rad_s = self.max_velocity_rad_s;
+        c.max_acceleration_rad_s2 = self.max_acceleration_rad_s2;
+    }
+}
+
+/// Configuration of the link watchdog (see [`crate::device::CommandWatchdog`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct WatchdogConfig {
+    /// Current-loop periods without a command or keep-alive before the
+    /// reaction (0: off).
+    pub timeout_periods: u32,
+    /// What to do then.
+    pub reaction: TimeoutReaction,
+}
+
+impl WatchdogConfig {
+    /// Watchdog off.
+    pub const OFF: Self = Self {
+        timeout_periods: 0,
+        reaction: TimeoutReaction::Disable,
+    };
+}
+
+/// A calibration routine.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[repr(u8)]
+pub enum Calibration {
+    /// Current-sensor offsets (bridge off).
+    Offsets = 0,
+    /// Resistance and inductance identification.
+    Identification = 1,
+    /// Angle-sensor direction, pole pairs and electrical zero.
+    Alignment = 2,
+}
+
+impl Calibration {
+    /// From its wire code.
+    pub const fn from_code(c: u8) -> Option<Self> {
+        match c {
+            0 => Some(Self::Offsets),
+            1 => Some(Self::Identification),
+            2 => Some(Self::Alignment),
+            _ => None,
+        }
+    }
+}
+
+/// How often to stream telemetry.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum TelemetryRate {
+    /// One sample every K current-loop periods (K >= 1).
+    EveryPeriods(u32),
+    /// A rate [Hz] (converted with the PWM frequency; at most that).
+    Hz(f32),
+}
+
+macro_rules! param_ids {
+    ($( $(#[$doc:meta])* $name:ident = $code:expr, $text:expr; )*) => {
+        /// A readable parameter.
+        #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+        #[cfg_attr(feature = "defmt", derive(defmt::Format))]
+        #[repr(u8)]
+        pub enum ParamId { $( $(#[$doc])* $name = $code, )* }
+        impl ParamId {
+            /// Every parameter.
+            pub const ALL: &'static [ParamId] = &[$(ParamId::$name),*];
+            /// From its wire code.
+            pub const fn from_code(c: u8) -> Option<Self> {
+                match c { $( $code => Some(ParamId::$name), )* _ => None }
+            }
+            /// Its name on the command line (`foc-ctl param NAME`).
+            pub const fn name(self) -> &'static str {
+                match self { $( ParamId::$name => $text, )* }
+            }
+            /// The parameter with this command-line name.
+            pub fn from_name(s: &str) -> Option<Self> {
+                Self::ALL.iter().copied().find(|p| p.name() == s)
+            }
+        }
+    };
+}
+
+param_ids! {
+    /// Pole pairs.
+    PolePairs = 0, "pole-pairs";
+    /// Phase resistance [ohm].
+    ResistanceOhm = 1, "r";
+    /// d-axis inductance [H].
+    LdH = 2, "ld";
+    /// q-axis inductance [H].
+    LqH = 3, "lq";
+    /// Flux linkage [Wb].
+    FluxLinkageWb = 4, "psi";
+    /// PWM = current-loop frequency [Hz].
+    PwmFrequencyHz = 5, "pwm-frequency";
+    /// Speed loop every N periods.
+    SpeedDivider = 6, "speed-divider";
+    /// Position loop every M periods.
+    PositionDivider = 7, "position-divider";
+    /// Firmware version as `major * 10000 + minor * 100 + patch`.
+    FirmwareVersion = 8, "firmware-version";
+    /// Protocol version ([`crate::PROTOCOL_VERSION`]; answered by the protocol layer).
+    ProtocolVersion = 9, "protocol-version";
+    /// Bus voltage [V].
+    BusVoltageV = 10, "bus-voltage";
+    /// 1 when calibrated, else 0.
+    Calibrated = 11, "calibrated";
+    /// Longest current-loop run so far [CPU cycles].
+    MaxLoopCycles = 12, "max-loop-cycles";
+    /// Telemetry divider in force (periods; 0 = streaming off; answered by the protocol layer).
+    TelemetryDivider = 13, "telemetry-divider";
+    /// Watchdog timeout [periods] (0 = off; answered by the protocol layer).
+    WatchdogTimeout = 14, "watchdog-timeout";
+}
+
+/// A Nack's reason.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum ErrorCode {
+    /// Frame could not be decoded (COBS, length, too long, body size).
+    Malformed,
+    /// CRC mismatch.
+    BadCrc,
+    /// Unknown tag.
+    UnknownMessage,
+    /// Field `field` (0-based, in body order) invalid or out of range.
+    OutOfRange {
+        /// The offending field.
+        field: u8,
+    },
+    /// A fault is latched: clear it first.
+    Faulted,
+    /// The device is busy (e.g. a calibration is running).
+    Busy,
+    /// Closed-loop modes need calibration first.
+    NotCalibrated,
+    /// Only allowed while disabled.
+    NotDisabled,
+    /// Not supported by this device.
+    Unsupported,
+    /// A code this version does not know (decoding only).
+    Other(u8),
+}
+
+impl ErrorCode {
+    /// Wire code and field.
+    pub const fn to_wire(self) -> (u8, u8) {
+        match self {
+            Self::Malformed => (1, 0),
+            Self::BadCrc => (2, 0),
+            Self::UnknownMessage => (3, 0),
+            Self::OutOfRange { field } => (4, field),
+            Self::Faulted => (5, 0),
+            Self::Busy => (6, 0),
+            Self::NotCalibrated => (7, 0),
+            Self::NotDisabled => (8, 0),
+            Self::Unsupported => (9, 0),
+            Self::Other(c) => (c, 0),
+        }
+    }
+    /// From wire code and field.
+    pub const fn from_wire(code: u8, field: u8) -> Self {
+        match code {
+            1 => Self::Malformed,
+            2 => Self::BadCrc,
+            3 => Self::UnknownMessage,
+            4 => Self::OutOfRange { field },
+            5 => Self::Faulted,
+            6 => Self::Busy,
+            7 => Self::NotCalibrated,
+            8 => Self::NotDisabled,
+            9 => Self::Unsupported,
+            c => Self::Other(c),
+        }
+    }
+}
+
+/// Reply to `Ping`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Hello {
+    /// [`crate::PROTOCOL_VERSION`] of the device.
+    pub protocol_version: u8,
+    /// Firmware version `[major, minor, patch]`.
+    pub firmware_version: [u8; 3],
+    /// Largest payload the device accepts [bytes].
+    pub max_payload: u8,
+}
+
+/// Latched faults.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct FaultReport {
+    /// All latched faults.
+    pub set: FaultSet,
+    /// Code of the first fault (0: none).
+    pub first_code: u8,
+}
+
+impl FaultReport {
+    /// From the supervisor's view.
+    pub fn new(set: FaultSet, first: Option<Fault>) -> Self {
+        Self {
+            set,
+            first_code: first.map_or(0, Fault::code),
+        }
+    }
+    /// The first fault, if its code is known.
+    pub fn first(&self) -> Option<Fault> {
+        Fault::from_code(self.first_code)
+    }
+}
+
+/// One telemetry sample.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Telemetry {
+    /// Current-loop period counter (wraps).
+    pub period: u32,
+    /// Measured d current [A].
+    pub i_d_a: f32,
+    /// Measured q current [A].
+    pub i_q_a: f32,
+    /// Commanded d voltage [V].
+    pub v_d_v: f32,
+    /// Commanded q voltage [V].
+    pub v_q_v: f32,
+    /// Mechanical velocity [rad/s].
+    pub velocity_rad_s: f32,
+    /// Multi-turn mechanical position [rad].
+    pub position_rad: f32,
+    /// Active mode.
+    pub mode: Mode,
+    /// First latched fault code (0: none).
+    pub fault_code: u8,
+    /// Longest current-loop run [CPU cycles].
+    pub max_loop_cycles: u32,
+    /// Bus voltage [V].
+    pub v_bus_v: f32,
+}
+
+impl Telemetry {
+    /// A zero sample (disabled).
+    pub const ZERO: Self = Self {
+        period: 0,
+        i_d_a: 0.0,
+        i_q_a: 0.0,
+        v_d_v: 0.0,
+        v_q_v: 0.0,
+        velocity_rad_s: 0.0,
+        position_rad: 0.0,
+        mode: Mode::Disabled,
+        fault_code: 0,
+        max_loop_cycles: 0,
+        v_bus_v: 0.0,
+    };
+
+    /// The sample of a current-stage [`Feedback`].
+    pub fn from_feedback(fb: &Feedback, max_loop_cycles: u32) -> Self {
+        Self {
+            period: fb.period,
+            i_d_a: fb.i_dq_a.d,
+            i_q_a: fb.i_dq_a.q,
+            v_d_v: fb.v_dq_v.d,
+            v_q_v: fb.v_dq_v.q,
+            velocity_rad_s: fb.velocity_rad_s,
+            position_rad: fb.position_rad,
+            mode: fb.mode,
+            fault_code: fb.first_fault.map_or(0, Fault::code),
+            max_loop_cycles,
+            v_bus_v: fb.v_bus_v,
+        }
+    }
+}
+
+/// Mode from its wire code ([`Mode`] as `u8`).
+pub const fn mode_from_code(c: u8) -> Option<Mode> {
+    match c {
+        0 => Some(Mode::Disabled),
+        1 => Some(Mode::Torque),
+        2 => Some(Mode::Velocity),
+        3 => Some(Mode::Position),
+        4 => Some(Mode::OpenLoop),
+        _ => None,
+    }
+}
+
+/// Timeout reaction wire code.
+pub const fn reaction_code(r: TimeoutReaction) -> u8 {
+    match r {
+        TimeoutReaction::Disable => 0,
+        TimeoutReaction::Stop => 1,
+        TimeoutReaction::Hold => 2,
+    }
+}
+
+/// Timeout reaction from its wire code.
+pub const fn reaction_from_code(c: u8) -> Option<TimeoutReaction> {
+    match c {
+        0 => Some(TimeoutReaction::Disable),
+        1 => Some(TimeoutReaction::Stop),
+        2 => Some(TimeoutReaction::Hold),
+        _ => None,
+    }
+}
+
+/// Host-to-device messages.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Request {
+    /// Who are you? (no side effects; does not feed the watchdog).
+    Ping,
+    /// Keep the active command alive (feeds the watchdog).
+    KeepAlive,
+    /// Set mode and target.
+    SetCommand(Command),
+    /// Replace the command limits.
+    SetLimits(Limits),
+    /// Current-loop gains.
+    SetCurrentGains(CurrentGains),
+    /// Speed-loop gains.
+    SetSpeedGains(SpeedGains),
+    /// Position-loop gain and trajectory limits.
+    SetPositionGains(PositionGains),
+    /// Loop dividers (only while disabled).
+    SetDividers {
+        /// Speed loop every N periods (>= 1).
+        speed: u16,
+        /// Position loop every M periods (>= 1).
+        position: u16,
+    },
+    /// Link watchdog.
+    SetWatchdog(WatchdogConfig),
+    /// Start a calibration routine (only while disabled and not faulted).
+    RunCalibration(Calibration),
+    /// Read the latched faults.
+    ReadFaults,
+    /// Clear the latched faults.
+    ClearFaults,
+    /// Read a parameter.
+    ReadParam(ParamId),
+    /// One telemetry sample now.
+    ReadTelemetry,
+    /// Stream telemetry.
+    StartTelemetry(TelemetryRate),
+    /// Stop streaming.
+    StopTelemetry,
+}
+
+impl Request {
+    /// True for requests that only read (never deduplicated, never change
+    /// the device).
+    pub const fn is_query(&self) -> bool {
+        matches!(
+            self,
+            Request::Ping | Request::ReadFaults | Request::ReadParam(_) | Request::ReadTelemetry
+        )
+    }
+}
+
+fn get_telemetry(r: &mut Reader<'_>) -> Result<Telemetry, DecodeError> {
+    Ok(Telemetry {
+        period: r.u32()?,
+        i_d_a: r.f32()?,
+        i_q_a: r.f32()?,
+        v_d_v: r.f32()?,
+        v_q_v: r.f32()?,
+        velocity_rad_s: r.f32()?,
+        position_rad: r.f32()?,
+        mode: mode_from_code(r.u8()?).ok_or(DecodeError::BadField(7))?,
+        fault_code: r.u8()?,
+        max_loop_cycles: r.u32()?,
+        v_bus_v: r.f32()?,
+    })
+}
+
+fn put_command(w: &mut Writer<'_>, c: &Command) {
+    w.u8(c.mode() as u8);
+    match *c {
+        Command::Disable => {}
+        Command::Torque { iq_a } => w.f32(iq_a),
+        Command::Velocity { rad_s } => w.f32(rad_s),
+        Command::Position { rad } => w.f32(rad),
+        Command::OpenLoop {
+            v_d_v,
+            v_q_v,
+            theta_e,
+            omega_e_rad_s,
+        } => {
+            w.f32(v_d_v);
+            w.f32(v_q_v);
+            w.u32(theta_e.to_bits());
+            w.f32(omega_e_rad_s);
+        }
+    }
+}
+
+fn get_command(r: &mut Reader<'_>) -> Result<Command, DecodeError> {
+    let mode = mode_from_code(r.u8()?).ok_or(DecodeError::BadField(0))?;
+    Ok(match mode {
+        Mode::Disabled => Command::Disable,
+        Mode::Torque => Command::Torque { iq_a: r.f32()? },
+        Mode::Velocity => Command::Velocity { rad_s: r.f32()? },
+        Mode::Position => Command::Position { rad: r.f32()? },
+        Mode::OpenLoop => Command::OpenLoop {
+            v_d_v: r.f32()?,
+            v_q_v: r.f32()?,
+            theta_e: ElectricalAngle::from_bits(r.u32()?),
+            omega_e_rad_s: r.f32()?,
+        },
+    })
+}
+
+mod tags {
+    pub const PING: u8 = 0x01;
+    pub const KEEP_ALIVE: u8 = 0x02;
+    pub const SET_COMMAND: u8 = 0x10;
+    pub const SET_LIMITS: u8 = 0x11;
+    pub const SET_CURRENT_GAINS: u8 = 0x12;
+    pub const SET_SPEED_GAINS: u8 = 0x13;
+    pub const SET_POSITION_GAINS: u8 = 0x14;
+    pub const SET_DIVIDERS: u8 = 0x15;
+    pub const SET_WATCHDOG: u8 = 0x16;
+    pub const RUN_CALIBRATION: u8 = 0x20;
+    pub const READ_FAULTS: u8 = 0x21;
+    pub const CLEAR_FAULTS: u8 = 0x22;
+    pub const READ_PARAM: u8 = 0x23;
+    pub const READ_TELEMETRY: u8 = 0x24;
+    pub const START_TELEMETRY: u8 = 0x30;
+    pub const STOP_TELEMETRY: u8 = 0x31;
+
+    pub const ACK: u8 = 0x80;
+    pub const NACK: u8 = 0x81;
+    pub const HELLO: u8 = 0x82;
+    pub const FAULTS: u8 = 0x83;
+    pub const PARAM: u8 = 0x84;
+    pub const TELEMETRY: u8 = 0x85;
+    pub const STREAM: u8 = 0x86;
+}
+
+impl Message for Request {
+    fn tag(&self) -> u8 {
+        use tags::*;
+        match self {
+            Request::Ping => PING,
+            Request::KeepAlive => KEEP_ALIVE,
+            Request::SetCommand(_) => SET_COMMAND,
+            Request::SetLimits(_) => SET_LIMITS,
+            Request::SetCurrentGains(_) => SET_CURRENT_GAINS,
+            Request::SetSpeedGains(_) => SET_SPEED_GAINS,
+            Request::SetPositionGains(_) => SET_POSITION_GAINS,
+            Request::SetDividers { .. } => SET_DIVIDERS,
+            Request::SetWatchdog(_) => SET_WATCHDOG,
+            Request::RunCalibration(_) => RUN_CALIBRATION,
+            Request::ReadFaults => READ_FAULTS,
+            Request::ClearFaults => CLEAR_FAULTS,
+            Request::ReadParam(_) => READ_PARAM,
+            Request::ReadTelemetry => READ_TELEMETRY,
+            Request::StartTelemetry(_) => START_TELEMETRY,
+            Request::StopTelemetry => STOP_TELEMETRY,
+        }
+    }
+
+    fn encode_body(&self, w: &mut Writer<'_>) {
+        match self {
+            Request::Ping
+            | Request::KeepAlive
+            | Request::ReadFaults
+            | Request::ClearFaults
+            | Request::ReadTelemetry
+            | Request::StopTelemetry => {}
+            Request::SetCommand(c) => put_command(w, c),
+            Request::SetLimits(l) => {
+                w.f32(l.max_current_a);
+                w.f32(l.max_velocity_rad_s);
+                w.f32(l.min_position_rad);
+                w.f32(l.max_position_rad);
+                w.f32(l.max_open_loop_voltage_v);
+                w.f32(l.max_open_loop_omega_e_rad_s);
+            }
+            Request::SetCurrentGains(g) => {
+                w.f32(g.kp_d);
+                w.f32(g.ki_d);
+                w.f32(g.kp_q);
+                w.f32(g.ki_q);
+            }
+            Request::SetSpeedGains(g) => {
+                w.f32(g.kp_a_per_rad_s);
+                w.f32(g.ki_a_per_rad);
+            }
+            Request::SetPositionGains(g) => {
+                w.f32(g.kp_per_s);
+                w.f32(g.max_velocity_rad_s);
+                w.f32(g.max_acceleration_rad_s2);
+            }
+            Request::SetDividers { speed, position } => {
+                w.u16(*speed);
+                w.u16(*position);
+            }
+            Request::SetWatchdog(c) => {
+                w.u32(c.timeout_periods);
+                w.u8(reaction_code(c.reaction));
+            }
+            Request::RunCalibration(c) => w.u8(*c as u8),
+            Request::ReadParam(p) => w.u8(*p as u8),
+            Request::StartTelemetry(rate) => match *rate {
+                TelemetryRate::EveryPeriods(k) => {
+                    w.u8(0);
+                    w.u32(k);
+                }
+                TelemetryRate::Hz(hz) => {
+                    w.u8(1);
+                    w.f32(hz);
+                }
+            },
+        }
+    }
+
+    fn decode_body(tag: u8, r: &mut Reader<'_>) -> Result<Self, DecodeError> {
+        use tags::*;
+        Ok(match tag {
+            PING => Request::Ping,
+            KEEP_ALIVE => Request::KeepAlive,
+            SET_COMMAND => Request::SetCommand(get_command(r)?),
+            SET_LIMITS => Request::SetLimits(Limits {
+                max_current_a: r.f32()?,
+                max_velocity_rad_s: r.f32()?,
+                min_position_rad: r.f32()?,
+                max_position_rad: r.f32()?,
+                max_open_loop_voltage_v: r.f32()?,
+                max_open_loop_omega_e_rad_s: r.f32()?,
+            }),
+            SET_CURRENT_GAINS => Request::SetCurrentGains(CurrentGains {
+                kp_d: r.f32()?,
+                ki_d: r.f32()?,
+                kp_q: r.f32()?,
+                ki_q: r.f32()?,
+            }),
+            SET_SPEED_GAINS => Request::SetSpeedGains(SpeedGains {
+                kp_a_per_rad_s: r.f32()?,
+                ki_a_per_rad: r.f32()?,
+            }),
+            SET_POSITION_GAINS => Request::SetPositionGains(PositionGains {
+                kp_per_s: r.f32()?,
+                max_velocity_rad_s: r.f32()?,
+                max_acceleration_rad_s2: r.f32()?,
+            }),
+            SET_DIVIDERS => Request::SetDividers {
+                speed: r.u16()?,
+                position: r.u16()?,
+            },
+            SET_WATCHDOG => {
+                let timeout_periods = r.u32()?;
+                let reaction = reaction_from_code(r.u8()?).ok_or(DecodeError::BadField(1))?;
+                Request::SetWatchdog(WatchdogConfig {
+                    timeout_periods,
+                    reaction,
+                })
+            }
+            RUN_CALIBRATION => Request::RunCalibration(
+                Calibration::from_code(r.u8()?).ok_or(DecodeError::BadField(0))?,
+            ),
+            READ_FAULTS => Request::ReadFaults,
+            CLEAR_FAULTS => Request::ClearFaults,
+            READ_PARAM => {
+                Request::ReadParam(ParamId::from_code(r.u8()?).ok_or(DecodeError::BadField(0))?)
+            }
+            READ_TELEMETRY => Request::ReadTelemetry,
+            START_TELEMETRY => Request::StartTelemetry(match r.u8()? {
+                0 => TelemetryRate::EveryPeriods(r.u32()?),
+                1 => TelemetryRate::Hz(r.f32()?),
+                _ => return Err(DecodeError::BadField(0)),
+            }),
+            STOP_TELEMETRY => Request::StopTelemetry,
+            _ => return Err(DecodeError::UnknownTag),
+        })
+    }
+}
+
+/// Device-to-host messages.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Response {
+    /// Done / accepted.
+    Ack,
+    /// Refused; nothing changed.
+    Nack(ErrorCode),
+    /// Reply to `Ping`.
+    Hello(Hello),
+    /// Latched faults.
+    Faults(FaultReport),
+    /// A parameter value.
+    Param {
+        /// Which parameter.
+        id: ParamId,
+        /// Its value (in the unit of [`ParamId`]).
+        value: f32,
+    },
+    /// A telemetry sample (reply to `ReadTelemetry`).
+    Telemetry(Telemetry),
+    /// A streamed telemetry sample (unsolicited; `seq` is a stream counter).
+    Stream(Telemetry),
+}
+
+impl Message for Response {
+    fn tag(&self) -> u8 {
+        use tags::*;
+        match self {
+            Response::Ack => ACK,
+            Response::Nack(_) => NACK,
+            Response::Hello(_) => HELLO,
+            Response::Faults(_) => FAULTS,
+            Response::Param { .. } => PARAM,
+            Response::Telemetry(_) => TELEMETRY,
+            Response::Stream(_) => STREAM,
+        }
+    }
+
+    fn encode_body(&self, w: &mut Writer<'_>) {
+        match self {
+            Response::Ack => {}
+            Response::Nack(e) => {
+                let (c, f) = e.to_wire();
+                w.u8(c);
+                w.u8(f);
+            }
+            Response::Hello(h) => {
+                w.u8(h.protocol_version);
+                w.bytes(&h.firmware_version);
+                w.u8(h.max_payload);
+            }
+            Response::Faults(f) => {
+                w.u32(f.set.0);
+                w.u8(f.first_code);
+            }
+            Response::Param { id, value } => {
+                w.u8(*id as u8);
+                w.f32(*value);
+            }
+            Response::Telemetry(t) | Response::Stream(t) => {
+                w.u32(t.period);
+                w.f32(t.i_d_a);
+                w.f32(t.i_q_a);
+                w.f32(t.v_d_v);
+                w.f32(t.v_q_v);
+                w.f32(t.velocity_rad_s);
+                w.f32(t.position_rad);
+                w.u8(t.mode as u8);
+                w.u8(t.fault_code);
+                w.u32(t.max_loop_cycles);
+                w.f32(t.v_bus_v);
+            }
+        }
+    }
+
+    fn decode_body(tag: u8, r: &mut Reader<'_>) -> Result<Self, DecodeError> {
+        use tags::*;
+        Ok(match tag {
+            ACK => Response::Ack,
+            NACK => {
+                let code = r.u8()?;
+                let field = r.u8()?;
+                Response::Nack(ErrorCode::from_wire(code, field))
+            }
+            HELLO => Response::Hello(Hello {
+                protocol_version: r.u8()?,
+                firmware_version: [r.u8()?, r.u8()?, r.u8()?],
+                max_payload: r.u8()?,
+            }),
+            FAULTS => Response::Faults(FaultReport {
+                set: FaultSet(r.u32()?),
+                first_code: r.u8()?,
+            }),
+            PARAM => Response::Param {
+                id: ParamId::from_code(r.u8()?).ok_or(DecodeError::BadField(0))?,
+                value: r.f32()?,
+            },
+            TELEMETRY => Response::Telemetry(get_telemetry(r)?),
+            STREAM => Response::Stream(get_telemetry(r)?),
+            _ => return Err(DecodeError::UnknownTag),
+        })
+    }
+}
