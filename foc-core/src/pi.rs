@@ -13,7 +13,7 @@
 //! saturates, anti-windup acts:
 //! - [`AntiWindup::Clamp`]: conditional integration. The integration step
 //!   of this sample is undone when it would push further into the limit.
-//! - [`AntiWindup::BackCalculation`]: `I += kb * ts * (u - u_raw)`, which
+//! - [`AntiWindup::BackCalculation`]: `I += min(kb * ts, 1) * (u - u_raw)`, which
 //!   bleeds the integrator back towards the value that just reaches the
 //!   limit (`kb` in 1/s; `kb = ki / kp` is the usual choice). While the
 //!   error persists the integrator settles where integration and tracking
@@ -160,7 +160,12 @@ impl Pi {
                     }
                 }
                 AntiWindup::BackCalculation { kb_per_s } => {
-                    i = clamp(i + kb_per_s * c.ts_s * (u - u_raw), lo, hi);
+                    // Discrete tracking step, limited to 1: `kb ts = 1`
+                    // already puts `u_raw` exactly on the limit; more would
+                    // over-correct (the output then drops under a constant
+                    // positive error) and beyond 2 oscillate.
+                    let g = clamp(kb_per_s * c.ts_s, 0.0, 1.0);
+                    i = clamp(i + g * (u - u_raw), lo, hi);
                 }
             }
         }

@@ -154,8 +154,8 @@ fn windup_reference_is_slow_ours_are_fast() {
     let mut naive_steps = 0u32;
     loop {
         naive_steps += 1;
-        i_naive += ki * ts * -1.0;
-        let u = (kp * -1.0 + i_naive).clamp(-hi, hi);
+        i_naive -= ki * ts; // error -1
+        let u = (i_naive - kp).clamp(-hi, hi);
         if u <= 0.0 || naive_steps > 10_000_000 {
             break;
         }
