@@ -75,7 +75,7 @@ pub const SQRT_3_2: f32 = 0.866_025_4;
 /// branches on the normal-input path.
 #[inline]
 pub fn sqrtf(x: f32) -> f32 {
-    if x >= f32::MIN_POSITIVE && x <= f32::MAX {
+    if (f32::MIN_POSITIVE..=f32::MAX).contains(&x) {
         sqrtf_normal(x)
     } else {
         sqrtf_special(x)

@@ -282,7 +282,7 @@ pub fn max_linear_voltage_v(v_bus_v: f32) -> f32 {
 /// Never panics; every duty is in `[0, 1]` for any input.
 #[inline]
 pub fn svpwm(v_ab: AlphaBeta, v_bus_v: f32) -> SvpwmOutput {
-    if !v_ab.is_finite() || !(v_bus_v > 0.0) || !(v_bus_v <= f32::MAX) {
+    if !v_ab.is_finite() || !bus_usable(v_bus_v) {
         return SvpwmOutput::NEUTRAL_INVALID;
     }
     let [u1, u2, u3] = projections(v_ab);
@@ -295,17 +295,21 @@ pub fn svpwm(v_ab: AlphaBeta, v_bus_v: f32) -> SvpwmOutput {
     let sum = t_first + t_second;
     let mut saturated = false;
     let t_zero;
+    // m = sqrt(3) |U| / Udc, with the division by Udc already done in `k`.
+    let mut modulation_index = k * v_ab.magnitude();
     if sum <= 1.0 {
         t_zero = (1.0 - sum) * 0.5;
     } else if sum <= f32::MAX {
         // Overmodulation: back onto the hexagon edge, angle preserved.
         saturated = true;
-        t_second = t_second / sum; // <= 1 exactly, since t_second <= sum
+        t_second /= sum; // <= 1 exactly, since t_second <= sum
         t_first = 1.0 - t_second;
         t_zero = 0.0;
     } else {
         // inf or NaN (overflowing request, or a subnormal bus making K
         // infinite): modulate the direction alone.
+        // `k` may be infinite here (0 * inf = NaN): recompute m directly.
+        modulation_index = SQRT_3 * v_ab.magnitude() / v_bus_v;
         let (sat, t1, t2) = direction_only(v_ab);
         saturated = sat;
         t_first = t1;
@@ -319,10 +323,16 @@ pub fn svpwm(v_ab: AlphaBeta, v_bus_v: f32) -> SvpwmOutput {
         t_first,
         t_second,
         t_zero,
-        modulation_index: SQRT_3 * v_ab.magnitude() / v_bus_v,
+        modulation_index,
         saturated,
         invalid: false,
     }
+}
+
+/// Finite and positive (false for NaN).
+#[inline(always)]
+fn bus_usable(v_bus_v: f32) -> bool {
+    v_bus_v > 0.0 && v_bus_v <= f32::MAX
 }
 
 /// Per-sector active times of the source's table divided by `K`.
@@ -382,7 +392,7 @@ fn direction_only(v_ab: AlphaBeta) -> (bool, f32, f32) {
 /// `[0, 1]` on its own. Unusable input gives centred duties; NaN from an
 /// overflowing request gives 0 for that phase. Never panics.
 pub fn minmax(v_ab: AlphaBeta, v_bus_v: f32) -> [f32; 3] {
-    if !v_ab.is_finite() || !(v_bus_v > 0.0) || !(v_bus_v <= f32::MAX) {
+    if !v_ab.is_finite() || !bus_usable(v_bus_v) {
         return [0.5; 3];
     }
     let v = crate::transforms::inverse_clarke(v_ab);

@@ -54,14 +54,15 @@ use crate::angle::ElectricalAngle;
 pub const SIN_COS_MAX_ABS_ERROR: f32 = 2.0e-7;
 
 // sin(2 pi u) / u as a polynomial in u^2, u in [-1/8, 1/8] turn.
-const S0: f32 = 6.283_185_220_341_78;
-const S1: f32 = -41.341_628_042_682_66;
-const S2: f32 = 81.588_124_637_861_37;
-const S3: f32 = -75.240_064_090_894_08;
+// 6.283185 (one ulp below 2 pi: the minimax value, not TAU).
+const S0: f32 = f32::from_bits(0x40C9_0FDA);
+const S1: f32 = -41.34163;
+const S2: f32 = 81.58813;
+const S3: f32 = -75.24007;
 // (cos(2 pi u) - 1) / u^2 as a polynomial in u^2.
-const C1: f32 = -19.739_167_262_778_36;
-const C2: f32 = 64.923_228_512_153_23;
-const C3: f32 = -83.665_915_232_653_48;
+const C1: f32 = -19.739168;
+const C2: f32 = 64.923225;
+const C3: f32 = -83.66592;
 
 /// `(sin(theta), cos(theta))` of an electrical angle, fast and branch-free
 /// (see the module docs for method and accuracy: worst absolute error

@@ -158,10 +158,11 @@ mod tests {
 
     #[test]
     fn bandwidth_hand_values_and_equivalence() {
-        // L = 1 mH, R = 2 ohm, wc = 2 pi 500 = 3141.59 rad/s.
-        let g = bandwidth(1e-3, 2.0, 3141.592_7);
-        assert!(close(g.kp_v_per_a, 3.141_592_7, 1e-6));
-        assert!(close(g.ki_v_per_a_s, 6283.185, 1e-6));
+        // L = 1 mH, R = 2 ohm, wc = 2 pi 300 = 1884.9556 rad/s:
+        // Kp = 1.8849556 V/A, Ki = 3769.9112 V/(A s).
+        let g = bandwidth(1e-3, 2.0, 1_884.955_6);
+        assert!(close(g.kp_v_per_a, 1.884_955_6, 1e-6));
+        assert!(close(g.ki_v_per_a_s, 3_769.911_2, 1e-6));
         let ts = 1.0 / 15_000.0;
         assert!(close(technical_optimum_wc_rad_s(ts), 5000.0, 1e-6));
         let a = technical_optimum(1e-3, 2.0, ts);
