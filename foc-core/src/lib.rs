@@ -71,8 +71,9 @@ pub const SQRT_3_2: f32 = 0.866_025_4;
 /// Method: the classic bit-trick initial guess of `1/sqrt(x)` (3.4 %),
 /// two Newton steps on `1/sqrt(x)` (4.5e-6), then one Newton correction of
 /// the root itself, `s + (y/2)(x - s^2)`, which also removes most of the
-/// rounding error: about 20 multiply/add instructions, no division, no
-/// branches on the normal-input path.
+/// rounding error: about 30 instructions on the normal-input path
+/// (if-converted, no division, no branch taken; from the disassembly),
+/// against libm's software routine.
 #[inline]
 pub fn sqrtf(x: f32) -> f32 {
     if (f32::MIN_POSITIVE..=f32::MAX).contains(&x) {

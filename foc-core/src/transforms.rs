@@ -34,7 +34,8 @@
 use crate::frames::{Abc, AlphaBeta, Dq};
 use crate::{FRAC_1_SQRT_3, SQRT_3_2};
 
-/// Clarke transform from three measured phases (amplitude invariant).
+/// Clarke transform from three measured phases (amplitude invariant;
+/// source section 4, with our beta axis = minus the source's).
 ///
 /// Uses `a` and `b` and the star-point constraint through `c` as
 /// `alpha = (2a - b - c)/3`, `beta = (b - c)/sqrt(3)`: with three shunts this
@@ -49,7 +50,8 @@ pub fn clarke(i: Abc) -> AlphaBeta {
 }
 
 /// Clarke transform from two phases, the third derived as `c = -a - b`
-/// (source section 2): `alpha = a`, `beta = (a + 2b)/sqrt(3)`.
+/// (source section 2): `alpha = a`, `beta = (a + 2b)/sqrt(3)` (source
+/// section 4 with our beta axis = minus the source's).
 #[inline]
 pub fn clarke_2phase(a: f32, b: f32) -> AlphaBeta {
     AlphaBeta {
@@ -58,7 +60,8 @@ pub fn clarke_2phase(a: f32, b: f32) -> AlphaBeta {
     }
 }
 
-/// Inverse Clarke: alpha/beta to three phases with zero sum.
+/// Inverse Clarke: alpha/beta to three phases with zero sum (the inverse of
+/// source section 4; used to check SVPWM line-to-line voltages).
 #[inline]
 pub fn inverse_clarke(v: AlphaBeta) -> Abc {
     let half_alpha = -0.5 * v.alpha;
@@ -71,7 +74,9 @@ pub fn inverse_clarke(v: AlphaBeta) -> Abc {
 }
 
 /// Park transform: stationary alpha/beta to the rotor dq frame, given
-/// `sin(theta_e)` and `cos(theta_e)`.
+/// `sin(theta_e)` and `cos(theta_e)` (source section 5 in our convention:
+/// the source's `(I_d, I_q)` at `theta` are our `(-q, d)` at `theta`, i.e.
+/// our `(d, q)` at `theta - 90 deg`; see `tests/math_props.rs`).
 #[inline]
 pub fn park(v: AlphaBeta, sin: f32, cos: f32) -> Dq {
     Dq {
@@ -80,7 +85,8 @@ pub fn park(v: AlphaBeta, sin: f32, cos: f32) -> Dq {
     }
 }
 
-/// Inverse Park: rotor dq frame to stationary alpha/beta.
+/// Inverse Park: rotor dq frame to stationary alpha/beta (source section 7
+/// in our convention).
 #[inline]
 pub fn inverse_park(v: Dq, sin: f32, cos: f32) -> AlphaBeta {
     AlphaBeta {

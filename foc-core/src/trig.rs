@@ -21,11 +21,10 @@
 //! 3. **Quadrant fix-up by symmetry**: swap sin/cos when `q` is odd, flip
 //!    signs via the f32 sign bit.
 //!
-//! Cost: one int-to-float conversion (the `2^-32` scale is a power of two,
-//! which the compiler can fold into `vcvt` with fraction bits), 9 f32
-//! multiplies, 6 f32 adds and a handful of integer operations: about 30
-//! instructions on the M4F, no branches on data, no library calls, no
-//! panics.
+//! Cost: one int-to-float conversion, 5 `vmul` + 6 `vmla` (multiply-add)
+//! and a handful of integer operations: 33 straight-line instructions for
+//! the body on `thumbv7em-none-eabihf` (release, LTO; counted in the
+//! `llvm-objdump` disassembly), no branches, no library calls, no panics.
 //!
 //! Accuracy (measured against f64 `sin`/`cos`): worst absolute error
 //! **1.05e-7** over every `2^12`-th bit pattern of the turn, 2^20 random
