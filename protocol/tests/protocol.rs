@@ -1,0 +1,890 @@
+//! Round trips, decoder robustness (property tests) and device-side validation.
+
+use foc_core::angle::ElectricalAngle;
+use foc_core::control::stage::TimeoutReaction;
+use foc_core::control::{Command, Fault, FaultSet, Limits, Mode};
+use foc_protocol::device::tests_support::RecordingContext;
+use foc_protocol::device::{CommandWatchdog, DeviceState, WatchdogConfig};
+use foc_protocol::frame::{
+    cobs_encode, decode_payload, encode, FrameDecoder, FrameErrorKind, Packet, CRC, MAX_FRAME,
+    MAX_PAYLOAD,
+};
+use foc_protocol::message::*;
+use proptest::prelude::*;
+
+fn wire<M: Message>(seq: u16, m: &M) -> Vec<u8> {
+    let mut b = [0u8; MAX_FRAME];
+    let n = encode(seq, m, &mut b).unwrap();
+    b[..n].to_vec()
+}
+
+fn decode_stream<M: Message>(bytes: &[u8]) -> Vec<Result<Packet<M>, FrameErrorKind>> {
+    let mut d = FrameDecoder::new();
+    let mut out = Vec::new();
+    d.feed_slice::<M>(bytes, |r| out.push(r.map_err(|e| e.kind)));
+    out
+}
+
+fn limits() -> Limits {
+    Limits {
+        max_current_a: 5.0,
+        max_velocity_rad_s: 300.0,
+        min_position_rad: -10.0,
+        max_position_rad: 10.0,
+        max_open_loop_voltage_v: 6.0,
+        max_open_loop_omega_e_rad_s: 2000.0,
+    }
+}
+
+fn telemetry() -> Telemetry {
+    Telemetry {
+        period: 123_456,
+        i_d_a: -0.25,
+        i_q_a: 3.5,
+        v_d_v: -1.0,
+        v_q_v: 7.25,
+        velocity_rad_s: 99.5,
+        position_rad: -12.75,
+        mode: Mode::Velocity,
+        fault_code: 9,
+        max_loop_cycles: 1234,
+        v_bus_v: 24.5,
+    }
+}
+
+fn all_requests() -> Vec<Request> {
+    vec![
+        Request::Ping,
+        Request::KeepAlive,
+        Request::SetCommand(Command::Disable),
+        Request::SetCommand(Command::Torque { iq_a: -2.5 }),
+        Request::SetCommand(Command::Velocity { rad_s: 120.0 }),
+        Request::SetCommand(Command::Position { rad: -3.25 }),
+        Request::SetCommand(Command::OpenLoop {
+            v_d_v: 1.0,
+            v_q_v: -0.5,
+            theta_e: ElectricalAngle::from_bits(0xDEAD_BEEF),
+            omega_e_rad_s: 314.0,
+        }),
+        Request::SetLimits(limits()),
+        Request::SetCurrentGains(CurrentGains {
+            kp_d: 0.1,
+            ki_d: 200.0,
+            kp_q: 0.2,
+            ki_q: 300.0,
+        }),
+        Request::SetSpeedGains(SpeedGains {
+            kp_a_per_rad_s: 0.05,
+            ki_a_per_rad: 1.5,
+        }),
+        Request::SetPositionGains(PositionGains {
+            kp_per_s: 30.0,
+            max_velocity_rad_s: 50.0,
+            max_acceleration_rad_s2: 500.0,
+        }),
+        Request::SetDividers {
+            speed: 10,
+            position: 40,
+        },
+        Request::SetWatchdog(WatchdogConfig {
+            timeout_periods: 2000,
+            reaction: TimeoutReaction::Hold,
+        }),
+        Request::RunCalibration(Calibration::Offsets),
+        Request::RunCalibration(Calibration::Identification),
+        Request::RunCalibration(Calibration::Alignment),
+        Request::ReadFaults,
+        Request::ClearFaults,
+        Request::ReadParam(ParamId::FluxLinkageWb),
+        Request::ReadTelemetry,
+        Request::StartTelemetry(TelemetryRate::EveryPeriods(200)),
+        Request::StartTelemetry(TelemetryRate::Hz(100.0)),
+        Request::StopTelemetry,
+    ]
+}
+
+fn all_responses() -> Vec<Response> {
+    vec![
+        Response::Ack,
+        Response::Nack(ErrorCode::Malformed),
+        Response::Nack(ErrorCode::BadCrc),
+        Response::Nack(ErrorCode::UnknownMessage),
+        Response::Nack(ErrorCode::OutOfRange { field: 3 }),
+        Response::Nack(ErrorCode::Faulted),
+        Response::Nack(ErrorCode::Busy),
+        Response::Nack(ErrorCode::NotCalibrated),
+        Response::Nack(ErrorCode::NotDisabled),
+        Response::Nack(ErrorCode::Unsupported),
+        Response::Nack(ErrorCode::Other(200)),
+        Response::Hello(Hello {
+            protocol_version: 1,
+            firmware_version: [1, 2, 3],
+            max_payload: 64,
+        }),
+        Response::Faults(FaultReport::new(
+            FaultSet(0b110),
+            Some(Fault::OverCurrentPhase),
+        )),
+        Response::Param {
+            id: ParamId::PolePairs,
+            value: 7.0,
+        },
+        Response::Telemetry(telemetry()),
+        Response::Stream(telemetry()),
+    ]
+}
+
+#[test]
+fn every_message_round_trips() {
+    let reqs = all_requests();
+    for (i, r) in reqs.iter().enumerate() {
+        let seq = 1000 + i as u16;
+        let got = decode_stream::<Request>(&wire(seq, r));
+        assert_eq!(got.len(), 1, "{r:?}");
+        let p = got[0].clone().unwrap();
+        assert_eq!((p.seq, p.msg), (seq, *r));
+    }
+    for (i, r) in all_responses().iter().enumerate() {
+        let seq = i as u16;
+        let got = decode_stream::<Response>(&wire(seq, r));
+        assert_eq!(got.len(), 1, "{r:?}");
+        let p = got[0].clone().unwrap();
+        assert_eq!((p.seq, p.msg), (seq, *r));
+    }
+    // Every tag is distinct.
+    let mut tags: Vec<u8> = reqs.iter().map(Message::tag).collect();
+    tags.extend(all_responses().iter().map(Message::tag));
+    tags.sort();
+    tags.dedup();
+    assert_eq!(tags.len(), 16 + 7);
+}
+
+#[test]
+fn frames_back_to_back_and_after_garbage() {
+    let mut bytes = vec![0x55, 0x13, 0x00];
+    for r in all_requests() {
+        bytes.extend(wire(9, &r));
+    }
+    let got = decode_stream::<Request>(&bytes);
+    assert_eq!(got[0], Err(FrameErrorKind::Cobs));
+    let ok: Vec<Request> = got[1..].iter().map(|r| r.clone().unwrap().msg).collect();
+    assert_eq!(ok, all_requests());
+}
+
+#[test]
+fn largest_message_fits() {
+    for r in all_responses() {
+        assert!(wire(1, &r).len() <= MAX_FRAME);
+    }
+}
+
+#[test]
+fn truncated_frames_are_rejected() {
+    let full = wire(5, &Request::SetLimits(limits()));
+    let payload_len = full.len() - 2; // minus COBS code byte and delimiter (no zeros inside? any)
+    assert!(payload_len > 0);
+    // Cut the encoded frame anywhere and terminate it: never a message.
+    for cut in 1..full.len() - 1 {
+        let mut f = full[..cut].to_vec();
+        f.push(0);
+        let got = decode_stream::<Request>(&f);
+        assert_eq!(got.len(), 1);
+        assert!(got[0].is_err(), "cut at {cut} decoded");
+    }
+    // A well-formed frame (good CRC) whose body is too short for its tag.
+    let mut payload = vec![0x11u8, 5, 0, 1, 2, 3]; // SetLimits with a 3-byte body
+    let crc = CRC.checksum(&payload);
+    payload.extend(crc.to_le_bytes());
+    let e = decode_payload::<Request>(&payload).unwrap_err();
+    assert_eq!((e.kind, e.seq), (FrameErrorKind::ShortBody, Some(5)));
+    // Unknown tag with a good CRC.
+    let mut payload = vec![0x7Fu8, 6, 0];
+    let crc = CRC.checksum(&payload);
+    payload.extend(crc.to_le_bytes());
+    let e = decode_payload::<Request>(&payload).unwrap_err();
+    assert_eq!((e.kind, e.seq), (FrameErrorKind::UnknownTag(0x7F), Some(6)));
+    // Too short for tag + seq + CRC.
+    assert_eq!(
+        decode_payload::<Request>(&[1, 2, 3]).unwrap_err().kind,
+        FrameErrorKind::Truncated
+    );
+}
+
+// ---------------------------------------------------------------- properties
+
+fn finite() -> impl Strategy<Value = f32> {
+    -1.0e6f32..1.0e6
+}
+
+fn command() -> impl Strategy<Value = Command> {
+    prop_oneof![
+        Just(Command::Disable),
+        any::<f32>().prop_map(|iq_a| Command::Torque { iq_a }),
+        any::<f32>().prop_map(|rad_s| Command::Velocity { rad_s }),
+        any::<f32>().prop_map(|rad| Command::Position { rad }),
+        (any::<f32>(), any::<f32>(), any::<u32>(), any::<f32>()).prop_map(|(a, b, t, w)| {
+            Command::OpenLoop {
+                v_d_v: a,
+                v_q_v: b,
+                theta_e: ElectricalAngle::from_bits(t),
+                omega_e_rad_s: w,
+            }
+        }),
+    ]
+}
+
+fn request() -> impl Strategy<Value = Request> {
+    prop_oneof![
+        Just(Request::Ping),
+        Just(Request::KeepAlive),
+        command().prop_map(Request::SetCommand),
+        proptest::array::uniform6(any::<f32>()).prop_map(|v| Request::SetLimits(Limits {
+            max_current_a: v[0],
+            max_velocity_rad_s: v[1],
+            min_position_rad: v[2],
+            max_position_rad: v[3],
+            max_open_loop_voltage_v: v[4],
+            max_open_loop_omega_e_rad_s: v[5],
+        })),
+        proptest::array::uniform4(finite()).prop_map(|v| Request::SetCurrentGains(CurrentGains {
+            kp_d: v[0],
+            ki_d: v[1],
+            kp_q: v[2],
+            ki_q: v[3]
+        })),
+        (finite(), finite()).prop_map(|(a, b)| Request::SetSpeedGains(SpeedGains {
+            kp_a_per_rad_s: a,
+            ki_a_per_rad: b
+        })),
+        (finite(), finite(), finite()).prop_map(|(a, b, c)| Request::SetPositionGains(
+            PositionGains {
+                kp_per_s: a,
+                max_velocity_rad_s: b,
+                max_acceleration_rad_s2: c
+            }
+        )),
+        (any::<u16>(), any::<u16>())
+            .prop_map(|(speed, position)| Request::SetDividers { speed, position }),
+        (any::<u32>(), 0u8..3).prop_map(|(t, r)| Request::SetWatchdog(WatchdogConfig {
+            timeout_periods: t,
+            reaction: reaction_from_code(r).unwrap(),
+        })),
+        (0u8..3).prop_map(|c| Request::RunCalibration(Calibration::from_code(c).unwrap())),
+        Just(Request::ReadFaults),
+        Just(Request::ClearFaults),
+        proptest::sample::select(ParamId::ALL.to_vec()).prop_map(Request::ReadParam),
+        Just(Request::ReadTelemetry),
+        any::<u32>().prop_map(|k| Request::StartTelemetry(TelemetryRate::EveryPeriods(k))),
+        finite().prop_map(|h| Request::StartTelemetry(TelemetryRate::Hz(h))),
+        Just(Request::StopTelemetry),
+    ]
+}
+
+fn tel() -> impl Strategy<Value = Telemetry> {
+    (
+        any::<u32>(),
+        proptest::array::uniform6(finite()),
+        0u8..5,
+        any::<u8>(),
+        any::<u32>(),
+        finite(),
+    )
+        .prop_map(|(p, v, m, f, c, b)| Telemetry {
+            period: p,
+            i_d_a: v[0],
+            i_q_a: v[1],
+            v_d_v: v[2],
+            v_q_v: v[3],
+            velocity_rad_s: v[4],
+            position_rad: v[5],
+            mode: mode_from_code(m).unwrap(),
+            fault_code: f,
+            max_loop_cycles: c,
+            v_bus_v: b,
+        })
+}
+
+fn response() -> impl Strategy<Value = Response> {
+    prop_oneof![
+        Just(Response::Ack),
+        (any::<u8>(), any::<u8>()).prop_map(|(c, f)| {
+            // Normalise: the field is only carried for out-of-range.
+            Response::Nack(ErrorCode::from_wire(c, if c == 4 { f } else { 0 }))
+        }),
+        (any::<u8>(), any::<[u8; 3]>(), any::<u8>()).prop_map(|(p, fw, m)| Response::Hello(
+            Hello {
+                protocol_version: p,
+                firmware_version: fw,
+                max_payload: m
+            }
+        )),
+        (any::<u32>(), any::<u8>()).prop_map(|(b, f)| Response::Faults(FaultReport {
+            set: FaultSet(b),
+            first_code: f
+        })),
+        (proptest::sample::select(ParamId::ALL.to_vec()), finite())
+            .prop_map(|(id, value)| Response::Param { id, value }),
+        tel().prop_map(Response::Telemetry),
+        tel().prop_map(Response::Stream),
+    ]
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(512))]
+
+    /// Any byte stream: no panic, and every frame yielded has a correct CRC.
+    #[test]
+    fn decoder_accepts_any_bytes(bytes in proptest::collection::vec(any::<u8>(), 0..600)) {
+        let mut raw = FrameDecoder::new();
+        let mut typed = FrameDecoder::new();
+        for &b in &bytes {
+            let payload = raw.feed_raw(b).map(|r| r.map(<[u8]>::to_vec));
+            let msg = typed.feed::<Response>(b);
+            prop_assert_eq!(payload.is_some(), msg.is_some());
+            if let (Some(Ok(p)), Some(Ok(_))) = (payload, msg) {
+                prop_assert!(p.len() >= 7 && p.len() <= MAX_PAYLOAD);
+                let (data, crc) = p.split_at(p.len() - 4);
+                let want = CRC.checksum(data).to_le_bytes();
+                prop_assert_eq!(&want[..], crc);
+            }
+            let _ = FrameDecoder::new().feed::<Request>(b);
+        }
+    }
+
+    /// Random byte streams with many delimiters (short frames): same.
+    #[test]
+    fn decoder_accepts_short_random_frames(bytes in proptest::collection::vec(prop_oneof![Just(0u8), any::<u8>(), 1u8..4], 0..400)) {
+        let mut d = FrameDecoder::new();
+        for &b in &bytes {
+            let _ = d.feed::<Request>(b);
+        }
+    }
+
+    #[test]
+    fn random_requests_round_trip(seq in any::<u16>(), r in request()) {
+        let w = wire(seq, &r);
+        prop_assert_eq!(w.iter().filter(|&&b| b == 0).count(), 1);
+        let got = decode_stream::<Request>(&w);
+        prop_assert_eq!(got.len(), 1);
+        let p = got[0].clone().unwrap();
+        prop_assert_eq!(p.seq, seq);
+        // Compare through the encoding (NaN != NaN, but its bits survive).
+        prop_assert_eq!(wire(p.seq, &p.msg), w);
+    }
+
+    #[test]
+    fn random_responses_round_trip(seq in any::<u16>(), r in response()) {
+        let w = wire(seq, &r);
+        let got = decode_stream::<Response>(&w);
+        prop_assert_eq!(got.len(), 1);
+        let p = got[0].clone().unwrap();
+        prop_assert_eq!((p.seq, p.msg), (seq, r));
+    }
+
+    /// Any change of one payload byte is caught by the CRC.
+    #[test]
+    fn one_corrupt_payload_byte_is_detected(r in request(), seq in any::<u16>(), at in any::<prop::sample::Index>(), flip in 1u8..=255) {
+        let mut payload = [0u8; MAX_PAYLOAD];
+        let w = wire(seq, &r);
+        // Recover the payload by decoding the good frame.
+        let mut d = FrameDecoder::new();
+        let mut n = 0;
+        for &b in &w {
+            if let Some(Ok(p)) = d.feed_raw(b) {
+                payload[..p.len()].copy_from_slice(p);
+                n = p.len();
+            }
+        }
+        let i = at.index(n);
+        payload[i] ^= flip;
+        let mut enc = [0u8; MAX_FRAME];
+        let m = cobs_encode(&payload[..n], &mut enc).unwrap();
+        let mut frame = enc[..m].to_vec();
+        frame.push(0);
+        let got = decode_stream::<Request>(&frame);
+        prop_assert_eq!(got.len(), 1);
+        prop_assert_eq!(got[0].clone().unwrap_err(), FrameErrorKind::BadCrc);
+    }
+
+    /// Any change of one byte on the wire never yields a different message.
+    #[test]
+    fn one_corrupt_wire_byte_never_yields_another_message(r in request(), at in any::<prop::sample::Index>(), flip in 1u8..=255) {
+        let mut w = wire(77, &r);
+        let i = at.index(w.len());
+        w[i] ^= flip;
+        w.push(0);
+        for got in decode_stream::<Request>(&w) {
+            if let Ok(p) = got {
+                prop_assert_eq!(wire(p.seq, &p.msg), wire(77, &r));
+            }
+        }
+    }
+}
+
+// ---------------------------------------------------------------- device side
+
+fn handle(dev: &mut DeviceState, ctx: &mut RecordingContext, seq: u16, r: Request) -> Response {
+    dev.handle(ctx, seq, u32::from(seq), &r)
+}
+
+#[test]
+fn out_of_range_requests_are_nacked_and_change_nothing() {
+    let oor = |field| Response::Nack(ErrorCode::OutOfRange { field });
+    let cases: Vec<(Request, Response)> = vec![
+        (Request::SetCommand(Command::Torque { iq_a: 10.5 }), oor(1)),
+        (
+            Request::SetCommand(Command::Torque { iq_a: f32::NAN }),
+            oor(1),
+        ),
+        (
+            Request::SetCommand(Command::Velocity { rad_s: -501.0 }),
+            oor(1),
+        ),
+        (
+            Request::SetCommand(Command::Velocity {
+                rad_s: f32::INFINITY,
+            }),
+            oor(1),
+        ),
+        (
+            Request::SetCommand(Command::Position { rad: 100.5 }),
+            oor(1),
+        ),
+        (
+            Request::SetCommand(Command::OpenLoop {
+                v_d_v: 0.0,
+                v_q_v: f32::NAN,
+                theta_e: ElectricalAngle::ZERO,
+                omega_e_rad_s: 0.0,
+            }),
+            oor(2),
+        ),
+        (
+            Request::SetCommand(Command::OpenLoop {
+                v_d_v: 10.0,
+                v_q_v: 10.0,
+                theta_e: ElectricalAngle::ZERO,
+                omega_e_rad_s: 0.0,
+            }),
+            oor(1),
+        ),
+        (
+            Request::SetCommand(Command::OpenLoop {
+                v_d_v: 1.0,
+                v_q_v: 0.0,
+                theta_e: ElectricalAngle::ZERO,
+                omega_e_rad_s: 1e5,
+            }),
+            oor(4),
+        ),
+        (
+            Request::SetLimits(Limits {
+                max_current_a: -1.0,
+                ..limits()
+            }),
+            oor(0),
+        ),
+        (
+            Request::SetLimits(Limits {
+                max_velocity_rad_s: f32::NAN,
+                ..limits()
+            }),
+            oor(1),
+        ),
+        (
+            Request::SetLimits(Limits {
+                min_position_rad: 5.0,
+                max_position_rad: 5.0,
+                ..limits()
+            }),
+            oor(3),
+        ),
+        (
+            Request::SetLimits(Limits {
+                max_open_loop_omega_e_rad_s: -2.0,
+                ..limits()
+            }),
+            oor(5),
+        ),
+        (
+            Request::SetCurrentGains(CurrentGains {
+                kp_d: 1.0,
+                ki_d: 1.0,
+                kp_q: 1.0,
+                ki_q: -1.0,
+            }),
+            oor(3),
+        ),
+        (
+            Request::SetSpeedGains(SpeedGains {
+                kp_a_per_rad_s: f32::NAN,
+                ki_a_per_rad: 0.0,
+            }),
+            oor(0),
+        ),
+        (
+            Request::SetPositionGains(PositionGains {
+                kp_per_s: 1.0,
+                max_velocity_rad_s: 0.0,
+                max_acceleration_rad_s2: 1.0,
+            }),
+            oor(1),
+        ),
+        (
+            Request::SetDividers {
+                speed: 0,
+                position: 10,
+            },
+            oor(0),
+        ),
+        (
+            Request::SetDividers {
+                speed: 10,
+                position: 0,
+            },
+            oor(1),
+        ),
+        (
+            Request::StartTelemetry(TelemetryRate::EveryPeriods(0)),
+            oor(1),
+        ),
+        (Request::StartTelemetry(TelemetryRate::Hz(0.0)), oor(1)),
+        (Request::StartTelemetry(TelemetryRate::Hz(30_000.0)), oor(1)),
+        (Request::StartTelemetry(TelemetryRate::Hz(f32::NAN)), oor(1)),
+    ];
+    for (i, (req, want)) in cases.into_iter().enumerate() {
+        let mut ctx = RecordingContext::default();
+        let mut dev = DeviceState::new();
+        let before = ctx;
+        let got = handle(&mut dev, &mut ctx, i as u16 + 1, req);
+        assert_eq!(got, want, "{req:?}");
+        assert_eq!(ctx, before, "context touched by {req:?}");
+        assert_eq!(dev.telemetry_every(), 0);
+    }
+}
+
+#[test]
+fn state_refusals_change_nothing() {
+    let mut dev = DeviceState::new();
+    // Faulted: only Disable is accepted; calibration refused.
+    let mut ctx = RecordingContext {
+        faults: FaultSet(1 << 9),
+        first_fault: Some(Fault::LoopOverrun),
+        ..Default::default()
+    };
+    let before = ctx;
+    assert_eq!(
+        handle(
+            &mut dev,
+            &mut ctx,
+            1,
+            Request::SetCommand(Command::Torque { iq_a: 1.0 })
+        ),
+        Response::Nack(ErrorCode::Faulted)
+    );
+    assert_eq!(
+        handle(
+            &mut dev,
+            &mut ctx,
+            2,
+            Request::RunCalibration(Calibration::Offsets)
+        ),
+        Response::Nack(ErrorCode::Faulted)
+    );
+    assert_eq!(ctx, before);
+    assert_eq!(
+        handle(&mut dev, &mut ctx, 3, Request::SetCommand(Command::Disable)),
+        Response::Ack
+    );
+    // Not calibrated: closed loop refused, open loop allowed.
+    let mut ctx = RecordingContext {
+        calibrated: false,
+        ..Default::default()
+    };
+    let before = ctx;
+    for (s, c) in [
+        (4, Command::Torque { iq_a: 1.0 }),
+        (5, Command::Velocity { rad_s: 1.0 }),
+        (6, Command::Position { rad: 1.0 }),
+    ] {
+        assert_eq!(
+            handle(&mut dev, &mut ctx, s, Request::SetCommand(c)),
+            Response::Nack(ErrorCode::NotCalibrated)
+        );
+    }
+    assert_eq!(ctx, before);
+    let ol = Command::OpenLoop {
+        v_d_v: 1.0,
+        v_q_v: 0.0,
+        theta_e: ElectricalAngle::ZERO,
+        omega_e_rad_s: 10.0,
+    };
+    assert_eq!(
+        handle(&mut dev, &mut ctx, 7, Request::SetCommand(ol)),
+        Response::Ack
+    );
+    assert_eq!(ctx.posted, Some(ol));
+    // Enabled: dividers and calibration need the drive disabled.
+    let before = ctx;
+    assert_eq!(
+        handle(
+            &mut dev,
+            &mut ctx,
+            8,
+            Request::SetDividers {
+                speed: 5,
+                position: 5
+            }
+        ),
+        Response::Nack(ErrorCode::NotDisabled)
+    );
+    assert_eq!(
+        handle(
+            &mut dev,
+            &mut ctx,
+            9,
+            Request::RunCalibration(Calibration::Alignment)
+        ),
+        Response::Nack(ErrorCode::NotDisabled)
+    );
+    assert_eq!(ctx, before);
+    // Busy context.
+    let mut ctx = RecordingContext {
+        refuse: Some(foc_protocol::Refusal::Busy),
+        ..Default::default()
+    };
+    assert_eq!(
+        handle(
+            &mut dev,
+            &mut ctx,
+            10,
+            Request::RunCalibration(Calibration::Offsets)
+        ),
+        Response::Nack(ErrorCode::Busy)
+    );
+    assert_eq!(ctx.calibration, None);
+    // Unknown parameter.
+    assert_eq!(
+        handle(
+            &mut dev,
+            &mut ctx,
+            11,
+            Request::ReadParam(ParamId::FluxLinkageWb)
+        ),
+        Response::Nack(ErrorCode::Unsupported)
+    );
+}
+
+#[test]
+fn valid_requests_reach_the_context() {
+    let mut dev = DeviceState::new();
+    let mut ctx = RecordingContext::default();
+    assert!(
+        matches!(handle(&mut dev, &mut ctx, 1, Request::Ping), Response::Hello(h) if h.protocol_version == foc_protocol::PROTOCOL_VERSION)
+    );
+    assert_eq!(
+        handle(&mut dev, &mut ctx, 2, Request::SetLimits(limits())),
+        Response::Ack
+    );
+    assert_eq!(ctx.limits, limits());
+    assert_eq!(
+        handle(
+            &mut dev,
+            &mut ctx,
+            3,
+            Request::SetDividers {
+                speed: 4,
+                position: 8
+            }
+        ),
+        Response::Ack
+    );
+    assert_eq!(
+        handle(
+            &mut dev,
+            &mut ctx,
+            4,
+            Request::ReadParam(ParamId::PositionDivider)
+        ),
+        Response::Param {
+            id: ParamId::PositionDivider,
+            value: 8.0
+        }
+    );
+    let g = SpeedGains {
+        kp_a_per_rad_s: 0.1,
+        ki_a_per_rad: 2.0,
+    };
+    assert_eq!(
+        handle(&mut dev, &mut ctx, 5, Request::SetSpeedGains(g)),
+        Response::Ack
+    );
+    assert_eq!(ctx.speed_gains, Some(g));
+    assert_eq!(
+        handle(
+            &mut dev,
+            &mut ctx,
+            6,
+            Request::SetCommand(Command::Velocity { rad_s: 50.0 })
+        ),
+        Response::Ack
+    );
+    assert_eq!(ctx.posted, Some(Command::Velocity { rad_s: 50.0 }));
+    assert_eq!(
+        handle(&mut dev, &mut ctx, 7, Request::KeepAlive),
+        Response::Ack
+    );
+    assert_eq!(ctx.keep_alives, 1);
+    ctx.faults = FaultSet(1 << 2);
+    ctx.first_fault = Some(Fault::OverCurrentVector);
+    assert_eq!(
+        handle(&mut dev, &mut ctx, 8, Request::ReadFaults),
+        Response::Faults(FaultReport::new(
+            FaultSet(1 << 2),
+            Some(Fault::OverCurrentVector)
+        ))
+    );
+    assert_eq!(
+        handle(&mut dev, &mut ctx, 9, Request::ClearFaults),
+        Response::Ack
+    );
+    assert!(ctx.faults.is_empty());
+    ctx.sample = telemetry();
+    assert_eq!(
+        handle(&mut dev, &mut ctx, 10, Request::ReadTelemetry),
+        Response::Telemetry(telemetry())
+    );
+}
+
+#[test]
+fn retransmission_is_answered_from_cache_not_run_twice() {
+    let mut dev = DeviceState::new();
+    let mut ctx = RecordingContext::default();
+    let req = Request::RunCalibration(Calibration::Alignment);
+    assert_eq!(dev.handle(&mut ctx, 42, 0xABCD, &req), Response::Ack);
+    let calls = ctx.calls;
+    // Same seq and CRC: cached Ack, the context is not called again.
+    assert_eq!(dev.handle(&mut ctx, 42, 0xABCD, &req), Response::Ack);
+    assert_eq!(ctx.calls, calls);
+    // A new seq runs again.
+    assert_eq!(dev.handle(&mut ctx, 43, 0x1234, &req), Response::Ack);
+    assert_eq!(ctx.calls, calls + 1);
+}
+
+#[test]
+fn frame_errors_become_nacks() {
+    let mut dev = DeviceState::new();
+    let mut ctx = RecordingContext::default();
+    let mut w = wire(12, &Request::ClearFaults);
+    w[1] ^= 0x40; // corrupt a payload byte on the wire
+    let mut d = FrameDecoder::new();
+    let mut replies = Vec::new();
+    let mut tx = [0u8; MAX_FRAME];
+    for &b in &w {
+        if let Some(n) = dev.on_byte(&mut ctx, &mut d, b, &mut tx) {
+            replies.extend(decode_stream::<Response>(&tx[..n]));
+        }
+    }
+    assert_eq!(replies.len(), 1);
+    let p = replies[0].clone().unwrap();
+    assert_eq!(p.seq, 0);
+    assert!(matches!(
+        p.msg,
+        Response::Nack(ErrorCode::BadCrc | ErrorCode::Malformed)
+    ));
+    assert_eq!(ctx.clears, 0);
+}
+
+#[test]
+fn telemetry_is_streamed_at_the_requested_divider() {
+    let mut dev = DeviceState::new();
+    let mut ctx = RecordingContext::default();
+    assert_eq!(dev.poll(&mut ctx, 0), None);
+    assert_eq!(
+        handle(
+            &mut dev,
+            &mut ctx,
+            1,
+            Request::StartTelemetry(TelemetryRate::Hz(1000.0))
+        ),
+        Response::Ack
+    );
+    assert_eq!(dev.telemetry_every(), 20); // 20 kHz / 1 kHz
+    let mut seqs = Vec::new();
+    for period in (0..=2000).step_by(5) {
+        if let Some((s, r)) = dev.poll(&mut ctx, period) {
+            assert!(matches!(r, Response::Stream(_)));
+            seqs.push(s);
+        }
+    }
+    assert_eq!(seqs.len(), 101);
+    assert!(seqs.windows(2).all(|w| w[1] == w[0] + 1));
+    assert_eq!(
+        handle(&mut dev, &mut ctx, 2, Request::StopTelemetry),
+        Response::Ack
+    );
+    assert_eq!(dev.poll(&mut ctx, 5000), None);
+}
+
+#[test]
+fn watchdog_reactions() {
+    let mut wd = CommandWatchdog::new(WatchdogConfig {
+        timeout_periods: 10,
+        reaction: TimeoutReaction::Disable,
+    });
+    assert_eq!(wd.tick(100, false), None); // disabled drive: no timeout
+    assert_eq!(wd.tick(10, true), None);
+    assert_eq!(wd.tick(1, true), Some(TimeoutReaction::Disable));
+    assert!(wd.expired());
+
+    for (reaction, expect) in [
+        (
+            TimeoutReaction::Stop,
+            Some(Command::Velocity { rad_s: 0.0 }),
+        ),
+        (TimeoutReaction::Hold, Some(Command::Position { rad: 2.5 })),
+        (TimeoutReaction::Disable, None),
+    ] {
+        let mut dev = DeviceState::with_watchdog(WatchdogConfig {
+            timeout_periods: 100,
+            reaction,
+        });
+        let mut ctx = RecordingContext::default();
+        ctx.sample.position_rad = 2.5;
+        dev.poll(&mut ctx, 0);
+        assert_eq!(
+            handle(
+                &mut dev,
+                &mut ctx,
+                1,
+                Request::SetCommand(Command::Velocity { rad_s: 30.0 })
+            ),
+            Response::Ack
+        );
+        dev.poll(&mut ctx, 60);
+        // Keep-alive feeds the watchdog and refreshes the command.
+        assert_eq!(
+            handle(&mut dev, &mut ctx, 2, Request::KeepAlive),
+            Response::Ack
+        );
+        dev.poll(&mut ctx, 120);
+        assert_eq!(ctx.posted, Some(Command::Velocity { rad_s: 30.0 }));
+        assert!(ctx.faults.is_empty());
+        // Queries do not feed it.
+        assert!(matches!(
+            handle(&mut dev, &mut ctx, 3, Request::Ping),
+            Response::Hello(_)
+        ));
+        dev.poll(&mut ctx, 170);
+        match expect {
+            Some(c) => {
+                assert_eq!(ctx.posted, Some(c));
+                assert!(ctx.faults.is_empty());
+            }
+            None => {
+                assert!(ctx.faults.contains(Fault::CommandTimeout));
+                assert_eq!(ctx.mode, Mode::Disabled);
+            }
+        }
+    }
+}
