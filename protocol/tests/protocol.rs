@@ -141,14 +141,14 @@ fn every_message_round_trips() {
         let seq = 1000 + i as u16;
         let got = decode_stream::<Request>(&wire(seq, r));
         assert_eq!(got.len(), 1, "{r:?}");
-        let p = got[0].clone().unwrap();
+        let p = got[0].unwrap();
         assert_eq!((p.seq, p.msg), (seq, *r));
     }
     for (i, r) in all_responses().iter().enumerate() {
         let seq = i as u16;
         let got = decode_stream::<Response>(&wire(seq, r));
         assert_eq!(got.len(), 1, "{r:?}");
-        let p = got[0].clone().unwrap();
+        let p = got[0].unwrap();
         assert_eq!((p.seq, p.msg), (seq, *r));
     }
     // Every tag is distinct.
@@ -167,7 +167,7 @@ fn frames_back_to_back_and_after_garbage() {
     }
     let got = decode_stream::<Request>(&bytes);
     assert_eq!(got[0], Err(FrameErrorKind::Cobs));
-    let ok: Vec<Request> = got[1..].iter().map(|r| r.clone().unwrap().msg).collect();
+    let ok: Vec<Request> = got[1..].iter().map(|r| r.unwrap().msg).collect();
     assert_eq!(ok, all_requests());
 }
 
@@ -366,7 +366,7 @@ proptest! {
         prop_assert_eq!(w.iter().filter(|&&b| b == 0).count(), 1);
         let got = decode_stream::<Request>(&w);
         prop_assert_eq!(got.len(), 1);
-        let p = got[0].clone().unwrap();
+        let p = got[0].unwrap();
         prop_assert_eq!(p.seq, seq);
         // Compare through the encoding (NaN != NaN, but its bits survive).
         prop_assert_eq!(wire(p.seq, &p.msg), w);
@@ -377,7 +377,7 @@ proptest! {
         let w = wire(seq, &r);
         let got = decode_stream::<Response>(&w);
         prop_assert_eq!(got.len(), 1);
-        let p = got[0].clone().unwrap();
+        let p = got[0].unwrap();
         prop_assert_eq!((p.seq, p.msg), (seq, r));
     }
 
@@ -403,7 +403,7 @@ proptest! {
         frame.push(0);
         let got = decode_stream::<Request>(&frame);
         prop_assert_eq!(got.len(), 1);
-        prop_assert_eq!(got[0].clone().unwrap_err(), FrameErrorKind::BadCrc);
+        prop_assert_eq!(got[0].unwrap_err(), FrameErrorKind::BadCrc);
     }
 
     /// Any change of one byte on the wire never yields a different message.
@@ -413,10 +413,8 @@ proptest! {
         let i = at.index(w.len());
         w[i] ^= flip;
         w.push(0);
-        for got in decode_stream::<Request>(&w) {
-            if let Ok(p) = got {
-                prop_assert_eq!(wire(p.seq, &p.msg), wire(77, &r));
-            }
+        for p in decode_stream::<Request>(&w).into_iter().flatten() {
+            prop_assert_eq!(wire(p.seq, &p.msg), wire(77, &r));
         }
     }
 }
@@ -786,7 +784,7 @@ fn frame_errors_become_nacks() {
         }
     }
     assert_eq!(replies.len(), 1);
-    let p = replies[0].clone().unwrap();
+    let p = replies[0].unwrap();
     assert_eq!(p.seq, 0);
     assert!(matches!(
         p.msg,
