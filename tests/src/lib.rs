@@ -12,6 +12,10 @@
 //! - [`motor_file`] (`std`): TOML motor files in `tests/motors/`.
 //! - [`metrics`] (`std`): overshoot, settling, rise time, errors.
 //! - [`report`] (`std`): CSV traces, SVG plots, dynamometer reports.
+//! - [`mission`] (`std`): the real `foc-core` cascade against the plant
+//!   through a scripted mission (align, current step, speed, load, position).
+//! - [`dyno`] (`std`): simulated dynamometer sweeps (Performance Curve Report).
+//! - [`sil`] (`std`): the software-in-the-loop protocol of the `foc-sil` binary.
 //!
 //! A simulation runner closes the loop like this:
 //!
@@ -39,8 +43,14 @@ pub mod real;
 pub mod rng;
 
 #[cfg(feature = "std")]
+pub mod dyno;
+#[cfg(feature = "std")]
 pub mod metrics;
+#[cfg(feature = "std")]
+pub mod mission;
 #[cfg(feature = "std")]
 pub mod motor_file;
 #[cfg(feature = "std")]
 pub mod report;
+#[cfg(feature = "std")]
+pub mod sil;

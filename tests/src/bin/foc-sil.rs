@@ -1,0 +1,155 @@
+//! `foc-sil`: the `foc-core` cascade as a software-in-the-loop process.
+//!
+//! Reads one JSON sample per line on stdin, writes one JSON decision per line
+//! on stdout (flushed after each line); see `foc_bench::sil` for the protocol.
+//! Refused lines and commands are reported on stderr; the process never
+//! stops on bad input, only at the end of stdin.
+//!
+//! ```text
+//! foc-sil --motor tests/motors/dji-m2006.toml
+//! foc-sil --pole-pairs 7 --r-ohm 0.1 --ld-h 30e-6 --lq-h 30e-6 --flux-wb 0.0024 \
+//!         --pwm-hz 20000 --max-current-a 10 --bus-v 24
+//! ```
+
+use clap::Parser;
+use foc_bench::mission::Setup;
+use foc_bench::plant::{BenchConfig, MotorParams};
+use foc_bench::sil::SilRunner;
+use foc_core::angle::ElectricalAngle;
+use std::io::{BufRead, Write};
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+/// The foc-core cascade driven by JSON lines (stdin -> stdout).
+#[derive(Debug, Parser)]
+#[command(name = "foc-sil")]
+struct Args {
+    /// Motor file (tests/motors/*.toml); the flags below override its values.
+    #[arg(long)]
+    motor: Option<PathBuf>,
+    /// Pole pairs.
+    #[arg(long)]
+    pole_pairs: Option<u8>,
+    /// Phase resistance [ohm].
+    #[arg(long)]
+    r_ohm: Option<f64>,
+    /// d-axis inductance [H].
+    #[arg(long)]
+    ld_h: Option<f64>,
+    /// q-axis inductance [H].
+    #[arg(long)]
+    lq_h: Option<f64>,
+    /// Flux linkage [Wb].
+    #[arg(long)]
+    flux_wb: Option<f64>,
+    /// Rotor + load inertia [kg m^2] (speed-loop tuning).
+    #[arg(long)]
+    inertia: Option<f64>,
+    /// PWM (= current-loop, = one input line) frequency [Hz].
+    #[arg(long)]
+    pwm_hz: Option<f64>,
+    /// Speed loop every N periods (default: near 2 kHz).
+    #[arg(long)]
+    speed_div: Option<u16>,
+    /// Position loop every M periods (default: near 1 kHz).
+    #[arg(long)]
+    position_div: Option<u16>,
+    /// Current limit [A] (over-current trips at 1.5x).
+    #[arg(long)]
+    max_current_a: Option<f32>,
+    /// Nominal bus voltage [V] (under/over-voltage at 60 % / 125 %).
+    #[arg(long)]
+    bus_v: Option<f64>,
+    /// Electrical angle the encoder reads with the d axis on phase A [deg].
+    #[arg(long, default_value_t = 0.0)]
+    zero_offset_deg: f32,
+    /// The encoder counts against A -> B -> C.
+    #[arg(long)]
+    reversed: bool,
+}
+
+fn setup(a: &Args) -> Result<Setup, String> {
+    let mut s = match &a.motor {
+        Some(p) => Setup::load(p).map_err(|e| e.to_string())?,
+        None => Setup {
+            name: "command line".into(),
+            motor: MotorParams::example(),
+            bench: BenchConfig::default(),
+            rated_current_a: 5.0,
+            max_current_a: 10.0,
+        },
+    };
+    let m = &mut s.motor;
+    m.pole_pairs = a.pole_pairs.unwrap_or(m.pole_pairs);
+    m.r_ohm = a.r_ohm.unwrap_or(m.r_ohm);
+    m.ld_h = a.ld_h.unwrap_or(m.ld_h);
+    m.lq_h = a.lq_h.unwrap_or(m.lq_h);
+    m.flux_linkage_wb = a.flux_wb.unwrap_or(m.flux_linkage_wb);
+    m.inertia_kg_m2 = a.inertia.unwrap_or(m.inertia_kg_m2);
+    m.validate().map_err(|e| e.to_string())?;
+    s.bench.pwm_frequency_hz = a.pwm_hz.unwrap_or(s.bench.pwm_frequency_hz);
+    s.bench.bus_voltage_v = a.bus_v.unwrap_or(s.bench.bus_voltage_v);
+    s.max_current_a = a.max_current_a.unwrap_or(s.max_current_a);
+    s.rated_current_a = s.rated_current_a.min(s.max_current_a);
+    let ok = |x: f64| x.is_finite() && x > 0.0;
+    if !ok(s.bench.pwm_frequency_hz) || !ok(s.bench.bus_voltage_v) || !ok(s.max_current_a as f64) {
+        return Err("--pwm-hz, --bus-v and --max-current-a must be > 0".into());
+    }
+    Ok(s)
+}
+
+fn main() -> ExitCode {
+    let args = Args::parse();
+    let s = match setup(&args) {
+        Ok(s) => s,
+        Err(e) => {
+            eprintln!("foc-sil: {e}");
+            return ExitCode::FAILURE;
+        }
+    };
+    let mut config = s.cascade_config();
+    if let Some(n) = args.speed_div {
+        config.rates.speed_divider = n.max(1);
+    }
+    if let Some(m) = args.position_div {
+        config.rates.position_divider = m.max(1);
+    }
+    config.speed.ts_s = config.rates.speed_ts_s();
+    config.position.ts_s = config.rates.position_ts_s();
+    config.current.angle.zero_offset = ElectricalAngle::from_degrees(args.zero_offset_deg);
+    config.current.angle.reversed = args.reversed;
+    eprintln!(
+        "foc-sil: {} | {} pole pairs, R {} ohm, Ld {} H, Lq {} H, psi {} Wb | PWM {} Hz, speed loop /{}, position loop /{} | ready",
+        s.name,
+        s.motor.pole_pairs,
+        s.motor.r_ohm,
+        s.motor.ld_h,
+        s.motor.lq_h,
+        s.motor.flux_linkage_wb,
+        s.bench.pwm_frequency_hz,
+        config.rates.speed_divider,
+        config.rates.position_divider
+    );
+    let mut sil = SilRunner::new(config);
+    let stdin = std::io::stdin();
+    let stdout = std::io::stdout();
+    let mut out = stdout.lock();
+    for line in stdin.lock().lines() {
+        let line = match line {
+            Ok(l) => l,
+            Err(e) => {
+                // Not UTF-8, for example: still one period without a sample.
+                eprintln!("foc-sil: unreadable input: {e}");
+                String::new()
+            }
+        };
+        let (reply, err) = sil.line(&line);
+        if let Some(e) = err {
+            eprintln!("foc-sil: {e}");
+        }
+        if writeln!(out, "{reply}").and_then(|()| out.flush()).is_err() {
+            break; // the reader went away
+        }
+    }
+    ExitCode::SUCCESS
+}

@@ -1,0 +1,1060 @@
+//! Closed-loop simulation: the real `foc-core` [`Cascade`] against the
+//! [`Plant`], at the real rates, through a scripted mission.
+//!
+//! Every PWM period [`Sim::step`] hands the controller the sample the plant
+//! took at the end of the previous period, then advances the plant by one
+//! period. The duties it returns go through the plant's shadow register
+//! (`compute_delay_periods = 1`), so they act one period after the sample,
+//! as in the firmware; a safe-state decision acts at once (the bridge is
+//! disabled for the very next period). The speed and position stages run
+//! every N and M periods inside [`Cascade::step`], exactly as the firmware
+//! pends them.
+//!
+//! The mission ([`run_mission`]):
+//!
+//! 1. **align**: open-loop d-axis voltage at `theta_e = 90 deg`, then at
+//!    `0 deg`, until the encoder reading is still; the reading there is the
+//!    electrical zero (`AngleCalibration::zero_offset`). The bench does *not*
+//!    copy the plant's encoder offset: it derives it, and reports the error
+//!    against the plant's true offset.
+//! 2. **current step** (torque mode, rotor locked): `iq` 0 -> `I_step`.
+//! 3. **speed step** 0 -> `w1`, then a **ramp** `w1` -> `w2` (velocity mode).
+//! 4. **load step** at `w2` (about 40 % of the rated torque).
+//! 5. stop (load removed), then a **position move** of one turn.
+//!
+//! ```no_run
+//! use foc_bench::mission::{run_mission, Setup};
+//! let setup = Setup::load("tests/motors/dji-m2006.toml").unwrap();
+//! let r = run_mission(&setup, &mut |_| {});
+//! println!("{}", r.summary.to_markdown());
+//! assert!(r.summary.failures().is_empty());
+//! ```
+
+use crate::metrics;
+use crate::motor_file::{MotorFile, MotorFileError};
+use crate::plant::{self, BenchConfig, Measurements, Mechanics, Plant};
+use crate::report::{Panel, Trace};
+use foc_core::angle::{ElectricalAngle, MechanicalAngle};
+use foc_core::control::cascade::{Cascade, CascadeConfig};
+use foc_core::control::stage::{AngleCalibration, Sample};
+use foc_core::control::{BridgeCommand, Command, Mode};
+use std::fmt::Write as _;
+use std::path::Path;
+use std::time::Instant;
+
+/// The controller's motor parameters from the plant's (same values, `f32`).
+pub fn control_motor(m: &plant::MotorParams) -> foc_core::control::MotorParams {
+    foc_core::control::MotorParams {
+        pole_pairs: m.pole_pairs,
+        r_ohm: m.r_ohm as f32,
+        ld_h: m.ld_h as f32,
+        lq_h: m.lq_h as f32,
+        flux_linkage_wb: m.flux_linkage_wb as f32,
+    }
+}
+
+/// A motor on the bench: plant parameters, bench configuration, current ratings.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Setup {
+    /// Motor name.
+    pub name: String,
+    /// Plant motor parameters.
+    pub motor: plant::MotorParams,
+    /// Inverter, supply and sensors.
+    pub bench: BenchConfig,
+    /// Rated (continuous) current [A].
+    pub rated_current_a: f32,
+    /// Maximum current [A] (the controller's current limit).
+    pub max_current_a: f32,
+}
+
+impl Setup {
+    /// From a loaded motor file. The encoder's zero is put 1.234 rad away
+    /// from the rotor d axis so that the alignment has something to find.
+    pub fn from_file(f: &MotorFile) -> Self {
+        let mut bench = f.bench_config();
+        bench.sensors.encoder_offset_rad = 1.234;
+        Self {
+            name: f.name.clone(),
+            motor: f.motor_params(),
+            bench,
+            rated_current_a: f.rated_current_a as f32,
+            max_current_a: f.max_current_a as f32,
+        }
+    }
+
+    /// Load a motor file.
+    pub fn load(path: impl AsRef<Path>) -> Result<Self, MotorFileError> {
+        MotorFile::load(path).map(|f| Self::from_file(&f))
+    }
+
+    /// PWM frequency [Hz].
+    pub fn pwm_hz(&self) -> f32 {
+        self.bench.pwm_frequency_hz as f32
+    }
+
+    /// Torque constant `1.5 p psi` [N m / A].
+    pub fn kt(&self) -> f32 {
+        control_motor(&self.motor).torque_constant_nm_per_a()
+    }
+
+    /// No-load speed at the nominal bus within the linear range [rad/s, mechanical].
+    pub fn max_speed_rad_s(&self) -> f32 {
+        let v_max = 0.95 * self.bench.bus_voltage_v as f32 / 3f32.sqrt();
+        let k = self.motor.pole_pairs as f32 * self.motor.flux_linkage_wb as f32;
+        if k > 0.0 {
+            v_max / k
+        } else {
+            1.0e3
+        }
+    }
+
+    /// Highest speed the mission and the dyno command [rad/s, mechanical]:
+    /// one electrical turn per 30 PWM periods. foc-core applies the voltage
+    /// at the sampled angle, which is `1.5 w_e Ts` old when it acts (12 deg
+    /// electrical at this speed).
+    pub fn max_mission_speed_rad_s(&self) -> f32 {
+        std::f32::consts::TAU * self.pwm_hz() / (30.0 * self.motor.pole_pairs as f32)
+    }
+
+    /// The controller configuration: [`CascadeConfig::for_motor_with_inertia`]
+    /// (source tuning of the current loop) with the bench's inertia, the
+    /// supervisor's bus limits at 60 % / 125 % of the nominal bus, and the
+    /// position trajectory limited to 40 % of the no-load speed and to the
+    /// acceleration 30 % of the maximum current gives.
+    pub fn cascade_config(&self) -> CascadeConfig {
+        let j = self.motor.inertia_kg_m2 as f32;
+        let mut c = CascadeConfig::for_motor_with_inertia(
+            control_motor(&self.motor),
+            self.pwm_hz(),
+            self.max_current_a,
+            j,
+        );
+        let vbus = self.bench.bus_voltage_v as f32;
+        c.current.supervisor.bus_over_voltage_v = 1.25 * vbus;
+        c.current.supervisor.bus_under_voltage_v = 0.6 * vbus;
+        c.current.limits.max_open_loop_voltage_v = vbus;
+        c.position.max_velocity_rad_s = 0.4 * self.max_speed_rad_s();
+        c.position.max_acceleration_rad_s2 = 0.3 * self.kt() * self.max_current_a / j;
+        c
+    }
+}
+
+/// The controller's view of one plant sample.
+pub fn sample_of(m: &Measurements) -> Sample {
+    Sample {
+        currents: Some(m.currents),
+        angle: Some(m.angle),
+        v_bus_v: Some(m.v_bus_v),
+        temperature_c: None,
+    }
+}
+
+/// Names of the trace columns written by [`Sim`].
+pub const TRACE_COLUMNS: [&str; 22] = [
+    "id_a",
+    "iq_a",
+    "id_ref_a",
+    "iq_ref_a",
+    "vd_v",
+    "vq_v",
+    "speed_rad_s",
+    "speed_est_rad_s",
+    "speed_ref_rad_s",
+    "position_rad",
+    "position_est_rad",
+    "position_ref_rad",
+    "duty_a",
+    "duty_b",
+    "duty_c",
+    "v_bus_v",
+    "mode",
+    "fault",
+    "load_nm",
+    "iq_true_a",
+    "id_true_a",
+    "bridge_on",
+];
+
+/// Plant + controller, stepped one PWM period at a time.
+#[derive(Clone, Debug)]
+pub struct Sim {
+    /// The plant.
+    pub plant: Plant,
+    /// The controller.
+    pub cascade: Cascade,
+    /// Load torque applied from the next period [N m] (opposes positive rotation).
+    pub load_nm: f32,
+    last: Measurements,
+    last_bridge: BridgeCommand,
+    trace: Option<Trace>,
+    /// Encoder-frame position of the plant's true position 0 [rad]: `est = true - offset`.
+    encoder_offset_rad: f64,
+}
+
+impl Sim {
+    /// New simulation (bridge off, first sample taken), optionally recording a trace.
+    pub fn new(setup: &Setup, config: CascadeConfig, record: bool) -> Self {
+        let mut plant = Plant::new(setup.motor, setup.bench);
+        let last = plant.step_period([0.5; 3], false, 0.0);
+        Self {
+            plant,
+            cascade: Cascade::new(config),
+            load_nm: 0.0,
+            last,
+            last_bridge: BridgeCommand::SafeState,
+            trace: record.then(|| Trace::new(&TRACE_COLUMNS)),
+            encoder_offset_rad: setup.bench.sensors.encoder_offset_rad as f64,
+        }
+    }
+
+    /// Put the rotor at `theta_m` [rad] before the controller starts, and
+    /// take a fresh sample there (one period with the bridge off).
+    pub fn set_rotor_angle(&mut self, theta_m_rad: f64) {
+        self.plant.set_rotor_angle(theta_m_rad as _);
+        self.last = self.plant.step_period([0.5; 3], false, 0.0);
+    }
+
+    /// The sample the controller sees next.
+    pub fn last_sample(&self) -> &Measurements {
+        &self.last
+    }
+
+    /// The bridge command of the last step.
+    pub fn last_bridge(&self) -> BridgeCommand {
+        self.last_bridge
+    }
+
+    /// The recorded trace (if recording).
+    pub fn trace(&self) -> Option<&Trace> {
+        self.trace.as_ref()
+    }
+
+    /// Take the recorded trace.
+    pub fn take_trace(&mut self) -> Option<Trace> {
+        self.trace.take()
+    }
+
+    /// Rows recorded so far.
+    pub fn rows(&self) -> usize {
+        self.trace.as_ref().map_or(0, Trace::len)
+    }
+
+    /// One PWM period: the controller on the latest sample, then the plant.
+    pub fn step(&mut self) -> BridgeCommand {
+        let sample = sample_of(&self.last);
+        self.step_with(&sample)
+    }
+
+    /// As [`Sim::step`] with a sample the caller may have altered.
+    pub fn step_with(&mut self, sample: &Sample) -> BridgeCommand {
+        let bridge = self.cascade.step(sample);
+        let (duties, on) = match bridge {
+            BridgeCommand::SafeState => ([0.5; 3], false),
+            BridgeCommand::Duties(d) => (d, true),
+        };
+        if self.trace.is_some() {
+            self.record(on);
+        }
+        self.last_bridge = bridge;
+        self.last = self.plant.step_period(duties, on, self.load_nm);
+        bridge
+    }
+
+    /// Run `n` periods.
+    pub fn run(&mut self, n: usize) {
+        for _ in 0..n {
+            self.step();
+        }
+    }
+
+    /// True position in the encoder's frame (unwrapped) [rad].
+    pub fn true_position_rad(&self) -> f64 {
+        self.plant.position_rad() as f64 - self.encoder_offset_rad
+    }
+
+    fn record(&mut self, on: bool) {
+        let fb = *self.cascade.feedback();
+        let nan = f64::NAN;
+        let speed_ref = match fb.active {
+            Command::Velocity { rad_s } => rad_s as f64,
+            Command::Position { .. } => self.cascade.velocity_ref().rad_s as f64,
+            _ => nan,
+        };
+        let pos_ref = match fb.active {
+            Command::Position { .. } => {
+                self.cascade.position.position_loop().reference().position as f64
+            }
+            _ => nan,
+        };
+        let row = [
+            fb.i_dq_a.d as f64,
+            fb.i_dq_a.q as f64,
+            fb.i_dq_ref_a.d as f64,
+            fb.i_dq_ref_a.q as f64,
+            fb.v_dq_v.d as f64,
+            fb.v_dq_v.q as f64,
+            self.plant.omega_m_rad_s() as f64,
+            fb.velocity_rad_s as f64,
+            speed_ref,
+            self.true_position_rad(),
+            fb.position_rad as f64,
+            pos_ref,
+            fb.duties[0] as f64,
+            fb.duties[1] as f64,
+            fb.duties[2] as f64,
+            fb.v_bus_v as f64,
+            fb.mode as u8 as f64,
+            fb.first_fault.map_or(0.0, |f| f.code() as f64),
+            self.load_nm as f64,
+            self.plant.iq_a() as f64,
+            self.plant.id_a() as f64,
+            if on { 1.0 } else { 0.0 },
+        ];
+        let t = self.last.time_s;
+        if let Some(tr) = self.trace.as_mut() {
+            tr.push(t, &row);
+        }
+    }
+}
+
+/// A named stretch of the mission (trace rows `start..end`).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Segment {
+    /// Name.
+    pub name: &'static str,
+    /// First row.
+    pub start: usize,
+    /// One past the last row.
+    pub end: usize,
+}
+
+/// The figures measured on one mission.
+#[derive(Clone, Debug, PartialEq)]
+pub struct MissionSummary {
+    /// Motor name.
+    pub motor: String,
+    /// PWM frequency [Hz].
+    pub pwm_hz: f32,
+    /// Speed and position loop dividers.
+    pub dividers: (u16, u16),
+    /// Alignment: electrical zero found [deg].
+    pub align_found_deg: f64,
+    /// Alignment error against the plant's true encoder offset [deg, electrical].
+    pub align_error_deg: f64,
+    /// Current-step size [A].
+    pub current_step_a: f64,
+    /// q-current overshoot [%] (true current at the sample instants).
+    pub current_overshoot_percent: f64,
+    /// q-current 2 % settling time [PWM periods] (None: did not settle).
+    pub current_settling_periods: Option<usize>,
+    /// d-current peak during the q step [A].
+    pub current_id_peak_a: f64,
+    /// Speed step target [rad/s].
+    pub speed_step_rad_s: f64,
+    /// Speed-step overshoot [%].
+    pub speed_overshoot_percent: f64,
+    /// Speed-step 2 % settling time [ms].
+    pub speed_settling_ms: Option<f64>,
+    /// Speed after the ramp [rad/s].
+    pub speed_high_rad_s: f64,
+    /// Load step [N m].
+    pub load_step_nm: f64,
+    /// Largest speed dip after the load step [rad/s].
+    pub load_dip_rad_s: f64,
+    /// Steady speed error at the end of the load segment [rad/s] (ref - mean).
+    pub load_steady_error_rad_s: f64,
+    /// Recovery into +-2 % of the speed after the load step [ms].
+    pub load_recovery_ms: Option<f64>,
+    /// Position move [rad].
+    pub move_rad: f64,
+    /// Position 2 % settling time from the move command [ms].
+    pub position_settling_ms: Option<f64>,
+    /// Final position error [rad] (true displacement vs commanded).
+    pub position_final_error_rad: f64,
+    /// One encoder count [rad].
+    pub encoder_count_rad: f64,
+    /// Faults latched during the mission (names).
+    pub faults: Vec<String>,
+    /// PWM periods simulated.
+    pub periods: usize,
+    /// Simulated time [s].
+    pub sim_time_s: f64,
+    /// Wall-clock time [s].
+    pub wall_time_s: f64,
+}
+
+impl MissionSummary {
+    /// What failed the mission's pass criteria (empty: passed). The criteria
+    /// are sanity bounds for any motor; the closed-loop tests hold tighter ones.
+    pub fn failures(&self) -> Vec<String> {
+        let mut f = Vec::new();
+        if !self.faults.is_empty() {
+            f.push(format!("faults latched: {}", self.faults.join(", ")));
+        }
+        if self.align_error_deg.abs() > 15.0 + self.encoder_count_rad.to_degrees() * 21.0 {
+            f.push(format!("alignment error {:.1} deg", self.align_error_deg));
+        }
+        if !below(self.current_overshoot_percent, 15.0) {
+            f.push(format!(
+                "current overshoot {:.1} %",
+                self.current_overshoot_percent
+            ));
+        }
+        match self.current_settling_periods {
+            Some(n) if n <= 30 => {}
+            other => f.push(format!("current settling {other:?} periods")),
+        }
+        if self.speed_settling_ms.is_none() {
+            f.push("speed step did not settle".into());
+        }
+        if !below(
+            self.load_steady_error_rad_s.abs(),
+            0.02 * self.speed_high_rad_s.abs() + 0.5,
+        ) {
+            f.push(format!(
+                "speed error after load step {:.3} rad/s",
+                self.load_steady_error_rad_s
+            ));
+        }
+        let tol = (3.0 * self.encoder_count_rad).max(0.01 * self.move_rad.abs());
+        if !below(self.position_final_error_rad.abs(), tol) {
+            f.push(format!(
+                "position error {:.4} rad (tolerance {tol:.4})",
+                self.position_final_error_rad
+            ));
+        }
+        if self.position_settling_ms.is_none() {
+            f.push("position did not settle".into());
+        }
+        f
+    }
+
+    /// The summary as Markdown.
+    pub fn to_markdown(&self) -> String {
+        let opt_ms =
+            |x: Option<f64>| x.map_or("did not settle".to_string(), |v| format!("{v:.1} ms"));
+        let mut s = String::new();
+        let _ = writeln!(s, "# Simulation: {}\n", self.motor);
+        let _ = writeln!(
+            s,
+            "PWM {:.0} Hz; speed loop every {} periods, position loop every {}; {} periods ({:.3} s simulated) in {:.2} s wall time.\n",
+            self.pwm_hz, self.dividers.0, self.dividers.1, self.periods, self.sim_time_s, self.wall_time_s
+        );
+        s.push_str("| figure | value |\n|---|---:|\n");
+        let mut row = |k: &str, v: String| {
+            let _ = writeln!(s, "| {k} | {v} |");
+        };
+        row(
+            "alignment: electrical zero found / error",
+            format!(
+                "{:.2} deg / {:+.2} deg",
+                self.align_found_deg, self.align_error_deg
+            ),
+        );
+        row("q-current step", format!("{:.2} A", self.current_step_a));
+        row(
+            "q-current overshoot",
+            format!("{:.2} %", self.current_overshoot_percent),
+        );
+        row(
+            "q-current 2 % settling",
+            self.current_settling_periods
+                .map_or("did not settle".into(), |n| format!("{n} PWM periods")),
+        );
+        row(
+            "d-current peak during the q step",
+            format!("{:.3} A", self.current_id_peak_a),
+        );
+        row("speed step", format!("{:.1} rad/s", self.speed_step_rad_s));
+        row(
+            "speed overshoot",
+            format!("{:.2} %", self.speed_overshoot_percent),
+        );
+        row("speed 2 % settling", opt_ms(self.speed_settling_ms));
+        row(
+            "speed after ramp",
+            format!("{:.1} rad/s", self.speed_high_rad_s),
+        );
+        row("load step", format!("{:.4} N m", self.load_step_nm));
+        row(
+            "speed dip after load step",
+            format!("{:.3} rad/s", self.load_dip_rad_s),
+        );
+        row(
+            "steady speed error with load",
+            format!("{:+.4} rad/s", self.load_steady_error_rad_s),
+        );
+        row("recovery into +-2 %", opt_ms(self.load_recovery_ms));
+        row("position move", format!("{:.4} rad", self.move_rad));
+        row("position 2 % settling", opt_ms(self.position_settling_ms));
+        row(
+            "position final error",
+            format!(
+                "{:+.5} rad ({:.2} encoder counts)",
+                self.position_final_error_rad,
+                self.position_final_error_rad / self.encoder_count_rad
+            ),
+        );
+        row(
+            "faults",
+            if self.faults.is_empty() {
+                "none".into()
+            } else {
+                self.faults.join(", ")
+            },
+        );
+        let fails = self.failures();
+        let _ = writeln!(
+            s,
+            "\nResult: {}",
+            if fails.is_empty() {
+                "PASS".to_string()
+            } else {
+                format!("FAIL ({})", fails.join("; "))
+            }
+        );
+        s
+    }
+}
+
+/// `x < limit`, false for NaN.
+fn below(x: f64, limit: f64) -> bool {
+    x < limit
+}
+
+/// A finished mission.
+#[derive(Clone, Debug)]
+pub struct MissionResult {
+    /// The full-rate trace (one row per PWM period).
+    pub trace: Trace,
+    /// Its segments.
+    pub segments: Vec<Segment>,
+    /// The measured figures.
+    pub summary: MissionSummary,
+}
+
+impl MissionResult {
+    /// The segment called `name`.
+    pub fn segment(&self, name: &str) -> Option<&Segment> {
+        self.segments.iter().find(|s| s.name == name)
+    }
+
+    /// Rows `seg` of the trace as a new trace (time from the segment start).
+    pub fn slice(&self, seg: &Segment) -> Trace {
+        let names: Vec<&str> = self.trace.names().iter().map(String::as_str).collect();
+        let mut t = Trace::new(&names);
+        let cols: Vec<&[f64]> = names.iter().filter_map(|n| self.trace.column(n)).collect();
+        let t0 = self.trace.time_s().get(seg.start).copied().unwrap_or(0.0);
+        for r in seg.start..seg.end.min(self.trace.len()) {
+            let row: Vec<f64> = cols.iter().map(|c| c[r]).collect();
+            t.push(self.trace.time_s()[r] - t0, &row);
+        }
+        t
+    }
+
+    /// Every `k`-th row, at most `max_rows` rows (for plots of long runs).
+    pub fn decimated(&self, max_rows: usize) -> Trace {
+        decimate(&self.trace, max_rows)
+    }
+
+    /// Write `mission.csv` (full rate), `current_step.csv`, `mission.svg`,
+    /// `current_step.svg` and `summary.md` into `dir`. Returns the paths.
+    pub fn write(&self, dir: &Path) -> std::io::Result<Vec<std::path::PathBuf>> {
+        std::fs::create_dir_all(dir)?;
+        let mut out = Vec::new();
+        let p = dir.join("mission.csv");
+        self.trace.write_csv(&p)?;
+        out.push(p);
+        let mission_panels = [
+            Panel::new("q current", "A", &["iq_ref_a", "iq_a"]),
+            Panel::new("d current", "A", &["id_ref_a", "id_a"]),
+            Panel::new("dq voltages", "V", &["vd_v", "vq_v"]),
+            Panel::new(
+                "speed",
+                "rad/s",
+                &["speed_ref_rad_s", "speed_rad_s", "speed_est_rad_s"],
+            ),
+            Panel::new(
+                "position (encoder frame)",
+                "rad",
+                &["position_ref_rad", "position_rad"],
+            ),
+            Panel::new("duties", "1", &["duty_a", "duty_b", "duty_c"]),
+            Panel::new(
+                "bus, mode, load",
+                "V | mode | N m",
+                &["v_bus_v", "mode", "load_nm"],
+            ),
+        ];
+        let p = dir.join("mission.svg");
+        crate::report::plot_svg(
+            &p,
+            &format!(
+                "Mission: {} (every {}-th period)",
+                self.summary.motor,
+                self.trace.len().div_ceil(4000).max(1)
+            ),
+            &self.decimated(4000),
+            &mission_panels,
+        )?;
+        out.push(p);
+        if let Some(seg) = self.segment("current step") {
+            let zoom = Segment {
+                name: "zoom",
+                start: seg.start.saturating_sub(5),
+                end: (seg.start + 80).min(seg.end),
+            };
+            let t = self.slice(&zoom);
+            let p = dir.join("current_step.csv");
+            t.write_csv(&p)?;
+            out.push(p);
+            let p = dir.join("current_step.svg");
+            crate::report::plot_svg(
+                &p,
+                &format!(
+                    "q-current step, rotor locked: {} ({:.2} % overshoot)",
+                    self.summary.motor, self.summary.current_overshoot_percent
+                ),
+                &t,
+                &[
+                    Panel::new("q current", "A", &["iq_ref_a", "iq_a", "iq_true_a"]),
+                    Panel::new("d current", "A", &["id_ref_a", "id_a"]),
+                    Panel::new("dq voltages", "V", &["vd_v", "vq_v"]),
+                ],
+            )?;
+            out.push(p);
+        }
+        for (name, file, panels) in [
+            (
+                "speed step",
+                "speed",
+                vec![
+                    Panel::new(
+                        "speed",
+                        "rad/s",
+                        &["speed_ref_rad_s", "speed_rad_s", "speed_est_rad_s"],
+                    ),
+                    Panel::new("q current", "A", &["iq_ref_a", "iq_a"]),
+                    Panel::new("load", "N m", &["load_nm"]),
+                ],
+            ),
+            (
+                "position move",
+                "position",
+                vec![
+                    Panel::new(
+                        "position (encoder frame)",
+                        "rad",
+                        &["position_ref_rad", "position_rad", "position_est_rad"],
+                    ),
+                    Panel::new("speed", "rad/s", &["speed_ref_rad_s", "speed_rad_s"]),
+                    Panel::new("q current", "A", &["iq_ref_a", "iq_a"]),
+                ],
+            ),
+        ] {
+            if let Some(seg) = self.segment(name) {
+                // The speed plot covers step, ramp and load step.
+                let end = if name == "speed step" {
+                    self.segment("load step").map_or(seg.end, |s| s.end)
+                } else {
+                    seg.end
+                };
+                let whole = Segment {
+                    name,
+                    start: seg.start,
+                    end,
+                };
+                let dec = decimate(&self.slice(&whole), 4000);
+                let p = dir.join(format!("{file}.svg"));
+                crate::report::plot_svg(
+                    &p,
+                    &format!("{name}: {}", self.summary.motor),
+                    &dec,
+                    &panels,
+                )?;
+                out.push(p);
+            }
+        }
+        let p = dir.join("summary.md");
+        std::fs::write(&p, self.summary.to_markdown())?;
+        out.push(p);
+        Ok(out)
+    }
+}
+
+/// Every `k`-th row of `trace`, at most `max_rows` rows.
+pub fn decimate(trace: &Trace, max_rows: usize) -> Trace {
+    let k = trace.len().div_ceil(max_rows.max(1)).max(1);
+    let names: Vec<&str> = trace.names().iter().map(String::as_str).collect();
+    let cols: Vec<&[f64]> = names.iter().filter_map(|n| trace.column(n)).collect();
+    let mut t = Trace::new(&names);
+    for r in (0..trace.len()).step_by(k) {
+        let row: Vec<f64> = cols.iter().map(|c| c[r]).collect();
+        t.push(trace.time_s()[r], &row);
+    }
+    t
+}
+
+fn secs(setup: &Setup, s: f64) -> usize {
+    (s * setup.bench.pwm_frequency_hz as f64).round().max(1.0) as usize
+}
+
+fn col<'a>(t: &'a Trace, name: &str) -> &'a [f64] {
+    t.column(name).unwrap_or(&[])
+}
+
+fn mean(x: &[f64]) -> f64 {
+    if x.is_empty() {
+        f64::NAN
+    } else {
+        x.iter().sum::<f64>() / x.len() as f64
+    }
+}
+
+/// Find the electrical zero: open-loop d-axis voltage (30 % of the rated
+/// current through R) at `theta_e = 90 deg`, then at `0 deg`, each until the
+/// encoder reading has been still for 0.1 s (at most 0.6 s). The reading
+/// there, scaled by the pole pairs, is the calibration's `zero_offset`; it is
+/// installed in the controller, which is then disabled. Returns the offset
+/// found and its error against the plant's true encoder offset [deg, electrical].
+pub fn align(sim: &mut Sim, setup: &Setup) -> (ElectricalAngle, f64) {
+    let pp = setup.motor.pole_pairs;
+    let i_align = (0.3 * setup.rated_current_a).min(0.5 * setup.max_current_a);
+    let v_align = (setup.motor.r_ohm as f32 * i_align).max(0.05);
+    for theta_deg in [90.0f32, 0.0] {
+        // A new open-loop command while in open loop keeps the running angle
+        // (foc-core `CurrentStage::accept`): leave open loop for one period so
+        // that the new `theta_e` is taken.
+        sim.cascade.command(Command::Disable).ok();
+        sim.step();
+        sim.cascade
+            .command(Command::OpenLoop {
+                v_d_v: v_align,
+                v_q_v: 0.0,
+                theta_e: ElectricalAngle::from_degrees(theta_deg),
+                omega_e_rad_s: 0.0,
+            })
+            .ok();
+        let mut last = sim.last_sample().angle;
+        let mut still = 0usize;
+        let (min_n, max_n, still_n) = (secs(setup, 0.05), secs(setup, 0.6), secs(setup, 0.1));
+        for n in 0..max_n {
+            sim.step();
+            let a = sim.last_sample().angle;
+            still = if a == last && n > min_n { still + 1 } else { 0 };
+            last = a;
+            if still >= still_n {
+                break;
+            }
+        }
+    }
+    let found = sim.last_sample().angle.to_electrical(pp);
+    let truth = MechanicalAngle::from_radians(-(setup.bench.sensors.encoder_offset_rad as f32))
+        .to_electrical(pp);
+    let error_deg = found.diff_radians(truth).to_degrees() as f64;
+    sim.cascade.current.set_angle_calibration(AngleCalibration {
+        pole_pairs: pp,
+        zero_offset: found,
+        reversed: false,
+    });
+    sim.cascade.command(Command::Disable).ok();
+    sim.run(secs(setup, 0.02));
+    (found, error_deg)
+}
+
+/// Run the mission on `setup`. `progress` is called with the fraction done (0..=1).
+pub fn run_mission(setup: &Setup, progress: &mut dyn FnMut(f64)) -> MissionResult {
+    let wall = Instant::now();
+    let config = setup.cascade_config();
+    let mut sim = Sim::new(setup, config, true);
+    let kt = setup.kt();
+    let j = setup.motor.inertia_kg_m2 as f32;
+    let w_max = setup.max_speed_rad_s();
+    let i_max = setup.max_current_a;
+    let cpr = setup.bench.sensors.encoder_counts_per_rev.max(1);
+    let count_rad = std::f64::consts::TAU / cpr as f64;
+    let speed_div = config.rates.speed_divider.max(1) as usize;
+    let mut segments = Vec::new();
+
+    // Expected duration, for the progress bar.
+    // Speeds: within the voltage and current limits, and at most one
+    // electrical turn per 30 PWM periods (the controller does not advance
+    // the angle for its 1.5-period delay, so faster is not meaningful).
+    let w_cap = (0.6 * w_max).min(setup.max_mission_speed_rad_s());
+    let w1 = (0.4 * w_cap).min(0.4 * i_max * kt / (j * 2.0 * std::f32::consts::PI * 20.0));
+    let w2 = w_cap.max(w1);
+    let a_ramp = 0.3 * kt * i_max / j;
+    let t_ramp = ((w2 - w1) / a_ramp).max(0.1) as f64;
+    let move_rad = std::f32::consts::TAU;
+    let v_traj = config.position.max_velocity_rad_s;
+    let a_traj = config.position.max_acceleration_rad_s2;
+    let t_move = (move_rad / v_traj + v_traj / a_traj) as f64 + 0.6;
+    let expected = 1.2 + 0.03 + 0.5 + t_ramp + 0.3 + 0.6 + t_ramp + 0.4 + t_move;
+    let total = secs(setup, expected).max(1);
+    let mut tick = |sim: &Sim| {
+        if sim.rows() % 2048 == 0 {
+            progress((sim.rows() as f64 / total as f64).min(1.0));
+        }
+    };
+
+    // The rotor starts somewhere arbitrary.
+    sim.set_rotor_angle(0.7);
+
+    // 1. Align.
+    let start = sim.rows();
+    let (found, align_error_deg) = align(&mut sim, setup);
+    tick(&sim);
+    segments.push(Segment {
+        name: "align",
+        start,
+        end: sim.rows(),
+    });
+
+    // 2. q-current step, rotor locked.
+    sim.plant.set_mechanics(Mechanics::Locked);
+    let v_lin = 0.95 * setup.bench.bus_voltage_v as f32 / 3f32.sqrt();
+    let kp = config.current.current.q_gains.kp_v_per_a;
+    // As large as the voltage allows (the first step's voltage is about
+    // Kp * I_step), so that the ADC's quantisation is small against the 2 % band.
+    let i_step = (0.5 * setup.rated_current_a)
+        .min(0.8 * v_lin / kp)
+        .min(0.5 * i_max);
+    sim.cascade.command(Command::Torque { iq_a: 0.0 }).ok();
+    sim.run(20);
+    let start = sim.rows();
+    sim.cascade.command(Command::Torque { iq_a: i_step }).ok();
+    sim.run(secs(setup, 0.02).max(150));
+    segments.push(Segment {
+        name: "current step",
+        start,
+        end: sim.rows(),
+    });
+    sim.cascade.command(Command::Torque { iq_a: 0.0 }).ok();
+    sim.run(secs(setup, 0.005).max(50));
+    sim.plant.set_mechanics(Mechanics::Free);
+
+    // 3. Speed step, then ramp.
+    let start = sim.rows();
+    sim.cascade.command(Command::Velocity { rad_s: w1 }).ok();
+    for _ in 0..secs(setup, 0.5) {
+        sim.step();
+        tick(&sim);
+    }
+    segments.push(Segment {
+        name: "speed step",
+        start,
+        end: sim.rows(),
+    });
+    let start = sim.rows();
+    let n_ramp = secs(setup, t_ramp);
+    for k in 0..n_ramp {
+        if k % speed_div == 0 {
+            let w = w1 + (w2 - w1) * (k as f32 / n_ramp as f32);
+            sim.cascade.command(Command::Velocity { rad_s: w }).ok();
+        }
+        sim.step();
+        tick(&sim);
+    }
+    sim.cascade.command(Command::Velocity { rad_s: w2 }).ok();
+    for _ in 0..secs(setup, 0.3) {
+        sim.step();
+        tick(&sim);
+    }
+    segments.push(Segment {
+        name: "ramp",
+        start,
+        end: sim.rows(),
+    });
+
+    // 4. Load step.
+    let load = 0.4 * kt * setup.rated_current_a;
+    let start = sim.rows();
+    sim.load_nm = load;
+    for _ in 0..secs(setup, 0.6) {
+        sim.step();
+        tick(&sim);
+    }
+    segments.push(Segment {
+        name: "load step",
+        start,
+        end: sim.rows(),
+    });
+
+    // 5. Stop (load off), then move one turn.
+    sim.load_nm = 0.0;
+    let start = sim.rows();
+    let n_stop = secs(setup, t_ramp);
+    for k in 0..n_stop {
+        if k % speed_div == 0 {
+            let w = w2 * (1.0 - k as f32 / n_stop as f32);
+            sim.cascade.command(Command::Velocity { rad_s: w }).ok();
+        }
+        sim.step();
+        tick(&sim);
+    }
+    sim.cascade.command(Command::Velocity { rad_s: 0.0 }).ok();
+    for _ in 0..secs(setup, 0.4) {
+        sim.step();
+        tick(&sim);
+    }
+    segments.push(Segment {
+        name: "stop",
+        start,
+        end: sim.rows(),
+    });
+    let start = sim.rows();
+    let p0_est = sim.cascade.feedback().position_rad;
+    let p0_true = sim.true_position_rad();
+    let target = p0_est + move_rad;
+    sim.cascade.command(Command::Position { rad: target }).ok();
+    for _ in 0..secs(setup, t_move) {
+        sim.step();
+        tick(&sim);
+    }
+    segments.push(Segment {
+        name: "position move",
+        start,
+        end: sim.rows(),
+    });
+    progress(1.0);
+
+    let trace = sim.take_trace().unwrap_or_default();
+    let periods = trace.len();
+    let ts = 1.0 / setup.bench.pwm_frequency_hz as f64;
+    let ms = |n: usize| n as f64 * ts * 1e3;
+
+    // Figures.
+    let seg = |name: &str| segments.iter().find(|s| s.name == name).cloned().unwrap();
+    let cs = seg("current step");
+    // The true current (a current probe on the bench), at the sample instants.
+    let iq = &col(&trace, "iq_true_a")[cs.start..cs.end];
+    let id = &col(&trace, "id_a")[cs.start..cs.end];
+    let i_step = i_step as f64;
+    let current_overshoot_percent = metrics::overshoot_percent(iq, 0.0, i_step);
+    let current_settling_periods = metrics::settling_index(iq, 0.0, i_step, 0.02);
+    let current_id_peak_a = id.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+
+    let ss = seg("speed step");
+    let w = &col(&trace, "speed_rad_s")[ss.start..ss.end];
+    let speed_overshoot_percent = metrics::overshoot_percent(w, 0.0, w1 as f64);
+    let speed_settling_ms = metrics::settling_index(w, 0.0, w1 as f64, 0.02).map(ms);
+
+    let ls = seg("load step");
+    let w = &col(&trace, "speed_rad_s")[ls.start..ls.end];
+    let w2d = w2 as f64;
+    let load_dip_rad_s = w.iter().fold(0.0f64, |m, v| m.max(w2d - v));
+    let tail = secs(setup, 0.1).min(w.len());
+    let load_steady_error_rad_s = w2d - mean(&w[w.len() - tail..]);
+    let load_recovery_ms = {
+        let tol = 0.02 * w2d.abs();
+        let last_out = w.iter().rposition(|v| (v - w2d).abs() > tol);
+        match last_out {
+            None => Some(0.0),
+            Some(i) if i + 1 < w.len() => Some(ms(i + 1)),
+            Some(_) => None,
+        }
+    };
+
+    let ps = seg("position move");
+    let pos = &col(&trace, "position_rad")[ps.start..ps.end];
+    let disp: Vec<f64> = pos.iter().map(|p| p - p0_true).collect();
+    let move_d = move_rad as f64;
+    let position_settling_ms = metrics::settling_index(&disp, 0.0, move_d, 0.02).map(ms);
+    let tail = secs(setup, 0.05).min(disp.len());
+    let position_final_error_rad = move_d - mean(&disp[disp.len() - tail..]);
+
+    let mut faults: Vec<String> = Vec::new();
+    for &c in col(&trace, "fault") {
+        if c > 0.0 {
+            if let Some(f) = foc_core::control::Fault::from_code(c as u8) {
+                let n = f.name().to_string();
+                if !faults.contains(&n) {
+                    faults.push(n);
+                }
+            }
+        }
+    }
+    let modes_ok = col(&trace, "mode").contains(&(Mode::Position as u8 as f64));
+    if !modes_ok {
+        faults.push("position mode never active".into());
+    }
+
+    let summary = MissionSummary {
+        motor: setup.name.clone(),
+        pwm_hz: setup.pwm_hz(),
+        dividers: (config.rates.speed_divider, config.rates.position_divider),
+        align_found_deg: found.to_degrees() as f64,
+        align_error_deg,
+        current_step_a: i_step,
+        current_overshoot_percent,
+        current_settling_periods,
+        current_id_peak_a,
+        speed_step_rad_s: w1 as f64,
+        speed_overshoot_percent,
+        speed_settling_ms,
+        speed_high_rad_s: w2d,
+        load_step_nm: load as f64,
+        load_dip_rad_s,
+        load_steady_error_rad_s,
+        load_recovery_ms,
+        move_rad: move_d,
+        position_settling_ms,
+        position_final_error_rad,
+        encoder_count_rad: count_rad,
+        faults,
+        periods,
+        sim_time_s: periods as f64 * ts,
+        wall_time_s: wall.elapsed().as_secs_f64(),
+    };
+    MissionResult {
+        trace,
+        segments,
+        summary,
+    }
+}
+
+/// Simulation speed: controller steps per second alone (on a fixed sample)
+/// and plant + controller periods per second, each measured for about
+/// `seconds` of wall time.
+pub fn bench_speed(setup: &Setup, seconds: f64) -> (f64, f64) {
+    let config = setup.cascade_config();
+    // Controller alone, torque mode, on a real sample.
+    let mut sim = Sim::new(setup, config, false);
+    sim.cascade
+        .command(Command::Torque {
+            iq_a: 0.1 * setup.rated_current_a,
+        })
+        .ok();
+    sim.run(10);
+    let sample = sample_of(sim.last_sample());
+    let mut c = sim.cascade;
+    let t = Instant::now();
+    let mut n = 0u64;
+    let mut acc = 0.0f32;
+    while t.elapsed().as_secs_f64() < seconds {
+        for _ in 0..10_000 {
+            if let BridgeCommand::Duties(d) = c.step(std::hint::black_box(&sample)) {
+                acc += d[0];
+            }
+        }
+        n += 10_000;
+    }
+    std::hint::black_box(acc);
+    let ctrl = n as f64 / t.elapsed().as_secs_f64();
+    // Plant + controller, velocity mode.
+    let mut sim = Sim::new(setup, config, false);
+    sim.cascade
+        .command(Command::Velocity {
+            rad_s: 0.2 * setup.max_speed_rad_s(),
+        })
+        .ok();
+    let t = Instant::now();
+    let mut n = 0u64;
+    while t.elapsed().as_secs_f64() < seconds {
+        sim.run(1000);
+        n += 1000;
+    }
+    let both = n as f64 / t.elapsed().as_secs_f64();
+    (ctrl, both)
+}

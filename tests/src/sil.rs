@@ -1,0 +1,249 @@
+//! Software in the loop: the `foc-core` cascade driven by JSON lines.
+//!
+//! One input line is one PWM period's sample (plus an optional command), one
+//! output line is what the controller decided from it. The `foc-sil` binary
+//! reads stdin and writes stdout; this module does the work so tests can
+//! drive it in-process too.
+//!
+//! Input (one JSON object per line):
+//!
+//! ```text
+//! {"t": 0.001, "i_abc": [1.0, -0.5, -0.5], "v_bus": 24.0, "theta_m": 0.3,
+//!  "cmd": {"mode": "torque", "target": 2.0}, "clear_faults": false}
+//! ```
+//!
+//! - `t` [s]: sample time (echoed back; not used by the controller, which
+//!   counts periods).
+//! - `i_abc` [A]: phase currents into the motor, two (A, B: C derived) or
+//!   three values.
+//! - `v_bus` [V]: measured bus voltage.
+//! - `theta_m` [rad]: mechanical angle as the encoder reports it (any value,
+//!   wrapped to one turn; the calibration `--zero-offset-deg`/`--reversed`
+//!   maps it to the rotor's d axis).
+//! - `cmd` (optional): `mode` one of `disable`, `torque` (`target` = iq [A]),
+//!   `velocity` (`target` = mechanical rad/s), `position` (`target` =
+//!   mechanical rad, multi-turn), `open_loop` (`v_d`, `v_q` [V], `theta_e`
+//!   [rad], `omega_e` [rad/s], each default 0).
+//! - `clear_faults` (optional): clear latched faults in this period; a
+//!   command on the same line is then posted after the clear and acts from
+//!   the next period (if the fault condition persists it trips again).
+//!
+//! Output (one JSON object per input line):
+//!
+//! ```text
+//! {"t":0.001,"duties":[0.52,0.49,0.49],"bridge":true,"mode":"torque","fault":null,
+//!  "id":0.0,"iq":0.9,"theta_e":2.1,"speed":0.0,"position":0.3,"error":null}
+//! ```
+//!
+//! - `duties`: high-side on-time fractions of phases A, B, C in `[0, 1]`
+//!   (centred `0.5` and `bridge: false` in the safe state).
+//! - `mode`: `disabled`, `torque`, `velocity`, `position`, `open_loop`.
+//! - `fault`: `null` or the first latched fault (`OverCurrentPhase`, ...).
+//! - `id`, `iq` [A], `theta_e` [rad, `[0, 2 pi)`], `speed` [rad/s,
+//!   mechanical, estimated], `position` [rad, multi-turn].
+//! - `error`: `null`, or why the line or its command was refused.
+//!
+//! A line that is not valid JSON or lacks a measurement is a period without
+//! a valid sample: the controller latches `CurrentSenseError` (bridge off,
+//! duties centred) until `clear_faults`. An invalid command alone is refused
+//! (the period still runs with the previous command).
+//!
+//! Frame: phase A's axis at electrical angle 0, positive rotation
+//! A -> B -> C, `theta_e = p theta_m - zero_offset`.
+//!
+//! ```
+//! use foc_bench::sil::SilRunner;
+//! use foc_bench::mission::Setup;
+//! use foc_bench::plant::{BenchConfig, MotorParams};
+//! let setup = Setup { name: "x".into(), motor: MotorParams::example(), bench: BenchConfig::default(),
+//!                     rated_current_a: 5.0, max_current_a: 10.0 };
+//! let mut sil = SilRunner::new(setup.cascade_config());
+//! let (out, err) = sil.line(r#"{"t":0,"i_abc":[0,0,0],"v_bus":24,"theta_m":0,"cmd":{"mode":"torque","target":1}}"#);
+//! assert!(err.is_none());
+//! assert!(out.contains(r#""mode":"torque""#));
+//! let (out, err) = sil.line("garbage");
+//! assert!(err.is_some() && out.contains(r#""duties":[0.5,0.5,0.5]"#));
+//! ```
+
+use foc_core::angle::{ElectricalAngle, MechanicalAngle};
+use foc_core::control::cascade::{Cascade, CascadeConfig};
+use foc_core::control::stage::Sample;
+use foc_core::control::{BridgeCommand, Command, CommandError, Mode};
+use foc_core::frames::Abc;
+use foc_core::hal::PhaseCurrents;
+use serde::Deserialize;
+use serde_json::json;
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct InLine {
+    #[serde(default)]
+    t: Option<f64>,
+    i_abc: Vec<f32>,
+    v_bus: f32,
+    theta_m: f32,
+    #[serde(default)]
+    cmd: Option<InCmd>,
+    #[serde(default)]
+    clear_faults: bool,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct InCmd {
+    mode: String,
+    #[serde(default)]
+    target: Option<f32>,
+    #[serde(default)]
+    v_d: Option<f32>,
+    #[serde(default)]
+    v_q: Option<f32>,
+    #[serde(default)]
+    theta_e: Option<f32>,
+    #[serde(default)]
+    omega_e: Option<f32>,
+}
+
+/// Name of a mode in the protocol.
+pub fn mode_name(m: Mode) -> &'static str {
+    match m {
+        Mode::Disabled => "disabled",
+        Mode::Torque => "torque",
+        Mode::Velocity => "velocity",
+        Mode::Position => "position",
+        Mode::OpenLoop => "open_loop",
+    }
+}
+
+fn command_of(c: &InCmd) -> Result<Command, String> {
+    let target = || {
+        c.target
+            .ok_or_else(|| format!("mode `{}` needs a `target`", c.mode))
+    };
+    Ok(match c.mode.as_str() {
+        "disable" | "disabled" => Command::Disable,
+        "torque" => Command::Torque { iq_a: target()? },
+        "velocity" => Command::Velocity { rad_s: target()? },
+        "position" => Command::Position { rad: target()? },
+        "open_loop" => Command::OpenLoop {
+            v_d_v: c.v_d.unwrap_or(0.0),
+            v_q_v: c.v_q.unwrap_or(0.0),
+            theta_e: ElectricalAngle::from_radians(c.theta_e.unwrap_or(0.0)),
+            omega_e_rad_s: c.omega_e.unwrap_or(0.0),
+        },
+        other => {
+            return Err(format!(
+                "unknown mode `{other}` (disable, torque, velocity, position, open_loop)"
+            ))
+        }
+    })
+}
+
+/// The cascade behind the JSON-lines protocol (see the module docs).
+#[derive(Clone, Debug)]
+pub struct SilRunner {
+    cascade: Cascade,
+    lines: u64,
+}
+
+impl SilRunner {
+    /// A runner with this controller configuration (disabled, no fault).
+    pub fn new(config: CascadeConfig) -> Self {
+        Self {
+            cascade: Cascade::new(config),
+            lines: 0,
+        }
+    }
+
+    /// The controller.
+    pub fn cascade(&self) -> &Cascade {
+        &self.cascade
+    }
+
+    /// Handle one input line: returns the output line (no newline) and,
+    /// when the line or its command was refused, the reason (for stderr).
+    pub fn line(&mut self, text: &str) -> (String, Option<String>) {
+        self.lines += 1;
+        let parsed: Result<InLine, String> =
+            serde_json::from_str::<InLine>(text).map_err(|e| format!("bad input line: {e}"));
+        let parsed = parsed.and_then(|l| match l.i_abc.len() {
+            2 | 3 => Ok(l),
+            n => Err(format!("bad input line: `i_abc` has {n} values (2 or 3)")),
+        });
+        let mut deferred = None;
+        let (sample, t, mut error) = match parsed {
+            Err(e) => (
+                Sample {
+                    currents: None,
+                    angle: None,
+                    v_bus_v: None,
+                    temperature_c: None,
+                },
+                None,
+                Some(e),
+            ),
+            Ok(l) => {
+                if l.clear_faults {
+                    self.cascade.clear_faults();
+                }
+                let mut error = None;
+                if let Some(c) = &l.cmd {
+                    match command_of(c) {
+                        Ok(cmd) => {
+                            match self.cascade.command(cmd) {
+                                Ok(()) => {}
+                                // The clear acts in this period's step: post
+                                // the command right after it.
+                                Err(CommandError::Faulted) if l.clear_faults => {
+                                    deferred = Some(cmd)
+                                }
+                                Err(e) => error = Some(format!("command refused: {e:?}")),
+                            }
+                        }
+                        Err(e) => error = Some(format!("command refused: {e}")),
+                    }
+                }
+                let currents = match l.i_abc[..] {
+                    [a, b] => PhaseCurrents::TwoPhase { a_a: a, b_a: b },
+                    [a, b, c] => PhaseCurrents::ThreePhase(Abc::new(a, b, c)),
+                    _ => PhaseCurrents::TwoPhase { a_a: 0.0, b_a: 0.0 }, // excluded above
+                };
+                let sample = Sample {
+                    currents: Some(currents),
+                    // A non-finite angle is a failed read (angle-sensor error).
+                    angle: MechanicalAngle::try_from_radians(l.theta_m),
+                    v_bus_v: Some(l.v_bus),
+                    temperature_c: None,
+                };
+                (sample, l.t, error)
+            }
+        };
+        let bridge = self.cascade.step(&sample);
+        if let Some(cmd) = deferred {
+            if let Err(e) = self.cascade.command(cmd) {
+                error = Some(format!("command refused: {e:?}"));
+            }
+        }
+        let fb = *self.cascade.feedback();
+        let (duties, on) = match bridge {
+            BridgeCommand::SafeState => ([0.5f32; 3], false),
+            BridgeCommand::Duties(d) => (d, true),
+        };
+        let fault = fb.first_fault.map(|f| format!("{f:?}"));
+        let out = json!({
+            "t": t,
+            "duties": duties,
+            "bridge": on,
+            "mode": mode_name(fb.mode),
+            "fault": fault,
+            "id": fb.i_dq_a.d,
+            "iq": fb.i_dq_a.q,
+            "theta_e": fb.theta_e.to_radians(),
+            "speed": fb.velocity_rad_s,
+            "position": fb.position_rad,
+            "error": error.clone(),
+        });
+        let error = error.map(|e| format!("line {}: {e}", self.lines));
+        (out.to_string(), error)
+    }
+}

@@ -1,0 +1,365 @@
+//! Closed-loop tests: the real `foc-core` cascade on the bench plant (one
+//! period of computation delay through the plant's shadow register, PWM
+//! averaged over the period), deterministic (no sensor noise).
+
+// `Real` is f64 or f32 by feature: casts to f64 are no-ops in one of the two.
+#![allow(clippy::unnecessary_cast)]
+
+use foc_bench::metrics;
+use foc_bench::mission::{self, Setup, Sim};
+use foc_bench::motor_file::MotorFile;
+use foc_bench::plant::{EncoderFault, Mechanics, Phase, PhaseShort, SensorConfig};
+use foc_core::control::{BridgeCommand, Command, Fault};
+use foc_core::frames::Abc;
+use foc_core::transforms;
+use std::path::PathBuf;
+
+fn motor_path(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("motors")
+        .join(name)
+}
+
+/// A motor file's setup with the encoder zero on the d axis (the controller's
+/// default calibration is then exact).
+fn setup(name: &str) -> Setup {
+    let f = MotorFile::load(motor_path(name)).unwrap();
+    let mut s = Setup::from_file(&f);
+    s.bench.sensors.encoder_offset_rad = 0.0;
+    s
+}
+
+/// q-current step with the source's tuning on a locked rotor, ideal sensors.
+/// Returns (overshoot %, 2 % settling in PWM periods) of the true current at
+/// the sample instants, counted from the period the reference changes.
+fn current_step(name: &str, pwm_hz: f64) -> (f64, Option<usize>) {
+    let mut s = setup(name);
+    s.bench.pwm_frequency_hz = pwm_hz;
+    s.bench.sensors = SensorConfig::ideal();
+    let config = s.cascade_config();
+    // The gains are the technical optimum: Kp = L/(3 Ts), Ki = R/(3 Ts).
+    let ts = 1.0 / pwm_hz as f32;
+    let g = config.current.current.q_gains;
+    let (l, r) = (s.motor.lq_h as f32, s.motor.r_ohm as f32);
+    assert!((g.kp_v_per_a - l / (3.0 * ts)).abs() <= 1e-4 * g.kp_v_per_a);
+    assert!((g.ki_v_per_a_s - r / (3.0 * ts)).abs() <= 1e-4 * g.ki_v_per_a_s);
+    let mut sim = Sim::new(&s, config, true);
+    sim.plant.set_mechanics(Mechanics::Locked);
+    sim.cascade.command(Command::Torque { iq_a: 0.0 }).unwrap();
+    sim.run(20);
+    // Within the linear range: the first voltage Kp * step is 60 % of it.
+    let v_lin = 0.95 * s.bench.bus_voltage_v as f32 / 3f32.sqrt();
+    let step = (0.6 * v_lin / g.kp_v_per_a).min(0.5 * s.max_current_a);
+    let start = sim.rows();
+    sim.cascade.command(Command::Torque { iq_a: step }).unwrap();
+    sim.run(200);
+    let tr = sim.trace().unwrap();
+    let iq = &tr.column("iq_true_a").unwrap()[start..];
+    let id = &tr.column("id_true_a").unwrap()[start..];
+    assert!(
+        id.iter().all(|d| d.abs() < 0.02 * step as f64),
+        "id moved during a q step"
+    );
+    assert!(tr.column("vq_v").unwrap()[start..]
+        .iter()
+        .all(|v| (*v as f32) < v_lin));
+    (
+        metrics::overshoot_percent(iq, 0.0, step as f64),
+        metrics::settling_index(iq, 0.0, step as f64, 0.02),
+    )
+}
+
+/// Source section 11: about 4.3 % overshoot. The discrete loop (one period
+/// of delay, zero-order hold over the period) is slightly better damped than
+/// the continuous `1.5 Ts` lag it is designed on.
+#[test]
+fn q_current_step_technical_optimum_15_and_20_khz() {
+    for (motor, hz) in [
+        ("m153-source.toml", 15_000.0),
+        ("m153-source.toml", 20_000.0),
+    ] {
+        let (os, ts) = current_step(motor, hz);
+        println!("{motor} at {hz} Hz: overshoot {os:.2} %, 2 % settling {ts:?} periods");
+        assert!(
+            (os - 4.3).abs() <= 1.5,
+            "{motor} {hz} Hz: overshoot {os:.2} %"
+        );
+        let ts = ts.expect("settles");
+        assert!(ts <= 12, "{motor} {hz} Hz: settling {ts} periods");
+    }
+}
+
+/// With an electrical time constant of only 2-3 periods (`R Ts / L` = 0.36
+/// to 0.48) the PI zero placed at `R/L` in continuous time no longer cancels
+/// the discrete plant pole exactly: the step is better damped than the
+/// technical optimum (measured 2.1 %). It must still settle within 12 periods
+/// and stay below the optimum's overshoot.
+#[test]
+fn q_current_step_fast_electrical_time_constant() {
+    for hz in [15_000.0, 20_000.0] {
+        let (os, ts) = current_step("dji-m2006.toml", hz);
+        println!("dji-m2006 at {hz} Hz: overshoot {os:.2} %, 2 % settling {ts:?} periods");
+        assert!(os < 4.3 + 1.5, "overshoot {os:.2} %");
+        assert!(ts.expect("settles") <= 12);
+    }
+}
+
+fn running(name: &str, w: f32) -> Sim {
+    let s = setup(name);
+    let mut sim = Sim::new(&s, s.cascade_config(), false);
+    sim.cascade.command(Command::Velocity { rad_s: w }).unwrap();
+    sim.run((0.4 * s.bench.pwm_frequency_hz) as usize);
+    assert!(
+        (sim.plant.omega_m_rad_s() as f32 - w).abs() < 0.02 * w,
+        "not at speed: {}",
+        sim.plant.omega_m_rad_s()
+    );
+    sim
+}
+
+/// Velocity step: settles in +-2 % within 120 ms with at most 40 %
+/// overshoot (PI with its zero at a quarter of the 20 Hz bandwidth, no
+/// reference filter); a load step of 30 % of the rated torque dips the speed
+/// by 0.3 to 1.5 times `T / (J wc)` and leaves less than 0.1 % error after 0.4 s.
+#[test]
+fn speed_step_and_load_rejection() {
+    let s = setup("gl80-kv30.toml");
+    let f = s.bench.pwm_frequency_hz;
+    let mut sim = Sim::new(&s, s.cascade_config(), true);
+    let w = 20.0f32;
+    sim.cascade.command(Command::Velocity { rad_s: w }).unwrap();
+    sim.run((0.4 * f) as usize);
+    let tr = sim.trace().unwrap();
+    let speed = tr.column("speed_rad_s").unwrap();
+    let os = metrics::overshoot_percent(speed, 0.0, w as f64);
+    let ts = metrics::settling_index(speed, 0.0, w as f64, 0.02).expect("settles") as f64 / f;
+    println!(
+        "speed step {w} rad/s: overshoot {os:.1} %, settling {:.1} ms",
+        ts * 1e3
+    );
+    assert!(os < 40.0, "overshoot {os}");
+    assert!(ts < 0.12, "settling {ts} s");
+    let load = 0.3 * s.kt() * s.rated_current_a;
+    let start = sim.rows();
+    sim.load_nm = load;
+    sim.run((0.4 * f) as usize);
+    let tr = sim.trace().unwrap();
+    let after = &tr.column("speed_rad_s").unwrap()[start..];
+    let dip = after.iter().fold(0.0f64, |m, v| m.max(w as f64 - v));
+    let err = metrics::steady_state_error(after, w as f64, (0.05 * f) as usize);
+    println!("load step {load:.3} N m: dip {dip:.2} rad/s, steady error {err:.4} rad/s");
+    // A PI speed loop of bandwidth wc on inertia J dips by about T / (J wc).
+    let c = sim.cascade.config().speed;
+    let wc = c.kp_a_per_rad_s * s.kt() / s.motor.inertia_kg_m2 as f32;
+    let scale = (load / (s.motor.inertia_kg_m2 as f32 * wc)) as f64;
+    println!("T/(J wc) = {scale:.2} rad/s");
+    assert!(dip > 0.3 * scale && dip < 1.5 * scale, "dip {dip}");
+    assert!(err.abs() < 1e-3 * w as f64, "steady error {err}");
+}
+
+/// Position move of 3 rad: within 2 encoder counts of the target 0.6 s after
+/// the command, with the peak speed below 1.4 times the trajectory limit
+/// (measured: 1.3 times; the speed loop lags the trapezoid's corners).
+#[test]
+fn position_move_reaches_target() {
+    let s = setup("gl80-kv30.toml");
+    let f = s.bench.pwm_frequency_hz;
+    let config = s.cascade_config();
+    let mut sim = Sim::new(&s, config, false);
+    sim.cascade.command(Command::Position { rad: 0.0 }).unwrap();
+    sim.run((0.05 * f) as usize);
+    let p0 = sim.true_position_rad();
+    let target = sim.cascade.feedback().position_rad + 3.0;
+    sim.cascade
+        .command(Command::Position { rad: target })
+        .unwrap();
+    let mut w_max: f64 = 0.0;
+    for _ in 0..(0.6 * f) as usize {
+        sim.step();
+        w_max = w_max.max(sim.plant.omega_m_rad_s().abs() as f64);
+    }
+    let moved = sim.true_position_rad() - p0;
+    println!(
+        "peak speed {w_max:.2} rad/s, limit {}",
+        config.position.max_velocity_rad_s
+    );
+    let count = std::f64::consts::TAU / s.bench.sensors.encoder_counts_per_rev as f64;
+    println!(
+        "moved {moved:.5} rad (error {:.5} rad = {:.2} counts), peak speed {w_max:.2} rad/s",
+        3.0 - moved,
+        (3.0 - moved) / count
+    );
+    assert!((moved - 3.0).abs() < 2.0 * count, "moved {moved}");
+    assert!(w_max < 1.4 * config.position.max_velocity_rad_s as f64);
+}
+
+/// The mission passes its criteria for every motor file.
+#[test]
+fn mission_passes_for_every_motor_file() {
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("motors");
+    let mut n = 0;
+    for e in std::fs::read_dir(dir).unwrap() {
+        let p = e.unwrap().path();
+        if p.extension().is_some_and(|x| x == "toml") {
+            let s = Setup::load(&p).unwrap();
+            let r = mission::run_mission(&s, &mut |_| {});
+            let fails = r.summary.failures();
+            assert!(fails.is_empty(), "{}: {fails:?}", p.display());
+            assert!(r.summary.align_error_deg.abs() < 40.0);
+            n += 1;
+        }
+    }
+    assert!(n >= 5);
+}
+
+/// Step until `visible(sample)`; that very step must return the safe state
+/// and latch one of `expected`, the plant's next period must have the
+/// bridge off, and no fault may latch before. Returns the periods waited.
+fn trips_at_once(
+    sim: &mut Sim,
+    max_periods: usize,
+    expected: &[Fault],
+    visible: impl Fn(&Sim) -> bool,
+) -> usize {
+    for k in 0..max_periods {
+        let vis = visible(sim);
+        let b = sim.step();
+        let fb = *sim.cascade.feedback();
+        if vis {
+            assert_eq!(b, BridgeCommand::SafeState, "not safe in the same period");
+            let f = fb.first_fault.expect("fault latched");
+            assert!(
+                expected.contains(&f),
+                "latched {f:?}, expected {expected:?}"
+            );
+            sim.step();
+            assert!(!sim.plant.bridge_enabled(), "bridge still on");
+            // Latched: stays off.
+            sim.run(10);
+            assert!(!sim.plant.bridge_enabled());
+            return k;
+        }
+        assert!(
+            fb.first_fault.is_none(),
+            "tripped early: {:?}",
+            fb.first_fault
+        );
+        assert!(matches!(b, BridgeCommand::Duties(_)));
+    }
+    panic!("fault never became visible");
+}
+
+#[test]
+fn phase_short_trips_over_current_at_once() {
+    let mut sim = running("m153-source.toml", 10.0);
+    let lim = sim.cascade.config().current.supervisor;
+    sim.plant.faults_mut().phase_short = Some(PhaseShort {
+        a: Phase::A,
+        b: Phase::B,
+        r_ohm: 0.01,
+    });
+    let k = trips_at_once(
+        &mut sim,
+        200,
+        &[Fault::OverCurrentPhase, Fault::OverCurrentVector],
+        |s| {
+            let i = s.last_sample().currents.to_abc();
+            let over = [i.a, i.b, i.c]
+                .iter()
+                .any(|x| x.abs() > lim.max_phase_current_a);
+            over || transforms::clarke(Abc::new(i.a, i.b, i.c)).magnitude()
+                > lim.max_vector_current_a
+        },
+    );
+    println!("phase short visible after {k} periods");
+}
+
+#[test]
+fn bus_sag_trips_under_voltage_at_once() {
+    let mut sim = running("m153-source.toml", 10.0);
+    let lim = sim.cascade.config().current.supervisor;
+    sim.plant.faults_mut().bus_sag_v = 0.5 * sim.plant.config().bus_voltage_v;
+    trips_at_once(&mut sim, 10, &[Fault::BusUnderVoltage], |s| {
+        s.last_sample().v_bus_v < lim.bus_under_voltage_v
+    });
+}
+
+#[test]
+fn encoder_jump_trips_implausible_angle_at_once() {
+    let mut sim = running("m153-source.toml", 10.0);
+    let lim = sim.cascade.config().current.supervisor;
+    let cpr = sim.plant.config().sensors.encoder_counts_per_rev;
+    sim.plant.faults_mut().encoder = EncoderFault::Jump((cpr / 6) as i32); // 1.05 rad
+    let prev = std::cell::Cell::new(sim.last_sample().angle);
+    trips_at_once(&mut sim, 10, &[Fault::AngleSensorImplausible], |s| {
+        let a = s.last_sample().angle;
+        let jump = a.diff_radians(prev.get()).abs() > lim.max_angle_innovation_rad;
+        prev.set(a);
+        jump
+    });
+}
+
+/// A stuck encoder: the fault is visible once the rotor has moved away from
+/// the frozen reading by more than the tracker's innovation limit. At speed,
+/// the rotor should move past it: the trip must come no earlier than that,
+/// and within 50 ms of the injection, with the bridge off in the same period
+/// as the latch. FAILS today: the controller's frozen current vector brakes
+/// and captures the rotor (it moves 0.26 rad) while the PLL estimate follows
+/// the frozen reading, so the innovation never exceeds the limit.
+#[test]
+#[ignore = "fails: foc-core does not detect a stuck encoder (the frozen field captures the rotor, 0.26 rad in 50 ms at 25 rad/s, below the 0.5 rad innovation limit); see the report"]
+fn encoder_stuck_at_speed_trips_implausible_angle() {
+    let w = 25.0;
+    let mut sim = running("m153-source.toml", w);
+    let lim = sim
+        .cascade
+        .config()
+        .current
+        .supervisor
+        .max_angle_innovation_rad;
+    let f = sim.plant.config().pwm_frequency_hz;
+    sim.plant.faults_mut().encoder = EncoderFault::Stuck;
+    let p0 = sim.true_position_rad();
+    let mut latched_at = None;
+    for k in 0..(0.05 * f) as usize {
+        let b = sim.step();
+        if let Some(fault) = sim.cascade.feedback().first_fault {
+            assert_eq!(fault, Fault::AngleSensorImplausible);
+            assert_eq!(b, BridgeCommand::SafeState);
+            latched_at = Some(k);
+            break;
+        }
+    }
+    let moved = sim.true_position_rad() - p0;
+    println!("stuck encoder at {w} rad/s: tripped after {latched_at:?} periods, rotor moved {moved:.3} rad");
+    latched_at.expect("stuck encoder never tripped");
+    assert!(
+        moved.abs() > lim as f64 * 0.9,
+        "tripped before the fault was visible"
+    );
+    sim.step();
+    assert!(!sim.plant.bridge_enabled());
+}
+
+#[test]
+fn nan_current_trips_non_finite_at_once() {
+    let mut sim = running("m153-source.toml", 10.0);
+    sim.plant.faults_mut().nan_current = Some(Phase::B);
+    trips_at_once(&mut sim, 10, &[Fault::NonFinite], |s| {
+        !s.last_sample().currents.to_abc().is_finite()
+    });
+    // Clearing while the fault persists trips again at once.
+    sim.cascade.clear_faults();
+    sim.step();
+    assert_eq!(sim.last_bridge(), BridgeCommand::SafeState);
+    // Fault gone: clear, command, and the bridge runs again.
+    sim.plant.faults_mut().nan_current = None;
+    sim.run(1);
+    sim.cascade.clear_faults();
+    sim.run(1);
+    sim.cascade
+        .command(Command::Velocity { rad_s: 0.0 })
+        .unwrap();
+    sim.run(3);
+    assert!(sim.plant.bridge_enabled());
+}
