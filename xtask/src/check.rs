@@ -9,6 +9,7 @@ use std::time::Instant;
 
 use crate::boards::BOARDS;
 use crate::build::{self, Profile};
+use crate::sim;
 use crate::toolchain;
 use crate::util::{banner, cargo, fmt_duration, run, Error, Result, THUMB_TARGET};
 
@@ -83,6 +84,17 @@ pub fn steps() -> Vec<Step> {
     let mut args = strings(&["test"]);
     args.extend(host_package_args());
     steps.push(Step::cargo("tests, host crates", args));
+
+    // Smoke run of the closed-loop simulation (the default motor's mission,
+    // a few seconds): it must pass its criteria and write its reports.
+    steps.push(Step::new("simulation smoke run (cargo xtask sim)", || {
+        sim::run_cmd(&sim::SimArgs {
+            motor: None,
+            all: false,
+            out: None,
+            bench: false,
+        })
+    }));
 
     steps.push(Step::cargo(
         format!("foc-core bare-metal build ({THUMB_TARGET}, no default features)"),

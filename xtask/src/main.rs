@@ -7,6 +7,8 @@
 mod boards;
 mod build;
 mod check;
+mod dyno;
+mod sim;
 mod size;
 mod toolchain;
 mod util;
@@ -41,6 +43,13 @@ enum Command {
     Toolchain,
     /// List the boards: name (= cargo feature), probe-rs chip, QEMU support.
     Boards,
+    /// Closed-loop simulation: the foc-core cascade against the bench plant
+    /// through a mission (align, current step, speed, load step, position);
+    /// CSV, SVG and summary.md in out/sim.
+    Sim(sim::SimArgs),
+    /// Simulated dynamometer sweep: Performance Curve Report (CSV, Markdown,
+    /// SVG) in out/dyno.
+    Dyno(dyno::DynoArgs),
 }
 
 fn main() -> ExitCode {
@@ -52,6 +61,8 @@ fn main() -> ExitCode {
         Command::Ci => check::ci(),
         Command::Toolchain => toolchain::ensure(true, toolchain::ALL_COMPONENTS)
             .and_then(|()| toolchain::print_versions()),
+        Command::Sim(args) => sim::run_cmd(args),
+        Command::Dyno(args) => dyno::run_cmd(args),
         Command::Boards => {
             list_boards();
             Ok(())

@@ -1,0 +1,150 @@
+//! `cargo xtask sim`: the real `foc-core` cascade against the bench plant
+//! through the scripted mission of `foc_bench::mission` (align, q-current
+//! step, speed step and ramp, load step, position move).
+//!
+//! Writes `mission.csv` (every PWM period), `current_step.csv`, SVG plots
+//! (`mission.svg`, `current_step.svg`, `speed.svg`, `position.svg`) and
+//! `summary.md` into the output directory and prints the summary. Fails when
+//! the mission's pass criteria fail. `--all` runs every motor file in
+//! `tests/motors` (one sub-directory each); `--bench` also measures the
+//! simulation speed.
+//!
+//! It runs in this process: a mission is about 50 000 to 120 000 PWM periods,
+//! about 1 s each in release and a few seconds in xtask's dev profile
+//! (opt-level 1), so no release build is spawned.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use clap::Args;
+use foc_bench::mission::{self, Setup};
+use indicatif::{ProgressBar, ProgressStyle};
+
+use crate::util::{banner, root, Error, Result};
+
+/// The default motor: the source design's M153 at its 15 kHz / 26 V point.
+pub const DEFAULT_MOTOR: &str = "tests/motors/m153-source.toml";
+
+/// Arguments of `cargo xtask sim`.
+#[derive(Debug, Args)]
+pub struct SimArgs {
+    /// Motor file (default: tests/motors/m153-source.toml).
+    #[arg(long, value_name = "FILE")]
+    pub motor: Option<PathBuf>,
+    /// Run every motor file in tests/motors (outputs in <out>/<motor>/).
+    #[arg(long, conflicts_with = "motor")]
+    pub all: bool,
+    /// Output directory (default: out/sim at the workspace root).
+    #[arg(long, value_name = "DIR")]
+    pub out: Option<PathBuf>,
+    /// Also measure the simulation speed (controller steps/s, plant+controller periods/s).
+    #[arg(long)]
+    pub bench: bool,
+}
+
+/// `path` as given if absolute or existing from the current directory, else
+/// from the workspace root.
+pub fn resolve(path: &Path) -> PathBuf {
+    if path.is_absolute() || path.exists() {
+        path.to_path_buf()
+    } else {
+        root().join(path)
+    }
+}
+
+/// Every motor file in tests/motors, sorted.
+pub fn motor_files() -> Result<Vec<PathBuf>> {
+    let dir = root().join("tests/motors");
+    let mut v: Vec<PathBuf> = std::fs::read_dir(&dir)
+        .map_err(|e| Error(format!("{}: {e}", dir.display())))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|x| x == "toml"))
+        .collect();
+    v.sort();
+    Ok(v)
+}
+
+/// A progress bar on stderr (hidden when stderr is not a terminal).
+pub fn progress_bar(label: &str) -> ProgressBar {
+    let pb = ProgressBar::new(1000);
+    pb.set_style(
+        ProgressStyle::with_template("{prefix:>12} [{bar:40}] {percent:>3}% {elapsed}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar())
+            .progress_chars("=> "),
+    );
+    pb.set_prefix(label.to_string());
+    pb
+}
+
+fn stem(p: &Path) -> String {
+    p.file_stem()
+        .map_or("motor".into(), |s| s.to_string_lossy().into_owned())
+}
+
+fn run_one(motor: &Path, out: &Path, bench: bool) -> Result<bool> {
+    let setup = Setup::load(motor).map_err(|e| Error(e.to_string()))?;
+    banner(&format!("sim: {}", setup.name));
+    let pb = progress_bar(&stem(motor));
+    let t = Instant::now();
+    let result = mission::run_mission(&setup, &mut |f| pb.set_position((f * 1000.0) as u64));
+    pb.finish_and_clear();
+    let files = result.write(out)?;
+    print!("{}", result.summary.to_markdown());
+    println!(
+        "(mission {:.2} s wall time, this build)",
+        t.elapsed().as_secs_f64()
+    );
+    for f in &files {
+        println!("  wrote {}", f.display());
+    }
+    if bench {
+        let (ctrl, both) = mission::bench_speed(&setup, 1.0);
+        let line = format!(
+            "simulation speed ({} build): controller alone {:.0} steps/s ({:.2} us/step); plant + controller {:.0} periods/s ({:.1} x real time at {:.0} Hz)",
+            if cfg!(debug_assertions) { "dev, opt-level 1" } else { "release" },
+            ctrl,
+            1e6 / ctrl,
+            both,
+            both / setup.pwm_hz() as f64,
+            setup.pwm_hz()
+        );
+        println!("{line}");
+        std::fs::write(out.join("bench.txt"), format!("{line}\n"))?;
+    }
+    let fails = result.summary.failures();
+    if !fails.is_empty() {
+        println!("FAILED: {}", fails.join("; "));
+    }
+    Ok(fails.is_empty())
+}
+
+/// `cargo xtask sim`.
+pub fn run_cmd(args: &SimArgs) -> Result {
+    let out = args
+        .out
+        .as_deref()
+        .map_or_else(|| root().join("out/sim"), Path::to_path_buf);
+    let motors = if args.all {
+        motor_files()?
+    } else {
+        vec![resolve(
+            args.motor.as_deref().unwrap_or(Path::new(DEFAULT_MOTOR)),
+        )]
+    };
+    let mut failed = Vec::new();
+    for m in &motors {
+        let dir = if args.all {
+            out.join(stem(m))
+        } else {
+            out.clone()
+        };
+        if !run_one(m, &dir, args.bench)? {
+            failed.push(stem(m));
+        }
+    }
+    if failed.is_empty() {
+        Ok(())
+    } else {
+        Err(Error(format!("mission failed for: {}", failed.join(", "))))
+    }
+}
