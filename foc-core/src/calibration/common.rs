@@ -264,6 +264,49 @@ pub(crate) fn approach_v(
     crate::clamp(v + dv, 0.0, v_lim)
 }
 
+/// Rotor-motion detector from the raw sensor: "moving" as soon as the
+/// reading is more than 1/1024 turn from a snapshot, "still" again after
+/// 64 periods within that distance. The DC routines hold their voltage
+/// while the rotor swings into a new field position (the back-EMF of a
+/// heavy, low-resistance rotor would otherwise let the integrator wind
+/// up and over-shoot once the rotor stops).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub(crate) struct Motion {
+    snap: Option<MechanicalAngle>,
+    n: u8,
+    moving: bool,
+}
+
+impl Motion {
+    pub(crate) const NEW: Self = Self {
+        snap: None,
+        n: 0,
+        moving: false,
+    };
+    /// Feed this period's reading; true while the rotor moves.
+    pub(crate) fn update(&mut self, a: MechanicalAngle) -> bool {
+        match self.snap {
+            None => self.snap = Some(a),
+            Some(s) => {
+                let d = a.wrapping_sub(s).to_bits() as i32;
+                if d.unsigned_abs() > (1u32 << 22) {
+                    self.moving = true;
+                    self.snap = Some(a);
+                    self.n = 0;
+                } else {
+                    self.n = self.n.saturating_add(1);
+                    if self.n >= 64 {
+                        self.moving = false;
+                        self.snap = Some(a);
+                        self.n = 0;
+                    }
+                }
+            }
+        }
+        self.moving
+    }
+}
+
 /// Running mean of a scalar.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub(crate) struct Mean {

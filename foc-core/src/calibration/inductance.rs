@@ -52,7 +52,7 @@
 
 use super::common::{
     approach_v, check_input, current_dq, periods, voltage_limit_v, CalError, CalInput, CalStep,
-    Mean,
+    Mean, Motion,
 };
 use crate::angle::ElectricalAngle;
 use crate::frames::Dq;
@@ -173,6 +173,8 @@ pub struct Inductance {
     prev_i: Dq,
     demod: Mean,
     bias_periods: u32,
+    i_d_filt: f32,
+    motion: Motion,
     ld_h: f32,
     ld_restart: f32,
     finished: Option<CalStep<InductanceResult>>,
@@ -192,6 +194,8 @@ impl Inductance {
             prev_i: Dq::ZERO,
             demod: Mean::ZERO,
             bias_periods: 0,
+            i_d_filt: 0.0,
+            motion: Motion::NEW,
             ld_h: 0.0,
             ld_restart: 0.0,
             finished: None,
@@ -242,7 +246,8 @@ impl Inductance {
         } else {
             i.d
         };
-        self.v_bias = approach_v(
+        let moving = self.motion.update(inp.angle);
+        let v_new = approach_v(
             self.v_bias,
             i_d_dc,
             target,
@@ -251,6 +256,12 @@ impl Inductance {
             c.ts_s,
             v_lim,
         );
+        // Hold (never raise) the bias while the rotor swings to 0 degrees.
+        if !(moving && v_new > self.v_bias) {
+            self.v_bias = v_new;
+        }
+        // Low-pass (16 periods) for the settling decision only.
+        self.i_d_filt += (i_d_dc - self.i_d_filt) * (1.0 / 16.0);
         let delta = Dq::new(i.d - self.prev_i.d, i.q - self.prev_i.q);
         self.prev_i = i;
         self.since_change = self.since_change.saturating_add(1);
@@ -259,13 +270,13 @@ impl Inductance {
             State::Bias(n) => {
                 self.bias_periods = self.bias_periods.saturating_add(1);
                 if self.bias_periods > periods(c.bias_timeout_s, c.ts_s) {
-                    return Err(if i.d < 0.25 * target {
+                    return Err(if self.i_d_filt < 0.25 * target {
                         CalError::NoCurrentResponse
                     } else {
                         CalError::Timeout
                     });
                 }
-                let in_band = (target - i.d).abs() < 0.03 * target;
+                let in_band = !moving && (target - self.i_d_filt).abs() < 0.03 * target;
                 self.state = if !in_band {
                     State::Bias(0)
                 } else if n + 1 >= periods(c.settle_s, c.ts_s) {

@@ -3,10 +3,10 @@
 //!
 //! At each angle (phases A, B, C in turn) the routine
 //! 1. rests at zero voltage until the current has decayed,
-//! 2. raises the d voltage with a rate-limited integrator until the d
-//!    current reaches the *low* level (`low_fraction * current_a`), waits
-//!    `settle_s` inside a 3 % band, then averages `v_d` and `i_d` over
-//!    `average_s`,
+//! 2. raises the d voltage with a rate-limited integrator until the
+//!    current (vector magnitude) reaches the *low* level (`low_fraction * current_a`), waits
+//!    `settle_s` inside a 3 % band (low-passed over 16 periods), then averages
+//!    `v_d` and the dq current over `average_s`,
 //! 3. does the same at the *high* level (`current_a`),
 //! 4. takes `R = (v_high - v_low) / (i_high - i_low)`.
 //!
@@ -17,8 +17,13 @@
 //! (the dead-time drop at the test angles) so that later open-loop steps can
 //! size their voltage.
 //!
-//! The integrator gain adapts to the winding: `dv/dt = wc * (v / i_d) *
-//! (i_target - i_d)`, i.e. a first-order approach at `loop_bandwidth_rad_s`
+//! The current is regulated on its magnitude, so that a wrongly wired
+//! sense still settles at the test current and is then caught by the angle
+//! check (regulating the d projection would drive a turned vector into the
+//! over-current limit). While the sensor shows the rotor moving (swinging
+//! into the new field position) the voltage is held, not raised, and the
+//! settling waits. The integrator gain adapts to the winding:
+//! `dv/dt = wc * (v / |i|) * (i_target - |i|)`, i.e. a first-order approach at `loop_bandwidth_rad_s`
 //! whatever the resistance, limited to `ramp_v_per_s` (also the ramp used
 //! before any current flows).
 //!
@@ -26,7 +31,7 @@
 //! - no current (below 25 % of the target) with the voltage held at the limit
 //!   for `settle_s` -> [`CalError::OpenPhase`] for the phase of that angle
 //!   (with one phase open, no current can flow along that phase's axis);
-//! - measured current angle off the commanded angle by more than
+//! - averaged (settled) current angle off the commanded angle by more than
 //!   `max_angle_error_rad` (40 degrees by default: an open neighbouring phase
 //!   turns the vector by 30 degrees, swapped sense phases by 120, a negated
 //!   sense by 180) -> [`CalError::CurrentSenseMismatch`];
@@ -46,7 +51,7 @@
 
 use super::common::{
     approach_v, check_input, current_dq, periods, voltage_limit_v, CalError, CalInput, CalStep,
-    Mean, Phase,
+    Mean, Motion, Phase,
 };
 use crate::angle::ElectricalAngle;
 use crate::frames::Dq;
@@ -134,6 +139,9 @@ pub struct ResistanceResult {
     pub v_offset_v: f32,
 }
 
+/// Weight of a new sample in the decision filter (16-period time constant).
+const FILTER: f32 = 1.0 / 16.0;
+
 #[derive(Clone, Copy, Debug, PartialEq)]
 enum State {
     Rest,
@@ -152,6 +160,8 @@ pub struct PhaseResistance {
     v_d: f32,
     level_periods: u32,
     limit_periods: u32,
+    i_filt: Dq,
+    motion: Motion,
     avg_v: Mean,
     avg_i: Mean,
     avg_iq: Mean,
@@ -172,6 +182,8 @@ impl PhaseResistance {
             v_d: 0.0,
             level_periods: 0,
             limit_periods: 0,
+            i_filt: Dq::ZERO,
+            motion: Motion::NEW,
             avg_v: Mean::ZERO,
             avg_i: Mean::ZERO,
             avg_iq: Mean::ZERO,
@@ -238,6 +250,14 @@ impl PhaseResistance {
         check_input(inp, self.cfg.max_current_a)?;
         let theta = self.theta();
         let i = current_dq(inp.i_abc_a, theta);
+        // Low-pass (time constant 16 periods) for the decisions, so that
+        // sensor noise does not reset the settling or trip a check.
+        self.i_filt = Dq::new(
+            self.i_filt.d + (i.d - self.i_filt.d) * FILTER,
+            self.i_filt.q + (i.q - self.i_filt.q) * FILTER,
+        );
+        let f = self.i_filt;
+        let moving = self.motion.update(inp.angle);
         let target = self.target_a();
         let v_lim = voltage_limit_v(self.cfg.max_voltage_v, inp.v_bus_v);
         let ts = self.cfg.ts_s;
@@ -248,7 +268,7 @@ impl PhaseResistance {
 
         if self.state == State::Rest {
             self.v_d = 0.0;
-            if i.magnitude() < 0.05 * target {
+            if f.magnitude() < 0.05 * target {
                 self.state = State::Ramp;
                 self.level_periods = 0;
                 self.limit_periods = 0;
@@ -257,24 +277,27 @@ impl PhaseResistance {
         }
 
         // Integrator towards the target d current.
-        let err = target - i.d;
-        self.v_d = approach_v(
+        let v_new = approach_v(
             self.v_d,
-            i.d,
+            i.magnitude(),
             target,
             self.cfg.loop_bandwidth_rad_s,
             self.cfg.ramp_v_per_s,
             ts,
             v_lim,
         );
+        // Hold (never raise) the voltage while the rotor swings.
+        if !(moving && v_new > self.v_d) {
+            self.v_d = v_new;
+        }
 
         // At the voltage limit without reaching the target.
-        if self.v_d >= v_lim && err > 0.03 * target {
+        if self.v_d >= v_lim && target - f.magnitude() > 0.03 * target {
             self.limit_periods = self.limit_periods.saturating_add(1);
             if self.limit_periods > periods(self.cfg.settle_s, ts) {
-                return Err(if i.magnitude() < 0.25 * target {
+                return Err(if f.magnitude() < 0.25 * target {
                     CalError::OpenPhase(self.phase())
-                } else if Self::angle_error_rad(i) > self.cfg.max_angle_error_rad {
+                } else if Self::angle_error_rad(f) > self.cfg.max_angle_error_rad {
                     CalError::CurrentSenseMismatch
                 } else {
                     CalError::VoltageLimitReached
@@ -284,7 +307,7 @@ impl PhaseResistance {
             self.limit_periods = 0;
         }
 
-        let in_band = err.abs() < 0.03 * target;
+        let in_band = !moving && (target - f.magnitude()).abs() < 0.03 * target;
         match self.state {
             State::Rest | State::Ramp => {
                 if in_band {
@@ -326,10 +349,11 @@ impl PhaseResistance {
         &mut self,
         theta: ElectricalAngle,
     ) -> Result<CalStep<ResistanceResult>, CalError> {
-        let (v, i) = (self.avg_v.mean(), self.avg_i.mean());
-        if Self::angle_error_rad(Dq::new(i, self.avg_iq.mean())) > self.cfg.max_angle_error_rad {
+        let i_dq = Dq::new(self.avg_i.mean(), self.avg_iq.mean());
+        if Self::angle_error_rad(i_dq) > self.cfg.max_angle_error_rad {
             return Err(CalError::CurrentSenseMismatch);
         }
+        let (v, i) = (self.avg_v.mean(), i_dq.magnitude());
         self.level_periods = 0;
         self.limit_periods = 0;
         if !self.high {
