@@ -84,6 +84,8 @@ pub use boards::nucleo_f401re_ihm07m1 as board;
 
 #[cfg(all(feature = "_hal", feature = "odrive-v3"))]
 pub use boards::odrive_v3 as board;
+#[cfg(all(feature = "_hal", feature = "qemu"))]
+pub use boards::qemu as board;
 
 #[cfg(any(
     all(feature = "nucleo-f446re-ihm07m1", feature = "nucleo-f401re-ihm07m1"),

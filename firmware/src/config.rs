@@ -38,7 +38,7 @@ pub const START_COMMAND: Option<Command> = None;
 #[cfg(any(
     feature = "nucleo-f446re-ihm07m1",
     feature = "nucleo-f401re-ihm07m1",
-    not(any(feature = "odrive-v3"))
+    not(any(feature = "odrive-v3", feature = "qemu"))
 ))]
 pub const MOTOR: (MotorParams, f32) = (
     // iPower GM4108H-120T gimbal motor (11 pole pairs, about 11 ohm):
@@ -67,9 +67,33 @@ pub const MOTOR: (MotorParams, f32) = (
     20.0,
 );
 
+/// The motor on the board and its current limit [A]: the simulated motor.
+#[cfg(feature = "qemu")]
+pub const MOTOR: (MotorParams, f32) = {
+    let m = board_support::board::SIM_MOTOR;
+    (
+        MotorParams {
+            pole_pairs: m.pole_pairs,
+            r_ohm: m.r_ohm,
+            ld_h: m.ld_h,
+            lq_h: m.lq_h,
+            flux_linkage_wb: m.flux_linkage_wb,
+        },
+        10.0,
+    )
+};
+
 /// The cascade configuration for this board and motor.
 pub fn cascade(pwm_frequency_hz: f32) -> CascadeConfig {
     let (motor, max_current_a) = MOTOR;
+    #[cfg(feature = "qemu")]
+    let mut c = CascadeConfig::for_motor_with_inertia(
+        motor,
+        pwm_frequency_hz,
+        max_current_a,
+        board_support::board::SIM_MOTOR.inertia_kg_m2,
+    );
+    #[cfg(not(feature = "qemu"))]
     let mut c = CascadeConfig::for_motor(motor, pwm_frequency_hz, max_current_a);
     c.rates.speed_divider = SPEED_DIVIDER;
     c.rates.position_divider = POSITION_DIVIDER;

@@ -27,12 +27,17 @@
 #![no_main]
 
 mod config;
+#[cfg(feature = "qemu")]
+mod mission;
 mod timing;
 mod watchdog;
 
 use board_support::board;
 use core::sync::atomic::AtomicU32;
+#[cfg(not(feature = "qemu"))]
 use defmt_rtt as _;
+#[cfg(feature = "qemu")]
+use defmt_semihosting as _;
 
 /// Current-loop runs; `idle` feeds the watchdog only when this advances.
 static CURRENT_LOOP_RUNS: AtomicU32 = AtomicU32::new(0);
@@ -255,7 +260,10 @@ mod app {
         }
         CURRENT_LOOP_RUNS.fetch_add(1, Ordering::Relaxed);
         let dt = timing::now_cycles().wrapping_sub(t0);
-        if cx.shared.timing.lock(|tm| tm.record(dt)) {
+        // Overrun: over the cycle budget, or the next period's conversion
+        // (the interrupt that triggers this task) already pending again.
+        let repended = cortex_m::peripheral::NVIC::is_pending(board::CURRENT_IRQ);
+        if cx.shared.timing.lock(|tm| tm.record(dt, repended)) {
             // Takes effect (safe state) at the next period at the latest.
             l.stage.report_fault(Fault::LoopOverrun);
             l.pwm.disable();
@@ -291,6 +299,27 @@ mod app {
         }
         let fb = cx.shared.feedback.lock(|f| *f);
         let tm = cx.shared.timing.lock(|t| *t);
+        #[cfg(feature = "qemu")]
+        {
+            let running = phase == Phase::Run;
+            // Only this task writes the mailbox: copy, update, write back,
+            // so the current loop is never blocked for the mission's logging.
+            let mut slot = cx.shared.command.lock(|c| *c);
+            let before = slot;
+            let done = super::mission::tick(&fb, &mut slot, running, tm.overruns);
+            if slot != before {
+                cx.shared.command.lock(|c| *c = slot);
+            }
+            if let Some(code) = done {
+                defmt::info!(
+                    "current loop: {=u32} runs, max {=u32} cycles (DWT; 0 under QEMU), {=u32} overruns",
+                    tm.runs,
+                    tm.max_cycles,
+                    tm.overruns
+                );
+                super::mission::exit(code);
+            }
+        }
         defmt::debug!(
             "mode {} w {} rad/s p {} rad iq {} A fault {} loop max {} cyc",
             fb.mode,
@@ -308,6 +337,9 @@ mod app {
 fn panic(info: &core::panic::PanicInfo) -> ! {
     board::emergency_disable();
     defmt::error!("panic: {}", defmt::Display2Format(info));
+    #[cfg(feature = "qemu")]
+    mission::panic_exit();
+    #[cfg(not(feature = "qemu"))]
     cortex_m::asm::udf()
 }
 
@@ -316,6 +348,9 @@ fn panic(info: &core::panic::PanicInfo) -> ! {
 unsafe fn HardFault(ef: &cortex_m_rt::ExceptionFrame) -> ! {
     board::emergency_disable();
     defmt::error!("HardFault at pc {=u32:#x}", ef.pc());
+    #[cfg(feature = "qemu")]
+    mission::exit(mission::EXIT_HARDFAULT);
+    #[cfg(not(feature = "qemu"))]
     loop {
         cortex_m::asm::nop();
     }

@@ -1,7 +1,8 @@
 //! Current-loop execution time, measured with the DWT cycle counter.
 //!
 //! The counter runs at the core clock; it is enabled in `init`. (QEMU does
-//! not model it: there it reads 0 and the measured time is 0.)
+//! not model it: there it reads 0 and the measured time is 0; the overrun
+//! check then rests on the re-pended trigger interrupt alone.)
 
 /// Cycle count now.
 #[inline(always)]
@@ -25,14 +26,15 @@ pub struct LoopTiming {
 }
 
 impl LoopTiming {
-    /// Record one run; returns true when it exceeded the budget.
-    pub fn record(&mut self, cycles: u32) -> bool {
+    /// Record one run; returns true when it exceeded the budget or when
+    /// `repended` (the next period's trigger arrived before the run ended).
+    pub fn record(&mut self, cycles: u32, repended: bool) -> bool {
         self.last_cycles = cycles;
         self.runs = self.runs.wrapping_add(1);
         if cycles > self.max_cycles {
             self.max_cycles = cycles;
         }
-        let over = cycles > self.budget_cycles;
+        let over = cycles > self.budget_cycles || repended;
         if over {
             self.overruns = self.overruns.wrapping_add(1);
         }

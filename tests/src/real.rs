@@ -47,14 +47,38 @@ macro_rules! unary {
     };
 }
 
-unary!(
-    /// Sine.
-    sin, sin, sinf
-);
-unary!(
-    /// Cosine.
-    cos, cos, cosf
-);
+/// Sine.
+///
+/// In f32 (the build that runs on the emulated Cortex-M4F) this uses
+/// foc-core's table-free polynomial (worst error 1.3e-7, about 35
+/// instructions) instead of `libm::sinf`, which computes in software double
+/// precision on the M4F (about 1,270 instructions) and made the plant too
+/// slow to run per PWM period. Only the scalar function is shared; the
+/// plant's frame projections stay its own.
+#[inline]
+pub fn sin(x: Real) -> Real {
+    #[cfg(not(feature = "plant-f32"))]
+    {
+        libm::sin(x)
+    }
+    #[cfg(feature = "plant-f32")]
+    {
+        foc_core::trig::sin_cos(foc_core::angle::ElectricalAngle::from_radians(x)).0
+    }
+}
+
+/// Cosine (see [`sin`] for the f32 implementation).
+#[inline]
+pub fn cos(x: Real) -> Real {
+    #[cfg(not(feature = "plant-f32"))]
+    {
+        libm::cos(x)
+    }
+    #[cfg(feature = "plant-f32")]
+    {
+        foc_core::trig::sin_cos(foc_core::angle::ElectricalAngle::from_radians(x)).1
+    }
+}
 unary!(
     /// Exponential.
     exp, exp, expf

@@ -15,6 +15,9 @@ pub mod nucleo_f401re_ihm07m1;
 #[cfg(feature = "odrive-v3")]
 pub mod odrive_v3;
 
+#[cfg(feature = "qemu")]
+pub mod qemu;
+
 /// A status LED (no-op on boards without one).
 pub struct Led {
     pin: Option<PinId>,

@@ -1,0 +1,450 @@
+//! The emulated board: QEMU's `netduinoplus2` machine (STM32F405, QEMU 7.2).
+//!
+//! QEMU models no RCC (so: HSI only, no clock set-up), no TIM1, no injected
+//! ADC and no DWT cycle counter. This board therefore implements the
+//! foc-core hardware traits on the test bench's motor and inverter plant
+//! (`foc_bench::plant`, built `no_std` in f32) running on the emulated
+//! Cortex-M4F itself:
+//!
+//! - TIM2's update interrupt stands in for the PWM period. Its handler is
+//!   "the physics": it advances the plant by one PWM period
+//!   (`1 / PWM_FREQUENCY_HZ` of simulated time) with the duties the current
+//!   loop wrote last, latches what the ADC and encoder would sample at the
+//!   PWM centre, then pends the `ADC` interrupt, so the firmware's current
+//!   loop task runs exactly as on a real board (same vector, same priority).
+//! - [`SimPwm`], [`SimCurrents`], [`SimAngle`], [`SimBus`] read and write
+//!   that latched state.
+//!
+//! The TIM2 period in *emulated* time ([`EMULATED_PERIOD_US`]) is longer
+//! than the simulated PWM period: the plant runs on the same emulated CPU,
+//! and the firmware's lower-priority tasks must still get time. Simulated
+//! physics time advances by exactly one PWM period per interrupt, whatever
+//! the emulated clock does.
+//!
+//! [`sim`] is the test harness's handle on the plant (load torque, fault
+//! injection, the true state) for the scripted mission.
+
+use crate::pac;
+use core::cell::RefCell;
+use core::sync::atomic::{AtomicBool, Ordering};
+use cortex_m::interrupt::{free, Mutex};
+use foc_bench::plant::{BenchConfig, Measurements, MotorParams, Plant, PwmMode, SensorConfig, Shunts};
+use foc_core::angle::MechanicalAngle;
+use foc_core::frames::Abc;
+use foc_core::hal::{AngleSensor, BusVoltage, CurrentSense, PhaseCurrents, PwmDriver};
+use pac::interrupt;
+
+pub use super::Led;
+
+/// Board name.
+pub const NAME: &str = "QEMU netduinoplus2 (STM32F405) + simulated motor";
+/// Core clock: the 16 MHz HSI (QEMU models no RCC).
+pub const SYSCLK_HZ: u32 = 16_000_000;
+/// Simulated PWM (= current-loop) frequency [Hz].
+pub const PWM_FREQUENCY_HZ: u32 = 20_000;
+/// The source's operating point.
+pub const PWM_FREQUENCY_15K_HZ: u32 = 15_000;
+/// Simulated dead time [ns].
+pub const DEAD_TIME_NS: u32 = 200;
+/// Current-loop interrupt (pended by the TIM2 handler).
+pub const CURRENT_IRQ: pac::Interrupt = pac::Interrupt::ADC;
+/// Break interrupt (never fires here).
+pub const BREAK_IRQ: pac::Interrupt = pac::Interrupt::TIM1_BRK_TIM9;
+/// No break input.
+pub const HAS_BREAK_INPUT: bool = false;
+/// Power-stage current limit [A].
+pub const MAX_PHASE_CURRENT_A: f32 = 20.0;
+/// Current ADC range [A].
+pub const MAX_MEASURABLE_CURRENT_A: f32 = 40.0;
+/// Bus range [V].
+pub const BUS_VOLTAGE_MIN_V: f32 = 10.0;
+/// Bus range [V].
+pub const BUS_VOLTAGE_MAX_V: f32 = 30.0;
+/// TIM2 update period in emulated time [us] (see the module docs).
+pub const EMULATED_PERIOD_US: u32 = 250;
+/// Input clock of QEMU's STM32F2xx/F405 timer model (its `clock-frequency`
+/// is fixed at 1 GHz by the SoC model, whatever RCC says).
+pub const QEMU_TIMER_CLOCK_HZ: u32 = 1_000_000_000;
+/// Compare-value range of the emulated PWM (as a 168 MHz TIM1 at 20 kHz).
+pub const PERIOD_COUNTS: u16 = 4200;
+
+/// The simulated motor (a small 7-pole-pair outrunner).
+pub const SIM_MOTOR: MotorParams = MotorParams {
+    pole_pairs: 7,
+    r_ohm: 0.2,
+    ld_h: 60e-6,
+    lq_h: 60e-6,
+    flux_linkage_wb: 0.005,
+    inertia_kg_m2: 5e-5,
+    viscous_friction_nm_s_per_rad: 1e-5,
+    coulomb_friction_nm: 0.002,
+};
+
+/// The simulated inverter and sensors: 24 V bus, 200 ns dead time,
+/// 12-bit current ADC with noise and an offset, 3 shunts, 4096-count encoder.
+pub fn sim_config() -> BenchConfig {
+    BenchConfig {
+        pwm_frequency_hz: PWM_FREQUENCY_HZ as _,
+        substeps: 4,
+        bus_voltage_v: 24.0,
+        source_resistance_ohm: 0.05,
+        dead_time_s: DEAD_TIME_NS as f32 * 1e-9,
+        pwm_mode: PwmMode::Averaged,
+        compute_delay_periods: 0,
+        sensors: SensorConfig {
+            adc_bits: 12,
+            current_full_scale_a: MAX_MEASURABLE_CURRENT_A as _,
+            current_noise_lsb_rms: 1.0,
+            current_offset_a: [0.12, -0.08, 0.05],
+            shunts: Shunts::Three,
+            encoder_counts_per_rev: 4096,
+            encoder_offset_rad: 0.0,
+            bus_full_scale_v: 72.0,
+            bus_noise_lsb_rms: 0.5,
+            seed: 7,
+        },
+    }
+}
+
+struct World {
+    plant: Plant,
+    duties: [f32; 3],
+    load_nm: f32,
+    sample: Option<Measurements>,
+    fresh: bool,
+}
+
+static WORLD: Mutex<RefCell<Option<World>>> = Mutex::new(RefCell::new(None));
+/// Bridge outputs on (written by the PWM driver, cleared by emergency_disable).
+static BRIDGE_ON: AtomicBool = AtomicBool::new(false);
+/// Set by emergency_disable: the outputs stay off until reset.
+static EMERGENCY: AtomicBool = AtomicBool::new(false);
+
+/// The emulated PWM stage.
+pub struct SimPwm {
+    _private: (),
+}
+
+/// Error of the emulated PWM.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SimPwmError {
+    /// A compare value above the period.
+    OutOfRange,
+    /// `emergency_disable` ran: the outputs stay off until reset.
+    EmergencyOff,
+}
+
+impl PwmDriver for SimPwm {
+    type Error = SimPwmError;
+    fn period_counts(&self) -> u16 {
+        PERIOD_COUNTS
+    }
+    fn set_compare(&mut self, compare: [u16; 3]) -> Result<(), Self::Error> {
+        if compare.iter().any(|&c| c > PERIOD_COUNTS) {
+            return Err(SimPwmError::OutOfRange);
+        }
+        let d = compare.map(|c| c as f32 / PERIOD_COUNTS as f32);
+        free(|cs| {
+            if let Some(w) = WORLD.borrow(cs).borrow_mut().as_mut() {
+                w.duties = d;
+            }
+        });
+        Ok(())
+    }
+    fn enable(&mut self) -> Result<(), Self::Error> {
+        if EMERGENCY.load(Ordering::SeqCst) {
+            return Err(SimPwmError::EmergencyOff);
+        }
+        BRIDGE_ON.store(true, Ordering::SeqCst);
+        Ok(())
+    }
+    fn disable(&mut self) {
+        BRIDGE_ON.store(false, Ordering::SeqCst);
+    }
+    fn is_enabled(&self) -> bool {
+        BRIDGE_ON.load(Ordering::SeqCst)
+    }
+}
+
+/// The emulated current ADC.
+pub struct SimCurrents {
+    offsets: Abc,
+}
+
+/// Error of the emulated ADC.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SimAdcError {
+    /// No new sample since the last read (the TIM2 "conversion" did not run).
+    NotReady,
+}
+
+fn latched() -> Option<Measurements> {
+    free(|cs| WORLD.borrow(cs).borrow().as_ref().and_then(|w| w.sample))
+}
+
+impl CurrentSense for SimCurrents {
+    type Error = SimAdcError;
+    fn read_currents(&mut self) -> Result<PhaseCurrents, Self::Error> {
+        let m = free(|cs| {
+            let mut w = WORLD.borrow(cs).borrow_mut();
+            match w.as_mut() {
+                Some(w) if w.fresh => {
+                    w.fresh = false;
+                    w.sample
+                }
+                _ => None,
+            }
+        })
+        .ok_or(SimAdcError::NotReady)?;
+        let o = self.offsets;
+        Ok(match m.currents {
+            PhaseCurrents::TwoPhase { a_a, b_a } => PhaseCurrents::TwoPhase {
+                a_a: a_a - o.a,
+                b_a: b_a - o.b,
+            },
+            PhaseCurrents::ThreePhase(i) => {
+                PhaseCurrents::ThreePhase(Abc::new(i.a - o.a, i.b - o.b, i.c - o.c))
+            }
+        })
+    }
+    fn offsets_a(&self) -> Abc {
+        self.offsets
+    }
+    fn set_offsets_a(&mut self, offsets: Abc) {
+        self.offsets = offsets;
+    }
+}
+
+/// The emulated encoder.
+pub struct SimAngle {
+    _private: (),
+}
+
+/// Error of the emulated encoder.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SimAngleError {
+    /// No sample yet.
+    NotReady,
+}
+
+impl AngleSensor for SimAngle {
+    type Error = SimAngleError;
+    fn read_angle(&mut self) -> Result<MechanicalAngle, Self::Error> {
+        latched().map(|m| m.angle).ok_or(SimAngleError::NotReady)
+    }
+}
+
+/// The emulated bus-voltage measurement.
+pub struct SimBus {
+    _private: (),
+}
+
+impl BusVoltage for SimBus {
+    type Error = SimAngleError;
+    fn read_bus_voltage_v(&mut self) -> Result<f32, Self::Error> {
+        latched().map(|m| m.v_bus_v).ok_or(SimAngleError::NotReady)
+    }
+}
+
+/// PWM driver type.
+pub type Pwm = SimPwm;
+/// Current-sense type.
+pub type Currents = SimCurrents;
+/// Angle-sensor type.
+pub type Angle = SimAngle;
+/// Bus-voltage type.
+pub type Bus = SimBus;
+
+/// The board's drivers.
+pub struct Board {
+    /// PWM stage.
+    pub pwm: Pwm,
+    /// Phase currents.
+    pub currents: Currents,
+    /// Encoder.
+    pub angle: Angle,
+    /// Bus voltage.
+    pub bus: Bus,
+    /// No LED.
+    pub led: Led,
+}
+
+/// Create the plant, start TIM2 as the period source, bridge off.
+///
+/// TIM2 (RM0090 section 18): prescaler to 1 MHz from QEMU's timer clock
+/// ([`QEMU_TIMER_CLOCK_HZ`]), auto-reload for [`EMULATED_PERIOD_US`],
+/// update interrupt enabled. Its
+/// NVIC priority stays 0 (the highest, above every RTIC task).
+pub fn init(dp: pac::Peripherals) -> Board {
+    free(|cs| {
+        WORLD.borrow(cs).replace(Some(World {
+            plant: Plant::new(SIM_MOTOR, sim_config()),
+            duties: [0.5; 3],
+            load_nm: 0.0,
+            sample: None,
+            fresh: false,
+        }))
+    });
+    BRIDGE_ON.store(false, Ordering::SeqCst);
+    // RCC_APB1ENR.TIM2EN (RM0090 7.3.13); harmless where RCC is not modelled.
+    dp.RCC.apb1enr().modify(|_, w| w.tim2en().set_bit());
+    let tim = &dp.TIM2;
+    tim.psc().write(|w| w.psc().set((QEMU_TIMER_CLOCK_HZ / 1_000_000 - 1) as u16));
+    tim.arr().write(|w| w.arr().set(EMULATED_PERIOD_US - 1));
+    tim.egr().write(|w| w.ug().set_bit());
+    tim.sr().write(|w| w.uif().clear_bit());
+    tim.dier().write(|w| w.uie().set_bit());
+    tim.cr1().write(|w| w.cen().set_bit());
+    // SAFETY: TIM2's handler below only touches the plant (inside a
+    // critical section) and pends ADC; unmasking it cannot break RTIC's
+    // resource locking because it shares no RTIC resource.
+    unsafe { cortex_m::peripheral::NVIC::unmask(pac::Interrupt::TIM2) };
+    Board {
+        pwm: SimPwm { _private: () },
+        currents: SimCurrents {
+            offsets: Abc::default(),
+        },
+        angle: SimAngle { _private: () },
+        bus: SimBus { _private: () },
+        led: Led::new(None),
+    }
+}
+
+/// Bridge off from any context (panic, HardFault); stays off until reset.
+pub fn emergency_disable() {
+    EMERGENCY.store(true, Ordering::SeqCst);
+    BRIDGE_ON.store(false, Ordering::SeqCst);
+}
+
+/// Nothing to acknowledge (no break input).
+pub fn break_isr_ack() {}
+
+/// No gate-driver fault pin.
+pub fn gate_driver_fault() -> bool {
+    false
+}
+
+/// The physics: one PWM period of the plant, then the "ADC" interrupt.
+#[interrupt]
+fn TIM2() {
+    // SAFETY: TIM2 is used only by this board module; clearing UIF
+    // (rc_w0, RM0090 18.4.5) has no other effect.
+    let tim = unsafe { &*pac::TIM2::ptr() };
+    tim.sr().write(|w| w.uif().clear_bit());
+    let on = BRIDGE_ON.load(Ordering::SeqCst);
+    free(|cs| {
+        if let Some(w) = WORLD.borrow(cs).borrow_mut().as_mut() {
+            let m = w.plant.step_period(w.duties, on, w.load_nm);
+            w.sample = Some(m);
+            w.fresh = true;
+        }
+    });
+    cortex_m::peripheral::NVIC::pend(CURRENT_IRQ);
+}
+
+/// The test harness's handle on the simulated world.
+pub mod sim {
+    use super::{free, Ordering, BRIDGE_ON, EMERGENCY, WORLD};
+    use foc_bench::plant::{EncoderFault, Phase, PhaseShort};
+
+    /// A fault to inject into the plant.
+    #[derive(Clone, Copy, Debug, PartialEq)]
+    pub enum SimFault {
+        /// Remove every injected fault.
+        None,
+        /// Phase A shorted to phase B at the motor terminals.
+        PhaseShort,
+        /// Phase B's current channel reads NaN.
+        NanCurrent,
+        /// The encoder jumps by this many counts.
+        EncoderJump(i32),
+        /// The encoder freezes.
+        EncoderStuck,
+        /// The supply drops by this many volts.
+        BusSag(f32),
+    }
+
+    /// The plant's true state (not what the sensors say).
+    #[derive(Clone, Copy, Debug, Default, PartialEq)]
+    pub struct Truth {
+        /// Mechanical speed [rad/s].
+        pub omega_m_rad_s: f32,
+        /// Mechanical position, unwrapped [rad].
+        pub position_rad: f32,
+        /// d and q currents [A].
+        pub id_a: f32,
+        /// q current [A].
+        pub iq_a: f32,
+        /// Shaft torque [N m].
+        pub torque_nm: f32,
+        /// True when the bridge conducted during the last period.
+        pub bridge_enabled: bool,
+        /// Simulated PWM periods so far.
+        pub periods: u64,
+        /// Simulated time [s].
+        pub time_s: f32,
+    }
+
+    /// Load torque opposing positive rotation [N m].
+    pub fn set_load_torque_nm(nm: f32) {
+        free(|cs| {
+            if let Some(w) = WORLD.borrow(cs).borrow_mut().as_mut() {
+                w.load_nm = nm;
+            }
+        });
+    }
+
+    /// Inject (or, with [`SimFault::None`], remove) a fault.
+    pub fn inject(f: SimFault) {
+        free(|cs| {
+            if let Some(w) = WORLD.borrow(cs).borrow_mut().as_mut() {
+                let faults = w.plant.faults_mut();
+                match f {
+                    SimFault::None => *faults = Default::default(),
+                    SimFault::PhaseShort => {
+                        faults.phase_short = Some(PhaseShort {
+                            a: Phase::A,
+                            b: Phase::B,
+                            r_ohm: 0.01,
+                        })
+                    }
+                    SimFault::NanCurrent => faults.nan_current = Some(Phase::B),
+                    SimFault::EncoderJump(n) => faults.encoder = EncoderFault::Jump(n),
+                    SimFault::EncoderStuck => faults.encoder = EncoderFault::Stuck,
+                    SimFault::BusSag(v) => faults.bus_sag_v = v as _,
+                }
+            }
+        });
+    }
+
+    /// The true state.
+    pub fn truth() -> Truth {
+        free(|cs| {
+            WORLD
+                .borrow(cs)
+                .borrow()
+                .as_ref()
+                .map(|w| Truth {
+                    omega_m_rad_s: w.plant.omega_m_rad_s() as f32,
+                    position_rad: w.plant.position_rad() as f32,
+                    id_a: w.plant.id_a() as f32,
+                    iq_a: w.plant.iq_a() as f32,
+                    torque_nm: w.plant.torque_nm() as f32,
+                    bridge_enabled: w.plant.bridge_enabled(),
+                    periods: w.plant.periods(),
+                    time_s: w.plant.time_s() as f32,
+                })
+                .unwrap_or_default()
+        })
+    }
+
+    /// True when the bridge outputs are commanded on.
+    pub fn outputs_on() -> bool {
+        BRIDGE_ON.load(Ordering::SeqCst)
+    }
+
+    /// True once `emergency_disable` has run.
+    pub fn emergency_latched() -> bool {
+        EMERGENCY.load(Ordering::SeqCst)
+    }
+}
