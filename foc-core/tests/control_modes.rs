@@ -81,13 +81,13 @@ impl Plant {
             let th = p * self.th_m;
             let (vd, vq) = if self.enabled {
                 let mean = (self.duties[0] + self.duties[1] + self.duties[2]) / 3.0;
-                let v = |k: usize| (self.duties[k] - mean) * V_BUS;
                 let offs = [0.0, 2.0 * PI / 3.0, -2.0 * PI / 3.0];
                 let mut vd = 0.0;
                 let mut vq = 0.0;
-                for k in 0..3 {
-                    vd += v(k) * (th - offs[k]).cos();
-                    vq -= v(k) * (th - offs[k]).sin();
+                for (d, o) in self.duties.iter().zip(offs) {
+                    let v = (d - mean) * V_BUS;
+                    vd += v * (th - o).cos();
+                    vq -= v * (th - o).sin();
                 }
                 (vd * 2.0 / 3.0, vq * 2.0 / 3.0)
             } else {

@@ -28,7 +28,9 @@ use crate::pac;
 use core::cell::RefCell;
 use core::sync::atomic::{AtomicBool, Ordering};
 use cortex_m::interrupt::{free, Mutex};
-use foc_bench::plant::{BenchConfig, Measurements, MotorParams, Plant, PwmMode, SensorConfig, Shunts};
+use foc_bench::plant::{
+    BenchConfig, Measurements, MotorParams, Plant, PwmMode, SensorConfig, Shunts,
+};
 use foc_core::angle::MechanicalAngle;
 use foc_core::frames::Abc;
 use foc_core::hal::{AngleSensor, BusVoltage, CurrentSense, PhaseCurrents, PwmDriver};
@@ -289,7 +291,8 @@ pub fn init(dp: pac::Peripherals) -> Board {
     // RCC_APB1ENR.TIM2EN (RM0090 7.3.13); harmless where RCC is not modelled.
     dp.RCC.apb1enr().modify(|_, w| w.tim2en().set_bit());
     let tim = &dp.TIM2;
-    tim.psc().write(|w| w.psc().set((QEMU_TIMER_CLOCK_HZ / 1_000_000 - 1) as u16));
+    tim.psc()
+        .write(|w| w.psc().set((QEMU_TIMER_CLOCK_HZ / 1_000_000 - 1) as u16));
     tim.arr().write(|w| w.arr().set(EMULATED_PERIOD_US - 1));
     tim.egr().write(|w| w.ug().set_bit());
     tim.sr().write(|w| w.uif().clear_bit());
