@@ -147,7 +147,12 @@ impl Mission {
         match self.step {
             Step::WaitStartup => {
                 if running {
-                    self.go(Step::Velocity, now, slot, Some(Command::Velocity { rad_s: 100.0 }));
+                    self.go(
+                        Step::Velocity,
+                        now,
+                        slot,
+                        Some(Command::Velocity { rad_s: 100.0 }),
+                    );
                 } else if t.time_s > 1.0 {
                     self.check(false, "start-up finished within 1 s");
                     return Some(EXIT_FAILED);
@@ -155,7 +160,8 @@ impl Mission {
             }
             Step::Velocity if elapsed >= periods(0.3) => {
                 self.check(
-                    (fb.velocity_rad_s - 100.0).abs() < 2.0 && (t.omega_m_rad_s - 100.0).abs() < 2.0,
+                    (fb.velocity_rad_s - 100.0).abs() < 2.0
+                        && (t.omega_m_rad_s - 100.0).abs() < 2.0,
                     "velocity 100 rad/s within 2 rad/s",
                 );
                 sim::set_load_torque_nm(0.1);
@@ -169,7 +175,12 @@ impl Mission {
                 sim::set_load_torque_nm(0.0);
                 self.target_rad = fb.position_rad + 30.0;
                 let target = self.target_rad;
-                self.go(Step::Position, now, slot, Some(Command::Position { rad: target }));
+                self.go(
+                    Step::Position,
+                    now,
+                    slot,
+                    Some(Command::Position { rad: target }),
+                );
             }
             Step::Position if self.panic_run && elapsed >= periods(0.2) => {
                 defmt::warn!("mission: forcing a panic during the move");
@@ -205,7 +216,12 @@ impl Mission {
                     "bridge still off until the explicit clear",
                 );
                 slot.request_clear();
-                self.go(Step::Recover, now, slot, Some(Command::Velocity { rad_s: 50.0 }));
+                self.go(
+                    Step::Recover,
+                    now,
+                    slot,
+                    Some(Command::Velocity { rad_s: 50.0 }),
+                );
             }
             Step::Recover if elapsed >= periods(0.4) => {
                 self.check(fb.faults.is_empty(), "fault cleared");
@@ -252,7 +268,10 @@ pub fn panic_exit() -> ! {
     let t = sim::truth();
     let safe = !sim::outputs_on() && !t.bridge_enabled && sim::emergency_latched();
     if safe {
-        defmt::info!("panic: bridge in the safe state ({=u64} periods later)", t.periods - start);
+        defmt::info!(
+            "panic: bridge in the safe state ({=u64} periods later)",
+            t.periods - start
+        );
         exit(EXIT_PANIC_SAFE)
     } else {
         defmt::error!("panic: bridge NOT in the safe state");
