@@ -23,7 +23,7 @@ pub struct Board {
 }
 
 /// All boards, the default one first.
-pub const BOARDS: [Board; 3] = [
+pub const BOARDS: [Board; 4] = [
     Board {
         name: "nucleo-f446re-ihm07m1",
         feature: "nucleo-f446re-ihm07m1",
@@ -42,8 +42,15 @@ pub const BOARDS: [Board; 3] = [
         name: "odrive-v3",
         feature: "odrive-v3",
         chip: "STM32F405RGTx",
-        qemu: true,
+        qemu: false,
         description: "ODrive v3.x (STM32F405)",
+    },
+    Board {
+        name: "qemu",
+        feature: "qemu",
+        chip: "STM32F405RGTx",
+        qemu: true,
+        description: "emulated: QEMU netduinoplus2 (STM32F405) + simulated motor",
     },
 ];
 

@@ -12,6 +12,7 @@ use crate::build::{self, Profile};
 use crate::sim;
 use crate::toolchain;
 use crate::util::{banner, cargo, fmt_duration, run, Error, Result, THUMB_TARGET};
+use crate::{bench, qemu};
 
 /// The host crates (the workspace's default members): everything but the
 /// thumb-only firmware.
@@ -114,6 +115,18 @@ pub fn steps() -> Vec<Step> {
             move || build::build_board(board, Profile::Release).map(|_| ()),
         ));
     }
+
+    // The real firmware binary on an emulated Cortex-M4F against the plant:
+    // scripted mission, then a forced panic that must leave the bridge safe.
+    steps.push(Step::new(
+        "firmware in the loop under QEMU (cargo xtask qemu)",
+        || qemu::run_cmd(&qemu::QemuArgs::default()),
+    ));
+    // Exact instruction counts (reported, not enforced).
+    steps.push(Step::new(
+        "instruction counts under QEMU (cargo xtask bench)",
+        bench::run_cmd,
+    ));
 
     steps
 }

@@ -4,10 +4,12 @@
 //! dispatches. To add a subcommand: a module with its `Args` and a `run_cmd`,
 //! a variant in [`Command`], and its arm in [`main`].
 
+mod bench;
 mod boards;
 mod build;
 mod check;
 mod dyno;
+mod qemu;
 mod sim;
 mod size;
 mod toolchain;
@@ -50,6 +52,10 @@ enum Command {
     /// Simulated dynamometer sweep: Performance Curve Report (CSV, Markdown,
     /// SVG) in out/dyno.
     Dyno(dyno::DynoArgs),
+    /// Firmware in the loop under QEMU: scripted mission + forced-panic run.
+    Qemu(qemu::QemuArgs),
+    /// Exact instruction counts of the control code under QEMU.
+    Bench,
 }
 
 fn main() -> ExitCode {
@@ -63,6 +69,8 @@ fn main() -> ExitCode {
             .and_then(|()| toolchain::print_versions()),
         Command::Sim(args) => sim::run_cmd(args),
         Command::Dyno(args) => dyno::run_cmd(args),
+        Command::Qemu(args) => qemu::run_cmd(args),
+        Command::Bench => bench::run_cmd(),
         Command::Boards => {
             list_boards();
             Ok(())

@@ -327,13 +327,8 @@ pub fn gate_driver_fault() -> bool {
     false
 }
 
-/// The physics: one PWM period of the plant, then the "ADC" interrupt.
-#[interrupt]
-fn TIM2() {
-    // SAFETY: TIM2 is used only by this board module; clearing UIF
-    // (rc_w0, RM0090 18.4.5) has no other effect.
-    let tim = unsafe { &*pac::TIM2::ptr() };
-    tim.sr().write(|w| w.uif().clear_bit());
+/// Advance the plant by one PWM period and latch its sample.
+fn step_physics() {
     let on = BRIDGE_ON.load(Ordering::SeqCst);
     free(|cs| {
         if let Some(w) = WORLD.borrow(cs).borrow_mut().as_mut() {
@@ -342,6 +337,16 @@ fn TIM2() {
             w.fresh = true;
         }
     });
+}
+
+/// The physics: one PWM period of the plant, then the "ADC" interrupt.
+#[interrupt]
+fn TIM2() {
+    // SAFETY: TIM2 is used only by this board module; clearing UIF
+    // (rc_w0, RM0090 18.4.5) has no other effect.
+    let tim = unsafe { &*pac::TIM2::ptr() };
+    tim.sr().write(|w| w.uif().clear_bit());
+    step_physics();
     cortex_m::peripheral::NVIC::pend(CURRENT_IRQ);
 }
 
@@ -428,17 +433,28 @@ pub mod sim {
                 .borrow()
                 .as_ref()
                 .map(|w| Truth {
-                    omega_m_rad_s: w.plant.omega_m_rad_s() as f32,
-                    position_rad: w.plant.position_rad() as f32,
-                    id_a: w.plant.id_a() as f32,
-                    iq_a: w.plant.iq_a() as f32,
-                    torque_nm: w.plant.torque_nm() as f32,
+                    omega_m_rad_s: w.plant.omega_m_rad_s(),
+                    position_rad: w.plant.position_rad(),
+                    id_a: w.plant.id_a(),
+                    iq_a: w.plant.iq_a(),
+                    torque_nm: w.plant.torque_nm(),
                     bridge_enabled: w.plant.bridge_enabled(),
                     periods: w.plant.periods(),
                     time_s: w.plant.time_s() as f32,
                 })
                 .unwrap_or_default()
         })
+    }
+
+    /// Advance the plant one period by hand (for benchmarks that run with
+    /// TIM2 masked) and latch a fresh sample; does not pend the ADC task.
+    pub fn step_physics() {
+        super::step_physics();
+    }
+
+    /// Stop the period source (TIM2 interrupt masked), for benchmarks.
+    pub fn stop_period_source() {
+        cortex_m::peripheral::NVIC::mask(crate::pac::Interrupt::TIM2);
     }
 
     /// True when the bridge outputs are commanded on.

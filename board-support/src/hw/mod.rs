@@ -104,6 +104,7 @@ pub fn cycle_count() -> u32 {
 }
 
 /// Enable the DWT cycle counter (trace enable in DEMCR, then CYCCNTENA).
+#[cfg_attr(feature = "qemu", allow(dead_code))]
 pub(crate) fn enable_cycle_counter() {
     // SAFETY: only sets enable bits in DEMCR / DWT_CTRL (ARMv7-M ARM C1.6.5,
     // C1.8.7); harmless for any other user of the DWT (e.g. profiling).
