@@ -723,11 +723,8 @@ pub fn align(sim: &mut Sim, setup: &Setup) -> (ElectricalAngle, f64) {
     let i_align = (0.3 * setup.rated_current_a).min(0.5 * setup.max_current_a);
     let v_align = (setup.motor.r_ohm as f32 * i_align).max(0.05);
     for theta_deg in [90.0f32, 0.0] {
-        // A new open-loop command while in open loop keeps the running angle
-        // (foc-core `CurrentStage::accept`): leave open loop for one period so
-        // that the new `theta_e` is taken.
-        sim.cascade.command(Command::Disable).ok();
-        sim.step();
+        // A new open-loop command with a different `theta_e` moves the
+        // field there at once (no detour through the safe state).
         sim.cascade
             .command(Command::OpenLoop {
                 v_d_v: v_align,

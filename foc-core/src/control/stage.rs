@@ -181,8 +181,18 @@ impl CurrentStage {
         let (old, new) = (self.active.mode(), cmd.mode());
         match (old, new) {
             (_, Mode::OpenLoop) => {
+                // Entering open loop starts at the command's angle. A new
+                // open-loop command while in open loop takes its angle when
+                // that differs from the previous command's (re-positioning,
+                // e.g. the second step of an alignment); one that only
+                // changes the voltage or the speed keeps the running angle,
+                // so a spinning field stays continuous.
                 if let Command::OpenLoop { theta_e, .. } = cmd {
-                    if old != Mode::OpenLoop {
+                    let keep = matches!(
+                        self.active,
+                        Command::OpenLoop { theta_e: prev, .. } if prev == theta_e
+                    );
+                    if !keep {
                         self.ol_theta = theta_e;
                     }
                 }
@@ -475,5 +485,87 @@ impl PositionStage {
         };
         self.last_mode = fb.mode;
         w
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::control::cascade::CascadeConfig;
+    use crate::control::MotorParams;
+
+    fn config() -> CurrentStageConfig {
+        let motor = MotorParams {
+            pole_pairs: 7,
+            r_ohm: 0.2,
+            ld_h: 100e-6,
+            lq_h: 100e-6,
+            flux_linkage_wb: 0.005,
+        };
+        CascadeConfig::for_motor(motor, 20_000.0, 10.0).current
+    }
+
+    fn sample() -> Sample {
+        Sample {
+            currents: Some(PhaseCurrents::TwoPhase { a_a: 0.0, b_a: 0.0 }),
+            angle: Some(MechanicalAngle::ZERO),
+            v_bus_v: Some(24.0),
+            temperature_c: None,
+        }
+    }
+
+    fn open_loop(v_d_v: f32, theta_deg: f32, omega_e_rad_s: f32) -> Command {
+        Command::OpenLoop {
+            v_d_v,
+            v_q_v: 0.0,
+            theta_e: ElectricalAngle::from_degrees(theta_deg),
+            omega_e_rad_s,
+        }
+    }
+
+    fn deg(a: ElectricalAngle) -> f32 {
+        a.to_signed_radians().to_degrees()
+    }
+
+    /// A second open-loop command with a new angle moves the field there at
+    /// once (it used to keep running from the old angle).
+    #[test]
+    fn open_loop_takes_a_new_angle_while_in_open_loop() {
+        let mut st = CurrentStage::new(config());
+        let mut slot = CommandSlot::INIT;
+        slot.post(open_loop(1.0, 90.0, 0.0));
+        let (_, fb) = st.step(&slot, 0.0, &sample());
+        assert!((deg(fb.theta_e) - 90.0).abs() < 1e-3);
+        slot.post(open_loop(1.0, 0.0, 0.0));
+        let (_, fb) = st.step(&slot, 0.0, &sample());
+        assert!(deg(fb.theta_e).abs() < 1e-3, "at {} deg", deg(fb.theta_e));
+        // Same angle again, other voltage: nothing to re-position.
+        slot.post(open_loop(2.0, 0.0, 0.0));
+        let (_, fb) = st.step(&slot, 0.0, &sample());
+        assert!(deg(fb.theta_e).abs() < 1e-3);
+    }
+
+    /// A command that changes only the voltage or the speed of a spinning
+    /// field keeps the running angle (continuous rotation).
+    #[test]
+    fn open_loop_voltage_change_keeps_the_running_angle() {
+        let mut st = CurrentStage::new(config());
+        let mut slot = CommandSlot::INIT;
+        let w = 1000.0; // rad/s electrical: 0.05 rad per period
+        slot.post(open_loop(1.0, 0.0, w));
+        let mut last = ElectricalAngle::ZERO;
+        for _ in 0..10 {
+            last = st.step(&slot, 0.0, &sample()).1.theta_e;
+        }
+        for cmd in [open_loop(1.5, 0.0, w), open_loop(1.5, 0.0, 1.2 * w)] {
+            slot.post(cmd);
+            let th = st.step(&slot, 0.0, &sample()).1.theta_e;
+            let step = th.diff_radians(last);
+            assert!(
+                (step - w / 20_000.0).abs() < 1e-3 * w / 20_000.0 + 1e-6,
+                "jumped by {step} rad"
+            );
+            last = th;
+        }
     }
 }
