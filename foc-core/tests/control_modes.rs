@@ -372,6 +372,36 @@ fn fault_latches_until_cleared_and_rejects_commands() {
     run(&mut c, &mut p, 5, |_, p| assert!(p.enabled));
 }
 
+/// A command posted right after `clear_faults` (the clear not yet taken
+/// effect) is accepted: the next step clears, then runs the command.
+#[test]
+fn command_after_a_pending_clear_is_accepted() {
+    let (mut c, _) = fault_with(|s| s.v_bus_v = Some(40.0));
+    let mut p = Plant::new(0.0);
+    p.j = 1.0;
+    run(&mut c, &mut p, 3, |_, _| {});
+    assert!(c.feedback().first_fault.is_some());
+    c.clear_faults();
+    assert_eq!(c.command(Command::Torque { iq_a: 1.0 }), Ok(()));
+    let b = c.step(&p.sample());
+    assert!(matches!(b, BridgeCommand::Duties(_)), "{b:?}");
+    assert!(c.feedback().faults.is_empty());
+    assert_eq!(c.feedback().active, Command::Torque { iq_a: 1.0 });
+    // Once the clear is consumed, a new fault refuses commands again.
+    c.report_fault(Fault::LoopOverrun);
+    assert_eq!(
+        c.command(Command::Torque { iq_a: 1.0 }),
+        Err(CommandError::Faulted)
+    );
+    // A fault that persists trips again in the very step of the clear.
+    c.clear_faults();
+    c.command(Command::Torque { iq_a: 1.0 }).unwrap();
+    let mut s = p.sample();
+    s.v_bus_v = Some(40.0);
+    assert_eq!(c.step(&s), BridgeCommand::SafeState);
+    assert_eq!(c.feedback().first_fault, Some(Fault::BusOverVoltage));
+}
+
 #[test]
 fn overrun_and_command_timeout() {
     let (mut c, mut p) = (cascade(), Plant::new(0.0));

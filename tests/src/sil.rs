@@ -25,8 +25,8 @@
 //!   mechanical rad, multi-turn), `open_loop` (`v_d`, `v_q` [V], `theta_e`
 //!   [rad], `omega_e` [rad/s], each default 0).
 //! - `clear_faults` (optional): clear latched faults in this period; a
-//!   command on the same line is then posted after the clear and acts from
-//!   the next period (if the fault condition persists it trips again).
+//!   command on the same line is taken right after the clear and acts in
+//!   this same period (if the fault condition persists it trips again).
 //!
 //! Output (one JSON object per input line):
 //!
@@ -68,7 +68,7 @@
 use foc_core::angle::{ElectricalAngle, MechanicalAngle};
 use foc_core::control::cascade::{Cascade, CascadeConfig};
 use foc_core::control::stage::Sample;
-use foc_core::control::{BridgeCommand, Command, CommandError, Mode};
+use foc_core::control::{BridgeCommand, Command, Mode};
 use foc_core::frames::Abc;
 use foc_core::hal::PhaseCurrents;
 use serde::Deserialize;
@@ -170,8 +170,7 @@ impl SilRunner {
             2 | 3 => Ok(l),
             n => Err(format!("bad input line: `i_abc` has {n} values (2 or 3)")),
         });
-        let mut deferred = None;
-        let (sample, t, mut error) = match parsed {
+        let (sample, t, error) = match parsed {
             Err(e) => (
                 Sample {
                     currents: None,
@@ -189,15 +188,11 @@ impl SilRunner {
                 let mut error = None;
                 if let Some(c) = &l.cmd {
                     match command_of(c) {
+                        // After `clear_faults` above the cascade accepts the
+                        // command: its step clears first, then takes it.
                         Ok(cmd) => {
-                            match self.cascade.command(cmd) {
-                                Ok(()) => {}
-                                // The clear acts in this period's step: post
-                                // the command right after it.
-                                Err(CommandError::Faulted) if l.clear_faults => {
-                                    deferred = Some(cmd)
-                                }
-                                Err(e) => error = Some(format!("command refused: {e:?}")),
+                            if let Err(e) = self.cascade.command(cmd) {
+                                error = Some(format!("command refused: {e:?}"));
                             }
                         }
                         Err(e) => error = Some(format!("command refused: {e}")),
@@ -219,11 +214,6 @@ impl SilRunner {
             }
         };
         let bridge = self.cascade.step(&sample);
-        if let Some(cmd) = deferred {
-            if let Err(e) = self.cascade.command(cmd) {
-                error = Some(format!("command refused: {e:?}"));
-            }
-        }
         let fb = *self.cascade.feedback();
         let (duties, on) = match bridge {
             BridgeCommand::SafeState => ([0.5f32; 3], false),

@@ -100,6 +100,9 @@ fn sil_binary_closes_the_loop_and_survives_bad_lines() {
     ));
     assert!(out["fault"].is_null(), "{out}");
     assert!(out["error"].is_null(), "{out}");
+    // Cleared and commanded in the same period.
+    assert_eq!(out["mode"], "torque", "{out}");
+    assert_eq!(out["bridge"], true);
     let out = exchange(&line_of(&m, ""));
     assert_eq!(out["mode"], "torque", "{out}");
     assert_eq!(out["bridge"], true);

@@ -141,8 +141,16 @@ impl Cascade {
     }
 
     /// Post a command (validated now; the current stage re-checks it).
+    ///
+    /// While a fault is latched only `Disable` is accepted, unless a clear
+    /// is pending ([`Self::clear_faults`] not yet taken effect): the current
+    /// stage performs the clear first and then takes the command, in the
+    /// same step (if the fault condition persists it trips again at once).
     pub fn command(&mut self, cmd: Command) -> Result<(), CommandError> {
-        if self.current.supervisor().is_faulted() && cmd != Command::Disable {
+        if self.current.supervisor().is_faulted()
+            && cmd != Command::Disable
+            && !self.current.clear_pending(&self.slot)
+        {
             return Err(CommandError::Faulted);
         }
         cmd.validate(&self.current.config().limits)?;

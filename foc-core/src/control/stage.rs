@@ -159,6 +159,13 @@ impl CurrentStage {
         self.active = Command::Disable;
     }
 
+    /// True when `slot` requests a fault clear this stage has not yet
+    /// performed (it does so at the start of its next step, before it
+    /// looks at the command).
+    pub fn clear_pending(&self, slot: &CommandSlot) -> bool {
+        slot.clear_seq != self.last_clear_seq
+    }
+
     /// Commands refused so far (invalid, or sent while faulted).
     pub fn rejected_commands(&self) -> u32 {
         self.rejected
