@@ -8,9 +8,12 @@
 
 use core::f32::consts::{PI, TAU};
 use foc_core::angle::{ElectricalAngle, MechanicalAngle};
+use foc_core::calibration::Calibrated;
 use foc_core::control::cascade::{Cascade, CascadeConfig};
-use foc_core::control::stage::{Sample, TimeoutReaction};
-use foc_core::control::{BridgeCommand, Command, CommandError, Fault, Mode, MotorParams};
+use foc_core::control::stage::{CurrentStage, Sample, TimeoutReaction};
+use foc_core::control::{
+    BridgeCommand, Command, CommandError, CommandSlot, Fault, Mode, MotorParams,
+};
 use foc_core::frames::Abc;
 use foc_core::hal::PhaseCurrents;
 use proptest::prelude::*;
@@ -123,11 +126,27 @@ impl Plant {
     }
 }
 
-fn cascade() -> Cascade {
+fn config() -> CascadeConfig {
     let mut c = CascadeConfig::for_motor_with_inertia(motor(), PWM_HZ, 8.0, 2e-5);
     c.position.max_velocity_rad_s = 60.0;
     c.position.max_acceleration_rad_s2 = 2000.0;
-    Cascade::new(c)
+    c
+}
+
+/// The plant's sensor reads the rotor's d axis: the configuration's zero
+/// offset is exact, supplied as the calibration.
+fn permit(c: &CascadeConfig) -> Calibrated {
+    Calibrated::supplied(c.current.angle, c.current.current).unwrap()
+}
+
+fn calibrated(c: CascadeConfig) -> Cascade {
+    let mut cascade = Cascade::new(c);
+    cascade.set_calibration(&permit(&c));
+    cascade
+}
+
+fn cascade() -> Cascade {
+    calibrated(config())
 }
 
 /// Run `periods` periods; the duties computed from the sample of period k
@@ -410,10 +429,10 @@ fn overrun_and_command_timeout() {
     c.report_fault(Fault::LoopOverrun);
     assert_eq!(c.step(&p.sample()), BridgeCommand::SafeState);
 
-    let mut cfg = *cascade().config();
+    let mut cfg = config();
     cfg.current.command_timeout_periods = 100;
     cfg.current.timeout_reaction = TimeoutReaction::Disable;
-    let mut c = Cascade::new(cfg);
+    let mut c = calibrated(cfg);
     let mut p = Plant::new(0.0);
     c.command(Command::Velocity { rad_s: 20.0 }).unwrap();
     run(&mut c, &mut p, 100, |_, p| assert!(p.enabled));
@@ -421,12 +440,102 @@ fn overrun_and_command_timeout() {
     assert_eq!(c.feedback().first_fault, Some(Fault::CommandTimeout));
 
     cfg.current.timeout_reaction = TimeoutReaction::Stop;
-    let mut c = Cascade::new(cfg);
+    let mut c = calibrated(cfg);
     let mut p = Plant::new(0.0);
     c.command(Command::Velocity { rad_s: 50.0 }).unwrap();
     run(&mut c, &mut p, 2000, |_, _| {});
     assert_eq!(c.feedback().active, Command::Velocity { rad_s: 0.0 });
     assert!(c.feedback().faults.is_empty());
+}
+
+/// Without a calibration permit the closed-loop modes are locked (refused
+/// by the cascade and by the stage itself), open loop and disable are not;
+/// the permit unlocks them, a hand-set angle calibration locks them again.
+#[test]
+fn closed_loop_needs_a_calibration_permit() {
+    let cfg = config();
+    let mut c = Cascade::new(cfg);
+    assert!(!c.is_calibrated());
+    for cmd in [
+        Command::Torque { iq_a: 1.0 },
+        Command::Velocity { rad_s: 10.0 },
+        Command::Position { rad: 1.0 },
+    ] {
+        assert_eq!(c.command(cmd), Err(CommandError::NotCalibrated), "{cmd:?}");
+    }
+    let mut p = Plant::new(0.0);
+    p.j = 1.0;
+    let ol = Command::OpenLoop {
+        v_d_v: 0.5,
+        v_q_v: 0.0,
+        theta_e: ElectricalAngle::ZERO,
+        omega_e_rad_s: 0.0,
+    };
+    c.command(ol).unwrap();
+    run(&mut c, &mut p, 5, |c, p| {
+        assert!(p.enabled);
+        assert_eq!(c.feedback().mode, Mode::OpenLoop);
+    });
+    c.command(Command::Disable).unwrap();
+    run(&mut c, &mut p, 2, |_, p| assert!(!p.enabled));
+
+    // The stage refuses too when a closed-loop command reaches it directly
+    // (the firmware's command slot does not go through `Cascade::command`).
+    let mut stage = CurrentStage::new(cfg.current);
+    let mut slot = CommandSlot::INIT;
+    slot.post(Command::Torque { iq_a: 1.0 });
+    let (b, fb) = stage.step(&slot, 0.0, &p.sample());
+    assert_eq!(b, BridgeCommand::SafeState);
+    assert_eq!(fb.mode, Mode::Disabled);
+    assert_eq!(stage.rejected_commands(), 1);
+    permit(&cfg).apply_to(&mut stage);
+    slot.post(Command::Torque { iq_a: 1.0 });
+    let (b, fb) = stage.step(&slot, 0.0, &p.sample());
+    assert!(matches!(b, BridgeCommand::Duties(_)));
+    assert_eq!(fb.mode, Mode::Torque);
+
+    // With the permit: unlocked.
+    c.set_calibration(&permit(&cfg));
+    assert!(c.is_calibrated());
+    c.command(Command::Torque { iq_a: 1.0 }).unwrap();
+    run(&mut c, &mut p, 5, |c, p| {
+        assert!(p.enabled);
+        assert_eq!(c.feedback().mode, Mode::Torque);
+    });
+    // A hand-set angle calibration revokes it: bridge off, locked again.
+    let mut angle = cfg.current.angle;
+    angle.zero_offset = ElectricalAngle::from_degrees(30.0);
+    c.current.set_angle_calibration(angle);
+    assert!(!c.is_calibrated());
+    run(&mut c, &mut p, 1, |c, p| {
+        assert!(!p.enabled);
+        assert_eq!(c.feedback().mode, Mode::Disabled);
+    });
+    assert_eq!(
+        c.command(Command::Velocity { rad_s: 1.0 }),
+        Err(CommandError::NotCalibrated)
+    );
+}
+
+/// Uncalibrated, a command timeout in open loop cannot stop or hold (both
+/// closed-loop): it disables with `CommandTimeout`.
+#[test]
+fn timeout_in_open_loop_without_calibration_disables() {
+    let mut cfg = config();
+    cfg.current.command_timeout_periods = 10;
+    cfg.current.timeout_reaction = TimeoutReaction::Stop;
+    let mut c = Cascade::new(cfg);
+    let mut p = Plant::new(0.0);
+    c.command(Command::OpenLoop {
+        v_d_v: 0.5,
+        v_q_v: 0.0,
+        theta_e: ElectricalAngle::ZERO,
+        omega_e_rad_s: 10.0,
+    })
+    .unwrap();
+    run(&mut c, &mut p, 12, |_, _| {});
+    assert_eq!(c.feedback().first_fault, Some(Fault::CommandTimeout));
+    assert!(!p.enabled);
 }
 
 #[test]

@@ -35,6 +35,7 @@ use crate::motor_file::{MotorFile, MotorFileError};
 use crate::plant::{self, BenchConfig, Measurements, Mechanics, Plant};
 use crate::report::{Panel, Trace};
 use foc_core::angle::{ElectricalAngle, MechanicalAngle};
+use foc_core::calibration::Calibrated;
 use foc_core::control::cascade::{Cascade, CascadeConfig};
 use foc_core::control::stage::{AngleCalibration, Sample};
 use foc_core::control::{BridgeCommand, Command, Mode};
@@ -140,6 +141,30 @@ impl Setup {
     }
 }
 
+impl Setup {
+    /// The angle calibration that is exact for this bench: the plant's
+    /// encoder offset is known here (the mission itself *finds* it with
+    /// [`align`] instead).
+    pub fn true_angle_calibration(&self) -> AngleCalibration {
+        let pp = self.motor.pole_pairs;
+        AngleCalibration {
+            pole_pairs: pp,
+            zero_offset: MechanicalAngle::from_radians(
+                -(self.bench.sensors.encoder_offset_rad as f32),
+            )
+            .to_electrical(pp),
+            reversed: false,
+        }
+    }
+
+    /// A calibration permit supplied from the bench's knowledge: the exact
+    /// angle calibration and `config`'s current-loop configuration.
+    pub fn supplied_calibration(&self, config: &CascadeConfig) -> Calibrated {
+        Calibrated::supplied(self.true_angle_calibration(), config.current.current)
+            .expect("plausible motor file")
+    }
+}
+
 /// The controller's view of one plant sample.
 pub fn sample_of(m: &Measurements) -> Sample {
     Sample {
@@ -193,7 +218,18 @@ pub struct Sim {
 }
 
 impl Sim {
-    /// New simulation (bridge off, first sample taken), optionally recording a trace.
+    /// New simulation with the controller calibrated from the bench's
+    /// knowledge ([`Setup::supplied_calibration`]), ready for closed loop.
+    pub fn new_calibrated(setup: &Setup, config: CascadeConfig, record: bool) -> Self {
+        let mut sim = Self::new(setup, config, record);
+        sim.cascade
+            .set_calibration(&setup.supplied_calibration(&config));
+        sim
+    }
+
+    /// New simulation (bridge off, first sample taken), optionally recording
+    /// a trace. The controller is uncalibrated (open loop only) until
+    /// [`align`] or `cascade.set_calibration`.
     pub fn new(setup: &Setup, config: CascadeConfig, record: bool) -> Self {
         let mut plant = Plant::new(setup.motor, setup.bench);
         let last = plant.step_period([0.5; 3], false, 0.0);
@@ -716,7 +752,8 @@ fn mean(x: &[f64]) -> f64 {
 /// current through R) at `theta_e = 90 deg`, then at `0 deg`, each until the
 /// encoder reading has been still for 0.1 s (at most 0.6 s). The reading
 /// there, scaled by the pole pairs, is the calibration's `zero_offset`; it is
-/// installed in the controller, which is then disabled. Returns the offset
+/// installed in the controller as a [`Calibrated`] permit (with the
+/// configured current loop), which is then disabled. Returns the offset
 /// found and its error against the plant's true encoder offset [deg, electrical].
 pub fn align(sim: &mut Sim, setup: &Setup) -> (ElectricalAngle, f64) {
     let pp = setup.motor.pole_pairs;
@@ -747,14 +784,18 @@ pub fn align(sim: &mut Sim, setup: &Setup) -> (ElectricalAngle, f64) {
         }
     }
     let found = sim.last_sample().angle.to_electrical(pp);
-    let truth = MechanicalAngle::from_radians(-(setup.bench.sensors.encoder_offset_rad as f32))
-        .to_electrical(pp);
+    let truth = setup.true_angle_calibration().zero_offset;
     let error_deg = found.diff_radians(truth).to_degrees() as f64;
-    sim.cascade.current.set_angle_calibration(AngleCalibration {
+    let angle = AngleCalibration {
         pole_pairs: pp,
         zero_offset: found,
         reversed: false,
-    });
+    };
+    // The alignment result plus the configured current loop: the permit
+    // for the closed-loop segments.
+    let permit = Calibrated::supplied(angle, sim.cascade.config().current.current)
+        .expect("plausible calibration");
+    sim.cascade.set_calibration(&permit);
     sim.cascade.command(Command::Disable).ok();
     sim.run(secs(setup, 0.02));
     (found, error_deg)
@@ -1017,7 +1058,7 @@ pub fn run_mission(setup: &Setup, progress: &mut dyn FnMut(f64)) -> MissionResul
 pub fn bench_speed(setup: &Setup, seconds: f64) -> (f64, f64) {
     let config = setup.cascade_config();
     // Controller alone, torque mode, on a real sample.
-    let mut sim = Sim::new(setup, config, false);
+    let mut sim = Sim::new_calibrated(setup, config, false);
     sim.cascade
         .command(Command::Torque {
             iq_a: 0.1 * setup.rated_current_a,
@@ -1040,7 +1081,7 @@ pub fn bench_speed(setup: &Setup, seconds: f64) -> (f64, f64) {
     std::hint::black_box(acc);
     let ctrl = n as f64 / t.elapsed().as_secs_f64();
     // Plant + controller, velocity mode.
-    let mut sim = Sim::new(setup, config, false);
+    let mut sim = Sim::new_calibrated(setup, config, false);
     sim.cascade
         .command(Command::Velocity {
             rad_s: 0.2 * setup.max_speed_rad_s(),

@@ -51,13 +51,21 @@
 //! Frame: phase A's axis at electrical angle 0, positive rotation
 //! A -> B -> C, `theta_e = p theta_m - zero_offset`.
 //!
+//! Calibration: closed-loop commands (`torque`, `velocity`, `position`) need
+//! a calibration permit ([`SilRunner::with_calibration`]); without one they
+//! are refused with `NotCalibrated` and only `disable` and `open_loop` run.
+//!
 //! ```
 //! use foc_bench::sil::SilRunner;
+//! use foc_core::calibration::Calibrated;
 //! use foc_bench::mission::Setup;
 //! use foc_bench::plant::{BenchConfig, MotorParams};
 //! let setup = Setup { name: "x".into(), motor: MotorParams::example(), bench: BenchConfig::default(),
 //!                     rated_current_a: 5.0, max_current_a: 10.0 };
-//! let mut sil = SilRunner::new(setup.cascade_config());
+//! let config = setup.cascade_config();
+//! // The calibration is supplied (here: the encoder reads the d axis).
+//! let permit = Calibrated::supplied(config.current.angle, config.current.current).unwrap();
+//! let mut sil = SilRunner::with_calibration(config, &permit);
 //! let (out, err) = sil.line(r#"{"t":0,"i_abc":[0,0,0],"v_bus":24,"theta_m":0,"cmd":{"mode":"torque","target":1}}"#);
 //! assert!(err.is_none());
 //! assert!(out.contains(r#""mode":"torque""#));
@@ -66,6 +74,7 @@
 //! ```
 
 use foc_core::angle::{ElectricalAngle, MechanicalAngle};
+use foc_core::calibration::Calibrated;
 use foc_core::control::cascade::{Cascade, CascadeConfig};
 use foc_core::control::stage::Sample;
 use foc_core::control::{BridgeCommand, Command, Mode};
@@ -147,12 +156,21 @@ pub struct SilRunner {
 }
 
 impl SilRunner {
-    /// A runner with this controller configuration (disabled, no fault).
+    /// A runner with this controller configuration (disabled, no fault),
+    /// uncalibrated: open loop only, closed-loop commands are refused
+    /// (`NotCalibrated`).
     pub fn new(config: CascadeConfig) -> Self {
         Self {
             cascade: Cascade::new(config),
             lines: 0,
         }
+    }
+
+    /// A runner with a calibration permit installed (closed loop allowed).
+    pub fn with_calibration(config: CascadeConfig, calibration: &Calibrated) -> Self {
+        let mut r = Self::new(config);
+        r.cascade.set_calibration(calibration);
+        r
     }
 
     /// The controller.

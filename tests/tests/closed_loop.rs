@@ -43,7 +43,7 @@ fn current_step(name: &str, pwm_hz: f64) -> (f64, Option<usize>) {
     let (l, r) = (s.motor.lq_h as f32, s.motor.r_ohm as f32);
     assert!((g.kp_v_per_a - l / (3.0 * ts)).abs() <= 1e-4 * g.kp_v_per_a);
     assert!((g.ki_v_per_a_s - r / (3.0 * ts)).abs() <= 1e-4 * g.ki_v_per_a_s);
-    let mut sim = Sim::new(&s, config, true);
+    let mut sim = Sim::new_calibrated(&s, config, true);
     sim.plant.set_mechanics(Mechanics::Locked);
     sim.cascade.command(Command::Torque { iq_a: 0.0 }).unwrap();
     sim.run(20);
@@ -106,7 +106,7 @@ fn q_current_step_fast_electrical_time_constant() {
 
 fn running(name: &str, w: f32) -> Sim {
     let s = setup(name);
-    let mut sim = Sim::new(&s, s.cascade_config(), false);
+    let mut sim = Sim::new_calibrated(&s, s.cascade_config(), false);
     sim.cascade.command(Command::Velocity { rad_s: w }).unwrap();
     sim.run((0.4 * s.bench.pwm_frequency_hz) as usize);
     assert!(
@@ -125,7 +125,7 @@ fn running(name: &str, w: f32) -> Sim {
 fn speed_step_and_load_rejection() {
     let s = setup("gl80-kv30.toml");
     let f = s.bench.pwm_frequency_hz;
-    let mut sim = Sim::new(&s, s.cascade_config(), true);
+    let mut sim = Sim::new_calibrated(&s, s.cascade_config(), true);
     let w = 20.0f32;
     sim.cascade.command(Command::Velocity { rad_s: w }).unwrap();
     sim.run((0.4 * f) as usize);
@@ -165,7 +165,7 @@ fn position_move_reaches_target() {
     let s = setup("gl80-kv30.toml");
     let f = s.bench.pwm_frequency_hz;
     let config = s.cascade_config();
-    let mut sim = Sim::new(&s, config, false);
+    let mut sim = Sim::new_calibrated(&s, config, false);
     sim.cascade.command(Command::Position { rad: 0.0 }).unwrap();
     sim.run((0.05 * f) as usize);
     let p0 = sim.true_position_rad();

@@ -120,3 +120,29 @@ fn sil_binary_closes_the_loop_and_survives_bad_lines() {
     assert!(err.contains("line 301: bad input line"), "{err}");
     assert!(err.contains("unknown mode"), "{err}");
 }
+
+/// Without a calibration permit the SIL runner refuses closed-loop commands
+/// (`NotCalibrated`) and runs open loop; with one it runs torque mode.
+#[test]
+fn sil_runner_needs_a_calibration_for_closed_loop() {
+    use foc_bench::mission::Setup;
+    use foc_bench::sil::SilRunner;
+    use foc_core::calibration::Calibrated;
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/motors/dji-m2006.toml");
+    let config = Setup::load(path).unwrap().cascade_config();
+    let line =
+        |cmd: &str| format!(r#"{{"t":0,"i_abc":[0,0,0],"v_bus":24,"theta_m":0,"cmd":{cmd}}}"#);
+    let mut sil = SilRunner::new(config);
+    let (out, err) = sil.line(&line(r#"{"mode":"torque","target":1}"#));
+    assert!(err.unwrap().contains("NotCalibrated"), "{out}");
+    assert!(out.contains(r#""mode":"disabled""#), "{out}");
+    let (out, err) = sil.line(&line(r#"{"mode":"open_loop","v_d":0.5}"#));
+    assert!(
+        err.is_none() && out.contains(r#""mode":"open_loop""#),
+        "{out}"
+    );
+    let permit = Calibrated::supplied(config.current.angle, config.current.current).unwrap();
+    let mut sil = SilRunner::with_calibration(config, &permit);
+    let (out, err) = sil.line(&line(r#"{"mode":"torque","target":1}"#));
+    assert!(err.is_none() && out.contains(r#""mode":"torque""#), "{out}");
+}

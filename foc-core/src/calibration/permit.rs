@@ -9,25 +9,33 @@
 //!   (e.g. stored in flash after an earlier identification); they are
 //!   checked for plausibility.
 //!
-//! **How the firmware must use it.** Start the drive in open-loop or
-//! disabled mode only. Build the closed-loop controller through
-//! [`CalibratedCascade::new`] (which installs the permit's angle
-//! calibration and gains before the first step), or, when the stages are run
-//! as separate RTIC tasks, call [`Calibrated::apply_to`] on the current
-//! stage before posting the first `Torque`, `Velocity` or `Position`
-//! command. Never post closed-loop commands to a stage that has not been
-//! given a permit: `Cascade::command` itself cannot check this (its
-//! signature is shared with the rest of the crate).
+//! **How it is enforced.** A `CurrentStage` (and so a `Cascade`) starts
+//! uncalibrated: it refuses `Torque`, `Velocity` and `Position` commands
+//! (`Cascade::command` returns `CommandError::NotCalibrated`, the stage
+//! counts them as rejected) and allows only `Disable` and `OpenLoop`, which
+//! the calibration itself needs. The only way to unlock the closed-loop
+//! modes is to hand the stage a `Calibrated`:
+//! [`CurrentStage::set_calibration`], [`Cascade::set_calibration`],
+//! [`Calibrated::apply_to`] or [`CalibratedCascade::new`]. Overwriting the
+//! angle calibration or the current-loop configuration by hand
+//! (`set_angle_calibration`, `set_current_config`) locks them again.
 //!
 //! ```
 //! use foc_core::calibration::{Calibrated, CalError};
 //! use foc_core::calibration::permit::CalibratedCascade;
-//! use foc_core::control::{cascade::CascadeConfig, current::CurrentLoopConfig, stage::AngleCalibration, Command, MotorParams};
+//! use foc_core::control::{cascade::{Cascade, CascadeConfig}, current::CurrentLoopConfig, stage::AngleCalibration, Command, CommandError, MotorParams};
 //! use foc_core::angle::ElectricalAngle;
 //! let motor = MotorParams { pole_pairs: 7, r_ohm: 0.2, ld_h: 60e-6, lq_h: 60e-6, flux_linkage_wb: 0.004 };
 //! let angle = AngleCalibration { pole_pairs: 7, zero_offset: ElectricalAngle::from_degrees(42.0), reversed: true };
 //! let permit = Calibrated::supplied(angle, CurrentLoopConfig::technical_optimum(motor, 20_000.0)).unwrap();
-//! let mut drive = CalibratedCascade::new(CascadeConfig::for_motor(motor, 20_000.0, 5.0), &permit);
+//! let config = CascadeConfig::for_motor(motor, 20_000.0, 5.0);
+//! // Without a permit the closed-loop modes are locked.
+//! let mut plain = Cascade::new(config);
+//! assert_eq!(plain.command(Command::Torque { iq_a: 1.0 }), Err(CommandError::NotCalibrated));
+//! plain.set_calibration(&permit);
+//! plain.command(Command::Torque { iq_a: 1.0 }).unwrap();
+//! // The same through the wrapper.
+//! let mut drive = CalibratedCascade::new(config, &permit);
 //! drive.command(Command::Torque { iq_a: 1.0 }).unwrap();
 //! assert_eq!(drive.cascade().current.config().angle, angle);
 //! // Implausible supplied values are refused.
@@ -97,17 +105,16 @@ impl Calibrated {
     }
 
     /// Install the angle calibration and the current-loop configuration in
-    /// a current stage (through `set_angle_calibration` and
-    /// `set_current_config`). Call once, before the first closed-loop
-    /// command; it resets the stage's angle tracker.
+    /// a current stage and unlock its closed-loop modes (the same as
+    /// [`CurrentStage::set_calibration`]). Call before the first
+    /// closed-loop command; it resets the stage's angle tracker.
     pub fn apply_to(&self, stage: &mut CurrentStage) {
-        stage.set_angle_calibration(self.angle);
-        stage.set_current_config(self.current);
+        stage.set_calibration(self);
     }
 }
 
-/// A [`Cascade`] that can only be built with a [`Calibrated`] permit: the
-/// closed-loop entry point for the firmware and the bench.
+/// A thin wrapper: a [`Cascade`] built with a [`Calibrated`] permit
+/// already installed (`Cascade::new` + `Cascade::set_calibration`).
 #[derive(Clone, Copy, Debug)]
 pub struct CalibratedCascade {
     inner: Cascade,
@@ -115,13 +122,11 @@ pub struct CalibratedCascade {
 
 impl CalibratedCascade {
     /// The cascade of `config` with the permit's angle calibration and
-    /// current-loop configuration installed.
-    pub fn new(mut config: CascadeConfig, permit: &Calibrated) -> Self {
-        config.current.angle = permit.angle;
-        config.current.current = permit.current;
-        Self {
-            inner: Cascade::new(config),
-        }
+    /// current-loop configuration installed (closed-loop modes unlocked).
+    pub fn new(config: CascadeConfig, permit: &Calibrated) -> Self {
+        let mut inner = Cascade::new(config);
+        inner.set_calibration(permit);
+        Self { inner }
     }
 
     /// Post a command (see `Cascade::command`).
@@ -152,5 +157,10 @@ impl CalibratedCascade {
     /// Read access to the cascade.
     pub fn cascade(&self) -> &Cascade {
         &self.inner
+    }
+
+    /// The cascade itself.
+    pub fn into_inner(self) -> Cascade {
+        self.inner
     }
 }

@@ -20,6 +20,7 @@ use super::{
     BridgeCommand, Command, CommandError, CommandSlot, Feedback, Limits, MotorParams, Rates,
 };
 use crate::angle::ElectricalAngle;
+use crate::calibration::Calibrated;
 
 /// Configuration of the whole cascade.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -38,8 +39,9 @@ impl CascadeConfig {
     /// Reasonable defaults for a motor: source tuning of the current loop
     /// (technical optimum), speed loop at about 1/20 of the current-loop
     /// bandwidth for an assumed small inertia, position loop a fifth of that,
-    /// supervisor at 1.5x the current limit. `angle` is assumed aligned
-    /// (zero offset, not reversed): calibrate before closing the loop.
+    /// supervisor at 1.5x the current limit. `angle` is a placeholder (zero
+    /// offset, not reversed): a cascade refuses closed-loop commands until
+    /// a [`Calibrated`] permit is installed ([`Cascade::set_calibration`]).
     pub fn for_motor(motor: MotorParams, pwm_frequency_hz: f32, max_current_a: f32) -> Self {
         Self::for_motor_with_inertia(motor, pwm_frequency_hz, max_current_a, 1e-5)
     }
@@ -102,7 +104,9 @@ impl CascadeConfig {
     }
 }
 
-/// All three stages and their rate dividers.
+/// All three stages and their rate dividers. Starts disabled and
+/// uncalibrated: closed-loop commands are refused with
+/// [`CommandError::NotCalibrated`] until [`Cascade::set_calibration`].
 #[derive(Clone, Copy, Debug)]
 pub struct Cascade {
     config: CascadeConfig,
@@ -153,9 +157,26 @@ impl Cascade {
         {
             return Err(CommandError::Faulted);
         }
+        if cmd.mode().is_closed_loop() && !self.current.is_calibrated() {
+            return Err(CommandError::NotCalibrated);
+        }
         cmd.validate(&self.current.config().limits)?;
         self.slot.post(cmd);
         Ok(())
+    }
+
+    /// Install a calibration permit in the current stage (angle
+    /// calibration and current-loop configuration; the configuration
+    /// returned by [`Self::config`] follows). Unlocks the closed-loop modes.
+    pub fn set_calibration(&mut self, c: &Calibrated) {
+        self.current.set_calibration(c);
+        self.config.current.angle = c.angle();
+        self.config.current.current = c.current_config();
+    }
+
+    /// True once a calibration permit is installed.
+    pub fn is_calibrated(&self) -> bool {
+        self.current.is_calibrated()
     }
 
     /// Request a fault clear (takes effect at the next step).

@@ -16,6 +16,12 @@
 //! does exactly what the firmware does, in the same order: current stage,
 //! then the speed stage, then the position stage).
 //!
+//! Closed-loop modes (torque, velocity, position) are locked until the
+//! current stage is given a [`Calibrated`](crate::calibration::Calibrated)
+//! permit (`CurrentStage::set_calibration`, `Cascade::set_calibration`):
+//! such commands are refused with [`CommandError::NotCalibrated`] before.
+//! `Disable` and `OpenLoop` are always allowed (calibration needs them).
+//!
 //! The current stage is the single decider: it accepts or rejects commands,
 //! applies the command timeout, latches faults and publishes the *active*
 //! command and mode in [`Feedback`]; the slower stages follow it and make
@@ -25,7 +31,8 @@
 //! # Wiring a board
 //!
 //! ```
-//! use foc_core::control::{cascade::{Cascade, CascadeConfig}, Command, MotorParams, drive};
+//! use foc_core::control::{cascade::{Cascade, CascadeConfig}, Command, CommandError, MotorParams, drive};
+//! use foc_core::calibration::Calibrated;
 //! # use foc_core::{hal::*, angle::MechanicalAngle, frames::Abc};
 //! # struct Pwm(bool); struct Cs; struct Enc; struct Bus;
 //! # impl PwmDriver for Pwm { type Error = (); fn period_counts(&self) -> u16 { 4200 }
@@ -38,7 +45,13 @@
 //! # impl BusVoltage for Bus { type Error = (); fn read_bus_voltage_v(&mut self) -> Result<f32, ()> { Ok(24.0) } }
 //! let (mut pwm, mut cs, mut enc, mut bus) = (Pwm(false), Cs, Enc, Bus);
 //! let motor = MotorParams { pole_pairs: 7, r_ohm: 0.1, ld_h: 40e-6, lq_h: 40e-6, flux_linkage_wb: 0.004 };
-//! let mut drive_ctl = Cascade::new(CascadeConfig::for_motor(motor, 20_000.0, 10.0));
+//! let config = CascadeConfig::for_motor(motor, 20_000.0, 10.0);
+//! let mut drive_ctl = Cascade::new(config);
+//! // Closed-loop modes need a calibration permit: from an identification,
+//! // or supplied (e.g. stored in flash) and checked for plausibility.
+//! assert_eq!(drive_ctl.command(Command::Torque { iq_a: 1.0 }), Err(CommandError::NotCalibrated));
+//! let permit = Calibrated::supplied(config.current.angle, config.current.current).unwrap();
+//! drive_ctl.set_calibration(&permit);
 //! drive_ctl.command(Command::Torque { iq_a: 1.0 }).unwrap();
 //! // In the PWM-synchronous interrupt (ADC end of conversion):
 //! let sample = drive::read_sample(&mut cs, &mut enc, &mut bus);
@@ -179,6 +192,14 @@ pub enum Command {
     },
 }
 
+impl Mode {
+    /// True for the modes that close a loop on the angle sensor (torque,
+    /// velocity, position): they need a calibrated current stage.
+    pub const fn is_closed_loop(self) -> bool {
+        matches!(self, Mode::Torque | Mode::Velocity | Mode::Position)
+    }
+}
+
 impl Command {
     /// The mode this command selects.
     pub const fn mode(&self) -> Mode {
@@ -260,6 +281,11 @@ pub enum CommandError {
     VoltageOutOfRange,
     /// A fault is latched: clear it first.
     Faulted,
+    /// A closed-loop command (`Torque`, `Velocity`, `Position`) before the
+    /// current stage holds a calibration: install a
+    /// [`Calibrated`](crate::calibration::Calibrated) permit first
+    /// (`set_calibration`). `Disable` and `OpenLoop` need none.
+    NotCalibrated,
 }
 
 /// Limits that commands are checked against.

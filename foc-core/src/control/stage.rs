@@ -7,6 +7,7 @@ use super::speed::{SpeedLoop, SpeedLoopConfig};
 use super::supervisor::{Checks, Fault, Supervisor, SupervisorConfig};
 use super::{BridgeCommand, Command, CommandSlot, Feedback, Limits, Mode};
 use crate::angle::{ElectricalAngle, MechanicalAngle};
+use crate::calibration::Calibrated;
 use crate::clamp;
 use crate::frames::Dq;
 use crate::hal::PhaseCurrents;
@@ -103,6 +104,7 @@ pub struct CurrentStage {
     last_i_dq: Dq,
     period: u32,
     rejected: u32,
+    calibrated: bool,
 }
 
 impl CurrentStage {
@@ -122,6 +124,7 @@ impl CurrentStage {
             last_i_dq: Dq::ZERO,
             period: 0,
             rejected: 0,
+            calibrated: false,
         }
     }
 
@@ -130,16 +133,49 @@ impl CurrentStage {
         &self.config
     }
 
-    /// Replace the current-loop configuration (e.g. gains after identification).
+    /// Install a calibration permit: its angle calibration (the angle
+    /// tracker restarts) and its current-loop configuration. Unlocks the
+    /// closed-loop modes. This is the only way to unlock them.
+    pub fn set_calibration(&mut self, c: &Calibrated) {
+        self.config.angle = c.angle();
+        self.tracker.reset();
+        let cur = c.current_config();
+        self.config.current = cur;
+        self.current.set_config(cur);
+        self.calibrated = true;
+    }
+
+    /// True once a [`Calibrated`] permit is installed (and not revoked by
+    /// [`Self::set_current_config`] or [`Self::set_angle_calibration`]).
+    pub fn is_calibrated(&self) -> bool {
+        self.calibrated
+    }
+
+    /// Replace the current-loop configuration with values no permit vouches
+    /// for. Revokes the calibration (see [`Self::revoke_calibration`]);
+    /// use [`Self::set_calibration`] to install checked values.
     pub fn set_current_config(&mut self, c: CurrentLoopConfig) {
         self.config.current = c;
         self.current.set_config(c);
+        self.revoke_calibration();
     }
 
-    /// Replace the angle calibration.
+    /// Replace the angle calibration with values no permit vouches for.
+    /// Revokes the calibration (see [`Self::revoke_calibration`]); use
+    /// [`Self::set_calibration`] to install checked values.
     pub fn set_angle_calibration(&mut self, a: AngleCalibration) {
         self.config.angle = a;
         self.tracker.reset();
+        self.revoke_calibration();
+    }
+
+    /// Lock the closed-loop modes again; a closed-loop command that is
+    /// active is replaced by `Disable` (bridge off from the next step).
+    pub fn revoke_calibration(&mut self) {
+        self.calibrated = false;
+        if self.active.mode().is_closed_loop() {
+            self.active = Command::Disable;
+        }
     }
 
     /// Replace the command limits.
@@ -166,7 +202,8 @@ impl CurrentStage {
         slot.clear_seq != self.last_clear_seq
     }
 
-    /// Commands refused so far (invalid, or sent while faulted).
+    /// Commands refused so far (invalid, sent while faulted, or closed-loop
+    /// without a calibration).
     pub fn rejected_commands(&self) -> u32 {
         self.rejected
     }
@@ -181,7 +218,9 @@ impl CurrentStage {
             self.rejected = self.rejected.wrapping_add(1);
             return;
         }
-        if cmd.validate(&self.config.limits).is_err() {
+        if cmd.validate(&self.config.limits).is_err()
+            || (cmd.mode().is_closed_loop() && !self.calibrated)
+        {
             self.rejected = self.rejected.wrapping_add(1);
             return;
         }
@@ -267,7 +306,10 @@ impl CurrentStage {
             if self.age_periods > self.config.command_timeout_periods {
                 self.age_periods = 0;
                 match self.config.timeout_reaction {
+                    // Stop and Hold are closed-loop: without a calibration
+                    // (open loop) the timeout disables.
                     TimeoutReaction::Disable => self.supervisor.trip(Fault::CommandTimeout),
+                    _ if !self.calibrated => self.supervisor.trip(Fault::CommandTimeout),
                     TimeoutReaction::Stop => self.accept(Command::Velocity { rad_s: 0.0 }),
                     TimeoutReaction::Hold => {
                         let p = self.tracker.position().to_radians();

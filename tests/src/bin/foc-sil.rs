@@ -5,6 +5,11 @@
 //! Refused lines and commands are reported on stderr; the process never
 //! stops on bad input, only at the end of stdin.
 //!
+//! The controller starts calibrated with a *supplied* permit: the
+//! current-loop gains from the motor values, the angle calibration from
+//! `--zero-offset-deg` / `--reversed` (default: encoder zero on the d axis).
+//! `--uncalibrated` starts without one (open loop only).
+//!
 //! ```text
 //! foc-sil --motor tests/motors/dji-m2006.toml
 //! foc-sil --pole-pairs 7 --r-ohm 0.1 --ld-h 30e-6 --lq-h 30e-6 --flux-wb 0.0024 \
@@ -16,6 +21,7 @@ use foc_bench::mission::Setup;
 use foc_bench::plant::{BenchConfig, MotorParams};
 use foc_bench::sil::SilRunner;
 use foc_core::angle::ElectricalAngle;
+use foc_core::calibration::Calibrated;
 use std::io::{BufRead, Write};
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -66,6 +72,10 @@ struct Args {
     /// The encoder counts against A -> B -> C.
     #[arg(long)]
     reversed: bool,
+    /// Start uncalibrated: only `disable` and `open_loop` are accepted
+    /// (closed-loop commands are refused with `NotCalibrated`).
+    #[arg(long)]
+    uncalibrated: bool,
 }
 
 fn setup(a: &Args) -> Result<Setup, String> {
@@ -119,7 +129,7 @@ fn main() -> ExitCode {
     config.current.angle.zero_offset = ElectricalAngle::from_degrees(args.zero_offset_deg);
     config.current.angle.reversed = args.reversed;
     eprintln!(
-        "foc-sil: {} | {} pole pairs, R {} ohm, Ld {} H, Lq {} H, psi {} Wb | PWM {} Hz, speed loop /{}, position loop /{} | ready",
+        "foc-sil: {} | {} pole pairs, R {} ohm, Ld {} H, Lq {} H, psi {} Wb | PWM {} Hz, speed loop /{}, position loop /{} | {} | ready",
         s.name,
         s.motor.pole_pairs,
         s.motor.r_ohm,
@@ -128,9 +138,31 @@ fn main() -> ExitCode {
         s.motor.flux_linkage_wb,
         s.bench.pwm_frequency_hz,
         config.rates.speed_divider,
-        config.rates.position_divider
+        config.rates.position_divider,
+        if args.uncalibrated {
+            "uncalibrated (open loop only)".to_string()
+        } else {
+            format!(
+                "calibration supplied: zero offset {} deg(e){}",
+                args.zero_offset_deg,
+                if args.reversed { ", reversed" } else { "" }
+            )
+        }
     );
-    let mut sil = SilRunner::new(config);
+    // The calibration is supplied: the motor file / flags give the
+    // current-loop configuration (technical optimum of R, Ld, Lq), the
+    // flags the angle calibration. Checked for plausibility.
+    let mut sil = if args.uncalibrated {
+        SilRunner::new(config)
+    } else {
+        match Calibrated::supplied(config.current.angle, config.current.current) {
+            Ok(permit) => SilRunner::with_calibration(config, &permit),
+            Err(e) => {
+                eprintln!("foc-sil: implausible calibration ({e:?}): check the motor values");
+                return ExitCode::FAILURE;
+            }
+        }
+    };
     let stdin = std::io::stdin();
     let stdout = std::io::stdout();
     let mut out = stdout.lock();
