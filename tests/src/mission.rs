@@ -111,11 +111,13 @@ impl Setup {
     }
 
     /// Highest speed the mission and the dyno command [rad/s, mechanical]:
-    /// one electrical turn per 30 PWM periods. foc-core applies the voltage
-    /// at the sampled angle, which is `1.5 w_e Ts` old when it acts (12 deg
-    /// electrical at this speed).
+    /// one electrical turn per 10 PWM periods (0.63 rad electrical per
+    /// period). foc-core compensates the 1.5-period delay of the voltage
+    /// (`delay_compensation_periods`); this keeps the sampled electrical
+    /// angle well resolved (it was one turn per 30 periods before the
+    /// compensation, where the uncompensated lag was 18 deg).
     pub fn max_mission_speed_rad_s(&self) -> f32 {
-        std::f32::consts::TAU * self.pwm_hz() / (30.0 * self.motor.pole_pairs as f32)
+        std::f32::consts::TAU * self.pwm_hz() / (10.0 * self.motor.pole_pairs as f32)
     }
 
     /// The controller configuration: [`CascadeConfig::for_motor_with_inertia`]
@@ -817,8 +819,7 @@ pub fn run_mission(setup: &Setup, progress: &mut dyn FnMut(f64)) -> MissionResul
 
     // Expected duration, for the progress bar.
     // Speeds: within the voltage and current limits, and at most one
-    // electrical turn per 30 PWM periods (the controller does not advance
-    // the angle for its 1.5-period delay, so faster is not meaningful).
+    // electrical turn per 10 PWM periods (`Setup::max_mission_speed_rad_s`).
     let w_cap = (0.6 * w_max).min(setup.max_mission_speed_rad_s());
     let w1 = (0.4 * w_cap).min(0.4 * i_max * kt / (j * 2.0 * std::f32::consts::PI * 20.0));
     let w2 = w_cap.max(w1);

@@ -13,7 +13,7 @@
 //! ```
 
 use super::common::CalError;
-use crate::control::current::CurrentLoopConfig;
+use crate::control::current::{CurrentLoopConfig, DEFAULT_DELAY_COMPENSATION_PERIODS};
 use crate::control::MotorParams;
 use crate::pi::AntiWindup;
 use crate::tuning;
@@ -50,6 +50,7 @@ pub fn current_loop_config(motor: MotorParams, ts_s: f32) -> Result<CurrentLoopC
         decoupling: true,
         max_modulation: 0.95,
         anti_windup: AntiWindup::Clamp,
+        delay_compensation_periods: DEFAULT_DELAY_COMPENSATION_PERIODS,
     })
 }
 

@@ -61,7 +61,8 @@ impl Calibrated {
     /// From explicitly supplied values. [`CalError::InvalidConfig`] unless
     /// the pole pairs are at least 1, the period, gains and motor values are
     /// finite and positive (flux linkage may be zero), the pole pairs of the
-    /// angle and of the motor agree, and `max_modulation` is in `(0, 1]`.
+    /// angle and of the motor agree, `max_modulation` is in `(0, 1]` and
+    /// `delay_compensation_periods` in `[0, 4]`.
     pub fn supplied(angle: AngleCalibration, current: CurrentLoopConfig) -> Result<Self, CalError> {
         let pos = |x: f32| x.is_finite() && x > 0.0;
         let m = &current.motor;
@@ -78,7 +79,8 @@ impl Calibrated {
             && m.flux_linkage_wb.is_finite()
             && m.flux_linkage_wb >= 0.0
             && pos(current.max_modulation)
-            && current.max_modulation <= 1.0;
+            && current.max_modulation <= 1.0
+            && (0.0..=4.0).contains(&current.delay_compensation_periods);
         if ok {
             Ok(Self { angle, current })
         } else {

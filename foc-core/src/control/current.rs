@@ -7,8 +7,15 @@
 //! v_d = PI_d(e_d) + ff_d,  ff_d = -w_e Lq iq            (decoupling, optional)
 //! v_q = PI_q(e_q) + ff_q,  ff_q =  w_e (Ld id + psi)
 //! |v_dq| <= m_max * Udc / sqrt(3)   circle, d axis first, PI limits follow it
-//! v_dq --inverse Park--> v_ab --SVPWM(Udc)--> duties    (source sections 7, 8)
+//! v_dq --inverse Park(theta_e + k w_e Ts)--> v_ab --SVPWM(Udc)--> duties
 //! ```
+//!
+//! The inverse Park (source sections 7, 8) is taken at the angle the rotor
+//! will have when the voltage acts, `k` periods after the sample (`k` =
+//! [`CurrentLoopConfig::delay_compensation_periods`], 1.5 by default: one
+//! period of computation plus half a period of PWM hold). Without it the
+//! applied vector lags by `1.5 w_e Ts` (13.5 deg electrical at one electrical
+//! turn per 60 periods), which couples d and q at speed.
 //!
 //! The voltage limit is a circle (not a square) of the *measured* bus
 //! voltage, so loop gains do not change with the bus. The d axis gets the
@@ -59,11 +66,23 @@ pub struct CurrentLoopConfig {
     pub max_modulation: f32,
     /// Anti-windup of both PIs.
     pub anti_windup: AntiWindup,
+    /// Computation-delay compensation [PWM periods]: the voltage computed
+    /// from the sample at `theta_e` acts from one period later and, averaged
+    /// over that period, at `theta_e + 1.5 w_e Ts`. The inverse Park uses
+    /// `theta_e + k w_e Ts` (the Park of the measured currents keeps the
+    /// sampled angle). 1.5 for the usual one-period update; 0 disables.
+    pub delay_compensation_periods: f32,
 }
+
+/// Default [`CurrentLoopConfig::delay_compensation_periods`]: one period of
+/// computation (duties latched at the next period start) plus half a period
+/// of zero-order hold.
+pub const DEFAULT_DELAY_COMPENSATION_PERIODS: f32 = 1.5;
 
 impl CurrentLoopConfig {
     /// The source's tuning (section 11): technical optimum for both axes at
-    /// the given PWM frequency, decoupling on, 95 % of the linear range.
+    /// the given PWM frequency, decoupling on, 95 % of the linear range,
+    /// 1.5 periods of delay compensation.
     pub fn technical_optimum(motor: MotorParams, pwm_frequency_hz: f32) -> Self {
         let ts_s = 1.0 / pwm_frequency_hz;
         Self {
@@ -74,6 +93,7 @@ impl CurrentLoopConfig {
             decoupling: true,
             max_modulation: 0.95,
             anti_windup: AntiWindup::Clamp,
+            delay_compensation_periods: DEFAULT_DELAY_COMPENSATION_PERIODS,
         }
     }
 }
@@ -211,7 +231,16 @@ impl CurrentLoop {
             .pi_q
             .step_error(inp.i_dq_ref_a.q - i_dq.q, -v_q_max - ff.q, v_q_max - ff.q);
         let v_dq = Dq::new(v_d, u_q + ff.q);
-        let v_ab = transforms::inverse_park(v_dq, sin, cos);
+        // The voltage acts about `k` periods after the sample: apply it in
+        // the dq frame of the rotor as it will be then.
+        let k = self.config.delay_compensation_periods;
+        let v_ab = if k != 0.0 && k.is_finite() {
+            let advance = k * inp.omega_e_rad_s * self.config.ts_s;
+            let (sin_v, cos_v) = trig::sin_cos(inp.theta_e.add_radians(advance));
+            transforms::inverse_park(v_dq, sin_v, cos_v)
+        } else {
+            transforms::inverse_park(v_dq, sin, cos)
+        };
         let sv = svpwm::svpwm(v_ab, inp.v_bus_v);
         CurrentLoopOutput {
             duties: sv.duties,
@@ -391,6 +420,45 @@ mod tests {
         let o = cl.step(&inp);
         assert!((o.v_dq_v.q - 500.0 * m.flux_linkage_wb).abs() < 1e-4);
         assert!(o.v_dq_v.d.abs() < 1e-6);
+    }
+
+    /// The dq voltage lands at the advanced angle `theta_e + 1.5 w_e Ts`
+    /// (Park of v_ab there gives back v_dq), the measured currents are
+    /// still taken at the sampled angle, and k = 0 applies it at the
+    /// sampled angle.
+    #[test]
+    fn delay_compensation_advances_the_voltage_angle() {
+        let m = motor();
+        let cfg = CurrentLoopConfig::technical_optimum(m, 20e3);
+        assert_eq!(cfg.delay_compensation_periods, 1.5);
+        let mut inp = input(2.0);
+        inp.omega_e_rad_s = 2000.0; // 0.15 rad advance at 20 kHz
+        let th = ElectricalAngle::from_degrees(33.0);
+        // A pure d current of 1 A at the sampled angle.
+        let (s, c) = trig::sin_cos(th);
+        let ab = transforms::inverse_park(Dq::new(1.0, 0.0), s, c);
+        inp.i_abc_a = Abc::new(ab.alpha, -0.5 * ab.alpha + 0.866_025_4 * ab.beta, 0.0);
+        inp.i_abc_a.c = -inp.i_abc_a.a - inp.i_abc_a.b;
+        for (k, advance) in [(1.5f32, 1.5 * 2000.0 / 20e3), (0.0, 0.0)] {
+            let mut cl = CurrentLoop::new(CurrentLoopConfig {
+                delay_compensation_periods: k,
+                ..cfg
+            });
+            let o = cl.step(&inp);
+            assert!((o.i_dq_a.d - 1.0).abs() < 1e-4 && o.i_dq_a.q.abs() < 1e-4);
+            let (sv, cv) = trig::sin_cos(th.add_radians(advance));
+            let back = transforms::park(o.v_ab_v, sv, cv);
+            assert!(
+                (back.d - o.v_dq_v.d).abs() < 1e-3 && (back.q - o.v_dq_v.q).abs() < 1e-3,
+                "k = {k}: {back:?} vs {:?}",
+                o.v_dq_v
+            );
+            // ... and not at the other angle (0.15 rad apart).
+            let other = if k == 0.0 { 1.5 * 2000.0 / 20e3 } else { 0.0 };
+            let (so, co) = trig::sin_cos(th.add_radians(other));
+            let wrong = transforms::park(o.v_ab_v, so, co);
+            assert!((wrong.d - o.v_dq_v.d).abs() > 0.1 * o.v_dq_v.magnitude());
+        }
     }
 
     #[test]
