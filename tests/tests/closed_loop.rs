@@ -354,46 +354,69 @@ fn encoder_jump_trips_implausible_angle_at_once() {
     });
 }
 
-/// A stuck encoder: the fault is visible once the rotor has moved away from
-/// the frozen reading by more than the tracker's innovation limit. At speed,
-/// the rotor should move past it: the trip must come no earlier than that,
-/// and within 50 ms of the injection, with the bridge off in the same period
-/// as the latch. FAILS today: the controller's frozen current vector brakes
-/// and captures the rotor (it moves 0.26 rad) while the PLL estimate follows
-/// the frozen reading, so the innovation never exceeds the limit.
+/// A stuck encoder at speed. The frozen reading captures the rotor (the
+/// controller's current vector freezes with it and brakes the rotor to a
+/// stop a fraction of a turn on) and the tracker follows the reading, so
+/// the innovation check never sees it. The stall check does: the reading
+/// stays still while the speed loop demands at least half the current
+/// limit to reach 25 rad/s. Detection within 50 ms of the injection
+/// (measured on the M153 at 15 kHz: 548 periods = 36.5 ms, i.e. 16.5 ms
+/// until the speed loop demands half the limit, then the 20 ms still
+/// window; the rotor moved 0.42 rad); the bridge is commanded safe in the
+/// very step that latches, is off in the plant's next period and stays off.
 #[test]
-#[ignore = "fails: foc-core does not detect a stuck encoder (the frozen field captures the rotor, 0.26 rad in 50 ms at 25 rad/s, below the 0.5 rad innovation limit); see the report"]
-fn encoder_stuck_at_speed_trips_implausible_angle() {
+fn encoder_stuck_at_speed_trips_angle_sensor_stuck() {
     let w = 25.0;
     let mut sim = running("m153-source.toml", w);
-    let lim = sim
-        .cascade
-        .config()
-        .current
-        .supervisor
-        .max_angle_innovation_rad;
+    let sup = sim.cascade.config().current.supervisor;
     let f = sim.plant.config().pwm_frequency_hz;
     sim.plant.faults_mut().encoder = EncoderFault::Stuck;
     let p0 = sim.true_position_rad();
+    let frozen = sim.last_sample().angle;
     let mut latched_at = None;
     for k in 0..(0.05 * f) as usize {
         let b = sim.step();
         if let Some(fault) = sim.cascade.feedback().first_fault {
-            assert_eq!(fault, Fault::AngleSensorImplausible);
-            assert_eq!(b, BridgeCommand::SafeState);
+            assert_eq!(fault, Fault::AngleSensorStuck);
+            assert_eq!(b, BridgeCommand::SafeState, "not safe in the same period");
             latched_at = Some(k);
             break;
         }
+        assert!(matches!(b, BridgeCommand::Duties(_)));
     }
     let moved = sim.true_position_rad() - p0;
-    println!("stuck encoder at {w} rad/s: tripped after {latched_at:?} periods, rotor moved {moved:.3} rad");
-    latched_at.expect("stuck encoder never tripped");
-    assert!(
-        moved.abs() > lim as f64 * 0.9,
-        "tripped before the fault was visible"
-    );
+    let k = latched_at.expect("stuck encoder never tripped");
+    let ms = k as f64 / f as f64 * 1e3;
+    println!("stuck encoder at {w} rad/s: tripped after {k} periods ({ms:.1} ms), rotor moved {moved:.3} rad");
+    assert_eq!(sim.last_sample().angle, frozen, "the reading was frozen");
+    // Not before the still window has passed, and within 50 ms.
+    assert!(k as u32 >= sup.stuck_periods);
+    assert!(ms < 50.0, "{ms} ms");
     sim.step();
     assert!(!sim.plant.bridge_enabled());
+    sim.run(100);
+    assert!(!sim.plant.bridge_enabled());
+}
+
+/// The stall check does not trip on speed reversals through zero (the
+/// reading pauses only for the turnaround), nor
+/// while holding a position against a load at 70 % of the current limit.
+#[test]
+fn stuck_check_does_not_trip_on_reversal_or_holding_against_load() {
+    let s = setup("gl80-kv30.toml");
+    let f = s.bench.pwm_frequency_hz;
+    let mut sim = Sim::new_calibrated(&s, s.cascade_config(), false);
+    for w in [20.0f32, -20.0, 20.0, 0.0] {
+        sim.cascade.command(Command::Velocity { rad_s: w }).unwrap();
+        sim.run((0.2 * f) as usize);
+        assert_eq!(sim.cascade.feedback().first_fault, None, "at {w} rad/s");
+    }
+    let p = sim.cascade.feedback().position_rad;
+    sim.cascade.command(Command::Position { rad: p }).unwrap();
+    sim.load_nm = 0.7 * s.kt() * s.max_current_a;
+    sim.run((0.5 * f) as usize);
+    assert_eq!(sim.cascade.feedback().first_fault, None);
+    assert!(sim.cascade.iq_ref_a().abs() > 0.5 * s.max_current_a);
 }
 
 #[test]

@@ -39,7 +39,8 @@ impl CascadeConfig {
     /// Reasonable defaults for a motor: source tuning of the current loop
     /// (technical optimum), speed loop at about 1/20 of the current-loop
     /// bandwidth for an assumed small inertia, position loop a fifth of that,
-    /// supervisor at 1.5x the current limit. `angle` is a placeholder (zero
+    /// supervisor at 1.5x the current limit (stuck-sensor / stall check:
+    /// reading still for 20 ms with half the current limit demanded). `angle` is a placeholder (zero
     /// offset, not reversed): a cascade refuses closed-loop commands until
     /// a [`Calibrated`] permit is installed ([`Cascade::set_calibration`]).
     pub fn for_motor(motor: MotorParams, pwm_frequency_hz: f32, max_current_a: f32) -> Self {
@@ -68,6 +69,10 @@ impl CascadeConfig {
                 supervisor: SupervisorConfig {
                     max_phase_current_a: 1.5 * max_current_a,
                     max_vector_current_a: 1.5 * max_current_a,
+                    // Stuck sensor / stall: reading still for 20 ms with at
+                    // least half the current limit demanded to move.
+                    stuck_periods: (0.02 * pwm_frequency_hz) as u32,
+                    stuck_current_a: 0.5 * max_current_a,
                     ..SupervisorConfig::default()
                 },
                 limits: Limits {

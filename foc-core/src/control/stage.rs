@@ -105,6 +105,7 @@ pub struct CurrentStage {
     period: u32,
     rejected: u32,
     calibrated: bool,
+    last_raw: Option<MechanicalAngle>,
 }
 
 impl CurrentStage {
@@ -125,6 +126,7 @@ impl CurrentStage {
             period: 0,
             rejected: 0,
             calibrated: false,
+            last_raw: None,
         }
     }
 
@@ -297,6 +299,25 @@ impl CurrentStage {
                     angle_innovation_rad: innovation,
                     temperature_c: s.temperature_c,
                 });
+                // Stuck sensor / stall: a still reading while the drive
+                // pushes hard to move.
+                let changed = self.last_raw != Some(raw);
+                self.last_raw = Some(raw);
+                let sc = &self.config.supervisor;
+                let moving = match self.active {
+                    Command::Velocity { rad_s } => rad_s.abs() >= sc.stuck_min_speed_rad_s,
+                    Command::Position { rad } => {
+                        let d = rad - self.tracker.position().to_radians();
+                        d.abs() >= sc.stuck_min_distance_rad
+                    }
+                    _ => false,
+                };
+                let demand = if iq_ref_from_speed_a.is_finite() {
+                    iq_ref_from_speed_a
+                } else {
+                    0.0
+                };
+                self.supervisor.check_stuck(changed, demand, moving);
             }
         }
 

@@ -58,11 +58,15 @@ pub enum Fault {
     CalibrationFailed = 16,
     /// The watchdog or an unexpected reset (reported by the firmware).
     Watchdog = 17,
+    /// The angle reading did not change for the configured time while the
+    /// drive demanded a large current to move (velocity or position mode):
+    /// the sensor is stuck (frozen reading) or the rotor is stalled.
+    AngleSensorStuck = 18,
 }
 
 impl Fault {
     /// Every fault, in code order.
-    pub const ALL: [Fault; 17] = [
+    pub const ALL: [Fault; 18] = [
         Fault::OverCurrentPhase,
         Fault::OverCurrentVector,
         Fault::BusOverVoltage,
@@ -80,6 +84,7 @@ impl Fault {
         Fault::PwmError,
         Fault::CalibrationFailed,
         Fault::Watchdog,
+        Fault::AngleSensorStuck,
     ];
 
     /// Stable numeric code (1..).
@@ -112,6 +117,7 @@ impl Fault {
             Fault::PwmError => "PWM write error",
             Fault::CalibrationFailed => "calibration failed",
             Fault::Watchdog => "watchdog",
+            Fault::AngleSensorStuck => "angle sensor stuck or rotor stalled",
         }
     }
 
@@ -166,6 +172,22 @@ pub struct SupervisorConfig {
     pub max_angle_innovation_rad: f32,
     /// Over-temperature threshold [deg C].
     pub max_temperature_c: f32,
+    /// Stuck-sensor / stall check ([`Fault::AngleSensorStuck`]): the angle
+    /// reading has not changed for more than this many periods while the
+    /// q-current demand is at least [`Self::stuck_current_a`] and motion is
+    /// commanded. 0 disables the check. Choose it longer than the time the
+    /// rotor needs to move one sensor count from standstill at that current
+    /// (`sqrt(2 count J / (kt I))`), and than one count at
+    /// [`Self::stuck_min_speed_rad_s`] for coarse sensors (halls).
+    pub stuck_periods: u32,
+    /// q-current demand [A] (magnitude) above which a still reading counts.
+    pub stuck_current_a: f32,
+    /// Velocity mode: smallest commanded speed [rad/s, mechanical] that
+    /// counts as commanded motion.
+    pub stuck_min_speed_rad_s: f32,
+    /// Position mode: smallest distance from the target [rad, mechanical]
+    /// that counts as commanded motion (holding a position never trips).
+    pub stuck_min_distance_rad: f32,
 }
 
 impl Default for SupervisorConfig {
@@ -179,6 +201,10 @@ impl Default for SupervisorConfig {
             max_current_sum_a: 1.0,
             max_angle_innovation_rad: 0.5,
             max_temperature_c: 90.0,
+            stuck_periods: 400, // 20 ms at 20 kHz
+            stuck_current_a: 5.0,
+            stuck_min_speed_rad_s: 1.0,
+            stuck_min_distance_rad: 0.1,
         }
     }
 }
@@ -207,6 +233,7 @@ pub struct Supervisor {
     pub config: SupervisorConfig,
     latched: FaultSet,
     first: Option<Fault>,
+    still_periods: u32,
 }
 
 impl Supervisor {
@@ -216,6 +243,7 @@ impl Supervisor {
             config,
             latched: FaultSet::EMPTY,
             first: None,
+            still_periods: 0,
         }
     }
 
@@ -246,6 +274,38 @@ impl Supervisor {
     pub fn clear(&mut self) {
         self.latched = FaultSet::EMPTY;
         self.first = None;
+        self.still_periods = 0;
+    }
+
+    /// The stuck-sensor / stall check, once per period: `reading_changed`
+    /// (the raw angle reading differs from the previous period's),
+    /// `iq_demand_a` (this period's q-current reference) and
+    /// `motion_commanded` (the mode asks the rotor to move). Latches and
+    /// returns [`Fault::AngleSensorStuck`] once the reading has been still,
+    /// with the demand at or above `stuck_current_a` and motion commanded,
+    /// for more than `stuck_periods` consecutive periods.
+    pub fn check_stuck(
+        &mut self,
+        reading_changed: bool,
+        iq_demand_a: f32,
+        motion_commanded: bool,
+    ) -> Option<Fault> {
+        let c = &self.config;
+        let suspicious = c.stuck_periods > 0
+            && !reading_changed
+            && motion_commanded
+            && iq_demand_a.abs() >= c.stuck_current_a;
+        self.still_periods = if suspicious {
+            self.still_periods.saturating_add(1)
+        } else {
+            0
+        };
+        if suspicious && self.still_periods > c.stuck_periods {
+            self.trip(Fault::AngleSensorStuck);
+            Some(Fault::AngleSensorStuck)
+        } else {
+            None
+        }
     }
 
     /// Check one period's measurements; latches and returns the first new
@@ -350,6 +410,49 @@ mod tests {
             set(&mut past, &c, 0.01);
             assert_eq!(s.check(&past), Some(fault));
             assert!(s.faults().contains(fault));
+        }
+    }
+
+    #[test]
+    fn stuck_check_needs_all_conditions_for_longer_than_the_limit() {
+        let c = SupervisorConfig {
+            stuck_periods: 10,
+            stuck_current_a: 5.0,
+            ..SupervisorConfig::default()
+        };
+        let mut s = Supervisor::new(c);
+        for _ in 0..10 {
+            assert_eq!(s.check_stuck(false, -5.0, true), None);
+        }
+        assert_eq!(
+            s.check_stuck(false, -5.0, true),
+            Some(Fault::AngleSensorStuck)
+        );
+        assert!(s.faults().contains(Fault::AngleSensorStuck));
+        // Any condition missing restarts the count.
+        type Case = (bool, f32, bool);
+        let breaks: [Case; 3] = [(true, 6.0, true), (false, 4.9, true), (false, 6.0, false)];
+        for (changed, iq, motion) in breaks {
+            let mut s = Supervisor::new(c);
+            for k in 0..100 {
+                let r = if k == 8 {
+                    s.check_stuck(changed, iq, motion)
+                } else {
+                    s.check_stuck(false, 6.0, true)
+                };
+                if k < 19 {
+                    assert_eq!(r, None, "k = {k}");
+                }
+            }
+            assert!(s.is_faulted());
+        }
+        // 0 disables.
+        let mut s = Supervisor::new(SupervisorConfig {
+            stuck_periods: 0,
+            ..c
+        });
+        for _ in 0..1000 {
+            assert_eq!(s.check_stuck(false, 100.0, true), None);
         }
     }
 
