@@ -37,13 +37,16 @@
 //!   the phase currents, once per PWM period), `BREAK_IRQ: pac::Interrupt`
 //!   (`TIM1_BRK_TIM9`), `MAX_PHASE_CURRENT_A: f32` (power stage, peak),
 //!   `MAX_MEASURABLE_CURRENT_A: f32` (current-sense range),
-//!   `BUS_VOLTAGE_MIN_V: f32`, `BUS_VOLTAGE_MAX_V: f32`, `HAS_BREAK_INPUT: bool`;
+//!   `BUS_VOLTAGE_MIN_V: f32`, `BUS_VOLTAGE_MAX_V: f32`, `HAS_BREAK_INPUT: bool`,
+//!   `SERIAL_IRQ: pac::Interrupt` (the command UART's interrupt, `USART2`
+//!   on every board), `SERIAL_BAUD: u32` (115200, 8N1);
 //! - type aliases `Pwm`, `Currents`, `Angle`, `Bus` implementing
 //!   [`foc_core::hal::PwmDriver`], [`foc_core::hal::CurrentSense`],
 //!   [`foc_core::hal::AngleSensor`], [`foc_core::hal::BusVoltage`];
 //! - `pub struct Board { pub pwm: Pwm, pub currents: Currents, pub angle: Angle,
-//!   pub bus: Bus, pub led: Led }` and `pub fn init(dp: pac::Peripherals) -> Board`:
-//!   clocks, pins, timers, ADC (and the DRV8301 over SPI on the ODrive). On
+//!   pub bus: Bus, pub led: Led, pub serial: CommandSerial }` and
+//!   `pub fn init(dp: pac::Peripherals) -> Board`: clocks, pins, timers, ADC,
+//!   the command UART (and the DRV8301 over SPI on the ODrive). On
 //!   return the bridge is **disabled** (safe state), the PWM counter runs
 //!   (so the ADC is triggered every period and `CURRENT_IRQ` becomes pending
 //!   once the NVIC line is unmasked, which is left to the RTIC app);
@@ -52,6 +55,15 @@
 //! - `pub fn break_isr_ack()`: clears the TIM1 break flag, outputs stay off;
 //! - `pub fn gate_driver_fault() -> bool`: the power stage's fault pin is
 //!   asserted (DRV8301 nFAULT on the ODrive, L6230 DIAG/EN on the IHM07M1).
+//!
+//! The command UART ([`hw::serial::CommandSerial`], re-exported by every
+//! board as `CommandSerial`) is USART2 everywhere: PA2 (TX) / PA3 (RX),
+//! AF7, 115200 8N1. On the NUCLEO boards that is the ST-LINK virtual COM
+//! port (ST UM1724); on the ODrive v3 the J3 pins GPIO3 / GPIO4 (the ODrive
+//! firmware's UART_B; its default UART_A is UART4 on GPIO1/2); under QEMU
+//! the second `-serial` device. Receive on RXNE, transmit from a ring
+//! drained by TXE; `read_byte`, `write`, `on_interrupt` (call it from the
+//! task bound to `SERIAL_IRQ`), errors counted, never a panic.
 //!
 //! Safe state = TIM1 `BDTR.MOE = 0` (outputs forced to their idle level,
 //! low: every switch off) **and** the power stage's enable pins low.

@@ -20,6 +20,7 @@
 //! | ENC B / H2             | PB3   | TIM2_CH2 (AF1) or GPIO        |
 //! | ENC Z / H3             | PB10  | TIM2_CH3 (AF1, index capture) or GPIO |
 //! | user LED LD2 (NUCLEO)  | PA5   | GPIO out (ST UM1724)          |
+//! | command UART TX / RX   | PA2 / PA3 | USART2 (AF7), 115200 8N1: the ST-LINK virtual COM port (ST UM1724, solder bridges SB13/SB14 closed by default) |
 //!
 //! Power stage (same sources): shunts 0.33 ohm, current amplifier gain
 //! -1.53 (inverting, biased), bus divider 169k / 9.31k (ratio 19.152),
@@ -34,6 +35,7 @@ use super::Led;
 use crate::hw::adc::{setup_adc1, InjectedCurrents, RegularBus, SampleTime, Shunts};
 use crate::hw::angle::{AngleInput, AngleSource, HallSensor, QuadEncoder};
 use crate::hw::pwm::{PwmConfig, Tim1Pwm, Topology};
+use crate::hw::serial::{CommandSerial, SerialConfig};
 use crate::hw::{enable_cycle_counter, PinId, Port};
 use crate::logic::hall::HallConfig;
 use crate::logic::scaling::{CurrentScale, VoltageScale};
@@ -101,7 +103,12 @@ pub struct Board {
     pub bus: Bus,
     /// NUCLEO LED LD2.
     pub led: Led,
+    /// Command UART: USART2 on PA2/PA3, the ST-LINK virtual COM port.
+    pub serial: CommandSerial,
 }
+
+/// Baud rate of the command UART [bit/s] (8N1).
+pub const SERIAL_BAUD: u32 = 115_200;
 
 /// Parameters that differ between the NUCLEO boards.
 pub(crate) struct Params {
@@ -195,12 +202,28 @@ pub(crate) fn init(dp: pac::Peripherals, p: Params) -> Board {
         }
     };
 
+    // Command UART: USART2 TX/RX on PA2/PA3 (AF7), wired to the ST-LINK
+    // virtual COM port (UM1724). Clock enable and reset through the HAL
+    // (RCC_APB1ENR.USART2EN, RM0390 6.3.13 / RM0368 6.3.11).
+    let _tx = gpioa.pa2.into_alternate::<7>();
+    let _rx = gpioa.pa3.into_alternate::<7>().internal_pull_up(true);
+    pac::USART2::enable(&mut rcc);
+    pac::USART2::reset(&mut rcc);
+    let serial = CommandSerial::usart2(
+        dp.USART2,
+        SerialConfig {
+            baud: SERIAL_BAUD,
+            pclk_hz: rcc.clocks.pclk1().raw(),
+        },
+    );
+
     Board {
         pwm,
         currents,
         angle,
         bus,
         led: Led::new(Some(LED_PIN)),
+        serial,
     }
 }
 

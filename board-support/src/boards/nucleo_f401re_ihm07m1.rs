@@ -9,10 +9,11 @@
 
 pub use super::ihm07m1::{
     break_isr_ack, emergency_disable, gate_driver_fault, Angle, Board, Bus, Currents, Pwm,
-    BUS_SCALE, CURRENT_SCALE, DIAG_PIN, ENABLE_PINS, HALL_PINS, LED_PIN,
+    BUS_SCALE, CURRENT_SCALE, DIAG_PIN, ENABLE_PINS, HALL_PINS, LED_PIN, SERIAL_BAUD,
 };
 pub use super::Led;
 pub use crate::hw::angle::AngleSource;
+pub use crate::hw::serial::CommandSerial;
 use crate::logic::hall::HallConfig;
 use crate::pac;
 use fugit::RateExtU32;
@@ -33,6 +34,9 @@ pub const DEAD_TIME_NS: u32 = 1_000;
 pub const CURRENT_IRQ: pac::Interrupt = pac::Interrupt::ADC;
 /// TIM1 break interrupt (never fires here: no BKIN on this board).
 pub const BREAK_IRQ: pac::Interrupt = pac::Interrupt::TIM1_BRK_TIM9;
+/// Command UART interrupt (USART2: PA2 TX / PA3 RX, the ST-LINK virtual
+/// COM port).
+pub const SERIAL_IRQ: pac::Interrupt = pac::Interrupt::USART2;
 /// TIM1 BKIN wired to a hardware fault signal.
 pub const HAS_BREAK_INPUT: bool = false;
 /// Largest phase current of the power stage [A] (L6230: 2.8 A peak, 1.4 A rms).

@@ -18,6 +18,16 @@
 //! | M0 ENC A / B         | PB4 / PB5        | TIM3_CH1 / CH2 (AF2)           |
 //! | M0 ENC Z             | PC9              | TIM3_CH4 (AF2, index capture)  |
 //! | M1 AH/BH/CH, AL/BL/CL| PC6-8, PA7/PB0/PB1 | GPIO out low (M1 unused)     |
+//! | GPIO3 / GPIO4        | PA2 / PA3        | USART2 TX / RX (AF7), command UART, 115200 8N1 |
+//!
+//! Command UART: USART2 on the J3 header pins GPIO3 (PA2, TX) and GPIO4
+//! (PA3, RX). The ODrive firmware calls this port UART_B; its default
+//! UART_A is UART4 on GPIO1/GPIO2 = PA0/PA1 (ODrive firmware
+//! `Board/v3/Inc/main.h`: `GPIO_1` = PA0 ... `GPIO_4` = PA3, and
+//! `board.h`: GPIO1/2 `GPIO_AF8_UART4`, GPIO3/4 `GPIO_AF7_USART2`; ODrive
+//! docs `uart.md`, "How to use UART on GPIO3/4"). USART2 is used so that
+//! every board has the same `SERIAL_IRQ` vector (`USART2`), which the RTIC
+//! app binds by name.
 //!
 //! Power stage: shunts 0.5 mOhm (v3.4 and later; 0.675 mOhm on v3.1-3.3),
 //! DRV8301 amplifier gain 10/20/40/80 (40 used: +-82 A range), VBUS divider
@@ -41,6 +51,8 @@ pub use crate::hw::angle::AngleSource;
 use crate::hw::angle::{AngleInput, HallSensor, QuadEncoder};
 use crate::hw::drv8301::{Drv8301, Drv8301Error};
 use crate::hw::pwm::{PwmConfig, Tim1Pwm, Topology};
+pub use crate::hw::serial::CommandSerial;
+use crate::hw::serial::SerialConfig;
 use crate::hw::{delay_us, enable_cycle_counter, PinId, Port};
 use crate::logic::drv8301::{Control1, Control2, Gain, GateCurrent, OcpMode, OctwMode, PwmMode};
 use crate::logic::hall::HallConfig;
@@ -67,6 +79,10 @@ pub const DEAD_TIME_NS: u32 = 120;
 pub const CURRENT_IRQ: pac::Interrupt = pac::Interrupt::ADC;
 /// TIM1 break interrupt (never fires here: no BKIN on this board).
 pub const BREAK_IRQ: pac::Interrupt = pac::Interrupt::TIM1_BRK_TIM9;
+/// Command UART interrupt (USART2: GPIO3 = PA2 TX, GPIO4 = PA3 RX).
+pub const SERIAL_IRQ: pac::Interrupt = pac::Interrupt::USART2;
+/// Baud rate of the command UART [bit/s] (8N1).
+pub const SERIAL_BAUD: u32 = 115_200;
 /// TIM1 BKIN wired to a hardware fault signal.
 pub const HAS_BREAK_INPUT: bool = false;
 /// Largest phase current of the power stage [A] (without MOSFET cooling).
@@ -155,6 +171,8 @@ pub struct Board {
     /// Result of the DRV8301 configuration at init. On error EN_GATE is
     /// left low and `pwm.enable()` fails.
     pub gate_driver_config: Result<(), Drv8301Error>,
+    /// Command UART: USART2 on GPIO3 (PA2, TX) / GPIO4 (PA3, RX).
+    pub serial: CommandSerial,
 }
 
 /// Set up clocks, pins, TIM1, ADC1, the DRV8301 and the angle input.
@@ -284,6 +302,20 @@ pub fn init(dp: pac::Peripherals) -> Board {
         }
     };
 
+    // Command UART: USART2 on PA2/PA3 (AF7). Clock enable and reset
+    // through the HAL (RCC_APB1ENR.USART2EN, RM0090 7.3.13).
+    let _tx = gpioa.pa2.into_alternate::<7>();
+    let _rx = gpioa.pa3.into_alternate::<7>().internal_pull_up(true);
+    pac::USART2::enable(&mut rcc);
+    pac::USART2::reset(&mut rcc);
+    let serial = CommandSerial::usart2(
+        dp.USART2,
+        SerialConfig {
+            baud: SERIAL_BAUD,
+            pclk_hz: rcc.clocks.pclk1().raw(),
+        },
+    );
+
     Board {
         pwm,
         currents,
@@ -292,6 +324,7 @@ pub fn init(dp: pac::Peripherals) -> Board {
         led: Led::new(None),
         gate_driver,
         gate_driver_config,
+        serial,
     }
 }
 

@@ -24,6 +24,8 @@
 //! [`sim`] is the test harness's handle on the plant (load torque, fault
 //! injection, the true state) for the scripted mission.
 
+pub use crate::hw::serial::CommandSerial;
+use crate::hw::serial::SerialConfig;
 use crate::pac;
 use core::cell::RefCell;
 use core::sync::atomic::{AtomicBool, Ordering};
@@ -54,6 +56,12 @@ pub const CURRENT_IRQ: pac::Interrupt = pac::Interrupt::ADC;
 pub const BREAK_IRQ: pac::Interrupt = pac::Interrupt::TIM1_BRK_TIM9;
 /// No break input.
 pub const HAS_BREAK_INPUT: bool = false;
+/// Command UART interrupt: USART2, QEMU's second `-serial` device (start
+/// QEMU with `-serial null -serial tcp:127.0.0.1:PORT,server,nowait`).
+pub const SERIAL_IRQ: pac::Interrupt = pac::Interrupt::USART2;
+/// Nominal baud rate (QEMU's USART model ignores BRR: bytes move at the
+/// speed of the character back-end).
+pub const SERIAL_BAUD: u32 = 115_200;
 /// Power-stage current limit [A].
 pub const MAX_PHASE_CURRENT_A: f32 = 20.0;
 /// Current ADC range [A].
@@ -269,6 +277,8 @@ pub struct Board {
     pub bus: Bus,
     /// No LED.
     pub led: Led,
+    /// Command UART: USART2 (QEMU `-serial` number two).
+    pub serial: CommandSerial,
 }
 
 /// Create the plant, start TIM2 as the period source, bridge off.
@@ -302,6 +312,17 @@ pub fn init(dp: pac::Peripherals) -> Board {
     // critical section) and pends ADC; unmasking it cannot break RTIC's
     // resource locking because it shares no RTIC resource.
     unsafe { cortex_m::peripheral::NVIC::unmask(pac::Interrupt::TIM2) };
+    // Command UART: RCC_APB1ENR.USART2EN (RM0090 7.3.13; QEMU does not
+    // model the RCC, so no ready flag is waited on). No GPIO set-up: QEMU
+    // models no GPIO alternate functions.
+    dp.RCC.apb1enr().modify(|_, w| w.usart2en().set_bit());
+    let serial = CommandSerial::usart2(
+        dp.USART2,
+        SerialConfig {
+            baud: SERIAL_BAUD,
+            pclk_hz: SYSCLK_HZ,
+        },
+    );
     Board {
         pwm: SimPwm { _private: () },
         currents: SimCurrents {
@@ -310,6 +331,7 @@ pub fn init(dp: pac::Peripherals) -> Board {
         angle: SimAngle { _private: () },
         bus: SimBus { _private: () },
         led: Led::new(None),
+        serial,
     }
 }
 

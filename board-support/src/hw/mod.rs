@@ -10,6 +10,7 @@ pub mod angle;
 pub mod as5047p;
 pub mod drv8301;
 pub mod pwm;
+pub mod serial;
 
 use crate::pac;
 

@@ -10,3 +10,4 @@ pub mod encoder;
 pub mod hall;
 pub mod pwm_timing;
 pub mod scaling;
+pub mod serial;
