@@ -9,7 +9,8 @@
 //! | `current_loop` | `ADC` (injected end of conversion, triggered by TIM1 at the PWM centre) | 4 | every PWM period, 20 kHz | start-up calibration, then read currents/angle/bus, `CurrentStage::step`, write PWM, pend the slower loops, measure its own time |
 //! | `speed_loop` | `EXTI1` (pended by `current_loop`) | 3 | every `SPEED_DIVIDER` = 10 periods, 2 kHz | `SpeedStage::step`: velocity PI -> `iq_ref` |
 //! | `position_loop` | `EXTI2` (pended by `current_loop`) | 2 | every `POSITION_DIVIDER` = 20 periods, 1 kHz | `PositionStage::step`: trajectory + P -> velocity reference |
-//! | `housekeeping` | `EXTI3` (pended by `current_loop`) | 1 | every 400 periods, 50 Hz | start-up command, telemetry log |
+//! | `housekeeping` | `EXTI3` (pended by `current_loop`) | 1 | every 400 periods, 50 Hz | start-up command, telemetry log, command-channel poll (link watchdog, streamed telemetry: at most one sample per run, so up to 50 Hz) |
+//! | `serial` | `USART2` (`board::SERIAL_IRQ`, the command UART) | 1 | per received / sent byte | command channel: bytes to `DeviceState::on_byte`, replies queued (see `comms`) |
 //! | `idle` | - | 0 | background | feeds the watchdog only while the current loop runs |
 //!
 //! `EXTI1..3` are used only as software-pended vectors: no EXTI line is
@@ -26,6 +27,7 @@
 #![no_std]
 #![no_main]
 
+mod comms;
 mod config;
 #[cfg(feature = "qemu")]
 mod mission;
@@ -44,13 +46,14 @@ static CURRENT_LOOP_RUNS: AtomicU32 = AtomicU32::new(0);
 
 #[rtic::app(device = board_support::pac, peripherals = true)]
 mod app {
-    use super::{config, timing, watchdog, CURRENT_LOOP_RUNS};
+    use super::{comms, config, timing, watchdog, CURRENT_LOOP_RUNS};
     use board_support::board;
     use board_support::pac::Interrupt;
     use core::sync::atomic::Ordering;
     use foc_core::calibration::offsets::{OffsetCalibrator, OffsetLimits, OffsetStep};
+    use foc_core::calibration::Calibrated;
     use foc_core::control::stage::{CurrentStage, PositionStage, SpeedStage, VelocityRef};
-    use foc_core::control::{drive, CommandSlot, Fault, Feedback};
+    use foc_core::control::{drive, Command, CommandSlot, Fault, Feedback};
     use foc_core::frames::Abc;
     use foc_core::hal::{CurrentSense, PwmDriver};
 
@@ -67,8 +70,10 @@ mod app {
 
     #[shared]
     struct Shared {
-        /// Command mailbox. Written by `housekeeping` (prio 1; later the
-        /// command channel); read by `current_loop` (prio 4).
+        /// Command mailbox. Written by `housekeeping` (prio 1: start
+        /// command, QEMU mission, link watchdog) and `serial` (prio 1:
+        /// commands, keep-alives, fault clears from the link); read by
+        /// `current_loop` (prio 4).
         command: CommandSlot,
         /// Feedback published every period. Written by `current_loop` (4);
         /// read by `speed_loop` (3), `position_loop` (2), `housekeeping` (1).
@@ -86,8 +91,21 @@ mod app {
         /// (cleared) by `current_loop` (4), which latches the fault.
         break_fired: bool,
         /// Start-up phase. Written by `current_loop` (4); read by
-        /// `housekeeping` (1).
+        /// `housekeeping` (1) and `serial` (1).
         phase: Phase,
+        /// Configuration changes from the command channel. Written (merged)
+        /// by `serial` and `housekeeping` (1); each part taken by its owner:
+        /// `current` by `current_loop` (4), `speed` by `speed_loop` (3),
+        /// `position` by `position_loop` (2), at their next run.
+        config_request: comms::ConfigMailbox,
+        /// Offsets calibrated and the current stage holds a calibration
+        /// permit (closed-loop modes allowed). Written by `current_loop`
+        /// (4) when it changes; read by `serial` and `housekeeping` (1).
+        calibrated: bool,
+        /// The command channel (UART, decoder, protocol state, settings).
+        /// Used by `serial` and `housekeeping`, both priority 1, so never
+        /// contended.
+        comms: comms::Comms,
     }
 
     #[local]
@@ -100,6 +118,14 @@ mod app {
         stage: CurrentStage,
         offsets: OffsetCalibrator,
         tick: u32,
+        /// `current_loop` only: speed / position dividers in force
+        /// (changed through `config_request` while disabled).
+        dividers: (u32, u32),
+        /// `current_loop` only: offsets calibrated (false until the
+        /// start-up calibration succeeds, and while it is re-run).
+        offsets_ok: bool,
+        /// `current_loop` only: last value written to `calibrated`.
+        calibrated_seen: bool,
         /// `speed_loop` only.
         speed: SpeedStage,
         /// `position_loop` only.
@@ -142,6 +168,9 @@ mod app {
                 },
                 break_fired: false,
                 phase: Phase::OffsetCalibration,
+                config_request: comms::ConfigMailbox::EMPTY,
+                calibrated: false,
+                comms: comms::Comms::new(b.serial),
             },
             Local {
                 pwm: b.pwm,
@@ -155,6 +184,12 @@ mod app {
                     max_noise_a: config::OFFSET_CAL_MAX_NOISE_A,
                 }),
                 tick: 0,
+                dividers: (
+                    u32::from(cfg.rates.speed_divider.max(1)),
+                    u32::from(cfg.rates.position_divider.max(1)),
+                ),
+                offsets_ok: false,
+                calibrated_seen: false,
                 speed: SpeedStage::new(cfg.speed),
                 position: PositionStage::new(cfg.position),
                 started: false,
@@ -187,14 +222,47 @@ mod app {
     #[task(
         binds = ADC,
         priority = 4,
-        shared = [command, feedback, iq_ref_a, timing, break_fired, phase],
-        local = [pwm, currents, angle, bus, stage, offsets, tick]
+        shared = [command, feedback, iq_ref_a, timing, break_fired, phase, config_request, calibrated],
+        local = [pwm, currents, angle, bus, stage, offsets, tick, dividers, offsets_ok, calibrated_seen]
     )]
     fn current_loop(mut cx: current_loop::Context) {
         let t0 = timing::now_cycles();
         let l = cx.local;
         let sample = drive::read_sample(l.currents, l.angle, l.bus);
-        let phase = cx.shared.phase.lock(|p| *p);
+        let mut phase = cx.shared.phase.lock(|p| *p);
+        // Configuration from the command channel (validated there; only
+        // sent while disabled), before this period's command is read.
+        if let Some(ch) = cx.shared.config_request.lock(|m| m.current.take()) {
+            if let Some(lim) = ch.limits {
+                l.stage.set_limits(lim);
+            }
+            if let Some(cur) = ch.current {
+                // Keep the closed-loop permit: the same angle calibration
+                // with the new gains, checked for plausibility.
+                let angle = l.stage.config().angle;
+                match Calibrated::supplied(angle, cur) {
+                    Ok(p) if l.stage.is_calibrated() => l.stage.set_calibration(&p),
+                    _ => l.stage.set_current_config(cur),
+                }
+            }
+            if let Some((n, m)) = ch.dividers {
+                *l.dividers = (u32::from(n.max(1)), u32::from(m.max(1)));
+            }
+            if let Some(f) = ch.fault {
+                l.stage.report_fault(f);
+            }
+            if ch.calibrate_offsets && phase == Phase::Run && l.stage.active() == Command::Disable {
+                l.currents.set_offsets_a(Abc::default());
+                *l.offsets = OffsetCalibrator::new(OffsetLimits {
+                    samples: config::OFFSET_CAL_SAMPLES,
+                    max_offset_a: config::OFFSET_CAL_MAX_A,
+                    max_noise_a: config::OFFSET_CAL_MAX_NOISE_A,
+                });
+                *l.offsets_ok = false;
+                phase = Phase::OffsetCalibration;
+                cx.shared.phase.lock(|p| *p = phase);
+            }
+        }
         let next_phase = match phase {
             Phase::OffsetCalibration => {
                 l.pwm.disable();
@@ -203,6 +271,7 @@ mod app {
                     Some(OffsetStep::InProgress) => phase,
                     Some(OffsetStep::Done(o)) => {
                         l.currents.set_offsets_a(o);
+                        *l.offsets_ok = true;
                         defmt::info!("current offsets [A]: {}", o);
                         Phase::SensorCheck(0)
                     }
@@ -247,12 +316,17 @@ mod app {
         if next_phase != phase {
             cx.shared.phase.lock(|p| *p = next_phase);
         }
+        let calibrated = *l.offsets_ok && next_phase == Phase::Run && l.stage.is_calibrated();
+        if calibrated != *l.calibrated_seen {
+            *l.calibrated_seen = calibrated;
+            cx.shared.calibrated.lock(|c| *c = calibrated);
+        }
         *l.tick = l.tick.wrapping_add(1);
         let t = *l.tick;
-        if t % config::SPEED_DIVIDER as u32 == 0 {
+        if t % l.dividers.0 == 0 {
             rtic::pend(Interrupt::EXTI1);
         }
-        if t % config::POSITION_DIVIDER as u32 == 0 {
+        if t % l.dividers.1 == 0 {
             rtic::pend(Interrupt::EXTI2);
         }
         if t % config::HOUSEKEEPING_DIVIDER == 0 {
@@ -271,8 +345,11 @@ mod app {
     }
 
     /// The speed loop: every `SPEED_DIVIDER` periods.
-    #[task(binds = EXTI1, priority = 3, shared = [feedback, iq_ref_a, velocity_ref], local = [speed])]
+    #[task(binds = EXTI1, priority = 3, shared = [feedback, iq_ref_a, velocity_ref, config_request], local = [speed])]
     fn speed_loop(mut cx: speed_loop::Context) {
+        if let Some(c) = cx.shared.config_request.lock(|m| m.speed.take()) {
+            cx.local.speed.speed_loop().set_config(c);
+        }
         let fb = cx.shared.feedback.lock(|f| *f);
         let vr = cx.shared.velocity_ref.lock(|v| *v);
         let iq = cx.local.speed.step(&fb, vr);
@@ -280,15 +357,66 @@ mod app {
     }
 
     /// The position loop: every `POSITION_DIVIDER` periods.
-    #[task(binds = EXTI2, priority = 2, shared = [feedback, velocity_ref], local = [position])]
+    #[task(binds = EXTI2, priority = 2, shared = [feedback, velocity_ref, config_request], local = [position])]
     fn position_loop(mut cx: position_loop::Context) {
+        if let Some(c) = cx.shared.config_request.lock(|m| m.position.take()) {
+            cx.local.position.set_config(c);
+        }
         let fb = cx.shared.feedback.lock(|f| *f);
         let vr = cx.local.position.step(&fb);
         cx.shared.velocity_ref.lock(|v| *v = vr);
     }
 
-    /// Housekeeping: start-up command and telemetry, at 50 Hz.
-    #[task(binds = EXTI3, priority = 1, shared = [command, feedback, timing, phase], local = [started])]
+    /// Take a snapshot of the shared state for the command channel.
+    fn link_snapshot(
+        fb: &Feedback,
+        tm: &timing::LoopTiming,
+        phase: Phase,
+        calibrated: bool,
+    ) -> comms::Snapshot {
+        comms::Snapshot {
+            feedback: *fb,
+            max_loop_cycles: tm.max_cycles,
+            running: phase == Phase::Run,
+            calibrated,
+        }
+    }
+
+    /// The command channel: bytes from the UART to the protocol, replies
+    /// back; each request's changes committed before the next is read.
+    #[task(
+        binds = USART2,
+        priority = 1,
+        shared = [command, feedback, timing, phase, config_request, calibrated, comms]
+    )]
+    fn serial(mut cx: serial::Context) {
+        cx.shared.comms.lock(|c| c.serial.on_interrupt());
+        // Bounded: every frame takes at least one byte of the RX ring.
+        for _ in 0..board_support::hw::serial::RX_CAPACITY {
+            let fb = cx.shared.feedback.lock(|f| *f);
+            let tm = cx.shared.timing.lock(|t| *t);
+            let phase = cx.shared.phase.lock(|p| *p);
+            let cal = cx.shared.calibrated.lock(|c| *c);
+            let snap = link_snapshot(&fb, &tm, phase, cal);
+            let Some(out) = cx.shared.comms.lock(|c| c.receive(snap)) else {
+                break;
+            };
+            if out.touches_config() {
+                cx.shared.config_request.lock(|m| m.merge(&out.config));
+            }
+            if out.touches_command() {
+                cx.shared.command.lock(|c| out.apply_command(c));
+            }
+        }
+    }
+
+    /// Housekeeping: start-up command, command-channel poll and telemetry, at 50 Hz.
+    #[task(
+        binds = EXTI3,
+        priority = 1,
+        shared = [command, feedback, timing, phase, config_request, calibrated, comms],
+        local = [started]
+    )]
     fn housekeeping(mut cx: housekeeping::Context) {
         let phase = cx.shared.phase.lock(|p| *p);
         if phase == Phase::Run && !*cx.local.started {
@@ -299,6 +427,16 @@ mod app {
         }
         let fb = cx.shared.feedback.lock(|f| *f);
         let tm = cx.shared.timing.lock(|t| *t);
+        // Command channel: link watchdog and streamed telemetry.
+        let cal = cx.shared.calibrated.lock(|c| *c);
+        let snap = link_snapshot(&fb, &tm, phase, cal);
+        let out = cx.shared.comms.lock(|c| c.poll(snap, fb.period));
+        if out.touches_config() {
+            cx.shared.config_request.lock(|m| m.merge(&out.config));
+        }
+        if out.touches_command() {
+            cx.shared.command.lock(|c| out.apply_command(c));
+        }
         #[cfg(feature = "qemu")]
         {
             let running = phase == Phase::Run;

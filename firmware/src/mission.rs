@@ -18,6 +18,10 @@
 //!
 //! With the semihosting argument `panic` it instead panics during the
 //! position move; the panic handler must leave the bridge off.
+//!
+//! With the semihosting argument `e2e` the mission stays passive: it posts
+//! nothing, checks nothing and never exits, so that only the command
+//! channel (USART2, `cargo xtask e2e`) drives the drive.
 //! The outcome is the QEMU exit status (see [`exit`]).
 
 use board_support::board::sim::{self, SimFault};
@@ -53,6 +57,16 @@ pub fn exit(code: u32) -> ! {
 
 /// True when QEMU passed `panic` as a semihosting argument.
 pub fn panic_run_requested() -> bool {
+    cmdline_has(b"panic")
+}
+
+/// True when QEMU passed `e2e` as a semihosting argument (passive mission).
+pub fn e2e_run_requested() -> bool {
+    cmdline_has(b"e2e")
+}
+
+/// True when the semihosting command line contains `word`.
+fn cmdline_has(word: &[u8]) -> bool {
     const SYS_GET_CMDLINE: usize = 0x15;
     let mut buf = [0u8; 64];
     // SAFETY: semihosting GET_CMDLINE writes at most `buf.len()` bytes.
@@ -61,7 +75,7 @@ pub fn panic_run_requested() -> bool {
     if r != 0 {
         return false;
     }
-    buf.windows(5).any(|w| w == b"panic")
+    buf.windows(word.len()).any(|w| w == word)
 }
 
 /// Mission steps.
@@ -83,6 +97,7 @@ pub struct Mission {
     since: u32,
     target_rad: f32,
     panic_run: bool,
+    passive: bool,
     failures: u32,
 }
 
@@ -92,13 +107,15 @@ fn periods(s: f32) -> u32 {
 }
 
 impl Mission {
-    /// New mission; `panic_run` selects the forced-panic variant.
-    pub const fn new(panic_run: bool) -> Self {
+    /// New mission; `panic_run` selects the forced-panic variant,
+    /// `passive` the command-channel test (the mission does nothing).
+    pub const fn new(panic_run: bool, passive: bool) -> Self {
         Self {
             step: Step::WaitStartup,
             since: 0,
             target_rad: 0.0,
             panic_run,
+            passive,
             failures: 0,
         }
     }
@@ -130,6 +147,13 @@ impl Mission {
         running: bool,
         overruns: u32,
     ) -> Option<u32> {
+        if self.passive {
+            if self.step == Step::WaitStartup && running {
+                defmt::info!("mission: passive (e2e): waiting for the command channel");
+                self.step = Step::Done;
+            }
+            return None;
+        }
         let now = fb.period;
         let t = sim::truth();
         let elapsed = now.wrapping_sub(self.since);
@@ -251,7 +275,7 @@ static MISSION: cortex_m::interrupt::Mutex<core::cell::RefCell<Option<Mission>>>
 /// One housekeeping tick of the mission (creates it on first use).
 pub fn tick(fb: &Feedback, slot: &mut CommandSlot, running: bool, overruns: u32) -> Option<u32> {
     let mut mission = cortex_m::interrupt::free(|cs| MISSION.borrow(cs).borrow_mut().take())
-        .unwrap_or_else(|| Mission::new(panic_run_requested()));
+        .unwrap_or_else(|| Mission::new(panic_run_requested(), e2e_run_requested()));
     let out = mission.tick(fb, slot, running, overruns);
     cortex_m::interrupt::free(|cs| MISSION.borrow(cs).replace(Some(mission)));
     out

@@ -1,0 +1,466 @@
+//! The command and telemetry channel: `foc_protocol` over the board's
+//! command UART (`board::CommandSerial`, USART2 on every board).
+//!
+//! Two priority-1 tasks use it (see `main.rs`): the `serial` task (bound to
+//! `board::SERIAL_IRQ`) feeds received bytes to
+//! [`DeviceState::on_byte`] and queues the replies; `housekeeping` calls
+//! [`DeviceState::poll`] for the link watchdog and streamed telemetry.
+//! Both hold [`Comms`] (a shared resource of theirs, so never contended).
+//!
+//! The protocol validates every request before it touches the
+//! [`DeviceContext`]. [`Link`] is that context: a *snapshot* of the shared
+//! state (feedback, timing, phase) taken before a frame is handled, plus
+//! an outbox of what the frame asked for, committed into the RTIC shared
+//! resources right after (`Link::commit` in `main.rs`):
+//!
+//! - commands, keep-alives and fault clears go to the `command`
+//!   [`CommandSlot`] (read by the current loop);
+//! - configuration changes go to the `config_request` [`ConfigMailbox`],
+//!   one part per owning task: the current loop takes limits, current gains,
+//!   dividers, the offset calibration and a fault to latch; the speed loop
+//!   its [`SpeedLoopConfig`]; the position loop its [`PositionLoopConfig`].
+//!   Each applies its part at its next run (at most one position-loop
+//!   period later). Changes merge: a newer value replaces a pending one,
+//!   so back-to-back requests are never lost.
+//!
+//! Refused here (nothing changes, the host gets a Nack):
+//!
+//! | request | refused when | reply |
+//! |---|---|---|
+//! | limits, any gains, dividers | the drive is not disabled | `NotDisabled` |
+//! | limits | `max_current_a` above the build-time limit (`config::MOTOR`) | `Unsupported` |
+//! | current gains | not positive (a calibration permit cannot vouch for them) | `Unsupported` |
+//! | any change, calibration | start-up / offset calibration still running | `Busy` |
+//! //! | calibration `identification`, `alignment` | always: not in this firmware yet | `Unsupported` |
+
+use crate::config;
+use board_support::board;
+use foc_core::calibration::Calibrated;
+use foc_core::control::current::CurrentLoopConfig;
+use foc_core::control::position::PositionLoopConfig;
+use foc_core::control::speed::SpeedLoopConfig;
+use foc_core::control::stage::AngleCalibration;
+use foc_core::control::{
+    Command, CommandError, CommandSlot, Fault, FaultSet, Feedback, Limits, Mode,
+};
+use foc_protocol::frame::{encode, FrameDecoder, MAX_FRAME};
+use foc_protocol::message::{
+    Calibration, CurrentGains, ParamId, PositionGains, SpeedGains, Telemetry,
+};
+use foc_protocol::{DeviceContext, DeviceState, Refusal, WatchdogConfig};
+
+/// Link watchdog at start-up: off. A host that wants one sends
+/// `SetWatchdog` (`foc-ctl watchdog ...`). (On by default it would disable
+/// a drive started by `config::START_COMMAND` or the QEMU mission, which
+/// never talk on the link.)
+pub const DEFAULT_WATCHDOG: WatchdogConfig = WatchdogConfig::OFF;
+
+/// What the current loop (priority 4) takes from the mailbox.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct CurrentChange {
+    /// New command limits (`CurrentStage::set_limits`).
+    pub limits: Option<Limits>,
+    /// New current-loop configuration, installed with a calibration permit
+    /// for the stage's angle calibration when the stage is calibrated.
+    pub current: Option<CurrentLoopConfig>,
+    /// New speed / position dividers [periods].
+    pub dividers: Option<(u16, u16)>,
+    /// Re-run the start-up current-offset calibration (bridge off).
+    pub calibrate_offsets: bool,
+    /// Latch this fault (the link watchdog's `Disable` reaction).
+    pub fault: Option<Fault>,
+}
+
+impl CurrentChange {
+    fn merge(&mut self, o: CurrentChange) {
+        self.limits = o.limits.or(self.limits);
+        self.current = o.current.or(self.current);
+        self.dividers = o.dividers.or(self.dividers);
+        self.calibrate_offsets |= o.calibrate_offsets;
+        self.fault = self.fault.or(o.fault);
+    }
+}
+
+/// Pending configuration changes, one part per owning task.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct ConfigMailbox {
+    /// Taken by `current_loop` (4).
+    pub current: Option<CurrentChange>,
+    /// Taken by `speed_loop` (3).
+    pub speed: Option<SpeedLoopConfig>,
+    /// Taken by `position_loop` (2).
+    pub position: Option<PositionLoopConfig>,
+}
+
+impl ConfigMailbox {
+    /// Nothing pending.
+    pub const EMPTY: Self = Self {
+        current: None,
+        speed: None,
+        position: None,
+    };
+
+    /// Merge `o` into the pending changes (newer values win).
+    pub fn merge(&mut self, o: &ConfigMailbox) {
+        if let Some(c) = o.current {
+            let mut cur = self.current.unwrap_or_default();
+            cur.merge(c);
+            self.current = Some(cur);
+        }
+        self.speed = o.speed.or(self.speed);
+        self.position = o.position.or(self.position);
+    }
+
+    fn is_empty(&self) -> bool {
+        self.current.is_none() && self.speed.is_none() && self.position.is_none()
+    }
+}
+
+/// The configuration in force (as last requested over the link; the
+/// owning tasks apply it within one position-loop period).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Settings {
+    /// Command limits.
+    pub limits: Limits,
+    /// Current loop.
+    pub current: CurrentLoopConfig,
+    /// Angle calibration of the current stage (for a new permit).
+    pub angle: AngleCalibration,
+    /// Speed loop.
+    pub speed: SpeedLoopConfig,
+    /// Position loop.
+    pub position: PositionLoopConfig,
+    /// Speed / position loop dividers [periods].
+    pub dividers: (u16, u16),
+}
+
+impl Settings {
+    /// The build-time configuration (`config::cascade`).
+    pub fn from_config() -> Self {
+        let c = config::cascade(board::PWM_FREQUENCY_HZ as f32);
+        Self {
+            limits: c.current.limits,
+            current: c.current.current,
+            angle: c.current.angle,
+            speed: c.speed,
+            position: c.position,
+            dividers: (c.rates.speed_divider, c.rates.position_divider),
+        }
+    }
+}
+
+/// What the shared state looked like when a frame arrived.
+#[derive(Clone, Copy, Debug)]
+pub struct Snapshot {
+    /// Latest feedback of the current loop.
+    pub feedback: Feedback,
+    /// Longest current-loop run [cycles].
+    pub max_loop_cycles: u32,
+    /// Start-up (offset calibration, sensor check) finished.
+    pub running: bool,
+    /// Offsets done and the current stage holds a calibration permit.
+    pub calibrated: bool,
+}
+
+/// Mutations a frame asked for, committed after it was handled.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Outbox {
+    /// Command to post.
+    pub post: Option<Command>,
+    /// Re-post the mailbox's command (refreshes the stage's timeout).
+    pub keep_alive: bool,
+    /// Request a fault clear.
+    pub clear: bool,
+    /// Configuration changes.
+    pub config: ConfigMailbox,
+}
+
+impl Outbox {
+    /// Apply the command part to the mailbox (clear first, as the current
+    /// stage does: a command sent with a clear is taken after it).
+    pub fn apply_command(&self, slot: &mut CommandSlot) {
+        if self.clear {
+            slot.request_clear();
+        }
+        if let Some(c) = self.post {
+            slot.post(c);
+        } else if self.keep_alive {
+            let c = slot.command;
+            slot.post(c);
+        }
+    }
+    /// True when something must be written to the command mailbox.
+    pub fn touches_command(&self) -> bool {
+        self.clear || self.post.is_some() || self.keep_alive
+    }
+    /// True when configuration changes are pending.
+    pub fn touches_config(&self) -> bool {
+        !self.config.is_empty()
+    }
+}
+
+/// The [`DeviceContext`] of one frame (or one poll).
+pub struct Link<'a> {
+    /// State when the frame arrived.
+    pub snap: Snapshot,
+    /// The configuration in force.
+    pub settings: &'a mut Settings,
+    /// What to commit.
+    pub out: Outbox,
+}
+
+impl Link<'_> {
+    fn config_allowed(&self) -> Result<(), Refusal> {
+        if !self.snap.running {
+            return Err(Refusal::Busy);
+        }
+        if self.snap.feedback.mode != Mode::Disabled {
+            return Err(Refusal::NotDisabled);
+        }
+        Ok(())
+    }
+}
+
+/// `"1.2.3"` -> `[1, 2, 3]` at compile time.
+const fn version() -> [u8; 3] {
+    let s = env!("CARGO_PKG_VERSION").as_bytes();
+    let mut out = [0u8; 3];
+    let (mut i, mut part) = (0, 0);
+    while i < s.len() && part < 3 {
+        let c = s[i];
+        if c == b'.' {
+            part += 1;
+        } else if c.is_ascii_digit() {
+            out[part] = out[part].wrapping_mul(10).wrapping_add(c - b'0');
+        } else {
+            break;
+        }
+        i += 1;
+    }
+    out
+}
+
+/// Firmware version reported in `Hello`.
+pub const FIRMWARE_VERSION: [u8; 3] = version();
+
+impl DeviceContext for Link<'_> {
+    fn post(&mut self, cmd: Command) -> Result<(), CommandError> {
+        self.out.post = Some(cmd);
+        Ok(())
+    }
+    fn keep_alive(&mut self) {
+        self.out.keep_alive = true;
+    }
+    fn mode(&self) -> Mode {
+        self.snap.feedback.mode
+    }
+    fn faults(&self) -> (FaultSet, Option<Fault>) {
+        (self.snap.feedback.faults, self.snap.feedback.first_fault)
+    }
+    fn clear_faults(&mut self) {
+        self.out.clear = true;
+    }
+    fn report_fault(&mut self, fault: Fault) {
+        let c = self.out.config.current.get_or_insert_with(Default::default);
+        c.fault = Some(fault);
+    }
+    fn limits(&self) -> Limits {
+        self.settings.limits
+    }
+    fn set_limits(&mut self, limits: Limits) -> Result<(), Refusal> {
+        self.config_allowed()?;
+        if limits.max_current_a > config::MOTOR.1 {
+            return Err(Refusal::Unsupported);
+        }
+        let mut speed = self.settings.speed;
+        speed.current_limit_a = limits.max_current_a;
+        self.settings.limits = limits;
+        self.settings.speed = speed;
+        let c = self.out.config.current.get_or_insert_with(Default::default);
+        c.limits = Some(limits);
+        self.out.config.speed = Some(speed);
+        Ok(())
+    }
+    fn set_current_gains(&mut self, gains: CurrentGains) -> Result<(), Refusal> {
+        self.config_allowed()?;
+        let mut cur = self.settings.current;
+        gains.apply(&mut cur);
+        // The stage keeps its calibration only with values a permit vouches
+        // for; the current loop re-checks when it installs them.
+        if Calibrated::supplied(self.settings.angle, cur).is_err() {
+            return Err(Refusal::Unsupported);
+        }
+        self.settings.current = cur;
+        let c = self.out.config.current.get_or_insert_with(Default::default);
+        c.current = Some(cur);
+        Ok(())
+    }
+    fn set_speed_gains(&mut self, gains: SpeedGains) -> Result<(), Refusal> {
+        self.config_allowed()?;
+        gains.apply(&mut self.settings.speed);
+        self.out.config.speed = Some(self.settings.speed);
+        Ok(())
+    }
+    fn set_position_gains(&mut self, gains: PositionGains) -> Result<(), Refusal> {
+        self.config_allowed()?;
+        gains.apply(&mut self.settings.position);
+        self.out.config.position = Some(self.settings.position);
+        Ok(())
+    }
+    fn set_dividers(&mut self, speed: u16, position: u16) -> Result<(), Refusal> {
+        self.config_allowed()?;
+        let pwm = board::PWM_FREQUENCY_HZ as f32;
+        self.settings.dividers = (speed, position);
+        // The slower loops' discrete-time gains follow their new periods.
+        self.settings.speed.ts_s = f32::from(speed) / pwm;
+        self.settings.position.ts_s = f32::from(position) / pwm;
+        let c = self.out.config.current.get_or_insert_with(Default::default);
+        c.dividers = Some((speed, position));
+        self.out.config.speed = Some(self.settings.speed);
+        self.out.config.position = Some(self.settings.position);
+        Ok(())
+    }
+    fn start_calibration(&mut self, routine: Calibration) -> Result<(), Refusal> {
+        match routine {
+            Calibration::Offsets => {
+                if !self.snap.running {
+                    return Err(Refusal::Busy);
+                }
+                let c = self.out.config.current.get_or_insert_with(Default::default);
+                c.calibrate_offsets = true;
+                Ok(())
+            }
+            Calibration::Identification | Calibration::Alignment => Err(Refusal::Unsupported),
+        }
+    }
+    fn is_calibrated(&self) -> bool {
+        self.snap.calibrated
+    }
+    fn param(&self, id: ParamId) -> Option<f32> {
+        let (m, _) = config::MOTOR;
+        Some(match id {
+            ParamId::PolePairs => f32::from(m.pole_pairs),
+            ParamId::ResistanceOhm => self.settings.current.motor.r_ohm,
+            ParamId::LdH => self.settings.current.motor.ld_h,
+            ParamId::LqH => self.settings.current.motor.lq_h,
+            ParamId::FluxLinkageWb => self.settings.current.motor.flux_linkage_wb,
+            ParamId::PwmFrequencyHz => board::PWM_FREQUENCY_HZ as f32,
+            ParamId::SpeedDivider => f32::from(self.settings.dividers.0),
+            ParamId::PositionDivider => f32::from(self.settings.dividers.1),
+            ParamId::FirmwareVersion => {
+                let [a, b, c] = FIRMWARE_VERSION;
+                f32::from(a) * 10_000.0 + f32::from(b) * 100.0 + f32::from(c)
+            }
+            ParamId::BusVoltageV => self.snap.feedback.v_bus_v,
+            ParamId::Calibrated => {
+                if self.snap.calibrated {
+                    1.0
+                } else {
+                    0.0
+                }
+            }
+            ParamId::MaxLoopCycles => self.snap.max_loop_cycles as f32,
+            // Answered by the protocol layer itself.
+            ParamId::ProtocolVersion | ParamId::TelemetryDivider | ParamId::WatchdogTimeout => {
+                return None
+            }
+        })
+    }
+    fn telemetry(&self) -> Telemetry {
+        Telemetry::from_feedback(&self.snap.feedback, self.snap.max_loop_cycles)
+    }
+    fn firmware_version(&self) -> [u8; 3] {
+        FIRMWARE_VERSION
+    }
+}
+
+/// Link counters (for the log).
+#[derive(Clone, Copy, Debug, Default, defmt::Format)]
+pub struct LinkCounters {
+    /// Frames handled.
+    pub frames: u32,
+    /// Replies or samples dropped because the TX ring was full.
+    pub tx_dropped: u32,
+}
+
+/// The channel's state: UART, decoder, protocol state, settings.
+pub struct Comms {
+    /// The command UART.
+    pub serial: board::CommandSerial,
+    /// Frame decoder of the receive direction.
+    pub decoder: FrameDecoder,
+    /// Protocol state (watchdog, telemetry schedule, retransmission cache).
+    pub device: DeviceState,
+    /// The configuration in force.
+    pub settings: Settings,
+    /// Counters.
+    pub counters: LinkCounters,
+    tx: [u8; MAX_FRAME],
+}
+
+impl Comms {
+    /// Channel over `serial`, watchdog [`DEFAULT_WATCHDOG`], telemetry off.
+    pub fn new(serial: board::CommandSerial) -> Self {
+        Self {
+            serial,
+            decoder: FrameDecoder::new(),
+            device: DeviceState::with_watchdog(DEFAULT_WATCHDOG),
+            settings: Settings::from_config(),
+            counters: LinkCounters::default(),
+            tx: [0; MAX_FRAME],
+        }
+    }
+
+    /// Queue a whole frame, or nothing when it does not fit (a cut frame
+    /// would cost the host the next one too).
+    fn send(&mut self, n: usize) {
+        let frame = self.tx.get(..n).unwrap_or(&[]);
+        if self.serial.tx_free() >= frame.len() {
+            self.serial.write(frame);
+        } else {
+            self.counters.tx_dropped = self.counters.tx_dropped.wrapping_add(1);
+        }
+    }
+
+    /// Feed received bytes to the protocol until a frame completes or the
+    /// UART is drained. `snap` is the shared state now; returns the outbox
+    /// of the completed frame (commit it, then call again), or `None` when
+    /// no more bytes are waiting.
+    pub fn receive(&mut self, snap: Snapshot) -> Option<Outbox> {
+        while let Some(b) = self.serial.read_byte() {
+            let mut link = Link {
+                snap,
+                settings: &mut self.settings,
+                out: Outbox::default(),
+            };
+            if let Some(n) = self
+                .device
+                .on_byte(&mut link, &mut self.decoder, b, &mut self.tx)
+            {
+                let out = link.out;
+                self.counters.frames = self.counters.frames.wrapping_add(1);
+                self.send(n);
+                return Some(out);
+            }
+        }
+        None
+    }
+
+    /// Link watchdog and telemetry stream, at `now_period` (current-loop
+    /// periods). Returns the outbox to commit (a watchdog reaction).
+    pub fn poll(&mut self, snap: Snapshot, now_period: u32) -> Outbox {
+        let mut link = Link {
+            snap,
+            settings: &mut self.settings,
+            out: Outbox::default(),
+        };
+        let sample = self.device.poll(&mut link, now_period);
+        let out = link.out;
+        if let Some((seq, msg)) = sample {
+            if let Ok(n) = encode(seq, &msg, &mut self.tx) {
+                self.send(n);
+            }
+        }
+        out
+    }
+}
