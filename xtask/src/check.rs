@@ -12,7 +12,7 @@ use crate::build::{self, Profile};
 use crate::sim;
 use crate::toolchain;
 use crate::util::{banner, cargo, fmt_duration, run, Error, Result, THUMB_TARGET};
-use crate::{bench, qemu};
+use crate::{bench, e2e, qemu};
 
 /// The host crates (the workspace's default members): everything but the
 /// thumb-only firmware.
@@ -121,6 +121,13 @@ pub fn steps() -> Vec<Step> {
     steps.push(Step::new(
         "firmware in the loop under QEMU (cargo xtask qemu)",
         || qemu::run_cmd(&qemu::QemuArgs::default()),
+    ));
+    // The command channel end to end: QEMU's USART2 on a loopback socket,
+    // driven by foc-ctl's client (ping, velocity, position, bad frames,
+    // refused commands, faults).
+    steps.push(Step::new(
+        "command channel end to end under QEMU (cargo xtask e2e)",
+        || e2e::run_cmd(&e2e::E2eArgs::default()),
     ));
     // Exact instruction counts (reported, not enforced).
     steps.push(Step::new(

@@ -9,6 +9,7 @@ mod boards;
 mod build;
 mod check;
 mod dyno;
+mod e2e;
 mod qemu;
 mod sim;
 mod size;
@@ -56,6 +57,9 @@ enum Command {
     Qemu(qemu::QemuArgs),
     /// Exact instruction counts of the control code under QEMU.
     Bench,
+    /// The command channel end to end: the emulated board driven through
+    /// foc-ctl's client over QEMU's USART2 (loopback TCP).
+    E2e(e2e::E2eArgs),
 }
 
 fn main() -> ExitCode {
@@ -71,6 +75,7 @@ fn main() -> ExitCode {
         Command::Dyno(args) => dyno::run_cmd(args),
         Command::Qemu(args) => qemu::run_cmd(args),
         Command::Bench => bench::run_cmd(),
+        Command::E2e(args) => e2e::run_cmd(args),
         Command::Boards => {
             list_boards();
             Ok(())

@@ -1,0 +1,522 @@
+//! `cargo xtask e2e`: the command channel end to end, in emulation.
+//!
+//! Builds the `qemu` board, starts QEMU with the firmware's mission passive
+//! (semihosting argument `e2e`) and the emulated USART2 on a loopback TCP
+//! socket (`-serial null -serial tcp:127.0.0.1:PORT,server,nowait`: QEMU's
+//! `-serial` devices map in order onto USART1, USART2, ...), then drives the
+//! drive through [`foc_ctl::Client`] only:
+//!
+//! 1. ping (protocol version), wait for start-up (parameter `calibrated`);
+//! 2. velocity 50 rad/s, read back from telemetry (within 2 rad/s), and a
+//!    streamed-telemetry check (sample spacing = the requested rate);
+//! 3. position move of +20 rad, read back (within 0.05 rad, at rest);
+//! 4. a frame with a bad CRC and one with broken COBS: Nack (bad CRC /
+//!    malformed, `seq` 0), nothing changed;
+//! 5. an out-of-range velocity (1e6 rad/s) and dividers while running:
+//!    Nack (field 1 out of range / not disabled), nothing changed;
+//! 6. faults read (none latched), disable, QEMU killed.
+//!
+//! Every wait has a deadline and the whole run is bounded ([`TOTAL_LIMIT`]).
+//!
+//! **Emulated time.** QEMU runs with `-icount shift=0,align=off,sleep=off`,
+//! as for `cargo xtask qemu`: one instruction is 1 ns of virtual time, so
+//! every current-loop run takes the same virtual time whatever the host
+//! does, and a busy host cannot make a TIM2 period pass during a run (no
+//! spurious overrun). With `sleep=off` the idle time between TIM2 periods
+//! is skipped, so the emulation runs as fast as the host CPU allows
+//! (measured here: about 8,800 simulated PWM periods per host second, i.e.
+//! the simulated motor at about 0.44x real time). The host tool then sees
+//! the drive evolve at a steady rate it can follow, and its waits are in
+//! host time with generous margins. `sleep=on` (virtual time waits for the
+//! host while idle) ran about 10x slower here (about 800 periods per host
+//! second, host timer granularity), and no `-icount` at all ties TIM2 to
+//! host time, so a loaded host overruns the current loop.
+
+use std::collections::VecDeque;
+use std::io::{BufRead, BufReader, Read, Write};
+use std::net::{Ipv4Addr, SocketAddr, TcpListener, TcpStream};
+use std::path::Path;
+use std::process::{Child, Command, Stdio};
+use std::sync::{Arc, Mutex};
+use std::thread;
+use std::time::{Duration, Instant};
+
+use clap::Args;
+use foc_core::control::{Command as DriveCommand, Mode};
+use foc_ctl::{Client, ClientError, TcpTransport};
+use foc_protocol::frame::{encode, FrameDecoder, MAX_FRAME};
+use foc_protocol::message::{ErrorCode, ParamId, Request, Response, Telemetry, TelemetryRate};
+
+use crate::qemu;
+use crate::util::{Error, Result};
+
+/// The whole test, QEMU start to kill.
+pub const TOTAL_LIMIT: Duration = Duration::from_secs(100);
+/// Velocity target [rad/s] and tolerance.
+const VELOCITY_RAD_S: f32 = 50.0;
+const VELOCITY_TOL_RAD_S: f32 = 2.0;
+/// Position step [rad] and tolerance.
+const MOVE_RAD: f32 = 20.0;
+const POSITION_TOL_RAD: f32 = 0.05;
+/// PWM frequency of the emulated board [Hz].
+const PWM_HZ: f32 = 20_000.0;
+
+/// `cargo xtask e2e` options.
+#[derive(Debug, Args, Clone, Default)]
+pub struct E2eArgs {
+    /// Echo the firmware's whole defmt log (default: warnings and errors).
+    #[arg(long)]
+    pub verbose: bool,
+}
+
+/// QEMU and its log decoder, killed on drop.
+struct Emulator {
+    qemu: Child,
+    decoder: Child,
+    log: Arc<Mutex<VecDeque<String>>>,
+}
+
+impl Drop for Emulator {
+    fn drop(&mut self) {
+        let _ = self.qemu.kill();
+        let _ = self.qemu.wait();
+        let _ = self.decoder.kill();
+        let _ = self.decoder.wait();
+    }
+}
+
+impl Emulator {
+    fn start(elf: &Path, port: u16, verbose: bool) -> Result<Self> {
+        let serial = format!("tcp:127.0.0.1:{port},server,nowait");
+        let mut qemu = Command::new("qemu-system-arm")
+            .args(["-M", "netduinoplus2", "-nographic", "-monitor", "none"])
+            .args(["-serial", "null", "-serial", &serial])
+            .args([
+                "-semihosting-config",
+                "enable=on,target=native,arg=firmware,arg=e2e",
+                "-icount",
+                "shift=0,align=off,sleep=off",
+                "-kernel",
+            ])
+            .arg(elf)
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit())
+            .spawn()
+            .map_err(|e| Error(format!("could not start qemu-system-arm: {e}")))?;
+        let out = qemu
+            .stdout
+            .take()
+            .ok_or_else(|| Error("no qemu stdout".into()))?;
+        let mut decoder = match Command::new("defmt-print")
+            .arg("-e")
+            .arg(elf)
+            .stdin(Stdio::from(out))
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit())
+            .spawn()
+        {
+            Ok(d) => d,
+            Err(e) => {
+                let _ = qemu.kill();
+                let _ = qemu.wait();
+                return Err(Error(format!("could not start defmt-print: {e}")));
+            }
+        };
+        let log = Arc::new(Mutex::new(VecDeque::new()));
+        if let Some(out) = decoder.stdout.take() {
+            let log = log.clone();
+            thread::spawn(move || {
+                for line in BufReader::new(out).lines().map_while(|l| l.ok()) {
+                    if verbose || line.contains("WARN") || line.contains("ERROR") {
+                        println!("  | {line}");
+                    }
+                    if let Ok(mut l) = log.lock() {
+                        if l.len() >= 40 {
+                            l.pop_front();
+                        }
+                        l.push_back(line);
+                    }
+                }
+            });
+        }
+        Ok(Self { qemu, decoder, log })
+    }
+
+    fn alive(&mut self) -> Result {
+        match self.qemu.try_wait()? {
+            None => Ok(()),
+            Some(s) => Err(Error(format!("QEMU exited early ({s})"))),
+        }
+    }
+
+    fn print_log_tail(&self) {
+        if let Ok(l) = self.log.lock() {
+            println!("last firmware log lines:");
+            for line in l.iter() {
+                println!("  | {line}");
+            }
+        }
+    }
+}
+
+/// A free loopback port (bound and released; QEMU binds it next).
+fn free_port() -> Result<u16> {
+    let l = TcpListener::bind((Ipv4Addr::LOCALHOST, 0))?;
+    Ok(l.local_addr()?.port())
+}
+
+/// Connect to QEMU's server socket, retrying while it starts.
+fn connect(port: u16, deadline: Instant) -> Result<TcpStream> {
+    let addr = SocketAddr::from((Ipv4Addr::LOCALHOST, port));
+    loop {
+        match TcpStream::connect_timeout(&addr, Duration::from_secs(1)) {
+            Ok(s) => return Ok(s),
+            Err(e) if Instant::now() > deadline => {
+                return Err(Error(format!("could not connect to QEMU on {addr}: {e}")))
+            }
+            Err(_) => thread::sleep(Duration::from_millis(100)),
+        }
+    }
+}
+
+fn check(ok: bool, what: impl AsRef<str>) -> Result {
+    if ok {
+        println!("PASS {}", what.as_ref());
+        Ok(())
+    } else {
+        Err(Error(format!("FAIL {}", what.as_ref())))
+    }
+}
+
+fn client_err(what: &str) -> impl Fn(ClientError) -> Error + '_ {
+    move |e| Error(format!("{what}: {e}"))
+}
+
+/// The test proper, on a running emulator.
+struct Session {
+    client: Client,
+    raw: TcpStream,
+    deadline: Instant,
+}
+
+impl Session {
+    fn telemetry(&mut self) -> Result<Telemetry> {
+        self.client
+            .read_telemetry()
+            .map_err(client_err("read telemetry"))
+    }
+
+    fn remaining(&self) -> Result<Duration> {
+        let left = self.deadline.saturating_duration_since(Instant::now());
+        if left.is_zero() {
+            Err(Error(format!(
+                "e2e exceeded its {} s limit",
+                TOTAL_LIMIT.as_secs()
+            )))
+        } else {
+            Ok(left)
+        }
+    }
+
+    /// Poll telemetry until `ok` holds for `n` consecutive samples or
+    /// `limit` (host time) passes. Returns the last sample.
+    fn wait_for(
+        &mut self,
+        what: &str,
+        limit: Duration,
+        n: u32,
+        ok: impl Fn(&Telemetry) -> bool,
+    ) -> Result<Telemetry> {
+        let end = Instant::now() + limit.min(self.remaining()?);
+        let mut good = 0;
+        loop {
+            let t = self.telemetry()?;
+            good = if ok(&t) { good + 1 } else { 0 };
+            if good >= n {
+                return Ok(t);
+            }
+            if Instant::now() > end {
+                return Err(Error(format!(
+                    "FAIL {what}: not reached within {:.0} s host time (last: mode {:?}, {:.3} rad/s, {:.4} rad, fault {})",
+                    limit.as_secs_f32(),
+                    t.mode,
+                    t.velocity_rad_s,
+                    t.position_rad,
+                    t.fault_code
+                )));
+            }
+            thread::sleep(Duration::from_millis(50));
+        }
+    }
+
+    /// Send raw bytes and wait for one non-stream reply (seq, response).
+    fn raw_exchange(&mut self, bytes: &[u8]) -> Result<(u16, Response)> {
+        self.raw.write_all(bytes)?;
+        self.raw.flush()?;
+        let end = Instant::now() + Duration::from_secs(3).min(self.remaining()?);
+        let mut dec = FrameDecoder::new();
+        let mut buf = [0u8; 256];
+        while Instant::now() < end {
+            self.raw
+                .set_read_timeout(Some(Duration::from_millis(100)))?;
+            let n = match self.raw.read(&mut buf) {
+                Ok(0) => return Err(Error("QEMU closed the connection".into())),
+                Ok(n) => n,
+                Err(e)
+                    if matches!(
+                        e.kind(),
+                        std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+                    ) =>
+                {
+                    continue
+                }
+                Err(e) => return Err(e.into()),
+            };
+            for &b in &buf[..n] {
+                if let Some(Ok(p)) = dec.feed::<Response>(b) {
+                    if !matches!(p.msg, Response::Stream(_)) {
+                        return Ok((p.seq, p.msg));
+                    }
+                }
+            }
+        }
+        Err(Error("no reply to a raw frame within 3 s".into()))
+    }
+}
+
+/// `cargo xtask e2e`.
+pub fn run_cmd(args: &E2eArgs) -> Result {
+    let (elf, _) = qemu::build_emulated()?;
+    let port = free_port()?;
+    let start = Instant::now();
+    println!("== QEMU with the mission passive, USART2 on 127.0.0.1:{port}");
+    let mut emu = Emulator::start(&elf, port, args.verbose)?;
+    let result = run_session(&mut emu, port, start);
+    if result.is_err() {
+        emu.print_log_tail();
+    }
+    drop(emu);
+    match &result {
+        Ok(()) => println!(
+            "cargo xtask e2e: command channel passed end to end ({:.1} s)",
+            start.elapsed().as_secs_f32()
+        ),
+        Err(_) => println!(
+            "cargo xtask e2e: FAILED after {:.1} s",
+            start.elapsed().as_secs_f32()
+        ),
+    }
+    result
+}
+
+fn run_session(emu: &mut Emulator, port: u16, start: Instant) -> Result {
+    let deadline = start + TOTAL_LIMIT;
+    let stream = connect(port, Instant::now() + Duration::from_secs(10))?;
+    let raw = stream.try_clone()?;
+    let mut client =
+        Client::new(Box::new(TcpTransport::from_stream(stream)?)).map_err(client_err("client"))?;
+    client.set_timeout(Duration::from_millis(500));
+    client.set_retries(3);
+    let mut s = Session {
+        client,
+        raw,
+        deadline,
+    };
+
+    // 1. Ping and start-up.
+    let hello = s.client.ping().map_err(client_err("ping"))?;
+    check(
+        hello.protocol_version == foc_protocol::PROTOCOL_VERSION,
+        format!(
+            "ping: protocol {} (host {}), firmware {}.{}.{}",
+            hello.protocol_version,
+            foc_protocol::PROTOCOL_VERSION,
+            hello.firmware_version[0],
+            hello.firmware_version[1],
+            hello.firmware_version[2]
+        ),
+    )?;
+    let t0 = Instant::now();
+    loop {
+        emu.alive()?;
+        let cal = s
+            .client
+            .param(ParamId::Calibrated)
+            .map_err(client_err("read calibrated"))?;
+        if cal == 1.0 {
+            break;
+        }
+        if t0.elapsed() > Duration::from_secs(45) || s.remaining().is_err() {
+            return Err(Error(
+                "FAIL start-up: the firmware did not report `calibrated` = 1 within 45 s host time \
+                 (closed-loop modes locked: no calibration permit installed at start-up)"
+                    .into(),
+            ));
+        }
+        thread::sleep(Duration::from_millis(200));
+    }
+    let t = s.telemetry()?;
+    check(
+        t.mode == Mode::Disabled && t.fault_code == 0,
+        format!(
+            "start-up done in {:.1} s host time: calibrated, disabled, no fault (period {})",
+            t0.elapsed().as_secs_f32(),
+            t.period
+        ),
+    )?;
+    let faults = s.client.faults().map_err(client_err("read faults"))?;
+    check(faults.set.is_empty(), "no fault latched after start-up")?;
+
+    // 2. Velocity.
+    s.client
+        .set_command(DriveCommand::Velocity {
+            rad_s: VELOCITY_RAD_S,
+        })
+        .map_err(client_err("velocity command"))?;
+    let p0 = s.telemetry()?.period;
+    let t = s.wait_for("velocity", Duration::from_secs(25), 3, |t| {
+        t.mode == Mode::Velocity && (t.velocity_rad_s - VELOCITY_RAD_S).abs() < VELOCITY_TOL_RAD_S
+    })?;
+    check(
+        true,
+        format!(
+            "velocity {VELOCITY_RAD_S} rad/s: read back {:.3} rad/s (tolerance {VELOCITY_TOL_RAD_S}) after {:.3} s simulated",
+            t.velocity_rad_s,
+            t.period.wrapping_sub(p0) as f32 / PWM_HZ
+        ),
+    )?;
+    let rate_hz = 50.0;
+    let samples = s
+        .client
+        .telemetry(TelemetryRate::Hz(rate_hz), Duration::from_millis(1500))
+        .map_err(client_err("stream telemetry"))?;
+    let n = samples.len();
+    let spacing: Vec<u32> = samples
+        .windows(2)
+        .map(|w| w[1].sample.period.wrapping_sub(w[0].sample.period))
+        .collect();
+    let want = (PWM_HZ / rate_hz) as u32;
+    let worst = samples
+        .iter()
+        .map(|x| (x.sample.velocity_rad_s - VELOCITY_RAD_S).abs())
+        .fold(0.0f32, f32::max);
+    check(
+        n >= 5 && spacing.iter().all(|&d| d == want) && worst < VELOCITY_TOL_RAD_S,
+        format!(
+            "stream at {rate_hz} Hz: {n} samples, every {want} periods, worst velocity error {worst:.3} rad/s, {} lost",
+            s.client.stats().stream_lost
+        ),
+    )?;
+
+    // 3. Position move.
+    let start_pos = s.telemetry()?.position_rad;
+    let target = start_pos + MOVE_RAD;
+    s.client
+        .set_command(DriveCommand::Position { rad: target })
+        .map_err(client_err("position command"))?;
+    let p0 = s.telemetry()?.period;
+    let t = s.wait_for("position move", Duration::from_secs(30), 3, |t| {
+        t.mode == Mode::Position
+            && (t.position_rad - target).abs() < POSITION_TOL_RAD
+            && t.velocity_rad_s.abs() < 1.0
+    })?;
+    check(
+        true,
+        format!(
+            "position {target:.3} rad (+{MOVE_RAD} rad): read back {:.4} rad (error {:.4}, tolerance {POSITION_TOL_RAD}), {:.3} rad/s, after {:.3} s simulated",
+            t.position_rad,
+            t.position_rad - target,
+            t.velocity_rad_s,
+            t.period.wrapping_sub(p0) as f32 / PWM_HZ
+        ),
+    )?;
+
+    // 4. Malformed frames: bad CRC, broken COBS.
+    let mut frame = [0u8; MAX_FRAME];
+    let len = encode(
+        0x1234,
+        &Request::SetCommand(DriveCommand::Disable),
+        &mut frame,
+    )
+    .map_err(|e| Error(format!("encode: {e:?}")))?;
+    // Flip bits in the last CRC byte (the byte before the delimiter): stays
+    // non-zero after COBS, so the frame still parses but fails its CRC.
+    let i = len - 2;
+    frame[i] = if frame[i] == 0x55 { 0xAA } else { 0x55 };
+    let (seq, r) = s.raw_exchange(&frame[..len])?;
+    check(
+        seq == 0 && r == Response::Nack(ErrorCode::BadCrc),
+        format!("frame with a bad CRC (a Disable): {r:?} with seq {seq}"),
+    )?;
+    // COBS block claims 9 bytes, only 2 follow before the delimiter.
+    let (seq, r) = s.raw_exchange(&[0x09, 0x01, 0x02, 0x00])?;
+    check(
+        seq == 0 && r == Response::Nack(ErrorCode::Malformed),
+        format!("truncated COBS frame: {r:?} with seq {seq}"),
+    )?;
+    let t = s.telemetry()?;
+    check(
+        t.mode == Mode::Position && (t.position_rad - target).abs() < POSITION_TOL_RAD,
+        format!(
+            "nothing changed: still position mode at {:.4} rad",
+            t.position_rad
+        ),
+    )?;
+
+    // 5. Out-of-range command, dividers while running.
+    match s
+        .client
+        .set_command(DriveCommand::Velocity { rad_s: 1.0e6 })
+    {
+        Err(ClientError::Nack(ErrorCode::OutOfRange { field: 1 })) => {
+            println!("PASS velocity 1e6 rad/s refused: field 1 out of range")
+        }
+        other => return Err(Error(format!("FAIL velocity 1e6 rad/s: got {other:?}"))),
+    }
+    match s.client.set_dividers(5, 10) {
+        Err(ClientError::Nack(ErrorCode::NotDisabled)) => {
+            println!("PASS dividers while running refused: not disabled")
+        }
+        other => return Err(Error(format!("FAIL dividers while running: got {other:?}"))),
+    }
+    let speed_div = s
+        .client
+        .param(ParamId::SpeedDivider)
+        .map_err(client_err("read speed divider"))?;
+    thread::sleep(Duration::from_millis(300));
+    let t = s.telemetry()?;
+    check(
+        t.mode == Mode::Position
+            && (t.position_rad - target).abs() < POSITION_TOL_RAD
+            && t.velocity_rad_s.abs() < 1.0
+            && speed_div == 10.0,
+        format!(
+            "nothing changed: position {:.4} rad, {:.3} rad/s, speed divider {speed_div}",
+            t.position_rad, t.velocity_rad_s
+        ),
+    )?;
+
+    // 6. Faults, disable.
+    let faults = s.client.faults().map_err(client_err("read faults"))?;
+    check(
+        faults.set.is_empty() && faults.first_code == 0,
+        format!(
+            "faults read: {:#x} (first {})",
+            faults.set.0, faults.first_code
+        ),
+    )?;
+    s.client
+        .set_command(DriveCommand::Disable)
+        .map_err(client_err("disable"))?;
+    let t = s.wait_for("disable", Duration::from_secs(5), 1, |t| {
+        t.mode == Mode::Disabled
+    })?;
+    check(t.mode == Mode::Disabled, "disabled on command")?;
+    let st = s.client.stats();
+    println!(
+        "link: {} requests, {} retransmissions, {} bad frames, {} stale replies, {} streamed samples",
+        st.requests, st.retransmissions, st.bad_frames, st.stale_replies, st.stream_samples
+    );
+    emu.alive()
+}
