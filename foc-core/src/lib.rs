@@ -108,6 +108,25 @@ fn sqrtf_special(x: f32) -> f32 {
     }
 }
 
+/// True when every value is finite, with one comparison: the values are
+/// summed, each scaled by `2^-8` (at most 16 of them, so a sum of finite
+/// values stays far below `f32::MAX` whatever the rounding), and the sum
+/// `s` is finite exactly
+/// when every value is (an infinity or NaN makes it infinite or NaN);
+/// `s - s == 0` tests that. About one multiply-add per value, instead of a
+/// bit test and a branch each.
+#[inline(always)]
+pub(crate) fn all_finite<const N: usize>(xs: [f32; N]) -> bool {
+    const { assert!(N <= 16) };
+    let mut s = 0.0f32;
+    for x in xs {
+        s += x * (1.0 / 256.0);
+    }
+    #[allow(clippy::eq_op)] // NaN - NaN and inf - inf are NaN: on purpose.
+    let finite = s - s == 0.0;
+    finite
+}
+
 /// Clamp `x` to `[lo, hi]` with plain comparisons (no `fminf`/`fmaxf` calls,
 /// which cost a library call each on the Cortex-M4F). A NaN `x` fails both
 /// comparisons and is returned unchanged: callers that may see NaN check
@@ -167,6 +186,37 @@ mod tests {
         assert!(rel_err(f32::MAX) < 1e-6);
         assert!(rel_err(f32::MIN_POSITIVE) < 1e-6);
         assert!(rel_err(f32::from_bits(1)) < 1e-6);
+    }
+
+    #[test]
+    fn all_finite_matches_is_finite() {
+        let vals = [
+            0.0,
+            -0.0,
+            1.0,
+            -3.5,
+            f32::MAX,
+            -f32::MAX,
+            f32::MIN_POSITIVE,
+            f32::from_bits(1),
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            f32::NAN,
+            -f32::NAN,
+        ];
+        for a in vals {
+            for b in vals {
+                for c in vals {
+                    let want = a.is_finite() && b.is_finite() && c.is_finite();
+                    assert_eq!(all_finite([a, b, c]), want, "{a} {b} {c}");
+                }
+            }
+        }
+        assert!(all_finite([f32::MAX; 7]));
+        assert!(all_finite([-f32::MAX; 16]));
+        assert!(all_finite([f32::MAX; 16]));
+        assert!(!all_finite([f32::MAX, f32::MAX, f32::INFINITY]));
+        assert!(all_finite::<0>([]));
     }
 
     #[test]

@@ -151,23 +151,7 @@ impl Pi {
         let u = clamp(u_raw, lo, hi);
         let saturated = u != u_raw;
         if saturated {
-            match c.anti_windup {
-                AntiWindup::Clamp => {
-                    // Undo this sample's integration if it pushes further
-                    // into the limit that is active.
-                    if (u_raw > hi && i > i_prev) || (u_raw < lo && i < i_prev) {
-                        i = i_prev;
-                    }
-                }
-                AntiWindup::BackCalculation { kb_per_s } => {
-                    // Discrete tracking step, limited to 1: `kb ts = 1`
-                    // already puts `u_raw` exactly on the limit; more would
-                    // over-correct (the output then drops under a constant
-                    // positive error) and beyond 2 oscillate.
-                    let g = clamp(kb_per_s * c.ts_s, 0.0, 1.0);
-                    i = clamp(i + g * (u - u_raw), lo, hi);
-                }
-            }
+            i = self.anti_windup(i, i_prev, u, u_raw, lo, hi);
         }
         if !i.is_finite() {
             // Only reachable with non-finite gains: fall back to neutral.
@@ -179,5 +163,143 @@ impl Pi {
             saturated,
         };
         self.state.output
+    }
+
+    /// [`Self::step_error`] (same results for every input), always inlined:
+    /// the current loop's copy. (The slower loops keep the plain version,
+    /// which measured cheaper there once inlined with their constants.)
+    ///
+    /// The usual case (finite error and limits, `lo <= hi`) is recognised
+    /// with one combined check; the rest goes to [`Self::step_unusable`].
+    /// With finite limits a clamped value is either finite or NaN (an
+    /// infinite one is clamped), so `x == x` is the finiteness test there.
+    #[inline(always)]
+    pub(crate) fn step_error_inline(&mut self, error: f32, lo: f32, hi: f32) -> f32 {
+        if !(crate::all_finite([error, lo, hi]) && lo <= hi) {
+            return self.step_unusable(error, lo, hi);
+        }
+        let c = &self.config;
+        let i_prev = clamp(self.state.integral, lo, hi);
+        let p = c.kp * error;
+        let mut i = clamp(i_prev + c.ki_per_s * c.ts_s * error, lo, hi);
+        let u_raw = p + i;
+        let u = clamp(u_raw, lo, hi);
+        let saturated = u != u_raw;
+        if saturated {
+            i = self.anti_windup(i, i_prev, u, u_raw, lo, hi);
+        }
+        // NaN only with non-finite gains: fall back to neutral.
+        #[allow(clippy::eq_op)]
+        let (i_ok, u_ok) = (i == i, u == u);
+        self.state = PiState {
+            integral: if i_ok { i } else { 0.0 },
+            output: if u_ok { u } else { 0.0 },
+            saturated,
+        };
+        self.state.output
+    }
+
+    /// Anti-windup on a saturated sample: the corrected integrator.
+    #[inline]
+    fn anti_windup(&self, i: f32, i_prev: f32, u: f32, u_raw: f32, lo: f32, hi: f32) -> f32 {
+        let c = &self.config;
+        match c.anti_windup {
+            AntiWindup::Clamp => {
+                // Undo this sample's integration if it pushes further
+                // into the limit that is active.
+                if (u_raw > hi && i > i_prev) || (u_raw < lo && i < i_prev) {
+                    i_prev
+                } else {
+                    i
+                }
+            }
+            AntiWindup::BackCalculation { kb_per_s } => {
+                // Discrete tracking step, limited to 1: `kb ts = 1`
+                // already puts `u_raw` exactly on the limit; more would
+                // over-correct (the output then drops under a constant
+                // positive error) and beyond 2 oscillate.
+                let g = clamp(kb_per_s * c.ts_s, 0.0, 1.0);
+                clamp(i + g * (u - u_raw), lo, hi)
+            }
+        }
+    }
+
+    /// A step with unusable limits (non-finite, or `lo > hi`: output 0) or
+    /// a non-finite error (integrator held, clamped into the limits).
+    #[cold]
+    #[inline(never)]
+    fn step_unusable(&mut self, error: f32, lo: f32, hi: f32) -> f32 {
+        if !lo.is_finite() || !hi.is_finite() || lo > hi {
+            self.state.saturated = true;
+            self.state.output = 0.0;
+            return 0.0;
+        }
+        // Non-finite error. Hold the integrator, but inside this sample's
+        // limits (which may have moved), so that the stored state never
+        // leaves them.
+        let _ = error;
+        let u = clamp(self.state.integral, lo, hi);
+        self.state.integral = u;
+        self.state.saturated = true;
+        self.state.output = u;
+        u
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The current loop's inlined copy gives bit-for-bit the same output and
+    /// state as the public `step_error`, for finite and non-finite errors,
+    /// limits and gains, with both anti-windup strategies.
+    #[test]
+    fn inline_copy_matches_step_error() {
+        let vals = [
+            0.0,
+            -0.0,
+            0.3,
+            -2.5,
+            7.0,
+            1e30,
+            -1e30,
+            f32::MAX,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            f32::NAN,
+        ];
+        let same = |a: f32, b: f32| a.to_bits() == b.to_bits() || (a.is_nan() && b.is_nan());
+        for aw in [
+            AntiWindup::Clamp,
+            AntiWindup::BackCalculation { kb_per_s: 500.0 },
+            AntiWindup::BackCalculation { kb_per_s: f32::NAN },
+        ] {
+            for kp in [2.0, f32::INFINITY, f32::NAN] {
+                let mut a = Pi::new(PiConfig {
+                    kp,
+                    ki_per_s: 300.0,
+                    ts_s: 1e-3,
+                    out_min: -5.0,
+                    out_max: 5.0,
+                    anti_windup: aw,
+                });
+                for e in vals {
+                    for lo in [-5.0, -0.5, 1.0, f32::NEG_INFINITY, f32::NAN] {
+                        for hi in [5.0, 0.5, -1.0, f32::INFINITY, f32::NAN] {
+                            for i0 in [0.0, 4.0, -9.0] {
+                                a.state.integral = i0;
+                                let mut b = a;
+                                let ua = a.step_error(e, lo, hi);
+                                let ub = b.step_error_inline(e, lo, hi);
+                                assert!(same(ua, ub), "{aw:?} {kp} {e} {lo} {hi} {i0}");
+                                assert!(same(a.state.integral, b.state.integral));
+                                assert!(same(a.state.output, b.state.output));
+                                assert_eq!(a.state.saturated, b.state.saturated);
+                            }
+                        }
+                    }
+                }
+            }
+        }
     }
 }

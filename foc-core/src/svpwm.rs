@@ -282,7 +282,14 @@ pub fn max_linear_voltage_v(v_bus_v: f32) -> f32 {
 /// Never panics; every duty is in `[0, 1]` for any input.
 #[inline]
 pub fn svpwm(v_ab: AlphaBeta, v_bus_v: f32) -> SvpwmOutput {
-    if !v_ab.is_finite() || !bus_usable(v_bus_v) {
+    svpwm_inline(v_ab, v_bus_v)
+}
+
+/// [`svpwm`], always inlined: the current loop's copy, so that the call, the
+/// register saves and the copy of the returned struct disappear there.
+#[inline(always)]
+pub(crate) fn svpwm_inline(v_ab: AlphaBeta, v_bus_v: f32) -> SvpwmOutput {
+    if !crate::all_finite([v_ab.alpha, v_ab.beta]) || !bus_usable(v_bus_v) {
         return SvpwmOutput::NEUTRAL_INVALID;
     }
     let [u1, u2, u3] = projections(v_ab);
@@ -429,19 +436,36 @@ pub fn minmax(v_ab: AlphaBeta, v_bus_v: f32) -> [f32; 3] {
 /// middle, U0 (all low, where low-side shunts can be sampled) at the
 /// counter's top. Non-finite duties give `N/2`; duties outside `[0, 1]` are
 /// clamped.
+#[inline]
 pub fn compare_values(duties: [f32; 3], period_counts: u16) -> [u16; 3] {
     let p = period_counts as f32;
     let cv = |d: f32| -> u16 {
-        let d = if d.is_finite() {
-            clamp(d, 0.0, 1.0)
+        // The usual case, a duty in [0, 1], costs two comparisons (NaN
+        // fails both and goes to the out-of-line path with the rest).
+        let d = if (0.0..=1.0).contains(&d) {
+            d
         } else {
-            0.5
+            duty_out_of_range(d)
         };
-        // d * p + 0.5 <= N + 0.5, truncated to <= N; saturating cast.
-        (d * p + 0.5) as u16
+        // 0 <= d <= 1 and N <= 65535 (exact in f32), so d * N <= N and
+        // d * N + 0.5 <= 65535.5: the truncation gives at most N and the
+        // u32 -> u16 step never cuts (the u32 cast is one `vcvt`).
+        (d * p + 0.5) as u32 as u16
     };
     let [a, b, c] = duties;
     [cv(a), cv(b), cv(c)]
+}
+
+/// [`compare_values`] for a duty outside `[0, 1]`: clamped when finite,
+/// centred (0.5) when infinite or NaN.
+#[cold]
+#[inline(never)]
+fn duty_out_of_range(d: f32) -> f32 {
+    if d.is_finite() {
+        clamp(d, 0.0, 1.0)
+    } else {
+        0.5
+    }
 }
 
 #[cfg(test)]
@@ -544,5 +568,21 @@ mod tests {
         assert_eq!(compare_values([0.0, 0.5, 1.0], 4200), [0, 2100, 4200]);
         assert_eq!(compare_values([-1.0, 2.0, f32::NAN], 1000), [0, 1000, 500]);
         assert_eq!(compare_values([1.0; 3], u16::MAX), [u16::MAX; 3]);
+        assert_eq!(
+            compare_values([f32::INFINITY, f32::NEG_INFINITY, -f32::NAN], 1000),
+            [500, 500, 500]
+        );
+        assert_eq!(
+            compare_values([f32::MAX, -f32::MAX, -0.0], 1000),
+            [1000, 0, 0]
+        );
+        // Same as the plain formula over a sweep of duties and periods.
+        for n in [0u16, 1, 999, 4200, 65_534, u16::MAX] {
+            for k in -100..=1100 {
+                let d = k as f32 * 1e-3;
+                let want = (d.clamp(0.0, 1.0) * n as f32 + 0.5) as u16;
+                assert_eq!(compare_values([d; 3], n), [want; 3], "{d} {n}");
+            }
+        }
     }
 }

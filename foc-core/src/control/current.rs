@@ -210,9 +210,8 @@ impl CurrentLoop {
     /// duties with `invalid = true` and leave the integrators untouched.
     #[inline]
     pub fn step(&mut self, inp: &CurrentLoopInput) -> CurrentLoopOutput {
-        let blank = self.step_invalid_or(inp);
-        if blank.invalid {
-            return blank;
+        if !inputs_usable(inp) {
+            return CurrentLoopOutput::INVALID;
         }
         let (sin, cos) = trig::sin_cos(inp.theta_e);
         let i_dq = transforms::park(transforms::clarke(inp.i_abc_a), sin, cos);
@@ -220,16 +219,16 @@ impl CurrentLoop {
         let v_max = self.config.max_modulation * inp.v_bus_v * FRAC_1_SQRT_3;
 
         // d axis first: total v_d = u_d + ff_d within [-v_max, v_max].
-        let u_d = self
-            .pi_d
-            .step_error(inp.i_dq_ref_a.d - i_dq.d, -v_max - ff.d, v_max - ff.d);
+        let u_d =
+            self.pi_d
+                .step_error_inline(inp.i_dq_ref_a.d - i_dq.d, -v_max - ff.d, v_max - ff.d);
         let v_d = u_d + ff.d;
         // q axis: what is left of the circle.
         let rem = v_max * v_max - v_d * v_d;
         let v_q_max = if rem > 0.0 { sqrtf(rem) } else { 0.0 };
-        let u_q = self
-            .pi_q
-            .step_error(inp.i_dq_ref_a.q - i_dq.q, -v_q_max - ff.q, v_q_max - ff.q);
+        let u_q =
+            self.pi_q
+                .step_error_inline(inp.i_dq_ref_a.q - i_dq.q, -v_q_max - ff.q, v_q_max - ff.q);
         let v_dq = Dq::new(v_d, u_q + ff.q);
         // The voltage acts about `k` periods after the sample: apply it in
         // the dq frame of the rotor as it will be then.
@@ -241,7 +240,7 @@ impl CurrentLoop {
         } else {
             transforms::inverse_park(v_dq, sin, cos)
         };
-        let sv = svpwm::svpwm(v_ab, inp.v_bus_v);
+        let sv = svpwm::svpwm_inline(v_ab, inp.v_bus_v);
         CurrentLoopOutput {
             duties: sv.duties,
             i_dq_a: i_dq,
@@ -265,19 +264,15 @@ impl CurrentLoop {
         v_dq_v: Dq,
         v_bus_v: f32,
     ) -> CurrentLoopOutput {
-        let mut inp = CurrentLoopInput {
+        let inp = CurrentLoopInput {
             i_abc_a,
             theta_e,
             omega_e_rad_s: 0.0,
             v_bus_v,
             i_dq_ref_a: Dq::ZERO,
         };
-        if !v_dq_v.is_finite() {
-            inp.v_bus_v = f32::NAN; // force the invalid, centred output
-        }
-        let mut out = self.step_invalid_or(&inp);
-        if out.invalid {
-            return out;
+        if !crate::all_finite([v_dq_v.d, v_dq_v.q]) || !inputs_usable(&inp) {
+            return CurrentLoopOutput::INVALID;
         }
         let (sin, cos) = trig::sin_cos(theta_e);
         let v_max = self.config.max_modulation * v_bus_v * FRAC_1_SQRT_3;
@@ -290,34 +285,46 @@ impl CurrentLoop {
         };
         let v_ab = transforms::inverse_park(v_dq, sin, cos);
         let sv = svpwm::svpwm(v_ab, v_bus_v);
-        out.i_dq_a = transforms::park(transforms::clarke(i_abc_a), sin, cos);
-        out.v_dq_v = v_dq;
-        out.v_ab_v = v_ab;
-        out.duties = sv.duties;
-        out.svpwm = sv;
-        out.voltage_limited = limited;
-        out.invalid = sv.invalid;
-        out
-    }
-
-    /// The invalid (centred) output when `inp` is unusable, else a blank
-    /// valid output to fill in.
-    fn step_invalid_or(&self, inp: &CurrentLoopInput) -> CurrentLoopOutput {
-        let usable = inp.i_abc_a.is_finite()
-            && inp.i_dq_ref_a.is_finite()
-            && inp.omega_e_rad_s.is_finite()
-            && inp.v_bus_v.is_finite()
-            && inp.v_bus_v > 0.0;
         CurrentLoopOutput {
-            duties: [0.5; 3],
-            i_dq_a: Dq::ZERO,
-            v_dq_v: Dq::ZERO,
-            v_ab_v: AlphaBeta::default(),
-            svpwm: SvpwmOutput::NEUTRAL_INVALID,
-            voltage_limited: false,
-            invalid: !usable,
+            duties: sv.duties,
+            i_dq_a: transforms::park(transforms::clarke(i_abc_a), sin, cos),
+            v_dq_v: v_dq,
+            v_ab_v: v_ab,
+            svpwm: sv,
+            voltage_limited: limited,
+            invalid: sv.invalid,
         }
     }
+}
+
+/// True when every input of `inp` is finite and the bus is above zero: one
+/// combined finiteness check (see [`crate::all_finite`]) instead of seven.
+#[inline(always)]
+fn inputs_usable(inp: &CurrentLoopInput) -> bool {
+    let i = &inp.i_abc_a;
+    crate::all_finite([
+        i.a,
+        i.b,
+        i.c,
+        inp.i_dq_ref_a.d,
+        inp.i_dq_ref_a.q,
+        inp.omega_e_rad_s,
+        inp.v_bus_v,
+    ]) && inp.v_bus_v > 0.0
+}
+
+impl CurrentLoopOutput {
+    /// The output for an unusable input: centred duties, zero vectors, the
+    /// modulator's neutral report, `invalid` set.
+    const INVALID: Self = Self {
+        duties: [0.5; 3],
+        i_dq_a: Dq::ZERO,
+        v_dq_v: Dq::ZERO,
+        v_ab_v: AlphaBeta::new(0.0, 0.0),
+        svpwm: SvpwmOutput::NEUTRAL_INVALID,
+        voltage_limited: false,
+        invalid: true,
+    };
 }
 
 #[cfg(test)]

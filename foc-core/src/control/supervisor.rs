@@ -312,13 +312,17 @@ impl Supervisor {
     /// fault found. Non-finite values trip [`Fault::NonFinite`].
     pub fn check(&mut self, m: &Checks) -> Option<Fault> {
         let c = &self.config;
-        let fault = if !m.i_abc_a.is_finite()
-            || !m.vector_current_a.is_finite()
-            || !m.v_bus_v.is_finite()
-            || !m.angle_innovation_rad.is_finite()
-            || m.measured_sum_a.is_some_and(|s| !s.is_finite())
-            || m.temperature_c.is_some_and(|t| !t.is_finite())
-        {
+        // One combined finiteness check (an absent value counts as finite).
+        let fault = if !crate::all_finite([
+            m.i_abc_a.a,
+            m.i_abc_a.b,
+            m.i_abc_a.c,
+            m.vector_current_a,
+            m.v_bus_v,
+            m.angle_innovation_rad,
+            m.measured_sum_a.unwrap_or(0.0),
+            m.temperature_c.unwrap_or(0.0),
+        ]) {
             Some(Fault::NonFinite)
         } else if m.i_abc_a.a.abs() > c.max_phase_current_a
             || m.i_abc_a.b.abs() > c.max_phase_current_a
