@@ -67,6 +67,8 @@ pub struct CurrentChange {
     pub dividers: Option<(u16, u16)>,
     /// Re-run the start-up current-offset calibration (bridge off).
     pub calibrate_offsets: bool,
+    /// Run the motor identification (bridge must be off; see `calibrate`).
+    pub identify: bool,
     /// Latch this fault (the link watchdog's `Disable` reaction).
     pub fault: Option<Fault>,
 }
@@ -77,6 +79,7 @@ impl CurrentChange {
         self.current = o.current.or(self.current);
         self.dividers = o.dividers.or(self.dividers);
         self.calibrate_offsets |= o.calibrate_offsets;
+        self.identify |= o.identify;
         self.fault = self.fault.or(o.fault);
     }
 }
@@ -330,7 +333,16 @@ impl DeviceContext for Link<'_> {
                 c.calibrate_offsets = true;
                 Ok(())
             }
-            Calibration::Identification | Calibration::Alignment => Err(Refusal::Unsupported),
+            Calibration::Identification => {
+                if !self.snap.running {
+                    return Err(Refusal::Busy);
+                }
+                let c = self.out.config.current.get_or_insert_with(Default::default);
+                c.identify = true;
+                Ok(())
+            }
+            // Alignment alone is part of the identification sequence.
+            Calibration::Alignment => Err(Refusal::Unsupported),
         }
     }
     fn is_calibrated(&self) -> bool {

@@ -28,6 +28,40 @@ pub const SENSOR_CHECK_READS: u32 = 64;
 /// Independent-watchdog timeout [ms].
 pub const WATCHDOG_TIMEOUT_MS: u32 = 50;
 
+/// Run the motor identification (R, L, gains, sensor alignment and
+/// pole-pair check, flux linkage) at start-up. On the emulated board yes:
+/// its mission starts with it. On real boards no: the motor may not be free
+/// to turn at power-up; they start uncalibrated (closed-loop commands are
+/// refused) until identification is run on command.
+pub const IDENTIFY_AT_STARTUP: bool = cfg!(feature = "qemu");
+
+/// The identification's settings for this board's motor: test current
+/// (a third of the current limit), open-loop voltage limit [V].
+pub fn identification(
+    pwm_frequency_hz: f32,
+) -> foc_core::calibration::identification::IdentificationConfig {
+    let (motor, max_current_a) = MOTOR;
+    let mut c = foc_core::calibration::identification::IdentificationConfig::new(
+        motor.pole_pairs,
+        pwm_frequency_hz,
+        max_current_a / 3.0,
+        6.0,
+    );
+    // The encoder's resolution lets the alignment remove the half-count
+    // bias of a counting sensor.
+    #[cfg(feature = "qemu")]
+    {
+        c.alignment.sensor_counts_per_rev = board_support::board::sim_config()
+            .sensors
+            .encoder_counts_per_rev;
+    }
+    #[cfg(not(feature = "qemu"))]
+    if let board_support::board::AngleSource::Encoder { cpr } = board_support::board::ANGLE_SOURCE {
+        c.alignment.sensor_counts_per_rev = cpr;
+    }
+    c
+}
+
 /// Command applied once start-up has finished. `None`: stay disabled and
 /// wait for a command (the default, and the only safe choice for a board
 /// whose motor is unknown). A slow velocity demo would be

@@ -27,6 +27,7 @@
 #![no_std]
 #![no_main]
 
+mod calibrate;
 mod comms;
 mod config;
 #[cfg(feature = "qemu")]
@@ -64,6 +65,8 @@ mod app {
         OffsetCalibration,
         /// Checking that the angle sensor answers.
         SensorCheck(u32),
+        /// Motor identification (R, L, gains, alignment, flux linkage).
+        Identify,
         /// Control running.
         Run,
     }
@@ -126,6 +129,8 @@ mod app {
         offsets_ok: bool,
         /// `current_loop` only: last value written to `calibrated`.
         calibrated_seen: bool,
+        /// `current_loop` only: the identification sequencer (phase `Identify`).
+        identifier: super::calibrate::Identifier,
         /// `speed_loop` only.
         speed: SpeedStage,
         /// `position_loop` only.
@@ -190,6 +195,10 @@ mod app {
                 ),
                 offsets_ok: false,
                 calibrated_seen: false,
+                identifier: super::calibrate::Identifier::new(
+                    config::identification(board::PWM_FREQUENCY_HZ as f32),
+                    0x4000_0000,
+                ),
                 speed: SpeedStage::new(cfg.speed),
                 position: PositionStage::new(cfg.position),
                 started: false,
@@ -223,7 +232,7 @@ mod app {
         binds = ADC,
         priority = 4,
         shared = [command, feedback, iq_ref_a, timing, break_fired, phase, config_request, calibrated],
-        local = [pwm, currents, angle, bus, stage, offsets, tick, dividers, offsets_ok, calibrated_seen]
+        local = [pwm, currents, angle, bus, stage, offsets, tick, dividers, offsets_ok, calibrated_seen, identifier]
     )]
     fn current_loop(mut cx: current_loop::Context) {
         let t0 = timing::now_cycles();
@@ -250,6 +259,15 @@ mod app {
             }
             if let Some(f) = ch.fault {
                 l.stage.report_fault(f);
+            }
+            if ch.identify && phase == Phase::Run && l.stage.active() == Command::Disable {
+                let seq = cx.shared.command.lock(|c| c.seq);
+                *l.identifier = super::calibrate::Identifier::new(
+                    config::identification(board::PWM_FREQUENCY_HZ as f32),
+                    seq.wrapping_add(0x4000_0000),
+                );
+                phase = Phase::Identify;
+                cx.shared.phase.lock(|p| *p = phase);
             }
             if ch.calibrate_offsets && phase == Phase::Run && l.stage.active() == Command::Disable {
                 l.currents.set_offsets_a(Abc::default());
@@ -293,11 +311,49 @@ mod app {
                     l.stage.report_fault(Fault::AngleSensorError);
                     Phase::Run
                 } else if n + 1 >= config::SENSOR_CHECK_READS {
-                    defmt::info!("start-up done: disabled, waiting for a command");
-                    Phase::Run
+                    if config::IDENTIFY_AT_STARTUP {
+                        defmt::info!("sensor check done: identifying the motor");
+                        Phase::Identify
+                    } else {
+                        defmt::info!(
+                            "start-up done: disabled and uncalibrated, waiting for a command"
+                        );
+                        Phase::Run
+                    }
                 } else {
                     Phase::SensorCheck(n + 1)
                 }
+            }
+            Phase::Identify => {
+                use super::calibrate::Outcome;
+                if cx.shared.break_fired.lock(core::mem::take) || board::gate_driver_fault() {
+                    l.stage.report_fault(Fault::GateDriverFault);
+                }
+                let iq = cx.shared.iq_ref_a.lock(|x| *x);
+                let (bridge, fb, next) = match l.identifier.step(l.stage, iq, &sample) {
+                    Outcome::Running(b, fb) => (b, fb, phase),
+                    Outcome::Done(r, b, fb) => {
+                        defmt::info!(
+                            "identified: R {=f32} ohm, Ld {=f32} H, Lq {=f32} H, psi {=f32} Wb, {}",
+                            r.r_ohm,
+                            r.ld_h,
+                            r.lq_h,
+                            r.flux_linkage_wb,
+                            r.angle
+                        );
+                        super::calibrate::publish(r);
+                        (b, fb, Phase::Run)
+                    }
+                    Outcome::Failed(e, st, b, fb) => {
+                        defmt::error!("identification failed in {}: {}", st, e);
+                        (b, fb, Phase::Run)
+                    }
+                };
+                if let Err(f) = drive::apply(l.pwm, bridge) {
+                    l.stage.report_fault(f);
+                }
+                cx.shared.feedback.lock(|f| *f = fb);
+                next
             }
             Phase::Run => {
                 if cx.shared.break_fired.lock(core::mem::take) || board::gate_driver_fault() {

@@ -5,7 +5,10 @@
 //! the command mailbox, as the command channel would, while it sets the
 //! simulated load and injects a fault through the board's `sim` handle:
 //!
-//! 1. start-up (current-offset calibration, sensor check) must finish;
+//! 1. start-up (current-offset calibration, sensor check, motor
+//!    identification) must finish; the identified R, L (5 %), flux linkage
+//!    (10 %), electrical zero (2 deg), direction and pole pairs are checked
+//!    against the simulated motor;
 //! 2. velocity step to 100 rad/s: within 2 rad/s after 0.3 s;
 //! 3. load step (0.1 N m, about 40 % of the 10 A limit): speed back within
 //!    2 rad/s after 0.3 s;
@@ -96,6 +99,9 @@ pub struct Mission {
     step: Step,
     since: u32,
     target_rad: f32,
+    /// Plant position minus firmware position when the move starts (the
+    /// firmware counts turns from its last tracker reset).
+    truth_offset_rad: f32,
     panic_run: bool,
     passive: bool,
     failures: u32,
@@ -114,6 +120,7 @@ impl Mission {
             step: Step::WaitStartup,
             since: 0,
             target_rad: 0.0,
+            truth_offset_rad: 0.0,
             panic_run,
             passive,
             failures: 0,
@@ -136,6 +143,42 @@ impl Mission {
             slot.post(c);
         }
         defmt::info!("mission: -> {}", next);
+    }
+
+    /// The firmware identified the simulated motor at start-up: compare
+    /// with the plant's true values (issue 9's accuracy requirements).
+    fn check_identification(&mut self) {
+        let Some(r) = crate::calibrate::last() else {
+            self.check(false, "motor identified at start-up");
+            return;
+        };
+        let m = board_support::board::SIM_MOTOR;
+        let rel = |x: f32, t: f32| (x - t).abs() / t;
+        defmt::info!(
+            "mission: identified R {=f32} % Ld {=f32} % Lq {=f32} % psi {=f32} % off the plant; zero {=f32} deg(e)",
+            100.0 * (r.r_ohm / m.r_ohm - 1.0),
+            100.0 * (r.ld_h / m.ld_h - 1.0),
+            100.0 * (r.lq_h / m.lq_h - 1.0),
+            100.0 * (r.flux_linkage_wb / m.flux_linkage_wb - 1.0),
+            r.angle.zero_offset.to_signed_radians().to_degrees()
+        );
+        self.check(
+            rel(r.r_ohm, m.r_ohm) < 0.05
+                && rel(r.ld_h, m.ld_h) < 0.05
+                && rel(r.lq_h, m.lq_h) < 0.05,
+            "identified R, Ld, Lq within 5 %",
+        );
+        self.check(
+            rel(r.flux_linkage_wb, m.flux_linkage_wb) < 0.10,
+            "identified flux linkage within 10 %",
+        );
+        // The plant's encoder zero is on the d axis: the true offset is 0.
+        self.check(
+            r.angle.zero_offset.to_signed_radians().to_degrees().abs() < 2.0
+                && !r.angle.reversed
+                && r.pole_pairs == m.pole_pairs,
+            "electrical zero within 2 deg(e), direction and pole pairs exact",
+        );
     }
 
     /// One housekeeping tick. `running`: start-up finished; `overruns`:
@@ -171,14 +214,15 @@ impl Mission {
         match self.step {
             Step::WaitStartup => {
                 if running {
+                    self.check_identification();
                     self.go(
                         Step::Velocity,
                         now,
                         slot,
                         Some(Command::Velocity { rad_s: 100.0 }),
                     );
-                } else if t.time_s > 1.0 {
-                    self.check(false, "start-up finished within 1 s");
+                } else if t.time_s > 20.0 {
+                    self.check(false, "start-up (calibration, identification) within 20 s");
                     return Some(EXIT_FAILED);
                 }
             }
@@ -198,6 +242,7 @@ impl Mission {
                 );
                 sim::set_load_torque_nm(0.0);
                 self.target_rad = fb.position_rad + 30.0;
+                self.truth_offset_rad = t.position_rad - fb.position_rad;
                 let target = self.target_rad;
                 self.go(
                     Step::Position,
@@ -213,7 +258,7 @@ impl Mission {
             Step::Position if elapsed >= periods(0.8) => {
                 self.check(
                     (fb.position_rad - self.target_rad).abs() < 0.05
-                        && (t.position_rad - fb.position_rad).abs() < 0.05,
+                        && (t.position_rad - fb.position_rad - self.truth_offset_rad).abs() < 0.05,
                     "position move +30 rad within 0.05 rad",
                 );
                 self.check(t.omega_m_rad_s.abs() < 1.0, "at rest after the move");

@@ -168,6 +168,12 @@ fn main() -> ! {
     //    emulated board's sensors, CurrentStage::step (commands, tracker,
     //    supervisor, current loop), write the PWM.
     let mut stage = CurrentStage::new(cfg.current);
+    // Closed loop needs a calibration permit (the simulated encoder's zero
+    // is on the d axis, so the configured calibration is the true one).
+    match foc_core::calibration::Calibrated::supplied(cfg.current.angle, cfg.current.current) {
+        Ok(p) => stage.set_calibration(&p),
+        Err(_) => mission_exit(1),
+    }
     let mut slot = CommandSlot::INIT;
     slot.post(Command::Torque { iq_a: 1.0 });
     use foc_core::hal::{CurrentSense, PwmDriver};

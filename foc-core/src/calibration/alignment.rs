@@ -75,6 +75,12 @@ pub struct AlignmentConfig {
     pub hold_s: f32,
     /// Largest accepted `|measured - configured|` pole pairs.
     pub max_pole_pair_error: f32,
+    /// Counts per mechanical turn of the angle sensor, 0 if unknown. A
+    /// counting sensor reads `floor` of its position, on average half a
+    /// count behind it; when the resolution is known the zero offset is
+    /// corrected by that half count (worth `p / (2 counts)` of a turn,
+    /// electrical: 30 deg(e) for a 48-count sensor on 8 pole pairs).
+    pub sensor_counts_per_rev: u32,
 }
 
 impl AlignmentConfig {
@@ -95,6 +101,7 @@ impl AlignmentConfig {
             lead_in_turns_e: 1,
             hold_s: 0.5,
             max_pole_pair_error: 0.2,
+            sensor_counts_per_rev: 0,
         }
     }
 
@@ -373,6 +380,20 @@ impl Alignment {
         if consistency < 0.7 {
             return Err(CalError::ImplausibleResult);
         }
+        // Half a count of floor quantization (see `sensor_counts_per_rev`):
+        // the reading lags the sensor's counting direction, so the measured
+        // electrical angle is low by it (high when the sensor is reversed).
+        let zero = if c.sensor_counts_per_rev > 0 {
+            let half_e_turns = 0.5 * f32::from(c.pole_pairs) / c.sensor_counts_per_rev as f32;
+            let half = ElectricalAngle::from_turns(half_e_turns);
+            if reversed {
+                zero.wrapping_sub(half)
+            } else {
+                zero.wrapping_add(half)
+            }
+        } else {
+            zero
+        };
         Ok(AlignmentResult {
             calibration: AngleCalibration {
                 pole_pairs: c.pole_pairs,
