@@ -27,7 +27,7 @@
 pub use crate::hw::serial::CommandSerial;
 use crate::hw::serial::SerialConfig;
 use crate::pac;
-use core::cell::RefCell;
+use core::cell::{Cell, RefCell};
 use core::sync::atomic::{AtomicBool, Ordering};
 use cortex_m::interrupt::{free, Mutex};
 use foc_bench::plant::{
@@ -118,13 +118,41 @@ pub fn sim_config() -> BenchConfig {
 
 struct World {
     plant: Plant,
-    duties: [f32; 3],
     load_nm: f32,
-    sample: Option<Measurements>,
-    fresh: bool,
 }
 
 static WORLD: Mutex<RefCell<Option<World>>> = Mutex::new(RefCell::new(None));
+
+/// What the "ADC" and the encoder latched at the last PWM centre: written by
+/// the physics (TIM2, priority 0), read by the drivers below. Kept apart from
+/// [`WORLD`] in a plain `Cell` (no `RefCell` borrow flag, no `Option` of the
+/// whole plant), so that each driver read is one short critical section and
+/// a load of the fields it needs.
+#[derive(Clone, Copy)]
+struct Latch {
+    /// Phase currents as sampled (hardware offsets included).
+    currents: PhaseCurrents,
+    /// Encoder reading.
+    angle: MechanicalAngle,
+    /// Bus voltage [V].
+    v_bus_v: f32,
+    /// A sample has been latched since start-up.
+    valid: bool,
+    /// Not yet read by [`SimCurrents::read_currents`].
+    fresh: bool,
+}
+
+static LATCH: Mutex<Cell<Latch>> = Mutex::new(Cell::new(Latch {
+    currents: PhaseCurrents::TwoPhase { a_a: 0.0, b_a: 0.0 },
+    angle: MechanicalAngle::ZERO,
+    v_bus_v: 0.0,
+    valid: false,
+    fresh: false,
+}));
+
+/// Duties the PWM driver wrote last (read by the physics), also a plain
+/// `Cell` apart from [`WORLD`].
+static DUTIES: Mutex<Cell<[f32; 3]>> = Mutex::new(Cell::new([0.5; 3]));
 /// Bridge outputs on (written by the PWM driver, cleared by emergency_disable).
 static BRIDGE_ON: AtomicBool = AtomicBool::new(false);
 /// Set by emergency_disable: the outputs stay off until reset.
@@ -154,11 +182,7 @@ impl PwmDriver for SimPwm {
             return Err(SimPwmError::OutOfRange);
         }
         let d = compare.map(|c| c as f32 / PERIOD_COUNTS as f32);
-        free(|cs| {
-            if let Some(w) = WORLD.borrow(cs).borrow_mut().as_mut() {
-                w.duties = d;
-            }
-        });
+        free(|cs| DUTIES.borrow(cs).set(d));
         Ok(())
     }
     fn enable(&mut self) -> Result<(), Self::Error> {
@@ -188,21 +212,30 @@ pub enum SimAdcError {
     NotReady,
 }
 
-fn latched() -> Option<Measurements> {
-    free(|cs| WORLD.borrow(cs).borrow().as_ref().and_then(|w| w.sample))
+/// The latched sample, if any (fresh or not).
+#[inline(always)]
+fn latched() -> Option<Latch> {
+    let l = free(|cs| LATCH.borrow(cs).get());
+    if l.valid {
+        Some(l)
+    } else {
+        None
+    }
 }
 
 impl CurrentSense for SimCurrents {
     type Error = SimAdcError;
     fn read_currents(&mut self) -> Result<PhaseCurrents, Self::Error> {
+        // Take the sample if it is fresh (one critical section).
         let m = free(|cs| {
-            let mut w = WORLD.borrow(cs).borrow_mut();
-            match w.as_mut() {
-                Some(w) if w.fresh => {
-                    w.fresh = false;
-                    w.sample
-                }
-                _ => None,
+            let cell = LATCH.borrow(cs);
+            let mut l = cell.get();
+            if l.fresh {
+                l.fresh = false;
+                cell.set(l);
+                Some(l)
+            } else {
+                None
             }
         })
         .ok_or(SimAdcError::NotReady)?;
@@ -291,11 +324,15 @@ pub fn init(dp: pac::Peripherals) -> Board {
     free(|cs| {
         WORLD.borrow(cs).replace(Some(World {
             plant: Plant::new(SIM_MOTOR, sim_config()),
-            duties: [0.5; 3],
             load_nm: 0.0,
-            sample: None,
+        }));
+        DUTIES.borrow(cs).set([0.5; 3]);
+        let l = LATCH.borrow(cs);
+        l.set(Latch {
+            valid: false,
             fresh: false,
-        }))
+            ..l.get()
+        });
     });
     BRIDGE_ON.store(false, Ordering::SeqCst);
     // RCC_APB1ENR.TIM2EN (RM0090 7.3.13); harmless where RCC is not modelled.
@@ -354,9 +391,14 @@ fn step_physics() {
     let on = BRIDGE_ON.load(Ordering::SeqCst);
     free(|cs| {
         if let Some(w) = WORLD.borrow(cs).borrow_mut().as_mut() {
-            let m = w.plant.step_period(w.duties, on, w.load_nm);
-            w.sample = Some(m);
-            w.fresh = true;
+            let m: Measurements = w.plant.step_period(DUTIES.borrow(cs).get(), on, w.load_nm);
+            LATCH.borrow(cs).set(Latch {
+                currents: m.currents,
+                angle: m.angle,
+                v_bus_v: m.v_bus_v,
+                valid: true,
+                fresh: true,
+            });
         }
     });
 }

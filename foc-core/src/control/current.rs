@@ -138,6 +138,19 @@ pub struct CurrentLoop {
     config: CurrentLoopConfig,
     pi_d: Pi,
     pi_q: Pi,
+    /// `delay_compensation_periods * ts_s` [s] (0 when that is not finite):
+    /// the voltage angle's advance per rad/s of `w_e`.
+    advance_s: f32,
+}
+
+/// The loop's `advance_s`: `k Ts`, or 0 for k = 0 or an unusable product.
+fn advance_s(c: &CurrentLoopConfig) -> f32 {
+    let a = c.delay_compensation_periods * c.ts_s;
+    if a.is_finite() {
+        a
+    } else {
+        0.0
+    }
 }
 
 fn pi_config(g: CurrentPiGains, c: &CurrentLoopConfig) -> PiConfig {
@@ -157,6 +170,7 @@ impl CurrentLoop {
         Self {
             pi_d: Pi::new(pi_config(config.d_gains, &config)),
             pi_q: Pi::new(pi_config(config.q_gains, &config)),
+            advance_s: advance_s(&config),
             config,
         }
     }
@@ -170,6 +184,7 @@ impl CurrentLoop {
     pub fn set_config(&mut self, config: CurrentLoopConfig) {
         self.pi_d.config = pi_config(config.d_gains, &config);
         self.pi_q.config = pi_config(config.q_gains, &config);
+        self.advance_s = advance_s(&config);
         self.config = config;
     }
 
@@ -210,6 +225,15 @@ impl CurrentLoop {
     /// duties with `invalid = true` and leave the integrators untouched.
     #[inline]
     pub fn step(&mut self, inp: &CurrentLoopInput) -> CurrentLoopOutput {
+        self.step_inline(inp)
+    }
+
+    /// [`Self::step`], always inlined: the current stage's copy, so that the
+    /// output fields it does not use (the modulator's times and modulation
+    /// index, with its square root) are never computed there, and the
+    /// output is not copied through memory.
+    #[inline(always)]
+    pub(crate) fn step_inline(&mut self, inp: &CurrentLoopInput) -> CurrentLoopOutput {
         if !inputs_usable(inp) {
             return CurrentLoopOutput::INVALID;
         }
@@ -231,15 +255,19 @@ impl CurrentLoop {
                 .step_error_inline(inp.i_dq_ref_a.q - i_dq.q, -v_q_max - ff.q, v_q_max - ff.q);
         let v_dq = Dq::new(v_d, u_q + ff.q);
         // The voltage acts about `k` periods after the sample: apply it in
-        // the dq frame of the rotor as it will be then.
-        let k = self.config.delay_compensation_periods;
-        let v_ab = if k != 0.0 && k.is_finite() {
-            let advance = k * inp.omega_e_rad_s * self.config.ts_s;
-            let (sin_v, cos_v) = trig::sin_cos(inp.theta_e.add_radians(advance));
-            transforms::inverse_park(v_dq, sin_v, cos_v)
+        // the dq frame of the rotor as it will be then, `k w_e Ts` ahead.
+        // Up to `SMALL_ROTATION_MAX_RAD` (w_e up to 3,333 rad/s at 20 kHz
+        // and k = 1.5) the sampled angle's (sin, cos) is rotated by a short
+        // Taylor series (`trig::rotate_small`, within 4e-7 of the exact
+        // rotation); beyond, a second `sin_cos` of the advanced angle.
+        // k = 0 (or unusable) makes `advance` 0, which rotates by nothing.
+        let advance = self.advance_s * inp.omega_e_rad_s;
+        let (sin_v, cos_v) = if advance.abs() <= trig::SMALL_ROTATION_MAX_RAD {
+            trig::rotate_small((sin, cos), advance)
         } else {
-            transforms::inverse_park(v_dq, sin, cos)
+            trig::sin_cos(inp.theta_e.add_radians(advance))
         };
+        let v_ab = transforms::inverse_park(v_dq, sin_v, cos_v);
         let sv = svpwm::svpwm_inline(v_ab, inp.v_bus_v);
         CurrentLoopOutput {
             duties: sv.duties,
@@ -477,5 +505,38 @@ mod tests {
         inp.i_dq_ref_a = Dq::ZERO;
         let o = cl.step(&inp);
         assert!((o.v_dq_v.d - v.d).abs() < 1e-5 && (o.v_dq_v.q - v.q).abs() < 1e-5);
+    }
+
+    /// Both ways of advancing the voltage angle (the small-angle rotation
+    /// up to `SMALL_ROTATION_MAX_RAD`, a second `sin_cos` beyond) put the
+    /// voltage at `theta_e + k w_e Ts` while Park keeps the sampled angle,
+    /// on both sides of the switch-over and in both directions.
+    #[test]
+    fn delay_compensation_small_and_large_advances() {
+        let cfg = CurrentLoopConfig::technical_optimum(motor(), 20e3);
+        for w in [
+            -6000.0f32, -3333.0, -3334.0, -100.0, 100.0, 3333.0, 3334.0, 6000.0,
+        ] {
+            for deg in [0.0f32, 33.0, 89.9, 181.0, 300.0] {
+                let th = ElectricalAngle::from_degrees(deg);
+                let mut inp = input(2.0);
+                inp.theta_e = th;
+                inp.omega_e_rad_s = w;
+                let mut cl = CurrentLoop::new(cfg);
+                let o = cl.step(&inp);
+                let (s, c) = trig::sin_cos(th);
+                let ab = transforms::inverse_park(o.i_dq_a, s, c);
+                assert!(ab.alpha.abs() < 1e-6 && ab.beta.abs() < 1e-6); // zero currents
+                let adv = 1.5 * w / 20e3;
+                let (sv, cv) = trig::sin_cos(th.add_radians(adv));
+                let back = transforms::park(o.v_ab_v, sv, cv);
+                let tol = 1e-5 * (1.0 + o.v_dq_v.magnitude());
+                assert!(
+                    (back.d - o.v_dq_v.d).abs() < tol && (back.q - o.v_dq_v.q).abs() < tol,
+                    "w {w}, {deg} deg: {back:?} vs {:?}",
+                    o.v_dq_v
+                );
+            }
+        }
     }
 }

@@ -290,15 +290,21 @@ impl CurrentStage {
                 let innovation = self.tracker.update(mech);
                 theta_e = self.config.angle.electrical(mech);
                 i_abc = cur.to_abc();
-                let vector = transforms::clarke(i_abc).magnitude();
-                self.supervisor.check(&Checks {
-                    i_abc_a: i_abc,
-                    measured_sum_a: cur.measured_sum_a(),
-                    vector_current_a: vector,
-                    v_bus_v,
-                    angle_innovation_rad: innovation,
-                    temperature_c: s.temperature_c,
-                });
+                // |i_ab|^2 against the squared limit: no square root (see
+                // `Supervisor::check_vector_sq`).
+                let ab = transforms::clarke(i_abc);
+                let vector_sq = ab.alpha * ab.alpha + ab.beta * ab.beta;
+                self.supervisor.check_vector_sq(
+                    &Checks {
+                        i_abc_a: i_abc,
+                        measured_sum_a: cur.measured_sum_a(),
+                        vector_current_a: 0.0, // unused: the square is passed
+                        v_bus_v,
+                        angle_innovation_rad: innovation,
+                        temperature_c: s.temperature_c,
+                    },
+                    vector_sq,
+                );
                 // Stuck sensor / stall: a still reading while the drive
                 // pushes hard to move.
                 let changed = self.last_raw != Some(raw);
@@ -348,14 +354,40 @@ impl CurrentStage {
             self.active = Command::Disable;
             None
         } else {
-            match self.active {
+            // The closed-loop modes share one (inlined) current-loop call.
+            let closed_iq = match self.active {
                 Command::Disable => None,
-                Command::OpenLoop {
-                    v_d_v,
-                    v_q_v,
-                    omega_e_rad_s,
-                    ..
-                } => {
+                Command::OpenLoop { .. } => None,
+                Command::Torque { iq_a } => Some(iq_a),
+                Command::Velocity { .. } | Command::Position { .. } => {
+                    let lim = self.config.limits.max_current_a;
+                    Some(if iq_ref_from_speed_a.is_finite() {
+                        clamp(iq_ref_from_speed_a, -lim, lim)
+                    } else {
+                        0.0
+                    })
+                }
+            };
+            match (closed_iq, self.active) {
+                (Some(iq), _) => {
+                    i_ref = Dq::new(0.0, iq);
+                    Some(self.current.step_inline(&CurrentLoopInput {
+                        i_abc_a: i_abc,
+                        theta_e,
+                        omega_e_rad_s: w_e,
+                        v_bus_v: v_bus,
+                        i_dq_ref_a: i_ref,
+                    }))
+                }
+                (
+                    None,
+                    Command::OpenLoop {
+                        v_d_v,
+                        v_q_v,
+                        omega_e_rad_s,
+                        ..
+                    },
+                ) => {
                     let th = self.ol_theta;
                     self.ol_theta = th.add_radians(omega_e_rad_s * self.config.current.ts_s);
                     theta_e = th;
@@ -364,20 +396,7 @@ impl CurrentStage {
                             .step_voltage(i_abc, th, Dq::new(v_d_v, v_q_v), v_bus),
                     )
                 }
-                Command::Torque { iq_a } => {
-                    i_ref = Dq::new(0.0, iq_a);
-                    Some(self.run_current(i_abc, theta_e, w_e, v_bus, i_ref))
-                }
-                Command::Velocity { .. } | Command::Position { .. } => {
-                    let lim = self.config.limits.max_current_a;
-                    let iq = if iq_ref_from_speed_a.is_finite() {
-                        clamp(iq_ref_from_speed_a, -lim, lim)
-                    } else {
-                        0.0
-                    };
-                    i_ref = Dq::new(0.0, iq);
-                    Some(self.run_current(i_abc, theta_e, w_e, v_bus, i_ref))
-                }
+                (None, _) => None,
             }
         };
         // A control output that is itself invalid is a fault too.
@@ -427,24 +446,6 @@ impl CurrentStage {
             period: self.period,
         };
         (bridge, fb)
-    }
-
-    #[inline]
-    fn run_current(
-        &mut self,
-        i_abc: crate::frames::Abc,
-        theta_e: ElectricalAngle,
-        w_e: f32,
-        v_bus: f32,
-        i_ref: Dq,
-    ) -> CurrentLoopOutput {
-        self.current.step(&CurrentLoopInput {
-            i_abc_a: i_abc,
-            theta_e,
-            omega_e_rad_s: w_e,
-            v_bus_v: v_bus,
-            i_dq_ref_a: i_ref,
-        })
     }
 }
 

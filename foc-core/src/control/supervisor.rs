@@ -311,13 +311,44 @@ impl Supervisor {
     /// Check one period's measurements; latches and returns the first new
     /// fault found. Non-finite values trip [`Fault::NonFinite`].
     pub fn check(&mut self, m: &Checks) -> Option<Fault> {
+        let limit = self.config.max_vector_current_a;
+        self.check_impl(m, m.vector_current_a, limit)
+    }
+
+    /// [`Self::check`] with the current vector given as its *square*
+    /// `|i_alpha_beta|^2` [A^2] (`m.vector_current_a` is ignored): the
+    /// current stage's entry point, which saves the square root.
+    ///
+    /// `|i| > limit` is decided as `|i|^2 > limit^2`. Both sides are
+    /// non-negative and squaring is monotonic, so the decision is the same
+    /// as [`Self::check`]'s except within an f32 rounding of the limit
+    /// (a relative `1e-7`, far below any measurement's resolution). A square
+    /// that overflows to infinity trips [`Fault::NonFinite`], exactly as the
+    /// overflowing magnitude did.
+    #[inline]
+    pub(crate) fn check_vector_sq(
+        &mut self,
+        m: &Checks,
+        vector_current_sq_a2: f32,
+    ) -> Option<Fault> {
+        let l = self.config.max_vector_current_a;
+        // A negative limit always tripped (`|i| >= 0 > l`) and a NaN one
+        // never did: keep both so (NaN squared is NaN).
+        let limit_sq = if l < 0.0 { -1.0 } else { l * l };
+        self.check_impl(m, vector_current_sq_a2, limit_sq)
+    }
+
+    /// The checks, with the current vector as `vector` (magnitude or square)
+    /// against `vector_limit` (in the same form).
+    #[inline(always)]
+    fn check_impl(&mut self, m: &Checks, vector: f32, vector_limit: f32) -> Option<Fault> {
         let c = &self.config;
         // One combined finiteness check (an absent value counts as finite).
         let fault = if !crate::all_finite([
             m.i_abc_a.a,
             m.i_abc_a.b,
             m.i_abc_a.c,
-            m.vector_current_a,
+            vector,
             m.v_bus_v,
             m.angle_innovation_rad,
             m.measured_sum_a.unwrap_or(0.0),
@@ -329,7 +360,7 @@ impl Supervisor {
             || m.i_abc_a.c.abs() > c.max_phase_current_a
         {
             Some(Fault::OverCurrentPhase)
-        } else if m.vector_current_a > c.max_vector_current_a {
+        } else if vector > vector_limit {
             Some(Fault::OverCurrentVector)
         } else if m
             .measured_sum_a
@@ -481,5 +512,44 @@ mod tests {
             }
         }
         assert_eq!(Fault::from_code(0), None);
+    }
+
+    /// The squared entry point decides as `check` does: same fault for
+    /// vectors on both sides of the limit (away from the rounding boundary),
+    /// for odd limits, and for an overflowing square.
+    #[test]
+    fn squared_vector_check_matches_magnitude_check() {
+        for limit in [10.0f32, 0.0, -1.0, f32::NAN, f32::INFINITY, 3.3] {
+            let cfg = SupervisorConfig {
+                max_vector_current_a: limit,
+                max_phase_current_a: 1e30,
+                ..SupervisorConfig::default()
+            };
+            for v in [0.0f32, 1.0, 3.29, 3.31, 9.99, 10.01, 1e3] {
+                let mut m = normal();
+                m.vector_current_a = v;
+                let mut a = Supervisor::new(cfg);
+                let mut b = Supervisor::new(cfg);
+                assert_eq!(
+                    a.check(&m),
+                    b.check_vector_sq(&m, v * v),
+                    "limit {limit}, |i| {v}"
+                );
+            }
+        }
+        // |i|^2 overflows: non-finite, as the overflowing magnitude was.
+        let cfg = SupervisorConfig {
+            max_phase_current_a: f32::MAX,
+            ..SupervisorConfig::default()
+        };
+        let mut m = normal();
+        m.i_abc_a = Abc::new(1e20, -1e20, 0.0);
+        let sq = 1e20f32 * 1e20;
+        assert_eq!(
+            Supervisor::new(cfg).check_vector_sq(&m, sq),
+            Some(Fault::NonFinite)
+        );
+        m.vector_current_a = crate::transforms::clarke(m.i_abc_a).magnitude();
+        assert_eq!(Supervisor::new(cfg).check(&m), Some(Fault::NonFinite));
     }
 }
