@@ -44,18 +44,7 @@ pub const EXIT_HARDFAULT: u32 = 4;
 /// End the emulation with `code` as QEMU's exit status
 /// (semihosting SYS_EXIT_EXTENDED, reason ADP_Stopped_ApplicationExit).
 pub fn exit(code: u32) -> ! {
-    const SYS_EXIT_EXTENDED: usize = 0x20;
-    const ADP_STOPPED_APPLICATION_EXIT: usize = 0x20026;
-    // SAFETY: a semihosting call; QEMU is started with semihosting enabled.
-    unsafe {
-        cortex_m_semihosting::syscall(
-            SYS_EXIT_EXTENDED,
-            &[ADP_STOPPED_APPLICATION_EXIT, code as usize],
-        );
-    }
-    loop {
-        cortex_m::asm::bkpt();
-    }
+    sim::exit(code)
 }
 
 /// True when QEMU passed `panic` as a semihosting argument.

@@ -526,6 +526,24 @@ pub mod sim {
         BRIDGE_ON.load(Ordering::SeqCst)
     }
 
+    /// End the emulation with `code` as QEMU's exit status (semihosting
+    /// `SYS_EXIT_EXTENDED`, reason `ADP_Stopped_ApplicationExit`; QEMU runs
+    /// with semihosting enabled).
+    pub fn exit(code: u32) -> ! {
+        const SYS_EXIT_EXTENDED: usize = 0x20;
+        const ADP_STOPPED_APPLICATION_EXIT: usize = 0x20026;
+        // SAFETY: a semihosting call with a valid two-word parameter block.
+        unsafe {
+            cortex_m_semihosting::syscall(
+                SYS_EXIT_EXTENDED,
+                &[ADP_STOPPED_APPLICATION_EXIT, code as usize],
+            );
+        }
+        loop {
+            cortex_m::asm::bkpt();
+        }
+    }
+
     /// True once `emergency_disable` has run.
     pub fn emergency_latched() -> bool {
         EMERGENCY.load(Ordering::SeqCst)

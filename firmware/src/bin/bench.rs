@@ -262,18 +262,7 @@ fn nop0() {
 }
 
 fn mission_exit(code: u32) -> ! {
-    const SYS_EXIT_EXTENDED: usize = 0x20;
-    const ADP_STOPPED_APPLICATION_EXIT: usize = 0x20026;
-    // SAFETY: semihosting call; QEMU runs with semihosting enabled.
-    unsafe {
-        cortex_m_semihosting::syscall(
-            SYS_EXIT_EXTENDED,
-            &[ADP_STOPPED_APPLICATION_EXIT, code as usize],
-        );
-    }
-    loop {
-        cortex_m::asm::bkpt();
-    }
+    board::sim::exit(code)
 }
 
 #[panic_handler]
