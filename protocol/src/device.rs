@@ -239,6 +239,7 @@ fn check(x: f32, lo: f32, hi: f32, field: u8) -> Result<(), Response> {
 fn command_field(cmd: &Command, e: CommandError) -> ErrorCode {
     match (cmd, e) {
         (_, CommandError::Faulted) => ErrorCode::Faulted,
+        (_, CommandError::NotCalibrated) => ErrorCode::NotCalibrated,
         (
             Command::OpenLoop {
                 v_d_v,
@@ -743,5 +744,23 @@ pub mod tests_support {
         fn firmware_version(&self) -> [u8; 3] {
             [0, 1, 0]
         }
+    }
+}
+
+#[cfg(test)]
+mod command_field_tests {
+    use super::*;
+
+    #[test]
+    fn refusals_of_the_stage_keep_their_own_codes() {
+        let cmd = Command::Torque { iq_a: 1.0 };
+        assert_eq!(
+            command_field(&cmd, CommandError::NotCalibrated),
+            ErrorCode::NotCalibrated
+        );
+        assert_eq!(
+            command_field(&cmd, CommandError::Faulted),
+            ErrorCode::Faulted
+        );
     }
 }
