@@ -145,8 +145,12 @@ fn range(values: impl Iterator<Item = f64>) -> (f64, f64) {
     if !lo.is_finite() {
         return (0.0, 1.0);
     }
-    let pad = ((hi - lo) * 0.05).max(1e-9);
-    (lo - pad, hi + pad)
+    // A flat signal still gets a readable axis: at least 0.1 of a unit, or
+    // 1 % of its magnitude, around it.
+    let span = (hi - lo).max(0.1).max(0.01 * lo.abs().max(hi.abs()));
+    let mid = 0.5 * (lo + hi);
+    let half = 0.5 * span * 1.1;
+    (mid - half, mid + half)
 }
 
 const COLORS: [RGBColor; 6] = [BLUE, RED, GREEN, MAGENTA, CYAN, BLACK];
@@ -158,6 +162,18 @@ pub fn plot_svg(
     title: &str,
     trace: &Trace,
     panels: &[Panel],
+) -> io::Result<()> {
+    plot_svg_against(path, title, trace, panels, "time [s]")
+}
+
+/// As [`plot_svg`], with the trace's first column (its "time" column)
+/// standing for another quantity, described by `x_desc` (e.g. `torque [N m]`).
+pub fn plot_svg_against(
+    path: impl AsRef<Path>,
+    title: &str,
+    trace: &Trace,
+    panels: &[Panel],
+    x_desc: &str,
 ) -> io::Result<()> {
     let path = path.as_ref();
     if let Some(dir) = path.parent() {
@@ -192,7 +208,7 @@ pub fn plot_svg(
             .map_err(other)?;
         chart
             .configure_mesh()
-            .x_desc("time [s]")
+            .x_desc(x_desc)
             .y_desc(p.unit.as_str())
             .draw()
             .map_err(other)?;
@@ -363,9 +379,34 @@ pub fn dyno_markdown(header: &DynoHeader, rows: &[DynoRow]) -> String {
     s
 }
 
-/// SVG curves against speed: torque, supply current, input/mechanical power, efficiency.
+/// Relative spread `(max - min) / max|x|` of a set of values (0 when flat).
+fn spread(values: impl Iterator<Item = f64> + Clone) -> f64 {
+    let (lo, hi) = values
+        .clone()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), v| {
+            (l.min(v), h.max(v))
+        });
+    let mag = lo.abs().max(hi.abs());
+    if mag > 0.0 && mag.is_finite() {
+        (hi - lo) / mag
+    } else {
+        0.0
+    }
+}
+
+/// SVG performance curves: speed, supply current, input/mechanical power and
+/// efficiency against the swept quantity (torque for a load sweep, supply
+/// voltage for a voltage sweep: whichever varies more across the rows).
 pub fn dyno_svg(path: impl AsRef<Path>, header: &DynoHeader, rows: &[DynoRow]) -> io::Result<()> {
+    let torque_sweep =
+        spread(rows.iter().map(|r| r.values()[4])) >= spread(rows.iter().map(|r| r.values()[0]));
+    let (x_col, x_desc, what) = if torque_sweep {
+        (4, "torque [N m]", "load sweep")
+    } else {
+        (0, "supply voltage [V]", "supply-voltage sweep")
+    };
     let mut t = Trace::new(&[
+        "speed_rpm",
         "torque_nm",
         "supply_current_a",
         "input_power_w",
@@ -373,26 +414,22 @@ pub fn dyno_svg(path: impl AsRef<Path>, header: &DynoHeader, rows: &[DynoRow]) -
         "efficiency_percent",
     ]);
     let mut sorted: Vec<DynoRow> = rows.to_vec();
-    sorted.sort_by(|a, b| a.speed_rpm.total_cmp(&b.speed_rpm));
+    sorted.sort_by(|a, b| a.values()[x_col].total_cmp(&b.values()[x_col]));
     for r in &sorted {
         let v = r.values();
-        t.push(r.speed_rpm / 60.0, &[v[4], v[1], v[2], v[5], v[6]]);
+        t.push(v[x_col], &[v[3], v[4], v[1], v[2], v[5], v[6]]);
     }
-    let title = format!(
-        "Performance Curve Report: {} (x axis: speed [rev/s])",
-        header.motor_model
-    );
-    plot_svg(
-        path,
-        &title,
-        &t,
-        &[
-            Panel::new("Torque", "N m", &["torque_nm"]),
-            Panel::new("Supply current", "A", &["supply_current_a"]),
-            Panel::new("Power", "W", &["input_power_w", "mechanical_power_w"]),
-            Panel::new("Efficiency", "%", &["efficiency_percent"]),
-        ],
-    )
+    let title = format!("Performance Curve Report: {} ({what})", header.motor_model);
+    let mut panels = vec![Panel::new("Speed", "rpm", &["speed_rpm"])];
+    if !torque_sweep {
+        panels.push(Panel::new("Torque", "N m", &["torque_nm"]));
+    }
+    panels.extend([
+        Panel::new("Supply current", "A", &["supply_current_a"]),
+        Panel::new("Power", "W", &["input_power_w", "mechanical_power_w"]),
+        Panel::new("Efficiency", "%", &["efficiency_percent"]),
+    ]);
+    plot_svg_against(path, &title, &t, &panels, x_desc)
 }
 
 /// Write `<stem>.csv`, `<stem>.md` and `<stem>.svg` into `dir`.

@@ -111,8 +111,14 @@ fn dyno_report_files() {
     );
 
     let svg = std::fs::read_to_string(svg).unwrap();
+    // Torque is either a plotted series or, for a load sweep, the x axis.
+    assert!(
+        svg.contains("torque_nm") || svg.contains("torque [N m]"),
+        "torque missing"
+    );
     for name in [
-        "torque_nm",
+        "speed_rpm",
+        "supply_current_a",
         "input_power_w",
         "mechanical_power_w",
         "efficiency_percent",
