@@ -18,8 +18,13 @@
 //!
 //! Start-up: clocks and pins (`board::init`, bridge off), current-offset
 //! calibration (1024 periods with the bridge off, rejected when far from
-//! mid-scale or noisy), an angle-sensor check, then the disabled mode,
-//! waiting for a command (`config::START_COMMAND` is `None` by default).
+//! mid-scale or noisy), an angle-sensor check, then (emulated board, or
+//! `config::IDENTIFY_AT_STARTUP`) the motor identification (`calibrate`),
+//! then the disabled mode, waiting for a command (`config::START_COMMAND` is
+//! `None` by default). Until an identification (at start-up or on command)
+//! has succeeded the current stage is uncalibrated and refuses torque,
+//! velocity and position commands: a motor never runs closed loop on an
+//! unknown electrical zero.
 //!
 //! Safety: any fault latched by the supervisor puts the bridge in the safe
 //! state in the same period. The panic and HardFault handlers call
