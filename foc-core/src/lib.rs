@@ -142,6 +142,20 @@ pub fn clamp(x: f32, lo: f32, hi: f32) -> f32 {
     }
 }
 
+/// [`clamp`] for limits known to be ordered (`lo <= hi`, neither NaN), as
+/// two independent selections: `max(x, lo)` then `min(_, hi)`. Same result
+/// as [`clamp`] there, NaN `x` included (returned unchanged); each step is a
+/// compare and a conditional move, with no branch.
+#[inline(always)]
+pub(crate) fn clamp_ordered(x: f32, lo: f32, hi: f32) -> f32 {
+    let y = if x < lo { lo } else { x };
+    if y > hi {
+        hi
+    } else {
+        y
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -225,5 +239,35 @@ mod tests {
         assert_eq!(clamp(-2.0, -1.0, 1.0), -1.0);
         assert_eq!(clamp(0.25, -1.0, 1.0), 0.25);
         assert!(clamp(f32::NAN, -1.0, 1.0).is_nan());
+    }
+
+    #[test]
+    fn clamp_ordered_matches_clamp() {
+        let vals = [
+            0.0,
+            -0.0,
+            0.5,
+            -0.5,
+            1.0,
+            -1.0,
+            3.0,
+            f32::MAX,
+            -f32::MAX,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            f32::NAN,
+        ];
+        for x in vals {
+            for lo in vals {
+                for hi in vals {
+                    // Ordered limits only (NaN limits fail the comparison).
+                    if lo.partial_cmp(&hi).is_none_or(|o| o.is_gt()) {
+                        continue;
+                    }
+                    let (a, b) = (clamp(x, lo, hi), clamp_ordered(x, lo, hi));
+                    assert!(a.to_bits() == b.to_bits() || (a.is_nan() && b.is_nan()));
+                }
+            }
+        }
     }
 }

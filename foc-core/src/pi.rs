@@ -165,38 +165,73 @@ impl Pi {
         self.state.output
     }
 
-    /// [`Self::step_error`] (same results for every input), always inlined:
-    /// the current loop's copy. (The slower loops keep the plain version,
-    /// which measured cheaper there once inlined with their constants.)
+    /// `ki * ts`, the integrator's gain per sample, as [`Self::step_error`]
+    /// computes it (`ki * ts * e` is evaluated as `(ki * ts) * e`).
+    #[inline]
+    pub(crate) fn ki_ts(&self) -> f32 {
+        self.config.ki_per_s * self.config.ts_s
+    }
+
+    /// [`Self::step_error`] (same results for every input) for the current
+    /// loop, always inlined, for **finite** gains `kp` (`self.config.kp`)
+    /// and `ki_ts` ([`Self::ki_ts`]), which the caller checks once when the
+    /// configuration is set (with non-finite gains it calls
+    /// [`Self::step_error_cold`] instead).
     ///
-    /// The usual case (finite error and limits, `lo <= hi`) is recognised
-    /// with one combined check; the rest goes to [`Self::step_unusable`].
-    /// With finite limits a clamped value is either finite or NaN (an
-    /// infinite one is clamped), so `x == x` is the finiteness test there.
+    /// With finite gains, a finite error and finite ordered limits nothing
+    /// on the unsaturated path can be NaN or infinite (products may be
+    /// infinite, but every sum is clamped, and a sum of a finite and an
+    /// infinite value is never NaN), so the finiteness fix-ups of the
+    /// general step move into the saturated branch: the output is NaN only
+    /// for a NaN stored integrator (which also makes `u != u_raw`), the
+    /// integrator only then or after back-calculation (`0 * inf`). Clamps
+    /// use [`crate::clamp_ordered`] (two if-converted comparisons each), the
+    /// state is written once.
     #[inline(always)]
-    pub(crate) fn step_error_inline(&mut self, error: f32, lo: f32, hi: f32) -> f32 {
+    pub(crate) fn step_error_lean(
+        &mut self,
+        error: f32,
+        lo: f32,
+        hi: f32,
+        kp: f32,
+        ki_ts: f32,
+    ) -> f32 {
         if !(crate::all_finite([error, lo, hi]) && lo <= hi) {
             return self.step_unusable(error, lo, hi);
         }
-        let c = &self.config;
-        let i_prev = clamp(self.state.integral, lo, hi);
-        let p = c.kp * error;
-        let mut i = clamp(i_prev + c.ki_per_s * c.ts_s * error, lo, hi);
+        let i_prev = crate::clamp_ordered(self.state.integral, lo, hi);
+        let p = kp * error;
+        let mut i = crate::clamp_ordered(i_prev + ki_ts * error, lo, hi);
         let u_raw = p + i;
-        let u = clamp(u_raw, lo, hi);
+        let mut u = crate::clamp_ordered(u_raw, lo, hi);
         let saturated = u != u_raw;
         if saturated {
             i = self.anti_windup(i, i_prev, u, u_raw, lo, hi);
+            // NaN only from a NaN stored integrator, or back-calculation
+            // with `g (u - u_raw) = 0 * inf`: fall back to neutral.
+            #[allow(clippy::eq_op)]
+            if i != i {
+                i = 0.0;
+            }
+            #[allow(clippy::eq_op)]
+            if u != u {
+                u = 0.0;
+            }
         }
-        // NaN only with non-finite gains: fall back to neutral.
-        #[allow(clippy::eq_op)]
-        let (i_ok, u_ok) = (i == i, u == u);
         self.state = PiState {
-            integral: if i_ok { i } else { 0.0 },
-            output: if u_ok { u } else { 0.0 },
+            integral: i,
+            output: u,
             saturated,
         };
-        self.state.output
+        u
+    }
+
+    /// [`Self::step_error`] out of line: the current loop's path for
+    /// non-finite gains (never taken with a usable configuration).
+    #[cold]
+    #[inline(never)]
+    pub(crate) fn step_error_cold(&mut self, error: f32, lo: f32, hi: f32) -> f32 {
+        self.step_error(error, lo, hi)
     }
 
     /// Anti-windup on a saturated sample: the corrected integrator.
@@ -250,9 +285,11 @@ impl Pi {
 mod tests {
     use super::*;
 
-    /// The current loop's inlined copy gives bit-for-bit the same output and
+    /// The current loop's lean copy gives bit-for-bit the same output and
     /// state as the public `step_error`, for finite and non-finite errors,
-    /// limits and gains, with both anti-windup strategies.
+    /// limits and stored integrators, with finite gains (the only gains it
+    /// is used with) and both anti-windup strategies (including a NaN and a
+    /// zero tracking gain).
     #[test]
     fn inline_copy_matches_step_error() {
         let vals = [
@@ -273,11 +310,12 @@ mod tests {
             AntiWindup::Clamp,
             AntiWindup::BackCalculation { kb_per_s: 500.0 },
             AntiWindup::BackCalculation { kb_per_s: f32::NAN },
+            AntiWindup::BackCalculation { kb_per_s: 0.0 },
         ] {
-            for kp in [2.0, f32::INFINITY, f32::NAN] {
+            for (kp, ki_per_s) in [(2.0, 300.0), (0.0, 300.0), (1e30, 300.0), (2.0, 1e38)] {
                 let mut a = Pi::new(PiConfig {
                     kp,
-                    ki_per_s: 300.0,
+                    ki_per_s,
                     ts_s: 1e-3,
                     out_min: -5.0,
                     out_max: 5.0,
@@ -286,12 +324,14 @@ mod tests {
                 for e in vals {
                     for lo in [-5.0, -0.5, 1.0, f32::NEG_INFINITY, f32::NAN] {
                         for hi in [5.0, 0.5, -1.0, f32::INFINITY, f32::NAN] {
-                            for i0 in [0.0, 4.0, -9.0] {
+                            for i0 in [0.0, 4.0, -9.0, f32::NAN, f32::INFINITY] {
                                 a.state.integral = i0;
                                 let mut b = a;
                                 let ua = a.step_error(e, lo, hi);
-                                let ub = b.step_error_inline(e, lo, hi);
-                                assert!(same(ua, ub), "{aw:?} {kp} {e} {lo} {hi} {i0}");
+                                let (kp, ki_ts) = (b.config.kp, b.ki_ts());
+                                assert!(kp.is_finite() && ki_ts.is_finite());
+                                let ub = b.step_error_lean(e, lo, hi, kp, ki_ts);
+                                assert!(same(ua, ub), "{aw:?} {kp} {ki_per_s} {e} {lo} {hi} {i0}");
                                 assert!(same(a.state.integral, b.state.integral));
                                 assert!(same(a.state.output, b.state.output));
                                 assert_eq!(a.state.saturated, b.state.saturated);

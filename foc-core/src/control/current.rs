@@ -141,6 +141,11 @@ pub struct CurrentLoop {
     /// `delay_compensation_periods * ts_s` [s] (0 when that is not finite):
     /// the voltage angle's advance per rad/s of `w_e`.
     advance_s: f32,
+    /// `ki * ts` of the d and q PIs (see [`Pi::ki_ts`]).
+    ki_ts: Dq,
+    /// Every PI gain (`kp`, `ki * ts`, both axes) is finite: the step takes
+    /// [`Pi::step_error_lean`], otherwise the general step, out of line.
+    gains_finite: bool,
 }
 
 /// The loop's `advance_s`: `k Ts`, or 0 for k = 0 or an unusable product.
@@ -167,12 +172,28 @@ fn pi_config(g: CurrentPiGains, c: &CurrentLoopConfig) -> PiConfig {
 impl CurrentLoop {
     /// New loop with zero integrators.
     pub fn new(config: CurrentLoopConfig) -> Self {
-        Self {
+        let mut cl = Self {
             pi_d: Pi::new(pi_config(config.d_gains, &config)),
             pi_q: Pi::new(pi_config(config.q_gains, &config)),
-            advance_s: advance_s(&config),
+            advance_s: 0.0,
+            ki_ts: Dq::ZERO,
+            gains_finite: false,
             config,
-        }
+        };
+        cl.derive();
+        cl
+    }
+
+    /// The values derived from the configuration once, not every step.
+    fn derive(&mut self) {
+        self.advance_s = advance_s(&self.config);
+        self.ki_ts = Dq::new(self.pi_d.ki_ts(), self.pi_q.ki_ts());
+        self.gains_finite = crate::all_finite([
+            self.pi_d.config.kp,
+            self.pi_q.config.kp,
+            self.ki_ts.d,
+            self.ki_ts.q,
+        ]);
     }
 
     /// The configuration.
@@ -184,8 +205,8 @@ impl CurrentLoop {
     pub fn set_config(&mut self, config: CurrentLoopConfig) {
         self.pi_d.config = pi_config(config.d_gains, &config);
         self.pi_q.config = pi_config(config.q_gains, &config);
-        self.advance_s = advance_s(&config);
         self.config = config;
+        self.derive();
     }
 
     /// Zero both integrators.
@@ -221,6 +242,29 @@ impl CurrentLoop {
         }
     }
 
+    /// The d-axis PI on this sample's limits (same results as
+    /// [`Pi::step_error`]).
+    #[inline(always)]
+    fn step_pi_d(&mut self, error: f32, lo: f32, hi: f32) -> f32 {
+        if self.gains_finite {
+            let kp = self.pi_d.config.kp;
+            self.pi_d.step_error_lean(error, lo, hi, kp, self.ki_ts.d)
+        } else {
+            self.pi_d.step_error_cold(error, lo, hi)
+        }
+    }
+
+    /// The q-axis PI, as [`Self::step_pi_d`].
+    #[inline(always)]
+    fn step_pi_q(&mut self, error: f32, lo: f32, hi: f32) -> f32 {
+        if self.gains_finite {
+            let kp = self.pi_q.config.kp;
+            self.pi_q.step_error_lean(error, lo, hi, kp, self.ki_ts.q)
+        } else {
+            self.pi_q.step_error_cold(error, lo, hi)
+        }
+    }
+
     /// One step. Non-finite inputs or a bus at or below zero give centred
     /// duties with `invalid = true` and leave the integrators untouched.
     #[inline]
@@ -234,25 +278,33 @@ impl CurrentLoop {
     /// output is not copied through memory.
     #[inline(always)]
     pub(crate) fn step_inline(&mut self, inp: &CurrentLoopInput) -> CurrentLoopOutput {
+        self.step_inline_ab(inp, transforms::clarke(inp.i_abc_a))
+    }
+
+    /// [`Self::step_inline`] with `i_ab = clarke(inp.i_abc_a)` already
+    /// computed by the caller (the current stage needs it for the
+    /// supervisor's current-vector check too).
+    #[inline(always)]
+    pub(crate) fn step_inline_ab(
+        &mut self,
+        inp: &CurrentLoopInput,
+        i_ab: AlphaBeta,
+    ) -> CurrentLoopOutput {
         if !inputs_usable(inp) {
             return CurrentLoopOutput::INVALID;
         }
         let (sin, cos) = trig::sin_cos(inp.theta_e);
-        let i_dq = transforms::park(transforms::clarke(inp.i_abc_a), sin, cos);
+        let i_dq = transforms::park(i_ab, sin, cos);
         let ff = self.feed_forward(i_dq, inp.omega_e_rad_s);
         let v_max = self.config.max_modulation * inp.v_bus_v * FRAC_1_SQRT_3;
 
         // d axis first: total v_d = u_d + ff_d within [-v_max, v_max].
-        let u_d =
-            self.pi_d
-                .step_error_inline(inp.i_dq_ref_a.d - i_dq.d, -v_max - ff.d, v_max - ff.d);
+        let u_d = self.step_pi_d(inp.i_dq_ref_a.d - i_dq.d, -v_max - ff.d, v_max - ff.d);
         let v_d = u_d + ff.d;
         // q axis: what is left of the circle.
         let rem = v_max * v_max - v_d * v_d;
         let v_q_max = if rem > 0.0 { sqrtf(rem) } else { 0.0 };
-        let u_q =
-            self.pi_q
-                .step_error_inline(inp.i_dq_ref_a.q - i_dq.q, -v_q_max - ff.q, v_q_max - ff.q);
+        let u_q = self.step_pi_q(inp.i_dq_ref_a.q - i_dq.q, -v_q_max - ff.q, v_q_max - ff.q);
         let v_dq = Dq::new(v_d, u_q + ff.q);
         // The voltage acts about `k` periods after the sample: apply it in
         // the dq frame of the rotor as it will be then, `k w_e Ts` ahead.

@@ -280,6 +280,7 @@ impl CurrentStage {
         // 2. Sensors and supervision.
         let mut theta_e = ElectricalAngle::ZERO;
         let mut i_abc = crate::frames::Abc::default();
+        let mut i_ab = crate::frames::AlphaBeta::new(0.0, 0.0);
         let v_bus = s.v_bus_v.unwrap_or(0.0);
         match (s.currents, s.angle, s.v_bus_v) {
             (None, _, _) => self.supervisor.trip(Fault::CurrentSenseError),
@@ -292,8 +293,8 @@ impl CurrentStage {
                 i_abc = cur.to_abc();
                 // |i_ab|^2 against the squared limit: no square root (see
                 // `Supervisor::check_vector_sq`).
-                let ab = transforms::clarke(i_abc);
-                let vector_sq = ab.alpha * ab.alpha + ab.beta * ab.beta;
+                i_ab = transforms::clarke(i_abc);
+                let vector_sq = i_ab.alpha * i_ab.alpha + i_ab.beta * i_ab.beta;
                 self.supervisor.check_vector_sq(
                     &Checks {
                         i_abc_a: i_abc,
@@ -371,13 +372,17 @@ impl CurrentStage {
             match (closed_iq, self.active) {
                 (Some(iq), _) => {
                     i_ref = Dq::new(0.0, iq);
-                    Some(self.current.step_inline(&CurrentLoopInput {
-                        i_abc_a: i_abc,
-                        theta_e,
-                        omega_e_rad_s: w_e,
-                        v_bus_v: v_bus,
-                        i_dq_ref_a: i_ref,
-                    }))
+                    // `i_ab` is `clarke(i_abc)` (both zero when a read failed).
+                    Some(self.current.step_inline_ab(
+                        &CurrentLoopInput {
+                            i_abc_a: i_abc,
+                            theta_e,
+                            omega_e_rad_s: w_e,
+                            v_bus_v: v_bus,
+                            i_dq_ref_a: i_ref,
+                        },
+                        i_ab,
+                    ))
                 }
                 (
                     None,
