@@ -10,10 +10,12 @@
 //! - [`adapters`] (`no_std`): `foc-core` hardware traits on a shared plant.
 //! - [`rng`], [`real`] (`no_std`): deterministic noise and the plant's scalar.
 //! - [`motor_file`] (`std`): TOML motor files in `tests/motors/`.
+//! - [`identify`] (`std`): current offsets and the motor identification of
+//!   `foc-core` driven through a simulated cascade.
 //! - [`metrics`] (`std`): overshoot, settling, rise time, errors.
 //! - [`report`] (`std`): CSV traces, SVG plots, dynamometer reports.
 //! - [`mission`] (`std`): the real `foc-core` cascade against the plant
-//!   through a scripted mission (align, current step, speed, load, position).
+//!   through a scripted mission (identify, current step, speed, load, position).
 //! - [`dyno`] (`std`): simulated dynamometer sweeps (Performance Curve Report).
 //! - [`sil`] (`std`): the software-in-the-loop protocol of the `foc-sil` binary.
 //!
@@ -44,6 +46,8 @@ pub mod rng;
 
 #[cfg(feature = "std")]
 pub mod dyno;
+#[cfg(feature = "std")]
+pub mod identify;
 #[cfg(feature = "std")]
 pub mod metrics;
 #[cfg(feature = "std")]

@@ -12,11 +12,14 @@
 //!
 //! The mission ([`run_mission`]):
 //!
-//! 1. **align**: open-loop d-axis voltage at `theta_e = 90 deg`, then at
-//!    `0 deg`, until the encoder reading is still; the reading there is the
-//!    electrical zero (`AngleCalibration::zero_offset`). The bench does *not*
-//!    copy the plant's encoder offset: it derives it, and reports the error
-//!    against the plant's true offset.
+//! 1. **identify** ([`crate::identify::run`]): current-offset calibration
+//!    with the bridge off, then foc-core's `Identification` through the
+//!    mission's cascade: R, Ld, Lq, current-loop gains, alignment (electrical
+//!    zero, direction, pole-pair check) and the flux linkage (not for
+//!    hall-class sensors). The rest of the mission runs on its permit
+//!    (measured gains and zero), not on supplied values; the bench does *not*
+//!    copy the plant's parameters or encoder offset, it reports the errors
+//!    against them.
 //! 2. **current step** (torque mode, rotor locked): `iq` 0 -> `I_step`.
 //! 3. **speed step** 0 -> `w1`, then a **ramp** `w1` -> `w2` (velocity mode).
 //! 4. **load step** at `w2` (about 40 % of the rated torque).
@@ -30,15 +33,19 @@
 //! assert!(r.summary.failures().is_empty());
 //! ```
 
+use crate::identify;
 use crate::metrics;
 use crate::motor_file::{MotorFile, MotorFileError};
 use crate::plant::{self, BenchConfig, Measurements, Mechanics, Plant};
 use crate::report::{Panel, Trace};
 use foc_core::angle::{ElectricalAngle, MechanicalAngle};
+use foc_core::calibration::identification::IdentificationResult;
 use foc_core::calibration::Calibrated;
 use foc_core::control::cascade::{Cascade, CascadeConfig};
 use foc_core::control::stage::{AngleCalibration, Sample};
 use foc_core::control::{BridgeCommand, Command, Mode};
+use foc_core::frames::Abc;
+use foc_core::hal::PhaseCurrents;
 use std::fmt::Write as _;
 use std::path::Path;
 use std::time::Instant;
@@ -177,6 +184,19 @@ pub fn sample_of(m: &Measurements) -> Sample {
     }
 }
 
+/// `c` with the offsets `o` [A] removed.
+pub fn remove_offsets(c: PhaseCurrents, o: Abc) -> PhaseCurrents {
+    match c {
+        PhaseCurrents::TwoPhase { a_a, b_a } => PhaseCurrents::TwoPhase {
+            a_a: a_a - o.a,
+            b_a: b_a - o.b,
+        },
+        PhaseCurrents::ThreePhase(i) => {
+            PhaseCurrents::ThreePhase(Abc::new(i.a - o.a, i.b - o.b, i.c - o.c))
+        }
+    }
+}
+
 /// Names of the trace columns written by [`Sim`].
 pub const TRACE_COLUMNS: [&str; 22] = [
     "id_a",
@@ -217,6 +237,8 @@ pub struct Sim {
     trace: Option<Trace>,
     /// Encoder-frame position of the plant's true position 0 [rad]: `est = true - offset`.
     encoder_offset_rad: f64,
+    /// Current-sense offsets removed from every sample [A] (once calibrated).
+    current_offsets: Option<Abc>,
 }
 
 impl Sim {
@@ -233,7 +255,17 @@ impl Sim {
     /// a trace. The controller is uncalibrated (open loop only) until
     /// [`align`] or `cascade.set_calibration`.
     pub fn new(setup: &Setup, config: CascadeConfig, record: bool) -> Self {
-        let mut plant = Plant::new(setup.motor, setup.bench);
+        Self::with_plant(setup, Plant::new(setup.motor, setup.bench), config, record)
+    }
+
+    /// As [`Sim::new`] on a plant the caller prepared (e.g. with injected
+    /// faults); `setup` gives the encoder offset of the true-position column.
+    pub fn with_plant(
+        setup: &Setup,
+        mut plant: Plant,
+        config: CascadeConfig,
+        record: bool,
+    ) -> Self {
         let last = plant.step_period([0.5; 3], false, 0.0);
         Self {
             plant,
@@ -243,6 +275,7 @@ impl Sim {
             last_bridge: BridgeCommand::SafeState,
             trace: record.then(|| Trace::new(&TRACE_COLUMNS)),
             encoder_offset_rad: setup.bench.sensors.encoder_offset_rad as f64,
+            current_offsets: None,
         }
     }
 
@@ -253,9 +286,31 @@ impl Sim {
         self.last = self.plant.step_period([0.5; 3], false, 0.0);
     }
 
-    /// The sample the controller sees next.
+    /// The plant's latest measurements (raw: current offsets not removed).
     pub fn last_sample(&self) -> &Measurements {
         &self.last
+    }
+
+    /// The sample the controller sees next: [`Sim::last_sample`] with the
+    /// current offsets removed once [`Sim::set_current_offsets`] was called.
+    pub fn sample(&self) -> Sample {
+        let mut s = sample_of(&self.last);
+        if let (Some(o), Some(c)) = (self.current_offsets, s.currents) {
+            s.currents = Some(remove_offsets(c, o));
+        }
+        s
+    }
+
+    /// Remove these current-sense offsets [A] from every later sample (what
+    /// the firmware's `CurrentSense::set_offsets_a` does after the offset
+    /// calibration).
+    pub fn set_current_offsets(&mut self, offsets: Abc) {
+        self.current_offsets = Some(offsets);
+    }
+
+    /// The installed current-sense offsets [A].
+    pub fn current_offsets(&self) -> Option<Abc> {
+        self.current_offsets
     }
 
     /// The bridge command of the last step.
@@ -280,7 +335,7 @@ impl Sim {
 
     /// One PWM period: the controller on the latest sample, then the plant.
     pub fn step(&mut self) -> BridgeCommand {
-        let sample = sample_of(&self.last);
+        let sample = self.sample();
         self.step_with(&sample)
     }
 
@@ -367,6 +422,31 @@ pub struct Segment {
     pub end: usize,
 }
 
+/// What the identification segment measured, against the plant's truth.
+#[derive(Clone, Debug, PartialEq)]
+pub struct IdentificationSummary {
+    /// Phase resistance [ohm] and its error [%].
+    pub r_ohm: (f64, f64),
+    /// d-axis inductance [H] and its error [%].
+    pub ld_h: (f64, f64),
+    /// q-axis inductance [H] and its error [%].
+    pub lq_h: (f64, f64),
+    /// Flux linkage [Wb] and its error [%] (None: not measured, hall-class sensor).
+    pub flux_linkage_wb: Option<(f64, f64)>,
+    /// Pole pairs found and the plant's.
+    pub pole_pairs: (u8, u8),
+    /// Sensor reversed: found and the plant's.
+    pub reversed: (bool, bool),
+    /// Current-sense offsets found [A] (phases a, b, c).
+    pub offsets_a: [f64; 3],
+    /// Offset calibration time [s, simulated].
+    pub offset_time_s: f64,
+    /// Identification time after the offsets [s, simulated].
+    pub time_s: f64,
+    /// Wall time of the segment [s].
+    pub wall_time_s: f64,
+}
+
 /// The figures measured on one mission.
 #[derive(Clone, Debug, PartialEq)]
 pub struct MissionSummary {
@@ -376,12 +456,20 @@ pub struct MissionSummary {
     pub pwm_hz: f32,
     /// Speed and position loop dividers.
     pub dividers: (u16, u16),
+    /// The identification's figures (None: it failed, see `identification_failure`).
+    pub identification: Option<IdentificationSummary>,
+    /// Why the identification failed (the mission then runs on the
+    /// supplied calibration and fails).
+    pub identification_failure: Option<String>,
     /// Alignment: electrical zero found [deg].
     pub align_found_deg: f64,
     /// Alignment error against the plant's true encoder offset [deg, electrical].
     pub align_error_deg: f64,
     /// Current-step size [A].
     pub current_step_a: f64,
+    /// The current-step figures are of the true current's magnitude (hall-class
+    /// sensor), not of its q component.
+    pub current_step_magnitude: bool,
     /// q-current overshoot [%] (true current at the sample instants).
     pub current_overshoot_percent: f64,
     /// q-current 2 % settling time [PWM periods] (None: did not settle).
@@ -429,6 +517,34 @@ impl MissionSummary {
         let mut f = Vec::new();
         if !self.faults.is_empty() {
             f.push(format!("faults latched: {}", self.faults.join(", ")));
+        }
+        if let Some(e) = &self.identification_failure {
+            f.push(format!("identification failed: {e}"));
+        }
+        if let Some(id) = &self.identification {
+            // Sanity bounds: R and L within 10 %, flux linkage within 10 %,
+            // pole pairs and direction exact. (tests/tests/identification.rs
+            // holds issue 9's 5 % for R and L from the rotor at angle 0; the
+            // mission starts at 0.7 rad, where M153's R comes out -5.4 %.)
+            for (name, (_, err)) in [("R", id.r_ohm), ("Ld", id.ld_h), ("Lq", id.lq_h)] {
+                if !below(err.abs(), 10.0) {
+                    f.push(format!("identified {name} off by {err:+.1} %"));
+                }
+            }
+            if let Some((_, err)) = id.flux_linkage_wb {
+                if !below(err.abs(), 10.0) {
+                    f.push(format!("identified flux linkage off by {err:+.1} %"));
+                }
+            }
+            if id.pole_pairs.0 != id.pole_pairs.1 {
+                f.push(format!(
+                    "pole pairs {} found, {} true",
+                    id.pole_pairs.0, id.pole_pairs.1
+                ));
+            }
+            if id.reversed.0 != id.reversed.1 {
+                f.push("sensor direction wrong".into());
+            }
         }
         if self.align_error_deg.abs() > 15.0 + self.encoder_count_rad.to_degrees() * 21.0 {
             f.push(format!("alignment error {:.1} deg", self.align_error_deg));
@@ -483,14 +599,71 @@ impl MissionSummary {
         let mut row = |k: &str, v: String| {
             let _ = writeln!(s, "| {k} | {v} |");
         };
+        match &self.identification {
+            Some(id) => {
+                row(
+                    "identification time (offsets + identification)",
+                    format!(
+                        "{:.3} s + {:.2} s simulated ({:.2} s wall)",
+                        id.offset_time_s, id.time_s, id.wall_time_s
+                    ),
+                );
+                row(
+                    "identified R / error",
+                    format!("{:.4} ohm / {:+.2} %", id.r_ohm.0, id.r_ohm.1),
+                );
+                row(
+                    "identified Ld / error",
+                    format!("{:.2} uH / {:+.2} %", id.ld_h.0 * 1e6, id.ld_h.1),
+                );
+                row(
+                    "identified Lq / error",
+                    format!("{:.2} uH / {:+.2} %", id.lq_h.0 * 1e6, id.lq_h.1),
+                );
+                row(
+                    "identified flux linkage / error",
+                    id.flux_linkage_wb
+                        .map_or("not measured (hall-class sensor)".into(), |(v, e)| {
+                            format!("{:.3} mWb / {e:+.2} %", v * 1e3)
+                        }),
+                );
+                row(
+                    "pole pairs found (plant)",
+                    format!("{} ({})", id.pole_pairs.0, id.pole_pairs.1),
+                );
+                let dir = |r: bool| if r { "reversed" } else { "forward" };
+                row(
+                    "sensor direction found (plant)",
+                    format!("{} ({})", dir(id.reversed.0), dir(id.reversed.1)),
+                );
+            }
+            None => row(
+                "identification",
+                format!(
+                    "FAILED: {} (mission run on the supplied calibration)",
+                    self.identification_failure.as_deref().unwrap_or("?")
+                ),
+            ),
+        }
         row(
-            "alignment: electrical zero found / error",
+            "identified electrical zero / error",
             format!(
                 "{:.2} deg / {:+.2} deg",
                 self.align_found_deg, self.align_error_deg
             ),
         );
-        row("q-current step", format!("{:.2} A", self.current_step_a));
+        row(
+            "q-current step",
+            format!(
+                "{:.2} A{}",
+                self.current_step_a,
+                if self.current_step_magnitude {
+                    " (figures of the true current's magnitude: hall-class sensor)"
+                } else {
+                    ""
+                }
+            ),
+        );
         row(
             "q-current overshoot",
             format!("{:.2} %", self.current_overshoot_percent),
@@ -596,13 +769,61 @@ impl MissionResult {
         decimate(&self.trace, max_rows)
     }
 
-    /// Write `mission.csv` (full rate), `current_step.csv`, `mission.svg`,
-    /// `current_step.svg` and `summary.md` into `dir`. Returns the paths.
+    /// Rows `start..end` of the trace, times unchanged (simulation time).
+    pub fn rows(&self, start: usize, end: usize) -> Trace {
+        let names: Vec<&str> = self.trace.names().iter().map(String::as_str).collect();
+        let mut t = Trace::new(&names);
+        let cols: Vec<&[f64]> = names.iter().filter_map(|n| self.trace.column(n)).collect();
+        for r in start..end.min(self.trace.len()) {
+            let row: Vec<f64> = cols.iter().map(|c| c[r]).collect();
+            t.push(self.trace.time_s()[r], &row);
+        }
+        t
+    }
+
+    /// Write into `dir`: `identification.csv` and `identification.svg`
+    /// (the identify segment, decimated to at most 20 000 and 4000 rows:
+    /// it is most of the simulated time), `mission.csv` (every PWM period
+    /// from the end of the identification on, simulation time),
+    /// `mission.svg` (the same, decimated), `current_step.csv`,
+    /// `current_step.svg`, `speed.svg`, `position.svg` and `summary.md`.
+    /// Returns the paths.
     pub fn write(&self, dir: &Path) -> std::io::Result<Vec<std::path::PathBuf>> {
         std::fs::create_dir_all(dir)?;
         let mut out = Vec::new();
+        let id_end = self.segment("identify").map_or(0, |s| s.end);
+        if let Some(seg) = self.segment("identify") {
+            let t = self.rows(seg.start, seg.end);
+            let p = dir.join("identification.csv");
+            decimate(&t, 20_000).write_csv(&p)?;
+            out.push(p);
+            let k = t.len().div_ceil(4000).max(1);
+            let p = dir.join("identification.svg");
+            crate::report::plot_svg(
+                &p,
+                &format!(
+                    "Identification: {} (offsets, R, L, alignment sweeps, flux; every {k}-th period)",
+                    self.summary.motor
+                ),
+                &decimate(&t, 4000),
+                &[
+                    Panel::new("d current", "A", &["id_ref_a", "id_a"]),
+                    Panel::new("q current", "A", &["iq_ref_a", "iq_a"]),
+                    Panel::new("dq voltages", "V", &["vd_v", "vq_v"]),
+                    Panel::new(
+                        "speed",
+                        "rad/s",
+                        &["speed_ref_rad_s", "speed_rad_s", "speed_est_rad_s"],
+                    ),
+                    Panel::new("position (encoder frame)", "rad", &["position_rad"]),
+                    Panel::new("mode, bridge on", "1", &["mode", "bridge_on"]),
+                ],
+            )?;
+            out.push(p);
+        }
+        let closed = self.rows(id_end, self.trace.len());
         let p = dir.join("mission.csv");
-        self.trace.write_csv(&p)?;
+        closed.write_csv(&p)?;
         out.push(p);
         let mission_panels = [
             Panel::new("q current", "A", &["iq_ref_a", "iq_a"]),
@@ -629,11 +850,11 @@ impl MissionResult {
         crate::report::plot_svg(
             &p,
             &format!(
-                "Mission: {} (every {}-th period)",
+                "Mission after the identification: {} (every {}-th period)",
                 self.summary.motor,
-                self.trace.len().div_ceil(4000).max(1)
+                closed.len().div_ceil(4000).max(1)
             ),
-            &self.decimated(4000),
+            &decimate(&closed, 4000),
             &mission_panels,
         )?;
         out.push(p);
@@ -803,6 +1024,31 @@ pub fn align(sim: &mut Sim, setup: &Setup) -> (ElectricalAngle, f64) {
     (found, error_deg)
 }
 
+fn identification_summary(
+    setup: &Setup,
+    sim: &Sim,
+    o: &identify::Outcome,
+    r: &IdentificationResult,
+    wall_time_s: f64,
+) -> IdentificationSummary {
+    let m = &setup.motor;
+    let with_err = |x: f32, truth: f64| (x as f64, 100.0 * (x as f64 / truth - 1.0));
+    let ts = 1.0 / setup.bench.pwm_frequency_hz as f64;
+    IdentificationSummary {
+        r_ohm: with_err(r.r_ohm, m.r_ohm as f64),
+        ld_h: with_err(r.ld_h, m.ld_h as f64),
+        lq_h: with_err(r.lq_h, m.lq_h as f64),
+        flux_linkage_wb: (!identify::hall_class(setup))
+            .then(|| with_err(r.flux_linkage_wb, m.flux_linkage_wb as f64)),
+        pole_pairs: (r.pole_pairs, m.pole_pairs),
+        reversed: (r.angle.reversed, sim.plant.faults().encoder_reversed),
+        offsets_a: [o.offsets.a as f64, o.offsets.b as f64, o.offsets.c as f64],
+        offset_time_s: o.offset_periods as f64 * ts,
+        time_s: o.periods as f64 * ts,
+        wall_time_s,
+    }
+}
+
 /// Run the mission on `setup`. `progress` is called with the fraction done (0..=1).
 pub fn run_mission(setup: &Setup, progress: &mut dyn FnMut(f64)) -> MissionResult {
     let wall = Instant::now();
@@ -829,7 +1075,26 @@ pub fn run_mission(setup: &Setup, progress: &mut dyn FnMut(f64)) -> MissionResul
     let v_traj = config.position.max_velocity_rad_s;
     let a_traj = config.position.max_acceleration_rad_s2;
     let t_move = (move_rad / v_traj + v_traj / a_traj) as f64 + 0.6;
-    let expected = 1.2 + 0.03 + 0.5 + t_ramp + 0.3 + 0.6 + t_ramp + 0.4 + t_move;
+    let mut id_cfg = identify::config(setup, setup.motor.pole_pairs);
+    if identify::hall_class(setup) {
+        // The current stage runs on the raw (floor) reading of a hall-class
+        // sensor, half a count behind the rotor on average. The zero with
+        // that bias left in keeps the controller's angle error within
+        // +-half a count; the corrected zero (right against the plant's true
+        // offset) would put it between -1 and 0 counts (-60..0 deg(e) on the
+        // hub motor: the locked-rotor current step then missed its 2 % band
+        // with 49 deg(e) of angle error). The summary reports the zero error
+        // against the true offset, so it shows the half count here.
+        id_cfg.alignment.sensor_counts_per_rev = 0;
+    }
+    // Identification: offsets, R and L (about 1 s), both alignment sweeps
+    // with their holds, the flux step (about 2 s).
+    let a = &id_cfg.alignment;
+    let t_align = 2.0
+        * (f32::from(a.lead_in_turns_e + a.turns_e) * std::f32::consts::TAU / a.speed_e_rad_s
+            + a.hold_s);
+    let t_id = 0.1 + 1.0 + t_align as f64 + if id_cfg.measure_flux { 2.0 } else { 0.0 };
+    let expected = t_id + 0.03 + 0.5 + t_ramp + 0.3 + 0.6 + t_ramp + 0.4 + t_move;
     let total = secs(setup, expected).max(1);
     let mut tick = |sim: &Sim| {
         if sim.rows() % 2048 == 0 {
@@ -840,15 +1105,41 @@ pub fn run_mission(setup: &Setup, progress: &mut dyn FnMut(f64)) -> MissionResul
     // The rotor starts somewhere arbitrary.
     sim.set_rotor_angle(0.7);
 
-    // 1. Align.
+    // 1. Identify: current offsets, R, L, gains, alignment, flux linkage.
     let start = sim.rows();
-    let (found, align_error_deg) = align(&mut sim, setup);
-    tick(&sim);
+    let id_wall = Instant::now();
+    let outcome = identify::run(&mut sim, setup, id_cfg, &mut |s| tick(s));
+    let id_wall_s = id_wall.elapsed().as_secs_f64();
+    let (identification, identification_failure) = match &outcome {
+        Ok(o) => match o.identified() {
+            Some(d) => (
+                Some(identification_summary(setup, &sim, o, &d.result, id_wall_s)),
+                None,
+            ),
+            None => (None, Some(format!("{:?} in {:?}", o.step, o.stage))),
+        },
+        Err(e) => (None, Some(e.to_string())),
+    };
+    if identification.is_none() {
+        // Run the rest on the bench's knowledge so that the report is
+        // complete; `failures()` reports the identification failure.
+        sim.cascade.command(Command::Disable).ok();
+        sim.cascade.clear_faults();
+        sim.cascade
+            .set_calibration(&setup.supplied_calibration(&config));
+    }
+    sim.run(secs(setup, 0.02));
     segments.push(Segment {
-        name: "align",
+        name: "identify",
         start,
         end: sim.rows(),
     });
+    let found = sim.cascade.current.config().angle.zero_offset;
+    let align_error_deg = found
+        .diff_radians(setup.true_angle_calibration().zero_offset)
+        .to_degrees() as f64;
+    // The measured current-loop configuration from here on.
+    let config = *sim.cascade.config();
 
     // 2. q-current step, rotor locked.
     sim.plant.set_mechanics(Mechanics::Locked);
@@ -967,7 +1258,19 @@ pub fn run_mission(setup: &Setup, progress: &mut dyn FnMut(f64)) -> MissionResul
     let seg = |name: &str| segments.iter().find(|s| s.name == name).cloned().unwrap();
     let cs = seg("current step");
     // The true current (a current probe on the bench), at the sample instants.
-    let iq = &col(&trace, "iq_true_a")[cs.start..cs.end];
+    // With a hall-class sensor the controller's angle is only known to
+    // +-half a count (+-30 deg(e) on the hub motor) at the locked position,
+    // so the true current's q share says more about the sensor than about
+    // the loop: there the true current's magnitude is measured.
+    let current_step_magnitude = identify::hall_class(setup);
+    let iq_mag: Vec<f64>;
+    let iq = if current_step_magnitude {
+        let (q, d) = (col(&trace, "iq_true_a"), col(&trace, "id_true_a"));
+        iq_mag = (cs.start..cs.end).map(|k| q[k].hypot(d[k])).collect();
+        &iq_mag[..]
+    } else {
+        &col(&trace, "iq_true_a")[cs.start..cs.end]
+    };
     let id = &col(&trace, "id_a")[cs.start..cs.end];
     let i_step = i_step as f64;
     let current_overshoot_percent = metrics::overshoot_percent(iq, 0.0, i_step);
@@ -1023,9 +1326,12 @@ pub fn run_mission(setup: &Setup, progress: &mut dyn FnMut(f64)) -> MissionResul
         motor: setup.name.clone(),
         pwm_hz: setup.pwm_hz(),
         dividers: (config.rates.speed_divider, config.rates.position_divider),
+        identification,
+        identification_failure,
         align_found_deg: found.to_degrees() as f64,
         align_error_deg,
         current_step_a: i_step,
+        current_step_magnitude,
         current_overshoot_percent,
         current_settling_periods,
         current_id_peak_a,

@@ -11,17 +11,11 @@
 //! exact; a wrong pole-pair count, a disconnected phase and a reversed
 //! sensor each end in a named failure.
 
-use foc_bench::mission::{sample_of, Setup};
+use foc_bench::identify::{self, config as id_config, hall_class, Outcome};
+use foc_bench::mission::{Setup, Sim};
 use foc_bench::plant::{Phase, Plant};
-use foc_core::calibration::identification::{
-    Identification, IdentificationConfig, IdentificationResult, Stage,
-};
-use foc_core::calibration::offsets::{OffsetCalibrator, OffsetLimits, OffsetStep};
-use foc_core::calibration::{CalError, CalInput, CalStep, ClosedLoopFeedback};
-use foc_core::control::cascade::Cascade;
-use foc_core::control::{BridgeCommand, Command, Mode};
-use foc_core::frames::Abc;
-use foc_core::hal::PhaseCurrents;
+use foc_core::calibration::identification::{IdentificationConfig, IdentificationResult, Stage};
+use foc_core::calibration::{CalError, CalStep};
 use std::path::PathBuf;
 
 fn motor_files() -> Vec<PathBuf> {
@@ -37,135 +31,13 @@ fn motor_files() -> Vec<PathBuf> {
     v
 }
 
-/// Identification settings for a bench motor: test current a quarter of
-/// the maximum, open-loop voltage limit a quarter of the bus, and a slow
-/// alignment sweep for motors with a large flux linkage (their back-EMF
-/// would otherwise swamp the small alignment voltage).
-fn id_config(s: &Setup, pole_pairs: u8) -> IdentificationConfig {
-    let mut c = IdentificationConfig::new(
-        pole_pairs,
-        s.pwm_hz(),
-        0.25 * s.max_current_a,
-        0.25 * s.bench.bus_voltage_v as f32,
-    );
-    if s.motor.flux_linkage_wb > 0.05 {
-        c.alignment.speed_e_rad_s = 0.25 * std::f32::consts::TAU;
-    }
-    // Known limit: with a hall-class sensor (fewer than 64 counts per
-    // electrical turn, e.g. the hub motor's 48 counts = 6 per electrical
-    // turn) the current stage runs on the raw, stale angle (no
-    // interpolation between edges yet), so closed-loop velocity is too rough
-    // for the flux step's settling criterion. Those motors are identified
-    // without it (R, L, gains, alignment, pole pairs, direction).
-    c.measure_flux = !hall_class(s);
-    c.alignment.sensor_counts_per_rev = s.bench.sensors.encoder_counts_per_rev;
-    c
-}
-
-/// Fewer than 64 encoder counts per electrical turn.
-fn hall_class(s: &Setup) -> bool {
-    s.bench.sensors.encoder_counts_per_rev / u32::from(s.motor.pole_pairs) < 64
-}
-
-struct Outcome {
-    step: CalStep<foc_core::calibration::identification::Identified>,
-    stage: Stage,
-    periods: usize,
-}
-
-fn subtract(c: PhaseCurrents, o: Abc) -> PhaseCurrents {
-    match c {
-        PhaseCurrents::TwoPhase { a_a, b_a } => PhaseCurrents::TwoPhase {
-            a_a: a_a - o.a,
-            b_a: b_a - o.b,
-        },
-        PhaseCurrents::ThreePhase(i) => {
-            PhaseCurrents::ThreePhase(Abc::new(i.a - o.a, i.b - o.b, i.c - o.c))
-        }
-    }
-}
-
 /// Offset calibration (bridge off), then the identification through a
-/// cascade, one PWM period at a time.
-fn identify(s: &Setup, plant: &mut Plant, cfg: IdentificationConfig) -> Outcome {
-    let mut cal = OffsetCalibrator::new(OffsetLimits {
-        samples: 1000,
-        max_offset_a: 0.1 * s.max_current_a,
-        max_noise_a: 0.05 * s.max_current_a,
-    });
-    let offsets = loop {
-        let m = plant.step_period([0.5; 3], false, 0.0);
-        match cal.step(m.currents.to_abc()) {
-            OffsetStep::InProgress => {}
-            OffsetStep::Done(o) => break o,
-            OffsetStep::Failed(e) => panic!("{}: offsets {e:?}", s.name),
-        }
-    };
-    // The flux step runs closed loop: keep its current inside the
-    // identification's own bound (twice the test current).
-    let mut cc = s.cascade_config();
-    let i_lim = 1.5 * cfg.alignment_current_a;
-    cc.current.limits.max_current_a = i_lim;
-    cc.speed.current_limit_a = i_lim;
-    let mut cascade = Cascade::new(cc);
-    let mut id = Identification::new(cfg);
-    let (mut duties, mut enabled) = ([0.5f32; 3], false);
-    let limit = (60.0 * s.pwm_hz()) as usize; // 60 s of simulated time
-    for k in 0..limit {
-        let m = plant.step_period(duties, enabled, 0.0);
-        let mut sample = sample_of(&m);
-        sample.currents = Some(subtract(m.currents, offsets));
-        let fb = *cascade.feedback();
-        let mut inp = CalInput::open_loop(sample.currents.unwrap().to_abc(), m.angle, m.v_bus_v);
-        if fb.mode == Mode::Velocity {
-            inp.closed_loop = Some(ClosedLoopFeedback {
-                v_dq_v: fb.v_dq_v,
-                i_dq_a: fb.i_dq_a,
-                velocity_rad_s: fb.velocity_rad_s,
-            });
-        }
-        let step = id.step(&inp);
-        let cmd = match step {
-            CalStep::Apply { v_dq, theta_e } => Command::OpenLoop {
-                v_d_v: v_dq.d,
-                v_q_v: v_dq.q,
-                theta_e,
-                omega_e_rad_s: 0.0,
-            },
-            CalStep::Velocity { rad_s } => {
-                if !cascade.is_calibrated() {
-                    cascade.set_calibration(&id.permit().expect("permit before velocity"));
-                }
-                Command::Velocity { rad_s }
-            }
-            done_or_failed => {
-                return Outcome {
-                    step: done_or_failed,
-                    stage: id.stage(),
-                    periods: k,
-                }
-            }
-        };
-        if fb.active != cmd {
-            cascade
-                .command(cmd)
-                .unwrap_or_else(|e| panic!("{}: command {cmd:?} refused: {e:?}", s.name));
-        }
-        match cascade.step(&sample) {
-            BridgeCommand::Duties(d) => (duties, enabled) = (d, true),
-            BridgeCommand::SafeState => {
-                assert!(
-                    cascade.feedback().faults.is_empty() || !enabled || k > 0,
-                    "unexpected"
-                );
-                (duties, enabled) = ([0.5; 3], false);
-                if let Some(f) = cascade.feedback().first_fault {
-                    panic!("{}: fault {} during {:?}", s.name, f.name(), id.stage());
-                }
-            }
-        }
-    }
-    panic!("{}: identification did not finish in 60 s", s.name)
+/// cascade, one PWM period at a time: `foc_bench::identify::run` on a fresh
+/// simulation of `plant`, panicking where the drive itself stops it (a
+/// latched fault, a refused command, the time limit).
+fn identify(s: &Setup, plant: Plant, cfg: IdentificationConfig) -> Outcome {
+    let mut sim = Sim::with_plant(s, plant, s.cascade_config(), false);
+    identify::run(&mut sim, s, cfg, &mut |_| {}).unwrap_or_else(|e| panic!("{}: {e}", s.name))
 }
 
 fn rel(x: f32, truth: f64) -> f64 {
@@ -182,8 +54,8 @@ fn identifies_every_motor_file() {
     let mut report = String::new();
     for path in motor_files() {
         let s = Setup::load(&path).unwrap();
-        let mut plant = Plant::new(s.motor, s.bench);
-        let out = identify(&s, &mut plant, id_config(&s, s.motor.pole_pairs));
+        let plant = Plant::new(s.motor, s.bench);
+        let out = identify(&s, plant, id_config(&s, s.motor.pole_pairs));
         let CalStep::Done(done) = out.step else {
             panic!("{}: {:?} in {:?}", s.name, out.step, out.stage)
         };
@@ -243,8 +115,8 @@ fn dji() -> Setup {
 #[test]
 fn wrong_pole_pairs_is_a_named_failure() {
     let s = dji();
-    let mut plant = Plant::new(s.motor, s.bench);
-    let out = identify(&s, &mut plant, id_config(&s, 5));
+    let plant = Plant::new(s.motor, s.bench);
+    let out = identify(&s, plant, id_config(&s, 5));
     assert!(
         matches!(
             out.step,
@@ -262,7 +134,7 @@ fn disconnected_phase_is_a_named_failure() {
     let s = dji();
     let mut plant = Plant::new(s.motor, s.bench);
     plant.faults_mut().disconnected_phase = Some(Phase::C);
-    let out = identify(&s, &mut plant, id_config(&s, s.motor.pole_pairs));
+    let out = identify(&s, plant, id_config(&s, s.motor.pole_pairs));
     assert!(
         matches!(out.step, CalStep::Failed(CalError::OpenPhase(_))),
         "{:?}",
@@ -278,7 +150,7 @@ fn reversed_sensor_is_a_named_failure_when_a_direction_is_expected() {
     plant.faults_mut().encoder_reversed = true;
     let mut cfg = id_config(&s, s.motor.pole_pairs);
     cfg.alignment.expected_reversed = Some(false);
-    let out = identify(&s, &mut plant, cfg);
+    let out = identify(&s, plant, cfg);
     assert!(
         matches!(out.step, CalStep::Failed(CalError::SensorReversed)),
         "{:?} in {:?}",
@@ -288,7 +160,7 @@ fn reversed_sensor_is_a_named_failure_when_a_direction_is_expected() {
     // Without an expected direction the reversal is detected and recorded.
     let mut plant = Plant::new(s.motor, s.bench);
     plant.faults_mut().encoder_reversed = true;
-    let out = identify(&s, &mut plant, id_config(&s, s.motor.pole_pairs));
+    let out = identify(&s, plant, id_config(&s, s.motor.pole_pairs));
     let CalStep::Done(done) = out.step else {
         panic!("{:?}", out.step)
     };
