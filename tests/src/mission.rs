@@ -153,7 +153,7 @@ impl Setup {
 impl Setup {
     /// The angle calibration that is exact for this bench: the plant's
     /// encoder offset is known here (the mission itself *finds* it with
-    /// [`align`] instead).
+    /// [`crate::identify::run`] instead).
     pub fn true_angle_calibration(&self) -> AngleCalibration {
         let pp = self.motor.pole_pairs;
         AngleCalibration {
@@ -971,7 +971,8 @@ fn mean(x: &[f64]) -> f64 {
     }
 }
 
-/// Find the electrical zero: open-loop d-axis voltage (30 % of the rated
+/// The crude alignment (the dyno still uses it; the mission identifies the
+/// motor with [`crate::identify::run`] instead). Find the electrical zero: open-loop d-axis voltage (30 % of the rated
 /// current through R) at `theta_e = 90 deg`, then at `0 deg`, each until the
 /// encoder reading has been still for 0.1 s (at most 0.6 s). The reading
 /// there, scaled by the pole pairs, is the calibration's `zero_offset`; it is

@@ -1,17 +1,21 @@
 //! `cargo xtask sim`: the real `foc-core` cascade against the bench plant
-//! through the scripted mission of `foc_bench::mission` (align, q-current
-//! step, speed step and ramp, load step, position move).
+//! through the scripted mission of `foc_bench::mission` (identification:
+//! current offsets, R, L, gains, alignment, flux linkage; then q-current
+//! step, speed step and ramp, load step, position move, all on the
+//! identification's permit).
 //!
-//! Writes `mission.csv` (every PWM period), `current_step.csv`, SVG plots
-//! (`mission.svg`, `current_step.svg`, `speed.svg`, `position.svg`) and
-//! `summary.md` into the output directory and prints the summary. Fails when
-//! the mission's pass criteria fail. `--all` runs every motor file in
-//! `tests/motors` (one sub-directory each); `--bench` also measures the
-//! simulation speed.
+//! Writes `identification.csv` / `identification.svg` (the identify
+//! segment, decimated), `mission.csv` (every PWM period after the
+//! identification), `current_step.csv`, SVG plots (`mission.svg`,
+//! `current_step.svg`, `speed.svg`, `position.svg`) and `summary.md` into
+//! the output directory and prints the summary. Fails when the mission's
+//! pass criteria fail. `--all` runs every motor file in `tests/motors` (one
+//! sub-directory each); `--bench` also measures the simulation speed.
 //!
-//! It runs in this process: a mission is about 50 000 to 120 000 PWM periods,
-//! about 1 s each in release and a few seconds in xtask's dev profile
-//! (opt-level 1), so no release build is spawned.
+//! It runs in this process: a mission is about 100 000 to 500 000 PWM
+//! periods (the identification is most of them: its alignment sweeps run at
+//! a quarter of an electrical turn per second on high-flux motors), 1 to 4 s
+//! each in xtask's dev profile (opt-level 1), so no release build is spawned.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
