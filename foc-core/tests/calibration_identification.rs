@@ -643,6 +643,7 @@ fn flux_linkage_from_two_speeds() {
             pole_pairs: m.p,
             zero_offset: foc_core::angle::ElectricalAngle::ZERO,
             reversed: false,
+            sensor_counts_per_rev: 0,
         };
         let motor = MotorParams {
             pole_pairs: m.p,

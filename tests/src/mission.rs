@@ -163,6 +163,9 @@ impl Setup {
             )
             .to_electrical(pp),
             reversed: false,
+            // The bench's encoder reads floor counts: let the stage add
+            // the half count (see `AngleCalibration::sensor_counts_per_rev`).
+            sensor_counts_per_rev: self.bench.sensors.encoder_counts_per_rev,
         }
     }
 
@@ -1014,6 +1017,7 @@ pub fn align(sim: &mut Sim, setup: &Setup) -> (ElectricalAngle, f64) {
         pole_pairs: pp,
         zero_offset: found,
         reversed: false,
+        sensor_counts_per_rev: 0,
     };
     // The alignment result plus the configured current loop: the permit
     // for the closed-loop segments.
@@ -1076,18 +1080,12 @@ pub fn run_mission(setup: &Setup, progress: &mut dyn FnMut(f64)) -> MissionResul
     let v_traj = config.position.max_velocity_rad_s;
     let a_traj = config.position.max_acceleration_rad_s2;
     let t_move = (move_rad / v_traj + v_traj / a_traj) as f64 + 0.6;
-    let mut id_cfg = identify::config(setup, setup.motor.pole_pairs);
-    if identify::hall_class(setup) {
-        // The current stage runs on the raw (floor) reading of a hall-class
-        // sensor, half a count behind the rotor on average. The zero with
-        // that bias left in keeps the controller's angle error within
-        // +-half a count; the corrected zero (right against the plant's true
-        // offset) would put it between -1 and 0 counts (-60..0 deg(e) on the
-        // hub motor: the locked-rotor current step then missed its 2 % band
-        // with 49 deg(e) of angle error). The summary reports the zero error
-        // against the true offset, so it shows the half count here.
-        id_cfg.alignment.sensor_counts_per_rev = 0;
-    }
+    let id_cfg = identify::config(setup, setup.motor.pole_pairs);
+    // The alignment's calibration carries the sensor's resolution, so the
+    // current stage adds the half count of a counting sensor to every
+    // reading: the zero found is the physical one and the angle the
+    // controller uses is unbiased (this matters on the hall-class hub
+    // motor: half a count is 30 deg(e) there).
     // Identification: offsets, R and L (about 1 s), both alignment sweeps
     // with their holds, the flux step (about 2 s).
     let a = &id_cfg.alignment;

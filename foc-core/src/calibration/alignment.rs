@@ -77,9 +77,11 @@ pub struct AlignmentConfig {
     pub max_pole_pair_error: f32,
     /// Counts per mechanical turn of the angle sensor, 0 if unknown. A
     /// counting sensor reads `floor` of its position, on average half a
-    /// count behind it; when the resolution is known the zero offset is
-    /// corrected by that half count (worth `p / (2 counts)` of a turn,
-    /// electrical: 30 deg(e) for a 48-count sensor on 8 pole pairs).
+    /// count behind it; when the resolution is known the sweeps read through
+    /// `AngleCalibration::mechanical`, which adds that half count, and the
+    /// result carries the resolution so the current stage does the same (the
+    /// zero found is then the physical one: without it the bias is
+    /// `p / (2 counts)` of a turn, 30 deg(e) for 48 counts on 8 pole pairs).
     pub sensor_counts_per_rev: u32,
 }
 
@@ -265,6 +267,7 @@ impl Alignment {
                         pole_pairs: c.pole_pairs,
                         zero_offset: ElectricalAngle::ZERO,
                         reversed: false,
+                        sensor_counts_per_rev: c.sensor_counts_per_rev,
                     };
                     let rev = AngleCalibration {
                         reversed: true,
@@ -380,25 +383,12 @@ impl Alignment {
         if consistency < 0.7 {
             return Err(CalError::ImplausibleResult);
         }
-        // Half a count of floor quantization (see `sensor_counts_per_rev`):
-        // the reading lags the sensor's counting direction, so the measured
-        // electrical angle is low by it (high when the sensor is reversed).
-        let zero = if c.sensor_counts_per_rev > 0 {
-            let half_e_turns = 0.5 * f32::from(c.pole_pairs) / c.sensor_counts_per_rev as f32;
-            let half = ElectricalAngle::from_turns(half_e_turns);
-            if reversed {
-                zero.wrapping_sub(half)
-            } else {
-                zero.wrapping_add(half)
-            }
-        } else {
-            zero
-        };
         Ok(AlignmentResult {
             calibration: AngleCalibration {
                 pole_pairs: c.pole_pairs,
                 zero_offset: zero,
                 reversed,
+                sensor_counts_per_rev: c.sensor_counts_per_rev,
             },
             measured_pole_pairs_x100: measured_x100,
             lag_e_rad: 0.5 * zb.diff_radians(zf),

@@ -87,6 +87,7 @@ impl CascadeConfig {
                     pole_pairs: motor.pole_pairs,
                     zero_offset: ElectricalAngle::ZERO,
                     reversed: false,
+                    sensor_counts_per_rev: 0,
                 },
                 command_timeout_periods: 0,
                 timeout_reaction: TimeoutReaction::Disable,

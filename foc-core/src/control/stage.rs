@@ -24,12 +24,23 @@ pub struct AngleCalibration {
     pub zero_offset: ElectricalAngle,
     /// True when the sensor counts backwards relative to A -> B -> C.
     pub reversed: bool,
+    /// Counts per mechanical turn of a counting sensor, 0 if unknown or not
+    /// counting. A count `n` means the sensor is somewhere in `[n, n + 1)`:
+    /// with the resolution known, half a count is added to every reading, so
+    /// the angle used is unbiased (this matters for coarse sensors: 30 deg(e)
+    /// for 48 counts on 8 pole pairs) and the zero offset is the physical one.
+    pub sensor_counts_per_rev: u32,
 }
 
 impl AngleCalibration {
-    /// Mechanical angle in the motor's positive direction.
+    /// Mechanical angle in the motor's positive direction (half a count
+    /// added first when the sensor's resolution is known).
     #[inline]
     pub fn mechanical(&self, raw: MechanicalAngle) -> MechanicalAngle {
+        let raw = match self.sensor_counts_per_rev {
+            0 => raw,
+            n => raw.wrapping_add(MechanicalAngle::from_bits(0x8000_0000 / n)),
+        };
         if self.reversed {
             MechanicalAngle::from_bits(raw.to_bits().wrapping_neg())
         } else {
