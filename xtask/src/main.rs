@@ -47,7 +47,8 @@ enum Command {
     /// List the boards: name (= cargo feature), probe-rs chip, QEMU support.
     Boards,
     /// Closed-loop simulation: the foc-core cascade against the bench plant
-    /// through a mission (align, current step, speed, load step, position);
+    /// through a mission (identification, current step, speed, load step,
+    /// position);
     /// CSV, SVG and summary.md in out/sim.
     Sim(sim::SimArgs),
     /// Simulated dynamometer sweep: Performance Curve Report (CSV, Markdown,
