@@ -40,7 +40,7 @@
 //! ```
 
 use super::common::{
-    check_input, periods, voltage_limit_v, CalError, CalInput, CalStep, CircularMean,
+    check_input, latch, periods, voltage_limit_v, CalError, CalInput, CalStep, CircularMean,
 };
 use crate::angle::{ElectricalAngle, MultiTurn};
 use crate::control::stage::AngleCalibration;
@@ -200,14 +200,8 @@ impl Alignment {
         if let Some(f) = self.finished {
             return f;
         }
-        let out = match self.run(inp) {
-            Ok(s) => s,
-            Err(e) => CalStep::Failed(e),
-        };
-        if out.is_finished() {
-            self.finished = Some(out);
-        }
-        out
+        let r = self.run(inp);
+        latch(&mut self.finished, r)
     }
 
     fn run(&mut self, inp: &CalInput) -> Result<CalStep<AlignmentResult>, CalError> {

@@ -187,6 +187,20 @@ impl CalInput {
     }
 }
 
+/// A routine's step with its outcome latched: the first `Done` or `Failed`
+/// (an `Err` from the routine becomes `Failed`) is stored in `finished`,
+/// which the routine returns from then on.
+pub(crate) fn latch<T: Copy>(
+    finished: &mut Option<CalStep<T>>,
+    r: Result<CalStep<T>, CalError>,
+) -> CalStep<T> {
+    let out = r.unwrap_or_else(CalStep::Failed);
+    if out.is_finished() {
+        *finished = Some(out);
+    }
+    out
+}
+
 /// Usable open-loop voltage magnitude [V]: the configured limit or the
 /// voltage circle of the bus, whichever is smaller.
 #[inline]

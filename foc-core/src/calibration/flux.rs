@@ -31,7 +31,9 @@
 //! assert!(matches!(s, CalStep::Velocity { rad_s } if rad_s > 0.0));
 //! ```
 
-use super::common::{check_input, periods, CalError, CalInput, CalStep, ClosedLoopFeedback, Mean};
+use super::common::{
+    check_input, latch, periods, CalError, CalInput, CalStep, ClosedLoopFeedback, Mean,
+};
 use core::f32::consts::TAU;
 
 /// Configuration of the flux-linkage measurement.
@@ -174,14 +176,8 @@ impl FluxLinkage {
         if let Some(f) = self.finished {
             return f;
         }
-        let out = match self.run(inp) {
-            Ok(s) => s,
-            Err(e) => CalStep::Failed(e),
-        };
-        if out.is_finished() {
-            self.finished = Some(out);
-        }
-        out
+        let r = self.run(inp);
+        latch(&mut self.finished, r)
     }
 
     fn speed(&self, k: u8) -> f32 {

@@ -51,8 +51,8 @@
 //! ```
 
 use super::common::{
-    approach_v, check_input, current_dq, periods, voltage_limit_v, CalError, CalInput, CalStep,
-    Mean, Motion,
+    approach_v, check_input, current_dq, latch, periods, voltage_limit_v, CalError, CalInput,
+    CalStep, Mean, Motion,
 };
 use crate::angle::ElectricalAngle;
 use crate::frames::Dq;
@@ -212,14 +212,8 @@ impl Inductance {
         if let Some(f) = self.finished {
             return f;
         }
-        let out = match self.run(inp) {
-            Ok(s) => s,
-            Err(e) => CalStep::Failed(e),
-        };
-        if out.is_finished() {
-            self.finished = Some(out);
-        }
-        out
+        let r = self.run(inp);
+        latch(&mut self.finished, r)
     }
 
     fn set_amp(&mut self, amp: f32) {

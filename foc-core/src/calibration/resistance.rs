@@ -50,8 +50,8 @@
 //! ```
 
 use super::common::{
-    approach_v, check_input, current_dq, periods, voltage_limit_v, CalError, CalInput, CalStep,
-    Mean, Motion, Phase,
+    approach_v, check_input, current_dq, latch, periods, voltage_limit_v, CalError, CalInput,
+    CalStep, Mean, Motion, Phase,
 };
 use crate::angle::ElectricalAngle;
 use crate::frames::Dq;
@@ -229,14 +229,8 @@ impl PhaseResistance {
         if let Some(f) = self.finished {
             return f;
         }
-        let out = match self.run(inp) {
-            Ok(s) => s,
-            Err(e) => CalStep::Failed(e),
-        };
-        if out.is_finished() {
-            self.finished = Some(out);
-        }
-        out
+        let r = self.run(inp);
+        latch(&mut self.finished, r)
     }
 
     fn angle_error_rad(i: Dq) -> f32 {
