@@ -123,9 +123,21 @@ impl AngleTracker {
         self.omega_rad_s
     }
 
-    /// Estimated (filtered) mechanical angle.
+    /// Estimated (filtered) mechanical angle: the prediction for the next
+    /// reading.
     pub fn angle(&self) -> MechanicalAngle {
         self.theta_est
+    }
+
+    /// Estimated mechanical angle at the instant of the last reading: the
+    /// prediction for it corrected by this reading (`theta_pred + kp e Ts`),
+    /// i.e. [`Self::angle`] moved back by one period at the tracked speed.
+    /// Between the edges of a coarse sensor this advances with the tracked
+    /// speed (see `AngleCalibration::interpolation_half_count`).
+    #[inline]
+    pub fn angle_at_reading(&self) -> MechanicalAngle {
+        self.theta_est
+            .wrapping_sub(small_increment(self.omega_rad_s * self.config.ts_s))
     }
 
     /// Multi-turn position of the readings.

@@ -13,6 +13,12 @@ use crate::frames::Dq;
 use crate::hal::PhaseCurrents;
 use crate::transforms;
 
+/// Coarse-sensor threshold [counts per electrical turn]: below it the
+/// current stage interpolates the angle between the sensor's edges (the
+/// tracker's angle, kept within the reading's count window); at or above it
+/// (encoders) it uses the reading itself.
+pub const INTERPOLATE_BELOW_COUNTS_PER_E_TURN: u32 = 64;
+
 /// How the angle sensor relates to the motor's electrical angle.
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -29,6 +35,9 @@ pub struct AngleCalibration {
     /// with the resolution known, half a count is added to every reading, so
     /// the angle used is unbiased (this matters for coarse sensors: 30 deg(e)
     /// for 48 counts on 8 pole pairs) and the zero offset is the physical one.
+    /// Below [`INTERPOLATE_BELOW_COUNTS_PER_E_TURN`] counts per electrical
+    /// turn the current stage also interpolates between the edges
+    /// ([`Self::interpolation_half_count`]).
     pub sensor_counts_per_rev: u32,
 }
 
@@ -46,6 +55,30 @@ impl AngleCalibration {
         } else {
             raw
         }
+    }
+    /// Half a count [mechanical angle bits] when the current stage
+    /// interpolates the angle between the sensor's edges: a counting sensor
+    /// of known resolution coarser than [`INTERPOLATE_BELOW_COUNTS_PER_E_TURN`]
+    /// counts per electrical turn (halls, the hub motor's 48 counts on 8
+    /// pole pairs). `None`: the reading (plus half a count) is used as is.
+    #[inline]
+    pub fn interpolation_half_count(&self) -> Option<u32> {
+        let n = self.sensor_counts_per_rev;
+        let pp = u32::from(self.pole_pairs.max(1));
+        (n > 0 && n < INTERPOLATE_BELOW_COUNTS_PER_E_TURN * pp).then(|| 0x8000_0000 / n)
+    }
+    /// `estimate` kept within the count window of the reading `mech` (a
+    /// [`Self::mechanical`] angle, so the centre of the window): the true
+    /// angle is within half a count of it either way.
+    #[inline]
+    pub fn within_count(
+        mech: MechanicalAngle,
+        estimate: MechanicalAngle,
+        half_count: u32,
+    ) -> MechanicalAngle {
+        let h = half_count.min(i32::MAX as u32) as i32;
+        let e = estimate.to_bits().wrapping_sub(mech.to_bits()) as i32;
+        mech.wrapping_add(MechanicalAngle::from_bits(e.clamp(-h, h) as u32))
     }
     /// Electrical angle of the d axis from a direction-corrected mechanical angle.
     #[inline]
@@ -117,6 +150,10 @@ pub struct CurrentStage {
     rejected: u32,
     calibrated: bool,
     last_raw: Option<MechanicalAngle>,
+    /// `config.angle.interpolation_half_count()`, cached.
+    interpolation: Option<u32>,
+    /// The last interpolated (mechanical) angle.
+    last_interp: MechanicalAngle,
 }
 
 impl CurrentStage {
@@ -138,6 +175,8 @@ impl CurrentStage {
             rejected: 0,
             calibrated: false,
             last_raw: None,
+            interpolation: config.angle.interpolation_half_count(),
+            last_interp: MechanicalAngle::ZERO,
         }
     }
 
@@ -151,6 +190,7 @@ impl CurrentStage {
     /// closed-loop modes. This is the only way to unlock them.
     pub fn set_calibration(&mut self, c: &Calibrated) {
         self.config.angle = c.angle();
+        self.interpolation = self.config.angle.interpolation_half_count();
         self.tracker.reset();
         let cur = c.current_config();
         self.config.current = cur;
@@ -178,6 +218,7 @@ impl CurrentStage {
     /// [`Self::set_calibration`] to install checked values.
     pub fn set_angle_calibration(&mut self, a: AngleCalibration) {
         self.config.angle = a;
+        self.interpolation = a.interpolation_half_count();
         self.tracker.reset();
         self.revoke_calibration();
     }
@@ -300,7 +341,29 @@ impl CurrentStage {
             (Some(cur), Some(raw), Some(v_bus_v)) => {
                 let mech = self.config.angle.mechanical(raw);
                 let innovation = self.tracker.update(mech);
-                theta_e = self.config.angle.electrical(mech);
+                let changed = self.last_raw != Some(raw);
+                // A coarse sensor's reading is stale between its edges: use
+                // the tracker's angle (advancing with the tracked speed),
+                // kept within the reading's count window, and between edges
+                // never moved against the tracked speed (the tracker's
+                // correction towards the window's centre can pull back). At
+                // standstill the tracker settles on the reading (+ half a
+                // count); on a reversal the angle waits at the window's edge.
+                theta_e = self.config.angle.electrical(match self.interpolation {
+                    None => mech,
+                    Some(h) => {
+                        let est = self.tracker.angle_at_reading();
+                        let mut th = AngleCalibration::within_count(mech, est, h);
+                        if !changed
+                            && th.diff_radians(self.last_interp) * self.tracker.velocity_rad_s()
+                                < 0.0
+                        {
+                            th = AngleCalibration::within_count(mech, self.last_interp, h);
+                        }
+                        self.last_interp = th;
+                        th
+                    }
+                });
                 i_abc = cur.to_abc();
                 // |i_ab|^2 against the squared limit: no square root (see
                 // `Supervisor::check_vector_sq`).
@@ -319,7 +382,6 @@ impl CurrentStage {
                 );
                 // Stuck sensor / stall: a still reading while the drive
                 // pushes hard to move.
-                let changed = self.last_raw != Some(raw);
                 self.last_raw = Some(raw);
                 let sc = &self.config.supervisor;
                 let moving = match self.active {
@@ -577,9 +639,11 @@ impl PositionStage {
 
 #[cfg(test)]
 mod tests {
+    extern crate std;
     use super::*;
     use crate::control::cascade::CascadeConfig;
     use crate::control::MotorParams;
+    use std::vec::Vec;
 
     fn config() -> CurrentStageConfig {
         let motor = MotorParams {
@@ -599,6 +663,159 @@ mod tests {
             v_bus_v: Some(24.0),
             temperature_c: None,
         }
+    }
+
+    /// A calibrated stage in torque mode (0 A) on a sensor of `counts`
+    /// per turn (8 pole pairs, zero offset 0).
+    fn torque_stage(counts: u32) -> (CurrentStage, CommandSlot) {
+        let mut c = config();
+        c.current.motor.pole_pairs = 8;
+        c.angle = AngleCalibration {
+            pole_pairs: 8,
+            zero_offset: ElectricalAngle::ZERO,
+            reversed: false,
+            sensor_counts_per_rev: counts,
+        };
+        let mut st = CurrentStage::new(c);
+        let permit = Calibrated::supplied(c.angle, c.current).unwrap();
+        st.set_calibration(&permit);
+        let mut slot = CommandSlot::INIT;
+        slot.post(Command::Torque { iq_a: 0.0 });
+        (st, slot)
+    }
+
+    /// The floor reading of a `counts` sensor at `turns` (mechanical).
+    fn reading(turns: f64, counts: u32) -> MechanicalAngle {
+        let q = (turns * counts as f64).floor() / counts as f64;
+        MechanicalAngle::from_turns(q.rem_euclid(1.0) as f32)
+    }
+
+    /// Runs a true angle profile (`speed(k)` rad/s mechanical, 20 kHz)
+    /// through a 48-count sensor; checks every Park angle lies within the
+    /// reading's count window and returns (true, used) electrical angles.
+    fn run_coarse(periods: usize, speed: impl Fn(usize) -> f64) -> Vec<(f64, f32)> {
+        let (mut st, slot) = torque_stage(48);
+        let mut turns = 0.3f64;
+        let mut out = Vec::new();
+        for k in 0..periods {
+            turns += speed(k) / 20_000.0 / core::f64::consts::TAU;
+            let mut s = sample();
+            let raw = reading(turns, 48);
+            s.angle = Some(raw);
+            let th = st.step(&slot, 0.0, &s).1.theta_e;
+            // Window [raw, raw + 1 count) in electrical degrees: 60 wide.
+            let lo = raw.to_electrical(8);
+            let off = th.wrapping_sub(lo).to_radians().to_degrees();
+            assert!(off <= 60.0 + 1e-3, "period {k}: {off} deg into the window");
+            let truth = (turns * 8.0 * 360.0).rem_euclid(360.0);
+            out.push((truth, th.to_radians().to_degrees()));
+        }
+        out
+    }
+
+    fn err_deg(truth: f64, used: f32) -> f64 {
+        (used as f64 - truth + 540.0).rem_euclid(360.0) - 180.0
+    }
+
+    /// At a steady speed the angle advances between the edges (never
+    /// backwards) and follows the true angle far better than the reading.
+    #[test]
+    fn coarse_sensor_angle_advances_monotonically_within_the_window() {
+        let v = run_coarse(8000, |_| 100.0);
+        let mut worst: f64 = 0.0;
+        for w in v[4000..].windows(2) {
+            let step = err_deg(w[0].1 as f64, w[1].1); // used(k+1) - used(k)
+            assert!(step >= -1e-3, "moved back by {step} deg");
+            worst = worst.max(err_deg(w[1].0, w[1].1).abs());
+        }
+        // The reading (+ half a count) is up to 30 deg(e) off.
+        assert!(worst < 12.0, "worst error {worst} deg(e)");
+    }
+
+    /// Standstill: the angle settles on the reading plus half a count.
+    #[test]
+    fn coarse_sensor_at_standstill_uses_the_reading_plus_half_a_count() {
+        let v = run_coarse(6000, |k| if k < 2000 { 100.0 } else { 0.0 });
+        let (truth, used) = v[5999];
+        let centre = ((truth / 60.0).floor() * 60.0 + 30.0) % 360.0;
+        assert!(err_deg(centre, used).abs() < 0.5, "{used} vs {centre}");
+    }
+
+    /// A reversal: the angle stays in the window (checked every period),
+    /// and follows the new direction afterwards.
+    #[test]
+    fn coarse_sensor_reversal_stays_in_the_window() {
+        let v = run_coarse(12_000, |k| if k < 4000 { 60.0 } else { -60.0 });
+        let worst = v[9000..]
+            .iter()
+            .fold(0.0f64, |m, &(t, u)| m.max(err_deg(t, u).abs()));
+        assert!(
+            worst < 20.0,
+            "worst error after the reversal {worst} deg(e)"
+        );
+    }
+
+    /// The angle is clamped at the window's edge when the tracked speed
+    /// runs ahead of the rotor (sudden stop: no edge comes).
+    #[test]
+    fn coarse_sensor_angle_is_clamped_at_the_window_edge() {
+        let (mut st, slot) = torque_stage(48);
+        let mut s = sample();
+        let mut turns = 0.0f64;
+        for _ in 0..4000 {
+            turns += 150.0 / 20_000.0 / core::f64::consts::TAU;
+            s.angle = Some(reading(turns, 48));
+            st.step(&slot, 0.0, &s);
+        }
+        // Stopped just after an edge: the tracker still runs at 150 rad/s.
+        let raw = reading(turns, 48);
+        s.angle = Some(raw);
+        let mut max_off: f32 = 0.0;
+        for _ in 0..40 {
+            let th = st.step(&slot, 0.0, &s).1.theta_e;
+            let off = th
+                .wrapping_sub(raw.to_electrical(8))
+                .to_radians()
+                .to_degrees();
+            max_off = max_off.max(off);
+        }
+        assert!((max_off - 60.0).abs() < 0.1, "reached {max_off} deg");
+    }
+
+    /// A fine encoder (64 counts per electrical turn and more) is not
+    /// interpolated: the reading plus half a count, bit for bit.
+    #[test]
+    fn fine_encoder_uses_the_reading_bit_for_bit() {
+        for counts in [0u32, 512, 4096] {
+            let (mut st, slot) = torque_stage(counts);
+            assert_eq!(st.config().angle.interpolation_half_count(), None);
+            let mut turns = 0.1f64;
+            for _ in 0..2000 {
+                turns += 200.0 / 20_000.0 / core::f64::consts::TAU;
+                let mut s = sample();
+                let raw = if counts == 0 {
+                    MechanicalAngle::from_turns(turns.rem_euclid(1.0) as f32)
+                } else {
+                    reading(turns, counts)
+                };
+                s.angle = Some(raw);
+                let th = st.step(&slot, 0.0, &s).1.theta_e;
+                let a = st.config().angle;
+                assert_eq!(th, a.electrical(a.mechanical(raw)));
+            }
+        }
+        assert!(torque_stage(48)
+            .0
+            .config()
+            .angle
+            .interpolation_half_count()
+            .is_some());
+        assert!(torque_stage(511)
+            .0
+            .config()
+            .angle
+            .interpolation_half_count()
+            .is_some());
     }
 
     fn open_loop(v_d_v: f32, theta_deg: f32, omega_e_rad_s: f32) -> Command {
