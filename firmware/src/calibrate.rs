@@ -29,6 +29,9 @@ pub enum Outcome {
     Done(IdentificationResult, BridgeCommand, Feedback),
     /// Failed (fault latched, bridge safe): the reason and the stage.
     Failed(CalError, Stage, BridgeCommand, Feedback),
+    /// Stopped by a supervisor fault (bridge safe, fault stays latched) or
+    /// by an operator `Disable`: the fault if any, and the stage.
+    Aborted(Option<Fault>, Stage, BridgeCommand, Feedback),
 }
 
 /// The sequencer plus the private command mailbox it drives the stage with.
@@ -42,20 +45,27 @@ pub struct Identifier {
     /// Current limit during the identification [A]: inside the routines'
     /// own over-current bound (twice the test current).
     current_limit_a: f32,
+    /// This identification's alignment permit is installed (flux step).
+    permit_installed: bool,
 }
 
 impl Identifier {
-    /// A new identification; `seq_base` must differ from the stage's last
-    /// seen command number (so the first request is taken as new).
-    pub fn new(config: IdentificationConfig, seq_base: u32) -> Self {
-        let mut slot = CommandSlot::INIT;
-        slot.seq = seq_base;
+    /// A new identification driven through a private mailbox that starts as
+    /// a copy of the shared one `shared`: the same fault-clear counter (so
+    /// starting does not clear anything) and command numbers far from the
+    /// shared ones (so every request is taken as new, and the shared
+    /// mailbox's next command is new to the stage afterwards).
+    pub fn new(config: IdentificationConfig, shared: &CommandSlot) -> Self {
+        let mut slot = *shared;
+        slot.seq = shared.seq.wrapping_add(0x4000_0000);
+        slot.command = Command::Disable;
         Self {
             id: Identification::new(config),
             slot,
             last_fb: None,
             saved_limits: None,
             current_limit_a: 1.5 * config.alignment_current_a,
+            permit_installed: false,
         }
     }
 
@@ -115,9 +125,12 @@ impl Identifier {
                 omega_e_rad_s: 0.0,
             }),
             CalStep::Velocity { rad_s } => {
-                if !stage.is_calibrated() {
+                // Always this identification's own alignment (a previous
+                // calibration was revoked when it started).
+                if !self.permit_installed {
                     if let Some(p) = self.id.permit() {
                         stage.set_calibration(&p);
+                        self.permit_installed = true;
                     }
                 }
                 self.post_if_new(Command::Velocity { rad_s });
@@ -139,7 +152,22 @@ impl Identifier {
         }
         let (b, fb) = stage.step(&self.slot, iq_ref_a, s);
         self.last_fb = Some(fb);
+        // The supervisor latched a fault: stop here (the bridge is already
+        // safe), rather than let the routine fail later for a reason that
+        // is only a consequence.
+        if let Some(f) = fb.first_fault {
+            self.restore_limits(stage);
+            return Outcome::Aborted(Some(f), self.id.stage(), b, fb);
+        }
         Outcome::Running(b, fb)
+    }
+
+    /// Stop on operator request: bridge off, limits restored.
+    pub fn abort(&mut self, stage: &mut CurrentStage, iq_ref_a: f32, s: &Sample) -> Outcome {
+        self.restore_limits(stage);
+        self.slot.post(Command::Disable);
+        let (b, fb) = stage.step(&self.slot, iq_ref_a, s);
+        Outcome::Aborted(None, self.id.stage(), b, fb)
     }
 }
 
@@ -153,8 +181,8 @@ pub fn publish(r: IdentificationResult) {
     cortex_m::interrupt::free(|cs| LAST.borrow(cs).set(Some(r)));
 }
 
-/// The last successful identification, if any.
-#[allow(dead_code)] // read by the emulated board's mission only
+/// The last successful identification, if any (read by the command
+/// channel's parameters and gain changes, and by the emulated mission).
 pub fn last() -> Option<IdentificationResult> {
     cortex_m::interrupt::free(|cs| LAST.borrow(cs).get())
 }

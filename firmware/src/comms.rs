@@ -31,7 +31,8 @@
 //! | limits | `max_current_a` above the build-time limit (`config::MOTOR`) | `Unsupported` |
 //! | current gains | not positive (a calibration permit cannot vouch for them) | `Unsupported` |
 //! | any change, calibration | start-up / offset calibration still running | `Busy` |
-//! //! | calibration `identification`, `alignment` | always: not in this firmware yet | `Unsupported` |
+//! | calibration `alignment` alone | always: it is part of `identification` | `Unsupported` |
+//! | calibration `identification`, `offsets` | start-up or a calibration still running | `Busy` |
 
 use crate::config;
 use board_support::board;
@@ -170,8 +171,6 @@ pub struct Snapshot {
 pub struct Outbox {
     /// Command to post.
     pub post: Option<Command>,
-    /// Re-post the mailbox's command (refreshes the stage's timeout).
-    pub keep_alive: bool,
     /// Request a fault clear.
     pub clear: bool,
     /// Configuration changes.
@@ -185,16 +184,18 @@ impl Outbox {
         if self.clear {
             slot.request_clear();
         }
+        // A keep-alive only feeds the link watchdog (`DeviceState` does
+        // that): it never re-posts the last command, which after a fault
+        // clear or a timeout reaction would restart the motor on an old
+        // setpoint. (The stage's own command timeout is off in this
+        // firmware; the link watchdog is the command timeout.)
         if let Some(c) = self.post {
-            slot.post(c);
-        } else if self.keep_alive {
-            let c = slot.command;
             slot.post(c);
         }
     }
     /// True when something must be written to the command mailbox.
     pub fn touches_command(&self) -> bool {
-        self.clear || self.post.is_some() || self.keep_alive
+        self.clear || self.post.is_some()
     }
     /// True when configuration changes are pending.
     pub fn touches_config(&self) -> bool {
@@ -213,6 +214,13 @@ pub struct Link<'a> {
 }
 
 impl Link<'_> {
+    /// The motor model in use: the identified one when an identification
+    /// has succeeded, the build-time one otherwise.
+    fn motor(&self) -> foc_core::control::MotorParams {
+        crate::calibrate::last()
+            .map(|r| r.motor_params())
+            .unwrap_or(self.settings.current.motor)
+    }
     fn config_allowed(&self) -> Result<(), Refusal> {
         if !self.snap.running {
             return Err(Refusal::Busy);
@@ -252,7 +260,7 @@ impl DeviceContext for Link<'_> {
         Ok(())
     }
     fn keep_alive(&mut self) {
-        self.out.keep_alive = true;
+        // Nothing to post: see `Outbox::apply_command`.
     }
     fn mode(&self) -> Mode {
         self.snap.feedback.mode
@@ -287,6 +295,11 @@ impl DeviceContext for Link<'_> {
     fn set_current_gains(&mut self, gains: CurrentGains) -> Result<(), Refusal> {
         self.config_allowed()?;
         let mut cur = self.settings.current;
+        // After an identification the loop runs on the measured motor model
+        // (decoupling, back-EMF feed-forward): keep it, change only gains.
+        if let Some(r) = crate::calibrate::last() {
+            cur.motor = r.motor_params();
+        }
         gains.apply(&mut cur);
         // The stage keeps its calibration only with values a permit vouches
         // for; the current loop re-checks when it installs them.
@@ -352,10 +365,10 @@ impl DeviceContext for Link<'_> {
         let (m, _) = config::MOTOR;
         Some(match id {
             ParamId::PolePairs => f32::from(m.pole_pairs),
-            ParamId::ResistanceOhm => self.settings.current.motor.r_ohm,
-            ParamId::LdH => self.settings.current.motor.ld_h,
-            ParamId::LqH => self.settings.current.motor.lq_h,
-            ParamId::FluxLinkageWb => self.settings.current.motor.flux_linkage_wb,
+            ParamId::ResistanceOhm => self.motor().r_ohm,
+            ParamId::LdH => self.motor().ld_h,
+            ParamId::LqH => self.motor().lq_h,
+            ParamId::FluxLinkageWb => self.motor().flux_linkage_wb,
             ParamId::PwmFrequencyHz => board::PWM_FREQUENCY_HZ as f32,
             ParamId::SpeedDivider => f32::from(self.settings.dividers.0),
             ParamId::PositionDivider => f32::from(self.settings.dividers.1),

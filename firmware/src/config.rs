@@ -101,6 +101,17 @@ pub const MOTOR: (MotorParams, f32) = (
     20.0,
 );
 
+// The board's hall decoder must count the same pole pairs as the motor.
+#[cfg(not(any(feature = "odrive-v3", feature = "qemu")))]
+const _: () = {
+    if let board_support::board::AngleSource::Hall(h) = board_support::board::ANGLE_SOURCE {
+        assert!(
+            h.pole_pairs == MOTOR.0.pole_pairs,
+            "hall pole pairs differ from config::MOTOR"
+        );
+    }
+};
+
 /// The motor on the board and its current limit [A]: the simulated motor.
 #[cfg(feature = "qemu")]
 pub const MOTOR: (MotorParams, f32) = {
@@ -129,6 +140,14 @@ pub fn cascade(pwm_frequency_hz: f32) -> CascadeConfig {
     );
     #[cfg(not(feature = "qemu"))]
     let mut c = CascadeConfig::for_motor(motor, pwm_frequency_hz, max_current_a);
+    // Real boards sample the phase currents one after another on one ADC
+    // (three injected conversions, about 3 us) around the PWM centre while
+    // the low sides conduct: leave that window open by capping the voltage
+    // at 80 % of the linear range ((1 - 0.8) x 50 us / 2 = 5 us at 20 kHz).
+    #[cfg(not(feature = "qemu"))]
+    {
+        c.current.current.max_modulation = 0.80;
+    }
     c.rates.speed_divider = SPEED_DIVIDER;
     c.rates.position_divider = POSITION_DIVIDER;
     c

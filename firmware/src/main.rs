@@ -136,6 +136,9 @@ mod app {
         calibrated_seen: bool,
         /// `current_loop` only: the identification sequencer (phase `Identify`).
         identifier: super::calibrate::Identifier,
+        /// `current_loop` only: the shared mailbox's command number when the
+        /// identification started (a newer `Disable` aborts it).
+        identify_seq: u32,
         /// `speed_loop` only.
         speed: SpeedStage,
         /// `position_loop` only.
@@ -151,8 +154,20 @@ mod app {
         let mut cp = cx.core;
         cp.DCB.enable_trace();
         cp.DWT.enable_cycle_counter();
+        let watchdog_reset = watchdog::take_reset_flag();
         let b = board::init(cx.device);
         let cfg = config::cascade(board::PWM_FREQUENCY_HZ as f32);
+        let mut stage = CurrentStage::new(cfg.current);
+        if watchdog_reset {
+            defmt::error!("reset by the watchdog");
+            stage.report_fault(Fault::Watchdog);
+        }
+        // The ODrive's DRV8301 is configured over SPI in `board::init`.
+        #[cfg(feature = "odrive-v3")]
+        if b.gate_driver_config.is_err() {
+            defmt::error!("DRV8301 configuration failed");
+            stage.report_fault(Fault::GateDriverFault);
+        }
         let mut currents = b.currents;
         currents.set_offsets_a(Abc::default());
         let budget = (board::SYSCLK_HZ as f32 / board::PWM_FREQUENCY_HZ as f32)
@@ -187,7 +202,7 @@ mod app {
                 currents,
                 angle: b.angle,
                 bus: b.bus,
-                stage: CurrentStage::new(cfg.current),
+                stage,
                 offsets: OffsetCalibrator::new(OffsetLimits {
                     samples: config::OFFSET_CAL_SAMPLES,
                     max_offset_a: config::OFFSET_CAL_MAX_A,
@@ -202,8 +217,9 @@ mod app {
                 calibrated_seen: false,
                 identifier: super::calibrate::Identifier::new(
                     config::identification(board::PWM_FREQUENCY_HZ as f32),
-                    0x4000_0000,
+                    &CommandSlot::INIT,
                 ),
+                identify_seq: 0,
                 speed: SpeedStage::new(cfg.speed),
                 position: PositionStage::new(cfg.position),
                 started: false,
@@ -237,7 +253,7 @@ mod app {
         binds = ADC,
         priority = 4,
         shared = [command, feedback, iq_ref_a, timing, break_fired, phase, config_request, calibrated],
-        local = [pwm, currents, angle, bus, stage, offsets, tick, dividers, offsets_ok, calibrated_seen, identifier]
+        local = [pwm, currents, angle, bus, stage, offsets, tick, dividers, offsets_ok, calibrated_seen, identifier, identify_seq]
     )]
     fn current_loop(mut cx: current_loop::Context) {
         let t0 = timing::now_cycles();
@@ -265,12 +281,19 @@ mod app {
             if let Some(f) = ch.fault {
                 l.stage.report_fault(f);
             }
-            if ch.identify && phase == Phase::Run && l.stage.active() == Command::Disable {
-                let seq = cx.shared.command.lock(|c| c.seq);
+            if ch.identify
+                && phase == Phase::Run
+                && l.stage.active() == Command::Disable
+                && !l.stage.supervisor().is_faulted()
+            {
+                let shared = cx.shared.command.lock(|c| *c);
                 *l.identifier = super::calibrate::Identifier::new(
                     config::identification(board::PWM_FREQUENCY_HZ as f32),
-                    seq.wrapping_add(0x4000_0000),
+                    &shared,
                 );
+                // A new identification never runs on the old calibration.
+                l.stage.revoke_calibration();
+                *l.identify_seq = shared.seq;
                 phase = Phase::Identify;
                 cx.shared.phase.lock(|p| *p = phase);
             }
@@ -335,7 +358,15 @@ mod app {
                     l.stage.report_fault(Fault::GateDriverFault);
                 }
                 let iq = cx.shared.iq_ref_a.lock(|x| *x);
-                let (bridge, fb, next) = match l.identifier.step(l.stage, iq, &sample) {
+                // An operator `Disable` on the shared mailbox aborts.
+                let shared = cx.shared.command.lock(|c| *c);
+                let abort = shared.seq != *l.identify_seq && shared.command == Command::Disable;
+                let outcome = if abort {
+                    l.identifier.abort(l.stage, iq, &sample)
+                } else {
+                    l.identifier.step(l.stage, iq, &sample)
+                };
+                let (bridge, fb, next) = match outcome {
                     Outcome::Running(b, fb) => (b, fb, phase),
                     Outcome::Done(r, b, fb) => {
                         defmt::info!(
@@ -353,7 +384,17 @@ mod app {
                         defmt::error!("identification failed in {}: {}", st, e);
                         (b, fb, Phase::Run)
                     }
+                    Outcome::Aborted(f, st, b, fb) => {
+                        defmt::error!("identification aborted in {}: fault {}", st, f);
+                        (b, fb, Phase::Run)
+                    }
                 };
+                if next == Phase::Run {
+                    // Back to the shared mailbox with a fresh `Disable`, so
+                    // no command sent before (or during) the identification
+                    // starts the motor when it ends.
+                    cx.shared.command.lock(|c| c.post(Command::Disable));
+                }
                 if let Err(f) = drive::apply(l.pwm, bridge) {
                     l.stage.report_fault(f);
                 }

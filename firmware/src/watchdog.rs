@@ -33,3 +33,15 @@ pub fn feed() {
     let iwdg = unsafe { &*pac::IWDG::ptr() };
     iwdg.kr().write(|w| w.key().feed());
 }
+
+/// True when the last reset came from the independent watchdog
+/// (`RCC_CSR.WDGRSTF`, RM0090 section 7.3.21); then clears the reset flags
+/// (`RMVF`). Call once in `init`, before anything else reads `RCC_CSR`.
+pub fn take_reset_flag() -> bool {
+    // SAFETY: one read and one write of RCC_CSR at start-up, before the
+    // board set-up (which does not use RCC_CSR); RMVF only clears flags.
+    let rcc = unsafe { &*pac::RCC::ptr() };
+    let was = rcc.csr().read().wdgrstf().bit_is_set();
+    rcc.csr().modify(|_, w| w.rmvf().set_bit());
+    was
+}

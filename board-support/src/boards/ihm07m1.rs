@@ -186,7 +186,10 @@ pub(crate) fn init(dp: pac::Peripherals, p: Params) -> Board {
             );
             let _z = gpiob.pb10.into_alternate::<1>();
             let _ = qei.release();
-            AngleInput::Encoder(QuadEncoder::new(cpr, true))
+            // The index is not used to re-zero the count: the electrical
+            // zero is identified against the power-on count, and a later
+            // index pulse would move the angle by up to half a turn.
+            AngleInput::Encoder(QuadEncoder::new(cpr, false))
         }
         AngleSource::Hall(cfg) => {
             let _h1 = gpioa.pa15.into_pull_up_input();
@@ -196,6 +199,12 @@ pub(crate) fn init(dp: pac::Peripherals, p: Params) -> Board {
                 HALL_PINS,
                 HallConfig {
                     ticks_per_second: p.sysclk_hz,
+                    // Keep the configured stall time in seconds at the new
+                    // tick rate (the core clock).
+                    stall_timeout_ticks: (u64::from(cfg.stall_timeout_ticks)
+                        * u64::from(p.sysclk_hz)
+                        / u64::from(cfg.ticks_per_second.max(1)))
+                    .min(u64::from(u32::MAX)) as u32,
                     ..cfg
                 },
             ))

@@ -50,7 +50,13 @@ pub const BUS_VOLTAGE_MAX_V: f32 = 48.0;
 /// Rotor angle input chosen at `init` (the shield's connector carries either
 /// halls or an encoder on the same pins). Halls: the P-NUCLEO-IHM001 kit
 /// motor has them; set the pole pairs and offset here or at run time.
-pub const ANGLE_SOURCE: AngleSource = AngleSource::Hall(HallConfig::DEFAULT);
+pub const ANGLE_SOURCE: AngleSource = AngleSource::Hall(HallConfig {
+    // The motor this board is paired with in the firmware's config
+    // (GM4108H-class gimbal motor, 11 pole pairs); the firmware checks at
+    // compile time that the two agree.
+    pole_pairs: 11,
+    ..HallConfig::DEFAULT
+});
 
 /// Set up clocks, pins, TIM1, ADC1 and the angle input. Bridge disabled,
 /// PWM counter running, NVIC untouched.

@@ -286,7 +286,10 @@ pub fn init(dp: pac::Peripherals) -> Board {
             );
             let _z = gpioc.pc9.into_alternate::<2>();
             let _ = qei.release();
-            AngleInput::Encoder(QuadEncoder::new(cpr, true))
+            // The index is not used to re-zero the count: the electrical
+            // zero is identified against the power-on count, and a later
+            // index pulse would move the angle by up to half a turn.
+            AngleInput::Encoder(QuadEncoder::new(cpr, false))
         }
         AngleSource::Hall(cfg) => {
             let _h1 = gpiob.pb4.into_pull_up_input();

@@ -113,7 +113,10 @@ impl Tim1Pwm {
         unsafe {
             // Counter stopped while configuring.
             tim.cr1().write(|w| w.cen().clear_bit());
-            tim.bdtr().write(|w| w.moe().clear_bit());
+            // BDTR is written exactly once, below, with every field: its
+            // LOCK bits can be written only once after reset (any BDTR
+            // write freezes them, RM0090 17.4.18). MOE is 0 after the reset
+            // the caller did, so the outputs stay off meanwhile.
             tim.psc().write(|w| w.psc().bits(t.psc));
             tim.arr().write(|w| w.arr().bits(t.arr));
             tim.rcr().write(|w| w.rep().bits(0));
@@ -150,14 +153,14 @@ impl Tim1Pwm {
             tim.bdtr().write(|w| {
                 w.dtg().bits(dtg).ossi().set_bit().ossr().set_bit();
                 w.aoe().clear_bit().moe().clear_bit();
+                // LOCK level 1 (DTG, BKE, BKP, AOE frozen until reset), in
+                // this first and only full write (see above).
+                w.lock().bits(0b01);
                 match cfg.break_input {
                     Some(p) => w.bke().set_bit().bkp().bit(p == BreakPolarity::ActiveHigh),
                     None => w.bke().clear_bit(),
                 }
             });
-            // LOCK level 1 (a separate write: RM0090 17.4.18 allows the
-            // LOCK bits to be written once after reset).
-            tim.bdtr().modify(|_, w| w.lock().bits(0b01));
             if cfg.break_input.is_some() {
                 tim.dier().write(|w| w.bie().set_bit());
             }
