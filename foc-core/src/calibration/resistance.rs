@@ -2,13 +2,33 @@
 //! degrees, with open-phase, imbalance and current-sense checks.
 //!
 //! At each angle (phases A, B, C in turn) the routine
-//! 1. rests at zero voltage until the current has decayed,
-//! 2. raises the d voltage with a rate-limited integrator until the
-//!    current (vector magnitude) reaches the *low* level (`low_fraction * current_a`), waits
-//!    `settle_s` inside a 3 % band (low-passed over 16 periods), then averages
-//!    `v_d` and the dq current over `average_s`,
-//! 3. does the same at the *high* level (`current_a`),
-//! 4. takes `R = (v_high - v_low) / (i_high - i_low)`.
+//! 1. *aligns*: from rest, raises the d voltage with a rate-limited
+//!    integrator until the current (vector magnitude) reaches the *high*
+//!    level (`current_a`) and waits until it has stayed `settle_s` inside a
+//!    3 % band (low-passed over 16 periods) with the rotor still (see
+//!    below), so that the rotor has turned into the test angle;
+//! 2. rests at zero voltage until the current has decayed;
+//! 3. raises the voltage until the current reaches the *low* level
+//!    (`low_fraction * current_a`), settles as in 1., then averages `v_d`
+//!    and the dq current over `average_s`;
+//! 4. does the same at the high level;
+//! 5. takes `R = (v_high - v_low) / (i_high - i_low)`.
+//!
+//! **The rotor must not move while a level is sampled.** The test current
+//! turns the rotor towards the test angle, and a rotor with a large flux
+//! linkage on a small resistance is damped so strongly by its own
+//! short-circuit current (`1.5 p^2 psi^2 / R`) that it *creeps* into place
+//! for up to a second, far too slowly for the swing detector. The creep's
+//! back-EMF `psi * w_e` drives a current across the test axis (about 3 A
+//! on M153's 0.05 ohm at 1 rad/s electrical) and biases `v / |i|` (M153:
+//! R 2.6 to 5.4 % low, depending on where the rotor started). Hence the
+//! alignment at the high current first: the rotor creeps into place there
+//! and stops (against its friction, or at the aligned position), and the
+//! measurement levels, with no more torque than that, cannot move it
+//! again. And every settling and averaging requires the sensor reading to
+//! stay within [`STILL_TURNS`] of the reading at the start of the settling
+//! (a larger change restarts the settling), so that a level is never
+//! sampled on a creeping rotor.
 //!
 //! The slope cancels every voltage error that does not depend on the current
 //! level, above all the inverter's dead-time error (a constant voltage as long
@@ -53,7 +73,7 @@ use super::common::{
     approach_v, check_input, current_dq, latch, periods, voltage_limit_v, CalError, CalInput,
     CalStep, Mean, Motion, Phase,
 };
-use crate::angle::ElectricalAngle;
+use crate::angle::{ElectricalAngle, MechanicalAngle};
 use crate::frames::Dq;
 
 /// Configuration of the resistance measurement.
@@ -142,6 +162,25 @@ pub struct ResistanceResult {
 /// Weight of a new sample in the decision filter (16-period time constant).
 const FILTER: f32 = 1.0 / 16.0;
 
+/// Largest change of the sensor reading [turns] over a level's settling and
+/// averaging (1/2048 turn: two counts of a 4096-count encoder, eight of a
+/// 16384-count one, so a count of jitter or noise does not restart it).
+pub const STILL_TURNS: f32 = 1.0 / 2048.0;
+
+/// [`STILL_TURNS`] in the sensor's bits (full turn = 2^32).
+const STILL_BITS: u32 = 1 << 21;
+
+/// The current level of the present step at one angle.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Level {
+    /// The high current until the rotor is still (not sampled).
+    Align,
+    /// The low current, sampled.
+    Low,
+    /// The high current, sampled.
+    High,
+}
+
 #[derive(Clone, Copy, Debug, PartialEq)]
 enum State {
     Rest,
@@ -156,15 +195,18 @@ pub struct PhaseResistance {
     cfg: ResistanceConfig,
     state: State,
     angle_idx: u8,
-    high: bool,
+    level: Level,
     v_d: f32,
     level_periods: u32,
     limit_periods: u32,
     i_filt: Dq,
     motion: Motion,
+    /// Sensor reading at the start of the level's settling.
+    anchor: MechanicalAngle,
     avg_v: Mean,
     avg_i: Mean,
     avg_iq: Mean,
+    /// Mean voltage and current of the low level.
     low: (f32, f32),
     r: [f32; 3],
     offset: [f32; 3],
@@ -178,12 +220,13 @@ impl PhaseResistance {
             cfg: config,
             state: State::Rest,
             angle_idx: 0,
-            high: false,
+            level: Level::Align,
             v_d: 0.0,
             level_periods: 0,
             limit_periods: 0,
             i_filt: Dq::ZERO,
             motion: Motion::NEW,
+            anchor: MechanicalAngle::ZERO,
             avg_v: Mean::ZERO,
             avg_i: Mean::ZERO,
             avg_iq: Mean::ZERO,
@@ -217,7 +260,7 @@ impl PhaseResistance {
     }
 
     fn target_a(&self) -> f32 {
-        if self.high {
+        if self.level != Level::Low {
             self.cfg.current_a
         } else {
             self.cfg.current_a * self.cfg.low_fraction
@@ -235,6 +278,11 @@ impl PhaseResistance {
 
     fn angle_error_rad(i: Dq) -> f32 {
         libm::atan2f(i.q, i.d).abs()
+    }
+
+    /// The sensor reading is within [`STILL_BITS`] of the anchor.
+    fn still(&self, a: MechanicalAngle) -> bool {
+        (a.wrapping_sub(self.anchor).to_bits() as i32).unsigned_abs() <= STILL_BITS
     }
 
     fn run(&mut self, inp: &CalInput) -> Result<CalStep<ResistanceResult>, CalError> {
@@ -306,12 +354,25 @@ impl PhaseResistance {
             State::Rest | State::Ramp => {
                 if in_band {
                     self.state = State::Settle(0);
+                    self.anchor = inp.angle;
                 }
             }
             State::Settle(n) => {
-                if !in_band {
+                if !in_band || !self.still(inp.angle) {
+                    // Out of the band, or the rotor still creeping: settle
+                    // again from here.
                     self.state = State::Settle(0);
+                    self.anchor = inp.angle;
                 } else if n + 1 >= periods(self.cfg.settle_s, ts) {
+                    if self.level == Level::Align {
+                        // The rotor is in place: rest, then measure.
+                        self.level = Level::Low;
+                        self.state = State::Rest;
+                        self.v_d = 0.0;
+                        self.level_periods = 0;
+                        self.limit_periods = 0;
+                        return Ok(self.apply(theta));
+                    }
                     self.state = State::Average;
                     self.avg_v = Mean::ZERO;
                     self.avg_i = Mean::ZERO;
@@ -321,6 +382,12 @@ impl PhaseResistance {
                 }
             }
             State::Average => {
+                if !self.still(inp.angle) {
+                    // The rotor moved after all: discard, settle again.
+                    self.state = State::Settle(0);
+                    self.anchor = inp.angle;
+                    return Ok(self.apply(theta));
+                }
                 self.avg_v.add(self.v_d);
                 self.avg_i.add(i.d);
                 self.avg_iq.add(i.q);
@@ -350,9 +417,9 @@ impl PhaseResistance {
         let (v, i) = (self.avg_v.mean(), i_dq.magnitude());
         self.level_periods = 0;
         self.limit_periods = 0;
-        if !self.high {
+        if self.level == Level::Low {
             self.low = (v, i);
-            self.high = true;
+            self.level = Level::High;
             self.state = State::Ramp;
             return Ok(self.apply(theta));
         }
@@ -369,7 +436,7 @@ impl PhaseResistance {
         }
         if self.angle_idx < 2 {
             self.angle_idx += 1;
-            self.high = false;
+            self.level = Level::Align;
             self.state = State::Rest;
             self.v_d = 0.0;
             return Ok(self.apply(self.theta()));
