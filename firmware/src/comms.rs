@@ -319,6 +319,10 @@ impl DeviceContext for Link<'_> {
     }
     fn set_position_gains(&mut self, gains: PositionGains) -> Result<(), Refusal> {
         self.config_allowed()?;
+        // A move may not be faster than a velocity command is allowed to be.
+        if gains.max_velocity_rad_s > self.limits().max_velocity_rad_s {
+            return Err(Refusal::Unsupported);
+        }
         gains.apply(&mut self.settings.position);
         self.out.config.position = Some(self.settings.position);
         Ok(())

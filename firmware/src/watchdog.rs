@@ -13,6 +13,12 @@ pub fn start(timeout_ms: u32) {
     // call, KR writes are atomic); no other code owns it.
     let iwdg = unsafe { &*pac::IWDG::ptr() };
     let reload = timeout_ms.clamp(1, 0x0FFF) as u16;
+    // Freeze the IWDG while a debugger halts the core (RM0090 38.16.4,
+    // DBGMCU_APB1_FZ.DBG_IWDG_STOP); no effect without a debugger.
+    // SAFETY: a read-modify-write of one debug-freeze bit at start-up.
+    unsafe { &*pac::DBGMCU::ptr() }
+        .apb1_fz()
+        .modify(|_, w| w.dbg_iwdg_stop().set_bit());
     iwdg.kr().write(|w| w.key().start());
     iwdg.kr().write(|w| w.key().unlock());
     iwdg.pr().write(|w| w.pr().divide_by32());
