@@ -440,9 +440,15 @@ pub fn minmax(v_ab: AlphaBeta, v_bus_v: f32) -> [f32; 3] {
 pub fn compare_values(duties: [f32; 3], period_counts: u16) -> [u16; 3] {
     let p = period_counts as f32;
     let cv = |d: f32| -> u16 {
-        // The usual case, a duty in [0, 1], costs two comparisons (NaN
-        // fails both and goes to the out-of-line path with the rest).
-        let d = if (0.0..=1.0).contains(&d) {
+        // The usual case, a duty in [0, 1], costs one comparison, of
+        // `|d - 0.5|` with 0.5 (NaN fails it and goes to the out-of-line
+        // path with the rest). `d - 0.5` is exact for d in [0.25, 2], and
+        // rounds to no less than -0.5 for d in [0, 0.25), so exactly the
+        // duties in [0, 1] pass, plus negative ones so small
+        // (`|d| <= 2^-25`) that `d - 0.5` rounds to -0.5: for those
+        // `d N + 0.5` lies in (0.49, 0.5] (N <= 65535) and truncates to 0,
+        // the value of the clamped duty 0, so the result is the same.
+        let d = if (d - 0.5).abs() <= 0.5 {
             d
         } else {
             duty_out_of_range(d)
@@ -471,6 +477,49 @@ fn duty_out_of_range(d: f32) -> f32 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The one-comparison range test of [`compare_values`] gives the same
+    /// compare values as clamping first, around 0, 0.5 and 1 (ulp by ulp),
+    /// for tiny negative duties and for non-finite ones, at several periods.
+    #[test]
+    fn compare_values_match_clamped_reference() {
+        let reference = |d: f32, n: u16| -> u16 {
+            let d = if d.is_finite() {
+                clamp(d, 0.0, 1.0)
+            } else {
+                0.5
+            };
+            (d * n as f32 + 0.5) as u32 as u16
+        };
+        let mut ds = [
+            f32::NAN,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            f32::MAX,
+            -f32::MAX,
+        ]
+        .to_vec();
+        for c in [
+            0.0f32,
+            -0.0,
+            0.5,
+            1.0,
+            0.25,
+            2.0,
+            2.0f32.powi(-25),
+            -(2.0f32.powi(-25)),
+        ] {
+            for k in 0..2000u32 {
+                ds.push(f32::from_bits(c.to_bits().wrapping_add(k)));
+                ds.push(f32::from_bits(c.to_bits().wrapping_sub(k)));
+            }
+        }
+        for n in [1u16, 4200, 65535] {
+            for &d in &ds {
+                assert_eq!(compare_values([d; 3], n), [reference(d, n); 3], "{d:e} {n}");
+            }
+        }
+    }
 
     fn at_deg(mag: f32, deg: f64) -> AlphaBeta {
         let r = deg.to_radians();

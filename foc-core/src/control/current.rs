@@ -146,6 +146,9 @@ pub struct CurrentLoop {
     /// Every PI gain (`kp`, `ki * ts`, both axes) is finite: the step takes
     /// [`Pi::step_error_lean`], otherwise the general step, out of line.
     gains_finite: bool,
+    /// `gains_finite` and the q PI's `kp` and `ki * ts` are `>= 0`: the
+    /// step may take [`Self::pi_q_inside_circle`].
+    q_fast: bool,
 }
 
 /// The loop's `advance_s`: `k Ts`, or 0 for k = 0 or an unusable product.
@@ -178,6 +181,7 @@ impl CurrentLoop {
             advance_s: 0.0,
             ki_ts: Dq::ZERO,
             gains_finite: false,
+            q_fast: false,
             config,
         };
         cl.derive();
@@ -194,6 +198,7 @@ impl CurrentLoop {
             self.ki_ts.d,
             self.ki_ts.q,
         ]);
+        self.q_fast = self.gains_finite && self.pi_q.config.kp >= 0.0 && self.ki_ts.q >= 0.0;
     }
 
     /// The configuration.
@@ -265,6 +270,48 @@ impl CurrentLoop {
         }
     }
 
+    /// The q-axis PI step when the voltage circle cannot act on it, without
+    /// the circle's square root: `None` when that is not certain (then the
+    /// caller takes [`Self::step_pi_q`] on the limits `+-sqrt(rem) - ff_q`).
+    ///
+    /// [`Pi::step_error_lean`] clamps three values to `[lo, hi]`: the stored
+    /// integrator `i_prev`, the new integrator `i = i_prev + ki_ts e` and
+    /// `u = kp e + i`. With `kp, ki_ts >= 0` (`q_fast`) `i` lies between
+    /// `i_prev` and `u` (f32 rounding is monotonic), so when both ends are
+    /// inside the limits no clamp acts, the output is `u`, unsaturated, and
+    /// the result is bit for bit that of the general step, whatever the
+    /// exact value of the limits. Inside is tested on the squares:
+    /// `(x + ff_q)^2 <= r = rem (1 - 2^-16) - 2^-20 ff_q^2`. The margins
+    /// cover the square root's relative error (below 1e-6) and the
+    /// roundings of `lo = -s - ff_q`, `hi = s - ff_q`, `x + ff_q` and the
+    /// squares (a few 1e-7 relative, plus `2^-24 |ff_q|` absolute, which
+    /// the `ff_q^2` term covers: `2 s 2^-24 |f| <= 6.8e-6 s^2 + 5.2e-10
+    /// f^2`); `rem >= 1e-30` keeps everything clear of subnormals. NaN or
+    /// infinite values fail the comparisons. About 15 instructions instead
+    /// of the square root (about 30) and three clamps.
+    #[inline(always)]
+    fn pi_q_inside_circle(&mut self, error: f32, rem: f32, ff_q: f32) -> Option<f32> {
+        if !self.q_fast {
+            return None;
+        }
+        let i_prev = self.pi_q.state.integral;
+        let i = i_prev + self.ki_ts.q * error;
+        let u = self.pi_q.config.kp * error + i;
+        let r = rem * (1.0 - 1.0 / 65_536.0) - (1.0 / 1_048_576.0) * (ff_q * ff_q);
+        let a = i_prev + ff_q;
+        let b = u + ff_q;
+        if (1e-30..=f32::MAX).contains(&rem) && a * a <= r && b * b <= r {
+            self.pi_q.state = crate::pi::PiState {
+                integral: i,
+                output: u,
+                saturated: false,
+            };
+            Some(u)
+        } else {
+            None
+        }
+    }
+
     /// One step. Non-finite inputs or a bus at or below zero give centred
     /// duties with `invalid = true` and leave the integrators untouched.
     #[inline]
@@ -303,8 +350,14 @@ impl CurrentLoop {
         let v_d = u_d + ff.d;
         // q axis: what is left of the circle.
         let rem = v_max * v_max - v_d * v_d;
-        let v_q_max = if rem > 0.0 { sqrtf(rem) } else { 0.0 };
-        let u_q = self.step_pi_q(inp.i_dq_ref_a.q - i_dq.q, -v_q_max - ff.q, v_q_max - ff.q);
+        let e_q = inp.i_dq_ref_a.q - i_dq.q;
+        let u_q = match self.pi_q_inside_circle(e_q, rem, ff.q) {
+            Some(u) => u,
+            None => {
+                let v_q_max = if rem > 0.0 { sqrtf(rem) } else { 0.0 };
+                self.step_pi_q(e_q, -v_q_max - ff.q, v_q_max - ff.q)
+            }
+        };
         let v_dq = Dq::new(v_d, u_q + ff.q);
         // The voltage acts about `k` periods after the sample: apply it in
         // the dq frame of the rotor as it will be then, `k w_e Ts` ahead.
@@ -590,5 +643,85 @@ mod tests {
                 );
             }
         }
+    }
+
+    /// The q PI's shortcut inside the voltage circle changes nothing: the
+    /// same outputs and states, bit for bit, as the step that always takes
+    /// the square root, from deep inside the circle to saturation, at
+    /// speed (large feed-forward) and with values placed right at the
+    /// circle's edge.
+    #[test]
+    fn q_shortcut_matches_the_square_root_path() {
+        let bits = |o: &CurrentLoopOutput| {
+            let d = o.duties.map(f32::to_bits);
+            (
+                d,
+                o.v_dq_v.d.to_bits(),
+                o.v_dq_v.q.to_bits(),
+                o.voltage_limited,
+            )
+        };
+        let mut seed = 0x1234_5678u32;
+        let mut rnd = move || {
+            seed ^= seed << 13;
+            seed ^= seed >> 17;
+            seed ^= seed << 5;
+            seed as f32 / u32::MAX as f32
+        };
+        let mut hits = 0u32;
+        let mut misses = 0u32;
+        for (k, mm) in [0.95f32, 0.5, 1.0].into_iter().enumerate() {
+            let cfg = CurrentLoopConfig {
+                max_modulation: mm,
+                anti_windup: if k == 1 {
+                    AntiWindup::BackCalculation { kb_per_s: 2000.0 }
+                } else {
+                    AntiWindup::Clamp
+                },
+                ..CurrentLoopConfig::technical_optimum(motor(), 20e3)
+            };
+            let mut fast = CurrentLoop::new(cfg);
+            assert!(fast.q_fast);
+            let mut slow = fast;
+            slow.q_fast = false;
+            for n in 0..200_000u32 {
+                let scale = [0.1f32, 5.0, 60.0, 1000.0][(n / 1000 % 4) as usize];
+                let mut inp = input((rnd() - 0.5) * scale);
+                inp.i_dq_ref_a.d = (rnd() - 0.5) * scale * 0.3;
+                inp.omega_e_rad_s =
+                    (rnd() - 0.5) * [0.0f32, 2000.0, 20000.0][(n / 300 % 3) as usize];
+                inp.v_bus_v = 24.0 * (0.5 + rnd());
+                inp.theta_e = ElectricalAngle::from_bits((rnd() * 4.0e9) as u32);
+                inp.i_abc_a = Abc::new((rnd() - 0.5) * 4.0, (rnd() - 0.5) * 4.0, 0.0);
+                inp.i_abc_a.c = -inp.i_abc_a.a - inp.i_abc_a.b;
+                if n % 7 == 0 {
+                    // Put the stored q integrator right on (or one ulp
+                    // around) the last limit.
+                    let lim = slow.pi_q.state.output;
+                    let v = f32::from_bits(lim.to_bits().wrapping_add(n % 3).wrapping_sub(1));
+                    fast.pi_q.state.integral = v;
+                    slow.pi_q.state.integral = v;
+                }
+                let before = fast.pi_q.state;
+                let (a, b) = (fast.step(&inp), slow.step(&inp));
+                assert_eq!(bits(&a), bits(&b), "{n}: {inp:?} {before:?}");
+                assert_eq!(
+                    fast.pi_q.state.integral.to_bits(),
+                    slow.pi_q.state.integral.to_bits()
+                );
+                assert_eq!(
+                    fast.pi_q.state.output.to_bits(),
+                    slow.pi_q.state.output.to_bits()
+                );
+                assert_eq!(fast.pi_q.state.saturated, slow.pi_q.state.saturated);
+                assert_eq!(fast.pi_d.state, slow.pi_d.state);
+                if a.voltage_limited {
+                    misses += 1;
+                } else {
+                    hits += 1;
+                }
+            }
+        }
+        assert!(hits > 10_000 && misses > 10_000, "{hits} {misses}");
     }
 }
