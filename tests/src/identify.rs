@@ -8,8 +8,8 @@
 //!    sample, as the firmware's `CurrentSense::set_offsets_a` does;
 //! 2. **identification** (foc-core `calibration::identification`):
 //!    resistance, inductance, current-loop gains, alignment (zero,
-//!    direction, pole-pair check) and, unless the sensor is hall-class,
-//!    flux linkage. Open-loop requests become `Command::OpenLoop`, velocity
+//!    direction, pole-pair check) and flux linkage (for hall-class sensors
+//!    with a wider speed band, see [`config`]). Open-loop requests become `Command::OpenLoop`, velocity
 //!    requests `Command::Velocity` after the provisional permit is
 //!    installed. During it the cascade's current limit is 1.5 x the test
 //!    current (the flux step runs closed loop);
@@ -48,16 +48,19 @@ pub fn hall_class(s: &Setup) -> bool {
     s.bench.sensors.encoder_counts_per_rev / u32::from(s.motor.pole_pairs.max(1)) < 64
 }
 
+/// The flux step's speed band for hall-class sensors (relative; 5 % else).
+pub const HALL_FLUX_SPEED_TOLERANCE: f32 = 0.25;
+
 /// Identification settings for a bench motor: test current a quarter of
 /// the maximum, open-loop voltage limit a quarter of the bus, and a slow
 /// alignment sweep for motors with a large flux linkage (their back-EMF
 /// would otherwise swamp the small alignment voltage).
 ///
-/// Known limit: with a hall-class sensor ([`hall_class`]) the current stage
-/// runs on the raw, stale angle (no interpolation between edges yet), so
-/// closed-loop velocity is too rough for the flux step's settling
-/// criterion. Those motors are identified without it (R, L, gains,
-/// alignment, pole pairs, direction; flux linkage 0 in the result).
+/// With a hall-class sensor ([`hall_class`]) the current stage interpolates
+/// the angle between the edges (foc-core `AngleCalibration::
+/// interpolation_half_count`), but the tracked speed still ripples at the
+/// edge rate: the flux step runs at a first speed of at least 400 edges per
+/// second, with a [`HALL_FLUX_SPEED_TOLERANCE`] band and a longer average.
 /// `alignment.sensor_counts_per_rev` is set so that the alignment removes
 /// the half-count bias of a counting sensor.
 pub fn config(s: &Setup, pole_pairs: u8) -> IdentificationConfig {
@@ -70,7 +73,18 @@ pub fn config(s: &Setup, pole_pairs: u8) -> IdentificationConfig {
     if s.motor.flux_linkage_wb > 0.05 {
         c.alignment.speed_e_rad_s = 0.25 * core::f32::consts::TAU;
     }
-    c.measure_flux = !hall_class(s);
+    if hall_class(s) {
+        // The tracked speed of a coarse sensor ripples at the edge rate
+        // (its mean is right): a first speed of at least 400 edges per
+        // second, a wider band and a longer average.
+        let cpr = s.bench.sensors.encoder_counts_per_rev.max(1) as f32;
+        let f = &mut c.flux;
+        f.first_speed_rad_s = f
+            .first_speed_rad_s
+            .max(400.0 * core::f32::consts::TAU / cpr);
+        f.speed_tolerance = HALL_FLUX_SPEED_TOLERANCE;
+        f.average_s = 0.4;
+    }
     c.alignment.sensor_counts_per_rev = s.bench.sensors.encoder_counts_per_rev;
     c
 }

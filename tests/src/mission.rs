@@ -15,8 +15,8 @@
 //! 1. **identify** ([`crate::identify::run`]): current-offset calibration
 //!    with the bridge off, then foc-core's `Identification` through the
 //!    mission's cascade: R, Ld, Lq, current-loop gains, alignment (electrical
-//!    zero, direction, pole-pair check) and the flux linkage (not for
-//!    hall-class sensors). The rest of the mission runs on its permit
+//!    zero, direction, pole-pair check) and the flux linkage (hall-class
+//!    sensors included). The rest of the mission runs on its permit
 //!    (measured gains and zero), not on supplied values; the bench does *not*
 //!    copy the plant's parameters or encoder offset, it reports the errors
 //!    against them.
@@ -434,7 +434,7 @@ pub struct IdentificationSummary {
     pub ld_h: (f64, f64),
     /// q-axis inductance [H] and its error [%].
     pub lq_h: (f64, f64),
-    /// Flux linkage [Wb] and its error [%] (None: not measured, hall-class sensor).
+    /// Flux linkage [Wb] and its error [%] (None: not measured).
     pub flux_linkage_wb: Option<(f64, f64)>,
     /// Pole pairs found and the plant's.
     pub pole_pairs: (u8, u8),
@@ -625,10 +625,9 @@ impl MissionSummary {
                 );
                 row(
                     "identified flux linkage / error",
-                    id.flux_linkage_wb
-                        .map_or("not measured (hall-class sensor)".into(), |(v, e)| {
-                            format!("{:.3} mWb / {e:+.2} %", v * 1e3)
-                        }),
+                    id.flux_linkage_wb.map_or("not measured".into(), |(v, e)| {
+                        format!("{:.3} mWb / {e:+.2} %", v * 1e3)
+                    }),
                 );
                 row(
                     "pole pairs found (plant)",
@@ -1043,7 +1042,8 @@ fn identification_summary(
         r_ohm: with_err(r.r_ohm, m.r_ohm as f64),
         ld_h: with_err(r.ld_h, m.ld_h as f64),
         lq_h: with_err(r.lq_h, m.lq_h as f64),
-        flux_linkage_wb: (!identify::hall_class(setup))
+        flux_linkage_wb: identify::config(setup, m.pole_pairs)
+            .measure_flux
             .then(|| with_err(r.flux_linkage_wb, m.flux_linkage_wb as f64)),
         pole_pairs: (r.pole_pairs, m.pole_pairs),
         reversed: (r.angle.reversed, sim.plant.faults().encoder_reversed),

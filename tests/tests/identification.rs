@@ -11,7 +11,7 @@
 //! exact; a wrong pole-pair count, a disconnected phase and a reversed
 //! sensor each end in a named failure.
 
-use foc_bench::identify::{self, config as id_config, hall_class, Outcome};
+use foc_bench::identify::{self, config as id_config, Outcome};
 use foc_bench::mission::{Setup, Sim};
 use foc_bench::plant::{Phase, Plant};
 use foc_core::calibration::identification::{IdentificationConfig, IdentificationResult, Stage};
@@ -65,14 +65,12 @@ fn identifies_every_motor_file() {
         // One encoder count in electrical degrees: the zero cannot be found
         // more finely than a fraction of it.
         let count_deg = 360.0 * m.pole_pairs as f32 / s.bench.sensors.encoder_counts_per_rev as f32;
-        let psi = if hall_class(&s) {
-            "not measured (hall-class sensor)".to_string()
-        } else {
-            format!(
-                "{:+.2} %",
-                100.0 * (r.flux_linkage_wb as f64 / m.flux_linkage_wb - 1.0)
-            )
-        };
+        // Flux linkage for every motor, the hall-class hub included (the
+        // current stage interpolates its angle between the edges).
+        let psi = format!(
+            "{:+.2} %",
+            100.0 * (r.flux_linkage_wb as f64 / m.flux_linkage_wb - 1.0)
+        );
         let line = format!(
             "{}: R {:+.2} %, Ld {:+.2} %, Lq {:+.2} %, psi {psi}, zero {:+.2} deg(e) (1 count = {:.2} deg(e)), {:.2} s",
             s.name,
@@ -91,11 +89,7 @@ fn identifies_every_motor_file() {
             rel(r.ld_h, m.ld_h) < 0.05 && rel(r.lq_h, m.lq_h) < 0.05,
             "{line}"
         );
-        if hall_class(&s) {
-            assert_eq!(r.flux_linkage_wb, 0.0, "flux step skipped: {line}");
-        } else {
-            assert!(rel(r.flux_linkage_wb, m.flux_linkage_wb) < 0.10, "{line}");
-        }
+        assert!(rel(r.flux_linkage_wb, m.flux_linkage_wb) < 0.10, "{line}");
         assert_eq!(r.pole_pairs, m.pole_pairs);
         assert!(!r.angle.reversed, "{line}");
         // 2 deg(e), or a quarter of an encoder count where the encoder is
