@@ -525,12 +525,11 @@ impl MissionSummary {
             f.push(format!("identification failed: {e}"));
         }
         if let Some(id) = &self.identification {
-            // Sanity bounds: R and L within 10 %, flux linkage within 10 %,
-            // pole pairs and direction exact. (tests/tests/identification.rs
-            // holds issue 9's 5 % for R and L from the rotor at angle 0; the
-            // mission starts at 0.7 rad, where M153's R comes out -5.4 %.)
+            // Issue 9's requirements: R and L within 5 %, flux linkage
+            // within 10 %, pole pairs and direction exact (the rotor starts
+            // at 0.7 rad here; R no longer depends on the start angle).
             for (name, (_, err)) in [("R", id.r_ohm), ("Ld", id.ld_h), ("Lq", id.lq_h)] {
-                if !below(err.abs(), 10.0) {
+                if !below(err.abs(), 5.0) {
                     f.push(format!("identified {name} off by {err:+.1} %"));
                 }
             }
