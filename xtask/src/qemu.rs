@@ -59,14 +59,62 @@ pub fn board() -> Result<&'static boards::Board> {
     boards::find("qemu").ok_or_else(|| Error("no `qemu` board in boards.rs".into()))
 }
 
-/// Fails with an install hint when `qemu-system-arm` is missing.
+fn qemu_present() -> bool {
+    Command::new("qemu-system-arm")
+        .arg("--version")
+        .output()
+        .map(|o| o.status.success())
+        .unwrap_or(false)
+}
+
+/// Installs `qemu-system-arm` with apt-get when it is missing (Debian and
+/// Ubuntu; with sudo when not root), saying so; elsewhere fails with an
+/// install hint.
 pub fn ensure_qemu() -> Result {
-    match Command::new("qemu-system-arm").arg("--version").output() {
-        Ok(o) if o.status.success() => Ok(()),
-        _ => Err(Error(
-            "qemu-system-arm not found: install it (Debian/Ubuntu: `sudo apt-get install qemu-system-arm`)"
-                .into(),
-        )),
+    if qemu_present() {
+        return Ok(());
+    }
+    let hint = "qemu-system-arm not found: install it (Debian/Ubuntu: `sudo apt-get install qemu-system-arm`)";
+    let apt = Command::new("apt-get")
+        .arg("--version")
+        .output()
+        .map(|o| o.status.success())
+        .unwrap_or(false);
+    if !apt {
+        return Err(Error(hint.into()));
+    }
+    let root = Command::new("id")
+        .arg("-u")
+        .output()
+        .map(|o| String::from_utf8_lossy(&o.stdout).trim() == "0")
+        .unwrap_or(false);
+    println!("qemu-system-arm not found: installing it with apt-get (Debian's qemu-system-arm)");
+    let apt_get = |args: &[&str]| -> bool {
+        let mut cmd = if root {
+            Command::new("apt-get")
+        } else {
+            let mut c = Command::new("sudo");
+            c.arg("apt-get");
+            c
+        };
+        cmd.args(args)
+            .env("DEBIAN_FRONTEND", "noninteractive")
+            .stdin(Stdio::null())
+            .status()
+            .map(|s| s.success())
+            .unwrap_or(false)
+    };
+    let ok = apt_get(&["update"])
+        && apt_get(&[
+            "install",
+            "-y",
+            "--no-install-recommends",
+            "qemu-system-arm",
+        ]);
+    if ok && qemu_present() {
+        Ok(())
+    } else {
+        Err(Error(format!("installing qemu-system-arm failed; {hint}")))
     }
 }
 
