@@ -35,9 +35,8 @@ use super::Led;
 use crate::hw::adc::{setup_adc1, InjectedCurrents, RegularBus, SampleTime, Shunts};
 use crate::hw::angle::{AngleInput, AngleSource, HallSensor, QuadEncoder};
 use crate::hw::pwm::{PwmConfig, Tim1Pwm, Topology};
-use crate::hw::serial::{CommandSerial, SerialConfig};
+use crate::hw::serial::CommandSerial;
 use crate::hw::{enable_cycle_counter, PinId, Port};
-use crate::logic::hall::HallConfig;
 use crate::logic::scaling::{CurrentScale, VoltageScale};
 use crate::pac;
 use stm32f4xx_hal::gpio::{GpioExt, PinState};
@@ -195,36 +194,15 @@ pub(crate) fn init(dp: pac::Peripherals, p: Params) -> Board {
             let _h1 = gpioa.pa15.into_pull_up_input();
             let _h2 = gpiob.pb3.into_pull_up_input();
             let _h3 = gpiob.pb10.into_pull_up_input();
-            AngleInput::Hall(HallSensor::new(
-                HALL_PINS,
-                HallConfig {
-                    ticks_per_second: p.sysclk_hz,
-                    // Keep the configured stall time in seconds at the new
-                    // tick rate (the core clock).
-                    stall_timeout_ticks: (u64::from(cfg.stall_timeout_ticks)
-                        * u64::from(p.sysclk_hz)
-                        / u64::from(cfg.ticks_per_second.max(1)))
-                    .min(u64::from(u32::MAX)) as u32,
-                    ..cfg
-                },
-            ))
+            AngleInput::Hall(HallSensor::new(HALL_PINS, cfg.at_tick_rate(p.sysclk_hz)))
         }
     };
 
     // Command UART: USART2 TX/RX on PA2/PA3 (AF7), wired to the ST-LINK
     // virtual COM port (UM1724). Clock enable and reset through the HAL
     // (RCC_APB1ENR.USART2EN, RM0390 6.3.13 / RM0368 6.3.11).
-    let _tx = gpioa.pa2.into_alternate::<7>();
-    let _rx = gpioa.pa3.into_alternate::<7>().internal_pull_up(true);
-    pac::USART2::enable(&mut rcc);
-    pac::USART2::reset(&mut rcc);
-    let serial = CommandSerial::usart2(
-        dp.USART2,
-        SerialConfig {
-            baud: SERIAL_BAUD,
-            pclk_hz: rcc.clocks.pclk1().raw(),
-        },
-    );
+    let serial =
+        CommandSerial::usart2_on_pa2_pa3(dp.USART2, gpioa.pa2, gpioa.pa3, &mut rcc, SERIAL_BAUD);
 
     Board {
         pwm,

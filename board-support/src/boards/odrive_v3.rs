@@ -52,10 +52,8 @@ use crate::hw::angle::{AngleInput, HallSensor, QuadEncoder};
 use crate::hw::drv8301::{Drv8301, Drv8301Error};
 use crate::hw::pwm::{PwmConfig, Tim1Pwm, Topology};
 pub use crate::hw::serial::CommandSerial;
-use crate::hw::serial::SerialConfig;
 use crate::hw::{delay_us, enable_cycle_counter, PinId, Port};
 use crate::logic::drv8301::{Control1, Control2, Gain, GateCurrent, OcpMode, OctwMode, PwmMode};
-use crate::logic::hall::HallConfig;
 use crate::logic::scaling::{CurrentScale, VoltageScale};
 use crate::pac;
 use fugit::RateExtU32;
@@ -295,29 +293,14 @@ pub fn init(dp: pac::Peripherals) -> Board {
             let _h1 = gpiob.pb4.into_pull_up_input();
             let _h2 = gpiob.pb5.into_pull_up_input();
             let _h3 = gpioc.pc9.into_pull_up_input();
-            AngleInput::Hall(HallSensor::new(
-                HALL_PINS,
-                HallConfig {
-                    ticks_per_second: SYSCLK_HZ,
-                    ..cfg
-                },
-            ))
+            AngleInput::Hall(HallSensor::new(HALL_PINS, cfg.at_tick_rate(SYSCLK_HZ)))
         }
     };
 
     // Command UART: USART2 on PA2/PA3 (AF7). Clock enable and reset
     // through the HAL (RCC_APB1ENR.USART2EN, RM0090 7.3.13).
-    let _tx = gpioa.pa2.into_alternate::<7>();
-    let _rx = gpioa.pa3.into_alternate::<7>().internal_pull_up(true);
-    pac::USART2::enable(&mut rcc);
-    pac::USART2::reset(&mut rcc);
-    let serial = CommandSerial::usart2(
-        dp.USART2,
-        SerialConfig {
-            baud: SERIAL_BAUD,
-            pclk_hz: rcc.clocks.pclk1().raw(),
-        },
-    );
+    let serial =
+        CommandSerial::usart2_on_pa2_pa3(dp.USART2, gpioa.pa2, gpioa.pa3, &mut rcc, SERIAL_BAUD);
 
     Board {
         pwm,

@@ -92,6 +92,30 @@ pub struct CommandSerial {
 }
 
 impl CommandSerial {
+    /// USART2 on PA2 (TX) / PA3 (RX), AF7, the same on every board here:
+    /// pins, clock enable and reset through the HAL (RCC_APB1ENR.USART2EN,
+    /// RM0090 7.3.13 / RM0390 6.3.13 / RM0368 6.3.11), then [`Self::usart2`].
+    pub fn usart2_on_pa2_pa3(
+        usart: pac::USART2,
+        pa2: stm32f4xx_hal::gpio::PA2,
+        pa3: stm32f4xx_hal::gpio::PA3,
+        rcc: &mut stm32f4xx_hal::rcc::Rcc,
+        baud: u32,
+    ) -> Self {
+        use stm32f4xx_hal::rcc::{Enable, Reset};
+        let _tx = pa2.into_alternate::<7>();
+        let _rx = pa3.into_alternate::<7>().internal_pull_up(true);
+        pac::USART2::enable(rcc);
+        pac::USART2::reset(rcc);
+        Self::usart2(
+            usart,
+            SerialConfig {
+                baud,
+                pclk_hz: rcc.clocks.pclk1().raw(),
+            },
+        )
+    }
+
     /// Set up USART2 (clock already enabled and pins already in their
     /// alternate function by the board): 8N1 at `cfg.baud`, receiver and
     /// transmitter on, RXNE interrupt enabled. The NVIC line is left to

@@ -79,6 +79,18 @@ impl HallConfig {
         ticks_per_second: 1_000_000,
         stall_timeout_ticks: 100_000,
     };
+
+    /// The same configuration with time stamps at `ticks_per_second`,
+    /// keeping the stall timeout's duration in seconds.
+    pub fn at_tick_rate(self, ticks_per_second: u32) -> Self {
+        let stall = u64::from(self.stall_timeout_ticks) * u64::from(ticks_per_second)
+            / u64::from(self.ticks_per_second.max(1));
+        Self {
+            ticks_per_second,
+            stall_timeout_ticks: stall.min(u64::from(u32::MAX)) as u32,
+            ..self
+        }
+    }
 }
 
 /// One decoded hall reading.
@@ -225,6 +237,23 @@ impl HallDecoder {
 
 #[cfg(test)]
 mod tests {
+
+    #[test]
+    fn tick_rate_change_keeps_the_stall_time() {
+        let c = HallConfig::DEFAULT.at_tick_rate(180_000_000);
+        assert_eq!(c.ticks_per_second, 180_000_000);
+        // 100 ms at 1 MHz is 100 ms at 180 MHz.
+        assert_eq!(c.stall_timeout_ticks, 18_000_000);
+        assert_eq!(c.pole_pairs, HallConfig::DEFAULT.pole_pairs);
+        // Saturates instead of wrapping.
+        let slow = HallConfig {
+            ticks_per_second: 1,
+            stall_timeout_ticks: u32::MAX,
+            ..HallConfig::DEFAULT
+        };
+        assert_eq!(slow.at_tick_rate(1_000).stall_timeout_ticks, u32::MAX);
+    }
+
     use super::*;
     use proptest::prelude::*;
 
