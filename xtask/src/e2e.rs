@@ -36,7 +36,7 @@ use std::collections::VecDeque;
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::{Ipv4Addr, SocketAddr, TcpListener, TcpStream};
 use std::path::Path;
-use std::process::{Child, Command, Stdio};
+use std::process::Child;
 use std::sync::{Arc, Mutex};
 use std::thread;
 use std::time::{Duration, Instant};
@@ -88,41 +88,8 @@ impl Drop for Emulator {
 impl Emulator {
     fn start(elf: &Path, port: u16, verbose: bool) -> Result<Self> {
         let serial = format!("tcp:127.0.0.1:{port},server,nowait");
-        let mut qemu = Command::new("qemu-system-arm")
-            .args(["-M", "netduinoplus2", "-nographic", "-monitor", "none"])
-            .args(["-serial", "null", "-serial", &serial])
-            .args([
-                "-semihosting-config",
-                "enable=on,target=native,arg=firmware,arg=e2e",
-                "-icount",
-                "shift=0,align=off,sleep=off",
-                "-kernel",
-            ])
-            .arg(elf)
-            .stdin(Stdio::null())
-            .stdout(Stdio::piped())
-            .stderr(Stdio::inherit())
-            .spawn()
-            .map_err(|e| Error(format!("could not start qemu-system-arm: {e}")))?;
-        let out = qemu
-            .stdout
-            .take()
-            .ok_or_else(|| Error("no qemu stdout".into()))?;
-        let mut decoder = match Command::new("defmt-print")
-            .arg("-e")
-            .arg(elf)
-            .stdin(Stdio::from(out))
-            .stdout(Stdio::piped())
-            .stderr(Stdio::inherit())
-            .spawn()
-        {
-            Ok(d) => d,
-            Err(e) => {
-                let _ = qemu.kill();
-                let _ = qemu.wait();
-                return Err(Error(format!("could not start defmt-print: {e}")));
-            }
-        };
+        let (qemu, mut decoder) =
+            qemu::spawn_decoded(elf, &["e2e"], "shift=0,align=off,sleep=off", &serial)?;
         let log = Arc::new(Mutex::new(VecDeque::new()));
         if let Some(out) = decoder.stdout.take() {
             let log = log.clone();

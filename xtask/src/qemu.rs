@@ -149,6 +149,54 @@ pub struct RunResult {
     pub elapsed: Duration,
 }
 
+/// Start `elf` under QEMU (`netduinoplus2`, semihosting arguments `args`,
+/// `-icount icount`, USART1 to null, USART2 to `usart2`, e.g. `null` or
+/// `tcp:127.0.0.1:PORT,server,nowait`) with its output piped into
+/// `defmt-print`. Returns (QEMU, decoder); the decoder's stdout is piped.
+pub fn spawn_decoded(
+    elf: &Path,
+    args: &[&str],
+    icount: &str,
+    usart2: &str,
+) -> Result<(std::process::Child, std::process::Child)> {
+    let mut semi = String::from("enable=on,target=native,arg=firmware");
+    for a in args {
+        semi.push_str(",arg=");
+        semi.push_str(a);
+    }
+    let mut qemu = Command::new("qemu-system-arm")
+        .args(["-M", "netduinoplus2", "-nographic", "-monitor", "none"])
+        .args(["-serial", "null", "-serial", usart2])
+        .args(["-semihosting-config", &semi, "-icount", icount, "-kernel"])
+        .arg(elf)
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::inherit())
+        .spawn()
+        .map_err(|e| Error(format!("could not start qemu-system-arm: {e}")))?;
+    let qemu_out = qemu.stdout.take();
+    let decoder = qemu_out
+        .ok_or_else(|| Error("no qemu stdout".into()))
+        .and_then(|out| {
+            Command::new("defmt-print")
+                .arg("-e")
+                .arg(elf)
+                .stdin(Stdio::from(out))
+                .stdout(Stdio::piped())
+                .stderr(Stdio::inherit())
+                .spawn()
+                .map_err(|e| Error(format!("could not start defmt-print: {e}")))
+        });
+    match decoder {
+        Ok(d) => Ok((qemu, d)),
+        Err(e) => {
+            let _ = qemu.kill();
+            let _ = qemu.wait();
+            Err(e)
+        }
+    }
+}
+
 /// Run `elf` under QEMU with semihosting arguments `args` and `icount`
 /// options, streaming the decoded defmt log (echoed when `echo`).
 pub fn run(
@@ -158,41 +206,8 @@ pub fn run(
     timeout: Duration,
     echo: bool,
 ) -> Result<RunResult> {
-    let mut semi = String::from("enable=on,target=native,arg=firmware");
-    for a in args {
-        semi.push_str(",arg=");
-        semi.push_str(a);
-    }
     let start = Instant::now();
-    let mut qemu = Command::new("qemu-system-arm")
-        .args([
-            "-M",
-            "netduinoplus2",
-            "-nographic",
-            "-monitor",
-            "none",
-            "-serial",
-            "null",
-        ])
-        .args(["-semihosting-config", &semi, "-icount", icount, "-kernel"])
-        .arg(elf)
-        .stdin(Stdio::null())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::inherit())
-        .spawn()
-        .map_err(|e| Error(format!("could not start qemu-system-arm: {e}")))?;
-    let qemu_out = qemu
-        .stdout
-        .take()
-        .ok_or_else(|| Error("no qemu stdout".into()))?;
-    let mut decoder = Command::new("defmt-print")
-        .arg("-e")
-        .arg(elf)
-        .stdin(Stdio::from(qemu_out))
-        .stdout(Stdio::piped())
-        .stderr(Stdio::inherit())
-        .spawn()
-        .map_err(|e| Error(format!("could not start defmt-print: {e}")))?;
+    let (mut qemu, mut decoder) = spawn_decoded(elf, args, icount, "null")?;
     let out = decoder
         .stdout
         .take()

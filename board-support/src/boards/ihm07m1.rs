@@ -37,11 +37,50 @@ use crate::hw::angle::{AngleInput, AngleSource, HallSensor, QuadEncoder};
 use crate::hw::pwm::{PwmConfig, Tim1Pwm, Topology};
 use crate::hw::serial::CommandSerial;
 use crate::hw::{enable_cycle_counter, PinId, Port};
+use crate::logic::hall::HallConfig;
 use crate::logic::scaling::{CurrentScale, VoltageScale};
 use crate::pac;
 use stm32f4xx_hal::gpio::{GpioExt, PinState};
 use stm32f4xx_hal::qei::Qei;
 use stm32f4xx_hal::rcc::{Config, Enable, RccExt, Reset};
+
+// Constants of the shield, the same on every NUCLEO-64 board it sits on
+// (re-exported by the board modules).
+
+/// The source's alternative PWM frequency [Hz].
+pub const PWM_FREQUENCY_15K_HZ: u32 = 15_000;
+/// PWM frequency [Hz] (set to [`PWM_FREQUENCY_15K_HZ`] for 15 kHz).
+pub const PWM_FREQUENCY_HZ: u32 = 20_000;
+/// Dead time [ns]: inserted by the L6230 itself (3-PWM), none by TIM1.
+/// Typical value from the L6230 datasheet, to be confirmed there.
+pub const DEAD_TIME_NS: u32 = 1_000;
+/// ADC interrupt (injected end of conversion of the phase currents).
+pub const CURRENT_IRQ: pac::Interrupt = pac::Interrupt::ADC;
+/// TIM1 break interrupt (never fires here: no BKIN on this board).
+pub const BREAK_IRQ: pac::Interrupt = pac::Interrupt::TIM1_BRK_TIM9;
+/// Command UART interrupt (USART2: PA2 TX / PA3 RX, the ST-LINK virtual
+/// COM port).
+pub const SERIAL_IRQ: pac::Interrupt = pac::Interrupt::USART2;
+/// TIM1 BKIN wired to a hardware fault signal.
+pub const HAS_BREAK_INPUT: bool = false;
+/// Largest phase current of the power stage [A] (L6230: 2.8 A peak, 1.4 A rms).
+pub const MAX_PHASE_CURRENT_A: f32 = 2.8;
+/// Largest current the sensing can measure [A] (1.65 V / (1.53 * 0.33 ohm)).
+pub const MAX_MEASURABLE_CURRENT_A: f32 = 3.2;
+/// Lowest bus voltage of the power stage [V].
+pub const BUS_VOLTAGE_MIN_V: f32 = 8.0;
+/// Highest bus voltage of the power stage [V].
+pub const BUS_VOLTAGE_MAX_V: f32 = 48.0;
+/// Rotor angle input chosen at `init` (the shield's connector carries either
+/// halls or an encoder on the same pins). Halls: the P-NUCLEO-IHM001 kit
+/// motor has them; set the pole pairs and offset here or at run time.
+pub const ANGLE_SOURCE: AngleSource = AngleSource::Hall(HallConfig {
+    // The motor this board is paired with in the firmware's config
+    // (GM4108H-class gimbal motor, 11 pole pairs); the firmware checks at
+    // compile time that the two agree.
+    pole_pairs: 11,
+    ..HallConfig::DEFAULT
+});
 
 /// The L6230 enable pins EN1..3 (PC10, PC11, PC12).
 pub const ENABLE_PINS: [PinId; 3] = [

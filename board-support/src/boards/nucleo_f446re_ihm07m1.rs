@@ -9,12 +9,14 @@
 
 pub use super::ihm07m1::{
     break_isr_ack, emergency_disable, gate_driver_fault, Angle, Board, Bus, Currents, Pwm,
-    BUS_SCALE, CURRENT_SCALE, DIAG_PIN, ENABLE_PINS, HALL_PINS, LED_PIN, SERIAL_BAUD,
+    ANGLE_SOURCE, BREAK_IRQ, BUS_SCALE, BUS_VOLTAGE_MAX_V, BUS_VOLTAGE_MIN_V, CURRENT_IRQ,
+    CURRENT_SCALE, DEAD_TIME_NS, DIAG_PIN, ENABLE_PINS, HALL_PINS, HAS_BREAK_INPUT, LED_PIN,
+    MAX_MEASURABLE_CURRENT_A, MAX_PHASE_CURRENT_A, PWM_FREQUENCY_15K_HZ, PWM_FREQUENCY_HZ,
+    SERIAL_BAUD, SERIAL_IRQ,
 };
 pub use super::Led;
 pub use crate::hw::angle::AngleSource;
 pub use crate::hw::serial::CommandSerial;
-use crate::logic::hall::HallConfig;
 use crate::pac;
 use fugit::RateExtU32;
 use stm32f4xx_hal::rcc::Config;
@@ -23,40 +25,6 @@ use stm32f4xx_hal::rcc::Config;
 pub const NAME: &str = "NUCLEO-F446RE + X-NUCLEO-IHM07M1";
 /// Core clock [Hz].
 pub const SYSCLK_HZ: u32 = 180_000_000;
-/// The source's alternative PWM frequency [Hz].
-pub const PWM_FREQUENCY_15K_HZ: u32 = 15_000;
-/// PWM frequency [Hz] (set to [`PWM_FREQUENCY_15K_HZ`] for 15 kHz).
-pub const PWM_FREQUENCY_HZ: u32 = 20_000;
-/// Dead time [ns]: inserted by the L6230 itself (3-PWM), none by TIM1.
-/// Typical value from the L6230 datasheet, to be confirmed there.
-pub const DEAD_TIME_NS: u32 = 1_000;
-/// ADC interrupt (injected end of conversion of the phase currents).
-pub const CURRENT_IRQ: pac::Interrupt = pac::Interrupt::ADC;
-/// TIM1 break interrupt (never fires here: no BKIN on this board).
-pub const BREAK_IRQ: pac::Interrupt = pac::Interrupt::TIM1_BRK_TIM9;
-/// Command UART interrupt (USART2: PA2 TX / PA3 RX, the ST-LINK virtual
-/// COM port).
-pub const SERIAL_IRQ: pac::Interrupt = pac::Interrupt::USART2;
-/// TIM1 BKIN wired to a hardware fault signal.
-pub const HAS_BREAK_INPUT: bool = false;
-/// Largest phase current of the power stage [A] (L6230: 2.8 A peak, 1.4 A rms).
-pub const MAX_PHASE_CURRENT_A: f32 = 2.8;
-/// Largest current the sensing can measure [A] (1.65 V / (1.53 * 0.33 ohm)).
-pub const MAX_MEASURABLE_CURRENT_A: f32 = 3.2;
-/// Lowest bus voltage of the power stage [V].
-pub const BUS_VOLTAGE_MIN_V: f32 = 8.0;
-/// Highest bus voltage of the power stage [V].
-pub const BUS_VOLTAGE_MAX_V: f32 = 48.0;
-/// Rotor angle input chosen at `init` (the shield's connector carries either
-/// halls or an encoder on the same pins). Halls: the P-NUCLEO-IHM001 kit
-/// motor has them; set the pole pairs and offset here or at run time.
-pub const ANGLE_SOURCE: AngleSource = AngleSource::Hall(HallConfig {
-    // The motor this board is paired with in the firmware's config
-    // (GM4108H-class gimbal motor, 11 pole pairs); the firmware checks at
-    // compile time that the two agree.
-    pole_pairs: 11,
-    ..HallConfig::DEFAULT
-});
 
 /// Set up clocks, pins, TIM1, ADC1 and the angle input. Bridge disabled,
 /// PWM counter running, NVIC untouched.
