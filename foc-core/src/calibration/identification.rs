@@ -302,7 +302,7 @@ impl Identification {
     fn after_alignment(&mut self, angle: AngleCalibration) -> Result<Option<Identified>, CalError> {
         let current = self.current.ok_or(CalError::InvalidConfig)?;
         self.angle = Some(angle);
-        self.permit = Some(Calibrated::identified(angle, current)?);
+        self.permit = Some(super::permit::identified(angle, current)?);
         if !self.cfg.measure_flux {
             return self.finish(0.0);
         }
@@ -320,7 +320,7 @@ impl Identification {
             return Err(CalError::InvalidConfig);
         };
         current.motor.flux_linkage_wb = flux_linkage_wb;
-        let permit = Calibrated::identified(angle, current)?;
+        let permit = super::permit::identified(angle, current)?;
         self.permit = Some(permit);
         let m = current.motor;
         Ok(Some(Identified {

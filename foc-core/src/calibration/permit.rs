@@ -40,79 +40,29 @@
 //! assert_eq!(drive.cascade().current.config().angle, angle);
 //! // Implausible supplied values are refused.
 //! let bad = AngleCalibration { pole_pairs: 0, ..angle };
-//! assert_eq!(Calibrated::supplied(bad, CurrentLoopConfig::technical_optimum(motor, 20_000.0)), Err(CalError::InvalidConfig));
+//! assert!(Calibrated::supplied(bad, CurrentLoopConfig::technical_optimum(motor, 20_000.0)).is_err());
 //! ```
 
 use super::common::CalError;
 use crate::control::cascade::{Cascade, CascadeConfig};
 use crate::control::current::CurrentLoopConfig;
-use crate::control::stage::{AngleCalibration, CurrentStage, Sample};
+pub use crate::control::permit::{Calibrated, PermitError};
+use crate::control::stage::{AngleCalibration, Sample};
 use crate::control::{BridgeCommand, Command, CommandError, Fault, Feedback};
 
-/// Proof that the angle calibration and the current-loop configuration are
-/// known (measured or explicitly supplied and checked).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Calibrated {
-    angle: AngleCalibration,
-    current: CurrentLoopConfig,
+impl From<PermitError> for CalError {
+    fn from(_: PermitError) -> Self {
+        CalError::InvalidConfig
+    }
 }
 
-impl Calibrated {
-    /// From explicitly supplied values. [`CalError::InvalidConfig`] unless
-    /// the pole pairs are at least 1, the period, gains and motor values are
-    /// finite and positive (flux linkage may be zero), the pole pairs of the
-    /// angle and of the motor agree, `max_modulation` is in `(0, 1]` and
-    /// `delay_compensation_periods` in `[0, 4]`.
-    pub fn supplied(angle: AngleCalibration, current: CurrentLoopConfig) -> Result<Self, CalError> {
-        let pos = |x: f32| x.is_finite() && x > 0.0;
-        let m = &current.motor;
-        let ok = angle.pole_pairs > 0
-            && m.pole_pairs == angle.pole_pairs
-            && pos(current.ts_s)
-            && pos(current.d_gains.kp_v_per_a)
-            && pos(current.d_gains.ki_v_per_a_s)
-            && pos(current.q_gains.kp_v_per_a)
-            && pos(current.q_gains.ki_v_per_a_s)
-            && pos(m.r_ohm)
-            && pos(m.ld_h)
-            && pos(m.lq_h)
-            && m.flux_linkage_wb.is_finite()
-            && m.flux_linkage_wb >= 0.0
-            && pos(current.max_modulation)
-            && current.max_modulation <= 1.0
-            && (0.0..=4.0).contains(&current.delay_compensation_periods);
-        if ok {
-            Ok(Self { angle, current })
-        } else {
-            Err(CalError::InvalidConfig)
-        }
-    }
-
-    /// From an identification (same checks as [`Self::supplied`]).
-    pub(crate) fn identified(
-        angle: AngleCalibration,
-        current: CurrentLoopConfig,
-    ) -> Result<Self, CalError> {
-        Self::supplied(angle, current).map_err(|_| CalError::ImplausibleResult)
-    }
-
-    /// The angle calibration.
-    pub fn angle(&self) -> AngleCalibration {
-        self.angle
-    }
-
-    /// The current-loop configuration (gains and motor parameters).
-    pub fn current_config(&self) -> CurrentLoopConfig {
-        self.current
-    }
-
-    /// Install the angle calibration and the current-loop configuration in
-    /// a current stage and unlock its closed-loop modes (the same as
-    /// [`CurrentStage::set_calibration`]). Call before the first
-    /// closed-loop command; it resets the stage's angle tracker.
-    pub fn apply_to(&self, stage: &mut CurrentStage) {
-        stage.set_calibration(self);
-    }
+/// A permit from an identification's measured values ([`Calibrated::supplied`]'s
+/// checks; [`CalError::ImplausibleResult`] when they fail).
+pub(crate) fn identified(
+    angle: AngleCalibration,
+    current: CurrentLoopConfig,
+) -> Result<Calibrated, CalError> {
+    Calibrated::supplied(angle, current).map_err(|_| CalError::ImplausibleResult)
 }
 
 /// A thin wrapper: a [`Cascade`] built with a [`Calibrated`] permit

@@ -9,6 +9,7 @@
 
 use super::current::CurrentLoopConfig;
 use super::estimator::AngleTrackerConfig;
+use super::permit::Calibrated;
 use super::position::PositionLoopConfig;
 use super::speed::SpeedLoopConfig;
 use super::stage::{
@@ -20,7 +21,6 @@ use super::{
     BridgeCommand, Command, CommandError, CommandSlot, Feedback, Limits, MotorParams, Rates,
 };
 use crate::angle::ElectricalAngle;
-use crate::calibration::Calibrated;
 
 /// Configuration of the whole cascade.
 #[derive(Clone, Copy, Debug, PartialEq)]

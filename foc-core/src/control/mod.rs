@@ -17,7 +17,7 @@
 //! then the speed stage, then the position stage).
 //!
 //! Closed-loop modes (torque, velocity, position) are locked until the
-//! current stage is given a [`Calibrated`](crate::calibration::Calibrated)
+//! current stage is given a [`Calibrated`](permit::Calibrated)
 //! permit (`CurrentStage::set_calibration`, `Cascade::set_calibration`):
 //! such commands are refused with [`CommandError::NotCalibrated`] before.
 //! `Disable` and `OpenLoop` are always allowed (calibration needs them).
@@ -64,6 +64,7 @@ pub mod cascade;
 pub mod current;
 pub mod drive;
 pub mod estimator;
+pub mod permit;
 pub mod position;
 pub mod speed;
 pub mod stage;
@@ -283,7 +284,7 @@ pub enum CommandError {
     Faulted,
     /// A closed-loop command (`Torque`, `Velocity`, `Position`) before the
     /// current stage holds a calibration: install a
-    /// [`Calibrated`](crate::calibration::Calibrated) permit first
+    /// [`Calibrated`](permit::Calibrated) permit first
     /// (`set_calibration`). `Disable` and `OpenLoop` need none.
     NotCalibrated,
 }

@@ -2,12 +2,12 @@
 
 use super::current::{CurrentLoop, CurrentLoopConfig, CurrentLoopInput, CurrentLoopOutput};
 use super::estimator::{AngleTracker, AngleTrackerConfig};
+use super::permit::Calibrated;
 use super::position::{PositionLoop, PositionLoopConfig};
 use super::speed::{SpeedLoop, SpeedLoopConfig};
 use super::supervisor::{Checks, Fault, Supervisor, SupervisorConfig};
 use super::{BridgeCommand, Command, CommandSlot, Feedback, Limits, Mode};
 use crate::angle::{ElectricalAngle, MechanicalAngle};
-use crate::calibration::Calibrated;
 use crate::clamp;
 use crate::frames::Dq;
 use crate::hal::PhaseCurrents;
