@@ -19,6 +19,9 @@
 //! - [`svpwm`]: seven-segment space-vector PWM (section 8).
 //! - [`pi`]: PI controller with anti-windup (section 6).
 //! - [`tuning`]: current-loop gains from motor parameters (section 11).
+//! - [`control`]: the cascade's loops and stages, the fault supervisor.
+//! - [`calibration`]: offsets and the motor identification routines.
+//! - [`drive`]: the drive's life each PWM period, from reset on.
 //! - [`hal`]: hardware traits implemented by boards.
 //! - [`math`]: square root, clamps and constants without library calls.
 #![no_std]
@@ -39,6 +42,7 @@
 pub mod angle;
 pub mod calibration;
 pub mod control;
+pub mod drive;
 pub mod frames;
 pub mod hal;
 pub mod math;

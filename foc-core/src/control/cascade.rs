@@ -21,6 +21,9 @@ use super::{
     BridgeCommand, Command, CommandError, CommandSlot, Feedback, Limits, MotorParams, Rates,
 };
 use crate::angle::ElectricalAngle;
+use crate::calibration::offsets::OffsetLimits;
+use crate::drive::{ConfigChange, Inputs, Lifecycle, LifecycleConfig, Output};
+use crate::frames::Abc;
 
 /// Configuration of the whole cascade.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -110,9 +113,12 @@ impl CascadeConfig {
     }
 }
 
-/// All three stages and their rate dividers. Starts disabled and
-/// uncalibrated: closed-loop commands are refused with
-/// [`CommandError::NotCalibrated`] until [`Cascade::set_calibration`].
+/// All three stages and the drive's [`Lifecycle`] (which keeps the rate
+/// dividers). [`Cascade::new`] starts disabled, uncalibrated and already
+/// started (offsets taken as calibrated): closed-loop commands are refused
+/// with [`CommandError::NotCalibrated`] until [`Cascade::set_calibration`].
+/// [`Cascade::from_reset`] starts where the firmware does, with the offset
+/// calibration.
 #[derive(Clone, Copy, Debug)]
 pub struct Cascade {
     config: CascadeConfig,
@@ -122,27 +128,82 @@ pub struct Cascade {
     pub speed: SpeedStage,
     /// Position stage.
     pub position: PositionStage,
+    life: Lifecycle,
     slot: CommandSlot,
-    tick: u32,
+    change: Option<ConfigChange>,
     iq_ref_a: f32,
     w_ref: VelocityRef,
-    feedback: Feedback,
+    output: Option<Output>,
 }
 
 impl Cascade {
-    /// New cascade, disabled.
+    /// New cascade, disabled, started (no offset calibration, no
+    /// identification available).
     pub fn new(config: CascadeConfig) -> Self {
+        let life = LifecycleConfig {
+            offsets: OffsetLimits {
+                samples: 1,
+                max_offset_a: 0.0,
+                max_noise_a: 0.0,
+            },
+            sensor_check_reads: 0,
+            identification: None,
+            identify_at_start_up: false,
+            speed_divider: config.rates.speed_divider,
+            position_divider: config.rates.position_divider,
+        };
+        Self::with_lifecycle(config, Lifecycle::started(life))
+    }
+
+    /// New cascade from reset, as the firmware starts: offset calibration
+    /// (the caller installs [`Self::take_offsets`] in its current sensing),
+    /// sensor check, then the identification if `life` asks for it. The
+    /// dividers are `life`'s.
+    pub fn from_reset(config: CascadeConfig, life: LifecycleConfig) -> Self {
+        Self::with_lifecycle(config, Lifecycle::new(life))
+    }
+
+    fn with_lifecycle(config: CascadeConfig, life: Lifecycle) -> Self {
         Self {
             config,
             current: CurrentStage::new(config.current),
             speed: SpeedStage::new(config.speed),
             position: PositionStage::new(config.position),
+            life,
             slot: CommandSlot::INIT,
-            tick: 0,
+            change: None,
             iq_ref_a: 0.0,
             w_ref: VelocityRef::default(),
-            feedback: Feedback::INIT,
+            output: None,
         }
+    }
+
+    /// The drive's lifecycle.
+    pub fn lifecycle(&self) -> &Lifecycle {
+        &self.life
+    }
+
+    /// Ask for a configuration change (applied, or refused whole, at the
+    /// start of the next step: see [`Self::last_output`]'s `change`).
+    pub fn request(&mut self, change: ConfigChange) {
+        let mut c = self.change.unwrap_or_default();
+        c.merge(change);
+        self.change = Some(c);
+    }
+
+    /// The lifecycle's output of the last step.
+    pub fn last_output(&self) -> Option<&Output> {
+        self.output.as_ref()
+    }
+
+    /// Offsets [A] the last step asked to install in the current sensing.
+    pub fn take_offsets(&mut self) -> Option<Abc> {
+        self.output.as_mut().and_then(|o| o.offsets_a.take())
+    }
+
+    /// The operator's command mailbox.
+    pub fn mailbox(&self) -> &CommandSlot {
+        &self.slot
     }
 
     /// The configuration.
@@ -157,16 +218,9 @@ impl Cascade {
     /// stage performs the clear first and then takes the command, in the
     /// same step (if the fault condition persists it trips again at once).
     pub fn command(&mut self, cmd: Command) -> Result<(), CommandError> {
-        if self.current.supervisor().is_faulted()
-            && cmd != Command::Disable
-            && !self.current.clear_pending(&self.slot)
-        {
-            return Err(CommandError::Faulted);
-        }
-        if cmd.mode().is_closed_loop() && !self.current.is_calibrated() {
-            return Err(CommandError::NotCalibrated);
-        }
-        cmd.validate(&self.current.config().limits)?;
+        let mut status = self.life.status(&self.current);
+        status.faulted &= !self.current.clear_pending(&self.slot);
+        status.check_command(&cmd, &self.current.config().limits)?;
         self.slot.post(cmd);
         Ok(())
     }
@@ -197,7 +251,7 @@ impl Cascade {
 
     /// The feedback of the last step.
     pub fn feedback(&self) -> &Feedback {
-        &self.feedback
+        self.life.feedback()
     }
 
     /// The q-current reference from the speed stage [A].
@@ -210,19 +264,20 @@ impl Cascade {
         self.w_ref
     }
 
-    /// One PWM period.
+    /// One PWM period: the lifecycle (and through it the current stage),
+    /// then the slower stages it schedules, in the firmware's order.
     pub fn step(&mut self, sample: &Sample) -> BridgeCommand {
-        let (bridge, fb) = self.current.step(&self.slot, self.iq_ref_a, sample);
-        self.tick = self.tick.wrapping_add(1);
-        let n = self.config.rates.speed_divider.max(1) as u32;
-        let m = self.config.rates.position_divider.max(1) as u32;
-        if self.tick % n == 0 {
+        let mut inputs = Inputs::new(self.slot, self.iq_ref_a);
+        inputs.change = self.change.take();
+        let out = self.life.step(&mut self.current, &inputs, sample);
+        let fb = out.feedback;
+        if out.run_speed {
             self.iq_ref_a = self.speed.step(&fb, self.w_ref);
         }
-        if self.tick % m == 0 {
+        if out.run_position {
             self.w_ref = self.position.step(&fb);
         }
-        self.feedback = fb;
-        bridge
+        self.output = Some(out);
+        out.bridge
     }
 }

@@ -266,6 +266,30 @@ impl Command {
     }
 }
 
+/// Whether the current stage takes `cmd` now: the one rule every command
+/// path applies (the stage itself, [`cascade::Cascade::command`] and the
+/// command protocol, through `drive::Status::check_command`).
+///
+/// In order: the values against `limits` ([`Command::validate`]); while a
+/// fault is latched only `Disable` ([`CommandError::Faulted`]); a
+/// closed-loop mode only with a calibration permit
+/// ([`CommandError::NotCalibrated`]).
+pub fn admit(
+    cmd: &Command,
+    limits: &Limits,
+    faulted: bool,
+    calibrated: bool,
+) -> Result<(), CommandError> {
+    cmd.validate(limits)?;
+    if faulted && *cmd != Command::Disable {
+        return Err(CommandError::Faulted);
+    }
+    if cmd.mode().is_closed_loop() && !calibrated {
+        return Err(CommandError::NotCalibrated);
+    }
+    Ok(())
+}
+
 /// Why a command was refused.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -305,6 +329,52 @@ pub struct Limits {
     pub max_open_loop_voltage_v: f32,
     /// Largest open-loop electrical speed [rad/s].
     pub max_open_loop_omega_e_rad_s: f32,
+}
+
+/// Which field of a [`Limits`] is invalid.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum LimitsError {
+    /// `max_current_a` not finite and positive.
+    MaxCurrent,
+    /// `max_velocity_rad_s` not finite and positive.
+    MaxVelocity,
+    /// `min_position_rad` not finite.
+    MinPosition,
+    /// `max_position_rad` not finite, or not above `min_position_rad`.
+    MaxPosition,
+    /// `max_open_loop_voltage_v` not finite and non-negative.
+    OpenLoopVoltage,
+    /// `max_open_loop_omega_e_rad_s` not finite and non-negative.
+    OpenLoopOmega,
+}
+
+impl Limits {
+    /// Check every field (the one check of a limits change, used by the
+    /// drive when it applies one and by the protocol for its Nack).
+    pub fn validate(&self) -> Result<(), LimitsError> {
+        let pos = |x: f32| x.is_finite() && x > 0.0;
+        let non_neg = |x: f32| x.is_finite() && x >= 0.0;
+        if !pos(self.max_current_a) {
+            return Err(LimitsError::MaxCurrent);
+        }
+        if !pos(self.max_velocity_rad_s) {
+            return Err(LimitsError::MaxVelocity);
+        }
+        if !self.min_position_rad.is_finite() {
+            return Err(LimitsError::MinPosition);
+        }
+        if !self.max_position_rad.is_finite() || self.min_position_rad >= self.max_position_rad {
+            return Err(LimitsError::MaxPosition);
+        }
+        if !non_neg(self.max_open_loop_voltage_v) {
+            return Err(LimitsError::OpenLoopVoltage);
+        }
+        if !non_neg(self.max_open_loop_omega_e_rad_s) {
+            return Err(LimitsError::OpenLoopOmega);
+        }
+        Ok(())
+    }
 }
 
 /// What the current stage tells the bridge to do this period.
@@ -379,6 +449,10 @@ pub struct Feedback {
     pub first_fault: Option<Fault>,
     /// Voltage limit active.
     pub voltage_limited: bool,
+    /// The current stage's q-current limit in force [A] (the command
+    /// limit; lower during an identification): the speed stage keeps its
+    /// output, and so its anti-windup, within it.
+    pub current_limit_a: f32,
     /// Periods since start (wraps).
     pub period: u32,
 }
@@ -399,6 +473,7 @@ impl Feedback {
         faults: FaultSet::EMPTY,
         first_fault: None,
         voltage_limited: false,
+        current_limit_a: 0.0,
         period: 0,
     };
 }

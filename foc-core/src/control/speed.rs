@@ -118,7 +118,25 @@ impl SpeedLoop {
     /// within the current limit; non-finite inputs give the last integrator
     /// value (state unchanged).
     pub fn step(&mut self, w_ref_rad_s: f32, w_est_rad_s: f32, iq_ff_a: f32) -> f32 {
-        let lim = self.pi.config.out_max;
+        self.step_within(w_ref_rad_s, w_est_rad_s, iq_ff_a, f32::INFINITY)
+    }
+
+    /// As [`Self::step`] with the output held within `limit_a` [A] as well
+    /// as the configured limit (the smaller wins; the integrator's
+    /// anti-windup works against it). A NaN `limit_a` is ignored.
+    pub fn step_within(
+        &mut self,
+        w_ref_rad_s: f32,
+        w_est_rad_s: f32,
+        iq_ff_a: f32,
+        limit_a: f32,
+    ) -> f32 {
+        let cfg = self.pi.config.out_max;
+        let lim = if limit_a >= 0.0 && limit_a < cfg {
+            limit_a
+        } else {
+            cfg
+        };
         let ff = if iq_ff_a.is_finite() {
             clamp(iq_ff_a, -lim, lim)
         } else {

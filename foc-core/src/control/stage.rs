@@ -132,38 +132,43 @@ pub struct Sample {
     pub temperature_c: Option<f32>,
 }
 
-/// The current stage: runs every PWM period at the highest priority.
-#[derive(Clone, Copy, Debug)]
-pub struct CurrentStage {
-    config: CurrentStageConfig,
-    current: CurrentLoop,
-    tracker: AngleTracker,
-    supervisor: Supervisor,
-    active: Command,
-    last_seq: u32,
-    last_clear_seq: u32,
-    age_periods: u32,
-    ol_theta: ElectricalAngle,
-    last_out_v_dq: Dq,
-    last_i_dq: Dq,
-    period: u32,
-    rejected: u32,
-    calibrated: bool,
-    last_raw: Option<MechanicalAngle>,
+/// The current stage's run-time state (everything but the loops, the
+/// tracker and the supervisor, which keep their own), in one piece that can
+/// be inspected and reset.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CurrentStageState {
+    /// The active command (after validation, timeout reaction and faults).
+    pub active: Command,
+    /// Command number of the mailbox last taken.
+    pub last_seq: u32,
+    /// Fault-clear number of the mailbox last performed.
+    pub last_clear_seq: u32,
+    /// Periods since the last new command (command timeout).
+    pub age_periods: u32,
+    /// Open-loop angle of the next period.
+    pub ol_theta: ElectricalAngle,
+    /// dq voltage of the last period [V] (bumpless open -> closed loop).
+    pub last_out_v_dq: Dq,
+    /// dq current of the last period [A].
+    pub last_i_dq: Dq,
+    /// Periods stepped (wraps).
+    pub period: u32,
+    /// Commands refused so far.
+    pub rejected: u32,
+    /// A calibration permit is installed (closed-loop modes unlocked).
+    pub calibrated: bool,
+    /// The last raw angle reading (stuck-sensor check, interpolation).
+    pub last_raw: Option<MechanicalAngle>,
     /// `config.angle.interpolation_half_count()`, cached.
-    interpolation: Option<u32>,
+    pub interpolation: Option<u32>,
     /// The last interpolated (mechanical) angle.
-    last_interp: MechanicalAngle,
+    pub last_interp: MechanicalAngle,
 }
 
-impl CurrentStage {
-    /// New stage, disabled, no fault.
-    pub fn new(config: CurrentStageConfig) -> Self {
+impl CurrentStageState {
+    /// Disabled, uncalibrated, nothing taken from the mailbox yet.
+    pub const fn new(interpolation: Option<u32>) -> Self {
         Self {
-            current: CurrentLoop::new(config.current),
-            tracker: AngleTracker::new(config.tracker),
-            supervisor: Supervisor::new(config.supervisor),
-            config,
             active: Command::Disable,
             last_seq: 0,
             last_clear_seq: 0,
@@ -175,9 +180,61 @@ impl CurrentStage {
             rejected: 0,
             calibrated: false,
             last_raw: None,
-            interpolation: config.angle.interpolation_half_count(),
+            interpolation,
             last_interp: MechanicalAngle::ZERO,
         }
+    }
+
+    /// Back to `Disable` with the per-run values cleared. Keeps what must
+    /// survive a reset: the mailbox numbers (so an old command is never
+    /// taken again), the calibration flag, the period and refusal counters
+    /// and the cached interpolation setting.
+    pub fn reset(&mut self) {
+        *self = Self {
+            last_seq: self.last_seq,
+            last_clear_seq: self.last_clear_seq,
+            period: self.period,
+            rejected: self.rejected,
+            calibrated: self.calibrated,
+            ..Self::new(self.interpolation)
+        };
+    }
+}
+
+/// The current stage: runs every PWM period at the highest priority.
+#[derive(Clone, Copy, Debug)]
+pub struct CurrentStage {
+    config: CurrentStageConfig,
+    current: CurrentLoop,
+    tracker: AngleTracker,
+    supervisor: Supervisor,
+    state: CurrentStageState,
+}
+
+impl CurrentStage {
+    /// New stage, disabled, no fault.
+    pub fn new(config: CurrentStageConfig) -> Self {
+        Self {
+            current: CurrentLoop::new(config.current),
+            tracker: AngleTracker::new(config.tracker),
+            supervisor: Supervisor::new(config.supervisor),
+            config,
+            state: CurrentStageState::new(config.angle.interpolation_half_count()),
+        }
+    }
+
+    /// The run-time state.
+    pub fn state(&self) -> &CurrentStageState {
+        &self.state
+    }
+
+    /// Back to `Disable` with the current loop, the angle tracker and the
+    /// run-time state reset ([`CurrentStageState::reset`]). Keeps the
+    /// configuration, the calibration permit and latched faults.
+    pub fn reset(&mut self) {
+        self.current.reset();
+        self.tracker.reset();
+        self.state.reset();
     }
 
     /// The configuration.
@@ -190,18 +247,18 @@ impl CurrentStage {
     /// closed-loop modes. This is the only way to unlock them.
     pub fn set_calibration(&mut self, c: &Calibrated) {
         self.config.angle = c.angle();
-        self.interpolation = self.config.angle.interpolation_half_count();
+        self.state.interpolation = self.config.angle.interpolation_half_count();
         self.tracker.reset();
         let cur = c.current_config();
         self.config.current = cur;
         self.current.set_config(cur);
-        self.calibrated = true;
+        self.state.calibrated = true;
     }
 
     /// True once a [`Calibrated`] permit is installed (and not revoked by
     /// [`Self::set_current_config`] or [`Self::set_angle_calibration`]).
     pub fn is_calibrated(&self) -> bool {
-        self.calibrated
+        self.state.calibrated
     }
 
     /// Replace the current-loop configuration with values no permit vouches
@@ -218,7 +275,7 @@ impl CurrentStage {
     /// [`Self::set_calibration`] to install checked values.
     pub fn set_angle_calibration(&mut self, a: AngleCalibration) {
         self.config.angle = a;
-        self.interpolation = a.interpolation_half_count();
+        self.state.interpolation = a.interpolation_half_count();
         self.tracker.reset();
         self.revoke_calibration();
     }
@@ -226,9 +283,9 @@ impl CurrentStage {
     /// Lock the closed-loop modes again; a closed-loop command that is
     /// active is replaced by `Disable` (bridge off from the next step).
     pub fn revoke_calibration(&mut self) {
-        self.calibrated = false;
-        if self.active.mode().is_closed_loop() {
-            self.active = Command::Disable;
+        self.state.calibrated = false;
+        if self.state.active.mode().is_closed_loop() {
+            self.state.active = Command::Disable;
         }
     }
 
@@ -246,39 +303,43 @@ impl CurrentStage {
     /// The next [`Self::step`] returns the safe state.
     pub fn report_fault(&mut self, f: Fault) {
         self.supervisor.trip(f);
-        self.active = Command::Disable;
+        self.state.active = Command::Disable;
     }
 
     /// True when `slot` requests a fault clear this stage has not yet
     /// performed (it does so at the start of its next step, before it
     /// looks at the command).
     pub fn clear_pending(&self, slot: &CommandSlot) -> bool {
-        slot.clear_seq != self.last_clear_seq
+        slot.clear_seq != self.state.last_clear_seq
+    }
+
+    /// Take `slot`'s current command number as seen without acting on it
+    /// (its fault-clear number is left alone): after an identification,
+    /// the operator's earlier command never starts the motor.
+    pub fn sync_mailbox(&mut self, slot: &CommandSlot) {
+        self.state.last_seq = slot.seq;
     }
 
     /// Commands refused so far (invalid, sent while faulted, or closed-loop
     /// without a calibration).
     pub fn rejected_commands(&self) -> u32 {
-        self.rejected
+        self.state.rejected
     }
 
     /// The active command.
     pub fn active(&self) -> Command {
-        self.active
+        self.state.active
     }
 
     fn accept(&mut self, cmd: Command) {
-        if self.supervisor.is_faulted() {
-            self.rejected = self.rejected.wrapping_add(1);
-            return;
-        }
-        if cmd.validate(&self.config.limits).is_err()
-            || (cmd.mode().is_closed_loop() && !self.calibrated)
+        let faulted = self.supervisor.is_faulted();
+        if faulted
+            || super::admit(&cmd, &self.config.limits, faulted, self.state.calibrated).is_err()
         {
-            self.rejected = self.rejected.wrapping_add(1);
+            self.state.rejected = self.state.rejected.wrapping_add(1);
             return;
         }
-        let (old, new) = (self.active.mode(), cmd.mode());
+        let (old, new) = (self.state.active.mode(), cmd.mode());
         match (old, new) {
             (_, Mode::OpenLoop) => {
                 // Entering open loop starts at the command's angle. A new
@@ -289,11 +350,11 @@ impl CurrentStage {
                 // so a spinning field stays continuous.
                 if let Command::OpenLoop { theta_e, .. } = cmd {
                     let keep = matches!(
-                        self.active,
+                        self.state.active,
                         Command::OpenLoop { theta_e: prev, .. } if prev == theta_e
                     );
                     if !keep {
-                        self.ol_theta = theta_e;
+                        self.state.ol_theta = theta_e;
                     }
                 }
             }
@@ -301,12 +362,12 @@ impl CurrentStage {
                 // Bumpless: the PIs continue from the open-loop voltage.
                 let w_e = self.tracker.velocity_rad_s() * self.config.angle.pole_pairs as f32;
                 self.current
-                    .preload(self.last_out_v_dq, self.last_i_dq, w_e);
+                    .preload(self.state.last_out_v_dq, self.state.last_i_dq, w_e);
             }
             (Mode::Disabled, _) => self.current.reset(),
             _ => {}
         }
-        self.active = cmd;
+        self.state.active = cmd;
     }
 
     /// One PWM period: commands, sensors, supervision, control. Returns what
@@ -317,23 +378,39 @@ impl CurrentStage {
         iq_ref_from_speed_a: f32,
         s: &Sample,
     ) -> (BridgeCommand, Feedback) {
-        self.period = self.period.wrapping_add(1);
-        // 1. Operator actions: clear first, then a new command.
-        if slot.clear_seq != self.last_clear_seq {
-            self.last_clear_seq = slot.clear_seq;
+        self.state.period = self.state.period.wrapping_add(1);
+        self.take_operator_actions(slot);
+        let sensed = self.sense(s, iq_ref_from_speed_a);
+        self.apply_command_timeout();
+        let (out, i_ref, theta_e) = self.control(&sensed, iq_ref_from_speed_a);
+        self.publish(out, i_ref, theta_e, sensed.v_bus_v)
+    }
+
+    /// 1. Operator actions: clear first, then a new command.
+    #[inline(always)]
+    fn take_operator_actions(&mut self, slot: &CommandSlot) {
+        if slot.clear_seq != self.state.last_clear_seq {
+            self.state.last_clear_seq = slot.clear_seq;
             self.supervisor.clear();
         }
-        if slot.seq != self.last_seq {
-            self.last_seq = slot.seq;
-            self.age_periods = 0;
+        if slot.seq != self.state.last_seq {
+            self.state.last_seq = slot.seq;
+            self.state.age_periods = 0;
             self.accept(slot.command);
         }
+    }
 
-        // 2. Sensors and supervision.
-        let mut theta_e = ElectricalAngle::ZERO;
-        let mut i_abc = crate::frames::Abc::default();
-        let mut i_ab = crate::frames::AlphaBeta::new(0.0, 0.0);
-        let v_bus = s.v_bus_v.unwrap_or(0.0);
+    /// 2. Sensors and supervision: the angle used this period, the phase
+    /// currents and the checks of the fault supervisor. A failed read trips
+    /// its fault and leaves zeros.
+    #[inline(always)]
+    fn sense(&mut self, s: &Sample, iq_ref_from_speed_a: f32) -> Sensed {
+        let mut sensed = Sensed {
+            theta_e: ElectricalAngle::ZERO,
+            i_abc: crate::frames::Abc::default(),
+            i_ab: crate::frames::AlphaBeta::new(0.0, 0.0),
+            v_bus_v: s.v_bus_v.unwrap_or(0.0),
+        };
         match (s.currents, s.angle, s.v_bus_v) {
             (None, _, _) => self.supervisor.trip(Fault::CurrentSenseError),
             (_, None, _) => self.supervisor.trip(Fault::AngleSensorError),
@@ -341,37 +418,18 @@ impl CurrentStage {
             (Some(cur), Some(raw), Some(v_bus_v)) => {
                 let mech = self.config.angle.mechanical(raw);
                 let innovation = self.tracker.update(mech);
-                let changed = self.last_raw != Some(raw);
-                // A coarse sensor's reading is stale between its edges: use
-                // the tracker's angle (advancing with the tracked speed),
-                // kept within the reading's count window, and between edges
-                // never moved against the tracked speed (the tracker's
-                // correction towards the window's centre can pull back). At
-                // standstill the tracker settles on the reading (+ half a
-                // count); on a reversal the angle waits at the window's edge.
-                theta_e = self.config.angle.electrical(match self.interpolation {
-                    None => mech,
-                    Some(h) => {
-                        let est = self.tracker.angle_at_reading();
-                        let mut th = AngleCalibration::within_count(mech, est, h);
-                        if !changed
-                            && th.diff_radians(self.last_interp) * self.tracker.velocity_rad_s()
-                                < 0.0
-                        {
-                            th = AngleCalibration::within_count(mech, self.last_interp, h);
-                        }
-                        self.last_interp = th;
-                        th
-                    }
-                });
-                i_abc = cur.to_abc();
+                let changed = self.state.last_raw != Some(raw);
+                let used = self.angle_used(mech, changed);
+                sensed.theta_e = self.config.angle.electrical(used);
+                sensed.i_abc = cur.to_abc();
                 // |i_ab|^2 against the squared limit: no square root (see
                 // `Supervisor::check_vector_sq`).
-                i_ab = transforms::clarke(i_abc);
+                sensed.i_ab = transforms::clarke(sensed.i_abc);
+                let i_ab = sensed.i_ab;
                 let vector_sq = i_ab.alpha * i_ab.alpha + i_ab.beta * i_ab.beta;
                 self.supervisor.check_vector_sq(
                     &Checks {
-                        i_abc_a: i_abc,
+                        i_abc_a: sensed.i_abc,
                         measured_sum_a: cur.measured_sum_a(),
                         vector_current_a: 0.0, // unused: the square is passed
                         v_bus_v,
@@ -380,108 +438,169 @@ impl CurrentStage {
                     },
                     vector_sq,
                 );
-                // Stuck sensor / stall: a still reading while the drive
-                // pushes hard to move.
-                self.last_raw = Some(raw);
-                let sc = &self.config.supervisor;
-                let moving = match self.active {
-                    Command::Velocity { rad_s } => rad_s.abs() >= sc.stuck_min_speed_rad_s,
-                    Command::Position { rad } => {
-                        let d = rad - self.tracker.position().to_radians();
-                        d.abs() >= sc.stuck_min_distance_rad
-                    }
-                    _ => false,
-                };
-                let demand = if iq_ref_from_speed_a.is_finite() {
-                    iq_ref_from_speed_a
-                } else {
-                    0.0
-                };
-                self.supervisor.check_stuck(changed, demand, moving);
+                self.state.last_raw = Some(raw);
+                self.check_stuck(changed, iq_ref_from_speed_a);
             }
         }
+        sensed
+    }
 
-        // 3. Command timeout.
-        if self.active.mode() != Mode::Disabled && self.config.command_timeout_periods > 0 {
-            self.age_periods = self.age_periods.saturating_add(1);
-            if self.age_periods > self.config.command_timeout_periods {
-                self.age_periods = 0;
-                match self.config.timeout_reaction {
-                    // Stop and Hold are closed-loop: without a calibration
-                    // (open loop) the timeout disables.
-                    TimeoutReaction::Disable => self.supervisor.trip(Fault::CommandTimeout),
-                    _ if !self.calibrated => self.supervisor.trip(Fault::CommandTimeout),
-                    TimeoutReaction::Stop => self.accept(Command::Velocity { rad_s: 0.0 }),
-                    TimeoutReaction::Hold => {
-                        let p = self.tracker.position().to_radians();
-                        self.active = Command::Position { rad: p };
-                    }
+    /// The mechanical angle the Park transform uses: the reading, or for a
+    /// coarse sensor the interpolated one.
+    ///
+    /// A coarse sensor's reading is stale between its edges: use the
+    /// tracker's angle (advancing with the tracked speed), kept within the
+    /// reading's count window, and between edges never moved against the
+    /// tracked speed (the tracker's correction towards the window's centre
+    /// can pull back). At standstill the tracker settles on the reading
+    /// (+ half a count); on a reversal the angle waits at the window's edge.
+    #[inline(always)]
+    fn angle_used(&mut self, mech: MechanicalAngle, changed: bool) -> MechanicalAngle {
+        match self.state.interpolation {
+            None => mech,
+            Some(h) => {
+                let est = self.tracker.angle_at_reading();
+                let mut th = AngleCalibration::within_count(mech, est, h);
+                if !changed
+                    && th.diff_radians(self.state.last_interp) * self.tracker.velocity_rad_s() < 0.0
+                {
+                    th = AngleCalibration::within_count(mech, self.state.last_interp, h);
                 }
+                self.state.last_interp = th;
+                th
             }
         }
+    }
 
-        // 4. Control.
+    /// Stuck sensor / stall: a still reading while the drive pushes hard to
+    /// move.
+    #[inline(always)]
+    fn check_stuck(&mut self, changed: bool, iq_ref_from_speed_a: f32) {
+        let sc = &self.config.supervisor;
+        let moving = match self.state.active {
+            Command::Velocity { rad_s } => rad_s.abs() >= sc.stuck_min_speed_rad_s,
+            Command::Position { rad } => {
+                let d = rad - self.tracker.position().to_radians();
+                d.abs() >= sc.stuck_min_distance_rad
+            }
+            _ => false,
+        };
+        let demand = if iq_ref_from_speed_a.is_finite() {
+            iq_ref_from_speed_a
+        } else {
+            0.0
+        };
+        self.supervisor.check_stuck(changed, demand, moving);
+    }
+
+    /// 3. Command timeout.
+    #[inline(always)]
+    fn apply_command_timeout(&mut self) {
+        if self.state.active.mode() == Mode::Disabled || self.config.command_timeout_periods == 0 {
+            return;
+        }
+        self.state.age_periods = self.state.age_periods.saturating_add(1);
+        if self.state.age_periods <= self.config.command_timeout_periods {
+            return;
+        }
+        self.state.age_periods = 0;
+        match self.config.timeout_reaction {
+            // Stop and Hold are closed-loop: without a calibration
+            // (open loop) the timeout disables.
+            TimeoutReaction::Disable => self.supervisor.trip(Fault::CommandTimeout),
+            _ if !self.state.calibrated => self.supervisor.trip(Fault::CommandTimeout),
+            TimeoutReaction::Stop => self.accept(Command::Velocity { rad_s: 0.0 }),
+            TimeoutReaction::Hold => {
+                let p = self.tracker.position().to_radians();
+                self.state.active = Command::Position { rad: p };
+            }
+        }
+    }
+
+    /// 4. Control: the current loop in the active mode (`None`: bridge off).
+    /// Returns the output, the dq current reference and the electrical
+    /// angle used (the open-loop angle in open loop).
+    #[inline(always)]
+    fn control(
+        &mut self,
+        sensed: &Sensed,
+        iq_ref_from_speed_a: f32,
+    ) -> (Option<CurrentLoopOutput>, Dq, ElectricalAngle) {
+        let mut theta_e = sensed.theta_e;
         let pp = self.config.angle.pole_pairs as f32;
         let w_e = self.tracker.velocity_rad_s() * pp;
         let mut i_ref = Dq::ZERO;
-        let out: Option<CurrentLoopOutput> = if self.supervisor.is_faulted() {
-            self.active = Command::Disable;
-            None
-        } else {
-            // The closed-loop modes share one (inlined) current-loop call.
-            let closed_iq = match self.active {
-                Command::Disable => None,
-                Command::OpenLoop { .. } => None,
-                Command::Torque { iq_a } => Some(iq_a),
-                Command::Velocity { .. } | Command::Position { .. } => {
-                    let lim = self.config.limits.max_current_a;
-                    Some(if iq_ref_from_speed_a.is_finite() {
-                        clamp(iq_ref_from_speed_a, -lim, lim)
-                    } else {
-                        0.0
-                    })
-                }
-            };
-            match (closed_iq, self.active) {
-                (Some(iq), _) => {
-                    i_ref = Dq::new(0.0, iq);
-                    // `i_ab` is `clarke(i_abc)` (both zero when a read failed).
-                    Some(self.current.step_inline_ab(
-                        &CurrentLoopInput {
-                            i_abc_a: i_abc,
-                            theta_e,
-                            omega_e_rad_s: w_e,
-                            v_bus_v: v_bus,
-                            i_dq_ref_a: i_ref,
-                        },
-                        i_ab,
-                    ))
-                }
-                (
-                    None,
-                    Command::OpenLoop {
-                        v_d_v,
-                        v_q_v,
-                        omega_e_rad_s,
-                        ..
-                    },
-                ) => {
-                    let th = self.ol_theta;
-                    self.ol_theta = th.add_radians(omega_e_rad_s * self.config.current.ts_s);
-                    theta_e = th;
-                    Some(
-                        self.current
-                            .step_voltage(i_abc, th, Dq::new(v_d_v, v_q_v), v_bus),
-                    )
-                }
-                (None, _) => None,
+        if self.supervisor.is_faulted() {
+            self.state.active = Command::Disable;
+            return (None, i_ref, theta_e);
+        }
+        // The closed-loop modes share one (inlined) current-loop call.
+        let closed_iq = match self.state.active {
+            Command::Disable => None,
+            Command::OpenLoop { .. } => None,
+            Command::Torque { iq_a } => Some(iq_a),
+            Command::Velocity { .. } | Command::Position { .. } => {
+                let lim = self.config.limits.max_current_a;
+                Some(if iq_ref_from_speed_a.is_finite() {
+                    clamp(iq_ref_from_speed_a, -lim, lim)
+                } else {
+                    0.0
+                })
             }
         };
-        // A control output that is itself invalid is a fault too.
+        let out = match (closed_iq, self.state.active) {
+            (Some(iq), _) => {
+                i_ref = Dq::new(0.0, iq);
+                // `i_ab` is `clarke(i_abc)` (both zero when a read failed).
+                Some(self.current.step_inline_ab(
+                    &CurrentLoopInput {
+                        i_abc_a: sensed.i_abc,
+                        theta_e,
+                        omega_e_rad_s: w_e,
+                        v_bus_v: sensed.v_bus_v,
+                        i_dq_ref_a: i_ref,
+                    },
+                    sensed.i_ab,
+                ))
+            }
+            (
+                None,
+                Command::OpenLoop {
+                    v_d_v,
+                    v_q_v,
+                    omega_e_rad_s,
+                    ..
+                },
+            ) => {
+                let th = self.state.ol_theta;
+                self.state.ol_theta = th.add_radians(omega_e_rad_s * self.config.current.ts_s);
+                theta_e = th;
+                Some(self.current.step_voltage(
+                    sensed.i_abc,
+                    th,
+                    Dq::new(v_d_v, v_q_v),
+                    sensed.v_bus_v,
+                ))
+            }
+            (None, _) => None,
+        };
+        (out, i_ref, theta_e)
+    }
+
+    /// 5. The bridge command and the feedback. A control output that is
+    /// itself invalid is a fault too.
+    #[inline(always)]
+    fn publish(
+        &mut self,
+        out: Option<CurrentLoopOutput>,
+        i_ref: Dq,
+        theta_e: ElectricalAngle,
+        v_bus: f32,
+    ) -> (BridgeCommand, Feedback) {
         let out = match out {
             Some(o) if o.invalid => {
                 self.supervisor.trip(Fault::NonFinite);
-                self.active = Command::Disable;
+                self.state.active = Command::Disable;
                 None
             }
             o => o,
@@ -505,11 +624,11 @@ impl CurrentStage {
                 )
             }
         };
-        self.last_out_v_dq = v_dq;
-        self.last_i_dq = i_dq;
+        self.state.last_out_v_dq = v_dq;
+        self.state.last_i_dq = i_dq;
         let fb = Feedback {
-            mode: self.active.mode(),
-            active: self.active,
+            mode: self.state.active.mode(),
+            active: self.state.active,
             position_rad: self.tracker.position().to_radians(),
             velocity_rad_s: self.tracker.velocity_rad_s(),
             theta_e,
@@ -521,10 +640,25 @@ impl CurrentStage {
             faults: self.supervisor.faults(),
             first_fault: self.supervisor.first_fault(),
             voltage_limited: limited,
-            period: self.period,
+            current_limit_a: self.config.limits.max_current_a,
+            period: self.state.period,
         };
         (bridge, fb)
     }
+}
+
+/// What [`CurrentStage::step`] measured this period (zeros where a read
+/// failed).
+#[derive(Clone, Copy, Debug)]
+struct Sensed {
+    /// Electrical angle of the d axis from the sensor.
+    theta_e: ElectricalAngle,
+    /// Phase currents [A].
+    i_abc: crate::frames::Abc,
+    /// `clarke(i_abc)` [A].
+    i_ab: crate::frames::AlphaBeta,
+    /// Bus voltage [V] (0 when the read failed).
+    v_bus_v: f32,
 }
 
 /// What the position stage hands the speed stage.
@@ -574,7 +708,8 @@ impl SpeedStage {
                 if entering {
                     self.speed.preload(fb.i_dq_ref_a.q);
                 }
-                self.speed.step(w, fb.velocity_rad_s, ff)
+                self.speed
+                    .step_within(w, fb.velocity_rad_s, ff, fb.current_limit_a)
             }
             None => {
                 self.speed.preload(fb.i_dq_ref_a.q);

@@ -1,0 +1,214 @@
+//! The identification driven through the current stage: foc-core's
+//! [`Identification`] sequencer (resistance, inductance, gains, sensor
+//! alignment with the pole-pair check, flux linkage) stepped once per PWM
+//! period by the [`Lifecycle`](super::Lifecycle).
+//!
+//! Every period goes through the [`CurrentStage`] like normal control does:
+//! open-loop voltage requests become `Command::OpenLoop` at the requested
+//! angle, the flux step's velocity requests become `Command::Velocity` (the
+//! speed stage runs as usual, held within the identification's current
+//! limit through [`Feedback::current_limit_a`]), so the fault supervisor
+//! watches the whole identification and the bridge goes to the safe state
+//! on any fault. The stage stays uncalibrated (closed-loop commands
+//! refused) until the sequencer's permit exists: the provisional one (after
+//! the alignment) for the flux step, the final one (measured gains and flux
+//! linkage) at the end.
+//!
+//! The sequencer drives the stage through a private [`CommandSlot`], so the
+//! operator's mailbox is never written; the lifecycle marks the operator's
+//! last command as seen when the identification ends, so it never resumes.
+
+use crate::angle::MechanicalAngle;
+use crate::calibration::identification::{
+    Identification, IdentificationConfig, IdentificationResult, Stage,
+};
+use crate::calibration::{CalError, CalInput, CalStep, ClosedLoopFeedback};
+use crate::control::stage::{CurrentStage, Sample};
+use crate::control::{BridgeCommand, Command, CommandSlot, Fault, Feedback, Limits, Mode};
+use crate::frames::Abc;
+
+/// How an identification period ended.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Outcome {
+    /// Still running.
+    Running,
+    /// Finished: the stage holds the measured calibration.
+    Done(IdentificationResult),
+    /// A routine failed (fault `CalibrationFailed` latched, bridge safe).
+    Failed(CalError, Stage),
+    /// Stopped by a supervisor fault (bridge safe, the fault stays latched)
+    /// or by an operator `Disable` (`None`).
+    Aborted(Option<Fault>, Stage),
+}
+
+/// The sequencer plus the private command mailbox it drives the stage with.
+#[derive(Clone, Copy, Debug)]
+pub struct Identifier {
+    id: Identification,
+    slot: CommandSlot,
+    last_fb: Option<Feedback>,
+    /// The stage's command limits before the identification (restored at
+    /// the end); `None` until the first step.
+    saved_limits: Option<Limits>,
+    /// Current limit during the identification [A]: inside the routines'
+    /// own over-current bound (twice the test current).
+    current_limit_a: f32,
+    /// This identification's provisional permit is installed (flux step).
+    permit_installed: bool,
+}
+
+impl Identifier {
+    /// A new identification driven through a private mailbox that starts
+    /// as a copy of `operator`: the same fault-clear number (starting
+    /// clears nothing) and command numbers far from the operator's (every
+    /// request is taken as new).
+    pub fn new(config: IdentificationConfig, operator: &CommandSlot) -> Self {
+        let mut slot = *operator;
+        slot.seq = operator.seq.wrapping_add(0x4000_0000);
+        slot.command = Command::Disable;
+        Self {
+            id: Identification::new(config),
+            slot,
+            last_fb: None,
+            saved_limits: None,
+            current_limit_a: 1.5 * config.alignment_current_a,
+            permit_installed: false,
+        }
+    }
+
+    /// The stage the sequencer is in.
+    pub fn stage(&self) -> Stage {
+        self.id.stage()
+    }
+
+    fn post_if_new(&mut self, cmd: Command) {
+        // Open-loop angles change every period during the sweeps: post each
+        // change; repeat requests keep the running command.
+        if self.slot.command != cmd {
+            self.slot.post(cmd);
+        }
+    }
+
+    fn limit_current(&mut self, stage: &mut CurrentStage) {
+        if self.saved_limits.is_none() {
+            let l = stage.config().limits;
+            self.saved_limits = Some(l);
+            let lim = if self.current_limit_a < l.max_current_a {
+                self.current_limit_a
+            } else {
+                l.max_current_a
+            };
+            stage.set_limits(Limits {
+                max_current_a: lim,
+                ..l
+            });
+        }
+    }
+
+    fn restore_limits(&mut self, stage: &mut CurrentStage) {
+        if let Some(l) = self.saved_limits.take() {
+            stage.set_limits(l);
+        }
+    }
+
+    /// The sequencer's input from this period's sample and the last
+    /// closed-loop feedback. A failed read becomes a non-finite input, so
+    /// the routine fails cleanly (the stage latches the sensor fault too).
+    fn input(&self, s: &Sample) -> CalInput {
+        let nan = Abc::new(f32::NAN, f32::NAN, f32::NAN);
+        let i_abc = match (s.currents, s.angle) {
+            (Some(c), Some(_)) => c.to_abc(),
+            _ => nan,
+        };
+        let mut inp = CalInput::open_loop(
+            i_abc,
+            s.angle.unwrap_or(MechanicalAngle::ZERO),
+            s.v_bus_v.unwrap_or(f32::NAN),
+        );
+        inp.closed_loop =
+            self.last_fb
+                .filter(|f| f.mode == Mode::Velocity)
+                .map(|f| ClosedLoopFeedback {
+                    v_dq_v: f.v_dq_v,
+                    i_dq_a: f.i_dq_a,
+                    velocity_rad_s: f.velocity_rad_s,
+                });
+        inp
+    }
+
+    /// One PWM period through `stage`.
+    pub fn step(
+        &mut self,
+        stage: &mut CurrentStage,
+        iq_ref_a: f32,
+        s: &Sample,
+    ) -> (Outcome, BridgeCommand, Feedback) {
+        self.limit_current(stage);
+        let inp = self.input(s);
+        match self.id.step(&inp) {
+            CalStep::Apply { v_dq, theta_e } => self.post_if_new(Command::OpenLoop {
+                v_d_v: v_dq.d,
+                v_q_v: v_dq.q,
+                theta_e,
+                omega_e_rad_s: 0.0,
+            }),
+            CalStep::Velocity { rad_s } => {
+                // Always this identification's own alignment (the previous
+                // calibration was revoked when it started).
+                if !self.permit_installed {
+                    if let Some(p) = self.id.permit() {
+                        stage.set_calibration(&p);
+                        self.permit_installed = true;
+                    }
+                }
+                self.post_if_new(Command::Velocity { rad_s });
+            }
+            CalStep::Done(done) => {
+                self.restore_limits(stage);
+                stage.set_calibration(&done.permit);
+                return self.finish(stage, iq_ref_a, s, Outcome::Done(done.result));
+            }
+            CalStep::Failed(e) => {
+                self.restore_limits(stage);
+                stage.report_fault(Fault::CalibrationFailed);
+                let out = Outcome::Failed(e, self.id.stage());
+                return self.finish(stage, iq_ref_a, s, out);
+            }
+        }
+        let (b, fb) = stage.step(&self.slot, iq_ref_a, s);
+        self.last_fb = Some(fb);
+        // The supervisor latched a fault: stop here (the bridge is already
+        // safe), rather than let the routine fail later for a reason that
+        // is only a consequence.
+        if let Some(f) = fb.first_fault {
+            self.restore_limits(stage);
+            return (Outcome::Aborted(Some(f), self.id.stage()), b, fb);
+        }
+        (Outcome::Running, b, fb)
+    }
+
+    /// Stop on operator request: bridge off, limits restored.
+    pub fn abort(
+        &mut self,
+        stage: &mut CurrentStage,
+        iq_ref_a: f32,
+        s: &Sample,
+    ) -> (Outcome, BridgeCommand, Feedback) {
+        self.restore_limits(stage);
+        let out = Outcome::Aborted(None, self.id.stage());
+        self.finish(stage, iq_ref_a, s, out)
+    }
+
+    /// The last period: `Disable` through the private mailbox.
+    fn finish(
+        &mut self,
+        stage: &mut CurrentStage,
+        iq_ref_a: f32,
+        s: &Sample,
+        out: Outcome,
+    ) -> (Outcome, BridgeCommand, Feedback) {
+        self.slot.post(Command::Disable);
+        let (b, fb) = stage.step(&self.slot, iq_ref_a, s);
+        (out, b, fb)
+    }
+}

@@ -1,0 +1,424 @@
+//! The drive's life from reset on, one PWM period at a time, without
+//! hardware: [`Lifecycle::step`] takes this period's [`Sample`] and
+//! [`Inputs`] and returns what the bridge must do, the feedback and what
+//! the caller must do to the sensors (install offsets) or the slower loops
+//! (run them). [`super::Drive`] wraps it with the hardware traits; the
+//! bench's `Cascade` and the SIL process call it directly.
+//!
+//! ```text
+//!  reset --> OffsetCalibration --ok--> SensorCheck --ok--> Run <------------+
+//!               | failed / no read       | no read          | identify     |
+//!               +--(fault latched)-------+-----------> Run  +--> Identify --+
+//!                                                              (done, failed,
+//!                                                     fault, operator Disable)
+//! ```
+//!
+//! Rules kept here, once: the bridge is off (safe state) outside `Identify`
+//! and `Run`; a fault latched by anyone makes the current stage return the
+//! safe state in the same period; closed-loop modes need offsets and a
+//! calibration permit; an identification starts only disabled and
+//! unfaulted, revokes the old permit, is aborted by an operator `Disable`
+//! and never resumes the operator's earlier command when it ends; a
+//! configuration change is applied whole at the start of a period, or
+//! refused whole (see [`super::rules`]).
+
+use super::identify::{Identifier, Outcome};
+use super::rules::{ConfigChange, Refusal, Status};
+use crate::calibration::identification::{IdentificationConfig, IdentificationResult, Stage};
+use crate::calibration::offsets::{OffsetCalibrator, OffsetError, OffsetLimits, OffsetStep};
+use crate::calibration::CalError;
+use crate::control::permit::Calibrated;
+use crate::control::stage::{CurrentStage, Sample};
+use crate::control::{BridgeCommand, Command, CommandSlot, Fault, Feedback};
+use crate::frames::Abc;
+
+/// Where the drive is in its life.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Phase {
+    /// Averaging the current-sensor offsets with the bridge off.
+    OffsetCalibration,
+    /// Checking that the angle sensor answers (consecutive good reads).
+    SensorCheck(u32),
+    /// Motor identification (R, L, gains, alignment, flux linkage).
+    Identify,
+    /// Control running (the current stage decides; disabled until told).
+    Run,
+}
+
+/// What the drive does from reset on.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LifecycleConfig {
+    /// Current-offset calibration (bridge off).
+    pub offsets: OffsetLimits,
+    /// Consecutive good angle readings the start-up sensor check needs.
+    pub sensor_check_reads: u32,
+    /// Identification settings; `None`: identification unsupported.
+    pub identification: Option<IdentificationConfig>,
+    /// Identify the motor right after the sensor check.
+    pub identify_at_start_up: bool,
+    /// Speed loop every N periods (0 is taken as 1).
+    pub speed_divider: u16,
+    /// Position loop every M periods (0 is taken as 1).
+    pub position_divider: u16,
+}
+
+/// What the owner hands the drive each period.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Inputs {
+    /// The operator's command mailbox.
+    pub command: CommandSlot,
+    /// q-current reference from the speed stage [A].
+    pub iq_ref_a: f32,
+    /// A configuration change to apply at this period's start.
+    pub change: Option<ConfigChange>,
+    /// The power stage reported a fault (timer break, gate driver).
+    pub gate_fault: bool,
+}
+
+impl Inputs {
+    /// A mailbox and a q-current reference, nothing else.
+    pub const fn new(command: CommandSlot, iq_ref_a: f32) -> Self {
+        Self {
+            command,
+            iq_ref_a,
+            change: None,
+            gate_fault: false,
+        }
+    }
+}
+
+/// Something that happened this period (for the log and the tests).
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Event {
+    /// Offsets measured and installed [A].
+    OffsetsDone(Abc),
+    /// The offset calibration rejected the readings (fault latched).
+    OffsetsFailed(OffsetError),
+    /// The current sensor did not answer during the offset calibration.
+    CurrentSenseFailed,
+    /// The angle sensor did not answer during the sensor check.
+    SensorCheckFailed,
+    /// Start-up finished: disabled, waiting for a command.
+    StartUpDone,
+    /// An identification started (start-up or request).
+    IdentificationStarted,
+    /// The identification finished; its permit is installed.
+    Identified(IdentificationResult),
+    /// A routine failed (fault `CalibrationFailed` latched).
+    IdentificationFailed(CalError, Stage),
+    /// Stopped by a fault, or by an operator `Disable` (`None`).
+    IdentificationAborted(Option<Fault>, Stage),
+}
+
+/// The drive's decision for one period.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Output {
+    /// What the bridge must do.
+    pub bridge: BridgeCommand,
+    /// The feedback to publish (unchanged during start-up).
+    pub feedback: Feedback,
+    /// Install these current-sense offsets [A] now.
+    pub offsets_a: Option<Abc>,
+    /// Run the speed stage after this period.
+    pub run_speed: bool,
+    /// Run the position stage after this period.
+    pub run_position: bool,
+    /// What happened, if anything.
+    pub event: Option<Event>,
+    /// The verdict on [`Inputs::change`], when one was given.
+    pub change: Option<Result<(), Refusal>>,
+}
+
+/// The drive's life (see the module docs). Hardware-free: the caller owns
+/// the [`CurrentStage`] and passes it to every step.
+#[derive(Clone, Copy, Debug)]
+pub struct Lifecycle {
+    config: LifecycleConfig,
+    phase: Phase,
+    offsets: OffsetCalibrator,
+    /// The current sensor's offsets are calibrated.
+    offsets_ok: bool,
+    /// The first offset sample after a restart was read with the old
+    /// offsets: skip it.
+    skip_offset_sample: bool,
+    identifier: Option<Identifier>,
+    /// The operator's command number when the identification started.
+    identify_seq: u32,
+    identified: Option<IdentificationResult>,
+    dividers: (u32, u32),
+    tick: u32,
+    feedback: Feedback,
+}
+
+fn divider(n: u16) -> u32 {
+    u32::from(n.max(1))
+}
+
+impl Lifecycle {
+    /// From reset: offset calibration first (the caller zeroes the current
+    /// sensor's offsets before the first sample).
+    pub fn new(config: LifecycleConfig) -> Self {
+        Self {
+            config,
+            phase: Phase::OffsetCalibration,
+            offsets: OffsetCalibrator::new(config.offsets),
+            offsets_ok: false,
+            skip_offset_sample: false,
+            identifier: None,
+            identify_seq: 0,
+            identified: None,
+            dividers: (
+                divider(config.speed_divider),
+                divider(config.position_divider),
+            ),
+            tick: 0,
+            feedback: Feedback::INIT,
+        }
+    }
+
+    /// Already started: phase `Run` with the caller vouching for the
+    /// current sensor's offsets (simulations, tests, a process that was
+    /// handed calibrated measurements).
+    pub fn started(config: LifecycleConfig) -> Self {
+        Self {
+            phase: Phase::Run,
+            offsets_ok: true,
+            ..Self::new(config)
+        }
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &LifecycleConfig {
+        &self.config
+    }
+
+    /// The phase.
+    pub fn phase(&self) -> Phase {
+        self.phase
+    }
+
+    /// The speed and position dividers in force [periods].
+    pub fn dividers(&self) -> (u32, u32) {
+        self.dividers
+    }
+
+    /// The last feedback published.
+    pub fn feedback(&self) -> &Feedback {
+        &self.feedback
+    }
+
+    /// The last successful identification, if any.
+    pub fn identified(&self) -> Option<IdentificationResult> {
+        self.identified
+    }
+
+    /// The stage of the identification running or last run.
+    pub fn identification_stage(&self) -> Option<Stage> {
+        self.identifier.map(|i| i.stage())
+    }
+
+    /// The status the rules look at.
+    pub fn status(&self, stage: &CurrentStage) -> Status {
+        let running = self.phase == Phase::Run;
+        Status {
+            running,
+            mode: stage.active().mode(),
+            faulted: stage.supervisor().is_faulted(),
+            calibrated: running && self.offsets_ok && stage.is_calibrated(),
+        }
+    }
+
+    /// One PWM period. `stage` is the drive's current stage (the same one
+    /// every period).
+    pub fn step(&mut self, stage: &mut CurrentStage, inp: &Inputs, s: &Sample) -> Output {
+        let mut out = Output {
+            bridge: BridgeCommand::SafeState,
+            feedback: self.feedback,
+            offsets_a: None,
+            run_speed: false,
+            run_position: false,
+            event: None,
+            change: None,
+        };
+        if inp.gate_fault {
+            stage.report_fault(Fault::GateDriverFault);
+        }
+        if let Some(ch) = inp.change {
+            out.change = Some(self.apply_change(stage, &ch, inp, &mut out));
+        }
+        match self.phase {
+            Phase::OffsetCalibration => self.step_offsets(stage, s, &mut out),
+            Phase::SensorCheck(n) => self.step_sensor_check(stage, inp, s, n, &mut out),
+            Phase::Identify => self.step_identify(stage, inp, s, &mut out),
+            Phase::Run => {
+                let (b, fb) = stage.step(&inp.command, inp.iq_ref_a, s);
+                out.bridge = b;
+                out.feedback = fb;
+            }
+        }
+        self.feedback = out.feedback;
+        self.tick = self.tick.wrapping_add(1);
+        out.run_speed = self.tick % self.dividers.0 == 0;
+        out.run_position = self.tick % self.dividers.1 == 0;
+        out
+    }
+
+    /// A configuration change, whole or not at all.
+    fn apply_change(
+        &mut self,
+        stage: &mut CurrentStage,
+        ch: &ConfigChange,
+        inp: &Inputs,
+        out: &mut Output,
+    ) -> Result<(), Refusal> {
+        if let Some(f) = ch.fault {
+            stage.report_fault(f);
+        }
+        if !ch.needs_config_check() {
+            return Ok(());
+        }
+        let status = self.status(stage);
+        status.check_config()?;
+        if ch.identify {
+            status.check_identification()?;
+            if self.config.identification.is_none() {
+                return Err(Refusal::Unsupported);
+            }
+        }
+        if ch.limits.is_some_and(|l| l.validate().is_err()) {
+            return Err(Refusal::Unsupported);
+        }
+        if let Some(l) = ch.limits {
+            stage.set_limits(l);
+        }
+        if let Some(cur) = ch.current {
+            // Keep the closed-loop permit: the same angle calibration with
+            // the new gains, if they pass the permit's check.
+            match Calibrated::supplied(stage.config().angle, cur) {
+                Ok(p) if stage.is_calibrated() => stage.set_calibration(&p),
+                _ => stage.set_current_config(cur),
+            }
+        }
+        if let Some((n, m)) = ch.dividers {
+            self.dividers = (divider(n), divider(m));
+        }
+        if ch.calibrate_offsets {
+            self.restart_offsets(out);
+        } else if ch.identify {
+            self.start_identification(stage, &inp.command, out);
+        }
+        Ok(())
+    }
+
+    fn restart_offsets(&mut self, out: &mut Output) {
+        self.offsets = OffsetCalibrator::new(self.config.offsets);
+        self.offsets_ok = false;
+        self.skip_offset_sample = true;
+        self.phase = Phase::OffsetCalibration;
+        out.offsets_a = Some(Abc::default());
+    }
+
+    fn start_identification(
+        &mut self,
+        stage: &mut CurrentStage,
+        operator: &CommandSlot,
+        out: &mut Output,
+    ) {
+        let Some(cfg) = self.config.identification else {
+            return;
+        };
+        // A new identification never runs on the old calibration.
+        stage.revoke_calibration();
+        self.identifier = Some(Identifier::new(cfg, operator));
+        self.identify_seq = operator.seq;
+        self.phase = Phase::Identify;
+        out.event = Some(Event::IdentificationStarted);
+    }
+
+    fn step_offsets(&mut self, stage: &mut CurrentStage, s: &Sample, out: &mut Output) {
+        if core::mem::take(&mut self.skip_offset_sample) {
+            return;
+        }
+        let Some(reading) = s.currents.map(|c| c.to_abc()) else {
+            stage.report_fault(Fault::CurrentSenseError);
+            self.phase = Phase::Run;
+            out.event = Some(Event::CurrentSenseFailed);
+            return;
+        };
+        match self.offsets.step(reading) {
+            OffsetStep::InProgress => {}
+            OffsetStep::Done(o) => {
+                out.offsets_a = Some(o);
+                self.offsets_ok = true;
+                self.phase = Phase::SensorCheck(0);
+                out.event = Some(Event::OffsetsDone(o));
+            }
+            OffsetStep::Failed(e) => {
+                stage.report_fault(Fault::CalibrationFailed);
+                self.phase = Phase::Run;
+                out.event = Some(Event::OffsetsFailed(e));
+            }
+        }
+    }
+
+    fn step_sensor_check(
+        &mut self,
+        stage: &mut CurrentStage,
+        inp: &Inputs,
+        s: &Sample,
+        n: u32,
+        out: &mut Output,
+    ) {
+        if s.angle.is_none() {
+            stage.report_fault(Fault::AngleSensorError);
+            self.phase = Phase::Run;
+            out.event = Some(Event::SensorCheckFailed);
+        } else if n.saturating_add(1) < self.config.sensor_check_reads {
+            self.phase = Phase::SensorCheck(n + 1);
+        } else if self.config.identify_at_start_up && self.config.identification.is_some() {
+            self.start_identification(stage, &inp.command, out);
+        } else {
+            self.phase = Phase::Run;
+            out.event = Some(Event::StartUpDone);
+        }
+    }
+
+    fn step_identify(
+        &mut self,
+        stage: &mut CurrentStage,
+        inp: &Inputs,
+        s: &Sample,
+        out: &mut Output,
+    ) {
+        let Some(id) = self.identifier.as_mut() else {
+            self.phase = Phase::Run;
+            return;
+        };
+        // An operator `Disable` posted after the start aborts.
+        let cmd = &inp.command;
+        let abort = cmd.seq != self.identify_seq && cmd.command == Command::Disable;
+        let (outcome, b, fb) = if abort {
+            id.abort(stage, inp.iq_ref_a, s)
+        } else {
+            id.step(stage, inp.iq_ref_a, s)
+        };
+        out.bridge = b;
+        out.feedback = fb;
+        out.event = match outcome {
+            Outcome::Running => return,
+            Outcome::Done(r) => {
+                self.identified = Some(r);
+                Some(Event::Identified(r))
+            }
+            Outcome::Failed(e, st) => Some(Event::IdentificationFailed(e, st)),
+            Outcome::Aborted(f, st) => Some(Event::IdentificationAborted(f, st)),
+        };
+        // Back to the operator's mailbox, with its last command taken as
+        // seen: nothing sent before or during the identification starts
+        // the motor now.
+        stage.sync_mailbox(cmd);
+        self.phase = Phase::Run;
+    }
+}

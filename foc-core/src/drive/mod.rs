@@ -1,0 +1,149 @@
+//! # The drive: what happens each PWM period, from reset on
+//!
+//! One [`Drive`] per motor. Its owner (the firmware's current-loop
+//! interrupt, an emulated board, a test) calls [`Drive::step`] once per
+//! PWM period: it reads the sensors through the hardware traits, lets the
+//! [`Lifecycle`] decide (offset calibration with the bridge off, the
+//! angle-sensor check, identification on request or at start-up, the
+//! calibration permit, configuration changes at the period boundary, then
+//! run mode through the [`CurrentStage`]), drives the bridge and returns
+//! the [`Output`]: the feedback to publish and which slower loops to run.
+//!
+//! | module | what |
+//! |---|---|
+//! | [`lifecycle`] | [`Lifecycle`], hardware-free: phases, events, dividers |
+//! | [`identify`] | the identification sequencer driven through the stage |
+//! | [`rules`] | the one check of each rule: [`Status`], [`Refusal`], [`ConfigChange`] |
+//!
+//! The bench's `Cascade` runs the same [`Lifecycle`] on simulated samples,
+//! so the start-up path the firmware runs is the one the host tests run.
+//!
+//! ```
+//! use foc_core::drive::{Drive, Inputs, LifecycleConfig, Phase};
+//! use foc_core::calibration::offsets::OffsetLimits;
+//! use foc_core::control::{cascade::CascadeConfig, CommandSlot, MotorParams};
+//! # use foc_core::{hal::*, angle::MechanicalAngle, frames::Abc};
+//! # struct Pwm(bool); struct Cs; struct Enc; struct Bus;
+//! # impl PwmDriver for Pwm { type Error = (); fn period_counts(&self) -> u16 { 4200 }
+//! #   fn set_compare(&mut self, _: [u16; 3]) -> Result<(), ()> { Ok(()) }
+//! #   fn enable(&mut self) -> Result<(), ()> { self.0 = true; Ok(()) } fn disable(&mut self) { self.0 = false }
+//! #   fn is_enabled(&self) -> bool { self.0 } }
+//! # impl CurrentSense for Cs { type Error = (); fn read_currents(&mut self) -> Result<PhaseCurrents, ()> { Ok(PhaseCurrents::TwoPhase { a_a: 0.01, b_a: -0.01 }) }
+//! #   fn offsets_a(&self) -> Abc { Abc::default() } fn set_offsets_a(&mut self, _: Abc) {} }
+//! # impl AngleSensor for Enc { type Error = (); fn read_angle(&mut self) -> Result<MechanicalAngle, ()> { Ok(MechanicalAngle::ZERO) } }
+//! # impl BusVoltage for Bus { type Error = (); fn read_bus_voltage_v(&mut self) -> Result<f32, ()> { Ok(24.0) } }
+//! let motor = MotorParams { pole_pairs: 7, r_ohm: 0.1, ld_h: 40e-6, lq_h: 40e-6, flux_linkage_wb: 0.004 };
+//! let cascade = CascadeConfig::for_motor(motor, 20_000.0, 10.0);
+//! let life = LifecycleConfig {
+//!     offsets: OffsetLimits { samples: 16, max_offset_a: 0.5, max_noise_a: 0.1 },
+//!     sensor_check_reads: 4,
+//!     identification: None,
+//!     identify_at_start_up: false,
+//!     speed_divider: 10,
+//!     position_divider: 20,
+//! };
+//! let mut drive = Drive::new(Pwm(false), Cs, Enc, Bus, cascade.current, life);
+//! let inputs = Inputs::new(CommandSlot::INIT, 0.0);
+//! for _ in 0..16 + 4 {
+//!     drive.step(&inputs);
+//!     assert!(!drive.pwm.is_enabled()); // bridge off during start-up
+//! }
+//! assert_eq!(drive.lifecycle().phase(), Phase::Run);
+//! assert!(!drive.status().calibrated); // no permit yet: closed loop refused
+//! ```
+
+pub mod identify;
+pub mod lifecycle;
+pub mod rules;
+
+pub use lifecycle::{Event, Inputs, Lifecycle, LifecycleConfig, Output, Phase};
+pub use rules::{ConfigChange, Refusal, Status};
+
+use crate::control::drive::{apply, read_sample};
+use crate::control::stage::{CurrentStage, CurrentStageConfig};
+use crate::control::Fault;
+use crate::frames::Abc;
+use crate::hal::{AngleSensor, BusVoltage, CurrentSense, PwmDriver};
+
+/// The drive: the board's hardware, the current stage and the lifecycle.
+/// The hardware fields are public for the owner's other duties (e.g. an
+/// emergency stop); the decisions go through [`Drive::step`].
+pub struct Drive<P, C, A, B> {
+    /// PWM / bridge.
+    pub pwm: P,
+    /// Phase-current sensor.
+    pub currents: C,
+    /// Angle sensor.
+    pub angle: A,
+    /// Bus-voltage (and temperature) sensor.
+    pub bus: B,
+    stage: CurrentStage,
+    life: Lifecycle,
+}
+
+impl<P, C, A, B> Drive<P, C, A, B>
+where
+    P: PwmDriver,
+    C: CurrentSense,
+    A: AngleSensor,
+    B: BusVoltage,
+{
+    /// From reset: bridge off, current-sensor offsets zeroed, offset
+    /// calibration next.
+    pub fn new(
+        mut pwm: P,
+        mut currents: C,
+        angle: A,
+        bus: B,
+        stage: CurrentStageConfig,
+        life: LifecycleConfig,
+    ) -> Self {
+        pwm.disable();
+        currents.set_offsets_a(Abc::default());
+        Self {
+            pwm,
+            currents,
+            angle,
+            bus,
+            stage: CurrentStage::new(stage),
+            life: Lifecycle::new(life),
+        }
+    }
+
+    /// One PWM period: read the sensors, decide, install offsets, drive the
+    /// bridge (duties before enable; a PWM error is latched as
+    /// [`Fault::PwmError`] with the bridge off).
+    pub fn step(&mut self, inputs: &Inputs) -> Output {
+        let sample = read_sample(&mut self.currents, &mut self.angle, &mut self.bus);
+        let out = self.life.step(&mut self.stage, inputs, &sample);
+        if let Some(o) = out.offsets_a {
+            self.currents.set_offsets_a(o);
+        }
+        if let Err(f) = apply(&mut self.pwm, out.bridge) {
+            self.stage.report_fault(f);
+        }
+        out
+    }
+
+    /// Latch `fault` and turn the bridge off now (e.g. a loop overrun found
+    /// after the step).
+    pub fn trip(&mut self, fault: Fault) {
+        self.stage.report_fault(fault);
+        self.pwm.disable();
+    }
+
+    /// The current stage.
+    pub fn stage(&self) -> &CurrentStage {
+        &self.stage
+    }
+
+    /// The lifecycle.
+    pub fn lifecycle(&self) -> &Lifecycle {
+        &self.life
+    }
+
+    /// The status the rules look at.
+    pub fn status(&self) -> Status {
+        self.life.status(&self.stage)
+    }
+}

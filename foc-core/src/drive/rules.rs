@@ -1,0 +1,128 @@
+//! The drive's rules for commands and configuration changes, each written
+//! once: the [`Lifecycle`](super::Lifecycle) applies them when it takes a
+//! command or a change at a period boundary, and the command protocol
+//! applies the very same functions to its snapshot of the drive's
+//! [`Status`] for an immediate Nack (so a refused request changes nothing).
+//!
+//! ```
+//! use foc_core::drive::{Refusal, Status};
+//! use foc_core::control::{Command, CommandError, Mode};
+//! let running = Status { running: true, mode: Mode::Torque, faulted: false, calibrated: true };
+//! assert_eq!(running.check_config(), Err(Refusal::NotDisabled));
+//! let starting = Status { running: false, mode: Mode::Disabled, ..running };
+//! assert_eq!(starting.check_config(), Err(Refusal::Busy));
+//! let idle = Status { mode: Mode::Disabled, calibrated: false, ..running };
+//! assert_eq!(idle.check_config(), Ok(()));
+//! # let limits = foc_core::control::cascade::CascadeConfig::for_motor(
+//! #     foc_core::control::MotorParams { pole_pairs: 7, r_ohm: 0.1, ld_h: 1e-4, lq_h: 1e-4, flux_linkage_wb: 0.01 },
+//! #     20_000.0, 5.0).current.limits;
+//! assert_eq!(idle.check_command(&Command::Torque { iq_a: 1.0 }, &limits), Err(CommandError::NotCalibrated));
+//! ```
+
+use crate::control::current::CurrentLoopConfig;
+use crate::control::{admit, Command, CommandError, Fault, Limits, Mode};
+
+/// Why a configuration change or a calibration request was refused
+/// (nothing changed).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Refusal {
+    /// Start-up or a calibration is still running: try again later.
+    Busy,
+    /// Closed-loop mode requested before a calibration permit exists.
+    NotCalibrated,
+    /// Only allowed while the drive is disabled.
+    NotDisabled,
+    /// A fault is latched: clear it first.
+    Faulted,
+    /// Not available on this drive, or values it cannot vouch for.
+    Unsupported,
+}
+
+/// What the rules look at: the drive's state as its owner last published it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Status {
+    /// Start-up finished and no calibration running (phase `Run`).
+    pub running: bool,
+    /// The active mode.
+    pub mode: Mode,
+    /// A fault is latched.
+    pub faulted: bool,
+    /// Offsets calibrated and a calibration permit installed.
+    pub calibrated: bool,
+}
+
+impl Status {
+    /// Limits, gains, dividers and the offset calibration: only once
+    /// started ([`Refusal::Busy`]) and while disabled
+    /// ([`Refusal::NotDisabled`]).
+    pub fn check_config(&self) -> Result<(), Refusal> {
+        if !self.running {
+            return Err(Refusal::Busy);
+        }
+        if self.mode != Mode::Disabled {
+            return Err(Refusal::NotDisabled);
+        }
+        Ok(())
+    }
+
+    /// The identification: as [`Self::check_config`], and not while a
+    /// fault is latched ([`Refusal::Faulted`]).
+    pub fn check_identification(&self) -> Result<(), Refusal> {
+        self.check_config()?;
+        if self.faulted {
+            return Err(Refusal::Faulted);
+        }
+        Ok(())
+    }
+
+    /// A command: [`admit`] (values, latched fault, calibration).
+    pub fn check_command(&self, cmd: &Command, limits: &Limits) -> Result<(), CommandError> {
+        admit(cmd, limits, self.faulted, self.calibrated)
+    }
+}
+
+/// A configuration change for the drive, applied at the start of a period
+/// (all of it or, when [`Status::check_config`] refuses, none of it).
+/// Changes merge: a newer value replaces a pending one.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct ConfigChange {
+    /// New command limits (checked with [`Limits::validate`]).
+    pub limits: Option<Limits>,
+    /// New current-loop configuration: installed with a new calibration
+    /// permit for the stage's angle calibration when the stage is
+    /// calibrated and the values pass the permit's check; otherwise it
+    /// revokes the calibration.
+    pub current: Option<CurrentLoopConfig>,
+    /// New speed / position dividers [periods] (0 is taken as 1).
+    pub dividers: Option<(u16, u16)>,
+    /// Re-run the current-offset calibration (bridge off).
+    pub calibrate_offsets: bool,
+    /// Run the motor identification ([`Status::check_identification`]).
+    pub identify: bool,
+    /// Latch this fault (e.g. a link watchdog's `Disable` reaction); taken
+    /// in any phase, never refused.
+    pub fault: Option<Fault>,
+}
+
+impl ConfigChange {
+    /// Merge a newer change into this one.
+    pub fn merge(&mut self, newer: ConfigChange) {
+        self.limits = newer.limits.or(self.limits);
+        self.current = newer.current.or(self.current);
+        self.dividers = newer.dividers.or(self.dividers);
+        self.calibrate_offsets |= newer.calibrate_offsets;
+        self.identify |= newer.identify;
+        self.fault = self.fault.or(newer.fault);
+    }
+
+    /// True when something besides a fault needs [`Status::check_config`].
+    pub fn needs_config_check(&self) -> bool {
+        self.limits.is_some()
+            || self.current.is_some()
+            || self.dividers.is_some()
+            || self.calibrate_offsets
+            || self.identify
+    }
+}
