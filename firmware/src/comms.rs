@@ -23,19 +23,21 @@
 //!   period later). Changes merge: a newer value replaces a pending one,
 //!   so back-to-back requests are never lost.
 //!
-//! Refused here (nothing changes, the host gets a Nack):
+//! The drive's own rules (only while started and disabled, identification
+//! not while faulted, commands against the limits and the permit) are
+//! `foc_core::drive::Status`'s, applied by the protocol to the snapshot's
+//! status for the immediate Nack and by the drive again when it takes the
+//! change. This board adds (nothing changes, the host gets a Nack):
 //!
 //! | request | refused when | reply |
 //! |---|---|---|
-//! | limits, any gains, dividers | the drive is not disabled | `NotDisabled` |
 //! | limits | `max_current_a` above the build-time limit (`config::MOTOR`) | `Unsupported` |
 //! | current gains | not positive (a calibration permit cannot vouch for them) | `Unsupported` |
-//! | any change, calibration | start-up / offset calibration still running | `Busy` |
 //! | calibration `alignment` alone | always: it is part of `identification` | `Unsupported` |
-//! | calibration `identification`, `offsets` | start-up or a calibration still running | `Busy` |
 
 use crate::config;
 use board_support::board;
+use foc_core::calibration::identification::IdentificationResult;
 use foc_core::calibration::Calibrated;
 use foc_core::control::current::CurrentLoopConfig;
 use foc_core::control::position::PositionLoopConfig;
@@ -44,6 +46,7 @@ use foc_core::control::stage::AngleCalibration;
 use foc_core::control::{
     Command, CommandError, CommandSlot, Fault, FaultSet, Feedback, Limits, Mode,
 };
+use foc_core::drive::{ConfigChange, Status};
 use foc_protocol::frame::{encode, FrameDecoder, MAX_FRAME};
 use foc_protocol::message::{
     Calibration, CurrentGains, ParamId, PositionGains, SpeedGains, Telemetry,
@@ -56,40 +59,11 @@ use foc_protocol::{DeviceContext, DeviceState, Refusal, WatchdogConfig};
 /// never talk on the link.)
 pub const DEFAULT_WATCHDOG: WatchdogConfig = WatchdogConfig::OFF;
 
-/// What the current loop (priority 4) takes from the mailbox.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct CurrentChange {
-    /// New command limits (`CurrentStage::set_limits`).
-    pub limits: Option<Limits>,
-    /// New current-loop configuration, installed with a calibration permit
-    /// for the stage's angle calibration when the stage is calibrated.
-    pub current: Option<CurrentLoopConfig>,
-    /// New speed / position dividers [periods].
-    pub dividers: Option<(u16, u16)>,
-    /// Re-run the start-up current-offset calibration (bridge off).
-    pub calibrate_offsets: bool,
-    /// Run the motor identification (bridge must be off; see `calibrate`).
-    pub identify: bool,
-    /// Latch this fault (the link watchdog's `Disable` reaction).
-    pub fault: Option<Fault>,
-}
-
-impl CurrentChange {
-    fn merge(&mut self, o: CurrentChange) {
-        self.limits = o.limits.or(self.limits);
-        self.current = o.current.or(self.current);
-        self.dividers = o.dividers.or(self.dividers);
-        self.calibrate_offsets |= o.calibrate_offsets;
-        self.identify |= o.identify;
-        self.fault = self.fault.or(o.fault);
-    }
-}
-
 /// Pending configuration changes, one part per owning task.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct ConfigMailbox {
-    /// Taken by `current_loop` (4).
-    pub current: Option<CurrentChange>,
+    /// Taken by `current_loop` (4): the drive applies or refuses it whole.
+    pub current: Option<ConfigChange>,
     /// Taken by `speed_loop` (3).
     pub speed: Option<SpeedLoopConfig>,
     /// Taken by `position_loop` (2).
@@ -160,10 +134,10 @@ pub struct Snapshot {
     pub feedback: Feedback,
     /// Longest current-loop run [cycles].
     pub max_loop_cycles: u32,
-    /// Start-up (offset calibration, sensor check) finished.
-    pub running: bool,
-    /// Offsets done and the current stage holds a calibration permit.
-    pub calibrated: bool,
+    /// The drive's status (started, mode, faulted, calibrated).
+    pub status: Status,
+    /// The last successful identification.
+    pub identified: Option<IdentificationResult>,
 }
 
 /// Mutations a frame asked for, committed after it was handled.
@@ -217,18 +191,10 @@ impl Link<'_> {
     /// The motor model in use: the identified one when an identification
     /// has succeeded, the build-time one otherwise.
     fn motor(&self) -> foc_core::control::MotorParams {
-        crate::calibrate::last()
+        self.snap
+            .identified
             .map(|r| r.motor_params())
             .unwrap_or(self.settings.current.motor)
-    }
-    fn config_allowed(&self) -> Result<(), Refusal> {
-        if !self.snap.running {
-            return Err(Refusal::Busy);
-        }
-        if self.snap.feedback.mode != Mode::Disabled {
-            return Err(Refusal::NotDisabled);
-        }
-        Ok(())
     }
 }
 
@@ -263,7 +229,7 @@ impl DeviceContext for Link<'_> {
         // Nothing to post: see `Outbox::apply_command`.
     }
     fn mode(&self) -> Mode {
-        self.snap.feedback.mode
+        self.snap.status.mode
     }
     fn faults(&self) -> (FaultSet, Option<Fault>) {
         (self.snap.feedback.faults, self.snap.feedback.first_fault)
@@ -279,7 +245,6 @@ impl DeviceContext for Link<'_> {
         self.settings.limits
     }
     fn set_limits(&mut self, limits: Limits) -> Result<(), Refusal> {
-        self.config_allowed()?;
         if limits.max_current_a > config::MOTOR.1 {
             return Err(Refusal::Unsupported);
         }
@@ -293,11 +258,10 @@ impl DeviceContext for Link<'_> {
         Ok(())
     }
     fn set_current_gains(&mut self, gains: CurrentGains) -> Result<(), Refusal> {
-        self.config_allowed()?;
         let mut cur = self.settings.current;
         // After an identification the loop runs on the measured motor model
         // (decoupling, back-EMF feed-forward): keep it, change only gains.
-        if let Some(r) = crate::calibrate::last() {
+        if let Some(r) = self.snap.identified {
             cur.motor = r.motor_params();
         }
         gains.apply(&mut cur);
@@ -312,13 +276,11 @@ impl DeviceContext for Link<'_> {
         Ok(())
     }
     fn set_speed_gains(&mut self, gains: SpeedGains) -> Result<(), Refusal> {
-        self.config_allowed()?;
         gains.apply(&mut self.settings.speed);
         self.out.config.speed = Some(self.settings.speed);
         Ok(())
     }
     fn set_position_gains(&mut self, gains: PositionGains) -> Result<(), Refusal> {
-        self.config_allowed()?;
         // A move may not be faster than a velocity command is allowed to be.
         if gains.max_velocity_rad_s > self.limits().max_velocity_rad_s {
             return Err(Refusal::Unsupported);
@@ -328,7 +290,6 @@ impl DeviceContext for Link<'_> {
         Ok(())
     }
     fn set_dividers(&mut self, speed: u16, position: u16) -> Result<(), Refusal> {
-        self.config_allowed()?;
         let pwm = board::PWM_FREQUENCY_HZ as f32;
         self.settings.dividers = (speed, position);
         // The slower loops' discrete-time gains follow their new periods.
@@ -341,29 +302,30 @@ impl DeviceContext for Link<'_> {
         Ok(())
     }
     fn start_calibration(&mut self, routine: Calibration) -> Result<(), Refusal> {
-        match routine {
-            Calibration::Offsets => {
-                if !self.snap.running {
-                    return Err(Refusal::Busy);
-                }
-                let c = self.out.config.current.get_or_insert_with(Default::default);
-                c.calibrate_offsets = true;
-                Ok(())
-            }
-            Calibration::Identification => {
-                if !self.snap.running {
-                    return Err(Refusal::Busy);
-                }
-                let c = self.out.config.current.get_or_insert_with(Default::default);
-                c.identify = true;
-                Ok(())
-            }
+        let change = match routine {
+            Calibration::Offsets => ConfigChange {
+                calibrate_offsets: true,
+                ..ConfigChange::default()
+            },
+            Calibration::Identification => ConfigChange {
+                identify: true,
+                ..ConfigChange::default()
+            },
             // Alignment alone is part of the identification sequence.
-            Calibration::Alignment => Err(Refusal::Unsupported),
-        }
+            Calibration::Alignment => return Err(Refusal::Unsupported),
+        };
+        self.out
+            .config
+            .current
+            .get_or_insert_with(Default::default)
+            .merge(change);
+        Ok(())
     }
     fn is_calibrated(&self) -> bool {
-        self.snap.calibrated
+        self.snap.status.calibrated
+    }
+    fn status(&self) -> Status {
+        self.snap.status
     }
     fn param(&self, id: ParamId) -> Option<f32> {
         let (m, _) = config::MOTOR;
@@ -382,7 +344,7 @@ impl DeviceContext for Link<'_> {
             }
             ParamId::BusVoltageV => self.snap.feedback.v_bus_v,
             ParamId::Calibrated => {
-                if self.snap.calibrated {
+                if self.snap.status.calibrated {
                     1.0
                 } else {
                     0.0

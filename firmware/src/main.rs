@@ -6,7 +6,7 @@
 //! | task | bound to | priority | rate (20 kHz PWM) | does |
 //! |---|---|---|---|---|
 //! | `bridge_break` | `TIM1_BRK_TIM9` | 5 | on fault | timer break / gate-driver fault: bridge off, latch `GateDriverFault` |
-//! | `current_loop` | `ADC` (injected end of conversion, triggered by TIM1 at the PWM centre) | 4 | every PWM period, 20 kHz | start-up calibration, then read currents/angle/bus, `CurrentStage::step`, write PWM, pend the slower loops, measure its own time |
+//! | `current_loop` | `ADC` (injected end of conversion, triggered by TIM1 at the PWM centre) | 4 | every PWM period, 20 kHz | glue: read the shared inputs, `Drive::step` once (sensors, lifecycle, bridge), publish the feedback and status, pend the slower loops, time itself |
 //! | `speed_loop` | `EXTI1` (pended by `current_loop`) | 3 | every `SPEED_DIVIDER` = 10 periods, 2 kHz | `SpeedStage::step`: velocity PI -> `iq_ref` |
 //! | `position_loop` | `EXTI2` (pended by `current_loop`) | 2 | every `POSITION_DIVIDER` = 20 periods, 1 kHz | `PositionStage::step`: trajectory + P -> velocity reference |
 //! | `housekeeping` | `EXTI3` (pended by `current_loop`) | 1 | every 400 periods, 50 Hz | start-up command, telemetry log, command-channel poll (link watchdog, streamed telemetry: at most one sample per run, so up to 50 Hz) |
@@ -16,11 +16,12 @@
 //! `EXTI1..3` are used only as software-pended vectors: no EXTI line is
 //! configured, so nothing else can trigger them.
 //!
-//! Start-up: clocks and pins (`board::init`, bridge off), current-offset
-//! calibration (1024 periods with the bridge off, rejected when far from
-//! mid-scale or noisy), an angle-sensor check, then (emulated board, or
-//! `config::IDENTIFY_AT_STARTUP`) the motor identification (`calibrate`),
-//! then the disabled mode, waiting for a command (`config::START_COMMAND` is
+//! Start-up is decided by `foc_core::drive` (host-tested there, and run by
+//! the bench's simulations): clocks and pins (`board::init`, bridge off),
+//! current-offset calibration (1024 periods with the bridge off, rejected
+//! when far from mid-scale or noisy), an angle-sensor check, then (emulated
+//! board, or `config::IDENTIFY_AT_STARTUP`) the motor identification, then
+//! the disabled mode, waiting for a command (`config::START_COMMAND` is
 //! `None` by default). Until an identification (at start-up or on command)
 //! has succeeded the current stage is uncalibrated and refuses torque,
 //! velocity and position commands: a motor never runs closed loop on an
@@ -32,9 +33,9 @@
 #![no_std]
 #![no_main]
 
-mod calibrate;
 mod comms;
 mod config;
+mod events;
 #[cfg(feature = "qemu")]
 mod mission;
 mod timing;
@@ -52,29 +53,26 @@ static CURRENT_LOOP_RUNS: AtomicU32 = AtomicU32::new(0);
 
 #[rtic::app(device = board_support::pac, peripherals = true)]
 mod app {
-    use super::{comms, config, timing, watchdog, CURRENT_LOOP_RUNS};
+    use super::{comms, config, events, timing, watchdog, CURRENT_LOOP_RUNS};
     use board_support::board;
     use board_support::pac::Interrupt;
     use core::sync::atomic::Ordering;
-    use foc_core::calibration::offsets::{OffsetCalibrator, OffsetLimits, OffsetStep};
-    use foc_core::calibration::Calibrated;
-    use foc_core::control::stage::{CurrentStage, PositionStage, SpeedStage, VelocityRef};
-    use foc_core::control::{drive, Command, CommandSlot, Fault, Feedback};
-    use foc_core::frames::Abc;
-    use foc_core::hal::{CurrentSense, PwmDriver};
+    use foc_core::calibration::identification::IdentificationResult;
+    use foc_core::calibration::offsets::OffsetLimits;
+    use foc_core::control::stage::{PositionStage, SpeedStage, VelocityRef};
+    use foc_core::control::{CommandSlot, Fault, Feedback, Mode};
+    use foc_core::drive::{Drive, Inputs, LifecycleConfig, Status};
 
-    /// Start-up phase of the current-loop task.
-    #[derive(Clone, Copy, PartialEq, Eq, defmt::Format)]
-    pub enum Phase {
-        /// Averaging the current-sensor offsets with the bridge off.
-        OffsetCalibration,
-        /// Checking that the angle sensor answers.
-        SensorCheck(u32),
-        /// Motor identification (R, L, gains, alignment, flux linkage).
-        Identify,
-        /// Control running.
-        Run,
-    }
+    /// The board's drive: its hardware, current stage and lifecycle.
+    pub type BoardDrive = Drive<board::Pwm, board::Currents, board::Angle, board::Bus>;
+
+    /// Status before the first period: starting, disabled, uncalibrated.
+    const STARTING: Status = Status {
+        running: false,
+        mode: Mode::Disabled,
+        faulted: false,
+        calibrated: false,
+    };
 
     #[shared]
     struct Shared {
@@ -98,18 +96,19 @@ mod app {
         /// Set by `bridge_break` (5) when the break input fired; taken
         /// (cleared) by `current_loop` (4), which latches the fault.
         break_fired: bool,
-        /// Start-up phase. Written by `current_loop` (4); read by
-        /// `housekeeping` (1) and `serial` (1).
-        phase: Phase,
+        /// The drive's status (started, mode, faulted, calibrated): what the
+        /// command channel's rules look at. Written by `current_loop` (4)
+        /// every period; read by `housekeeping` (1) and `serial` (1).
+        status: Status,
+        /// The last successful identification. Written by `current_loop`
+        /// (4) when one ends; read by `housekeeping` and `serial` (1).
+        identified: Option<IdentificationResult>,
         /// Configuration changes from the command channel. Written (merged)
         /// by `serial` and `housekeeping` (1); each part taken by its owner:
-        /// `current` by `current_loop` (4), `speed` by `speed_loop` (3),
-        /// `position` by `position_loop` (2), at their next run.
+        /// `current` by `current_loop` (4) (applied or refused whole by the
+        /// drive), `speed` by `speed_loop` (3), `position` by
+        /// `position_loop` (2), at their next run.
         config_request: comms::ConfigMailbox,
-        /// Offsets calibrated and the current stage holds a calibration
-        /// permit (closed-loop modes allowed). Written by `current_loop`
-        /// (4) when it changes; read by `serial` and `housekeeping` (1).
-        calibrated: bool,
         /// The command channel (UART, decoder, protocol state, settings).
         /// Used by `serial` and `housekeeping`, both priority 1, so never
         /// contended.
@@ -118,27 +117,10 @@ mod app {
 
     #[local]
     struct Local {
-        /// `current_loop` only: the board's drivers and the current stage.
-        pwm: board::Pwm,
-        currents: board::Currents,
-        angle: board::Angle,
-        bus: board::Bus,
-        stage: CurrentStage,
-        offsets: OffsetCalibrator,
+        /// `current_loop` only: the drive (hardware, current stage, lifecycle).
+        drive: BoardDrive,
+        /// `current_loop` only: periods since reset (housekeeping rate).
         tick: u32,
-        /// `current_loop` only: speed / position dividers in force
-        /// (changed through `config_request` while disabled).
-        dividers: (u32, u32),
-        /// `current_loop` only: offsets calibrated (false until the
-        /// start-up calibration succeeds, and while it is re-run).
-        offsets_ok: bool,
-        /// `current_loop` only: last value written to `calibrated`.
-        calibrated_seen: bool,
-        /// `current_loop` only: the identification sequencer (phase `Identify`).
-        identifier: super::calibrate::Identifier,
-        /// `current_loop` only: the shared mailbox's command number when the
-        /// identification started (a newer `Disable` aborts it).
-        identify_seq: u32,
         /// `speed_loop` only.
         speed: SpeedStage,
         /// `position_loop` only.
@@ -157,19 +139,29 @@ mod app {
         let watchdog_reset = watchdog::take_reset_flag();
         let b = board::init(cx.device);
         let cfg = config::cascade(board::PWM_FREQUENCY_HZ as f32);
-        let mut stage = CurrentStage::new(cfg.current);
+        let life = LifecycleConfig {
+            offsets: OffsetLimits {
+                samples: config::OFFSET_CAL_SAMPLES,
+                max_offset_a: config::OFFSET_CAL_MAX_A,
+                max_noise_a: config::OFFSET_CAL_MAX_NOISE_A,
+            },
+            sensor_check_reads: config::SENSOR_CHECK_READS,
+            identification: Some(config::identification(board::PWM_FREQUENCY_HZ as f32)),
+            identify_at_start_up: config::IDENTIFY_AT_STARTUP,
+            speed_divider: cfg.rates.speed_divider,
+            position_divider: cfg.rates.position_divider,
+        };
+        let mut drive = Drive::new(b.pwm, b.currents, b.angle, b.bus, cfg.current, life);
         if watchdog_reset {
             defmt::error!("reset by the watchdog");
-            stage.report_fault(Fault::Watchdog);
+            drive.trip(Fault::Watchdog);
         }
         // The ODrive's DRV8301 is configured over SPI in `board::init`.
         #[cfg(feature = "odrive-v3")]
         if b.gate_driver_config.is_err() {
             defmt::error!("DRV8301 configuration failed");
-            stage.report_fault(Fault::GateDriverFault);
+            drive.trip(Fault::GateDriverFault);
         }
-        let mut currents = b.currents;
-        currents.set_offsets_a(Abc::default());
         let budget = (board::SYSCLK_HZ as f32 / board::PWM_FREQUENCY_HZ as f32)
             * config::CURRENT_LOOP_BUDGET_FRACTION;
         defmt::info!(
@@ -192,34 +184,14 @@ mod app {
                     ..Default::default()
                 },
                 break_fired: false,
-                phase: Phase::OffsetCalibration,
+                status: STARTING,
+                identified: None,
                 config_request: comms::ConfigMailbox::EMPTY,
-                calibrated: false,
                 comms: comms::Comms::new(b.serial),
             },
             Local {
-                pwm: b.pwm,
-                currents,
-                angle: b.angle,
-                bus: b.bus,
-                stage,
-                offsets: OffsetCalibrator::new(OffsetLimits {
-                    samples: config::OFFSET_CAL_SAMPLES,
-                    max_offset_a: config::OFFSET_CAL_MAX_A,
-                    max_noise_a: config::OFFSET_CAL_MAX_NOISE_A,
-                }),
+                drive,
                 tick: 0,
-                dividers: (
-                    u32::from(cfg.rates.speed_divider.max(1)),
-                    u32::from(cfg.rates.position_divider.max(1)),
-                ),
-                offsets_ok: false,
-                calibrated_seen: false,
-                identifier: super::calibrate::Identifier::new(
-                    config::identification(board::PWM_FREQUENCY_HZ as f32),
-                    &CommandSlot::INIT,
-                ),
-                identify_seq: 0,
                 speed: SpeedStage::new(cfg.speed),
                 position: PositionStage::new(cfg.position),
                 started: false,
@@ -249,200 +221,57 @@ mod app {
     }
 
     /// The current loop: every PWM period, at the ADC end of conversion.
+    /// Glue only: the drive decides (`foc_core::drive`).
     #[task(
         binds = ADC,
         priority = 4,
-        shared = [command, feedback, iq_ref_a, timing, break_fired, phase, config_request, calibrated],
-        local = [pwm, currents, angle, bus, stage, offsets, tick, dividers, offsets_ok, calibrated_seen, identifier, identify_seq]
+        shared = [command, feedback, iq_ref_a, timing, break_fired, status, identified, config_request],
+        local = [drive, tick]
     )]
     fn current_loop(mut cx: current_loop::Context) {
         let t0 = timing::now_cycles();
-        let l = cx.local;
-        let sample = drive::read_sample(l.currents, l.angle, l.bus);
-        let mut phase = cx.shared.phase.lock(|p| *p);
-        // Configuration from the command channel (validated there; only
-        // sent while disabled), before this period's command is read.
-        if let Some(ch) = cx.shared.config_request.lock(|m| m.current.take()) {
-            if let Some(lim) = ch.limits {
-                l.stage.set_limits(lim);
-            }
-            if let Some(cur) = ch.current {
-                // Keep the closed-loop permit: the same angle calibration
-                // with the new gains, checked for plausibility.
-                let angle = l.stage.config().angle;
-                match Calibrated::supplied(angle, cur) {
-                    Ok(p) if l.stage.is_calibrated() => l.stage.set_calibration(&p),
-                    _ => l.stage.set_current_config(cur),
-                }
-            }
-            if let Some((n, m)) = ch.dividers {
-                *l.dividers = (u32::from(n.max(1)), u32::from(m.max(1)));
-            }
-            if let Some(f) = ch.fault {
-                l.stage.report_fault(f);
-            }
-            if ch.identify
-                && phase == Phase::Run
-                && l.stage.active() == Command::Disable
-                && !l.stage.supervisor().is_faulted()
-            {
-                let shared = cx.shared.command.lock(|c| *c);
-                *l.identifier = super::calibrate::Identifier::new(
-                    config::identification(board::PWM_FREQUENCY_HZ as f32),
-                    &shared,
-                );
-                // A new identification never runs on the old calibration.
-                l.stage.revoke_calibration();
-                *l.identify_seq = shared.seq;
-                phase = Phase::Identify;
-                cx.shared.phase.lock(|p| *p = phase);
-            }
-            if ch.calibrate_offsets && phase == Phase::Run && l.stage.active() == Command::Disable {
-                l.currents.set_offsets_a(Abc::default());
-                *l.offsets = OffsetCalibrator::new(OffsetLimits {
-                    samples: config::OFFSET_CAL_SAMPLES,
-                    max_offset_a: config::OFFSET_CAL_MAX_A,
-                    max_noise_a: config::OFFSET_CAL_MAX_NOISE_A,
-                });
-                *l.offsets_ok = false;
-                phase = Phase::OffsetCalibration;
-                cx.shared.phase.lock(|p| *p = phase);
+        let mut inputs = Inputs::new(
+            cx.shared.command.lock(|c| *c),
+            cx.shared.iq_ref_a.lock(|x| *x),
+        );
+        inputs.change = cx.shared.config_request.lock(|m| m.current.take());
+        inputs.gate_fault =
+            cx.shared.break_fired.lock(core::mem::take) || board::gate_driver_fault();
+        let out = cx.local.drive.step(&inputs);
+        cx.shared.feedback.lock(|f| *f = out.feedback);
+        let status = cx.local.drive.status();
+        cx.shared.status.lock(|s| *s = status);
+        if let Some(e) = out.event {
+            if let Some(r) = events::log(&e) {
+                cx.shared.identified.lock(|x| *x = Some(r));
             }
         }
-        let next_phase = match phase {
-            Phase::OffsetCalibration => {
-                l.pwm.disable();
-                let reading = sample.currents.map(|c| c.to_abc());
-                match reading.map(|r| l.offsets.step(r)) {
-                    Some(OffsetStep::InProgress) => phase,
-                    Some(OffsetStep::Done(o)) => {
-                        l.currents.set_offsets_a(o);
-                        *l.offsets_ok = true;
-                        defmt::info!("current offsets [A]: {}", o);
-                        Phase::SensorCheck(0)
-                    }
-                    Some(OffsetStep::Failed(e)) => {
-                        defmt::error!("offset calibration failed: {}", e);
-                        l.stage.report_fault(Fault::CalibrationFailed);
-                        Phase::Run
-                    }
-                    None => {
-                        l.stage.report_fault(Fault::CurrentSenseError);
-                        Phase::Run
-                    }
-                }
-            }
-            Phase::SensorCheck(n) => {
-                l.pwm.disable();
-                if sample.angle.is_none() {
-                    defmt::error!("angle sensor check failed");
-                    l.stage.report_fault(Fault::AngleSensorError);
-                    Phase::Run
-                } else if n + 1 >= config::SENSOR_CHECK_READS {
-                    if config::IDENTIFY_AT_STARTUP {
-                        defmt::info!("sensor check done: identifying the motor");
-                        Phase::Identify
-                    } else {
-                        defmt::info!(
-                            "start-up done: disabled and uncalibrated, waiting for a command"
-                        );
-                        Phase::Run
-                    }
-                } else {
-                    Phase::SensorCheck(n + 1)
-                }
-            }
-            Phase::Identify => {
-                use super::calibrate::Outcome;
-                if cx.shared.break_fired.lock(core::mem::take) || board::gate_driver_fault() {
-                    l.stage.report_fault(Fault::GateDriverFault);
-                }
-                let iq = cx.shared.iq_ref_a.lock(|x| *x);
-                // An operator `Disable` on the shared mailbox aborts.
-                let shared = cx.shared.command.lock(|c| *c);
-                let abort = shared.seq != *l.identify_seq && shared.command == Command::Disable;
-                let outcome = if abort {
-                    l.identifier.abort(l.stage, iq, &sample)
-                } else {
-                    l.identifier.step(l.stage, iq, &sample)
-                };
-                let (bridge, fb, next) = match outcome {
-                    Outcome::Running(b, fb) => (b, fb, phase),
-                    Outcome::Done(r, b, fb) => {
-                        defmt::info!(
-                            "identified: R {=f32} ohm, Ld {=f32} H, Lq {=f32} H, psi {=f32} Wb, {}",
-                            r.r_ohm,
-                            r.ld_h,
-                            r.lq_h,
-                            r.flux_linkage_wb,
-                            r.angle
-                        );
-                        super::calibrate::publish(r);
-                        (b, fb, Phase::Run)
-                    }
-                    Outcome::Failed(e, st, b, fb) => {
-                        defmt::error!("identification failed in {}: {}", st, e);
-                        (b, fb, Phase::Run)
-                    }
-                    Outcome::Aborted(f, st, b, fb) => {
-                        defmt::error!("identification aborted in {}: fault {}", st, f);
-                        (b, fb, Phase::Run)
-                    }
-                };
-                if next == Phase::Run {
-                    // Back to the shared mailbox with a fresh `Disable`, so
-                    // no command sent before (or during) the identification
-                    // starts the motor when it ends.
-                    cx.shared.command.lock(|c| c.post(Command::Disable));
-                }
-                if let Err(f) = drive::apply(l.pwm, bridge) {
-                    l.stage.report_fault(f);
-                }
-                cx.shared.feedback.lock(|f| *f = fb);
-                next
-            }
-            Phase::Run => {
-                if cx.shared.break_fired.lock(core::mem::take) || board::gate_driver_fault() {
-                    l.stage.report_fault(Fault::GateDriverFault);
-                }
-                let slot = cx.shared.command.lock(|c| *c);
-                let iq = cx.shared.iq_ref_a.lock(|x| *x);
-                let (bridge, fb) = l.stage.step(&slot, iq, &sample);
-                if let Err(f) = drive::apply(l.pwm, bridge) {
-                    l.stage.report_fault(f);
-                }
-                cx.shared.feedback.lock(|f| *f = fb);
-                phase
-            }
-        };
-        if next_phase != phase {
-            cx.shared.phase.lock(|p| *p = next_phase);
+        if let Some(Err(r)) = out.change {
+            defmt::warn!("configuration change refused: {}", r);
         }
-        let calibrated = *l.offsets_ok && next_phase == Phase::Run && l.stage.is_calibrated();
-        if calibrated != *l.calibrated_seen {
-            *l.calibrated_seen = calibrated;
-            cx.shared.calibrated.lock(|c| *c = calibrated);
-        }
-        *l.tick = l.tick.wrapping_add(1);
-        let t = *l.tick;
-        if t % l.dividers.0 == 0 {
-            rtic::pend(Interrupt::EXTI1);
-        }
-        if t % l.dividers.1 == 0 {
-            rtic::pend(Interrupt::EXTI2);
-        }
-        if t % config::HOUSEKEEPING_DIVIDER == 0 {
-            rtic::pend(Interrupt::EXTI3);
-        }
+        *cx.local.tick = cx.local.tick.wrapping_add(1);
+        pend_slower_loops(out.run_speed, out.run_position, *cx.local.tick);
         CURRENT_LOOP_RUNS.fetch_add(1, Ordering::Relaxed);
         let dt = timing::now_cycles().wrapping_sub(t0);
         // Overrun: over the cycle budget, or the next period's conversion
         // (the interrupt that triggers this task) already pending again.
         let repended = cortex_m::peripheral::NVIC::is_pending(board::CURRENT_IRQ);
         if cx.shared.timing.lock(|tm| tm.record(dt, repended)) {
-            // Takes effect (safe state) at the next period at the latest.
-            l.stage.report_fault(Fault::LoopOverrun);
-            l.pwm.disable();
+            cx.local.drive.trip(Fault::LoopOverrun);
+        }
+    }
+
+    /// Pend the speed and position loops when the drive says so, and
+    /// housekeeping every `HOUSEKEEPING_DIVIDER` periods.
+    fn pend_slower_loops(speed: bool, position: bool, tick: u32) {
+        if speed {
+            rtic::pend(Interrupt::EXTI1);
+        }
+        if position {
+            rtic::pend(Interrupt::EXTI2);
+        }
+        if tick % config::HOUSEKEEPING_DIVIDER == 0 {
+            rtic::pend(Interrupt::EXTI3);
         }
     }
 
@@ -473,14 +302,14 @@ mod app {
     fn link_snapshot(
         fb: &Feedback,
         tm: &timing::LoopTiming,
-        phase: Phase,
-        calibrated: bool,
+        status: Status,
+        identified: Option<IdentificationResult>,
     ) -> comms::Snapshot {
         comms::Snapshot {
             feedback: *fb,
             max_loop_cycles: tm.max_cycles,
-            running: phase == Phase::Run,
-            calibrated,
+            status,
+            identified,
         }
     }
 
@@ -489,7 +318,7 @@ mod app {
     #[task(
         binds = USART2,
         priority = 1,
-        shared = [command, feedback, timing, phase, config_request, calibrated, comms]
+        shared = [command, feedback, timing, status, identified, config_request, comms]
     )]
     fn serial(mut cx: serial::Context) {
         cx.shared.comms.lock(|c| c.serial.on_interrupt());
@@ -497,9 +326,9 @@ mod app {
         for _ in 0..board_support::hw::serial::RX_CAPACITY {
             let fb = cx.shared.feedback.lock(|f| *f);
             let tm = cx.shared.timing.lock(|t| *t);
-            let phase = cx.shared.phase.lock(|p| *p);
-            let cal = cx.shared.calibrated.lock(|c| *c);
-            let snap = link_snapshot(&fb, &tm, phase, cal);
+            let status = cx.shared.status.lock(|s| *s);
+            let identified = cx.shared.identified.lock(|x| *x);
+            let snap = link_snapshot(&fb, &tm, status, identified);
             let Some(out) = cx.shared.comms.lock(|c| c.receive(snap)) else {
                 break;
             };
@@ -516,12 +345,13 @@ mod app {
     #[task(
         binds = EXTI3,
         priority = 1,
-        shared = [command, feedback, timing, phase, config_request, calibrated, comms],
+        shared = [command, feedback, timing, status, identified, config_request, comms],
         local = [started]
     )]
     fn housekeeping(mut cx: housekeeping::Context) {
-        let phase = cx.shared.phase.lock(|p| *p);
-        if phase == Phase::Run && !*cx.local.started {
+        let status = cx.shared.status.lock(|s| *s);
+        let identified = cx.shared.identified.lock(|x| *x);
+        if status.running && !*cx.local.started {
             *cx.local.started = true;
             if let Some(cmd) = config::START_COMMAND {
                 cx.shared.command.lock(|c| c.post(cmd));
@@ -530,8 +360,7 @@ mod app {
         let fb = cx.shared.feedback.lock(|f| *f);
         let tm = cx.shared.timing.lock(|t| *t);
         // Command channel: link watchdog and streamed telemetry.
-        let cal = cx.shared.calibrated.lock(|c| *c);
-        let snap = link_snapshot(&fb, &tm, phase, cal);
+        let snap = link_snapshot(&fb, &tm, status, identified);
         let out = cx.shared.comms.lock(|c| c.poll(snap, fb.period));
         if out.touches_config() {
             cx.shared.config_request.lock(|m| m.merge(&out.config));
@@ -541,12 +370,12 @@ mod app {
         }
         #[cfg(feature = "qemu")]
         {
-            let running = phase == Phase::Run;
+            let running = status.running;
             // Only this task writes the mailbox: copy, update, write back,
             // so the current loop is never blocked for the mission's logging.
             let mut slot = cx.shared.command.lock(|c| *c);
             let before = slot;
-            let done = super::mission::tick(&fb, &mut slot, running, tm.overruns);
+            let done = super::mission::tick(&fb, &mut slot, running, tm.overruns, identified);
             if slot != before {
                 cx.shared.command.lock(|c| *c = slot);
             }

@@ -28,6 +28,7 @@
 //! The outcome is the QEMU exit status (see [`exit`]).
 
 use board_support::board::sim::{self, SimFault};
+use foc_core::calibration::identification::IdentificationResult;
 use foc_core::control::{Command, CommandSlot, Fault, Feedback, Mode};
 
 /// Exit status: mission passed.
@@ -136,8 +137,8 @@ impl Mission {
 
     /// The firmware identified the simulated motor at start-up: compare
     /// with the plant's true values (issue 9's accuracy requirements).
-    fn check_identification(&mut self) {
-        let Some(r) = crate::calibrate::last() else {
+    fn check_calibration(&mut self, identified: Option<IdentificationResult>) {
+        let Some(r) = identified else {
             self.check(false, "motor identified at start-up");
             return;
         };
@@ -178,6 +179,7 @@ impl Mission {
         slot: &mut CommandSlot,
         running: bool,
         overruns: u32,
+        identified: Option<IdentificationResult>,
     ) -> Option<u32> {
         if self.passive {
             if self.step == Step::WaitStartup && running {
@@ -203,7 +205,7 @@ impl Mission {
         match self.step {
             Step::WaitStartup => {
                 if running {
-                    self.check_identification();
+                    self.check_calibration(identified);
                     self.go(
                         Step::Velocity,
                         now,
@@ -307,10 +309,16 @@ static MISSION: cortex_m::interrupt::Mutex<core::cell::RefCell<Option<Mission>>>
     cortex_m::interrupt::Mutex::new(core::cell::RefCell::new(None));
 
 /// One housekeeping tick of the mission (creates it on first use).
-pub fn tick(fb: &Feedback, slot: &mut CommandSlot, running: bool, overruns: u32) -> Option<u32> {
+pub fn tick(
+    fb: &Feedback,
+    slot: &mut CommandSlot,
+    running: bool,
+    overruns: u32,
+    identified: Option<IdentificationResult>,
+) -> Option<u32> {
     let mut mission = cortex_m::interrupt::free(|cs| MISSION.borrow(cs).borrow_mut().take())
         .unwrap_or_else(|| Mission::new(panic_run_requested(), e2e_run_requested()));
-    let out = mission.tick(fb, slot, running, overruns);
+    let out = mission.tick(fb, slot, running, overruns, identified);
     cortex_m::interrupt::free(|cs| MISSION.borrow(cs).replace(Some(mission)));
     out
 }

@@ -39,24 +39,13 @@ use crate::message::{
     Response, SpeedGains, Telemetry, TelemetryRate,
 };
 use foc_core::control::stage::TimeoutReaction;
-use foc_core::control::{Command, CommandError, Fault, FaultSet, Limits, Mode};
+use foc_core::control::{Command, CommandError, Fault, FaultSet, Limits, LimitsError, Mode};
 
-/// Why the context refused an operation. A refusing context must not have
+/// Why an operation was refused: the drive's own type
+/// ([`foc_core::drive::Refusal`]); a refusing context must not have
 /// changed anything.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum Refusal {
-    /// Busy (a calibration is running...).
-    Busy,
-    /// Needs calibration first.
-    NotCalibrated,
-    /// Only while disabled.
-    NotDisabled,
-    /// A fault is latched.
-    Faulted,
-    /// Not supported by this device.
-    Unsupported,
-}
+pub use foc_core::drive::Refusal;
+use foc_core::drive::Status;
 
 impl From<Refusal> for ErrorCode {
     fn from(r: Refusal) -> Self {
@@ -114,6 +103,19 @@ pub trait DeviceContext {
     fn start_calibration(&mut self, routine: Calibration) -> Result<(), Refusal>;
     /// True once the drive may run closed loop (offsets and alignment done).
     fn is_calibrated(&self) -> bool;
+    /// The drive's status, which the drive's own rules
+    /// ([`foc_core::drive::Status`]) are applied to before anything is
+    /// handed on. Default: started, with [`Self::mode`], [`Self::faults`]
+    /// and [`Self::is_calibrated`]; a device with a start-up phase
+    /// overrides it.
+    fn status(&self) -> Status {
+        Status {
+            running: true,
+            mode: self.mode(),
+            faulted: !self.faults().0.is_empty(),
+            calibrated: self.is_calibrated(),
+        }
+    }
     /// A parameter value, `None` if this device does not have it.
     fn param(&self, id: ParamId) -> Option<f32>;
     /// The latest telemetry sample (e.g. [`Telemetry::from_feedback`]).
@@ -268,18 +270,18 @@ fn command_field(cmd: &Command, e: CommandError) -> ErrorCode {
     }
 }
 
+/// [`Limits::validate`] (the drive's one check) as a field-exact Nack.
 fn validate_limits(l: &Limits) -> Result<(), Response> {
-    let big = f32::MAX;
-    check(l.max_current_a, f32::MIN_POSITIVE, big, 0)?;
-    check(l.max_velocity_rad_s, f32::MIN_POSITIVE, big, 1)?;
-    check(l.min_position_rad, -big, big, 2)?;
-    check(l.max_position_rad, -big, big, 3)?;
-    if l.min_position_rad >= l.max_position_rad {
-        return Err(out_of_range(3));
-    }
-    check(l.max_open_loop_voltage_v, 0.0, big, 4)?;
-    check(l.max_open_loop_omega_e_rad_s, 0.0, big, 5)?;
-    Ok(())
+    l.validate().map_err(|e| {
+        out_of_range(match e {
+            LimitsError::MaxCurrent => 0,
+            LimitsError::MaxVelocity => 1,
+            LimitsError::MinPosition => 2,
+            LimitsError::MaxPosition => 3,
+            LimitsError::OpenLoopVoltage => 4,
+            LimitsError::OpenLoopOmega => 5,
+        })
+    })
 }
 
 impl DeviceState {
@@ -460,22 +462,16 @@ impl DeviceState {
                         }
                     }
                 }
-                cmd.validate(&ctx.limits())
+                ctx.status()
+                    .check_command(&cmd, &ctx.limits())
                     .map_err(|e| nack(command_field(&cmd, e)))?;
-                if cmd != Command::Disable && !ctx.faults().0.is_empty() {
-                    return Err(nack(ErrorCode::Faulted));
-                }
-                if matches!(cmd.mode(), Mode::Torque | Mode::Velocity | Mode::Position)
-                    && !ctx.is_calibrated()
-                {
-                    return Err(nack(ErrorCode::NotCalibrated));
-                }
                 ctx.post(cmd).map_err(|e| nack(command_field(&cmd, e)))?;
                 self.watchdog.feed();
                 Ok(Response::Ack)
             }
             Request::SetLimits(l) => {
                 validate_limits(&l)?;
+                ctx.status().check_config().map_err(refused)?;
                 ctx.set_limits(l).map_err(refused)?;
                 Ok(Response::Ack)
             }
@@ -483,12 +479,14 @@ impl DeviceState {
                 for (i, x) in [g.kp_d, g.ki_d, g.kp_q, g.ki_q].into_iter().enumerate() {
                     check(x, 0.0, MAX_GAIN, i as u8)?;
                 }
+                ctx.status().check_config().map_err(refused)?;
                 ctx.set_current_gains(g).map_err(refused)?;
                 Ok(Response::Ack)
             }
             Request::SetSpeedGains(g) => {
                 check(g.kp_a_per_rad_s, 0.0, MAX_GAIN, 0)?;
                 check(g.ki_a_per_rad, 0.0, MAX_GAIN, 1)?;
+                ctx.status().check_config().map_err(refused)?;
                 ctx.set_speed_gains(g).map_err(refused)?;
                 Ok(Response::Ack)
             }
@@ -496,6 +494,7 @@ impl DeviceState {
                 check(g.kp_per_s, 0.0, MAX_GAIN, 0)?;
                 check(g.max_velocity_rad_s, f32::MIN_POSITIVE, f32::MAX, 1)?;
                 check(g.max_acceleration_rad_s2, f32::MIN_POSITIVE, f32::MAX, 2)?;
+                ctx.status().check_config().map_err(refused)?;
                 ctx.set_position_gains(g).map_err(refused)?;
                 Ok(Response::Ack)
             }
@@ -506,9 +505,7 @@ impl DeviceState {
                 if position == 0 {
                     return Err(out_of_range(1));
                 }
-                if ctx.mode() != Mode::Disabled {
-                    return Err(nack(ErrorCode::NotDisabled));
-                }
+                ctx.status().check_config().map_err(refused)?;
                 ctx.set_dividers(speed, position).map_err(refused)?;
                 Ok(Response::Ack)
             }
@@ -517,12 +514,7 @@ impl DeviceState {
                 Ok(Response::Ack)
             }
             Request::RunCalibration(routine) => {
-                if ctx.mode() != Mode::Disabled {
-                    return Err(nack(ErrorCode::NotDisabled));
-                }
-                if !ctx.faults().0.is_empty() {
-                    return Err(nack(ErrorCode::Faulted));
-                }
+                ctx.status().check_calibration().map_err(refused)?;
                 ctx.start_calibration(routine).map_err(refused)?;
                 Ok(Response::Ack)
             }

@@ -1,19 +1,21 @@
-//! Motor identification against the bench plant, driven through a [`Sim`]'s
-//! real `Cascade`, as the firmware drives it through its current stage (so
-//! the supervisor watches every period of it):
+//! Motor identification against the bench plant, through the firmware's
+//! own start-up path: the [`Sim`]'s controller is restarted from reset
+//! ([`foc_core::control::cascade::Cascade::from_reset`]), so foc-core's
+//! drive `Lifecycle` runs exactly what the firmware's current-loop
+//! interrupt runs, one PWM period at a time, with the supervisor watching
+//! every period:
 //!
-//! 1. **current offsets**: bridge off, [`OFFSET_SAMPLES`] periods averaged by
-//!    foc-core's `OffsetCalibrator`; the offsets are installed in the
-//!    [`Sim`] ([`Sim::set_current_offsets`]) and subtracted from every later
-//!    sample, as the firmware's `CurrentSense::set_offsets_a` does;
-//! 2. **identification** (foc-core `calibration::identification`):
-//!    resistance, inductance, current-loop gains, alignment (zero,
-//!    direction, pole-pair check) and flux linkage (for hall-class sensors
-//!    with a wider speed band, see [`config`]). Open-loop requests become `Command::OpenLoop`, velocity
-//!    requests `Command::Velocity` after the provisional permit is
-//!    installed. During it the cascade's current limit is 1.5 x the test
-//!    current (the flux step runs closed loop);
-//! 3. on success: bridge off, the configured limits back, the final permit
+//! 1. **current offsets**: bridge off, [`OFFSET_SAMPLES`] periods averaged;
+//!    the lifecycle hands the offsets over and the [`Sim`] subtracts them
+//!    from every later sample, as the firmware's
+//!    `CurrentSense::set_offsets_a` does;
+//! 2. **sensor check**: [`SENSOR_CHECK_READS`] good angle readings;
+//! 3. **identification** (foc-core `calibration::identification`, driven
+//!    by `drive::identify`): resistance, inductance, current-loop gains,
+//!    alignment (zero, direction, pole-pair check) and flux linkage (for
+//!    hall-class sensors with a wider speed band, see [`config`]), with the
+//!    current limited to 1.5 x the test current;
+//! 4. on success: bridge off, the configured limits back, the final permit
 //!    (measured gains and electrical zero, flux linkage included) installed.
 //!
 //! Used by `cargo xtask sim`'s mission ([`crate::mission::run_mission`]) and
@@ -28,16 +30,19 @@
 //! ```
 
 use crate::mission::{Setup, Sim};
-use foc_core::calibration::identification::{
-    Identification, IdentificationConfig, Identified, Stage,
-};
-use foc_core::calibration::offsets::{OffsetCalibrator, OffsetError, OffsetLimits, OffsetStep};
-use foc_core::calibration::{CalInput, CalStep, ClosedLoopFeedback};
-use foc_core::control::{BridgeCommand, Command, CommandError, Fault, Mode};
+use foc_core::calibration::identification::{IdentificationConfig, Identified, Stage};
+use foc_core::calibration::offsets::{OffsetError, OffsetLimits};
+use foc_core::calibration::{CalStep, Calibrated};
+use foc_core::control::cascade::Cascade;
+use foc_core::control::Fault;
+use foc_core::drive::{Event, LifecycleConfig};
 use foc_core::frames::Abc;
 
 /// PWM periods the current-offset calibration averages.
 pub const OFFSET_SAMPLES: u32 = 1000;
+
+/// Good angle readings the start-up sensor check needs.
+pub const SENSOR_CHECK_READS: u32 = 64;
 
 /// Simulated-time limit of the identification [s].
 pub const TIME_LIMIT_S: f32 = 60.0;
@@ -100,7 +105,8 @@ pub struct Outcome {
     pub offsets: Abc,
     /// PWM periods of the offset calibration.
     pub offset_periods: usize,
-    /// PWM periods of the identification proper (after the offsets).
+    /// PWM periods of the sensor check and the identification proper
+    /// (after the offsets).
     pub periods: usize,
 }
 
@@ -114,20 +120,13 @@ impl Outcome {
     }
 }
 
-/// Why the driving itself (not the identification) stopped.
+/// Why the drive stopped (not a named identification failure).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Error {
     /// The offset calibration rejected the readings.
     Offsets(OffsetError),
-    /// The cascade refused a command the identification asked for.
-    Refused {
-        /// The command.
-        command: Command,
-        /// Why.
-        error: CommandError,
-        /// Identification stage.
-        stage: Stage,
-    },
+    /// A sensor did not answer during start-up (its fault is latched).
+    StartUp(Fault),
     /// The supervisor latched a fault (bridge off).
     Fault {
         /// The fault.
@@ -143,14 +142,7 @@ impl core::fmt::Display for Error {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         match self {
             Error::Offsets(e) => write!(f, "current offsets rejected: {e:?}"),
-            Error::Refused {
-                command,
-                error,
-                stage,
-            } => write!(
-                f,
-                "command {command:?} refused ({error:?}) during {stage:?}"
-            ),
+            Error::StartUp(fault) => write!(f, "start-up failed: {}", fault.name()),
             Error::Fault { fault, stage } => write!(f, "fault {} during {stage:?}", fault.name()),
             Error::Timeout(stage) => write!(f, "not finished in {TIME_LIMIT_S} s ({stage:?})"),
         }
@@ -159,131 +151,81 @@ impl core::fmt::Display for Error {
 
 impl std::error::Error for Error {}
 
-/// Offset calibration with the bridge off, then the identification of
-/// `cfg`, one PWM period at a time through `sim`'s cascade (which must be
-/// disabled and is expected uncalibrated). `tick` is called after every
-/// period. See the module docs for what is left installed.
+/// The drive's lifecycle settings the bench starts from: the firmware's
+/// sequence with the bench's offset limits and `cfg`.
+pub fn lifecycle_config(sim: &Sim, setup: &Setup, cfg: IdentificationConfig) -> LifecycleConfig {
+    let rates = sim.cascade.config().rates;
+    LifecycleConfig {
+        offsets: OffsetLimits {
+            samples: OFFSET_SAMPLES,
+            max_offset_a: 0.1 * setup.max_current_a,
+            max_noise_a: 0.05 * setup.max_current_a,
+        },
+        sensor_check_reads: SENSOR_CHECK_READS,
+        identification: Some(cfg),
+        identify_at_start_up: true,
+        speed_divider: rates.speed_divider,
+        position_divider: rates.position_divider,
+    }
+}
+
+/// Restart `sim`'s controller from reset (same configuration) and run the
+/// drive's start-up: offsets with the bridge off, the sensor check, then
+/// the identification of `cfg`, one PWM period at a time. `tick` is called
+/// after every period. See the module docs for what is left installed.
 ///
 /// `Ok` for both a finished and a named failed identification (see
-/// [`Outcome::step`]); after a failure the bridge is off and the cascade
-/// keeps whatever permit it had. `Err` when the drive itself stopped it.
+/// [`Outcome::step`]); after a failure the bridge is off and the cascade is
+/// uncalibrated. `Err` when the drive itself stopped it.
 pub fn run(
     sim: &mut Sim,
     setup: &Setup,
     cfg: IdentificationConfig,
     tick: &mut dyn FnMut(&Sim),
 ) -> Result<Outcome, Error> {
-    // 1. Current offsets, bridge off.
-    sim.cascade.command(Command::Disable).ok();
-    let mut cal = OffsetCalibrator::new(OffsetLimits {
-        samples: OFFSET_SAMPLES,
-        max_offset_a: 0.1 * setup.max_current_a,
-        max_noise_a: 0.05 * setup.max_current_a,
-    });
-    let mut offset_periods = 0;
-    let offsets = loop {
-        let raw = sim.last_sample().currents;
-        sim.step();
-        offset_periods += 1;
-        tick(sim);
-        match cal.step(raw.to_abc()) {
-            OffsetStep::InProgress => {}
-            OffsetStep::Done(o) => break o,
-            OffsetStep::Failed(e) => return Err(Error::Offsets(e)),
-        }
-    };
-    sim.set_current_offsets(offsets);
-
-    // 2. Identification, current limit 1.5 x the test current.
-    let limits = sim.cascade.current.config().limits;
-    let speed = *sim.cascade.speed.speed_loop().config();
-    let i_lim = 1.5 * cfg.alignment_current_a;
-    sim.cascade.current.set_limits(foc_core::control::Limits {
-        max_current_a: i_lim,
-        ..limits
-    });
-    sim.cascade
-        .speed
-        .speed_loop()
-        .set_config(foc_core::control::speed::SpeedLoopConfig {
-            current_limit_a: i_lim,
-            ..speed
-        });
-    let restore = |sim: &mut Sim| {
-        sim.cascade.command(Command::Disable).ok();
-        sim.cascade.current.set_limits(limits);
-        sim.cascade.speed.speed_loop().set_config(speed);
-    };
-    let mut id = Identification::new(cfg);
-    let mut provisional = false;
+    let life = lifecycle_config(sim, setup, cfg);
+    sim.cascade = Cascade::from_reset(*sim.cascade.config(), life);
     let limit = (TIME_LIMIT_S * setup.pwm_hz()) as usize;
+    let mut offsets = None;
     for k in 0..limit {
-        let sample = sim.sample();
-        let fb = *sim.cascade.feedback();
-        let currents = sample.currents.map_or(Abc::default(), |c| c.to_abc());
-        let m = sim.last_sample();
-        let mut inp = CalInput::open_loop(currents, m.angle, m.v_bus_v);
-        if fb.mode == Mode::Velocity {
-            inp.closed_loop = Some(ClosedLoopFeedback {
-                v_dq_v: fb.v_dq_v,
-                i_dq_a: fb.i_dq_a,
-                velocity_rad_s: fb.velocity_rad_s,
-            });
-        }
-        let step = id.step(&inp);
-        let cmd = match step {
-            CalStep::Apply { v_dq, theta_e } => Command::OpenLoop {
-                v_d_v: v_dq.d,
-                v_q_v: v_dq.q,
-                theta_e,
-                omega_e_rad_s: 0.0,
-            },
-            CalStep::Velocity { rad_s } => {
-                // The first velocity request: install the provisional
-                // permit (measured gains and zero, flux linkage 0).
-                if !provisional {
-                    if let Some(p) = id.permit() {
-                        sim.cascade.set_calibration(&p);
-                        provisional = true;
-                    }
-                }
-                Command::Velocity { rad_s }
-            }
-            done_or_failed => {
-                restore(sim);
-                if let CalStep::Done(d) = &done_or_failed {
-                    sim.cascade.set_calibration(&d.permit);
-                }
-                return Ok(Outcome {
-                    step: done_or_failed,
-                    stage: id.stage(),
-                    offsets,
-                    offset_periods,
-                    periods: k,
-                });
-            }
-        };
-        if fb.active != cmd {
-            if let Err(error) = sim.cascade.command(cmd) {
-                restore(sim);
-                return Err(Error::Refused {
-                    command: cmd,
-                    error,
-                    stage: id.stage(),
-                });
-            }
-        }
-        if let BridgeCommand::SafeState = sim.step_with(&sample) {
-            if let Some(fault) = sim.cascade.feedback().first_fault {
-                restore(sim);
-                return Err(Error::Fault {
-                    fault,
-                    stage: id.stage(),
-                });
-            }
-        }
+        sim.step();
         tick(sim);
+        let Some(event) = sim.cascade.last_output().and_then(|o| o.event) else {
+            continue;
+        };
+        let (offsets_a, offset_periods) = offsets.unwrap_or((Abc::default(), k + 1));
+        let outcome = |step, stage| Outcome {
+            step,
+            stage,
+            offsets: offsets_a,
+            offset_periods,
+            periods: k + 1 - offset_periods,
+        };
+        match event {
+            Event::OffsetsDone(o) => offsets = Some((o, k + 1)),
+            Event::OffsetsFailed(e) => return Err(Error::Offsets(e)),
+            Event::CurrentSenseFailed => return Err(Error::StartUp(Fault::CurrentSenseError)),
+            Event::SensorCheckFailed => return Err(Error::StartUp(Fault::AngleSensorError)),
+            Event::StartUpDone | Event::IdentificationStarted => {}
+            Event::Identified(result) => {
+                let c = sim.cascade.current.config();
+                // The permit the stage holds now, as a value.
+                let permit = Calibrated::supplied(c.angle, c.current)
+                    .expect("the identification's permit passed this check");
+                let done = CalStep::Done(Identified { result, permit });
+                return Ok(outcome(done, Stage::Done));
+            }
+            Event::IdentificationFailed(e, st) => return Ok(outcome(CalStep::Failed(e), st)),
+            Event::IdentificationAborted(fault, st) => {
+                let fault = fault.unwrap_or(Fault::CalibrationFailed);
+                return Err(Error::Fault { fault, stage: st });
+            }
+        }
     }
-    restore(sim);
-    Err(Error::Timeout(id.stage()))
+    let stage = sim
+        .cascade
+        .lifecycle()
+        .identification_stage()
+        .unwrap_or(Stage::Resistance);
+    Err(Error::Timeout(stage))
 }

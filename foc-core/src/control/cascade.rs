@@ -206,7 +206,8 @@ impl Cascade {
         &self.slot
     }
 
-    /// The configuration.
+    /// The configuration: as built, with the current stage's calibration,
+    /// limits and the dividers as the lifecycle last changed them.
     pub fn config(&self) -> &CascadeConfig {
         &self.config
     }
@@ -276,6 +277,14 @@ impl Cascade {
         }
         if out.run_position {
             self.w_ref = self.position.step(&fb);
+        }
+        if out.event.is_some() || matches!(out.change, Some(Ok(()))) {
+            // An identification or a change moved the stage's calibration,
+            // limits or dividers: keep `config()` in step with it.
+            self.config.current = *self.current.config();
+            let (n, m) = self.life.dividers();
+            self.config.rates.speed_divider = n as u16;
+            self.config.rates.position_divider = m as u16;
         }
         self.output = Some(out);
         out.bridge

@@ -281,11 +281,11 @@ impl Lifecycle {
         }
         let status = self.status(stage);
         status.check_config()?;
-        if ch.identify {
-            status.check_identification()?;
-            if self.config.identification.is_none() {
-                return Err(Refusal::Unsupported);
-            }
+        if ch.identify || ch.calibrate_offsets {
+            status.check_calibration()?;
+        }
+        if ch.identify && self.config.identification.is_none() {
+            return Err(Refusal::Unsupported);
         }
         if ch.limits.is_some_and(|l| l.validate().is_err()) {
             return Err(Refusal::Unsupported);

@@ -67,9 +67,9 @@ impl Status {
         Ok(())
     }
 
-    /// The identification: as [`Self::check_config`], and not while a
-    /// fault is latched ([`Refusal::Faulted`]).
-    pub fn check_identification(&self) -> Result<(), Refusal> {
+    /// A calibration (offsets, identification): as [`Self::check_config`],
+    /// and not while a fault is latched ([`Refusal::Faulted`]).
+    pub fn check_calibration(&self) -> Result<(), Refusal> {
         self.check_config()?;
         if self.faulted {
             return Err(Refusal::Faulted);
@@ -97,9 +97,10 @@ pub struct ConfigChange {
     pub current: Option<CurrentLoopConfig>,
     /// New speed / position dividers [periods] (0 is taken as 1).
     pub dividers: Option<(u16, u16)>,
-    /// Re-run the current-offset calibration (bridge off).
+    /// Re-run the current-offset calibration, bridge off
+    /// ([`Status::check_calibration`]).
     pub calibrate_offsets: bool,
-    /// Run the motor identification ([`Status::check_identification`]).
+    /// Run the motor identification ([`Status::check_calibration`]).
     pub identify: bool,
     /// Latch this fault (e.g. a link watchdog's `Disable` reaction); taken
     /// in any phase, never refused.

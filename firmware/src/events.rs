@@ -1,0 +1,38 @@
+//! The drive's lifecycle events in the log (defmt), nothing else: what
+//! happens is decided in `foc_core::drive`.
+
+use foc_core::calibration::identification::IdentificationResult;
+use foc_core::drive::Event;
+
+/// Log `e`; returns the result of a successful identification (the
+/// current loop publishes it for the command channel and the mission).
+pub fn log(e: &Event) -> Option<IdentificationResult> {
+    match *e {
+        Event::OffsetsDone(o) => defmt::info!("current offsets [A]: {}", o),
+        Event::OffsetsFailed(err) => defmt::error!("offset calibration failed: {}", err),
+        Event::CurrentSenseFailed => defmt::error!("current sensor did not answer"),
+        Event::SensorCheckFailed => defmt::error!("angle sensor check failed"),
+        Event::StartUpDone => {
+            defmt::info!("start-up done: disabled, waiting for a command")
+        }
+        Event::IdentificationStarted => defmt::info!("identifying the motor"),
+        Event::Identified(r) => {
+            defmt::info!(
+                "identified: R {=f32} ohm, Ld {=f32} H, Lq {=f32} H, psi {=f32} Wb, {}",
+                r.r_ohm,
+                r.ld_h,
+                r.lq_h,
+                r.flux_linkage_wb,
+                r.angle
+            );
+            return Some(r);
+        }
+        Event::IdentificationFailed(err, st) => {
+            defmt::error!("identification failed in {}: {}", st, err)
+        }
+        Event::IdentificationAborted(f, st) => {
+            defmt::error!("identification aborted in {}: fault {}", st, f)
+        }
+    }
+    None
+}
