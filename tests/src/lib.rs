@@ -1,23 +1,30 @@
 //! # foc-bench: the test bench of the FOC drive
 //!
-//! A PMSM + inverter + sensor plant that the controller of `foc-core` can be
-//! run against, one PWM period at a time, plus (with the default `std`
-//! feature) motor parameter files, step-response metrics and report writers.
+//! Runs the controller of `foc-core` against the PMSM + inverter + sensor
+//! plant of the `foc-plant` crate, one PWM period at a time, with (default
+//! `std` feature) motor parameter files, step-response metrics, missions and
+//! report writers.
 //!
-//! - [`plant`] (`no_std`): motor, inverter (averaged or carrier-compared PWM,
-//!   dead time, computation delay, disabled bridge), DC source, sensors, fault
-//!   injection.
-//! - [`adapters`] (`no_std`): `foc-core` hardware traits on a shared plant.
-//! - [`rng`], [`real`] (`no_std`): deterministic noise and the plant's scalar.
-//! - [`motor_file`] (`std`): TOML motor files in `tests/motors/`.
-//! - [`identify`] (`std`): current offsets and the motor identification of
+//! Re-exported from `foc-plant` (`no_std`; the same code runs on the emulated
+//! board), so `foc_bench::plant::...` and `foc_plant::plant::...` name the
+//! same items. The `plant-f32` feature forwards to `foc-plant/plant-f32`.
+//!
+//! - [`plant`]: motor, inverter (averaged or carrier-compared PWM, dead time,
+//!   computation delay, disabled bridge), DC source, sensors, fault injection.
+//! - [`adapters`]: `foc-core` hardware traits on a shared plant.
+//! - [`rng`], [`real`]: deterministic noise and the plant's scalar.
+//!
+//! The bench's own modules (`std`):
+//!
+//! - [`motor_file`]: TOML motor files in `tests/motors/`.
+//! - [`identify`]: current offsets and the motor identification of
 //!   `foc-core` driven through a simulated cascade.
-//! - [`metrics`] (`std`): overshoot, settling, rise time, errors.
-//! - [`report`] (`std`): CSV traces, SVG plots, dynamometer reports.
-//! - [`mission`] (`std`): the real `foc-core` cascade against the plant
+//! - [`metrics`]: overshoot, settling, rise time, errors.
+//! - [`report`]: CSV traces, SVG plots, dynamometer reports.
+//! - [`mission`]: the real `foc-core` cascade against the plant
 //!   through a scripted mission (identify, current step, speed, load, position).
-//! - [`dyno`] (`std`): simulated dynamometer sweeps (Performance Curve Report).
-//! - [`sil`] (`std`): the software-in-the-loop protocol of the `foc-sil` binary.
+//! - [`dyno`]: simulated dynamometer sweeps (Performance Curve Report).
+//! - [`sil`]: the software-in-the-loop protocol of the `foc-sil` binary.
 //!
 //! A simulation runner closes the loop like this:
 //!
@@ -39,10 +46,7 @@
 // `Real` is f64 or f32 by feature: a cast to or from it is a no-op in one of the two.
 #![allow(clippy::unnecessary_cast)]
 
-pub mod adapters;
-pub mod plant;
-pub mod real;
-pub mod rng;
+pub use foc_plant::{adapters, plant, real, rng};
 
 #[cfg(feature = "std")]
 pub mod dyno;

@@ -3,7 +3,7 @@
 //! QEMU models no RCC (so: HSI only, no clock set-up), no TIM1, no injected
 //! ADC and no DWT cycle counter. This board therefore implements the
 //! foc-core hardware traits on the test bench's motor and inverter plant
-//! (`foc_bench::plant`, built `no_std` in f32) running on the emulated
+//! (`foc_plant::plant`, built `no_std` in f32) running on the emulated
 //! Cortex-M4F itself:
 //!
 //! - TIM2's update interrupt stands in for the PWM period. Its handler is
@@ -30,12 +30,12 @@ use crate::pac;
 use core::cell::{Cell, RefCell};
 use core::sync::atomic::{AtomicBool, Ordering};
 use cortex_m::interrupt::{free, Mutex};
-use foc_bench::plant::{
-    BenchConfig, Measurements, MotorParams, Plant, PwmMode, SensorConfig, Shunts,
-};
 use foc_core::angle::MechanicalAngle;
 use foc_core::frames::Abc;
 use foc_core::hal::{AngleSensor, BusVoltage, CurrentSense, PhaseCurrents, PwmDriver};
+use foc_plant::plant::{
+    BenchConfig, Measurements, MotorParams, Plant, PwmMode, SensorConfig, Shunts,
+};
 use pac::interrupt;
 
 pub use super::Led;
@@ -417,7 +417,7 @@ fn TIM2() {
 /// The test harness's handle on the simulated world.
 pub mod sim {
     use super::{free, Ordering, BRIDGE_ON, EMERGENCY, WORLD};
-    use foc_bench::plant::{EncoderFault, Phase, PhaseShort};
+    use foc_plant::plant::{EncoderFault, Phase, PhaseShort};
 
     /// A fault to inject into the plant.
     #[derive(Clone, Copy, Debug, PartialEq)]

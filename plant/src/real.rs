@@ -6,7 +6,7 @@
 //! this alias, so the same source builds either way.
 //!
 //! ```
-//! use foc_bench::real::{self, Real};
+//! use foc_plant::real::{self, Real};
 //! let x: Real = 0.5;
 //! assert!((real::sin(x) - 0.479_425_5).abs() < 1e-6);
 //! ```

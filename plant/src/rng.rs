@@ -7,7 +7,7 @@
 //! noise looks like after its input filter.
 //!
 //! ```
-//! use foc_bench::rng::Rng;
+//! use foc_plant::rng::Rng;
 //! let mut a = Rng::new(7);
 //! let mut b = Rng::new(7);
 //! assert_eq!(a.next_u64(), b.next_u64());

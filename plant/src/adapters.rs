@@ -8,8 +8,8 @@
 //!
 //! ```
 //! use core::cell::RefCell;
-//! use foc_bench::adapters::{BenchPwm, BenchSensors};
-//! use foc_bench::plant::{BenchConfig, MotorParams, Plant};
+//! use foc_plant::adapters::{BenchPwm, BenchSensors};
+//! use foc_plant::plant::{BenchConfig, MotorParams, Plant};
 //! use foc_core::hal::{PwmDriver, CurrentSense, BusVoltage};
 //! let plant = RefCell::new(Plant::new(MotorParams::example(), BenchConfig::default()));
 //! let sensors = BenchSensors::new(&plant);

@@ -65,7 +65,7 @@
 //! - Sensors: see [`SensorConfig`] and [`Faults`].
 //!
 //! ```
-//! use foc_bench::plant::{BenchConfig, MotorParams, Plant};
+//! use foc_plant::plant::{BenchConfig, MotorParams, Plant};
 //! let mut plant = Plant::new(MotorParams::example(), BenchConfig::default());
 //! let mut duties = [0.5f32; 3];
 //! for _ in 0..10 {
