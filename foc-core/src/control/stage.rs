@@ -386,7 +386,7 @@ impl CurrentStage {
         self.publish(out, i_ref, theta_e, sensed.v_bus_v)
     }
 
-    /// 1. Operator actions: clear first, then a new command.
+    /// Step 1: operator actions: clear first, then a new command.
     #[inline(always)]
     fn take_operator_actions(&mut self, slot: &CommandSlot) {
         if slot.clear_seq != self.state.last_clear_seq {
@@ -400,7 +400,7 @@ impl CurrentStage {
         }
     }
 
-    /// 2. Sensors and supervision: the angle used this period, the phase
+    /// Step 2: sensors and supervision: the angle used this period, the phase
     /// currents and the checks of the fault supervisor. A failed read trips
     /// its fault and leaves zeros.
     #[inline(always)]
@@ -493,7 +493,7 @@ impl CurrentStage {
         self.supervisor.check_stuck(changed, demand, moving);
     }
 
-    /// 3. Command timeout.
+    /// Step 3: command timeout.
     #[inline(always)]
     fn apply_command_timeout(&mut self) {
         if self.state.active.mode() == Mode::Disabled || self.config.command_timeout_periods == 0 {
@@ -517,7 +517,7 @@ impl CurrentStage {
         }
     }
 
-    /// 4. Control: the current loop in the active mode (`None`: bridge off).
+    /// Step 4: control: the current loop in the active mode (`None`: bridge off).
     /// Returns the output, the dq current reference and the electrical
     /// angle used (the open-loop angle in open loop).
     #[inline(always)]
@@ -587,7 +587,7 @@ impl CurrentStage {
         (out, i_ref, theta_e)
     }
 
-    /// 5. The bridge command and the feedback. A control output that is
+    /// Step 5: the bridge command and the feedback. A control output that is
     /// itself invalid is a fault too.
     #[inline(always)]
     fn publish(

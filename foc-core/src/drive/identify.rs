@@ -112,8 +112,8 @@ impl Identifier {
     }
 
     /// The sequencer's input from this period's sample and the last
-    /// closed-loop feedback. A failed read becomes a non-finite input, so
-    /// the routine fails cleanly (the stage latches the sensor fault too).
+    /// closed-loop feedback (a failed read would be a non-finite input; the
+    /// caller does not step the routine on one).
     fn input(&self, s: &Sample) -> CalInput {
         let nan = Abc::new(f32::NAN, f32::NAN, f32::NAN);
         let i_abc = match (s.currents, s.angle) {
@@ -144,15 +144,23 @@ impl Identifier {
         s: &Sample,
     ) -> (Outcome, BridgeCommand, Feedback) {
         self.limit_current(stage);
-        let inp = self.input(s);
-        match self.id.step(&inp) {
-            CalStep::Apply { v_dq, theta_e } => self.post_if_new(Command::OpenLoop {
+        // A failed read is the stage's fault (it trips on it below), not
+        // the routine's: the routine is not stepped on it.
+        let reads_ok = s.currents.is_some() && s.angle.is_some() && s.v_bus_v.is_some();
+        let step = if reads_ok {
+            Some(self.id.step(&self.input(s)))
+        } else {
+            None
+        };
+        match step {
+            None => {}
+            Some(CalStep::Apply { v_dq, theta_e }) => self.post_if_new(Command::OpenLoop {
                 v_d_v: v_dq.d,
                 v_q_v: v_dq.q,
                 theta_e,
                 omega_e_rad_s: 0.0,
             }),
-            CalStep::Velocity { rad_s } => {
+            Some(CalStep::Velocity { rad_s }) => {
                 // Always this identification's own alignment (the previous
                 // calibration was revoked when it started).
                 if !self.permit_installed {
@@ -163,12 +171,12 @@ impl Identifier {
                 }
                 self.post_if_new(Command::Velocity { rad_s });
             }
-            CalStep::Done(done) => {
+            Some(CalStep::Done(done)) => {
                 self.restore_limits(stage);
                 stage.set_calibration(&done.permit);
                 return self.finish(stage, iq_ref_a, s, Outcome::Done(done.result));
             }
-            CalStep::Failed(e) => {
+            Some(CalStep::Failed(e)) => {
                 self.restore_limits(stage);
                 stage.report_fault(Fault::CalibrationFailed);
                 let out = Outcome::Failed(e, self.id.stage());
