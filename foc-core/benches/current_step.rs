@@ -1,6 +1,6 @@
 //! Host benchmark of one full current-loop math step: Clarke, sin/cos,
 //! Park, two PI, inverse Park, SVPWM and the three compare values
-//! (source sections 4-8). Run with
+//! (design §4-8). Run with
 //! `cargo bench -p foc-core --bench current_step`.
 //!
 //! The numbers are host nanoseconds, for spotting regressions; the

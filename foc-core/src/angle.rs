@@ -4,7 +4,7 @@
 //! and subtracting wrap exactly, with no `fmod` and no drift however many
 //! turns the rotor makes. Electrical and mechanical angles are distinct
 //! types; the only way from one to the other is through the pole-pair count
-//! (source section 3: `theta_e = pole_pairs * theta_m`, modulo one turn).
+//! (design §3: `theta_e = pole_pairs * theta_m`, modulo one turn).
 //!
 //! ```
 //! use foc_core::angle::{MechanicalAngle, ElectricalAngle};

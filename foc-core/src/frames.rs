@@ -29,7 +29,7 @@ impl Abc {
     pub const fn new(a: f32, b: f32, c: f32) -> Self {
         Self { a, b, c }
     }
-    /// `a + b + c` (zero for a star winding; see the source's section 2).
+    /// `a + b + c` (zero for a star winding; see design §2).
     #[inline]
     pub fn sum(&self) -> f32 {
         self.a + self.b + self.c

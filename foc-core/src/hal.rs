@@ -69,7 +69,7 @@ pub enum PhaseCurrents {
         /// Phase B current [A].
         b_a: f32,
     },
-    /// Three shunts; `a + b + c` is a plausibility check (source section 2).
+    /// Three shunts; `a + b + c` is a plausibility check (design §2).
     ThreePhase(Abc),
 }
 

@@ -8,17 +8,17 @@
 //! beta axis 90 electrical degrees *ahead* of phase A (positive rotation
 //! A -> B -> C), and Park with `d` along the rotor flux (`theta_e`) and `q`
 //! 90 degrees ahead. The source design (`MC_FOC_DRIVE.c`, see
-//! `shared/reference/foc-notes.md`) writes its beta axis reversed; the
+//! `docs/design.md`) writes its beta axis reversed; the
 //! mapping is documented and tested in [`transforms`].
 //!
-//! Module map (source section in brackets):
+//! Module map (design section in brackets):
 //! - [`frames`]: `Abc`, `AlphaBeta`, `Dq` value types.
-//! - [`angle`]: wrapping electrical / mechanical angles (section 3).
+//! - [`angle`]: wrapping electrical / mechanical angles (design §3).
 //! - [`trig`]: fast sin/cos for the current loop.
-//! - [`transforms`]: Clarke, Park and inverses (sections 4, 5, 7).
-//! - [`svpwm`]: seven-segment space-vector PWM (section 8).
-//! - [`pi`]: PI controller with anti-windup (section 6).
-//! - [`tuning`]: current-loop gains from motor parameters (section 11).
+//! - [`transforms`]: Clarke, Park and inverses (design §4, §5, §7).
+//! - [`svpwm`]: seven-segment space-vector PWM (design §8).
+//! - [`pi`]: PI controller with anti-windup (design §6).
+//! - [`tuning`]: current-loop gains from motor parameters (design §11).
 //! - [`control`]: the cascade's loops and stages, the fault supervisor.
 //! - [`calibration`]: offsets and the motor identification routines.
 //! - [`drive`]: the drive's life each PWM period, from reset on.

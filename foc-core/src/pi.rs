@@ -1,4 +1,4 @@
-//! PI controller with output limits and anti-windup (source section 6).
+//! PI controller with output limits and anti-windup (design §6).
 //!
 //! Discrete parallel form, sampled every `ts_s` seconds, with the error taken
 //! as `e = setpoint - measurement`:

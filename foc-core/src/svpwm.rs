@@ -1,9 +1,9 @@
-//! Seven-segment space-vector PWM (source section 8).
+//! Seven-segment space-vector PWM (design §8).
 //!
 //! # Vectors and frame
 //!
 //! The six active switching states are named by the high-side states of
-//! phases A B C read as a binary number (source section 8):
+//! phases A B C read as a binary number (design §8):
 //! U4 = 100 at 0 deg, U6 = 110 at 60, U2 = 010 at 120, U3 = 011 at 180,
 //! U1 = 001 at 240, U5 = 101 at 300, each of length `2 Udc / 3`, plus the
 //! zero vectors U0 = 000 and U7 = 111 ([`space_vector`] computes them).
@@ -14,7 +14,7 @@
 //!
 //! # How the source's table maps onto our frame
 //!
-//! The source writes (source section 8), with `K = sqrt(3) Ts / Udc`:
+//! The source writes (design §8), with `K = sqrt(3) Ts / Udc`:
 //!
 //! ```text
 //! U1 = U_beta
@@ -29,7 +29,7 @@
 //! `m = sqrt(3) |U| / Udc`, is exactly `T4 = K U2`, `T6 = K U1`: the
 //! source's SVPWM table is written for the standard beta axis, i.e. ours,
 //! **not** for the reversed beta axis of its own Clarke transform
-//! (`beta_src = -beta`, source section 4). It is used here unchanged with
+//! (`beta_src = -beta`, design §4). It is used here unchanged with
 //! our `U_beta`. In terms of the source's axis it reads `U1 = -beta_src`,
 //! `U2 = (sqrt(3)/2) alpha + beta_src/2`, `U3 = -(sqrt(3)/2) alpha +
 //! beta_src/2`; feeding `beta_src` into the table as printed would mirror
@@ -97,7 +97,7 @@
 use crate::frames::AlphaBeta;
 use crate::{clamp, SQRT_3, SQRT_3_2};
 
-/// SVPWM sector (source section 8 table), 60 electrical degrees each, in
+/// SVPWM sector (design §8 table), 60 electrical degrees each, in
 /// our alpha/beta frame.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -144,8 +144,8 @@ impl Sector {
         (self.number() as u16 - 1) * 60
     }
 
-    /// `(first, second)` active vector numbers of the source's table (source
-    /// section 8): the first has one phase high, the second two.
+    /// `(first, second)` active vector numbers of the source's table (design
+    /// §8): the first has one phase high, the second two.
     pub const fn vectors(self) -> (u8, u8) {
         match self {
             Sector::I => (4, 6),
@@ -158,7 +158,7 @@ impl Sector {
     }
 
     /// The seven-segment sequence of vector numbers over one period, e.g.
-    /// `0-4-6-7-7-6-4-0` in sector I (source section 8; the two middle 7s
+    /// `0-4-6-7-7-6-4-0` in sector I (design §8; the two middle 7s
     /// are the one `T7` segment split at the period centre).
     pub const fn sequence(self) -> [u8; 8] {
         let (a, b) = self.vectors();
@@ -200,8 +200,8 @@ impl Sector {
     }
 }
 
-/// The source's `[U1, U2, U3]` for a reference vector in our frame (source
-/// section 8): `U1 = beta`, `U2 = (sqrt3/2) alpha - beta/2`,
+/// The source's `[U1, U2, U3]` for a reference vector in our frame (design
+/// §8): `U1 = beta`, `U2 = (sqrt3/2) alpha - beta/2`,
 /// `U3 = -(sqrt3/2) alpha - beta/2`, the last computed as `-(U1 + U2)`.
 #[inline(always)]
 pub fn projections(v_ab: AlphaBeta) -> [f32; 3] {
@@ -212,7 +212,7 @@ pub fn projections(v_ab: AlphaBeta) -> [f32; 3] {
 
 /// Alpha/beta position of switching state `n` (0..=7, bits A B C) on a bus
 /// of `v_bus_v` [V]: length `2 Udc / 3` for the six active vectors, zero for
-/// U0 and U7 (source section 8). Bits above the lowest three are ignored.
+/// U0 and U7 (design §8). Bits above the lowest three are ignored.
 pub fn space_vector(n: u8, v_bus_v: f32) -> AlphaBeta {
     let pole = |bit: u8| if n & bit != 0 { v_bus_v } else { 0.0 };
     crate::transforms::clarke(crate::frames::Abc::new(pole(4), pole(2), pole(1)))
@@ -277,7 +277,7 @@ pub fn max_linear_voltage_v(v_bus_v: f32) -> f32 {
 }
 
 /// Modulate `v_ab` [V] (our frame) on a bus of `v_bus_v` [V] with the
-/// seven-segment sector method of source section 8 (see the module docs).
+/// seven-segment sector method of design §8 (see the module docs).
 ///
 /// Never panics; every duty is in `[0, 1]` for any input.
 #[inline]
@@ -294,7 +294,7 @@ pub(crate) fn svpwm_inline(v_ab: AlphaBeta, v_bus_v: f32) -> SvpwmOutput {
     }
     let [u1, u2, u3] = projections(v_ab);
     let sector = Sector::from_signs(u1 >= 0.0, u2 >= 0.0, u3 >= 0.0);
-    // Source section 8 table without K; both are >= 0 by the sign choice.
+    // Design §8 table without K; both are >= 0 by the sign choice.
     let (raw_first, raw_second) = raw_times(sector, u1, u2, u3);
     let k = SQRT_3 / v_bus_v; // K / Ts
     let mut t_first = k * raw_first;
@@ -391,7 +391,7 @@ fn direction_only(v_ab: AlphaBeta) -> (bool, f32, f32) {
 }
 
 /// Min-max zero-sequence injection: an independent check of [`svpwm`]
-/// (source section 8: the sector method's "saddle" duties equal the phase
+/// (design §8: the sector method's "saddle" duties equal the phase
 /// voltages shifted by `-(max + min)/2`).
 ///
 /// Inside the hexagon it gives the same duties as [`svpwm`] (tested).
@@ -552,7 +552,7 @@ mod tests {
 
     #[test]
     fn sector_vectors_bound_the_sector() {
-        // Source section 8: U4 at 0, U6 at 60, U2 at 120, U3 at 180, U1 at
+        // Design §8: U4 at 0, U6 at 60, U2 at 120, U3 at 180, U1 at
         // 240, U5 at 300 deg, each 2 Udc / 3 long; a sector's two vectors
         // sit at its two ends.
         let near = |v: AlphaBeta, deg: f32| {

@@ -1,4 +1,4 @@
-//! Clarke and Park transforms and their inverses (source sections 4, 5, 7).
+//! Clarke and Park transforms and their inverses (design §4, §5, §7).
 //!
 //! **Convention used throughout this project** (amplitude invariant):
 //!
@@ -35,7 +35,7 @@ use crate::frames::{Abc, AlphaBeta, Dq};
 use crate::{FRAC_1_SQRT_3, SQRT_3_2};
 
 /// Clarke transform from three measured phases (amplitude invariant;
-/// source section 4, with our beta axis = minus the source's).
+/// design §4, with our beta axis = minus the source's).
 ///
 /// Uses `a` and `b` and the star-point constraint through `c` as
 /// `alpha = (2a - b - c)/3`, `beta = (b - c)/sqrt(3)`: with three shunts this
@@ -50,8 +50,8 @@ pub fn clarke(i: Abc) -> AlphaBeta {
 }
 
 /// Clarke transform from two phases, the third derived as `c = -a - b`
-/// (source section 2): `alpha = a`, `beta = (a + 2b)/sqrt(3)` (source
-/// section 4 with our beta axis = minus the source's).
+/// (design §2): `alpha = a`, `beta = (a + 2b)/sqrt(3)` (design
+/// §4 with our beta axis = minus the source's).
 #[inline]
 pub fn clarke_2phase(a: f32, b: f32) -> AlphaBeta {
     AlphaBeta {
@@ -61,7 +61,7 @@ pub fn clarke_2phase(a: f32, b: f32) -> AlphaBeta {
 }
 
 /// Inverse Clarke: alpha/beta to three phases with zero sum (the inverse of
-/// source section 4; used to check SVPWM line-to-line voltages).
+/// design §4; used to check SVPWM line-to-line voltages).
 #[inline]
 pub fn inverse_clarke(v: AlphaBeta) -> Abc {
     let half_alpha = -0.5 * v.alpha;
@@ -74,7 +74,7 @@ pub fn inverse_clarke(v: AlphaBeta) -> Abc {
 }
 
 /// Park transform: stationary alpha/beta to the rotor dq frame, given
-/// `sin(theta_e)` and `cos(theta_e)` (source section 5 in our convention:
+/// `sin(theta_e)` and `cos(theta_e)` (design §5 in our convention:
 /// the source's `(I_d, I_q)` at `theta` are our `(-q, d)` at `theta`, i.e.
 /// our `(d, q)` at `theta - 90 deg`; see `tests/math_props.rs`).
 #[inline]
@@ -85,7 +85,7 @@ pub fn park(v: AlphaBeta, sin: f32, cos: f32) -> Dq {
     }
 }
 
-/// Inverse Park: rotor dq frame to stationary alpha/beta (source section 7
+/// Inverse Park: rotor dq frame to stationary alpha/beta (design §7
 /// in our convention).
 #[inline]
 pub fn inverse_park(v: Dq, sin: f32, cos: f32) -> AlphaBeta {
@@ -102,14 +102,14 @@ pub fn inverse_park(v: Dq, sin: f32, cos: f32) -> AlphaBeta {
 pub mod source {
     use crate::{FRAC_1_SQRT_3, FRAC_2_SQRT_3};
 
-    /// Source section 4: `I_alpha = I_a`, `I_beta = -(1/sqrt3) I_a - (2/sqrt3) I_b`.
+    /// Design §4: `I_alpha = I_a`, `I_beta = -(1/sqrt3) I_a - (2/sqrt3) I_b`.
     /// Returns `(I_alpha, I_beta_src)`.
     #[inline]
     pub fn clarke(i_a: f32, i_b: f32) -> (f32, f32) {
         (i_a, -FRAC_1_SQRT_3 * i_a - FRAC_2_SQRT_3 * i_b)
     }
 
-    /// Source section 5: `I_q = I_alpha cos - I_beta sin`,
+    /// Design §5: `I_q = I_alpha cos - I_beta sin`,
     /// `I_d = I_alpha sin + I_beta cos`. Returns `(I_d_src, I_q_src)`.
     #[inline]
     pub fn park(i_alpha: f32, i_beta_src: f32, sin: f32, cos: f32) -> (f32, f32) {
@@ -118,7 +118,7 @@ pub mod source {
         (i_d, i_q)
     }
 
-    /// Source section 7: `V_alpha = V_q cos + V_d sin`,
+    /// Design §7: `V_alpha = V_q cos + V_d sin`,
     /// `V_beta = -V_q sin + V_d cos`. Returns `(V_alpha, V_beta_src)`.
     #[inline]
     pub fn inverse_park(v_d: f32, v_q: f32, sin: f32, cos: f32) -> (f32, f32) {

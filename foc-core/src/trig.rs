@@ -1,6 +1,6 @@
 //! Sine and cosine of a wrapping angle for the current loop.
 //!
-//! The Park and inverse Park transforms (source sections 5 and 7) need
+//! The Park and inverse Park transforms (design §5 and §7) need
 //! `sin(theta_e)` and `cos(theta_e)` once per PWM period. `libm::sinf` /
 //! `cosf` cost about 1,270 instructions each on the Cortex-M4F (they compute
 //! in f64, in software), so [`sin_cos`] uses:

@@ -1,9 +1,9 @@
-//! Current-loop PI tuning from motor parameters (source section 11).
+//! Current-loop PI tuning from motor parameters (design §11).
 //!
 //! Two rules, both pole-zero cancelling (`tau_i = Kp / Ki = L / R`, the
 //! electrical time constant of the winding):
 //!
-//! - [`technical_optimum`] (source section 11): from the PWM period alone,
+//! - [`technical_optimum`] (design §11): from the PWM period alone,
 //!   `Kp = L / (3 Ts)`, `Ki = R / (3 Ts)`, about 4.3 % overshoot.
 //! - [`bandwidth`]: from a chosen open-loop crossover `wc`,
 //!   `Kp = L wc`, `Ki = R wc` (first-order closed loop with time constant
@@ -30,7 +30,7 @@
 use crate::pi::{AntiWindup, PiConfig};
 
 /// The source's lumped delay of computation plus PWM, in PWM periods:
-/// `T = 1.5 Ts` (source section 11).
+/// `T = 1.5 Ts` (design §11).
 pub const LUMPED_DELAY_PERIODS: f32 = 1.5;
 
 /// PI gains for one current axis.
@@ -83,9 +83,9 @@ pub struct DqPiGains {
     pub q: CurrentPiGains,
 }
 
-/// Technical optimum (source section 11): `Kp = L/(3 Ts)`, `Ki = R/(3 Ts)`.
+/// Technical optimum (design §11): `Kp = L/(3 Ts)`, `Ki = R/(3 Ts)`.
 ///
-/// Derivation (source section 11): the plant is `G(s) = 1 / (L s + R)`;
+/// Derivation (design §11): the plant is `G(s) = 1 / (L s + R)`;
 /// computation delay and PWM are lumped into one first-order lag with
 /// `T = 1.5 Ts` ([`LUMPED_DELAY_PERIODS`]; PWM gain 1). The PI
 /// `Kp (tau_i s + 1) / (tau_i s)` with `tau_i = L / R` cancels the plant
@@ -103,7 +103,7 @@ pub const fn technical_optimum(l_h: f32, r_ohm: f32, ts_s: f32) -> CurrentPiGain
 }
 
 /// Bandwidth rule: `Kp = L wc`, `Ki = R wc` for an open-loop crossover
-/// `wc_rad_s` [rad/s] (pole-zero cancellation as in source section 11).
+/// `wc_rad_s` [rad/s] (pole-zero cancellation as in design §11).
 /// Keep `wc` well below `1 / (3 Ts)` when the loop delay matters.
 pub const fn bandwidth(l_h: f32, r_ohm: f32, wc_rad_s: f32) -> CurrentPiGains {
     CurrentPiGains {
@@ -113,12 +113,12 @@ pub const fn bandwidth(l_h: f32, r_ohm: f32, wc_rad_s: f32) -> CurrentPiGains {
 }
 
 /// The `wc` for which [`bandwidth`] equals [`technical_optimum`]:
-/// `K = 1 / (2 T) = 1 / (3 Ts)` [rad/s] (source section 11).
+/// `K = 1 / (2 T) = 1 / (3 Ts)` [rad/s] (design §11).
 pub const fn technical_optimum_wc_rad_s(ts_s: f32) -> f32 {
     1.0 / (2.0 * LUMPED_DELAY_PERIODS * ts_s)
 }
 
-/// Technical optimum for both axes (source section 11):
+/// Technical optimum for both axes (design §11):
 /// `Kp_d = Ld/(3 Ts)`, `Kp_q = Lq/(3 Ts)`, `Ki_d = Ki_q = R/(3 Ts)`.
 pub const fn technical_optimum_dq(ld_h: f32, lq_h: f32, r_ohm: f32, ts_s: f32) -> DqPiGains {
     DqPiGains {
@@ -193,7 +193,7 @@ mod tests {
         assert_eq!(C.kp, G.kp_v_per_a);
     }
 
-    /// The technical optimum's promise (source section 11): with the plant
+    /// The technical optimum's promise (design §11): with the plant
     /// `1/(L s + R)` behind a first-order lag of `1.5 Ts`, a current step
     /// overshoots by about 4.3 %. Simulated in continuous time (fine Euler
     /// steps) with the project's own [`Pi`] running at the same fine rate.

@@ -1,5 +1,5 @@
 //! Property tests of the frame transforms, trig, sqrt and angles
-//! (source sections 3, 4, 5, 7), including how the source's own formulas
+//! (design §3, §4, §5, §7), including how the source's own formulas
 //! map onto this project's convention.
 
 use foc_core::angle::{ElectricalAngle, MechanicalAngle, MultiTurn};
@@ -26,7 +26,7 @@ fn balanced(amp: f32, theta: f64) -> Abc {
 
 proptest! {
     /// abc -> alpha/beta -> dq -> alpha/beta -> abc is the identity for
-    /// zero-sum inputs (source section 4's requirement), at any angle.
+    /// zero-sum inputs (design §4's requirement), at any angle.
     #[test]
     fn clarke_park_round_trip(a in -100.0f32..100.0, b in -100.0f32..100.0, bits in any::<u32>()) {
         let abc = Abc::new(a, b, -a - b);
@@ -87,12 +87,12 @@ proptest! {
         prop_assert!(near(ab.beta, amp * theta.sin() as f32, 1e-5, amp));
     }
 
-    /// How the source's formulas (source sections 4, 5, 7) map onto ours:
+    /// How the source's formulas (design §4, §5, §7) map onto ours:
     /// - Clarke: `beta_src = -beta`;
     /// - Park at the same theta: `Iq_src = d`, `Id_src = -q`; equivalently the
     ///   source's (Id, Iq) at theta are our (d, q) at `theta - 90 deg`, i.e. the
     ///   source's angle is that of our q axis;
-    /// - a current in phase with theta is pure `Iq_src` (source section 5);
+    /// - a current in phase with theta is pure `Iq_src` (design §5);
     /// - inverse Park returns `(alpha, beta_src)` consistently, so the source's
     ///   whole chain round-trips too.
     #[test]
@@ -134,7 +134,7 @@ proptest! {
         prop_assert!(near(id_src, 0.0, 1e-5, amp));
     }
 
-    /// The SVPWM table (source section 8) is written for our beta: fed with
+    /// The SVPWM table (design §8) is written for our beta: fed with
     /// our beta a vector at 0..60 deg is in sector I; fed the source's
     /// reversed `beta_src` it would land in the mirrored sector VI.
     #[test]

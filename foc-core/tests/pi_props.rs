@@ -1,4 +1,4 @@
-//! Property tests of the PI controller (source section 6): bounds, sign,
+//! Property tests of the PI controller (design §6): bounds, sign,
 //! anti-windup.
 
 use foc_core::pi::{AntiWindup, Pi, PiConfig};

@@ -1,4 +1,4 @@
-//! Property tests of the seven-segment SVPWM (source section 8).
+//! Property tests of the seven-segment SVPWM (design §8).
 
 use foc_core::frames::{Abc, AlphaBeta};
 use foc_core::svpwm::{compare_values, minmax, space_vector, svpwm, Sector, SvpwmOutput};
@@ -96,7 +96,7 @@ proptest! {
         // The phase order of the sector holds.
         let [hi, mid, lo] = out.sector.phase_order();
         prop_assert!(out.duties[hi] >= out.duties[mid] && out.duties[mid] >= out.duties[lo]);
-        // Active times follow the law of sines of source section 8:
+        // Active times follow the law of sines of design §8:
         // T_first = m sin(60 - phi), T_second = m sin(phi) within the sector,
         // with phi measured from the sector's first-vector edge.
         let (first, _) = out.sector.vectors();

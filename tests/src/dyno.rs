@@ -1,4 +1,4 @@
-//! Simulated dynamometer (source section 12): the real cascade in velocity
+//! Simulated dynamometer (design §12): the real cascade in velocity
 //! mode on the plant, a brake (load torque) on the shaft, and the operating
 //! points measured in steady state.
 //!

@@ -239,7 +239,7 @@ pub fn plot_svg_against(
     root.present().map_err(other)
 }
 
-/// Header of a dynamometer "Performance Curve Report" (source section 12).
+/// Header of a dynamometer "Performance Curve Report" (design §12).
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct DynoHeader {
     /// Project number.

@@ -69,7 +69,7 @@ fn current_step(name: &str, pwm_hz: f64) -> (f64, Option<usize>) {
     )
 }
 
-/// Source section 11: about 4.3 % overshoot. The discrete loop (one period
+/// Design §11: about 4.3 % overshoot. The discrete loop (one period
 /// of delay, zero-order hold over the period) is slightly better damped than
 /// the continuous `1.5 Ts` lag it is designed on.
 #[test]

@@ -2,7 +2,7 @@
 //!
 //! Runs the `bench` binary of the emulated board under QEMU with
 //! `-icount shift=10,align=off`, where SysTick advances exactly 172.032
-//! ticks per executed instruction (shared/reference/toolchain.md), and
+//! ticks per executed instruction (checked with a 100-nop self-check, see the README), and
 //! prints a table of instructions per item with the loop rate each would
 //! allow at 168 MHz if one instruction took one cycle (a lower bound on
 //! time: loads, branches and FP divides take more). Figures are reported

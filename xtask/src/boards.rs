@@ -16,7 +16,7 @@ pub struct Board {
     /// Chip name for `probe-rs run --chip <chip>`.
     pub chip: &'static str,
     /// Whether the firmware can run under QEMU's `netduinoplus2` machine,
-    /// which models an STM32F405 (see shared/reference/toolchain.md).
+    /// which models an STM32F405 (QEMU 7.2 and later).
     pub qemu: bool,
     /// Human description: MCU board + power stage.
     pub description: &'static str,

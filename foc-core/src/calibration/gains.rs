@@ -1,5 +1,5 @@
 //! Current-loop gains from measured motor values, with the source's tuning
-//! (technical optimum, source section 11):
+//! (technical optimum, design §11):
 //! `Kp_d = Ld / (3 Ts)`, `Kp_q = Lq / (3 Ts)`, `Ki_d = Ki_q = R / (3 Ts)`,
 //! through [`crate::tuning::technical_optimum`] for each axis.
 //!

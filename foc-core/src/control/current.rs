@@ -1,16 +1,16 @@
-//! The current loop (source sections 4-8, 10): measured phase currents and
+//! The current loop (design §4-8, §10): measured phase currents and
 //! the electrical angle in, three PWM duties out, every PWM period.
 //!
 //! ```text
 //! i_abc --Clarke--> i_ab --Park(theta_e)--> i_dq
-//! e_d = id_ref - id,  e_q = iq_ref - iq                 (source section 6)
+//! e_d = id_ref - id,  e_q = iq_ref - iq                 (design §6)
 //! v_d = PI_d(e_d) + ff_d,  ff_d = -w_e Lq iq            (decoupling, optional)
 //! v_q = PI_q(e_q) + ff_q,  ff_q =  w_e (Ld id + psi)
 //! |v_dq| <= m_max * Udc / sqrt(3)   circle, d axis first, PI limits follow it
 //! v_dq --inverse Park(theta_e + k w_e Ts)--> v_ab --SVPWM(Udc)--> duties
 //! ```
 //!
-//! The inverse Park (source sections 7, 8) is taken at the angle the rotor
+//! The inverse Park (design §7, §8) is taken at the angle the rotor
 //! will have when the voltage acts, `k` periods after the sample (`k` =
 //! [`CurrentLoopConfig::delay_compensation_periods`], 1.5 by default: one
 //! period of computation plus half a period of PWM hold). Without it the
@@ -80,7 +80,7 @@ pub struct CurrentLoopConfig {
 pub const DEFAULT_DELAY_COMPENSATION_PERIODS: f32 = 1.5;
 
 impl CurrentLoopConfig {
-    /// The source's tuning (section 11): technical optimum for both axes at
+    /// The source's tuning (design §11): technical optimum for both axes at
     /// the given PWM frequency, decoupling on, 95 % of the linear range,
     /// 1.5 periods of delay compensation.
     pub fn technical_optimum(motor: MotorParams, pwm_frequency_hz: f32) -> Self {

@@ -1,4 +1,4 @@
-//! The control cascade (source section 10): current loop (inner, every PWM
+//! The control cascade (design §10): current loop (inner, every PWM
 //! period) <- speed loop (every N periods) <- position loop (every M periods).
 //!
 //! Each loop is a plain struct with a `Config`, a state, `reset()` and a
@@ -165,7 +165,7 @@ pub enum Mode {
 pub enum Command {
     /// Bridge off.
     Disable,
-    /// q-current reference [A] with `id = 0` (source section 6).
+    /// q-current reference [A] with `id = 0` (design §6).
     Torque {
         /// q-axis current [A].
         iq_a: f32,

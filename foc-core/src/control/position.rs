@@ -1,4 +1,4 @@
-//! The position loop (source section 10, outer loop): P on the mechanical
+//! The position loop (design §10, outer loop): P on the mechanical
 //! position with velocity feed-forward from a trapezoidal trajectory.
 //!
 //! ```text

@@ -1,4 +1,4 @@
-//! The speed loop (source section 10, middle loop): PI on the mechanical
+//! The speed loop (design §10, middle loop): PI on the mechanical
 //! speed estimate, producing the q-current reference within a current limit.
 //!
 //! ```text

@@ -32,7 +32,7 @@ pub enum Fault {
     BusOverVoltage = 3,
     /// Bus voltage below the limit.
     BusUnderVoltage = 4,
-    /// `|ia + ib + ic|` too large with three shunts (source section 2).
+    /// `|ia + ib + ic|` too large with three shunts (design §2).
     CurrentSumMismatch = 5,
     /// The angle sensor reported an error.
     AngleSensorError = 6,
