@@ -344,95 +344,22 @@ fn write_svg(path: &Path, samples: &[StreamSample]) -> Result<(), Box<dyn std::e
     Ok(())
 }
 
-fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
+type CliResult = Result<(), Box<dyn std::error::Error>>;
+
+fn run(cli: Cli) -> CliResult {
     if let Cmd::Simulate { listen } = &cli.cmd {
-        let server = SimServer::spawn(std::net::TcpListener::bind(listen)?)?;
-        eprintln!("simulated device on {} (Ctrl-C to stop)", server.addr());
-        server.wait();
-        return Ok(());
+        return simulate(listen);
     }
     let mut c = connect(&cli)?;
     match cli.cmd {
-        Cmd::Simulate { .. } => {}
-        Cmd::Ping => {
-            let h = c.ping()?;
-            let [a, b, p] = h.firmware_version;
-            println!(
-                "protocol {} (host {}), firmware {a}.{b}.{p}, max payload {} bytes",
-                h.protocol_version,
-                foc_protocol::PROTOCOL_VERSION,
-                h.max_payload
-            );
-            if h.protocol_version != foc_protocol::PROTOCOL_VERSION {
-                return Err("protocol version mismatch".into());
-            }
-        }
-        Cmd::Mode { mode } => {
-            let cmd = match mode {
-                ModeCmd::Disable => Command::Disable,
-                ModeCmd::Torque { iq_a } => Command::Torque { iq_a },
-                ModeCmd::Velocity { rad_s } => Command::Velocity { rad_s },
-                ModeCmd::Position { rad } => Command::Position { rad },
-                ModeCmd::OpenLoop {
-                    v_d,
-                    v_q,
-                    theta_deg,
-                    omega_e,
-                } => Command::OpenLoop {
-                    v_d_v: v_d,
-                    v_q_v: v_q,
-                    theta_e: ElectricalAngle::from_degrees(theta_deg),
-                    omega_e_rad_s: omega_e,
-                },
-            };
-            c.set_command(cmd)?;
-            println!("ok: {cmd:?}");
-        }
+        Cmd::Ping => ping(&mut c),
+        Cmd::Mode { mode } => set_mode(&mut c, mode),
         Cmd::KeepAlive {
             interval_ms,
             duration,
-        } => {
-            let end = std::time::Instant::now() + Duration::from_secs_f64(duration.max(0.0));
-            while std::time::Instant::now() < end {
-                c.keep_alive()?;
-                std::thread::sleep(Duration::from_millis(interval_ms));
-            }
-        }
-        Cmd::Clear => {
-            c.clear_faults()?;
-            println!("ok");
-        }
-        Cmd::Faults => {
-            let f = c.faults()?;
-            println!("latched: {}", fault_list(f.set.0));
-            match f.first() {
-                Some(first) => println!("first:   {} ({})", first.name(), first.code()),
-                None if f.first_code != 0 => println!("first:   code {}", f.first_code),
-                None => {}
-            }
-        }
-        Cmd::Param { name } => {
-            let ids: Vec<ParamId> = if name == "all" {
-                ParamId::ALL.to_vec()
-            } else {
-                vec![ParamId::from_name(&name).ok_or_else(|| {
-                    let names: Vec<&str> = ParamId::ALL.iter().map(|p| p.name()).collect();
-                    format!(
-                        "unknown parameter `{name}`; one of: {}, all",
-                        names.join(", ")
-                    )
-                })?]
-            };
-            for id in ids {
-                match c.param(id) {
-                    Ok(v) => println!("{:<18} {v}", id.name()),
-                    Err(ClientError::Nack(foc_protocol::ErrorCode::Unsupported)) => {
-                        println!("{:<18} (not supported)", id.name())
-                    }
-                    Err(e) => return Err(e.into()),
-                }
-            }
-        }
+        } => keep_alive(&mut c, interval_ms, duration),
+        Cmd::Faults => show_faults(&mut c),
+        Cmd::Param { name } => show_params(&mut c, &name),
         Cmd::Telemetry {
             rate,
             every,
@@ -445,49 +372,178 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
                 Some(k) => TelemetryRate::EveryPeriods(k),
                 None => TelemetryRate::Hz(rate as f32),
             };
-            let mut samples: Vec<StreamSample> = Vec::new();
-            let mut stderr = std::io::stderr();
-            c.telemetry_with(r, Duration::from_secs_f64(duration.max(0.0)), |s| {
-                samples.push(*s);
-                if plot && samples.len() % 5 == 0 {
-                    let tail = &samples[samples.len().saturating_sub(60)..];
-                    let w: Vec<f32> = tail.iter().map(|s| s.sample.velocity_rad_s).collect();
-                    let i: Vec<f32> = tail.iter().map(|s| s.sample.i_q_a).collect();
-                    let _ = write!(
-                        stderr,
-                        "\rw {:>9.2} rad/s {}  iq {:>7.3} A {}",
-                        s.sample.velocity_rad_s,
-                        sparkline(&w),
-                        s.sample.i_q_a,
-                        sparkline(&i)
-                    );
-                } else if !plot && csv.is_none() {
-                    let t = &s.sample;
-                    println!(
-                        "{:>10} {:?} w={:.3} p={:.4} id={:.3} iq={:.3} vd={:.3} vq={:.3} vbus={:.2} fault={} cyc={}",
-                        t.period, t.mode, t.velocity_rad_s, t.position_rad, t.i_d_a, t.i_q_a,
-                        t.v_d_v, t.v_q_v, t.v_bus_v, t.fault_code, t.max_loop_cycles
-                    );
-                }
-            })?;
-            if plot {
-                eprintln!();
-            }
-            let st = c.stats();
-            eprintln!(
-                "{} samples, {} lost in the stream",
-                samples.len(),
-                st.stream_lost
-            );
-            if let Some(p) = csv {
-                write_csv(&p, &samples)?;
-                eprintln!("wrote {}", p.display());
-            }
-            if let Some(p) = svg {
-                write_svg(&p, &samples)?;
-                eprintln!("wrote {}", p.display());
-            }
+            stream_telemetry(&mut c, r, duration, csv, plot, svg)
         }
+        Cmd::Calibrate { routine } => calibrate(&mut c, routine),
+        setting => configure(&mut c, setting),
+    }
+}
+
+/// `simulate`: serve the simulated device until killed.
+fn simulate(listen: &str) -> CliResult {
+    let server = SimServer::spawn(std::net::TcpListener::bind(listen)?)?;
+    eprintln!("simulated device on {} (Ctrl-C to stop)", server.addr());
+    server.wait();
+    Ok(())
+}
+
+/// `ping`: versions; fails on a protocol mismatch.
+fn ping(c: &mut Client) -> CliResult {
+    let h = c.ping()?;
+    let [a, b, p] = h.firmware_version;
+    println!(
+        "protocol {} (host {}), firmware {a}.{b}.{p}, max payload {} bytes",
+        h.protocol_version,
+        foc_protocol::PROTOCOL_VERSION,
+        h.max_payload
+    );
+    if h.protocol_version != foc_protocol::PROTOCOL_VERSION {
+        return Err("protocol version mismatch".into());
+    }
+    Ok(())
+}
+
+/// `mode ...`: send the command.
+fn set_mode(c: &mut Client, mode: ModeCmd) -> CliResult {
+    let cmd = match mode {
+        ModeCmd::Disable => Command::Disable,
+        ModeCmd::Torque { iq_a } => Command::Torque { iq_a },
+        ModeCmd::Velocity { rad_s } => Command::Velocity { rad_s },
+        ModeCmd::Position { rad } => Command::Position { rad },
+        ModeCmd::OpenLoop {
+            v_d,
+            v_q,
+            theta_deg,
+            omega_e,
+        } => Command::OpenLoop {
+            v_d_v: v_d,
+            v_q_v: v_q,
+            theta_e: ElectricalAngle::from_degrees(theta_deg),
+            omega_e_rad_s: omega_e,
+        },
+    };
+    c.set_command(cmd)?;
+    println!("ok: {cmd:?}");
+    Ok(())
+}
+
+/// `keep-alive`: one keep-alive every `interval_ms` for `duration` seconds.
+fn keep_alive(c: &mut Client, interval_ms: u64, duration: f64) -> CliResult {
+    let end = std::time::Instant::now() + Duration::from_secs_f64(duration.max(0.0));
+    while std::time::Instant::now() < end {
+        c.keep_alive()?;
+        std::thread::sleep(Duration::from_millis(interval_ms));
+    }
+    Ok(())
+}
+
+/// `faults`: the latched set and the first one.
+fn show_faults(c: &mut Client) -> CliResult {
+    let f = c.faults()?;
+    println!("latched: {}", fault_list(f.set.0));
+    match f.first() {
+        Some(first) => println!("first:   {} ({})", first.name(), first.code()),
+        None if f.first_code != 0 => println!("first:   code {}", f.first_code),
+        None => {}
+    }
+    Ok(())
+}
+
+/// `param NAME|all`: one line per parameter.
+fn show_params(c: &mut Client, name: &str) -> CliResult {
+    let ids: Vec<ParamId> = if name == "all" {
+        ParamId::ALL.to_vec()
+    } else {
+        vec![ParamId::from_name(name).ok_or_else(|| {
+            let names: Vec<&str> = ParamId::ALL.iter().map(|p| p.name()).collect();
+            format!(
+                "unknown parameter `{name}`; one of: {}, all",
+                names.join(", ")
+            )
+        })?]
+    };
+    for id in ids {
+        match c.param(id) {
+            Ok(v) => println!("{:<18} {v}", id.name()),
+            Err(ClientError::Nack(foc_protocol::ErrorCode::Unsupported)) => {
+                println!("{:<18} (not supported)", id.name())
+            }
+            Err(e) => return Err(e.into()),
+        }
+    }
+    Ok(())
+}
+
+/// `telemetry`: stream for `duration` seconds, showing each sample (a line,
+/// or sparklines with `plot`), then the optional CSV and SVG files.
+fn stream_telemetry(
+    c: &mut Client,
+    rate: TelemetryRate,
+    duration: f64,
+    csv: Option<PathBuf>,
+    plot: bool,
+    svg: Option<PathBuf>,
+) -> CliResult {
+    let mut samples: Vec<StreamSample> = Vec::new();
+    let mut stderr = std::io::stderr();
+    c.telemetry_with(rate, Duration::from_secs_f64(duration.max(0.0)), |s| {
+        samples.push(*s);
+        if plot && samples.len() % 5 == 0 {
+            plot_tail(&mut stderr, &samples, s);
+        } else if !plot && csv.is_none() {
+            print_sample(s);
+        }
+    })?;
+    if plot {
+        eprintln!();
+    }
+    let st = c.stats();
+    eprintln!(
+        "{} samples, {} lost in the stream",
+        samples.len(),
+        st.stream_lost
+    );
+    if let Some(p) = csv {
+        write_csv(&p, &samples)?;
+        eprintln!("wrote {}", p.display());
+    }
+    if let Some(p) = svg {
+        write_svg(&p, &samples)?;
+        eprintln!("wrote {}", p.display());
+    }
+    Ok(())
+}
+
+/// One live line of velocity and iq sparklines over the last 60 samples.
+fn plot_tail(out: &mut impl Write, samples: &[StreamSample], s: &StreamSample) {
+    let tail = &samples[samples.len().saturating_sub(60)..];
+    let w: Vec<f32> = tail.iter().map(|s| s.sample.velocity_rad_s).collect();
+    let i: Vec<f32> = tail.iter().map(|s| s.sample.i_q_a).collect();
+    let _ = write!(
+        out,
+        "\rw {:>9.2} rad/s {}  iq {:>7.3} A {}",
+        s.sample.velocity_rad_s,
+        sparkline(&w),
+        s.sample.i_q_a,
+        sparkline(&i)
+    );
+}
+
+/// One sample as a line on stdout.
+fn print_sample(s: &StreamSample) {
+    let t = &s.sample;
+    println!(
+        "{:>10} {:?} w={:.3} p={:.4} id={:.3} iq={:.3} vd={:.3} vq={:.3} vbus={:.2} fault={} cyc={}",
+        t.period, t.mode, t.velocity_rad_s, t.position_rad, t.i_d_a, t.i_q_a,
+        t.v_d_v, t.v_q_v, t.v_bus_v, t.fault_code, t.max_loop_cycles
+    );
+}
+
+/// The commands that send one setting and print `ok`: `clear`, `limits`,
+/// `gains`, `dividers`, `watchdog`.
+fn configure(c: &mut Client, setting: Cmd) -> CliResult {
+    match setting {
+        Cmd::Clear => c.clear_faults()?,
         Cmd::Limits {
             max_current,
             max_velocity,
@@ -495,74 +551,79 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
             max_position,
             max_ol_voltage,
             max_ol_omega_e,
-        } => {
-            c.set_limits(Limits {
-                max_current_a: max_current,
-                max_velocity_rad_s: max_velocity,
-                min_position_rad: min_position,
-                max_position_rad: max_position,
-                max_open_loop_voltage_v: max_ol_voltage,
-                max_open_loop_omega_e_rad_s: max_ol_omega_e,
-            })?;
-            println!("ok");
-        }
-        Cmd::Gains { which } => {
-            match which {
-                GainsCmd::Current {
-                    kp_d,
-                    ki_d,
-                    kp_q,
-                    ki_q,
-                } => c.set_current_gains(CurrentGains {
-                    kp_d,
-                    ki_d,
-                    kp_q,
-                    ki_q,
-                })?,
-                GainsCmd::Speed { kp, ki } => c.set_speed_gains(SpeedGains {
-                    kp_a_per_rad_s: kp,
-                    ki_a_per_rad: ki,
-                })?,
-                GainsCmd::Position {
-                    kp,
-                    max_velocity,
-                    max_acceleration,
-                } => c.set_position_gains(PositionGains {
-                    kp_per_s: kp,
-                    max_velocity_rad_s: max_velocity,
-                    max_acceleration_rad_s2: max_acceleration,
-                })?,
-            }
-            println!("ok");
-        }
-        Cmd::Dividers { speed, position } => {
-            c.set_dividers(speed, position)?;
-            println!("ok");
-        }
+        } => c.set_limits(Limits {
+            max_current_a: max_current,
+            max_velocity_rad_s: max_velocity,
+            min_position_rad: min_position,
+            max_position_rad: max_position,
+            max_open_loop_voltage_v: max_ol_voltage,
+            max_open_loop_omega_e_rad_s: max_ol_omega_e,
+        })?,
+        Cmd::Gains { which } => set_gains(c, which)?,
+        Cmd::Dividers { speed, position } => c.set_dividers(speed, position)?,
         Cmd::Watchdog {
             timeout_periods,
             reaction,
-        } => {
-            c.set_watchdog(WatchdogConfig {
-                timeout_periods,
-                reaction: match reaction {
-                    Reaction::Disable => TimeoutReaction::Disable,
-                    Reaction::Stop => TimeoutReaction::Stop,
-                    Reaction::Hold => TimeoutReaction::Hold,
-                },
-            })?;
-            println!("ok");
-        }
-        Cmd::Calibrate { routine } => {
-            c.calibrate(match routine {
-                Routine::Offsets => Calibration::Offsets,
-                Routine::Identification => Calibration::Identification,
-                Routine::Alignment => Calibration::Alignment,
-            })?;
-            println!("started");
-        }
+        } => c.set_watchdog(WatchdogConfig {
+            timeout_periods,
+            reaction: match reaction {
+                Reaction::Disable => TimeoutReaction::Disable,
+                Reaction::Stop => TimeoutReaction::Stop,
+                Reaction::Hold => TimeoutReaction::Hold,
+            },
+        })?,
+        Cmd::Simulate { .. }
+        | Cmd::Ping
+        | Cmd::Mode { .. }
+        | Cmd::KeepAlive { .. }
+        | Cmd::Faults
+        | Cmd::Param { .. }
+        | Cmd::Telemetry { .. }
+        | Cmd::Calibrate { .. } => return Err("not a setting (handled by `run`)".into()),
     }
+    println!("ok");
     Ok(())
+}
+
+/// `calibrate ROUTINE`: start it.
+fn calibrate(c: &mut Client, routine: Routine) -> CliResult {
+    c.calibrate(match routine {
+        Routine::Offsets => Calibration::Offsets,
+        Routine::Identification => Calibration::Identification,
+        Routine::Alignment => Calibration::Alignment,
+    })?;
+    println!("started");
+    Ok(())
+}
+
+/// `gains current|speed|position`.
+fn set_gains(c: &mut Client, which: GainsCmd) -> Result<(), ClientError> {
+    match which {
+        GainsCmd::Current {
+            kp_d,
+            ki_d,
+            kp_q,
+            ki_q,
+        } => c.set_current_gains(CurrentGains {
+            kp_d,
+            ki_d,
+            kp_q,
+            ki_q,
+        }),
+        GainsCmd::Speed { kp, ki } => c.set_speed_gains(SpeedGains {
+            kp_a_per_rad_s: kp,
+            ki_a_per_rad: ki,
+        }),
+        GainsCmd::Position {
+            kp,
+            max_velocity,
+            max_acceleration,
+        } => c.set_position_gains(PositionGains {
+            kp_per_s: kp,
+            max_velocity_rad_s: max_velocity,
+            max_acceleration_rad_s2: max_acceleration,
+        }),
+    }
 }
 
 fn main() -> ExitCode {

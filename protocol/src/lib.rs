@@ -59,6 +59,7 @@
 pub mod device;
 pub mod frame;
 pub mod message;
+mod wire;
 
 pub use device::{CommandWatchdog, DeviceContext, DeviceState, Refusal, WatchdogConfig};
 pub use frame::{encode, FrameDecoder, FrameError, Packet, MAX_FRAME, MAX_PAYLOAD};

@@ -43,25 +43,11 @@
 //! it is never taken for a reply) and a wrapping stream counter in `seq` (so
 //! the host can count lost frames).
 
-use crate::frame::{Reader, Writer};
+pub use crate::wire::DecodeError;
+use crate::wire::{Reader, Writer};
 use foc_core::angle::ElectricalAngle;
 use foc_core::control::stage::TimeoutReaction;
 use foc_core::control::{Command, Fault, FaultSet, Feedback, Limits, Mode};
-
-/// Why a body could not be decoded (mapped to a
-/// [`crate::frame::FrameErrorKind`] by the frame layer).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum DecodeError {
-    /// Unknown tag.
-    UnknownTag,
-    /// Body too short.
-    Short,
-    /// Bytes left over after the body.
-    Long,
-    /// Field `n` holds an invalid code.
-    BadField(u8),
-}
 
 /// A message type of one direction.
 pub trait Message: Sized {

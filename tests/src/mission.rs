@@ -353,6 +353,11 @@ impl Sim {
             self.record(on);
         }
         self.last_bridge = bridge;
+        // What the firmware's `CurrentSense::set_offsets_a` does when the
+        // drive hands over calibrated offsets.
+        if let Some(o) = self.cascade.take_offsets() {
+            self.set_current_offsets(o);
+        }
         self.last = self.plant.step_period(duties, on, self.load_nm);
         bridge
     }
@@ -1057,204 +1062,409 @@ fn identification_summary(
 pub fn run_mission(setup: &Setup, progress: &mut dyn FnMut(f64)) -> MissionResult {
     let wall = Instant::now();
     let config = setup.cascade_config();
-    let mut sim = Sim::new(setup, config, true);
-    let kt = setup.kt();
-    let j = setup.motor.inertia_kg_m2 as f32;
-    let w_max = setup.max_speed_rad_s();
-    let i_max = setup.max_current_a;
-    let cpr = setup.bench.sensors.encoder_counts_per_rev.max(1);
-    let count_rad = std::f64::consts::TAU / cpr as f64;
-    let speed_div = config.rates.speed_divider.max(1) as usize;
-    let mut segments = Vec::new();
-
-    // Expected duration, for the progress bar.
-    // Speeds: within the voltage and current limits, and at most one
-    // electrical turn per 10 PWM periods (`Setup::max_mission_speed_rad_s`).
-    let w_cap = (0.6 * w_max).min(setup.max_mission_speed_rad_s());
-    let w1 = (0.4 * w_cap).min(0.4 * i_max * kt / (j * 2.0 * std::f32::consts::PI * 20.0));
-    let w2 = w_cap.max(w1);
-    let a_ramp = 0.3 * kt * i_max / j;
-    let t_ramp = ((w2 - w1) / a_ramp).max(0.1) as f64;
-    let move_rad = std::f32::consts::TAU;
-    let v_traj = config.position.max_velocity_rad_s;
-    let a_traj = config.position.max_acceleration_rad_s2;
-    let t_move = (move_rad / v_traj + v_traj / a_traj) as f64 + 0.6;
-    let id_cfg = identify::config(setup, setup.motor.pole_pairs);
-    // The alignment's calibration carries the sensor's resolution, so the
-    // current stage adds the half count of a counting sensor to every
-    // reading: the zero found is the physical one and the angle the
-    // controller uses is unbiased (this matters on the hall-class hub
-    // motor: half a count is 30 deg(e) there).
-    // Identification: offsets, R and L (about 1 s), both alignment sweeps
-    // with their holds, the flux step (about 2 s).
-    let a = &id_cfg.alignment;
-    let t_align = 2.0
-        * (f32::from(a.lead_in_turns_e + a.turns_e) * std::f32::consts::TAU / a.speed_e_rad_s
-            + a.hold_s);
-    let t_id = 0.1 + 1.0 + t_align as f64 + if id_cfg.measure_flux { 2.0 } else { 0.0 };
-    let expected = t_id + 0.03 + 0.5 + t_ramp + 0.3 + 0.6 + t_ramp + 0.4 + t_move;
-    let total = secs(setup, expected).max(1);
-    let mut tick = |sim: &Sim| {
-        if sim.rows() % 2048 == 0 {
-            progress((sim.rows() as f64 / total as f64).min(1.0));
-        }
+    let sim = Sim::new(setup, config, true);
+    let plan = MissionPlan::new(setup, &config);
+    let total = secs(setup, plan.expected_s).max(1);
+    let mut m = Mission {
+        setup,
+        config,
+        plan,
+        sim,
+        segments: Vec::new(),
+        progress: Progress {
+            report: progress,
+            total,
+        },
     };
 
     // The rotor starts somewhere arbitrary.
-    sim.set_rotor_angle(0.7);
+    m.sim.set_rotor_angle(0.7);
 
-    // 1. Identify: current offsets, R, L, gains, alignment, flux linkage.
-    let start = sim.rows();
-    let id_wall = Instant::now();
-    let outcome = identify::run(&mut sim, setup, id_cfg, &mut |s| tick(s));
-    let id_wall_s = id_wall.elapsed().as_secs_f64();
-    let (identification, identification_failure) = match &outcome {
-        Ok(o) => match o.identified() {
-            Some(d) => (
-                Some(identification_summary(setup, &sim, o, &d.result, id_wall_s)),
-                None,
-            ),
-            None => (None, Some(format!("{:?} in {:?}", o.step, o.stage))),
-        },
-        Err(e) => (None, Some(e.to_string())),
-    };
-    if identification.is_none() {
-        // Run the rest on the bench's knowledge so that the report is
-        // complete; `failures()` reports the identification failure.
-        sim.cascade.command(Command::Disable).ok();
-        sim.cascade.clear_faults();
-        sim.cascade
-            .set_calibration(&setup.supplied_calibration(&config));
+    let identified = m.identify();
+    let i_step = m.current_step(&identified.config);
+    m.speed_step();
+    m.ramp();
+    let load = m.load_step();
+    m.stop();
+    let p0_true = m.position_move();
+    (m.progress.report)(1.0);
+
+    let trace = m.sim.take_trace().unwrap_or_default();
+    let summary = m.summary(&trace, identified, i_step, load, p0_true, wall);
+    MissionResult {
+        trace,
+        segments: m.segments,
+        summary,
     }
-    sim.run(secs(setup, 0.02));
-    segments.push(Segment {
-        name: "identify",
-        start,
-        end: sim.rows(),
-    });
-    let found = sim.cascade.current.config().angle.zero_offset;
-    let align_error_deg = found
-        .diff_radians(setup.true_angle_calibration().zero_offset)
-        .to_degrees() as f64;
-    // The measured current-loop configuration from here on.
-    let config = *sim.cascade.config();
+}
 
-    // 2. q-current step, rotor locked.
-    sim.plant.set_mechanics(Mechanics::Locked);
-    let v_lin = 0.95 * setup.bench.bus_voltage_v as f32 / 3f32.sqrt();
-    let kp = config.current.current.q_gains.kp_v_per_a;
-    // As large as the voltage allows (the first step's voltage is about
-    // Kp * I_step), so that the ADC's quantisation is small against the 2 % band.
-    let i_step = (0.5 * setup.rated_current_a)
-        .min(0.8 * v_lin / kp)
-        .min(0.5 * i_max);
-    sim.cascade.command(Command::Torque { iq_a: 0.0 }).ok();
-    sim.run(20);
-    let start = sim.rows();
-    sim.cascade.command(Command::Torque { iq_a: i_step }).ok();
-    sim.run(secs(setup, 0.02).max(150));
-    segments.push(Segment {
-        name: "current step",
-        start,
-        end: sim.rows(),
-    });
-    sim.cascade.command(Command::Torque { iq_a: 0.0 }).ok();
-    sim.run(secs(setup, 0.005).max(50));
-    sim.plant.set_mechanics(Mechanics::Free);
+/// The mission's speeds and durations, derived from the setup before it
+/// starts.
+struct MissionPlan {
+    /// Torque constant [N m / A].
+    kt: f32,
+    /// Speed step target [rad/s].
+    w1: f32,
+    /// Speed at the end of the ramp [rad/s].
+    w2: f32,
+    /// Duration of the ramp (and of the stop) [s].
+    t_ramp: f64,
+    /// Position move [rad].
+    move_rad: f32,
+    /// Duration of the position move [s].
+    t_move: f64,
+    /// Speed-loop divider of the initial configuration.
+    speed_div: usize,
+    /// The identification's configuration.
+    id_cfg: foc_core::calibration::identification::IdentificationConfig,
+    /// Expected duration of the whole mission, for the progress bar [s].
+    expected_s: f64,
+}
 
-    // 3. Speed step, then ramp.
-    let start = sim.rows();
-    sim.cascade.command(Command::Velocity { rad_s: w1 }).ok();
-    for _ in 0..secs(setup, 0.5) {
-        sim.step();
-        tick(&sim);
-    }
-    segments.push(Segment {
-        name: "speed step",
-        start,
-        end: sim.rows(),
-    });
-    let start = sim.rows();
-    let n_ramp = secs(setup, t_ramp);
-    for k in 0..n_ramp {
-        if k % speed_div == 0 {
-            let w = w1 + (w2 - w1) * (k as f32 / n_ramp as f32);
-            sim.cascade.command(Command::Velocity { rad_s: w }).ok();
+impl MissionPlan {
+    fn new(setup: &Setup, config: &CascadeConfig) -> Self {
+        let kt = setup.kt();
+        let j = setup.motor.inertia_kg_m2 as f32;
+        let w_max = setup.max_speed_rad_s();
+        let i_max = setup.max_current_a;
+        let speed_div = config.rates.speed_divider.max(1) as usize;
+        // Speeds: within the voltage and current limits, and at most one
+        // electrical turn per 10 PWM periods (`Setup::max_mission_speed_rad_s`).
+        let w_cap = (0.6 * w_max).min(setup.max_mission_speed_rad_s());
+        let w1 = (0.4 * w_cap).min(0.4 * i_max * kt / (j * 2.0 * std::f32::consts::PI * 20.0));
+        let w2 = w_cap.max(w1);
+        let a_ramp = 0.3 * kt * i_max / j;
+        let t_ramp = ((w2 - w1) / a_ramp).max(0.1) as f64;
+        let move_rad = std::f32::consts::TAU;
+        let v_traj = config.position.max_velocity_rad_s;
+        let a_traj = config.position.max_acceleration_rad_s2;
+        let t_move = (move_rad / v_traj + v_traj / a_traj) as f64 + 0.6;
+        let id_cfg = identify::config(setup, setup.motor.pole_pairs);
+        // The alignment's calibration carries the sensor's resolution, so the
+        // current stage adds the half count of a counting sensor to every
+        // reading: the zero found is the physical one and the angle the
+        // controller uses is unbiased (this matters on the hall-class hub
+        // motor: half a count is 30 deg(e) there).
+        // Identification: offsets, R and L (about 1 s), both alignment sweeps
+        // with their holds, the flux step (about 2 s).
+        let a = &id_cfg.alignment;
+        let t_align = 2.0
+            * (f32::from(a.lead_in_turns_e + a.turns_e) * std::f32::consts::TAU / a.speed_e_rad_s
+                + a.hold_s);
+        let t_id = 0.1 + 1.0 + t_align as f64 + if id_cfg.measure_flux { 2.0 } else { 0.0 };
+        let expected_s = t_id + 0.03 + 0.5 + t_ramp + 0.3 + 0.6 + t_ramp + 0.4 + t_move;
+        Self {
+            kt,
+            w1,
+            w2,
+            t_ramp,
+            move_rad,
+            t_move,
+            speed_div,
+            id_cfg,
+            expected_s,
         }
-        sim.step();
-        tick(&sim);
     }
-    sim.cascade.command(Command::Velocity { rad_s: w2 }).ok();
-    for _ in 0..secs(setup, 0.3) {
-        sim.step();
-        tick(&sim);
-    }
-    segments.push(Segment {
-        name: "ramp",
-        start,
-        end: sim.rows(),
-    });
+}
 
-    // 4. Load step.
-    let load = 0.4 * kt * setup.rated_current_a;
-    let start = sim.rows();
-    sim.load_nm = load;
-    for _ in 0..secs(setup, 0.6) {
-        sim.step();
-        tick(&sim);
-    }
-    segments.push(Segment {
-        name: "load step",
-        start,
-        end: sim.rows(),
-    });
+/// The progress callback and the expected number of periods.
+struct Progress<'a> {
+    report: &'a mut dyn FnMut(f64),
+    total: usize,
+}
 
-    // 5. Stop (load off), then move one turn.
-    sim.load_nm = 0.0;
-    let start = sim.rows();
-    let n_stop = secs(setup, t_ramp);
-    for k in 0..n_stop {
-        if k % speed_div == 0 {
-            let w = w2 * (1.0 - k as f32 / n_stop as f32);
-            sim.cascade.command(Command::Velocity { rad_s: w }).ok();
+impl Progress<'_> {
+    /// Report the fraction done every 2048 rows.
+    fn tick(&mut self, sim: &Sim) {
+        if sim.rows() % 2048 == 0 {
+            (self.report)((sim.rows() as f64 / self.total as f64).min(1.0));
         }
-        sim.step();
-        tick(&sim);
     }
-    sim.cascade.command(Command::Velocity { rad_s: 0.0 }).ok();
-    for _ in 0..secs(setup, 0.4) {
-        sim.step();
-        tick(&sim);
-    }
-    segments.push(Segment {
-        name: "stop",
-        start,
-        end: sim.rows(),
-    });
-    let start = sim.rows();
-    let p0_est = sim.cascade.feedback().position_rad;
-    let p0_true = sim.true_position_rad();
-    let target = p0_est + move_rad;
-    sim.cascade.command(Command::Position { rad: target }).ok();
-    for _ in 0..secs(setup, t_move) {
-        sim.step();
-        tick(&sim);
-    }
-    segments.push(Segment {
-        name: "position move",
-        start,
-        end: sim.rows(),
-    });
-    progress(1.0);
+}
 
-    let trace = sim.take_trace().unwrap_or_default();
-    let periods = trace.len();
-    let ts = 1.0 / setup.bench.pwm_frequency_hz as f64;
-    let ms = |n: usize| n as f64 * ts * 1e3;
+/// What the identification segment left for the rest of the mission.
+struct Identified {
+    /// Its figures (None: it failed).
+    summary: Option<IdentificationSummary>,
+    /// Why it failed.
+    failure: Option<String>,
+    /// The electrical zero in use after it.
+    found: ElectricalAngle,
+    /// Error of `found` against the plant's truth [deg, electrical].
+    align_error_deg: f64,
+    /// The measured configuration, used from here on.
+    config: CascadeConfig,
+}
 
-    // Figures.
-    let seg = |name: &str| segments.iter().find(|s| s.name == name).cloned().unwrap();
-    let cs = seg("current step");
+/// A mission in progress: the simulation and the segments run so far.
+struct Mission<'a> {
+    setup: &'a Setup,
+    /// The configuration before identification.
+    config: CascadeConfig,
+    plan: MissionPlan,
+    sim: Sim,
+    segments: Vec<Segment>,
+    progress: Progress<'a>,
+}
+
+impl Mission<'_> {
+    /// Run `n` periods, reporting progress.
+    fn run_ticking(&mut self, n: usize) {
+        for _ in 0..n {
+            self.sim.step();
+            self.progress.tick(&self.sim);
+        }
+    }
+
+    /// Record the segment `name` from row `start` to now.
+    fn end_segment(&mut self, name: &'static str, start: usize) {
+        self.segments.push(Segment {
+            name,
+            start,
+            end: self.sim.rows(),
+        });
+    }
+
+    /// Segment 1, identify: current offsets, R, L, gains, alignment, flux
+    /// linkage. On failure the rest runs on the supplied calibration.
+    fn identify(&mut self) -> Identified {
+        let setup = self.setup;
+        let start = self.sim.rows();
+        let id_wall = Instant::now();
+        let progress = &mut self.progress;
+        let outcome = identify::run(&mut self.sim, setup, self.plan.id_cfg, &mut |s| {
+            progress.tick(s)
+        });
+        let id_wall_s = id_wall.elapsed().as_secs_f64();
+        let (summary, failure) = match &outcome {
+            Ok(o) => match o.identified() {
+                Some(d) => (
+                    Some(identification_summary(
+                        setup, &self.sim, o, &d.result, id_wall_s,
+                    )),
+                    None,
+                ),
+                None => (None, Some(format!("{:?} in {:?}", o.step, o.stage))),
+            },
+            Err(e) => (None, Some(e.to_string())),
+        };
+        if summary.is_none() {
+            // Run the rest on the bench's knowledge so that the report is
+            // complete; `failures()` reports the identification failure.
+            self.sim.cascade.command(Command::Disable).ok();
+            self.sim.cascade.clear_faults();
+            self.sim
+                .cascade
+                .set_calibration(&setup.supplied_calibration(&self.config));
+        }
+        self.sim.run(secs(setup, 0.02));
+        self.end_segment("identify", start);
+        let found = self.sim.cascade.current.config().angle.zero_offset;
+        let align_error_deg = found
+            .diff_radians(setup.true_angle_calibration().zero_offset)
+            .to_degrees() as f64;
+        Identified {
+            summary,
+            failure,
+            found,
+            align_error_deg,
+            config: *self.sim.cascade.config(),
+        }
+    }
+
+    /// Segment 2, q-current step with the rotor locked. Returns the step [A].
+    fn current_step(&mut self, config: &CascadeConfig) -> f32 {
+        let setup = self.setup;
+        let sim = &mut self.sim;
+        sim.plant.set_mechanics(Mechanics::Locked);
+        let v_lin = 0.95 * setup.bench.bus_voltage_v as f32 / 3f32.sqrt();
+        let kp = config.current.current.q_gains.kp_v_per_a;
+        // As large as the voltage allows (the first step's voltage is about
+        // Kp * I_step), so that the ADC's quantisation is small against the 2 % band.
+        let i_step = (0.5 * setup.rated_current_a)
+            .min(0.8 * v_lin / kp)
+            .min(0.5 * setup.max_current_a);
+        sim.cascade.command(Command::Torque { iq_a: 0.0 }).ok();
+        sim.run(20);
+        let start = sim.rows();
+        sim.cascade.command(Command::Torque { iq_a: i_step }).ok();
+        sim.run(secs(setup, 0.02).max(150));
+        self.end_segment("current step", start);
+        let sim = &mut self.sim;
+        sim.cascade.command(Command::Torque { iq_a: 0.0 }).ok();
+        sim.run(secs(setup, 0.005).max(50));
+        sim.plant.set_mechanics(Mechanics::Free);
+        i_step
+    }
+
+    /// Segment 3a, speed step 0 -> `w1`.
+    fn speed_step(&mut self) {
+        let start = self.sim.rows();
+        let w1 = self.plan.w1;
+        self.sim
+            .cascade
+            .command(Command::Velocity { rad_s: w1 })
+            .ok();
+        self.run_ticking(secs(self.setup, 0.5));
+        self.end_segment("speed step", start);
+    }
+
+    /// Segment 3b, ramp `w1` -> `w2`, then a hold at `w2`.
+    fn ramp(&mut self) {
+        let start = self.sim.rows();
+        let MissionPlan {
+            w1, w2, speed_div, ..
+        } = self.plan;
+        let n_ramp = secs(self.setup, self.plan.t_ramp);
+        for k in 0..n_ramp {
+            if k % speed_div == 0 {
+                let w = w1 + (w2 - w1) * (k as f32 / n_ramp as f32);
+                self.sim
+                    .cascade
+                    .command(Command::Velocity { rad_s: w })
+                    .ok();
+            }
+            self.sim.step();
+            self.progress.tick(&self.sim);
+        }
+        self.sim
+            .cascade
+            .command(Command::Velocity { rad_s: w2 })
+            .ok();
+        self.run_ticking(secs(self.setup, 0.3));
+        self.end_segment("ramp", start);
+    }
+
+    /// Segment 4, load step at `w2`. Returns the load [N m].
+    fn load_step(&mut self) -> f32 {
+        let load = 0.4 * self.plan.kt * self.setup.rated_current_a;
+        let start = self.sim.rows();
+        self.sim.load_nm = load;
+        self.run_ticking(secs(self.setup, 0.6));
+        self.end_segment("load step", start);
+        load
+    }
+
+    /// Segment 5a, stop: load off, ramp down to rest.
+    fn stop(&mut self) {
+        self.sim.load_nm = 0.0;
+        let start = self.sim.rows();
+        let MissionPlan { w2, speed_div, .. } = self.plan;
+        let n_stop = secs(self.setup, self.plan.t_ramp);
+        for k in 0..n_stop {
+            if k % speed_div == 0 {
+                let w = w2 * (1.0 - k as f32 / n_stop as f32);
+                self.sim
+                    .cascade
+                    .command(Command::Velocity { rad_s: w })
+                    .ok();
+            }
+            self.sim.step();
+            self.progress.tick(&self.sim);
+        }
+        self.sim
+            .cascade
+            .command(Command::Velocity { rad_s: 0.0 })
+            .ok();
+        self.run_ticking(secs(self.setup, 0.4));
+        self.end_segment("stop", start);
+    }
+
+    /// Segment 5b, position move of one turn. Returns the true position at
+    /// its start [rad].
+    fn position_move(&mut self) -> f64 {
+        let start = self.sim.rows();
+        let p0_est = self.sim.cascade.feedback().position_rad;
+        let p0_true = self.sim.true_position_rad();
+        let target = p0_est + self.plan.move_rad;
+        self.sim
+            .cascade
+            .command(Command::Position { rad: target })
+            .ok();
+        self.run_ticking(secs(self.setup, self.plan.t_move));
+        self.end_segment("position move", start);
+        p0_true
+    }
+
+    /// The segment `name` (every segment is recorded once).
+    fn segment(&self, name: &str) -> Segment {
+        self.segments
+            .iter()
+            .find(|s| s.name == name)
+            .cloned()
+            .unwrap()
+    }
+
+    /// The mission's figures from its `trace`.
+    fn summary(
+        &self,
+        trace: &Trace,
+        identified: Identified,
+        i_step: f32,
+        load: f32,
+        p0_true: f64,
+        wall: Instant,
+    ) -> MissionSummary {
+        let setup = self.setup;
+        let periods = trace.len();
+        let ts = 1.0 / setup.bench.pwm_frequency_hz as f64;
+        let cpr = setup.bench.sensors.encoder_counts_per_rev.max(1);
+        let i_step = i_step as f64;
+        let current = current_step_figures(setup, trace, &self.segment("current step"), i_step);
+        let w1 = self.plan.w1 as f64;
+        let speed = speed_step_figures(trace, &self.segment("speed step"), w1, ts);
+        let w2d = self.plan.w2 as f64;
+        let load_figures = load_step_figures(setup, trace, &self.segment("load step"), w2d, ts);
+        let move_d = self.plan.move_rad as f64;
+        let ps = self.segment("position move");
+        let position = position_figures(setup, trace, &ps, p0_true, move_d, ts);
+        let config = identified.config;
+        MissionSummary {
+            motor: setup.name.clone(),
+            pwm_hz: setup.pwm_hz(),
+            dividers: (config.rates.speed_divider, config.rates.position_divider),
+            identification: identified.summary,
+            identification_failure: identified.failure,
+            align_found_deg: identified.found.to_degrees() as f64,
+            align_error_deg: identified.align_error_deg,
+            current_step_a: i_step,
+            current_step_magnitude: current.0,
+            current_overshoot_percent: current.1,
+            current_settling_periods: current.2,
+            current_id_peak_a: current.3,
+            speed_step_rad_s: w1,
+            speed_overshoot_percent: speed.0,
+            speed_settling_ms: speed.1,
+            speed_high_rad_s: w2d,
+            load_step_nm: load as f64,
+            load_dip_rad_s: load_figures.0,
+            load_steady_error_rad_s: load_figures.1,
+            load_recovery_ms: load_figures.2,
+            move_rad: move_d,
+            position_settling_ms: position.0,
+            position_final_error_rad: position.1,
+            encoder_count_rad: std::f64::consts::TAU / cpr as f64,
+            faults: mission_faults(trace),
+            periods,
+            sim_time_s: periods as f64 * ts,
+            wall_time_s: wall.elapsed().as_secs_f64(),
+        }
+    }
+}
+
+/// `n` PWM periods of `ts` seconds [ms].
+fn ms(n: usize, ts: f64) -> f64 {
+    n as f64 * ts * 1e3
+}
+
+/// Current step `cs` of `i_step` [A]: (figures of the magnitude?, overshoot
+/// [%], 2 % settling [periods], d-current peak [A]).
+fn current_step_figures(
+    setup: &Setup,
+    trace: &Trace,
+    cs: &Segment,
+    i_step: f64,
+) -> (bool, f64, Option<usize>, f64) {
     // The true current (a current probe on the bench), at the sample instants.
     // With a hall-class sensor the controller's angle is only known to
     // +-half a count (+-30 deg(e) on the hub motor) at the locked position,
@@ -1263,26 +1473,40 @@ pub fn run_mission(setup: &Setup, progress: &mut dyn FnMut(f64)) -> MissionResul
     let current_step_magnitude = identify::hall_class(setup);
     let iq_mag: Vec<f64>;
     let iq = if current_step_magnitude {
-        let (q, d) = (col(&trace, "iq_true_a"), col(&trace, "id_true_a"));
+        let (q, d) = (col(trace, "iq_true_a"), col(trace, "id_true_a"));
         iq_mag = (cs.start..cs.end).map(|k| q[k].hypot(d[k])).collect();
         &iq_mag[..]
     } else {
-        &col(&trace, "iq_true_a")[cs.start..cs.end]
+        &col(trace, "iq_true_a")[cs.start..cs.end]
     };
-    let id = &col(&trace, "id_a")[cs.start..cs.end];
-    let i_step = i_step as f64;
-    let current_overshoot_percent = metrics::overshoot_percent(iq, 0.0, i_step);
-    let current_settling_periods = metrics::settling_index(iq, 0.0, i_step, 0.02);
-    let current_id_peak_a = id.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    let id = &col(trace, "id_a")[cs.start..cs.end];
+    (
+        current_step_magnitude,
+        metrics::overshoot_percent(iq, 0.0, i_step),
+        metrics::settling_index(iq, 0.0, i_step, 0.02),
+        id.iter().fold(0.0f64, |m, v| m.max(v.abs())),
+    )
+}
 
-    let ss = seg("speed step");
-    let w = &col(&trace, "speed_rad_s")[ss.start..ss.end];
-    let speed_overshoot_percent = metrics::overshoot_percent(w, 0.0, w1 as f64);
-    let speed_settling_ms = metrics::settling_index(w, 0.0, w1 as f64, 0.02).map(ms);
+/// Speed step `ss` to `w1` [rad/s]: (overshoot [%], 2 % settling [ms]).
+fn speed_step_figures(trace: &Trace, ss: &Segment, w1: f64, ts: f64) -> (f64, Option<f64>) {
+    let w = &col(trace, "speed_rad_s")[ss.start..ss.end];
+    (
+        metrics::overshoot_percent(w, 0.0, w1),
+        metrics::settling_index(w, 0.0, w1, 0.02).map(|n| ms(n, ts)),
+    )
+}
 
-    let ls = seg("load step");
-    let w = &col(&trace, "speed_rad_s")[ls.start..ls.end];
-    let w2d = w2 as f64;
+/// Load step `ls` at `w2d` [rad/s]: (largest dip [rad/s], steady error
+/// [rad/s], recovery into +-2 % [ms]).
+fn load_step_figures(
+    setup: &Setup,
+    trace: &Trace,
+    ls: &Segment,
+    w2d: f64,
+    ts: f64,
+) -> (f64, f64, Option<f64>) {
+    let w = &col(trace, "speed_rad_s")[ls.start..ls.end];
     let load_dip_rad_s = w.iter().fold(0.0f64, |m, v| m.max(w2d - v));
     let tail = secs(setup, 0.1).min(w.len());
     let load_steady_error_rad_s = w2d - mean(&w[w.len() - tail..]);
@@ -1291,21 +1515,36 @@ pub fn run_mission(setup: &Setup, progress: &mut dyn FnMut(f64)) -> MissionResul
         let last_out = w.iter().rposition(|v| (v - w2d).abs() > tol);
         match last_out {
             None => Some(0.0),
-            Some(i) if i + 1 < w.len() => Some(ms(i + 1)),
+            Some(i) if i + 1 < w.len() => Some(ms(i + 1, ts)),
             Some(_) => None,
         }
     };
+    (load_dip_rad_s, load_steady_error_rad_s, load_recovery_ms)
+}
 
-    let ps = seg("position move");
-    let pos = &col(&trace, "position_rad")[ps.start..ps.end];
+/// Position move `ps` of `move_d` [rad] from the true position `p0_true`:
+/// (2 % settling [ms], final error [rad]).
+fn position_figures(
+    setup: &Setup,
+    trace: &Trace,
+    ps: &Segment,
+    p0_true: f64,
+    move_d: f64,
+    ts: f64,
+) -> (Option<f64>, f64) {
+    let pos = &col(trace, "position_rad")[ps.start..ps.end];
     let disp: Vec<f64> = pos.iter().map(|p| p - p0_true).collect();
-    let move_d = move_rad as f64;
-    let position_settling_ms = metrics::settling_index(&disp, 0.0, move_d, 0.02).map(ms);
+    let position_settling_ms = metrics::settling_index(&disp, 0.0, move_d, 0.02).map(|n| ms(n, ts));
     let tail = secs(setup, 0.05).min(disp.len());
     let position_final_error_rad = move_d - mean(&disp[disp.len() - tail..]);
+    (position_settling_ms, position_final_error_rad)
+}
 
+/// The faults latched during the mission (names, first occurrence order),
+/// plus a note when position mode was never active.
+fn mission_faults(trace: &Trace) -> Vec<String> {
     let mut faults: Vec<String> = Vec::new();
-    for &c in col(&trace, "fault") {
+    for &c in col(trace, "fault") {
         if c > 0.0 {
             if let Some(f) = foc_core::control::Fault::from_code(c as u8) {
                 let n = f.name().to_string();
@@ -1315,46 +1554,11 @@ pub fn run_mission(setup: &Setup, progress: &mut dyn FnMut(f64)) -> MissionResul
             }
         }
     }
-    let modes_ok = col(&trace, "mode").contains(&(Mode::Position as u8 as f64));
+    let modes_ok = col(trace, "mode").contains(&(Mode::Position as u8 as f64));
     if !modes_ok {
         faults.push("position mode never active".into());
     }
-
-    let summary = MissionSummary {
-        motor: setup.name.clone(),
-        pwm_hz: setup.pwm_hz(),
-        dividers: (config.rates.speed_divider, config.rates.position_divider),
-        identification,
-        identification_failure,
-        align_found_deg: found.to_degrees() as f64,
-        align_error_deg,
-        current_step_a: i_step,
-        current_step_magnitude,
-        current_overshoot_percent,
-        current_settling_periods,
-        current_id_peak_a,
-        speed_step_rad_s: w1 as f64,
-        speed_overshoot_percent,
-        speed_settling_ms,
-        speed_high_rad_s: w2d,
-        load_step_nm: load as f64,
-        load_dip_rad_s,
-        load_steady_error_rad_s,
-        load_recovery_ms,
-        move_rad: move_d,
-        position_settling_ms,
-        position_final_error_rad,
-        encoder_count_rad: count_rad,
-        faults,
-        periods,
-        sim_time_s: periods as f64 * ts,
-        wall_time_s: wall.elapsed().as_secs_f64(),
-    };
-    MissionResult {
-        trace,
-        segments,
-        summary,
-    }
+    faults
 }
 
 /// Simulation speed: controller steps per second alone (on a fixed sample)

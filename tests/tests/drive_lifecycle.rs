@@ -201,7 +201,7 @@ fn identification_on_request_succeeds_and_never_resumes_an_old_command() {
     let Some((_, Event::Identified(r))) = seen.last() else {
         panic!("{seen:?}")
     };
-    assert!((r.r_ohm as f64 / s.motor.r_ohm as f64 - 1.0).abs() < 0.05);
+    assert!((f64::from(r.r_ohm) / s.motor.r_ohm - 1.0).abs() < 0.05);
     assert!(sim.cascade.is_calibrated());
     sim.run(100);
     assert_eq!(sim.cascade.feedback().mode, Mode::Disabled);

@@ -278,212 +278,253 @@ pub fn run_cmd(args: &E2eArgs) -> Result {
 }
 
 fn run_session(emu: &mut Emulator, port: u16, start: Instant) -> Result {
-    let deadline = start + TOTAL_LIMIT;
-    let stream = connect(port, Instant::now() + Duration::from_secs(10))?;
-    let raw = stream.try_clone()?;
-    let mut client =
-        Client::new(Box::new(TcpTransport::from_stream(stream)?)).map_err(client_err("client"))?;
-    client.set_timeout(Duration::from_millis(500));
-    client.set_retries(3);
-    let mut s = Session {
-        client,
-        raw,
-        deadline,
-    };
-
-    // 1. Ping and start-up.
-    let hello = s.client.ping().map_err(client_err("ping"))?;
-    check(
-        hello.protocol_version == foc_protocol::PROTOCOL_VERSION,
-        format!(
-            "ping: protocol {} (host {}), firmware {}.{}.{}",
-            hello.protocol_version,
-            foc_protocol::PROTOCOL_VERSION,
-            hello.firmware_version[0],
-            hello.firmware_version[1],
-            hello.firmware_version[2]
-        ),
-    )?;
-    let t0 = Instant::now();
-    loop {
-        emu.alive()?;
-        let cal = s
-            .client
-            .param(ParamId::Calibrated)
-            .map_err(client_err("read calibrated"))?;
-        if cal == 1.0 {
-            break;
-        }
-        if t0.elapsed() > Duration::from_secs(45) || s.remaining().is_err() {
-            return Err(Error(
-                "FAIL start-up: the firmware did not report `calibrated` = 1 within 45 s host time \
-                 (closed-loop modes locked: no calibration permit installed at start-up)"
-                    .into(),
-            ));
-        }
-        thread::sleep(Duration::from_millis(200));
-    }
-    let t = s.telemetry()?;
-    check(
-        t.mode == Mode::Disabled && t.fault_code == 0,
-        format!(
-            "start-up done in {:.1} s host time: calibrated, disabled, no fault (period {})",
-            t0.elapsed().as_secs_f32(),
-            t.period
-        ),
-    )?;
-    let faults = s.client.faults().map_err(client_err("read faults"))?;
-    check(faults.set.is_empty(), "no fault latched after start-up")?;
-
-    // 2. Velocity.
-    s.client
-        .set_command(DriveCommand::Velocity {
-            rad_s: VELOCITY_RAD_S,
-        })
-        .map_err(client_err("velocity command"))?;
-    let p0 = s.telemetry()?.period;
-    let t = s.wait_for("velocity", Duration::from_secs(25), 3, |t| {
-        t.mode == Mode::Velocity && (t.velocity_rad_s - VELOCITY_RAD_S).abs() < VELOCITY_TOL_RAD_S
-    })?;
-    check(
-        true,
-        format!(
-            "velocity {VELOCITY_RAD_S} rad/s: read back {:.3} rad/s (tolerance {VELOCITY_TOL_RAD_S}) after {:.3} s simulated",
-            t.velocity_rad_s,
-            t.period.wrapping_sub(p0) as f32 / PWM_HZ
-        ),
-    )?;
-    let rate_hz = 50.0;
-    let samples = s
-        .client
-        .telemetry(TelemetryRate::Hz(rate_hz), Duration::from_millis(1500))
-        .map_err(client_err("stream telemetry"))?;
-    let n = samples.len();
-    let spacing: Vec<u32> = samples
-        .windows(2)
-        .map(|w| w[1].sample.period.wrapping_sub(w[0].sample.period))
-        .collect();
-    let want = (PWM_HZ / rate_hz) as u32;
-    let worst = samples
-        .iter()
-        .map(|x| (x.sample.velocity_rad_s - VELOCITY_RAD_S).abs())
-        .fold(0.0f32, f32::max);
-    check(
-        n >= 5 && spacing.iter().all(|&d| d == want) && worst < VELOCITY_TOL_RAD_S,
-        format!(
-            "stream at {rate_hz} Hz: {n} samples, every {want} periods, worst velocity error {worst:.3} rad/s, {} lost",
-            s.client.stats().stream_lost
-        ),
-    )?;
-
-    // 3. Position move.
-    let start_pos = s.telemetry()?.position_rad;
-    let target = start_pos + MOVE_RAD;
-    s.client
-        .set_command(DriveCommand::Position { rad: target })
-        .map_err(client_err("position command"))?;
-    let p0 = s.telemetry()?.period;
-    let t = s.wait_for("position move", Duration::from_secs(30), 3, |t| {
-        t.mode == Mode::Position
-            && (t.position_rad - target).abs() < POSITION_TOL_RAD
-            && t.velocity_rad_s.abs() < 1.0
-    })?;
-    check(
-        true,
-        format!(
-            "position {target:.3} rad (+{MOVE_RAD} rad): read back {:.4} rad (error {:.4}, tolerance {POSITION_TOL_RAD}), {:.3} rad/s, after {:.3} s simulated",
-            t.position_rad,
-            t.position_rad - target,
-            t.velocity_rad_s,
-            t.period.wrapping_sub(p0) as f32 / PWM_HZ
-        ),
-    )?;
-
-    // 4. Malformed frames: bad CRC, broken COBS.
-    let mut frame = [0u8; MAX_FRAME];
-    let len = encode(
-        0x1234,
-        &Request::SetCommand(DriveCommand::Disable),
-        &mut frame,
-    )
-    .map_err(|e| Error(format!("encode: {e:?}")))?;
-    // Flip bits in the last CRC byte (the byte before the delimiter): stays
-    // non-zero after COBS, so the frame still parses but fails its CRC.
-    let i = len - 2;
-    frame[i] = if frame[i] == 0x55 { 0xAA } else { 0x55 };
-    let (seq, r) = s.raw_exchange(&frame[..len])?;
-    check(
-        seq == 0 && r == Response::Nack(ErrorCode::BadCrc),
-        format!("frame with a bad CRC (a Disable): {r:?} with seq {seq}"),
-    )?;
-    // COBS block claims 9 bytes, only 2 follow before the delimiter.
-    let (seq, r) = s.raw_exchange(&[0x09, 0x01, 0x02, 0x00])?;
-    check(
-        seq == 0 && r == Response::Nack(ErrorCode::Malformed),
-        format!("truncated COBS frame: {r:?} with seq {seq}"),
-    )?;
-    let t = s.telemetry()?;
-    check(
-        t.mode == Mode::Position && (t.position_rad - target).abs() < POSITION_TOL_RAD,
-        format!(
-            "nothing changed: still position mode at {:.4} rad",
-            t.position_rad
-        ),
-    )?;
-
-    // 5. Out-of-range command, dividers while running.
-    match s
-        .client
-        .set_command(DriveCommand::Velocity { rad_s: 1.0e6 })
-    {
-        Err(ClientError::Nack(ErrorCode::OutOfRange { field: 1 })) => {
-            println!("PASS velocity 1e6 rad/s refused: field 1 out of range")
-        }
-        other => return Err(Error(format!("FAIL velocity 1e6 rad/s: got {other:?}"))),
-    }
-    match s.client.set_dividers(5, 10) {
-        Err(ClientError::Nack(ErrorCode::NotDisabled)) => {
-            println!("PASS dividers while running refused: not disabled")
-        }
-        other => return Err(Error(format!("FAIL dividers while running: got {other:?}"))),
-    }
-    let speed_div = s
-        .client
-        .param(ParamId::SpeedDivider)
-        .map_err(client_err("read speed divider"))?;
-    thread::sleep(Duration::from_millis(300));
-    let t = s.telemetry()?;
-    check(
-        t.mode == Mode::Position
-            && (t.position_rad - target).abs() < POSITION_TOL_RAD
-            && t.velocity_rad_s.abs() < 1.0
-            && speed_div == 10.0,
-        format!(
-            "nothing changed: position {:.4} rad, {:.3} rad/s, speed divider {speed_div}",
-            t.position_rad, t.velocity_rad_s
-        ),
-    )?;
-
-    // 6. Faults, disable.
-    let faults = s.client.faults().map_err(client_err("read faults"))?;
-    check(
-        faults.set.is_empty() && faults.first_code == 0,
-        format!(
-            "faults read: {:#x} (first {})",
-            faults.set.0, faults.first_code
-        ),
-    )?;
-    s.client
-        .set_command(DriveCommand::Disable)
-        .map_err(client_err("disable"))?;
-    let t = s.wait_for("disable", Duration::from_secs(5), 1, |t| {
-        t.mode == Mode::Disabled
-    })?;
-    check(t.mode == Mode::Disabled, "disabled on command")?;
-    let st = s.client.stats();
-    println!(
-        "link: {} requests, {} retransmissions, {} bad frames, {} stale replies, {} streamed samples",
-        st.requests, st.retransmissions, st.bad_frames, st.stale_replies, st.stream_samples
-    );
+    let mut s = Session::open(port, start + TOTAL_LIMIT)?;
+    s.ping()?;
+    s.startup(emu)?;
+    s.velocity()?;
+    s.telemetry_stream()?;
+    let target = s.position_move()?;
+    s.malformed_frames(target)?;
+    s.refused_commands(target)?;
+    s.faults_and_disable()?;
     emu.alive()
+}
+
+/// The checked scenarios, in order.
+impl Session {
+    /// Connect the client (and a raw clone of its socket) to QEMU.
+    fn open(port: u16, deadline: Instant) -> Result<Self> {
+        let stream = connect(port, Instant::now() + Duration::from_secs(10))?;
+        let raw = stream.try_clone()?;
+        let mut client = Client::new(Box::new(TcpTransport::from_stream(stream)?))
+            .map_err(client_err("client"))?;
+        client.set_timeout(Duration::from_millis(500));
+        client.set_retries(3);
+        Ok(Self {
+            client,
+            raw,
+            deadline,
+        })
+    }
+
+    /// Step 1a, ping: the protocol version matches.
+    fn ping(&mut self) -> Result {
+        let hello = self.client.ping().map_err(client_err("ping"))?;
+        check(
+            hello.protocol_version == foc_protocol::PROTOCOL_VERSION,
+            format!(
+                "ping: protocol {} (host {}), firmware {}.{}.{}",
+                hello.protocol_version,
+                foc_protocol::PROTOCOL_VERSION,
+                hello.firmware_version[0],
+                hello.firmware_version[1],
+                hello.firmware_version[2]
+            ),
+        )
+    }
+
+    /// Step 1b, start-up: `calibrated` = 1 within 45 s, then disabled, no fault.
+    fn startup(&mut self, emu: &mut Emulator) -> Result {
+        let t0 = Instant::now();
+        loop {
+            emu.alive()?;
+            let cal = self
+                .client
+                .param(ParamId::Calibrated)
+                .map_err(client_err("read calibrated"))?;
+            if cal == 1.0 {
+                break;
+            }
+            if t0.elapsed() > Duration::from_secs(45) || self.remaining().is_err() {
+                return Err(Error(
+                    "FAIL start-up: the firmware did not report `calibrated` = 1 within 45 s host time \
+                     (closed-loop modes locked: no calibration permit installed at start-up)"
+                        .into(),
+                ));
+            }
+            thread::sleep(Duration::from_millis(200));
+        }
+        let t = self.telemetry()?;
+        check(
+            t.mode == Mode::Disabled && t.fault_code == 0,
+            format!(
+                "start-up done in {:.1} s host time: calibrated, disabled, no fault (period {})",
+                t0.elapsed().as_secs_f32(),
+                t.period
+            ),
+        )?;
+        let faults = self.client.faults().map_err(client_err("read faults"))?;
+        check(faults.set.is_empty(), "no fault latched after start-up")
+    }
+
+    /// Step 2a, velocity: the target read back from telemetry.
+    fn velocity(&mut self) -> Result {
+        self.client
+            .set_command(DriveCommand::Velocity {
+                rad_s: VELOCITY_RAD_S,
+            })
+            .map_err(client_err("velocity command"))?;
+        let p0 = self.telemetry()?.period;
+        let t = self.wait_for("velocity", Duration::from_secs(25), 3, |t| {
+            t.mode == Mode::Velocity
+                && (t.velocity_rad_s - VELOCITY_RAD_S).abs() < VELOCITY_TOL_RAD_S
+        })?;
+        check(
+            true,
+            format!(
+                "velocity {VELOCITY_RAD_S} rad/s: read back {:.3} rad/s (tolerance {VELOCITY_TOL_RAD_S}) after {:.3} s simulated",
+                t.velocity_rad_s,
+                t.period.wrapping_sub(p0) as f32 / PWM_HZ
+            ),
+        )
+    }
+
+    /// Step 2b, streamed telemetry at that velocity: spacing = the requested rate.
+    fn telemetry_stream(&mut self) -> Result {
+        let rate_hz = 50.0;
+        let samples = self
+            .client
+            .telemetry(TelemetryRate::Hz(rate_hz), Duration::from_millis(1500))
+            .map_err(client_err("stream telemetry"))?;
+        let n = samples.len();
+        let spacing: Vec<u32> = samples
+            .windows(2)
+            .map(|w| w[1].sample.period.wrapping_sub(w[0].sample.period))
+            .collect();
+        let want = (PWM_HZ / rate_hz) as u32;
+        let worst = samples
+            .iter()
+            .map(|x| (x.sample.velocity_rad_s - VELOCITY_RAD_S).abs())
+            .fold(0.0f32, f32::max);
+        check(
+            n >= 5 && spacing.iter().all(|&d| d == want) && worst < VELOCITY_TOL_RAD_S,
+            format!(
+                "stream at {rate_hz} Hz: {n} samples, every {want} periods, worst velocity error {worst:.3} rad/s, {} lost",
+                self.client.stats().stream_lost
+            ),
+        )
+    }
+
+    /// Step 3, position move of [`MOVE_RAD`]: read back at rest. Returns the
+    /// target [rad].
+    fn position_move(&mut self) -> Result<f32> {
+        let start_pos = self.telemetry()?.position_rad;
+        let target = start_pos + MOVE_RAD;
+        self.client
+            .set_command(DriveCommand::Position { rad: target })
+            .map_err(client_err("position command"))?;
+        let p0 = self.telemetry()?.period;
+        let t = self.wait_for("position move", Duration::from_secs(30), 3, |t| {
+            t.mode == Mode::Position
+                && (t.position_rad - target).abs() < POSITION_TOL_RAD
+                && t.velocity_rad_s.abs() < 1.0
+        })?;
+        check(
+            true,
+            format!(
+                "position {target:.3} rad (+{MOVE_RAD} rad): read back {:.4} rad (error {:.4}, tolerance {POSITION_TOL_RAD}), {:.3} rad/s, after {:.3} s simulated",
+                t.position_rad,
+                t.position_rad - target,
+                t.velocity_rad_s,
+                t.period.wrapping_sub(p0) as f32 / PWM_HZ
+            ),
+        )?;
+        Ok(target)
+    }
+
+    /// Step 4, malformed frames (bad CRC, broken COBS): Nack with seq 0, the
+    /// drive still holds `target`.
+    fn malformed_frames(&mut self, target: f32) -> Result {
+        let mut frame = [0u8; MAX_FRAME];
+        let len = encode(
+            0x1234,
+            &Request::SetCommand(DriveCommand::Disable),
+            &mut frame,
+        )
+        .map_err(|e| Error(format!("encode: {e:?}")))?;
+        // Flip bits in the last CRC byte (the byte before the delimiter): stays
+        // non-zero after COBS, so the frame still parses but fails its CRC.
+        let i = len - 2;
+        frame[i] = if frame[i] == 0x55 { 0xAA } else { 0x55 };
+        let (seq, r) = self.raw_exchange(&frame[..len])?;
+        check(
+            seq == 0 && r == Response::Nack(ErrorCode::BadCrc),
+            format!("frame with a bad CRC (a Disable): {r:?} with seq {seq}"),
+        )?;
+        // COBS block claims 9 bytes, only 2 follow before the delimiter.
+        let (seq, r) = self.raw_exchange(&[0x09, 0x01, 0x02, 0x00])?;
+        check(
+            seq == 0 && r == Response::Nack(ErrorCode::Malformed),
+            format!("truncated COBS frame: {r:?} with seq {seq}"),
+        )?;
+        let t = self.telemetry()?;
+        check(
+            t.mode == Mode::Position && (t.position_rad - target).abs() < POSITION_TOL_RAD,
+            format!(
+                "nothing changed: still position mode at {:.4} rad",
+                t.position_rad
+            ),
+        )
+    }
+
+    /// Step 5, out-of-range velocity and dividers while running: refused, the
+    /// drive still at rest at `target` with its speed divider.
+    fn refused_commands(&mut self, target: f32) -> Result {
+        match self
+            .client
+            .set_command(DriveCommand::Velocity { rad_s: 1.0e6 })
+        {
+            Err(ClientError::Nack(ErrorCode::OutOfRange { field: 1 })) => {
+                println!("PASS velocity 1e6 rad/s refused: field 1 out of range")
+            }
+            other => return Err(Error(format!("FAIL velocity 1e6 rad/s: got {other:?}"))),
+        }
+        match self.client.set_dividers(5, 10) {
+            Err(ClientError::Nack(ErrorCode::NotDisabled)) => {
+                println!("PASS dividers while running refused: not disabled")
+            }
+            other => return Err(Error(format!("FAIL dividers while running: got {other:?}"))),
+        }
+        let speed_div = self
+            .client
+            .param(ParamId::SpeedDivider)
+            .map_err(client_err("read speed divider"))?;
+        thread::sleep(Duration::from_millis(300));
+        let t = self.telemetry()?;
+        check(
+            t.mode == Mode::Position
+                && (t.position_rad - target).abs() < POSITION_TOL_RAD
+                && t.velocity_rad_s.abs() < 1.0
+                && speed_div == 10.0,
+            format!(
+                "nothing changed: position {:.4} rad, {:.3} rad/s, speed divider {speed_div}",
+                t.position_rad, t.velocity_rad_s
+            ),
+        )
+    }
+
+    /// Step 6: no fault latched, disable on command, link statistics.
+    fn faults_and_disable(&mut self) -> Result {
+        let faults = self.client.faults().map_err(client_err("read faults"))?;
+        check(
+            faults.set.is_empty() && faults.first_code == 0,
+            format!(
+                "faults read: {:#x} (first {})",
+                faults.set.0, faults.first_code
+            ),
+        )?;
+        self.client
+            .set_command(DriveCommand::Disable)
+            .map_err(client_err("disable"))?;
+        let t = self.wait_for("disable", Duration::from_secs(5), 1, |t| {
+            t.mode == Mode::Disabled
+        })?;
+        check(t.mode == Mode::Disabled, "disabled on command")?;
+        let st = self.client.stats();
+        println!(
+            "link: {} requests, {} retransmissions, {} bad frames, {} stale replies, {} streamed samples",
+            st.requests, st.retransmissions, st.bad_frames, st.stale_replies, st.stream_samples
+        );
+        Ok(())
+    }
 }
