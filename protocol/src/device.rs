@@ -404,7 +404,9 @@ impl DeviceState {
                 }),
             };
             let ok = match cmd {
-                Some(c) if c.validate(&ctx.limits()).is_ok() => ctx.post(c).is_ok(),
+                Some(c) if ctx.status().check_command(&c, &ctx.limits()).is_ok() => {
+                    ctx.post(c).is_ok()
+                }
                 _ => false,
             };
             if !ok {

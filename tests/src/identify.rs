@@ -184,6 +184,8 @@ pub fn run(
     tick: &mut dyn FnMut(&Sim),
 ) -> Result<Outcome, Error> {
     let life = lifecycle_config(sim, setup, cfg);
+    // From reset: the current sensing's offsets are zeroed first.
+    sim.set_current_offsets(Abc::default());
     sim.cascade = Cascade::from_reset(*sim.cascade.config(), life);
     let limit = (TIME_LIMIT_S * setup.pwm_hz()) as usize;
     let mut offsets = None;

@@ -9,6 +9,7 @@
 use foc_bench::identify::{self, lifecycle_config, OFFSET_SAMPLES, SENSOR_CHECK_READS};
 use foc_bench::mission::{Setup, Sim};
 use foc_bench::plant::{Phase as PlantPhase, Plant};
+use foc_core::calibration::identification::Stage;
 use foc_core::calibration::CalError;
 use foc_core::control::cascade::Cascade;
 use foc_core::control::stage::Sample;
@@ -399,4 +400,56 @@ fn permit_revoked_when_the_angle_calibration_changes() {
     sim.step();
     assert_eq!(sim.cascade.lifecycle().phase(), Phase::Identify);
     assert!(!sim.cascade.is_calibrated());
+}
+
+/// A fault found in the same period as an operator's clear (a power-stage
+/// fault, a link watchdog's reaction) stays latched: the clear is performed
+/// first, the bridge goes off in that period.
+#[test]
+fn a_fault_in_the_period_of_a_clear_stays_latched() {
+    let s = dji();
+    let mut sim = started(&s);
+    let cfg = *sim.cascade.config();
+    sim.cascade.set_calibration(&s.supplied_calibration(&cfg));
+    sim.cascade.command(Command::Torque { iq_a: 0.5 }).unwrap();
+    sim.run(10);
+    sim.cascade.clear_faults();
+    sim.cascade.request(ConfigChange {
+        fault: Some(Fault::CommandTimeout),
+        ..ConfigChange::default()
+    });
+    assert_eq!(sim.step(), BridgeCommand::SafeState);
+    assert_eq!(
+        sim.cascade.feedback().first_fault,
+        Some(Fault::CommandTimeout)
+    );
+}
+
+/// Stopped during the flux step (closed loop on the provisional permit):
+/// the provisional permit goes with it, closed-loop commands are refused.
+#[test]
+fn identification_aborted_in_the_flux_step_leaves_no_permit() {
+    let s = dji();
+    let mut sim = from_reset(&s, Plant::new(s.motor, s.bench), true);
+    let limit = (identify::TIME_LIMIT_S * s.pwm_hz()) as usize;
+    let mut k = 0;
+    while sim.cascade.lifecycle().identification_stage() != Some(Stage::Flux) {
+        sim.step();
+        k += 1;
+        assert!(k < limit, "no flux step");
+    }
+    sim.run(200);
+    assert_eq!(sim.cascade.feedback().mode, Mode::Velocity);
+    assert!(sim.cascade.is_calibrated(), "provisional permit installed");
+    sim.cascade.command(Command::Disable).unwrap();
+    sim.step();
+    assert!(matches!(
+        sim.cascade.last_output().unwrap().event,
+        Some(Event::IdentificationAborted(None, Stage::Flux))
+    ));
+    assert!(!sim.cascade.is_calibrated());
+    assert_eq!(
+        sim.cascade.command(Command::Torque { iq_a: 0.5 }),
+        Err(CommandError::NotCalibrated)
+    );
 }

@@ -313,11 +313,22 @@ impl CurrentStage {
         slot.clear_seq != self.state.last_clear_seq
     }
 
-    /// Take `slot`'s current command number as seen without acting on it
-    /// (its fault-clear number is left alone): after an identification,
-    /// the operator's earlier command never starts the motor.
+    /// Take `slot`'s command and fault-clear numbers as seen without acting
+    /// on them: after an identification, neither the operator's earlier
+    /// command nor a clear sent during it acts later.
     pub fn sync_mailbox(&mut self, slot: &CommandSlot) {
         self.state.last_seq = slot.seq;
+        self.state.last_clear_seq = slot.clear_seq;
+    }
+
+    /// Perform `slot`'s pending fault clear now (the step would do it
+    /// first thing): the caller then latches faults it found this period,
+    /// which the clear must not erase.
+    pub fn take_clear(&mut self, slot: &CommandSlot) {
+        if slot.clear_seq != self.state.last_clear_seq {
+            self.state.last_clear_seq = slot.clear_seq;
+            self.supervisor.clear();
+        }
     }
 
     /// Commands refused so far (invalid, sent while faulted, or closed-loop

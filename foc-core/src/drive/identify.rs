@@ -111,6 +111,16 @@ impl Identifier {
         }
     }
 
+    /// Ended without a result: limits back, and the provisional permit
+    /// (flux step) taken away, so no closed loop runs on a calibration the
+    /// sequencer did not finish.
+    fn give_up(&mut self, stage: &mut CurrentStage) {
+        self.restore_limits(stage);
+        if self.permit_installed {
+            stage.revoke_calibration();
+        }
+    }
+
     /// The sequencer's input from this period's sample and the last
     /// closed-loop feedback (a failed read would be a non-finite input; the
     /// caller does not step the routine on one).
@@ -177,7 +187,7 @@ impl Identifier {
                 return self.finish(stage, iq_ref_a, s, Outcome::Done(done.result));
             }
             Some(CalStep::Failed(e)) => {
-                self.restore_limits(stage);
+                self.give_up(stage);
                 stage.report_fault(Fault::CalibrationFailed);
                 let out = Outcome::Failed(e, self.id.stage());
                 return self.finish(stage, iq_ref_a, s, out);
@@ -189,7 +199,7 @@ impl Identifier {
         // safe), rather than let the routine fail later for a reason that
         // is only a consequence.
         if let Some(f) = fb.first_fault {
-            self.restore_limits(stage);
+            self.give_up(stage);
             return (Outcome::Aborted(Some(f), self.id.stage()), b, fb);
         }
         (Outcome::Running, b, fb)
@@ -202,7 +212,7 @@ impl Identifier {
         iq_ref_a: f32,
         s: &Sample,
     ) -> (Outcome, BridgeCommand, Feedback) {
-        self.restore_limits(stage);
+        self.give_up(stage);
         let out = Outcome::Aborted(None, self.id.stage());
         self.finish(stage, iq_ref_a, s, out)
     }

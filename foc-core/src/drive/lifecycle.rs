@@ -242,6 +242,11 @@ impl Lifecycle {
             event: None,
             change: None,
         };
+        // The operator's clear first: a fault found this period (power
+        // stage, link watchdog) is latched after it and stays latched.
+        if self.phase == Phase::Run {
+            stage.take_clear(&inp.command);
+        }
         if inp.gate_fault {
             stage.report_fault(Fault::GateDriverFault);
         }
@@ -273,23 +278,11 @@ impl Lifecycle {
         inp: &Inputs,
         out: &mut Output,
     ) -> Result<(), Refusal> {
+        let verdict = self.check_change(stage, ch);
         if let Some(f) = ch.fault {
             stage.report_fault(f);
         }
-        if !ch.needs_config_check() {
-            return Ok(());
-        }
-        let status = self.status(stage);
-        status.check_config()?;
-        if ch.identify || ch.calibrate_offsets {
-            status.check_calibration()?;
-        }
-        if ch.identify && self.config.identification.is_none() {
-            return Err(Refusal::Unsupported);
-        }
-        if ch.limits.is_some_and(|l| l.validate().is_err()) {
-            return Err(Refusal::Unsupported);
-        }
+        verdict?;
         if let Some(l) = ch.limits {
             stage.set_limits(l);
         }
@@ -306,8 +299,32 @@ impl Lifecycle {
         }
         if ch.calibrate_offsets {
             self.restart_offsets(out);
-        } else if ch.identify {
+        }
+        if ch.identify {
             self.start_identification(stage, &inp.command, out);
+        }
+        Ok(())
+    }
+
+    /// The rules for `ch`, on the status before anything in it is applied.
+    fn check_change(&self, stage: &CurrentStage, ch: &ConfigChange) -> Result<(), Refusal> {
+        if !ch.needs_config_check() {
+            return Ok(());
+        }
+        let status = self.status(stage);
+        status.check_config()?;
+        if ch.identify || ch.calibrate_offsets {
+            status.check_calibration()?;
+        }
+        if ch.identify && self.config.identification.is_none() {
+            return Err(Refusal::Unsupported);
+        }
+        if ch.identify && ch.calibrate_offsets {
+            // One calibration at a time: ask again when this one is done.
+            return Err(Refusal::Busy);
+        }
+        if ch.limits.is_some_and(|l| l.validate().is_err()) {
+            return Err(Refusal::Unsupported);
         }
         Ok(())
     }
@@ -343,7 +360,7 @@ impl Lifecycle {
         }
         let Some(reading) = s.currents.map(|c| c.to_abc()) else {
             stage.report_fault(Fault::CurrentSenseError);
-            self.phase = Phase::Run;
+            self.enter_run(stage);
             out.event = Some(Event::CurrentSenseFailed);
             return;
         };
@@ -357,7 +374,7 @@ impl Lifecycle {
             }
             OffsetStep::Failed(e) => {
                 stage.report_fault(Fault::CalibrationFailed);
-                self.phase = Phase::Run;
+                self.enter_run(stage);
                 out.event = Some(Event::OffsetsFailed(e));
             }
         }
@@ -373,16 +390,24 @@ impl Lifecycle {
     ) {
         if s.angle.is_none() {
             stage.report_fault(Fault::AngleSensorError);
-            self.phase = Phase::Run;
+            self.enter_run(stage);
             out.event = Some(Event::SensorCheckFailed);
         } else if n.saturating_add(1) < self.config.sensor_check_reads {
             self.phase = Phase::SensorCheck(n + 1);
         } else if self.config.identify_at_start_up && self.config.identification.is_some() {
             self.start_identification(stage, &inp.command, out);
         } else {
-            self.phase = Phase::Run;
+            self.enter_run(stage);
             out.event = Some(Event::StartUpDone);
         }
+    }
+
+    /// From the start-up phases (bridge off, stage not stepped) to `Run`:
+    /// the stage restarts its loops and angle tracker from the next sample
+    /// (the rotor may have moved meanwhile).
+    fn enter_run(&mut self, stage: &mut CurrentStage) {
+        stage.reset();
+        self.phase = Phase::Run;
     }
 
     fn step_identify(
