@@ -51,7 +51,12 @@ use crate::qemu;
 use crate::util::{Error, Result};
 
 /// The whole test, QEMU start to kill.
-pub const TOTAL_LIMIT: Duration = Duration::from_secs(100);
+pub const TOTAL_LIMIT: Duration = Duration::from_secs(360);
+/// Start-up (offsets, sensor check, identification) must end within this
+/// emulated time [s] (bounded in the firmware's own periods, not host time).
+const STARTUP_EMULATED_S: f32 = 20.0;
+/// Host-time backstop of the start-up wait (a hung emulator).
+const STARTUP_HOST_BACKSTOP: Duration = Duration::from_secs(240);
 /// Velocity target [rad/s] and tolerance.
 const VELOCITY_RAD_S: f32 = 50.0;
 const VELOCITY_TOL_RAD_S: f32 = 2.0;
@@ -323,9 +328,14 @@ impl Session {
         )
     }
 
-    /// Step 1b, start-up: `calibrated` = 1 within 45 s, then disabled, no fault.
+    /// Step 1b, start-up: `calibrated` = 1 within [`STARTUP_EMULATED_S`] of
+    /// emulated time (the firmware's period counter), then disabled, no fault.
     fn startup(&mut self, emu: &mut Emulator) -> Result {
         let t0 = Instant::now();
+        let pwm_hz = self
+            .client
+            .param(ParamId::PwmFrequencyHz)
+            .map_err(client_err("read the PWM frequency"))?;
         loop {
             emu.alive()?;
             let cal = self
@@ -335,12 +345,17 @@ impl Session {
             if cal == 1.0 {
                 break;
             }
-            if t0.elapsed() > Duration::from_secs(45) || self.remaining().is_err() {
-                return Err(Error(
-                    "FAIL start-up: the firmware did not report `calibrated` = 1 within 45 s host time \
-                     (closed-loop modes locked: no calibration permit installed at start-up)"
-                        .into(),
-                ));
+            let emulated_s = self.telemetry()?.period as f32 / pwm_hz;
+            if emulated_s > STARTUP_EMULATED_S
+                || t0.elapsed() > STARTUP_HOST_BACKSTOP
+                || self.remaining().is_err()
+            {
+                return Err(Error(format!(
+                    "FAIL start-up: the firmware did not report `calibrated` = 1 within \
+                     {STARTUP_EMULATED_S} s emulated ({emulated_s:.1} s emulated, {:.0} s host) \
+                     (closed-loop modes locked: no calibration permit installed at start-up)",
+                    t0.elapsed().as_secs_f32()
+                )));
             }
             thread::sleep(Duration::from_millis(200));
         }
