@@ -140,11 +140,11 @@ mod app {
         let b = board::init(cx.device);
         let cfg = config::cascade(board::PWM_FREQUENCY_HZ as f32);
         let life = LifecycleConfig {
-            offsets: OffsetLimits {
+            offsets: Some(OffsetLimits {
                 samples: config::OFFSET_CAL_SAMPLES,
                 max_offset_a: config::OFFSET_CAL_MAX_A,
                 max_noise_a: config::OFFSET_CAL_MAX_NOISE_A,
-            },
+            }),
             sensor_check_reads: config::SENSOR_CHECK_READS,
             identification: Some(config::identification(board::PWM_FREQUENCY_HZ as f32)),
             identify_at_start_up: config::IDENTIFY_AT_STARTUP,
@@ -375,7 +375,15 @@ mod app {
             // so the current loop is never blocked for the mission's logging.
             let mut slot = cx.shared.command.lock(|c| *c);
             let before = slot;
-            let done = super::mission::tick(&fb, &mut slot, running, tm.overruns, identified);
+            let done = super::mission::tick(
+                &fb,
+                &mut slot,
+                &super::mission::DriveState {
+                    running,
+                    overruns: tm.overruns,
+                    identified,
+                },
+            );
             if slot != before {
                 cx.shared.command.lock(|c| *c = slot);
             }

@@ -171,16 +171,18 @@ impl Mission {
         );
     }
 
-    /// One housekeeping tick. `running`: start-up finished; `overruns`:
-    /// current-loop overruns so far. Returns an exit status when finished.
+    /// One housekeeping tick. Returns an exit status when finished.
     pub fn tick(
         &mut self,
         fb: &Feedback,
         slot: &mut CommandSlot,
-        running: bool,
-        overruns: u32,
-        identified: Option<IdentificationResult>,
+        drive: &DriveState,
     ) -> Option<u32> {
+        let DriveState {
+            running,
+            overruns,
+            identified,
+        } = *drive;
         if self.passive {
             if self.step == Step::WaitStartup && running {
                 defmt::info!("mission: passive (e2e): waiting for the command channel");
@@ -308,17 +310,22 @@ impl Mission {
 static MISSION: cortex_m::interrupt::Mutex<core::cell::RefCell<Option<Mission>>> =
     cortex_m::interrupt::Mutex::new(core::cell::RefCell::new(None));
 
+/// What the mission reads of the drive besides its feedback.
+#[derive(Clone, Copy)]
+pub struct DriveState {
+    /// Start-up finished (phase `Run`).
+    pub running: bool,
+    /// Current-loop overruns so far.
+    pub overruns: u32,
+    /// The last successful identification.
+    pub identified: Option<IdentificationResult>,
+}
+
 /// One housekeeping tick of the mission (creates it on first use).
-pub fn tick(
-    fb: &Feedback,
-    slot: &mut CommandSlot,
-    running: bool,
-    overruns: u32,
-    identified: Option<IdentificationResult>,
-) -> Option<u32> {
+pub fn tick(fb: &Feedback, slot: &mut CommandSlot, drive: &DriveState) -> Option<u32> {
     let mut mission = cortex_m::interrupt::free(|cs| MISSION.borrow(cs).borrow_mut().take())
         .unwrap_or_else(|| Mission::new(panic_run_requested(), e2e_run_requested()));
-    let out = mission.tick(fb, slot, running, overruns, identified);
+    let out = mission.tick(fb, slot, drive);
     cortex_m::interrupt::free(|cs| MISSION.borrow(cs).replace(Some(mission)));
     out
 }

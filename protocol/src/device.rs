@@ -241,6 +241,7 @@ fn check(x: f32, lo: f32, hi: f32, field: u8) -> Result<(), Response> {
 fn command_field(cmd: &Command, e: CommandError) -> ErrorCode {
     match (cmd, e) {
         (_, CommandError::Faulted) => ErrorCode::Faulted,
+        (_, CommandError::Busy) => ErrorCode::Busy,
         (_, CommandError::NotCalibrated) => ErrorCode::NotCalibrated,
         (
             Command::OpenLoop {

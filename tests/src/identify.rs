@@ -156,11 +156,11 @@ impl std::error::Error for Error {}
 pub fn lifecycle_config(sim: &Sim, setup: &Setup, cfg: IdentificationConfig) -> LifecycleConfig {
     let rates = sim.cascade.config().rates;
     LifecycleConfig {
-        offsets: OffsetLimits {
+        offsets: Some(OffsetLimits {
             samples: OFFSET_SAMPLES,
             max_offset_a: 0.1 * setup.max_current_a,
             max_noise_a: 0.05 * setup.max_current_a,
-        },
+        }),
         sensor_check_reads: SENSOR_CHECK_READS,
         identification: Some(cfg),
         identify_at_start_up: true,

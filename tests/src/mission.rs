@@ -1312,13 +1312,19 @@ impl Mission<'_> {
     /// Segment 3b, ramp `w1` -> `w2`, then a hold at `w2`.
     fn ramp(&mut self) {
         let start = self.sim.rows();
-        let MissionPlan {
-            w1, w2, speed_div, ..
-        } = self.plan;
-        let n_ramp = secs(self.setup, self.plan.t_ramp);
-        for k in 0..n_ramp {
+        self.velocity_ramp(self.plan.w1, self.plan.w2);
+        self.run_ticking(secs(self.setup, 0.3));
+        self.end_segment("ramp", start);
+    }
+
+    /// A linear velocity ramp `from` -> `to` [rad/s] over the plan's ramp
+    /// time (a new command every speed-loop period), then `to` held.
+    fn velocity_ramp(&mut self, from: f32, to: f32) {
+        let speed_div = self.plan.speed_div;
+        let n = secs(self.setup, self.plan.t_ramp);
+        for k in 0..n {
             if k % speed_div == 0 {
-                let w = w1 + (w2 - w1) * (k as f32 / n_ramp as f32);
+                let w = from + (to - from) * (k as f32 / n as f32);
                 self.sim
                     .cascade
                     .command(Command::Velocity { rad_s: w })
@@ -1329,10 +1335,8 @@ impl Mission<'_> {
         }
         self.sim
             .cascade
-            .command(Command::Velocity { rad_s: w2 })
+            .command(Command::Velocity { rad_s: to })
             .ok();
-        self.run_ticking(secs(self.setup, 0.3));
-        self.end_segment("ramp", start);
     }
 
     /// Segment 4, load step at `w2`. Returns the load [N m].
@@ -1349,23 +1353,7 @@ impl Mission<'_> {
     fn stop(&mut self) {
         self.sim.load_nm = 0.0;
         let start = self.sim.rows();
-        let MissionPlan { w2, speed_div, .. } = self.plan;
-        let n_stop = secs(self.setup, self.plan.t_ramp);
-        for k in 0..n_stop {
-            if k % speed_div == 0 {
-                let w = w2 * (1.0 - k as f32 / n_stop as f32);
-                self.sim
-                    .cascade
-                    .command(Command::Velocity { rad_s: w })
-                    .ok();
-            }
-            self.sim.step();
-            self.progress.tick(&self.sim);
-        }
-        self.sim
-            .cascade
-            .command(Command::Velocity { rad_s: 0.0 })
-            .ok();
+        self.velocity_ramp(self.plan.w2, 0.0);
         self.run_ticking(secs(self.setup, 0.4));
         self.end_segment("stop", start);
     }

@@ -64,6 +64,21 @@ fn started(s: &Setup) -> Sim {
     sim
 }
 
+/// Started, with the bench's calibration supplied, in torque mode.
+fn in_torque(s: &Setup) -> Sim {
+    let mut sim = started(s);
+    supply_permit(s, &mut sim);
+    sim.cascade.command(Command::Torque { iq_a: 0.5 }).unwrap();
+    sim.run(10);
+    sim
+}
+
+/// Install the permit of the bench's true calibration.
+fn supply_permit(s: &Setup, sim: &mut Sim) {
+    let cfg = *sim.cascade.config();
+    sim.cascade.set_calibration(&s.supplied_calibration(&cfg));
+}
+
 /// Reset -> offsets (bridge off, then installed) -> sensor check -> run,
 /// disabled and uncalibrated.
 #[test]
@@ -104,8 +119,7 @@ fn start_up_order() {
 fn no_closed_loop_before_start_up_ends() {
     let s = dji();
     let mut sim = from_reset(&s, Plant::new(s.motor, s.bench), false);
-    let cfg = *sim.cascade.config();
-    sim.cascade.set_calibration(&s.supplied_calibration(&cfg));
+    supply_permit(&s, &mut sim);
     assert_eq!(
         sim.cascade.command(Command::Torque { iq_a: 1.0 }),
         Err(CommandError::NotCalibrated)
@@ -302,11 +316,7 @@ fn identification_aborted_by_a_fault() {
 #[test]
 fn configuration_change_while_running_is_refused() {
     let s = dji();
-    let mut sim = started(&s);
-    let cfg = *sim.cascade.config();
-    sim.cascade.set_calibration(&s.supplied_calibration(&cfg));
-    sim.cascade.command(Command::Torque { iq_a: 0.5 }).unwrap();
-    sim.run(10);
+    let mut sim = in_torque(&s);
     let before = sim.cascade.current.config().limits;
     let mut limits = before;
     limits.max_current_a = 0.5 * before.max_current_a;
@@ -365,11 +375,9 @@ fn configuration_change_while_running_is_refused() {
 #[test]
 fn permit_revoked_when_the_angle_calibration_changes() {
     let s = dji();
-    let mut sim = started(&s);
+    let mut sim = in_torque(&s);
+    // The configuration with plausible gains, for new permits below.
     let cfg = *sim.cascade.config();
-    sim.cascade.set_calibration(&s.supplied_calibration(&cfg));
-    sim.cascade.command(Command::Torque { iq_a: 0.5 }).unwrap();
-    sim.run(10);
     assert_eq!(sim.cascade.feedback().mode, Mode::Torque);
     let mut angle = sim.cascade.current.config().angle;
     angle.zero_offset = angle.zero_offset.add_radians(0.3);
@@ -408,11 +416,7 @@ fn permit_revoked_when_the_angle_calibration_changes() {
 #[test]
 fn a_fault_in_the_period_of_a_clear_stays_latched() {
     let s = dji();
-    let mut sim = started(&s);
-    let cfg = *sim.cascade.config();
-    sim.cascade.set_calibration(&s.supplied_calibration(&cfg));
-    sim.cascade.command(Command::Torque { iq_a: 0.5 }).unwrap();
-    sim.run(10);
+    let mut sim = in_torque(&s);
     sim.cascade.clear_faults();
     sim.cascade.request(ConfigChange {
         fault: Some(Fault::CommandTimeout),
@@ -452,4 +456,60 @@ fn identification_aborted_in_the_flux_step_leaves_no_permit() {
         sim.cascade.command(Command::Torque { iq_a: 0.5 }),
         Err(CommandError::NotCalibrated)
     );
+}
+
+/// A calibration request refused (fault latched) does not take the
+/// settings of the same change with it: they are judged on their own.
+#[test]
+fn a_refused_calibration_keeps_the_settings_of_its_change() {
+    let s = dji();
+    let mut sim = started(&s);
+    sim.cascade.request(ConfigChange {
+        fault: Some(Fault::CommandTimeout),
+        ..ConfigChange::default()
+    });
+    sim.step();
+    sim.cascade.request(ConfigChange {
+        dividers: Some((5, 7)),
+        identify: true,
+        ..ConfigChange::default()
+    });
+    sim.step();
+    assert_eq!(
+        sim.cascade.last_output().unwrap().change,
+        Some(Err(Refusal::Faulted))
+    );
+    assert_eq!(sim.cascade.lifecycle().dividers(), (5, 7));
+    assert_eq!(sim.cascade.lifecycle().phase(), Phase::Run);
+}
+
+/// While start-up or an identification runs, the rules take only
+/// `Disable` (the drive would act on anything else only later).
+#[test]
+fn commands_other_than_disable_are_busy_until_started() {
+    let s = dji();
+    let mut sim = from_reset(&s, Plant::new(s.motor, s.bench), true);
+    sim.run(10);
+    let limits = sim.cascade.current.config().limits;
+    let status = sim.cascade.lifecycle().status(&sim.cascade.current);
+    let open_loop = Command::OpenLoop {
+        v_d_v: 0.5,
+        v_q_v: 0.0,
+        theta_e: foc_core::angle::ElectricalAngle::ZERO,
+        omega_e_rad_s: 0.0,
+    };
+    assert_eq!(
+        status.check_command(&open_loop, &limits),
+        Err(CommandError::Busy)
+    );
+    assert_eq!(sim.cascade.command(open_loop), Err(CommandError::Busy));
+    assert_eq!(status.check_command(&Command::Disable, &limits), Ok(()));
+    run_until(
+        &mut sim,
+        5000,
+        |_| None,
+        |e| *e == Event::IdentificationStarted,
+    );
+    assert_eq!(sim.cascade.command(open_loop), Err(CommandError::Busy));
+    assert!(sim.cascade.command(Command::Disable).is_ok());
 }

@@ -21,7 +21,6 @@ use super::{
     BridgeCommand, Command, CommandError, CommandSlot, Feedback, Limits, MotorParams, Rates,
 };
 use crate::angle::ElectricalAngle;
-use crate::calibration::offsets::OffsetLimits;
 use crate::drive::{ConfigChange, Inputs, Lifecycle, LifecycleConfig, Output};
 use crate::frames::Abc;
 
@@ -141,11 +140,7 @@ impl Cascade {
     /// identification available).
     pub fn new(config: CascadeConfig) -> Self {
         let life = LifecycleConfig {
-            offsets: OffsetLimits {
-                samples: 1,
-                max_offset_a: 0.0,
-                max_noise_a: 0.0,
-            },
+            offsets: None,
             sensor_check_reads: 0,
             identification: None,
             identify_at_start_up: false,

@@ -306,6 +306,8 @@ pub enum CommandError {
     VoltageOutOfRange,
     /// A fault is latched: clear it first.
     Faulted,
+    /// Start-up or an identification is running: only `Disable` is taken.
+    Busy,
     /// A closed-loop command (`Torque`, `Velocity`, `Position`) before the
     /// current stage holds a calibration: install a
     /// [`Calibrated`](permit::Calibrated) permit first

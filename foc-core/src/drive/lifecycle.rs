@@ -49,8 +49,10 @@ pub enum Phase {
 /// What the drive does from reset on.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct LifecycleConfig {
-    /// Current-offset calibration (bridge off).
-    pub offsets: OffsetLimits,
+    /// Current-offset calibration (bridge off); `None`: the measurements
+    /// need none (start-up begins with the sensor check, a re-run request
+    /// is refused as unsupported).
+    pub offsets: Option<OffsetLimits>,
     /// Consecutive good angle readings the start-up sensor check needs.
     pub sensor_check_reads: u32,
     /// Identification settings; `None`: identification unsupported.
@@ -137,7 +139,7 @@ pub struct Output {
 pub struct Lifecycle {
     config: LifecycleConfig,
     phase: Phase,
-    offsets: OffsetCalibrator,
+    offsets: Option<OffsetCalibrator>,
     /// The current sensor's offsets are calibrated.
     offsets_ok: bool,
     /// The first offset sample after a restart was read with the old
@@ -158,13 +160,18 @@ fn divider(n: u16) -> u32 {
 
 impl Lifecycle {
     /// From reset: offset calibration first (the caller zeroes the current
-    /// sensor's offsets before the first sample).
+    /// sensor's offsets before the first sample), or the sensor check when
+    /// no offset calibration is configured.
     pub fn new(config: LifecycleConfig) -> Self {
+        let offsets = config.offsets.map(OffsetCalibrator::new);
         Self {
             config,
-            phase: Phase::OffsetCalibration,
-            offsets: OffsetCalibrator::new(config.offsets),
-            offsets_ok: false,
+            phase: match offsets {
+                Some(_) => Phase::OffsetCalibration,
+                None => Phase::SensorCheck(0),
+            },
+            offsets,
+            offsets_ok: offsets.is_none(),
             skip_offset_sample: false,
             identifier: None,
             identify_seq: 0,
@@ -270,7 +277,8 @@ impl Lifecycle {
         out
     }
 
-    /// A configuration change, whole or not at all.
+    /// A configuration change: its settings whole or not at all, its
+    /// calibration request on its own; the verdict is the first refusal.
     fn apply_change(
         &mut self,
         stage: &mut CurrentStage,
@@ -278,11 +286,59 @@ impl Lifecycle {
         inp: &Inputs,
         out: &mut Output,
     ) -> Result<(), Refusal> {
-        let verdict = self.check_change(stage, ch);
+        // Judged on the status before anything in the change is applied.
+        let settings = self.check_settings(stage, ch);
+        let calibration = self.check_calibration_request(stage, ch);
         if let Some(f) = ch.fault {
             stage.report_fault(f);
         }
-        verdict?;
+        if settings.is_ok() {
+            self.apply_settings(stage, ch);
+        }
+        if calibration.is_ok() {
+            if ch.calibrate_offsets {
+                self.restart_offsets(out);
+            }
+            if ch.identify {
+                self.start_identification(stage, &inp.command, out);
+            }
+        }
+        settings.and(calibration)
+    }
+
+    fn check_settings(&self, stage: &CurrentStage, ch: &ConfigChange) -> Result<(), Refusal> {
+        if !ch.has_settings() {
+            return Ok(());
+        }
+        self.status(stage).check_config()?;
+        if ch.limits.is_some_and(|l| l.validate().is_err()) {
+            return Err(Refusal::Unsupported);
+        }
+        Ok(())
+    }
+
+    fn check_calibration_request(
+        &self,
+        stage: &CurrentStage,
+        ch: &ConfigChange,
+    ) -> Result<(), Refusal> {
+        if !ch.identify && !ch.calibrate_offsets {
+            return Ok(());
+        }
+        self.status(stage).check_calibration()?;
+        if (ch.identify && self.config.identification.is_none())
+            || (ch.calibrate_offsets && self.config.offsets.is_none())
+        {
+            return Err(Refusal::Unsupported);
+        }
+        if ch.identify && ch.calibrate_offsets {
+            // One calibration at a time: ask again when this one is done.
+            return Err(Refusal::Busy);
+        }
+        Ok(())
+    }
+
+    fn apply_settings(&mut self, stage: &mut CurrentStage, ch: &ConfigChange) {
         if let Some(l) = ch.limits {
             stage.set_limits(l);
         }
@@ -297,40 +353,13 @@ impl Lifecycle {
         if let Some((n, m)) = ch.dividers {
             self.dividers = (divider(n), divider(m));
         }
-        if ch.calibrate_offsets {
-            self.restart_offsets(out);
-        }
-        if ch.identify {
-            self.start_identification(stage, &inp.command, out);
-        }
-        Ok(())
-    }
-
-    /// The rules for `ch`, on the status before anything in it is applied.
-    fn check_change(&self, stage: &CurrentStage, ch: &ConfigChange) -> Result<(), Refusal> {
-        if !ch.needs_config_check() {
-            return Ok(());
-        }
-        let status = self.status(stage);
-        status.check_config()?;
-        if ch.identify || ch.calibrate_offsets {
-            status.check_calibration()?;
-        }
-        if ch.identify && self.config.identification.is_none() {
-            return Err(Refusal::Unsupported);
-        }
-        if ch.identify && ch.calibrate_offsets {
-            // One calibration at a time: ask again when this one is done.
-            return Err(Refusal::Busy);
-        }
-        if ch.limits.is_some_and(|l| l.validate().is_err()) {
-            return Err(Refusal::Unsupported);
-        }
-        Ok(())
     }
 
     fn restart_offsets(&mut self, out: &mut Output) {
-        self.offsets = OffsetCalibrator::new(self.config.offsets);
+        let Some(limits) = self.config.offsets else {
+            return;
+        };
+        self.offsets = Some(OffsetCalibrator::new(limits));
         self.offsets_ok = false;
         self.skip_offset_sample = true;
         self.phase = Phase::OffsetCalibration;
@@ -364,7 +393,11 @@ impl Lifecycle {
             out.event = Some(Event::CurrentSenseFailed);
             return;
         };
-        match self.offsets.step(reading) {
+        let Some(cal) = self.offsets.as_mut() else {
+            self.phase = Phase::SensorCheck(0);
+            return;
+        };
+        match cal.step(reading) {
             OffsetStep::InProgress => {}
             OffsetStep::Done(o) => {
                 out.offsets_a = Some(o);

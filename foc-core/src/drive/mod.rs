@@ -35,7 +35,7 @@
 //! let motor = MotorParams { pole_pairs: 7, r_ohm: 0.1, ld_h: 40e-6, lq_h: 40e-6, flux_linkage_wb: 0.004 };
 //! let cascade = CascadeConfig::for_motor(motor, 20_000.0, 10.0);
 //! let life = LifecycleConfig {
-//!     offsets: OffsetLimits { samples: 16, max_offset_a: 0.5, max_noise_a: 0.1 },
+//!     offsets: Some(OffsetLimits { samples: 16, max_offset_a: 0.5, max_noise_a: 0.1 }),
 //!     sensor_check_reads: 4,
 //!     identification: None,
 //!     identify_at_start_up: false,

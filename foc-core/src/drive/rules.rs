@@ -77,15 +77,25 @@ impl Status {
         Ok(())
     }
 
-    /// A command: [`admit`] (values, latched fault, calibration).
+    /// A command: [`admit`] (values, latched fault, calibration), and
+    /// while start-up or an identification runs only `Disable`
+    /// ([`CommandError::Busy`]: the drive would take it only later).
     pub fn check_command(&self, cmd: &Command, limits: &Limits) -> Result<(), CommandError> {
-        admit(cmd, limits, self.faulted, self.calibrated)
+        admit(cmd, limits, self.faulted, self.calibrated)?;
+        if !self.running && *cmd != Command::Disable {
+            return Err(CommandError::Busy);
+        }
+        Ok(())
     }
 }
 
-/// A configuration change for the drive, applied at the start of a period
-/// (all of it or, when [`Status::check_config`] refuses, none of it).
-/// Changes merge: a newer value replaces a pending one.
+/// A configuration change for the drive, applied at the start of a period.
+/// Its settings (limits, current loop, dividers) are applied all together
+/// or, when [`Status::check_config`] or [`Limits::validate`] refuses, not
+/// at all; a calibration request is judged on its own
+/// ([`Status::check_calibration`]), so a refused calibration never drops
+/// settings the host was told were taken. Changes merge: a newer value
+/// replaces a pending one.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct ConfigChange {
     /// New command limits (checked with [`Limits::validate`]).
@@ -118,12 +128,8 @@ impl ConfigChange {
         self.fault = self.fault.or(newer.fault);
     }
 
-    /// True when something besides a fault needs [`Status::check_config`].
-    pub fn needs_config_check(&self) -> bool {
-        self.limits.is_some()
-            || self.current.is_some()
-            || self.dividers.is_some()
-            || self.calibrate_offsets
-            || self.identify
+    /// True when it carries settings (limits, current loop, dividers).
+    pub fn has_settings(&self) -> bool {
+        self.limits.is_some() || self.current.is_some() || self.dividers.is_some()
     }
 }
