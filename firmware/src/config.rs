@@ -150,5 +150,10 @@ pub fn cascade(pwm_frequency_hz: f32) -> CascadeConfig {
     }
     c.rates.speed_divider = SPEED_DIVIDER;
     c.rates.position_divider = POSITION_DIVIDER;
+    // The sensor's resolution is known before any calibration (the
+    // supervisor's angle-step limit never goes below a few counts).
+    c.current.angle.sensor_counts_per_rev = identification(pwm_frequency_hz)
+        .alignment
+        .sensor_counts_per_rev;
     c
 }

@@ -317,7 +317,7 @@ fn fault_with(bad: impl Fn(&mut Sample)) -> (Cascade, BridgeCommand) {
 #[test]
 fn each_fault_gives_safe_state_in_the_same_period() {
     type Case = (Fault, fn(&mut Sample));
-    let cases: [Case; 9] = [
+    let cases: [Case; 10] = [
         (Fault::OverCurrentPhase, |s| {
             s.currents = Some(PhaseCurrents::ThreePhase(Abc::new(13.0, -6.5, -6.5)))
         }),
@@ -339,6 +339,12 @@ fn each_fault_gives_safe_state_in_the_same_period() {
             let a = s.angle.unwrap();
             s.angle = Some(a.add_radians(1.0))
         }),
+        // A slip well under the 0.5 rad mechanical innovation limit, but
+        // 0.35 rad electrical at 7 pole pairs.
+        (Fault::AngleSensorImplausible, |s| {
+            let a = s.angle.unwrap();
+            s.angle = Some(a.add_radians(0.05))
+        }),
     ];
     for (fault, bad) in cases {
         let (c, b) = fault_with(bad);
@@ -350,9 +356,11 @@ fn each_fault_gives_safe_state_in_the_same_period() {
     let near: [fn(&mut Sample); 4] = [
         |s| s.v_bus_v = Some(9.0),
         |s| s.v_bus_v = Some(29.0),
+        // An angle step under the 0.3 rad electrical step limit (7 pole
+        // pairs: 0.04 rad mechanical); 0.05 rad mechanical is a slip (below).
         |s| {
             let a = s.angle.unwrap();
-            s.angle = Some(a.add_radians(0.3))
+            s.angle = Some(a.add_radians(0.035))
         },
         |s| s.currents = Some(PhaseCurrents::ThreePhase(Abc::new(1.0, -0.5, -0.1))),
     ];

@@ -146,6 +146,9 @@ impl Setup {
         c.current.limits.max_open_loop_voltage_v = vbus;
         c.position.max_velocity_rad_s = 0.4 * self.max_speed_rad_s();
         c.position.max_acceleration_rad_s2 = 0.3 * self.kt() * self.max_current_a / j;
+        // The sensor's resolution is known before any calibration (the
+        // supervisor's angle-step limit never goes below a few counts).
+        c.current.angle.sensor_counts_per_rev = self.bench.sensors.encoder_counts_per_rev;
         c
     }
 }

@@ -75,6 +75,10 @@ impl CascadeConfig {
                     // least half the current limit demanded to move.
                     stuck_periods: (0.02 * pwm_frequency_hz) as u32,
                     stuck_current_a: 0.5 * max_current_a,
+                    // Over-speed a fifth above the velocity limit; runaway
+                    // over 100 ms windows.
+                    max_speed_rad_s: 1.2 * max_velocity,
+                    runaway_periods: (0.1 * pwm_frequency_hz) as u32,
                     ..SupervisorConfig::default()
                 },
                 limits: Limits {

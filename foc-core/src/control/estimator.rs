@@ -95,8 +95,8 @@ impl AngleTracker {
         self.config = config;
     }
 
-    /// Feed one reading. Returns the innovation `|theta_meas - theta_pred|`
-    /// [rad] (0 for the first reading).
+    /// Feed one reading. Returns the signed innovation
+    /// `theta_meas - theta_pred` [rad] (0 for the first reading).
     pub fn update(&mut self, theta_meas: MechanicalAngle) -> f32 {
         if !self.primed {
             self.theta_est = theta_meas;
@@ -115,7 +115,7 @@ impl AngleTracker {
         let step = (self.omega_rad_s + c.kp_per_s * e) * c.ts_s;
         self.theta_est = self.theta_est.wrapping_add(small_increment(step));
         self.position.update(theta_meas);
-        self.innovation_rad
+        e
     }
 
     /// Estimated mechanical velocity [rad/s].

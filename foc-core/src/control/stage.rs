@@ -163,6 +163,8 @@ pub struct CurrentStageState {
     pub interpolation: Option<u32>,
     /// The last interpolated (mechanical) angle.
     pub last_interp: MechanicalAngle,
+    /// The angle tracker's last signed innovation [rad, mechanical].
+    pub last_innovation_rad: f32,
 }
 
 impl CurrentStageState {
@@ -182,6 +184,7 @@ impl CurrentStageState {
             last_raw: None,
             interpolation,
             last_interp: MechanicalAngle::ZERO,
+            last_innovation_rad: 0.0,
         }
     }
 
@@ -217,7 +220,14 @@ impl CurrentStage {
         Self {
             current: CurrentLoop::new(config.current),
             tracker: AngleTracker::new(config.tracker),
-            supervisor: Supervisor::new(config.supervisor),
+            supervisor: {
+                let mut sup = Supervisor::new(config.supervisor);
+                sup.set_angle_resolution(
+                    config.angle.pole_pairs,
+                    config.angle.sensor_counts_per_rev,
+                );
+                sup
+            },
             config,
             state: CurrentStageState::new(config.angle.interpolation_half_count()),
         }
@@ -248,6 +258,10 @@ impl CurrentStage {
     pub fn set_calibration(&mut self, c: &Calibrated) {
         self.config.angle = c.angle();
         self.state.interpolation = self.config.angle.interpolation_half_count();
+        self.supervisor.set_angle_resolution(
+            self.config.angle.pole_pairs,
+            self.config.angle.sensor_counts_per_rev,
+        );
         self.tracker.reset();
         let cur = c.current_config();
         self.config.current = cur;
@@ -276,6 +290,8 @@ impl CurrentStage {
     pub fn set_angle_calibration(&mut self, a: AngleCalibration) {
         self.config.angle = a;
         self.state.interpolation = a.interpolation_half_count();
+        self.supervisor
+            .set_angle_resolution(a.pole_pairs, a.sensor_counts_per_rev);
         self.tracker.reset();
         self.revoke_calibration();
     }
@@ -429,6 +445,8 @@ impl CurrentStage {
             (Some(cur), Some(raw), Some(v_bus_v)) => {
                 let mech = self.config.angle.mechanical(raw);
                 let innovation = self.tracker.update(mech);
+                let innovation_step = innovation - self.state.last_innovation_rad;
+                self.state.last_innovation_rad = innovation;
                 let changed = self.state.last_raw != Some(raw);
                 let used = self.angle_used(mech, changed);
                 sensed.theta_e = self.config.angle.electrical(used);
@@ -444,7 +462,9 @@ impl CurrentStage {
                         measured_sum_a: cur.measured_sum_a(),
                         vector_current_a: 0.0, // unused: the square is passed
                         v_bus_v,
-                        angle_innovation_rad: innovation,
+                        angle_innovation_rad: innovation.abs(),
+                        angle_step_rad: innovation_step.abs(),
+                        speed_rad_s: self.tracker.velocity_rad_s(),
                         temperature_c: s.temperature_c,
                     },
                     vector_sq,
@@ -483,8 +503,9 @@ impl CurrentStage {
         }
     }
 
-    /// Stuck sensor / stall: a still reading while the drive pushes hard to
-    /// move.
+    /// Stuck sensor / stall (a still reading while the drive pushes hard to
+    /// move) and runaway (pushing at the limit without the speed error
+    /// shrinking).
     #[inline(always)]
     fn check_stuck(&mut self, changed: bool, iq_ref_from_speed_a: f32) {
         let sc = &self.config.supervisor;
@@ -502,6 +523,14 @@ impl CurrentStage {
             0.0
         };
         self.supervisor.check_stuck(changed, demand, moving);
+        // Runaway: velocity mode pushing at the current limit without the
+        // speed error shrinking.
+        let speed_error = match self.state.active {
+            Command::Velocity { rad_s } => Some(rad_s - self.tracker.velocity_rad_s()),
+            _ => None,
+        };
+        let saturated = demand.abs() >= 0.95 * self.config.limits.max_current_a;
+        self.supervisor.check_runaway(speed_error, saturated);
     }
 
     /// Step 3: command timeout.

@@ -62,11 +62,17 @@ pub enum Fault {
     /// drive demanded a large current to move (velocity or position mode):
     /// the sensor is stuck (frozen reading) or the rotor is stalled.
     AngleSensorStuck = 18,
+    /// The tracked speed exceeded the over-speed limit.
+    OverSpeed = 19,
+    /// Velocity mode: the speed error stayed above its band, with the
+    /// current saturated, and did not shrink over a whole window (a
+    /// runaway, e.g. a slipped sensor, or a speed the drive cannot reach).
+    SpeedRunaway = 20,
 }
 
 impl Fault {
     /// Every fault, in code order.
-    pub const ALL: [Fault; 18] = [
+    pub const ALL: [Fault; 20] = [
         Fault::OverCurrentPhase,
         Fault::OverCurrentVector,
         Fault::BusOverVoltage,
@@ -85,6 +91,8 @@ impl Fault {
         Fault::CalibrationFailed,
         Fault::Watchdog,
         Fault::AngleSensorStuck,
+        Fault::OverSpeed,
+        Fault::SpeedRunaway,
     ];
 
     /// Stable numeric code (1..).
@@ -118,6 +126,8 @@ impl Fault {
             Fault::CalibrationFailed => "calibration failed",
             Fault::Watchdog => "watchdog",
             Fault::AngleSensorStuck => "angle sensor stuck or rotor stalled",
+            Fault::OverSpeed => "over-speed",
+            Fault::SpeedRunaway => "speed runaway / persistent speed error",
         }
     }
 
@@ -170,6 +180,22 @@ pub struct SupervisorConfig {
     /// Largest tolerated difference between the angle reading and the
     /// tracked (predicted) mechanical angle [rad].
     pub max_angle_innovation_rad: f32,
+    /// Largest tolerated change of that difference from one period to the
+    /// next, in *electrical* radians: a slipping or jumping sensor moves it
+    /// at once, the tracker's lag in acceleration only gradually. What
+    /// matters is how far the field would be misplaced, so the mechanical
+    /// limit shrinks with the pole pairs
+    /// ([`Supervisor::set_angle_resolution`]); it never goes below 1.5
+    /// counts of a counting sensor of known resolution (2.5: the reading
+    /// and the prediction each move by up to a count).
+    pub max_angle_step_e_rad: f32,
+    /// Over-speed limit [rad/s, mechanical] on the tracked speed
+    /// ([`Fault::OverSpeed`]).
+    pub max_speed_rad_s: f32,
+    /// Runaway window [periods] ([`Fault::SpeedRunaway`]); 0 disables.
+    pub runaway_periods: u32,
+    /// Runaway band [rad/s]: speed errors below it never count.
+    pub runaway_band_rad_s: f32,
     /// Over-temperature threshold [deg C].
     pub max_temperature_c: f32,
     /// Stuck-sensor / stall check ([`Fault::AngleSensorStuck`]): the angle
@@ -200,6 +226,10 @@ impl Default for SupervisorConfig {
             bus_under_voltage_v: 8.0,
             max_current_sum_a: 1.0,
             max_angle_innovation_rad: 0.5,
+            max_angle_step_e_rad: 0.3,
+            max_speed_rad_s: 1.0e4,
+            runaway_periods: 2000, // 100 ms at 20 kHz
+            runaway_band_rad_s: 5.0,
             max_temperature_c: 90.0,
             stuck_periods: 400, // 20 ms at 20 kHz
             stuck_current_a: 5.0,
@@ -222,6 +252,11 @@ pub struct Checks {
     pub v_bus_v: f32,
     /// `|theta_measured - theta_predicted|` [rad, mechanical].
     pub angle_innovation_rad: f32,
+    /// Change of the signed innovation since the last period, magnitude
+    /// [rad, mechanical].
+    pub angle_step_rad: f32,
+    /// Tracked speed [rad/s, mechanical].
+    pub speed_rad_s: f32,
     /// Temperature [deg C], if measured.
     pub temperature_c: Option<f32>,
 }
@@ -234,6 +269,12 @@ pub struct Supervisor {
     latched: FaultSet,
     first: Option<Fault>,
     still_periods: u32,
+    /// The innovation-step limit in mechanical radians (see
+    /// [`SupervisorConfig::max_angle_step_e_rad`]).
+    angle_step_limit_rad: f32,
+    /// Runaway window: periods so far and the error at its start [rad/s].
+    runaway_count: u32,
+    runaway_start_rad_s: f32,
 }
 
 impl Supervisor {
@@ -244,7 +285,70 @@ impl Supervisor {
             latched: FaultSet::EMPTY,
             first: None,
             still_periods: 0,
+            angle_step_limit_rad: config.max_angle_step_e_rad,
+            runaway_count: 0,
+            runaway_start_rad_s: 0.0,
         }
+    }
+
+    /// The angle sensor's scale: the innovation-step limit becomes
+    /// `max_angle_step_e_rad / pole_pairs` mechanical radians, but at
+    /// least 2.5 counts when `counts_per_rev` is known (not 0).
+    pub fn set_angle_resolution(&mut self, pole_pairs: u8, counts_per_rev: u32) {
+        let pp = f32::from(pole_pairs.max(1));
+        let electrical = self.config.max_angle_step_e_rad / pp;
+        let counts = if counts_per_rev > 0 {
+            2.5 * core::f32::consts::TAU / counts_per_rev as f32
+        } else {
+            0.0
+        };
+        self.angle_step_limit_rad = if counts > electrical {
+            counts
+        } else {
+            electrical
+        };
+    }
+
+    /// The innovation-step limit in force [rad, mechanical].
+    pub fn angle_step_limit_rad(&self) -> f32 {
+        self.angle_step_limit_rad
+    }
+
+    /// The runaway check, once per period: `speed_error_rad_s` (velocity
+    /// mode's reference minus the tracked speed; `None` in other modes)
+    /// and `saturated` (the q-current reference at its limit). Latches
+    /// [`Fault::SpeedRunaway`] when, for a whole window of
+    /// `runaway_periods` periods, the error stayed above the band with the
+    /// current saturated and ended no smaller than it began: a loop that
+    /// pushes as hard as it can and does not close.
+    pub fn check_runaway(
+        &mut self,
+        speed_error_rad_s: Option<f32>,
+        saturated: bool,
+    ) -> Option<Fault> {
+        let c = &self.config;
+        let err = match speed_error_rad_s {
+            Some(e) if saturated && c.runaway_periods > 0 && e.abs() > c.runaway_band_rad_s => {
+                e.abs()
+            }
+            _ => {
+                self.runaway_count = 0;
+                return None;
+            }
+        };
+        if self.runaway_count == 0 {
+            self.runaway_start_rad_s = err;
+        }
+        self.runaway_count = self.runaway_count.saturating_add(1);
+        if self.runaway_count < c.runaway_periods {
+            return None;
+        }
+        self.runaway_count = 0;
+        if err >= self.runaway_start_rad_s {
+            self.trip(Fault::SpeedRunaway);
+            return Some(Fault::SpeedRunaway);
+        }
+        None
     }
 
     /// Latch a fault (also used by callers for overrun, driver faults, ...).
@@ -275,6 +379,7 @@ impl Supervisor {
         self.latched = FaultSet::EMPTY;
         self.first = None;
         self.still_periods = 0;
+        self.runaway_count = 0;
     }
 
     /// The stuck-sensor / stall check, once per period: `reading_changed`
@@ -351,6 +456,8 @@ impl Supervisor {
             vector,
             m.v_bus_v,
             m.angle_innovation_rad,
+            m.angle_step_rad,
+            m.speed_rad_s,
             m.measured_sum_a.unwrap_or(0.0),
             m.temperature_c.unwrap_or(0.0),
         ]) {
@@ -371,8 +478,12 @@ impl Supervisor {
             Some(Fault::BusOverVoltage)
         } else if m.v_bus_v < c.bus_under_voltage_v {
             Some(Fault::BusUnderVoltage)
-        } else if m.angle_innovation_rad > c.max_angle_innovation_rad {
+        } else if m.angle_innovation_rad > c.max_angle_innovation_rad
+            || m.angle_step_rad > self.angle_step_limit_rad
+        {
             Some(Fault::AngleSensorImplausible)
+        } else if m.speed_rad_s.abs() > c.max_speed_rad_s {
+            Some(Fault::OverSpeed)
         } else if m.temperature_c.is_some_and(|t| t > c.max_temperature_c) {
             Some(Fault::OverTemperature)
         } else {
@@ -396,6 +507,8 @@ mod tests {
             vector_current_a: 1.0,
             v_bus_v: 24.0,
             angle_innovation_rad: 0.01,
+            angle_step_rad: 0.001,
+            speed_rad_s: 10.0,
             temperature_c: Some(40.0),
         }
     }
@@ -412,7 +525,7 @@ mod tests {
     fn each_check_trips_past_its_limit_only() {
         let c = SupervisorConfig::default();
         type Case = (Fault, fn(&mut Checks, &SupervisorConfig, f32));
-        let cases: [Case; 7] = [
+        let cases: [Case; 9] = [
             (Fault::OverCurrentPhase, |m, c, e| {
                 m.i_abc_a = Abc::new(c.max_phase_current_a + e, 0.0, 0.0);
                 m.vector_current_a = 0.0;
@@ -431,6 +544,12 @@ mod tests {
             }),
             (Fault::AngleSensorImplausible, |m, c, e| {
                 m.angle_innovation_rad = c.max_angle_innovation_rad + e
+            }),
+            (Fault::AngleSensorImplausible, |m, c, e| {
+                m.angle_step_rad = c.max_angle_step_e_rad + e
+            }),
+            (Fault::OverSpeed, |m, c, e| {
+                m.speed_rad_s = -(c.max_speed_rad_s + e)
             }),
             (Fault::OverTemperature, |m, c, e| {
                 m.temperature_c = Some(c.max_temperature_c + e)
