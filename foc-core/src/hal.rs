@@ -56,6 +56,12 @@ pub trait PwmDriver {
 
     /// True while the outputs are enabled.
     fn is_enabled(&self) -> bool;
+    /// The operator cleared the drive's faults: release a hardware fault
+    /// latch (e.g. a timer break input that fired), so that [`Self::enable`]
+    /// may turn the outputs on again. Until then `enable` must refuse: a
+    /// break is a one-way latch until an explicit clear. Default: nothing
+    /// to release.
+    fn release_fault_latch(&mut self) {}
 }
 
 /// One phase-current sample [A], as a board measures it.

@@ -28,7 +28,7 @@ pub use crate::hw::serial::CommandSerial;
 use crate::hw::serial::SerialConfig;
 use crate::pac;
 use core::cell::{Cell, RefCell};
-use core::sync::atomic::{AtomicBool, Ordering};
+use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 use cortex_m::interrupt::{free, Mutex};
 use foc_core::angle::MechanicalAngle;
 use foc_core::frames::Abc;
@@ -157,6 +157,11 @@ static DUTIES: Mutex<Cell<[f32; 3]>> = Mutex::new(Cell::new([0.5; 3]));
 static BRIDGE_ON: AtomicBool = AtomicBool::new(false);
 /// Set by emergency_disable: the outputs stay off until reset.
 static EMERGENCY: AtomicBool = AtomicBool::new(false);
+/// The (simulated) timer break fired: `enable` refuses until the
+/// operator's clear releases it (`release_fault_latch`), as on the boards.
+static BREAK_LATCH: AtomicBool = AtomicBool::new(false);
+/// Periods the bridge conducted while the break latch was set (must stay 0).
+static ON_AFTER_BREAK: AtomicU32 = AtomicU32::new(0);
 
 /// The emulated PWM stage.
 pub struct SimPwm {
@@ -186,7 +191,7 @@ impl PwmDriver for SimPwm {
         Ok(())
     }
     fn enable(&mut self) -> Result<(), Self::Error> {
-        if EMERGENCY.load(Ordering::SeqCst) {
+        if EMERGENCY.load(Ordering::SeqCst) || BREAK_LATCH.load(Ordering::SeqCst) {
             return Err(SimPwmError::EmergencyOff);
         }
         BRIDGE_ON.store(true, Ordering::SeqCst);
@@ -197,6 +202,9 @@ impl PwmDriver for SimPwm {
     }
     fn is_enabled(&self) -> bool {
         BRIDGE_ON.load(Ordering::SeqCst)
+    }
+    fn release_fault_latch(&mut self) {
+        BREAK_LATCH.store(false, Ordering::SeqCst);
     }
 }
 
@@ -378,8 +386,13 @@ pub fn emergency_disable() {
     BRIDGE_ON.store(false, Ordering::SeqCst);
 }
 
-/// Nothing to acknowledge (no break input).
-pub fn break_isr_ack() {}
+/// The break ISR ran ([`sim::raise_break`]): its `emergency_disable` was a
+/// break, not a panic, so the permanent emergency latch becomes the break
+/// latch, released by the operator's clear (as on the real boards).
+pub fn break_isr_ack() {
+    BREAK_LATCH.store(true, Ordering::SeqCst);
+    EMERGENCY.store(false, Ordering::SeqCst);
+}
 
 /// No gate-driver fault pin.
 pub fn gate_driver_fault() -> bool {
@@ -389,6 +402,9 @@ pub fn gate_driver_fault() -> bool {
 /// Advance the plant by one PWM period and latch its sample.
 fn step_physics() {
     let on = BRIDGE_ON.load(Ordering::SeqCst);
+    if on && BREAK_LATCH.load(Ordering::SeqCst) {
+        ON_AFTER_BREAK.fetch_add(1, Ordering::SeqCst);
+    }
     free(|cs| {
         if let Some(w) = WORLD.borrow(cs).borrow_mut().as_mut() {
             let m: Measurements = w.plant.step_period(DUTIES.borrow(cs).get(), on, w.load_nm);
@@ -416,7 +432,7 @@ fn TIM2() {
 
 /// The test harness's handle on the simulated world.
 pub mod sim {
-    use super::{free, Ordering, BRIDGE_ON, EMERGENCY, WORLD};
+    use super::{free, Ordering, BREAK_LATCH, BRIDGE_ON, EMERGENCY, ON_AFTER_BREAK, WORLD};
     use foc_plant::plant::{EncoderFault, Phase, PhaseShort};
 
     /// A fault to inject into the plant.
@@ -547,5 +563,23 @@ pub mod sim {
     /// True once `emergency_disable` has run.
     pub fn emergency_latched() -> bool {
         EMERGENCY.load(Ordering::SeqCst)
+    }
+
+    /// Raise the timer break: pend `TIM1_BRK_TIM9`, whose handler (the
+    /// firmware's `bridge_break`) turns the outputs off and latches.
+    pub fn raise_break() {
+        cortex_m::peripheral::NVIC::pend(crate::pac::Interrupt::TIM1_BRK_TIM9);
+        cortex_m::asm::dsb();
+        cortex_m::asm::isb();
+    }
+
+    /// True while the break latch holds.
+    pub fn break_latched() -> bool {
+        BREAK_LATCH.load(Ordering::SeqCst)
+    }
+
+    /// Periods the bridge conducted with the break latch set (0 expected).
+    pub fn on_periods_after_break() -> u32 {
+        ON_AFTER_BREAK.load(Ordering::SeqCst)
     }
 }

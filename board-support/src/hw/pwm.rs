@@ -25,6 +25,7 @@ use crate::hw::PinId;
 use crate::logic::dead_time::{encode_dead_time, DeadTime};
 use crate::logic::pwm_timing::{centre_aligned, PwmTiming, PwmTimingError};
 use crate::pac;
+use core::sync::atomic::{AtomicBool, Ordering};
 use foc_core::hal::PwmDriver;
 
 /// Polarity of the TIM1 break input.
@@ -218,7 +219,9 @@ impl PwmDriver for Tim1Pwm {
         // enable pins and be undone.
         cortex_m::interrupt::free(|_| {
             let tim = unsafe { &*pac::TIM1::ptr() };
-            if tim.sr().read().bif().bit_is_set() {
+            // The break flag, or its software latch (the break ISR clears
+            // the flag; the latch holds until the operator's clear).
+            if tim.sr().read().bif().bit_is_set() || BREAK_LATCHED.load(Ordering::SeqCst) {
                 return Err(PwmError::BreakActive);
             }
             if !self.cfg.enable_pins_in_disable
@@ -241,6 +244,10 @@ impl PwmDriver for Tim1Pwm {
                 p.set(false);
             }
         }
+    }
+
+    fn release_fault_latch(&mut self) {
+        release_break_latch();
     }
 
     fn is_enabled(&self) -> bool {
@@ -275,10 +282,25 @@ pub fn safe_state_hard(enable_pins: &[PinId]) {
 /// Clear the TIM1 break flag (`SR.BIF`, RM0090 17.4.5). `MOE` stays 0 (AOE =
 /// 0): the outputs stay off until `PwmDriver::enable`.
 pub fn break_flag_clear() {
+    BREAK_LATCHED.store(true, Ordering::SeqCst);
     // SAFETY: TIM1_SR flags are rc_w0: writing 0 to BIF clears it, the
     // other fields are written 1 (no effect) by the PAC's write().
     unsafe {
         (*pac::TIM1::ptr()).sr().write(|w| w.bif().clear_bit());
     }
     safe_state_moe();
+}
+
+/// Set by [`break_flag_clear`] (the break ISR) before it clears the
+/// hardware flag: `enable` refuses while it is set, so no code path turns
+/// the outputs on again after a break, in that period or any later one,
+/// until the operator's explicit fault clear ([`release_break_latch`],
+/// through `PwmDriver::release_fault_latch`).
+static BREAK_LATCHED: AtomicBool = AtomicBool::new(false);
+
+/// Release the break latch (after the operator's explicit fault clear).
+/// The hardware flag itself is not touched: a break input still active
+/// sets it again and `enable` keeps refusing.
+pub fn release_break_latch() {
+    BREAK_LATCHED.store(false, Ordering::SeqCst);
 }

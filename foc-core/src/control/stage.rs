@@ -340,11 +340,14 @@ impl CurrentStage {
     /// Perform `slot`'s pending fault clear now (the step would do it
     /// first thing): the caller then latches faults it found this period,
     /// which the clear must not erase.
-    pub fn take_clear(&mut self, slot: &CommandSlot) {
+    /// Returns true when a clear was performed.
+    pub fn take_clear(&mut self, slot: &CommandSlot) -> bool {
         if slot.clear_seq != self.state.last_clear_seq {
             self.state.last_clear_seq = slot.clear_seq;
             self.supervisor.clear();
+            return true;
         }
+        false
     }
 
     /// Commands refused so far (invalid, sent while faulted, or closed-loop

@@ -131,6 +131,10 @@ pub struct Output {
     pub event: Option<Event>,
     /// The verdict on [`Inputs::change`], when one was given.
     pub change: Option<Result<(), Refusal>>,
+    /// The operator's fault clear was performed this period (before any
+    /// fault found this period was latched): hardware fault latches may be
+    /// released (`PwmDriver::release_fault_latch`).
+    pub faults_cleared: bool,
 }
 
 /// The drive's life (see the module docs). Hardware-free: the caller owns
@@ -248,11 +252,12 @@ impl Lifecycle {
             run_position: false,
             event: None,
             change: None,
+            faults_cleared: false,
         };
         // The operator's clear first: a fault found this period (power
         // stage, link watchdog) is latched after it and stays latched.
         if self.phase == Phase::Run {
-            stage.take_clear(&inp.command);
+            out.faults_cleared = stage.take_clear(&inp.command);
         }
         if inp.gate_fault {
             stage.report_fault(Fault::GateDriverFault);
@@ -352,6 +357,9 @@ impl Lifecycle {
         }
         if let Some((n, m)) = ch.dividers {
             self.dividers = (divider(n), divider(m));
+        }
+        if let Some(p) = ch.permit {
+            stage.set_calibration(&p);
         }
     }
 

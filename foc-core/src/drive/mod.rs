@@ -110,14 +110,19 @@ where
         }
     }
 
-    /// One PWM period: read the sensors, decide, install offsets, drive the
-    /// bridge (duties before enable; a PWM error is latched as
-    /// [`Fault::PwmError`] with the bridge off).
+    /// One PWM period: read the sensors, decide, install offsets, release
+    /// the PWM's hardware fault latch after an explicit clear (not while
+    /// the power stage still reports a fault), drive the bridge (duties
+    /// before enable; a PWM error is latched as [`Fault::PwmError`] with
+    /// the bridge off).
     pub fn step(&mut self, inputs: &Inputs) -> Output {
         let sample = read_sample(&mut self.currents, &mut self.angle, &mut self.bus);
         let out = self.life.step(&mut self.stage, inputs, &sample);
         if let Some(o) = out.offsets_a {
             self.currents.set_offsets_a(o);
+        }
+        if out.faults_cleared && !inputs.gate_fault {
+            self.pwm.release_fault_latch();
         }
         if let Err(f) = apply(&mut self.pwm, out.bridge) {
             self.stage.report_fault(f);

@@ -1,0 +1,196 @@
+//! `foc_core::drive::Drive` over fake hardware: the bridge stays off during
+//! start-up, offsets reach the current sensing, a supplied permit unlocks
+//! closed loop, and a hardware fault latch (a timer break) is one-way until
+//! the operator's explicit clear.
+
+use foc_core::angle::MechanicalAngle;
+use foc_core::calibration::offsets::OffsetLimits;
+use foc_core::calibration::Calibrated;
+use foc_core::control::cascade::CascadeConfig;
+use foc_core::control::{Command, CommandSlot, Fault, MotorParams};
+use foc_core::drive::{ConfigChange, Drive, Inputs, LifecycleConfig, Phase};
+use foc_core::frames::Abc;
+use foc_core::hal::{AngleSensor, BusVoltage, CurrentSense, PhaseCurrents, PwmDriver};
+
+/// A PWM with a break latch like the STM32 boards': set by the break,
+/// refused `enable` while set, released only by `release_fault_latch`.
+#[derive(Default)]
+struct Pwm {
+    on: bool,
+    latched: bool,
+    enables_refused: u32,
+}
+
+impl PwmDriver for Pwm {
+    type Error = ();
+    fn period_counts(&self) -> u16 {
+        4200
+    }
+    fn set_compare(&mut self, _: [u16; 3]) -> Result<(), ()> {
+        Ok(())
+    }
+    fn enable(&mut self) -> Result<(), ()> {
+        if self.latched {
+            self.enables_refused += 1;
+            return Err(());
+        }
+        self.on = true;
+        Ok(())
+    }
+    fn disable(&mut self) {
+        self.on = false;
+    }
+    fn is_enabled(&self) -> bool {
+        self.on
+    }
+    fn release_fault_latch(&mut self) {
+        self.latched = false;
+    }
+}
+
+/// Currents with a constant sensor offset of 0.1 A on phase A.
+#[derive(Default)]
+struct Cs {
+    offsets: Abc,
+}
+impl CurrentSense for Cs {
+    type Error = ();
+    fn read_currents(&mut self) -> Result<PhaseCurrents, ()> {
+        Ok(PhaseCurrents::TwoPhase {
+            a_a: 0.1 - self.offsets.a,
+            b_a: -self.offsets.b,
+        })
+    }
+    fn offsets_a(&self) -> Abc {
+        self.offsets
+    }
+    fn set_offsets_a(&mut self, o: Abc) {
+        self.offsets = o;
+    }
+}
+struct Enc;
+impl AngleSensor for Enc {
+    type Error = ();
+    fn read_angle(&mut self) -> Result<MechanicalAngle, ()> {
+        Ok(MechanicalAngle::ZERO)
+    }
+}
+struct Bus;
+impl BusVoltage for Bus {
+    type Error = ();
+    fn read_bus_voltage_v(&mut self) -> Result<f32, ()> {
+        Ok(24.0)
+    }
+}
+
+fn drive() -> (Drive<Pwm, Cs, Enc, Bus>, CascadeConfig) {
+    let motor = MotorParams {
+        pole_pairs: 7,
+        r_ohm: 0.1,
+        ld_h: 40e-6,
+        lq_h: 40e-6,
+        flux_linkage_wb: 0.004,
+    };
+    let cfg = CascadeConfig::for_motor(motor, 20_000.0, 10.0);
+    let life = LifecycleConfig {
+        offsets: Some(OffsetLimits {
+            samples: 16,
+            max_offset_a: 0.5,
+            max_noise_a: 0.1,
+        }),
+        sensor_check_reads: 4,
+        identification: None,
+        identify_at_start_up: false,
+        speed_divider: 10,
+        position_divider: 20,
+    };
+    let d = Drive::new(Pwm::default(), Cs::default(), Enc, Bus, cfg.current, life);
+    (d, cfg)
+}
+
+#[test]
+fn start_up_then_supplied_permit_then_break_latch_until_clear() {
+    let (mut d, cfg) = drive();
+    let mut slot = CommandSlot::INIT;
+    let mut inputs = Inputs::new(slot, 0.0);
+    for _ in 0..20 {
+        d.step(&inputs);
+        assert!(!d.pwm.on, "bridge on during start-up");
+    }
+    assert_eq!(d.lifecycle().phase(), Phase::Run);
+    assert!(
+        (d.currents.offsets.a - 0.1).abs() < 1e-6,
+        "offsets installed"
+    );
+
+    // A supplied permit, applied at the period boundary.
+    let permit = Calibrated::supplied(cfg.current.angle, cfg.current.current).unwrap();
+    inputs.change = Some(ConfigChange {
+        permit: Some(permit),
+        ..ConfigChange::default()
+    });
+    assert_eq!(d.step(&inputs).change, Some(Ok(())));
+    inputs.change = None;
+    assert!(d.status().calibrated);
+    slot.post(Command::Torque { iq_a: 1.0 });
+    inputs.command = slot;
+    d.step(&inputs);
+    assert!(d.pwm.on);
+
+    // The break fires: the board turned the outputs off and latched.
+    d.pwm.on = false;
+    d.pwm.latched = true;
+    inputs.gate_fault = true;
+    d.step(&inputs);
+    inputs.gate_fault = false;
+    assert_eq!(
+        d.stage().supervisor().first_fault(),
+        Some(Fault::GateDriverFault)
+    );
+    // A new command while faulted: refused; the bridge stays off.
+    slot.post(Command::Torque { iq_a: 1.0 });
+    inputs.command = slot;
+    for _ in 0..5 {
+        d.step(&inputs);
+        assert!(!d.pwm.on);
+    }
+    assert!(d.pwm.latched, "latch released without a clear");
+    // The explicit clear releases the latch; the next command runs.
+    slot.request_clear();
+    inputs.command = slot;
+    d.step(&inputs);
+    assert!(!d.pwm.latched);
+    slot.post(Command::Torque { iq_a: 1.0 });
+    inputs.command = slot;
+    d.step(&inputs);
+    assert!(d.pwm.on);
+    assert_eq!(d.pwm.enables_refused, 0);
+}
+
+/// The break fires while the period's inputs were already read (no fault
+/// flag yet): `enable` is refused, the fault latched, the bridge off.
+#[test]
+fn break_between_reading_the_inputs_and_driving_the_bridge() {
+    let (mut d, cfg) = drive();
+    let mut slot = CommandSlot::INIT;
+    let mut inputs = Inputs::new(slot, 0.0);
+    for _ in 0..20 {
+        d.step(&inputs);
+    }
+    let permit = Calibrated::supplied(cfg.current.angle, cfg.current.current).unwrap();
+    inputs.change = Some(ConfigChange {
+        permit: Some(permit),
+        ..ConfigChange::default()
+    });
+    d.step(&inputs);
+    inputs.change = None;
+    slot.post(Command::Torque { iq_a: 1.0 });
+    inputs.command = slot;
+    d.pwm.latched = true; // the break fired, the flag not seen yet
+    d.step(&inputs);
+    assert!(!d.pwm.on);
+    assert_eq!(d.pwm.enables_refused, 1);
+    assert_eq!(d.stage().supervisor().first_fault(), Some(Fault::PwmError));
+    d.step(&inputs);
+    assert!(!d.pwm.on);
+}
