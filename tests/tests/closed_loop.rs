@@ -229,13 +229,12 @@ fn high_speed_run(delay_compensation_periods: f32) -> (f64, Option<Fault>) {
     for k in 0..n {
         if k % 10 == 0 {
             let ramp = w * k as f32 / n as f32;
-            sim.cascade
-                .command(Command::Velocity { rad_s: ramp })
-                .unwrap();
+            // Refused once a fault latched (the uncompensated run trips).
+            sim.cascade.command(Command::Velocity { rad_s: ramp }).ok();
         }
         sim.step();
     }
-    sim.cascade.command(Command::Velocity { rad_s: w }).unwrap();
+    sim.cascade.command(Command::Velocity { rad_s: w }).ok();
     sim.run((0.2 * f) as usize);
     sim.load_nm = 0.4 * s.kt() * s.rated_current_a;
     sim.run((0.2 * f) as usize);
@@ -251,8 +250,9 @@ fn high_speed_run(delay_compensation_periods: f32) -> (f64, Option<Fault>) {
 /// at half the no-load speed of the M2006 id stays within 0.15 A (5 % of
 /// the rated current; measured 0.08 A) through the ramp and the load step.
 /// Without it the voltage lags by 42 deg electrical, d and q couple and the
-/// current loop oscillates until it trips over-current (measured: id peak
-/// 10.9 A, `OverCurrentPhase`, during the ramp).
+/// current loop oscillates until it trips (measured: id peak 10.9 A,
+/// `OverCurrentPhase`, during the ramp; since the current-sense
+/// plausibility check, `CurrentSenseError` first: the loop cannot track).
 #[test]
 fn delay_compensation_keeps_id_near_zero_at_high_speed() {
     let (with, fault) = high_speed_run(1.5);

@@ -79,6 +79,10 @@ impl CascadeConfig {
                     // over 100 ms windows.
                     max_speed_rad_s: 1.2 * max_velocity,
                     runaway_periods: (0.1 * pwm_frequency_hz) as u32,
+                    // Current sense: tracking error above 15 % of the
+                    // current limit for 2 ms.
+                    tracking_band_a: 0.15 * max_current_a,
+                    tracking_periods: (0.002 * pwm_frequency_hz) as u32,
                     ..SupervisorConfig::default()
                 },
                 limits: Limits {

@@ -165,6 +165,8 @@ pub struct CurrentStageState {
     pub last_interp: MechanicalAngle,
     /// The angle tracker's last signed innovation [rad, mechanical].
     pub last_innovation_rad: f32,
+    /// Periods since the raw angle reading last changed.
+    pub unchanged_periods: u32,
 }
 
 impl CurrentStageState {
@@ -185,6 +187,7 @@ impl CurrentStageState {
             interpolation,
             last_interp: MechanicalAngle::ZERO,
             last_innovation_rad: 0.0,
+            unchanged_periods: 0,
         }
     }
 
@@ -451,6 +454,11 @@ impl CurrentStage {
                 let innovation_step = innovation - self.state.last_innovation_rad;
                 self.state.last_innovation_rad = innovation;
                 let changed = self.state.last_raw != Some(raw);
+                self.state.unchanged_periods = if changed {
+                    0
+                } else {
+                    self.state.unchanged_periods.saturating_add(1)
+                };
                 let used = self.angle_used(mech, changed);
                 sensed.theta_e = self.config.angle.electrical(used);
                 sensed.i_abc = cur.to_abc();
@@ -627,7 +635,59 @@ impl CurrentStage {
             }
             (None, _) => None,
         };
+        if closed_iq.is_some() && !self.currents_plausible(out.as_ref(), i_ref, w_e, sensed.v_bus_v)
+        {
+            self.state.active = Command::Disable;
+            return (None, i_ref, theta_e);
+        }
         (out, i_ref, theta_e)
+    }
+
+    /// Current-sense plausibility (closed loop): the loop's tracking error
+    /// against the supervisor's band, excused while the back-EMF alone
+    /// takes more than half the voltage available (the reference may then
+    /// be out of reach at high speed) and while the angle reading looks
+    /// frozen. False when it trips.
+    #[inline(always)]
+    fn currents_plausible(
+        &mut self,
+        out: Option<&CurrentLoopOutput>,
+        i_ref: Dq,
+        w_e_rad_s: f32,
+        v_bus_v: f32,
+    ) -> bool {
+        let Some(o) = out else {
+            return true;
+        };
+        let (ed, eq) = (i_ref.d - o.i_dq_a.d, i_ref.q - o.i_dq_a.q);
+        let emf_v = w_e_rad_s * self.config.current.motor.flux_linkage_wb;
+        let emf_limited =
+            o.voltage_limited && emf_v * emf_v > 0.25 * (v_bus_v * v_bus_v * (1.0 / 3.0));
+        // A reading frozen while the tracked or commanded speed says it
+        // should have moved two counts is the angle sensor's fault (the
+        // stuck check's to name): a wrong angle makes the loop lose track
+        // too.
+        let cpr = self.config.angle.sensor_counts_per_rev;
+        let count_rad = if cpr > 0 {
+            core::f32::consts::TAU / cpr as f32
+        } else {
+            0.01
+        };
+        let commanded_rad_s = match self.state.active {
+            Command::Velocity { rad_s } => rad_s.abs(),
+            _ => 0.0,
+        };
+        let tracked_rad_s = self.tracker.velocity_rad_s().abs();
+        let speed = if commanded_rad_s > tracked_rad_s {
+            commanded_rad_s
+        } else {
+            tracked_rad_s
+        };
+        let moved_rad = speed * self.config.current.ts_s * self.state.unchanged_periods as f32;
+        let excused = emf_limited || moved_rad > 2.0 * count_rad;
+        self.supervisor
+            .check_tracking(ed * ed + eq * eq, excused)
+            .is_none()
     }
 
     /// Step 5: the bridge command and the feedback. A control output that is

@@ -196,6 +196,16 @@ pub struct SupervisorConfig {
     pub runaway_periods: u32,
     /// Runaway band [rad/s]: speed errors below it never count.
     pub runaway_band_rad_s: f32,
+    /// Current-sense plausibility ([`Fault::CurrentSenseError`]): the
+    /// current loop's tracking error `|i_dq_ref - i_dq|` [A] above which a
+    /// period counts. A dead or stuck current channel (two shunts: the
+    /// third current is derived from it) leaves the loop unable to track
+    /// while the true current runs away unseen.
+    pub tracking_band_a: f32,
+    /// Consecutive periods above the band that trip; 0 disables. Periods
+    /// where the voltage limit is reached because of the back-EMF (high
+    /// speed, the reference legitimately out of reach) do not count.
+    pub tracking_periods: u32,
     /// Over-temperature threshold [deg C].
     pub max_temperature_c: f32,
     /// Stuck-sensor / stall check ([`Fault::AngleSensorStuck`]): the angle
@@ -230,6 +240,8 @@ impl Default for SupervisorConfig {
             max_speed_rad_s: 1.0e4,
             runaway_periods: 2000, // 100 ms at 20 kHz
             runaway_band_rad_s: 5.0,
+            tracking_band_a: 2.5,
+            tracking_periods: 40, // 2 ms at 20 kHz
             max_temperature_c: 90.0,
             stuck_periods: 400, // 20 ms at 20 kHz
             stuck_current_a: 5.0,
@@ -275,6 +287,7 @@ pub struct Supervisor {
     /// Runaway window: periods so far and the error at its start [rad/s].
     runaway_count: u32,
     runaway_start_rad_s: f32,
+    tracking_count: u32,
 }
 
 impl Supervisor {
@@ -288,7 +301,30 @@ impl Supervisor {
             angle_step_limit_rad: config.max_angle_step_e_rad,
             runaway_count: 0,
             runaway_start_rad_s: 0.0,
+            tracking_count: 0,
         }
+    }
+
+    /// The current-sense plausibility check, once per closed-loop current
+    /// period: `error_sq_a2` is `|i_dq_ref - i_dq|^2` [A^2], `excused` true
+    /// when the voltage limit is reached because of the back-EMF. Latches
+    /// [`Fault::CurrentSenseError`] after more than `tracking_periods`
+    /// consecutive periods above the band.
+    #[inline]
+    pub fn check_tracking(&mut self, error_sq_a2: f32, excused: bool) -> Option<Fault> {
+        let c = &self.config;
+        let band = c.tracking_band_a;
+        let off = c.tracking_periods == 0 || excused || !(error_sq_a2 > band * band);
+        if off {
+            self.tracking_count = 0;
+            return None;
+        }
+        self.tracking_count = self.tracking_count.saturating_add(1);
+        if self.tracking_count > c.tracking_periods {
+            self.trip(Fault::CurrentSenseError);
+            return Some(Fault::CurrentSenseError);
+        }
+        None
     }
 
     /// The angle sensor's scale: the innovation-step limit becomes
@@ -380,6 +416,7 @@ impl Supervisor {
         self.first = None;
         self.still_periods = 0;
         self.runaway_count = 0;
+        self.tracking_count = 0;
     }
 
     /// The stuck-sensor / stall check, once per period: `reading_changed`
