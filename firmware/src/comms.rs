@@ -53,11 +53,15 @@ use foc_protocol::message::{
 };
 use foc_protocol::{DeviceContext, DeviceState, Refusal, WatchdogConfig};
 
-/// Link watchdog at start-up: off. A host that wants one sends
-/// `SetWatchdog` (`foc-ctl watchdog ...`). (On by default it would disable
-/// a drive started by `config::START_COMMAND` or the QEMU mission, which
-/// never talk on the link.)
-pub const DEFAULT_WATCHDOG: WatchdogConfig = WatchdogConfig::OFF;
+/// Link watchdog armed by the first closed-loop command over the link
+/// (unless the host configured it with `SetWatchdog`, `foc-ctl watchdog`):
+/// 1 s without a command or keep-alive stops the motor (velocity 0), one
+/// more second disables it (`CommandTimeout`). Commands that do not come
+/// over the link (`config::START_COMMAND`, the QEMU mission) do not arm it.
+pub const AUTO_WATCHDOG: WatchdogConfig = WatchdogConfig {
+    timeout_periods: board::PWM_FREQUENCY_HZ,
+    reaction: foc_core::control::stage::TimeoutReaction::Stop,
+};
 
 /// Pending configuration changes, one part per owning task.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -390,12 +394,13 @@ pub struct Comms {
 }
 
 impl Comms {
-    /// Channel over `serial`, watchdog [`DEFAULT_WATCHDOG`], telemetry off.
+    /// Channel over `serial`, watchdog [`AUTO_WATCHDOG`] (armed by the first
+    /// closed-loop command), telemetry off.
     pub fn new(serial: board::CommandSerial) -> Self {
         Self {
             serial,
             decoder: FrameDecoder::new(),
-            device: DeviceState::with_watchdog(DEFAULT_WATCHDOG),
+            device: DeviceState::with_auto_watchdog(AUTO_WATCHDOG),
             settings: Settings::from_config(),
             counters: LinkCounters::default(),
             tx: [0; MAX_FRAME],

@@ -81,6 +81,9 @@ enum Step {
     Fault,
     Clear,
     Recover,
+    Break,
+    BreakClear,
+    AfterBreak,
     Done,
 }
 
@@ -290,6 +293,50 @@ impl Mission {
                 self.check(
                     (t.omega_m_rad_s - 50.0).abs() < 2.0,
                     "running again at 50 rad/s after the clear",
+                );
+                sim::raise_break();
+                self.go(Step::Break, now, slot, None);
+            }
+            Step::Break => {
+                self.check(
+                    fb.first_fault == Some(Fault::GateDriverFault) && sim::break_latched(),
+                    "timer break latched as a gate-driver fault",
+                );
+                self.check(
+                    !sim::outputs_on() && sim::on_periods_after_break() == 0,
+                    "bridge never on after the break",
+                );
+                // A command without a clear: refused, the bridge stays off.
+                self.go(
+                    Step::BreakClear,
+                    now,
+                    slot,
+                    Some(Command::Velocity { rad_s: 50.0 }),
+                );
+            }
+            Step::BreakClear if elapsed >= periods(0.05) => {
+                self.check(
+                    !sim::outputs_on()
+                        && sim::break_latched()
+                        && sim::on_periods_after_break() == 0,
+                    "break latch holds until the explicit clear",
+                );
+                slot.request_clear();
+                self.go(
+                    Step::AfterBreak,
+                    now,
+                    slot,
+                    Some(Command::Velocity { rad_s: 50.0 }),
+                );
+            }
+            Step::AfterBreak if elapsed >= periods(0.4) => {
+                self.check(
+                    fb.faults.is_empty() && !sim::break_latched(),
+                    "break released by the clear",
+                );
+                self.check(
+                    (t.omega_m_rad_s - 50.0).abs() < 2.0,
+                    "running again at 50 rad/s after the break",
                 );
                 self.check(overruns == 0, "no current-loop overrun");
                 slot.post(Command::Disable);

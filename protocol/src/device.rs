@@ -126,12 +126,15 @@ pub trait DeviceContext {
 
 /// Link watchdog: counts current-loop periods since the last valid command
 /// or keep-alive and, when the count passes the timeout while the drive is
-/// enabled, reacts once as configured (the reactions of
+/// enabled, reacts as configured (the reactions of
 /// [`foc_core::control::stage::TimeoutReaction`]):
 ///
 /// - `Disable`: latch [`Fault::CommandTimeout`] (bridge off until cleared);
 /// - `Stop`: post velocity 0;
 /// - `Hold`: post a position command at the measured position.
+///
+/// A `Stop` or `Hold` leaves the bridge on: when the link stays silent for
+/// a second timeout after it, the watchdog escalates to `Disable`.
 ///
 /// This watches the *link* from the communication task; the current stage's
 /// `command_timeout_periods` stays as the backstop for a dead communication
@@ -145,14 +148,17 @@ pub trait DeviceContext {
 /// wd.feed();
 /// assert_eq!(wd.tick(60, true), None);
 /// assert_eq!(wd.tick(60, true), Some(TimeoutReaction::Stop)); // 120 > 100
-/// assert_eq!(wd.tick(60, true), None); // reacts once until fed again
+/// assert_eq!(wd.tick(60, true), None); // 180: reacted once
+/// assert_eq!(wd.tick(60, true), Some(TimeoutReaction::Disable)); // 240 > 200
+/// assert_eq!(wd.tick(60, true), None); // then nothing until fed again
 /// ```
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct CommandWatchdog {
     config: WatchdogConfig,
     age_periods: u32,
-    expired: bool,
+    /// Reactions given since the last feed (0, 1, or 2 after escalating).
+    reactions: u8,
 }
 
 impl CommandWatchdog {
@@ -161,7 +167,7 @@ impl CommandWatchdog {
         Self {
             config,
             age_periods: 0,
-            expired: false,
+            reactions: 0,
         }
     }
     /// The configuration.
@@ -176,7 +182,7 @@ impl CommandWatchdog {
     /// A valid command or keep-alive arrived.
     pub fn feed(&mut self) {
         self.age_periods = 0;
-        self.expired = false;
+        self.reactions = 0;
     }
     /// Periods since the last feed (saturating).
     pub const fn age_periods(&self) -> u32 {
@@ -184,22 +190,31 @@ impl CommandWatchdog {
     }
     /// True after it fired, until fed.
     pub const fn expired(&self) -> bool {
-        self.expired
+        self.reactions > 0
     }
     /// Advance by `periods`; `enabled` is false while the drive is disabled
     /// (then the age is held at 0). Returns the reaction once when the
-    /// timeout passes.
+    /// timeout passes, and `Disable` once when a `Stop` or `Hold` was
+    /// followed by a second timeout of silence.
     pub fn tick(&mut self, periods: u32, enabled: bool) -> Option<TimeoutReaction> {
-        if self.config.timeout_periods == 0 || !enabled {
+        let t = self.config.timeout_periods;
+        if t == 0 || !enabled {
             self.age_periods = 0;
             return None;
         }
         self.age_periods = self.age_periods.saturating_add(periods);
-        if !self.expired && self.age_periods > self.config.timeout_periods {
-            self.expired = true;
-            Some(self.config.reaction)
-        } else {
-            None
+        match self.reactions {
+            0 if self.age_periods > t => {
+                self.reactions = 1;
+                Some(self.config.reaction)
+            }
+            1 if self.config.reaction != TimeoutReaction::Disable
+                && self.age_periods > t.saturating_mul(2) =>
+            {
+                self.reactions = 2;
+                Some(TimeoutReaction::Disable)
+            }
+            _ => None,
         }
     }
 }
@@ -213,6 +228,11 @@ pub struct DeviceState {
     telemetry_seq: u16,
     last_poll: Option<u32>,
     last_command: Option<(u16, u32, Response)>,
+    /// Armed on the first closed-loop command when the host has not
+    /// configured the watchdog itself (`OFF`: never).
+    auto_watchdog: WatchdogConfig,
+    /// The host sent `SetWatchdog` (its choice stands, `OFF` included).
+    host_configured: bool,
 }
 
 impl Default for DeviceState {
@@ -295,7 +315,20 @@ impl DeviceState {
             telemetry_seq: 0,
             last_poll: None,
             last_command: None,
+            auto_watchdog: WatchdogConfig::OFF,
+            host_configured: false,
         }
+    }
+
+    /// Watchdog off until the first closed-loop command (torque, velocity,
+    /// position) is accepted, which arms `auto` unless the host has sent
+    /// `SetWatchdog` (its choice stands, off included): a host that goes
+    /// silent mid-move does not leave the motor running (the firmware's
+    /// default).
+    pub const fn with_auto_watchdog(auto: WatchdogConfig) -> Self {
+        let mut s = Self::new();
+        s.auto_watchdog = auto;
+        s
     }
 
     /// With a watchdog configuration (the firmware's default).
@@ -469,6 +502,12 @@ impl DeviceState {
                     .check_command(&cmd, &ctx.limits())
                     .map_err(|e| nack(command_field(&cmd, e)))?;
                 ctx.post(cmd).map_err(|e| nack(command_field(&cmd, e)))?;
+                if cmd.mode().is_closed_loop()
+                    && !self.host_configured
+                    && self.watchdog.config().timeout_periods == 0
+                {
+                    self.watchdog.configure(self.auto_watchdog);
+                }
                 self.watchdog.feed();
                 Ok(Response::Ack)
             }
@@ -513,6 +552,7 @@ impl DeviceState {
                 Ok(Response::Ack)
             }
             Request::SetWatchdog(c) => {
+                self.host_configured = true;
                 self.watchdog.configure(c);
                 Ok(Response::Ack)
             }

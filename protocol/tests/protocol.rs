@@ -886,3 +886,67 @@ fn watchdog_reactions() {
         }
     }
 }
+
+/// The firmware's default: a closed-loop command arms the link watchdog
+/// (Stop, then Disable after a second timeout of silence); a keep-alive
+/// feeds it; a host's own `SetWatchdog` (even off) is never overridden.
+#[test]
+fn closed_loop_command_arms_the_link_watchdog_stop_then_disable() {
+    let auto = WatchdogConfig {
+        timeout_periods: 100,
+        reaction: TimeoutReaction::Stop,
+    };
+    let mut dev = DeviceState::with_auto_watchdog(auto);
+    let mut ctx = RecordingContext::default();
+    dev.poll(&mut ctx, 0);
+    // Open loop does not arm it.
+    let ol = Command::OpenLoop {
+        v_d_v: 1.0,
+        v_q_v: 0.0,
+        theta_e: ElectricalAngle::ZERO,
+        omega_e_rad_s: 0.0,
+    };
+    assert_eq!(
+        handle(&mut dev, &mut ctx, 1, Request::SetCommand(ol)),
+        Response::Ack
+    );
+    assert_eq!(dev.watchdog().config(), WatchdogConfig::OFF);
+    let v = Command::Velocity { rad_s: 10.0 };
+    assert_eq!(
+        handle(&mut dev, &mut ctx, 2, Request::SetCommand(v)),
+        Response::Ack
+    );
+    assert_eq!(dev.watchdog().config(), auto);
+    // A keep-alive within the timeout feeds it.
+    dev.poll(&mut ctx, 90);
+    assert_eq!(
+        handle(&mut dev, &mut ctx, 3, Request::KeepAlive),
+        Response::Ack
+    );
+    dev.poll(&mut ctx, 180);
+    assert_eq!(ctx.posted, Some(v));
+    // Silence: Stop after the timeout, Disable (fault) after a second one.
+    dev.poll(&mut ctx, 300);
+    assert_eq!(ctx.posted, Some(Command::Velocity { rad_s: 0.0 }));
+    assert!(ctx.faults.is_empty());
+    dev.poll(&mut ctx, 400);
+    assert!(ctx.faults.contains(Fault::CommandTimeout));
+
+    // The host said off: it stays off.
+    let mut dev = DeviceState::with_auto_watchdog(auto);
+    let mut ctx = RecordingContext::default();
+    assert_eq!(
+        handle(
+            &mut dev,
+            &mut ctx,
+            1,
+            Request::SetWatchdog(WatchdogConfig::OFF)
+        ),
+        Response::Ack
+    );
+    assert_eq!(
+        handle(&mut dev, &mut ctx, 2, Request::SetCommand(v)),
+        Response::Ack
+    );
+    assert_eq!(dev.watchdog().config(), WatchdogConfig::OFF);
+}

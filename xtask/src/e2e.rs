@@ -16,7 +16,11 @@
 //!    Nack (field 1 out of range / not disabled), nothing changed;
 //! 6. faults read (none latched), disable, QEMU killed.
 //!
-//! Every wait has a deadline and the whole run is bounded ([`TOTAL_LIMIT`]).
+//! Every wait is bounded in emulated time, counted in the firmware's own
+//! PWM periods (telemetry `period`, at the PWM frequency the firmware
+//! reports, `ParamId::PwmFrequencyHz`), so a slow or loaded host cannot
+//! make a check fail; host-time limits are only backstops, several times
+//! larger (a hung emulator), and the whole run is bounded ([`TOTAL_LIMIT`]).
 //!
 //! **Emulated time.** QEMU runs with `-icount shift=0,align=off,sleep=off`,
 //! as for `cargo xtask qemu`: one instruction is 1 ns of virtual time, so
@@ -26,14 +30,14 @@
 //! is skipped, so the emulation runs as fast as the host CPU allows
 //! (measured here: about 8,800 simulated PWM periods per host second, i.e.
 //! the simulated motor at about 0.44x real time). The host tool then sees
-//! the drive evolve at a steady rate it can follow, and its waits are in
-//! host time with generous margins. `sleep=on` (virtual time waits for the
-//! host while idle) ran about 10x slower here (about 800 periods per host
-//! second, host timer granularity), and no `-icount` at all ties TIM2 to
-//! host time, so a loaded host overruns the current loop.
+//! the drive evolve at a steady rate it can follow, and reads the emulated
+//! time from the firmware's period counter. `sleep=on` (virtual time waits
+//! for the host while idle) ran about 10x slower here (about 800 periods per
+//! host second, host timer granularity), and no `-icount` at all ties TIM2
+//! to host time, so a loaded host overruns the current loop.
 
 use std::collections::VecDeque;
-use std::io::{BufRead, BufReader, Read, Write};
+use std::io::{Read, Write};
 use std::net::{Ipv4Addr, SocketAddr, TcpListener, TcpStream};
 use std::path::Path;
 use std::process::Child;
@@ -42,7 +46,7 @@ use std::thread;
 use std::time::{Duration, Instant};
 
 use clap::Args;
-use foc_core::control::{Command as DriveCommand, Mode};
+use foc_core::control::{Command as DriveCommand, Fault, Mode};
 use foc_ctl::{Client, ClientError, TcpTransport};
 use foc_protocol::frame::{encode, FrameDecoder, MAX_FRAME};
 use foc_protocol::message::{ErrorCode, ParamId, Request, Response, Telemetry, TelemetryRate};
@@ -50,21 +54,45 @@ use foc_protocol::message::{ErrorCode, ParamId, Request, Response, Telemetry, Te
 use crate::qemu;
 use crate::util::{Error, Result};
 
-/// The whole test, QEMU start to kill.
+/// The whole test, QEMU start to kill (host-time backstop).
 pub const TOTAL_LIMIT: Duration = Duration::from_secs(360);
 /// Start-up (offsets, sensor check, identification) must end within this
 /// emulated time [s] (bounded in the firmware's own periods, not host time).
 const STARTUP_EMULATED_S: f32 = 20.0;
 /// Host-time backstop of the start-up wait (a hung emulator).
 const STARTUP_HOST_BACKSTOP: Duration = Duration::from_secs(240);
+/// Host-time backstop of the other waits, per emulated second waited for:
+/// the emulation takes about 2.3 host seconds per emulated second on an
+/// idle host here (0.44x real time) and measured 8.7 on a two-core host
+/// busy compiling, so this is several times either.
+const BACKSTOP_HOST_S_PER_EMULATED_S: f32 = 30.0;
+/// The shortest host-time backstop of a wait [s].
+const BACKSTOP_MIN_HOST_S: f32 = 20.0;
 /// Velocity target [rad/s] and tolerance.
 const VELOCITY_RAD_S: f32 = 50.0;
 const VELOCITY_TOL_RAD_S: f32 = 2.0;
+/// The velocity must be read back within this emulated time [s].
+const VELOCITY_EMULATED_S: f32 = 2.0;
+/// Streamed telemetry: rate [Hz] and samples collected (0.6 s emulated).
+const STREAM_RATE_HZ: f32 = 50.0;
+const STREAM_SAMPLES: usize = 30;
 /// Position step [rad] and tolerance.
 const MOVE_RAD: f32 = 20.0;
 const POSITION_TOL_RAD: f32 = 0.05;
-/// PWM frequency of the emulated board [Hz].
-const PWM_HZ: f32 = 20_000.0;
+/// The move must end (at rest, within tolerance) within this emulated time [s].
+const MOVE_EMULATED_S: f32 = 3.0;
+/// After refused commands, the drive must stay put for this emulated time [s].
+const HOLD_EMULATED_S: f32 = 0.15;
+/// Disabled on command within this emulated time [s].
+const DISABLE_EMULATED_S: f32 = 0.5;
+/// Host-time limit of a reply to a raw frame (a backstop: the firmware
+/// answers within about a millisecond of emulated time).
+const RAW_REPLY_HOST_LIMIT: Duration = Duration::from_secs(3);
+
+/// Host-time backstop of a wait of `emulated_s` emulated seconds.
+fn host_backstop(emulated_s: f32) -> Duration {
+    Duration::from_secs_f32((emulated_s * BACKSTOP_HOST_S_PER_EMULATED_S).max(BACKSTOP_MIN_HOST_S))
+}
 
 /// `cargo xtask e2e` options.
 #[derive(Debug, Args, Clone, Default)]
@@ -74,10 +102,9 @@ pub struct E2eArgs {
     pub verbose: bool,
 }
 
-/// QEMU and its log decoder, killed on drop.
+/// QEMU (its defmt log decoded in process), killed on drop.
 struct Emulator {
     qemu: Child,
-    decoder: Child,
     log: Arc<Mutex<VecDeque<String>>>,
 }
 
@@ -85,34 +112,31 @@ impl Drop for Emulator {
     fn drop(&mut self) {
         let _ = self.qemu.kill();
         let _ = self.qemu.wait();
-        let _ = self.decoder.kill();
-        let _ = self.decoder.wait();
     }
 }
 
 impl Emulator {
     fn start(elf: &Path, port: u16, verbose: bool) -> Result<Self> {
         let serial = format!("tcp:127.0.0.1:{port},server,nowait");
-        let (qemu, mut decoder) =
+        let (qemu, lines) =
             qemu::spawn_decoded(elf, &["e2e"], "shift=0,align=off,sleep=off", &serial)?;
         let log = Arc::new(Mutex::new(VecDeque::new()));
-        if let Some(out) = decoder.stdout.take() {
-            let log = log.clone();
-            thread::spawn(move || {
-                for line in BufReader::new(out).lines().map_while(|l| l.ok()) {
-                    if verbose || line.contains("WARN") || line.contains("ERROR") {
-                        println!("  | {line}");
-                    }
-                    if let Ok(mut l) = log.lock() {
-                        if l.len() >= 40 {
-                            l.pop_front();
-                        }
-                        l.push_back(line);
-                    }
+        let tail = log.clone();
+        // Ends when QEMU's output closes (QEMU killed).
+        thread::spawn(move || {
+            for line in lines {
+                if verbose || line.contains("WARN") || line.contains("ERROR") {
+                    println!("  | {line}");
                 }
-            });
-        }
-        Ok(Self { qemu, decoder, log })
+                if let Ok(mut l) = tail.lock() {
+                    if l.len() >= 40 {
+                        l.pop_front();
+                    }
+                    l.push_back(line);
+                }
+            }
+        });
+        Ok(Self { qemu, log })
     }
 
     fn alive(&mut self) -> Result {
@@ -170,9 +194,33 @@ struct Session {
     client: Client,
     raw: TcpStream,
     deadline: Instant,
+    /// The firmware's PWM frequency [Hz] (periods per emulated second),
+    /// read once.
+    pwm_hz: Option<f32>,
 }
 
 impl Session {
+    /// The firmware's PWM frequency [Hz], read from the device once.
+    fn pwm_hz(&mut self) -> Result<f32> {
+        if let Some(hz) = self.pwm_hz {
+            return Ok(hz);
+        }
+        let hz = self
+            .client
+            .param(ParamId::PwmFrequencyHz)
+            .map_err(client_err("read the PWM frequency"))?;
+        if !(hz.is_finite() && hz > 0.0) {
+            return Err(Error(format!("implausible PWM frequency {hz} Hz")));
+        }
+        self.pwm_hz = Some(hz);
+        Ok(hz)
+    }
+
+    /// Emulated seconds from period `p0` to `p` (the firmware's counter).
+    fn emulated_s(&mut self, p0: u32, p: u32) -> Result<f32> {
+        Ok(p.wrapping_sub(p0) as f32 / self.pwm_hz()?)
+    }
+
     fn telemetry(&mut self) -> Result<Telemetry> {
         self.client
             .read_telemetry()
@@ -191,42 +239,69 @@ impl Session {
         }
     }
 
-    /// Poll telemetry until `ok` holds for `n` consecutive samples or
-    /// `limit` (host time) passes. Returns the last sample.
+    /// Poll telemetry until `ok` holds for `n` consecutive samples, within
+    /// `emulated_s` of emulated time (the firmware's period counter, from
+    /// the first sample); the host time is only a backstop
+    /// ([`host_backstop`]). Returns the last sample and the emulated
+    /// seconds it took.
     fn wait_for(
         &mut self,
         what: &str,
-        limit: Duration,
+        emulated_s: f32,
         n: u32,
         ok: impl Fn(&Telemetry) -> bool,
-    ) -> Result<Telemetry> {
-        let end = Instant::now() + limit.min(self.remaining()?);
+    ) -> Result<(Telemetry, f32)> {
+        let backstop = host_backstop(emulated_s);
+        let t0 = Instant::now();
+        let end = t0 + backstop.min(self.remaining()?);
+        let mut t = self.telemetry()?;
+        let p0 = t.period;
         let mut good = 0;
         loop {
-            let t = self.telemetry()?;
             good = if ok(&t) { good + 1 } else { 0 };
+            let elapsed = self.emulated_s(p0, t.period)?;
             if good >= n {
-                return Ok(t);
+                return Ok((t, elapsed));
+            }
+            let last = format!(
+                "last: mode {:?}, {:.3} rad/s, {:.4} rad, fault {}",
+                t.mode, t.velocity_rad_s, t.position_rad, t.fault_code
+            );
+            if elapsed > emulated_s {
+                return Err(Error(format!(
+                    "FAIL {what}: not reached within {emulated_s} s emulated \
+                     ({elapsed:.3} s emulated, {:.1} s host; {last})",
+                    t0.elapsed().as_secs_f32()
+                )));
             }
             if Instant::now() > end {
                 return Err(Error(format!(
-                    "FAIL {what}: not reached within {:.0} s host time (last: mode {:?}, {:.3} rad/s, {:.4} rad, fault {})",
-                    limit.as_secs_f32(),
-                    t.mode,
-                    t.velocity_rad_s,
-                    t.position_rad,
-                    t.fault_code
+                    "FAIL {what}: host-time backstop: only {elapsed:.3} of {emulated_s} s \
+                     emulated in {:.1} s host (emulator hung or far too slow; {last})",
+                    t0.elapsed().as_secs_f32()
                 )));
             }
             thread::sleep(Duration::from_millis(50));
+            t = self.telemetry()?;
         }
+    }
+
+    /// Let `emulated_s` of emulated time pass (the firmware's period
+    /// counter), with a host-time backstop. Returns the last sample.
+    fn let_pass(&mut self, emulated_s: f32) -> Result<Telemetry> {
+        let p0 = self.telemetry()?.period;
+        let pwm_hz = self.pwm_hz()?;
+        let (t, _) = self.wait_for("letting emulated time pass", emulated_s * 2.0, 1, |t| {
+            t.period.wrapping_sub(p0) as f32 >= emulated_s * pwm_hz
+        })?;
+        Ok(t)
     }
 
     /// Send raw bytes and wait for one non-stream reply (seq, response).
     fn raw_exchange(&mut self, bytes: &[u8]) -> Result<(u16, Response)> {
         self.raw.write_all(bytes)?;
         self.raw.flush()?;
-        let end = Instant::now() + Duration::from_secs(3).min(self.remaining()?);
+        let end = Instant::now() + RAW_REPLY_HOST_LIMIT.min(self.remaining()?);
         let mut dec = FrameDecoder::new();
         let mut buf = [0u8; 256];
         while Instant::now() < end {
@@ -253,7 +328,10 @@ impl Session {
                 }
             }
         }
-        Err(Error("no reply to a raw frame within 3 s".into()))
+        Err(Error(format!(
+            "no reply to a raw frame within {} s host time",
+            RAW_REPLY_HOST_LIMIT.as_secs()
+        )))
     }
 }
 
@@ -292,6 +370,7 @@ fn run_session(emu: &mut Emulator, port: u16, start: Instant) -> Result {
     s.malformed_frames(target)?;
     s.refused_commands(target)?;
     s.faults_and_disable()?;
+    s.link_watchdog()?;
     emu.alive()
 }
 
@@ -309,6 +388,7 @@ impl Session {
             client,
             raw,
             deadline,
+            pwm_hz: None,
         })
     }
 
@@ -332,10 +412,7 @@ impl Session {
     /// emulated time (the firmware's period counter), then disabled, no fault.
     fn startup(&mut self, emu: &mut Emulator) -> Result {
         let t0 = Instant::now();
-        let pwm_hz = self
-            .client
-            .param(ParamId::PwmFrequencyHz)
-            .map_err(client_err("read the PWM frequency"))?;
+        let pwm_hz = self.pwm_hz()?;
         loop {
             emu.alive()?;
             let cal = self
@@ -379,42 +456,74 @@ impl Session {
                 rad_s: VELOCITY_RAD_S,
             })
             .map_err(client_err("velocity command"))?;
-        let p0 = self.telemetry()?.period;
-        let t = self.wait_for("velocity", Duration::from_secs(25), 3, |t| {
+        let (t, took) = self.wait_for("velocity", VELOCITY_EMULATED_S, 3, |t| {
             t.mode == Mode::Velocity
                 && (t.velocity_rad_s - VELOCITY_RAD_S).abs() < VELOCITY_TOL_RAD_S
         })?;
         check(
             true,
             format!(
-                "velocity {VELOCITY_RAD_S} rad/s: read back {:.3} rad/s (tolerance {VELOCITY_TOL_RAD_S}) after {:.3} s simulated",
+                "velocity {VELOCITY_RAD_S} rad/s: read back {:.3} rad/s (tolerance {VELOCITY_TOL_RAD_S}) after {took:.3} s simulated (limit {VELOCITY_EMULATED_S} s)",
                 t.velocity_rad_s,
-                t.period.wrapping_sub(p0) as f32 / PWM_HZ
             ),
         )
     }
 
-    /// Step 2b, streamed telemetry at that velocity: spacing = the requested rate.
+    /// Step 2b, streamed telemetry at that velocity: [`STREAM_SAMPLES`]
+    /// samples (a fixed stretch of emulated time), spacing = the requested
+    /// rate.
     fn telemetry_stream(&mut self) -> Result {
-        let rate_hz = 50.0;
-        let samples = self
+        let rate_hz = STREAM_RATE_HZ;
+        let pwm_hz = self.pwm_hz()?;
+        let emulated_s = STREAM_SAMPLES as f32 / rate_hz;
+        let backstop = host_backstop(emulated_s);
+        let end = Instant::now() + backstop.min(self.remaining()?);
+        let mut samples = Vec::with_capacity(STREAM_SAMPLES);
+        self.client.clear_stream_queue();
+        self.client
+            .start_telemetry(TelemetryRate::Hz(rate_hz))
+            .map_err(client_err("start telemetry"))?;
+        let collected = loop {
+            if samples.len() >= STREAM_SAMPLES {
+                break Ok(());
+            }
+            let left = end.saturating_duration_since(Instant::now());
+            if left.is_zero() {
+                break Err(Error(format!(
+                    "FAIL stream at {rate_hz} Hz: host-time backstop: {} of {STREAM_SAMPLES} \
+                     samples in {:.0} s host (emulator hung or far too slow)",
+                    samples.len(),
+                    backstop.as_secs_f32()
+                )));
+            }
+            match self
+                .client
+                .next_stream(left.min(Duration::from_millis(500)))
+            {
+                Ok(Some(s)) => samples.push(s),
+                Ok(None) => {}
+                Err(e) => break Err(client_err("stream telemetry")(e)),
+            }
+        };
+        let stopped = self
             .client
-            .telemetry(TelemetryRate::Hz(rate_hz), Duration::from_millis(1500))
-            .map_err(client_err("stream telemetry"))?;
+            .stop_telemetry()
+            .map_err(client_err("stop telemetry"));
+        collected.and(stopped)?;
         let n = samples.len();
         let spacing: Vec<u32> = samples
             .windows(2)
             .map(|w| w[1].sample.period.wrapping_sub(w[0].sample.period))
             .collect();
-        let want = (PWM_HZ / rate_hz) as u32;
+        let want = (pwm_hz / rate_hz).round() as u32;
         let worst = samples
             .iter()
             .map(|x| (x.sample.velocity_rad_s - VELOCITY_RAD_S).abs())
             .fold(0.0f32, f32::max);
         check(
-            n >= 5 && spacing.iter().all(|&d| d == want) && worst < VELOCITY_TOL_RAD_S,
+            n == STREAM_SAMPLES && spacing.iter().all(|&d| d == want) && worst < VELOCITY_TOL_RAD_S,
             format!(
-                "stream at {rate_hz} Hz: {n} samples, every {want} periods, worst velocity error {worst:.3} rad/s, {} lost",
+                "stream at {rate_hz} Hz: {n} samples ({emulated_s:.1} s emulated), every {want} periods, worst velocity error {worst:.3} rad/s, {} lost",
                 self.client.stats().stream_lost
             ),
         )
@@ -428,8 +537,7 @@ impl Session {
         self.client
             .set_command(DriveCommand::Position { rad: target })
             .map_err(client_err("position command"))?;
-        let p0 = self.telemetry()?.period;
-        let t = self.wait_for("position move", Duration::from_secs(30), 3, |t| {
+        let (t, took) = self.wait_for("position move", MOVE_EMULATED_S, 3, |t| {
             t.mode == Mode::Position
                 && (t.position_rad - target).abs() < POSITION_TOL_RAD
                 && t.velocity_rad_s.abs() < 1.0
@@ -437,11 +545,10 @@ impl Session {
         check(
             true,
             format!(
-                "position {target:.3} rad (+{MOVE_RAD} rad): read back {:.4} rad (error {:.4}, tolerance {POSITION_TOL_RAD}), {:.3} rad/s, after {:.3} s simulated",
+                "position {target:.3} rad (+{MOVE_RAD} rad): read back {:.4} rad (error {:.4}, tolerance {POSITION_TOL_RAD}), {:.3} rad/s, after {took:.3} s simulated (limit {MOVE_EMULATED_S} s)",
                 t.position_rad,
                 t.position_rad - target,
                 t.velocity_rad_s,
-                t.period.wrapping_sub(p0) as f32 / PWM_HZ
             ),
         )?;
         Ok(target)
@@ -504,15 +611,15 @@ impl Session {
             .client
             .param(ParamId::SpeedDivider)
             .map_err(client_err("read speed divider"))?;
-        thread::sleep(Duration::from_millis(300));
-        let t = self.telemetry()?;
+        let t = self.let_pass(HOLD_EMULATED_S)?;
         check(
             t.mode == Mode::Position
                 && (t.position_rad - target).abs() < POSITION_TOL_RAD
                 && t.velocity_rad_s.abs() < 1.0
                 && speed_div == 10.0,
             format!(
-                "nothing changed: position {:.4} rad, {:.3} rad/s, speed divider {speed_div}",
+                "nothing changed: position {:.4} rad, {:.3} rad/s, speed divider {speed_div}, \
+                 {HOLD_EMULATED_S} s emulated later",
                 t.position_rad, t.velocity_rad_s
             ),
         )
@@ -531,7 +638,7 @@ impl Session {
         self.client
             .set_command(DriveCommand::Disable)
             .map_err(client_err("disable"))?;
-        let t = self.wait_for("disable", Duration::from_secs(5), 1, |t| {
+        let (t, _) = self.wait_for("disable", DISABLE_EMULATED_S, 1, |t| {
             t.mode == Mode::Disabled
         })?;
         check(t.mode == Mode::Disabled, "disabled on command")?;
@@ -541,5 +648,43 @@ impl Session {
             st.requests, st.retransmissions, st.bad_frames, st.stale_replies, st.stream_samples
         );
         Ok(())
+    }
+
+    /// The link watchdog armed by the first closed-loop command (1 s, Stop
+    /// then Disable): the host sends a velocity command and goes silent
+    /// (telemetry reads do not feed it); the motor is stopped, then
+    /// disabled with `CommandTimeout` readable; a clear recovers.
+    fn link_watchdog(&mut self) -> Result {
+        self.client
+            .set_command(DriveCommand::Velocity { rad_s: 30.0 })
+            .map_err(client_err("velocity"))?;
+        self.wait_for("velocity before the silence", 1.0, 3, |t| {
+            (t.velocity_rad_s - 30.0).abs() < 2.0
+        })?;
+        // Silent from here: only reads.
+        let (t, after) = self.wait_for("watchdog stop", 2.5, 1, |t| {
+            t.mode == Mode::Velocity && t.velocity_rad_s.abs() < 2.0
+        })?;
+        check(
+            t.fault_code == 0,
+            format!("silent host: stopped (velocity 0) after {after:.2} s emulated, no fault yet"),
+        )?;
+        let (t, after2) = self.wait_for("watchdog disable", 2.5, 1, |t| {
+            t.mode == Mode::Disabled && t.fault_code != 0
+        })?;
+        let faults = self.client.faults().map_err(client_err("read faults"))?;
+        check(
+            faults.set.contains(Fault::CommandTimeout)
+                && t.fault_code == Fault::CommandTimeout.code(),
+            format!(
+                "still silent: disabled with CommandTimeout after {:.2} s more emulated",
+                after2
+            ),
+        )?;
+        self.client
+            .clear_faults()
+            .map_err(client_err("clear faults"))?;
+        let faults = self.client.faults().map_err(client_err("read faults"))?;
+        check(faults.set.is_empty(), "watchdog fault cleared")
     }
 }

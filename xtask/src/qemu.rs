@@ -3,7 +3,8 @@
 //! Builds the `qemu` board (QEMU's `netduinoplus2`, an STM32F405, with the
 //! bench's motor and inverter plant running on the emulated Cortex-M4F),
 //! runs it twice under `qemu-system-arm` with semihosting, decodes its defmt
-//! output with `defmt-print`, and checks the exit status:
+//! output in process (the `defmt-decoder` library, lines formatted as
+//! `defmt-print` prints them), and checks the exit status:
 //!
 //! 1. the scripted mission (start-up calibration, velocity step, load step,
 //!    position move, injected encoder fault and its clear): must exit 0
@@ -15,12 +16,19 @@
 //! 1 ns per instruction and idle time is skipped, so every run executes the
 //! same instructions in the same order (deterministic, independent of the
 //! host's load).
+//!
+//! Both runs end in emulated time: the mission bounds every step in its own
+//! PWM periods and exits with its verdict, so `--timeout` (host time) is only
+//! a backstop for a hung emulator, several times the normal run time.
 
-use std::io::{BufRead, BufReader};
+use std::io::Read;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
+use std::process::{Child, ChildStdout, Command, Stdio};
+use std::sync::mpsc::{self, Receiver, RecvTimeoutError, Sender};
 use std::thread;
 use std::time::{Duration, Instant};
+
+use defmt_decoder::{DecodeError, Frame, Table};
 
 use clap::Args;
 
@@ -34,11 +42,16 @@ pub const EXIT_PASSED: i32 = 0;
 /// Exit status of the panic run when the bridge ended in the safe state.
 pub const EXIT_PANIC_SAFE: i32 = 3;
 
+/// Default host-time backstop per run [s]. A run takes about a minute
+/// here; the mission itself ends in emulated time.
+pub const DEFAULT_TIMEOUT_S: u64 = 600;
+
 /// `cargo xtask qemu` options.
 #[derive(Debug, Args, Clone)]
 pub struct QemuArgs {
-    /// Wall-clock limit per run [s].
-    #[arg(long, default_value_t = 300)]
+    /// Host-time backstop per run [s], for a hung emulator only (the
+    /// mission bounds itself in emulated time).
+    #[arg(long, default_value_t = DEFAULT_TIMEOUT_S)]
     pub timeout: u64,
     /// Run only the mission (skip the forced-panic run).
     #[arg(long)]
@@ -48,7 +61,7 @@ pub struct QemuArgs {
 impl Default for QemuArgs {
     fn default() -> Self {
         Self {
-            timeout: 300,
+            timeout: DEFAULT_TIMEOUT_S,
             no_panic_run: false,
         }
     }
@@ -118,47 +131,117 @@ pub fn ensure_qemu() -> Result {
     }
 }
 
-/// Installs `defmt-print` with cargo when it is missing (saying so).
-pub fn ensure_defmt_print() -> Result {
-    let ok = Command::new("defmt-print")
-        .arg("--version")
-        .output()
-        .map(|o| o.status.success())
-        .unwrap_or(false);
-    if ok {
-        return Ok(());
-    }
-    println!("defmt-print not found: installing it (cargo install defmt-print --locked, about 2 minutes)");
-    let status = Command::new(std::env::var("CARGO").unwrap_or_else(|_| "cargo".into()))
-        .args(["install", "defmt-print", "--locked", "--version", "^1.2"])
-        .status()?;
-    if status.success() {
-        Ok(())
-    } else {
-        Err(Error("cargo install defmt-print failed".into()))
-    }
-}
-
 /// One emulator run: exit status and decoded log lines.
 pub struct RunResult {
     /// QEMU's exit status (the firmware's semihosting exit code).
     pub code: Option<i32>,
-    /// defmt-print's decoded lines.
+    /// The decoded defmt log, one line per message (see [`format_frame`]).
     pub lines: Vec<String>,
     /// Wall time.
     pub elapsed: Duration,
 }
 
+/// Reads the defmt table of `elf` (its `.defmt` section).
+pub fn defmt_table(elf: &Path) -> Result<Table> {
+    let bytes =
+        std::fs::read(elf).map_err(|e| Error(format!("could not read {}: {e}", elf.display())))?;
+    Table::parse(&bytes)
+        .map_err(|e| Error(format!("defmt table of {}: {e}", elf.display())))?
+        .ok_or_else(|| Error(format!("{}: no defmt data (.defmt section)", elf.display())))
+}
+
+/// One decoded frame as `defmt-print` prints it by default: `LEVEL message`
+/// with the level padded to five columns (`INFO  ...`, `ERROR ...`), the
+/// message alone for a frame without level (`defmt::println!`), preceded by
+/// the timestamp when the firmware defines one.
+pub fn format_frame(frame: &Frame<'_>, with_timestamp: bool) -> String {
+    let mut line = String::new();
+    if with_timestamp {
+        if let Some(ts) = frame.display_timestamp() {
+            line.push_str(&format!("{ts} "));
+        }
+    }
+    match frame.level() {
+        Some(level) => {
+            let level = level.as_str().to_uppercase();
+            line.push_str(&format!("{level:<5} {}", frame.display_message()));
+        }
+        None => line.push_str(&frame.display_message().to_string()),
+    }
+    line
+}
+
+/// Decodes the defmt stream of `out` with `table` and sends one line per
+/// message (a message with line breaks gives several) until `out` ends.
+/// Malformed frames are skipped (rzCOBS resynchronises at the next frame);
+/// with an encoding that cannot recover, one line says so and the rest is
+/// read and dropped, so that QEMU never blocks on a full pipe.
+fn decode_stream(table: Table, mut out: impl Read, tx: Sender<String>) {
+    let with_timestamp = table.has_timestamp();
+    let can_recover = table.encoding().can_recover();
+    let mut decoder = table.new_stream_decoder();
+    let mut broken = false;
+    let mut buf = [0u8; 4096];
+    loop {
+        let n = match out.read(&mut buf) {
+            Ok(0) => break,
+            Ok(n) => n,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+            Err(_) => break,
+        };
+        if broken {
+            continue;
+        }
+        decoder.received(&buf[..n]);
+        loop {
+            match decoder.decode() {
+                Ok(frame) => {
+                    for line in format_frame(&frame, with_timestamp).lines() {
+                        // A closed receiver: keep draining QEMU's output.
+                        let _ = tx.send(line.to_string());
+                    }
+                }
+                Err(DecodeError::UnexpectedEof) => break,
+                Err(DecodeError::Malformed) if can_recover => continue,
+                Err(DecodeError::Malformed) => {
+                    let _ = tx.send(
+                        "(HOST) malformed defmt frame: the encoding cannot recover, \
+                         decoding stopped"
+                            .to_string(),
+                    );
+                    broken = true;
+                    break;
+                }
+            }
+        }
+    }
+}
+
+/// Decode `out` (QEMU's stdout, the firmware's defmt frames) with `table`
+/// in a thread; returns the receiving end of its lines, which closes when
+/// `out` does (QEMU exited or was killed).
+fn spawn_decoder(table: Table, out: ChildStdout) -> Result<Receiver<String>> {
+    let (tx, rx) = mpsc::channel();
+    thread::Builder::new()
+        .name("defmt-decoder".into())
+        .spawn(move || decode_stream(table, out, tx))
+        .map_err(|e| Error(format!("could not start the defmt decoder thread: {e}")))?;
+    Ok(rx)
+}
+
 /// Start `elf` under QEMU (`netduinoplus2`, semihosting arguments `args`,
 /// `-icount icount`, USART1 to null, USART2 to `usart2`, e.g. `null` or
-/// `tcp:127.0.0.1:PORT,server,nowait`) with its output piped into
-/// `defmt-print`. Returns (QEMU, decoder); the decoder's stdout is piped.
+/// `tcp:127.0.0.1:PORT,server,nowait`) with its output decoded in process.
+/// Returns QEMU and the decoded log lines (see [`format_frame`]); the
+/// channel closes when QEMU exits.
 pub fn spawn_decoded(
     elf: &Path,
     args: &[&str],
     icount: &str,
     usart2: &str,
-) -> Result<(std::process::Child, std::process::Child)> {
+) -> Result<(Child, Receiver<String>)> {
+    // Read the table first: a bad ELF fails before QEMU starts.
+    let table = defmt_table(elf)?;
     let mut semi = String::from("enable=on,target=native,arg=firmware");
     for a in args {
         semi.push_str(",arg=");
@@ -174,21 +257,13 @@ pub fn spawn_decoded(
         .stderr(Stdio::inherit())
         .spawn()
         .map_err(|e| Error(format!("could not start qemu-system-arm: {e}")))?;
-    let qemu_out = qemu.stdout.take();
-    let decoder = qemu_out
+    let lines = qemu
+        .stdout
+        .take()
         .ok_or_else(|| Error("no qemu stdout".into()))
-        .and_then(|out| {
-            Command::new("defmt-print")
-                .arg("-e")
-                .arg(elf)
-                .stdin(Stdio::from(out))
-                .stdout(Stdio::piped())
-                .stderr(Stdio::inherit())
-                .spawn()
-                .map_err(|e| Error(format!("could not start defmt-print: {e}")))
-        });
-    match decoder {
-        Ok(d) => Ok((qemu, d)),
+        .and_then(|out| spawn_decoder(table, out));
+    match lines {
+        Ok(rx) => Ok((qemu, rx)),
         Err(e) => {
             let _ = qemu.kill();
             let _ = qemu.wait();
@@ -198,7 +273,8 @@ pub fn spawn_decoded(
 }
 
 /// Run `elf` under QEMU with semihosting arguments `args` and `icount`
-/// options, streaming the decoded defmt log (echoed when `echo`).
+/// options, collecting the decoded defmt log (echoed when `echo`). `timeout`
+/// is a host-time backstop: QEMU is killed and the run fails past it.
 pub fn run(
     elf: &Path,
     args: &[&str],
@@ -207,21 +283,30 @@ pub fn run(
     echo: bool,
 ) -> Result<RunResult> {
     let start = Instant::now();
-    let (mut qemu, mut decoder) = spawn_decoded(elf, args, icount, "null")?;
-    let out = decoder
-        .stdout
-        .take()
-        .ok_or_else(|| Error("no defmt-print stdout".into()))?;
-    let reader = thread::spawn(move || {
-        let mut lines = Vec::new();
-        for line in BufReader::new(out).lines().map_while(|l| l.ok()) {
-            if echo {
-                println!("  | {line}");
+    let (mut qemu, rx) = spawn_decoded(elf, args, icount, "null")?;
+    let mut lines = Vec::new();
+    loop {
+        match rx.recv_timeout(Duration::from_millis(20)) {
+            Ok(line) => {
+                if echo {
+                    println!("  | {line}");
+                }
+                lines.push(line);
             }
-            lines.push(line);
+            // QEMU's stdout closed: it exited (or closed it); wait below.
+            Err(RecvTimeoutError::Disconnected) => break,
+            Err(RecvTimeoutError::Timeout) => {}
         }
-        lines
-    });
+        if start.elapsed() > timeout {
+            let _ = qemu.kill();
+            let _ = qemu.wait();
+            return Err(Error(format!(
+                "QEMU did not finish within {} s host time (backstop; {})",
+                timeout.as_secs(),
+                elf.display()
+            )));
+        }
+    }
     let code = loop {
         if let Some(status) = qemu.try_wait()? {
             break status.code();
@@ -229,19 +314,14 @@ pub fn run(
         if start.elapsed() > timeout {
             let _ = qemu.kill();
             let _ = qemu.wait();
-            let _ = decoder.kill();
             return Err(Error(format!(
-                "QEMU did not finish within {} s ({})",
+                "QEMU did not exit within {} s host time (backstop; {})",
                 timeout.as_secs(),
                 elf.display()
             )));
         }
         thread::sleep(Duration::from_millis(20));
     };
-    let _ = decoder.wait();
-    let lines = reader
-        .join()
-        .map_err(|_| Error("log reader panicked".into()))?;
     Ok(RunResult {
         code,
         lines,
@@ -253,7 +333,6 @@ pub fn run(
 pub fn build_emulated() -> Result<(PathBuf, PathBuf)> {
     toolchain::ensure(true, &["llvm-tools"])?;
     ensure_qemu()?;
-    ensure_defmt_print()?;
     let elf = build::build_board(board()?, Profile::Release)?;
     let bench = build::cargo_elf(Profile::Release).with_file_name("bench");
     Ok((elf, bench))

@@ -314,7 +314,9 @@ impl Supervisor {
     pub fn check_tracking(&mut self, error_sq_a2: f32, excused: bool) -> Option<Fault> {
         let c = &self.config;
         let band = c.tracking_band_a;
-        let off = c.tracking_periods == 0 || excused || !(error_sq_a2 > band * band);
+        // NaN is not above the band (non-finite values trip elsewhere).
+        let above = error_sq_a2 > band * band;
+        let off = c.tracking_periods == 0 || excused || !above;
         if off {
             self.tracking_count = 0;
             return None;
