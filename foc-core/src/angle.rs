@@ -166,6 +166,14 @@ impl MechanicalAngle {
 ///
 /// Fed with successive single-turn readings (each less than half a turn
 /// apart), it counts turns exactly and never drifts.
+///
+/// The turn count saturates at its range: at [`i32::MAX`] (or [`i32::MIN`])
+/// turns a further wrap in the same direction leaves `turns` where it is
+/// (it never wraps to the other end), while `angle` keeps following the
+/// readings and [`Self::update`] still returns the true change. A
+/// saturated position is therefore wrong by the turns it could not count
+/// (about 2^31 turns: centuries at 10 000 rpm); turning back counts down
+/// from the limit.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct MultiTurn {
@@ -188,15 +196,16 @@ impl MultiTurn {
     }
 
     /// Advance to a new single-turn reading, counting a turn when the
-    /// reading wraps (shortest path). Returns the signed change in radians.
+    /// reading wraps (shortest path; the count saturates at the `i32`
+    /// range, see the type's docs). Returns the signed change in radians.
     pub fn update(&mut self, new: MechanicalAngle) -> f32 {
         let delta = new.wrapping_sub(self.angle).to_bits() as i32;
         let old = self.angle.to_bits();
         self.angle = new;
         if delta > 0 && new.to_bits() < old {
-            self.turns = self.turns.wrapping_add(1);
+            self.turns = self.turns.saturating_add(1);
         } else if delta < 0 && new.to_bits() > old {
-            self.turns = self.turns.wrapping_sub(1);
+            self.turns = self.turns.saturating_sub(1);
         }
         delta as f32 * (PI / 2_147_483_648.0)
     }
@@ -279,5 +288,50 @@ mod tests {
             p.update(a);
         }
         assert_eq!(p.turns, -10);
+    }
+
+    /// At the ends of the `i32` range the count saturates instead of
+    /// wrapping to the other end; the angle and the returned change still
+    /// follow the readings, and turning back counts down from the limit.
+    #[test]
+    fn multiturn_saturates_at_its_range() {
+        let quarter = MechanicalAngle::from_degrees(90.0);
+        let step_rad = quarter.to_radians();
+        for (start, dir) in [(i32::MAX - 1, 1i32), (i32::MIN + 1, -1)] {
+            let mut p = MultiTurn {
+                turns: start,
+                angle: MechanicalAngle::ZERO,
+            };
+            let mut a = MechanicalAngle::ZERO;
+            let mut turns = [0i32; 16];
+            for t in turns.iter_mut() {
+                a = if dir > 0 {
+                    a.wrapping_add(quarter)
+                } else {
+                    a.wrapping_sub(quarter)
+                };
+                let d = p.update(a);
+                assert!((d - dir as f32 * step_rad).abs() < 1e-6, "{d}");
+                assert_eq!(p.angle, a);
+                *t = p.turns;
+            }
+            let limit = if dir > 0 { i32::MAX } else { i32::MIN };
+            // One turn reaches the limit, three more stay there.
+            let expect_first = if dir > 0 { start } else { start - 1 };
+            assert_eq!(turns[0], expect_first, "{turns:?}");
+            assert!(turns[3..].iter().all(|&t| t == limit), "{turns:?}");
+            assert!(p.to_radians().is_finite());
+            assert_eq!(p.to_radians().signum(), dir as f32);
+            // Back one turn the other way: one below the limit.
+            for _ in 0..4 {
+                a = if dir > 0 {
+                    a.wrapping_sub(quarter)
+                } else {
+                    a.wrapping_add(quarter)
+                };
+                p.update(a);
+            }
+            assert_eq!(p.turns, limit - dir);
+        }
     }
 }

@@ -22,6 +22,36 @@
 //!   integrator is what ends windup there; a larger `kb` keeps it closer to
 //!   `hi - kp e` and recovers faster (see `tests/pi_props.rs`).
 //!
+//! # Unusable configurations
+//!
+//! A controller built with [`Pi::new`] or configured with
+//! [`Pi::set_config`] never returns NaN or an infinity, and never leaves
+//! the limits of its step (with usable limits; 0 otherwise), whatever its
+//! configuration and inputs. The configuration is made safe once, there
+//! ([`PiConfig::sanitized`]), not in every step:
+//! - limits that are not finite, or inverted (`out_min > out_max`), become
+//!   `0..=0`: the output is 0;
+//! - gains that cannot be used (a non-finite `kp`, or `ki_per_s * ts_s`
+//!   not finite, or `ts_s` not a finite value `>= 0`) neutralise the whole
+//!   controller: `kp = ki_per_s = 0` (and `ts_s = 0` when it was the
+//!   culprit), and both limits set to the *neutral value* of the limits,
+//!   0 or the limit nearest to 0 (so still within the limits given). It
+//!   then outputs that value whatever it is preloaded with ([`Pi::preload`]
+//!   clamps into the limits; through [`Pi::step_error`], clamped into that
+//!   step's limits); [`Pi::set_config`] also sets the state to it, so a
+//!   controller that was running does not hold its last output;
+//! - a NaN back-calculation gain (or `kb_per_s * ts_s` NaN) becomes 0: no
+//!   tracking, the integrator's bound alone ends windup.
+//!
+//! Finite negative gains are kept (a reverse-acting controller). The step
+//! itself keeps its two finiteness fix-ups (free: a selection each): a NaN
+//! integrator after back-calculation (`0 * inf`, when `kp e` overflows with
+//! a zero tracking gain) takes the output, which is then the active limit.
+//! A configuration or state written directly into the public fields is
+//! not checked: steps still never return NaN (a NaN output falls back to 0,
+//! a NaN integrator to the output), but that 0 may lie outside the limits;
+//! use [`Pi::set_config`].
+//!
 //! ```
 //! use foc_core::pi::{Pi, PiConfig, AntiWindup};
 //! let mut pi = Pi::new(PiConfig {
@@ -65,6 +95,56 @@ pub struct PiConfig {
     pub anti_windup: AntiWindup,
 }
 
+impl PiConfig {
+    /// This configuration made safe to run (see the module docs,
+    /// "Unusable configurations"): a usable configuration is returned
+    /// unchanged; unusable limits become `0..=0`, unusable gains zero (and
+    /// both limits the neutral value, 0 or the limit nearest to it), a NaN
+    /// back-calculation gain zero. [`Pi::new`] and [`Pi::set_config`]
+    /// apply it.
+    #[inline]
+    pub const fn sanitized(self) -> Self {
+        self.sanitize().0
+    }
+
+    /// [`Self::sanitized`], and whether the gains were usable as given.
+    /// Out of line: it only runs when a configuration is set, and one copy
+    /// serves every constructor.
+    #[inline(never)]
+    const fn sanitize(self) -> (Self, bool) {
+        let mut c = self;
+        if !(c.out_min.is_finite() && c.out_max.is_finite() && c.out_min <= c.out_max) {
+            c.out_min = 0.0;
+            c.out_max = 0.0;
+        }
+        let ts_ok = c.ts_s.is_finite() && c.ts_s >= 0.0;
+        let gains_ok = ts_ok && c.kp.is_finite() && (c.ki_per_s * c.ts_s).is_finite();
+        if !ts_ok {
+            c.ts_s = 0.0;
+        }
+        if !gains_ok {
+            // The neutral value of the (usable) limits, as the only output.
+            let n = if 0.0 < c.out_min {
+                c.out_min
+            } else if 0.0 > c.out_max {
+                c.out_max
+            } else {
+                0.0
+            };
+            c.kp = 0.0;
+            c.ki_per_s = 0.0;
+            c.out_min = n;
+            c.out_max = n;
+        }
+        if let AntiWindup::BackCalculation { kb_per_s } = c.anti_windup {
+            if (kb_per_s * c.ts_s).is_nan() {
+                c.anti_windup = AntiWindup::BackCalculation { kb_per_s: 0.0 };
+            }
+        }
+        (c, gains_ok)
+    }
+}
+
 /// PI state.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -81,22 +161,44 @@ pub struct PiState {
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Pi {
-    /// Gains and limits.
+    /// Gains and limits. [`Pi::new`] and [`Pi::set_config`] sanitise it
+    /// ([`PiConfig::sanitized`]); written directly it is not (see the
+    /// module docs).
     pub config: PiConfig,
     /// Integrator and last output.
     pub state: PiState,
 }
 
 impl Pi {
-    /// New controller with zero state.
+    /// New controller with zero state, on the configuration made safe
+    /// ([`PiConfig::sanitized`]): with unusable gains it only ever outputs
+    /// the neutral value (0, or the limit nearest to 0).
+    #[inline]
     pub const fn new(config: PiConfig) -> Self {
         Self {
-            config,
+            config: config.sanitized(),
             state: PiState {
                 integral: 0.0,
                 output: 0.0,
                 saturated: false,
             },
+        }
+    }
+
+    /// Replace the configuration, made safe as in [`Self::new`], keeping the
+    /// integrator (each step clamps it into that step's limits). With
+    /// unusable gains the state is set to the neutral value too, so the
+    /// output is that value from now on, not the last integrator held.
+    pub fn set_config(&mut self, config: PiConfig) {
+        let (c, gains_ok) = config.sanitize();
+        self.config = c;
+        if !gains_ok {
+            // Both limits are the neutral value now.
+            self.state = PiState {
+                integral: c.out_min,
+                output: c.out_min,
+                saturated: false,
+            };
         }
     }
 
@@ -126,7 +228,10 @@ impl Pi {
     ///
     /// A non-finite error, or `lo > hi`, or non-finite limits leave the
     /// state unchanged and return the last integrator value clamped into the
-    /// limits (or 0 when the limits themselves are unusable).
+    /// limits (or 0 when the limits themselves are unusable). The result is
+    /// never NaN or infinite and, with usable limits and a configuration
+    /// and state not written directly into the public fields, always in
+    /// `[lo, hi]` (see the module docs, "Unusable configurations").
     #[inline]
     pub fn step_error(&mut self, error: f32, lo: f32, hi: f32) -> f32 {
         if !lo.is_finite() || !hi.is_finite() || lo > hi {
@@ -135,13 +240,7 @@ impl Pi {
             return 0.0;
         }
         if !error.is_finite() {
-            // Hold the integrator, but inside this sample's limits (which may
-            // have moved), so that the stored state never leaves them.
-            let u = clamp(self.state.integral, lo, hi);
-            self.state.integral = u;
-            self.state.saturated = true;
-            self.state.output = u;
-            return u;
+            return self.hold(lo, hi);
         }
         let c = &self.config;
         let i_prev = clamp(self.state.integral, lo, hi);
@@ -153,16 +252,34 @@ impl Pi {
         if saturated {
             i = self.anti_windup(i, i_prev, u, u_raw, lo, hi);
         }
+        // NaN output: only with non-finite gains or a NaN integrator, both
+        // written directly into the public fields: 0.
+        let u = if u.is_finite() { u } else { 0.0 };
         if !i.is_finite() {
-            // Only reachable with non-finite gains: fall back to neutral.
-            i = 0.0;
+            // Back-calculation's `0 * inf` (the output is then the active
+            // limit), or the cases above: the integrator takes the output.
+            i = u;
         }
         self.state = PiState {
             integral: i,
-            output: if u.is_finite() { u } else { 0.0 },
+            output: u,
             saturated,
         };
-        self.state.output
+        u
+    }
+
+    /// A step with a non-finite error (usable limits): hold the integrator,
+    /// but inside this sample's limits (which may have moved), so that the
+    /// stored state never leaves them (a NaN integrator, only written
+    /// directly, becomes 0).
+    #[inline]
+    fn hold(&mut self, lo: f32, hi: f32) -> f32 {
+        let u = clamp(self.state.integral, lo, hi);
+        let u = if u.is_finite() { u } else { 0.0 };
+        self.state.integral = u;
+        self.state.saturated = true;
+        self.state.output = u;
+        u
     }
 
     /// `ki * ts`, the integrator's gain per sample, as [`Self::step_error`]
@@ -184,7 +301,8 @@ impl Pi {
     /// infinite value is never NaN), so the finiteness fix-ups of the
     /// general step move into the saturated branch: the output is NaN only
     /// for a NaN stored integrator (which also makes `u != u_raw`), the
-    /// integrator only then or after back-calculation (`0 * inf`). Clamps
+    /// integrator only then or after back-calculation (`0 * inf`): the
+    /// output falls back to 0, the integrator to the output. Clamps
     /// use [`crate::clamp_ordered`] (two if-converted comparisons each), the
     /// state is written once.
     #[inline(always)]
@@ -207,15 +325,16 @@ impl Pi {
         let saturated = u != u_raw;
         if saturated {
             i = self.anti_windup(i, i_prev, u, u_raw, lo, hi);
-            // NaN only from a NaN stored integrator, or back-calculation
-            // with `g (u - u_raw) = 0 * inf`: fall back to neutral.
-            #[allow(clippy::eq_op)]
-            if i != i {
-                i = 0.0;
-            }
+            // NaN only from a NaN stored integrator (then `u` too: 0), or
+            // back-calculation with `g (u - u_raw) = 0 * inf` (then `u` is
+            // the active limit): the integrator takes the output.
             #[allow(clippy::eq_op)]
             if u != u {
                 u = 0.0;
+            }
+            #[allow(clippy::eq_op)]
+            if i != i {
+                i = u;
             }
         }
         self.state = PiState {
@@ -269,15 +388,9 @@ impl Pi {
             self.state.output = 0.0;
             return 0.0;
         }
-        // Non-finite error. Hold the integrator, but inside this sample's
-        // limits (which may have moved), so that the stored state never
-        // leaves them.
+        // Non-finite error.
         let _ = error;
-        let u = clamp(self.state.integral, lo, hi);
-        self.state.integral = u;
-        self.state.saturated = true;
-        self.state.output = u;
-        u
+        self.hold(lo, hi)
     }
 }
 

@@ -210,3 +210,316 @@ fn preload_and_reset() {
     assert_eq!(pi.state.integral, 0.0);
     assert_eq!(pi.state.output, 0.0);
 }
+
+/// Any f32 a configuration field might hold by mistake: NaN, the
+/// infinities, both zeros, negative, huge, tiny, and ordinary values.
+fn any_field() -> impl Strategy<Value = f32> {
+    prop_oneof![
+        2 => Just(f32::NAN),
+        2 => Just(f32::INFINITY),
+        2 => Just(f32::NEG_INFINITY),
+        2 => Just(0.0f32),
+        1 => Just(-0.0f32),
+        1 => Just(f32::MAX),
+        1 => Just(-f32::MAX),
+        1 => Just(f32::MIN_POSITIVE),
+        3 => -1e3f32..0.0,
+        4 => 0.0f32..1e3,
+        1 => 1e-7f32..1e-2,
+        1 => -1e38f32..1e38,
+    ]
+}
+
+fn any_config() -> impl Strategy<Value = PiConfig> {
+    (
+        (any_field(), any_field(), any_field()),
+        (any_field(), any_field()),
+        any::<bool>(),
+        any_field(),
+    )
+        .prop_map(|((kp, ki, ts), (lo, hi), kind, kb)| PiConfig {
+            kp,
+            ki_per_s: ki,
+            ts_s: ts,
+            out_min: lo,
+            out_max: hi,
+            anti_windup: anti_windup(kind, kb),
+        })
+}
+
+/// The limits are usable: finite and ordered.
+fn usable_limits(lo: f32, hi: f32) -> bool {
+    lo.is_finite() && hi.is_finite() && lo <= hi
+}
+
+/// The gains are usable: finite `kp`, finite `ts >= 0`, finite `ki ts`.
+fn usable_gains(c: &PiConfig) -> bool {
+    c.kp.is_finite() && c.ts_s.is_finite() && c.ts_s >= 0.0 && (c.ki_per_s * c.ts_s).is_finite()
+}
+
+/// A finite signal, ordinary or extreme (products with the gains may
+/// overflow).
+fn finite_signal() -> impl Strategy<Value = f32> {
+    prop_oneof![
+        8 => -1e3f32..1e3,
+        1 => -f32::MAX..f32::MAX,
+        1 => Just(0.0f32),
+    ]
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(2000))]
+
+    /// Whatever the configuration (NaN, infinities, zero, negative values
+    /// in every field): `Pi::new` makes it usable, a usable one is kept as
+    /// it is, and every step (finite or non-finite signals, limits moving
+    /// inside the configured ones) returns a finite value inside the
+    /// configured limits, and inside the given limits when those are
+    /// usable; unusable gains give a constant neutral output.
+    #[test]
+    fn any_config_gives_bounded_finite_outputs(
+        cfg in any_config(),
+        preload in any_field(),
+        steps in proptest::collection::vec((finite_signal(), signal(), any::<bool>(), 0.0f32..1.0), 1..100),
+    ) {
+        let mut pi = Pi::new(cfg);
+        let c = pi.config;
+        prop_assert_eq!(c, cfg.sanitized());
+        prop_assert!(usable_limits(c.out_min, c.out_max), "{c:?}");
+        prop_assert!(usable_gains(&c), "{c:?}");
+        if usable_limits(cfg.out_min, cfg.out_max) {
+            // Never outside the limits it was given.
+            prop_assert!(c.out_min >= cfg.out_min && c.out_max <= cfg.out_max, "{cfg:?} -> {c:?}");
+        } else {
+            prop_assert_eq!((c.out_min, c.out_max), (0.0, 0.0));
+        }
+        if usable_limits(cfg.out_min, cfg.out_max) && usable_gains(&cfg) {
+            let bits = |p: &PiConfig| (p.kp.to_bits(), p.ki_per_s.to_bits(), p.ts_s.to_bits(),
+                                       p.out_min.to_bits(), p.out_max.to_bits());
+            prop_assert_eq!(bits(&c), bits(&cfg), "a usable configuration is kept");
+        }
+        let neutral = c.out_min.max(0.0).min(c.out_max);
+        pi.preload(preload);
+        for (e, meas, moving, shrink) in steps {
+            let (lo, hi) = if moving {
+                let mid = 0.5 * c.out_min + 0.5 * c.out_max;
+                (mid + (c.out_min - mid) * shrink, mid + (c.out_max - mid) * shrink)
+            } else {
+                (c.out_min, c.out_max)
+            };
+            let u = if moving { pi.step_error(e - meas, lo, hi) } else { pi.step(e, meas) };
+            prop_assert!(u.is_finite() && u >= lo && u <= hi, "u {u} not in [{lo}, {hi}] for {cfg:?}");
+            prop_assert!(u >= c.out_min && u <= c.out_max);
+            let i = pi.state.integral;
+            prop_assert!(i.is_finite() && i >= lo && i <= hi, "integral {i} for {cfg:?}");
+            if !usable_gains(&cfg) {
+                prop_assert_eq!(u, neutral, "neutralised: {:?}", cfg);
+            }
+        }
+    }
+
+    /// `set_config` on a running controller: the same guarantees; unusable
+    /// gains stop it holding its last output (neutral at once).
+    #[test]
+    fn set_config_any_config_gives_bounded_finite_outputs(
+        cfg in any_config(),
+        errors in proptest::collection::vec(finite_signal(), 1..50),
+    ) {
+        let mut pi = Pi::new(PiConfig {
+            kp: 1.0, ki_per_s: 1e3, ts_s: 1e-3, out_min: -10.0, out_max: 10.0,
+            anti_windup: AntiWindup::Clamp,
+        });
+        for _ in 0..20 {
+            pi.step(5.0, 0.0);
+        }
+        pi.set_config(cfg);
+        let c = pi.config;
+        prop_assert_eq!(c, cfg.sanitized());
+        if !usable_gains(&cfg) {
+            prop_assert_eq!(c.out_min, c.out_max);
+            prop_assert_eq!(pi.state.integral, c.out_min);
+            prop_assert_eq!(pi.state.output, c.out_min);
+        }
+        for e in errors {
+            let u = pi.step(e, 0.0);
+            prop_assert!(u.is_finite() && u >= c.out_min && u <= c.out_max, "u {u} for {cfg:?}");
+            if !usable_gains(&cfg) {
+                prop_assert_eq!(u, c.out_min);
+            }
+        }
+    }
+
+    /// A configuration and an integrator written straight into the public
+    /// fields (not sanitised): `step_error` still never returns NaN or an
+    /// infinity (0 for unusable limits); when that configuration is usable
+    /// as it is and the integrator finite, it also stays within the step's
+    /// limits.
+    #[test]
+    fn raw_fields_never_give_nan(
+        cfg in any_config(),
+        integral in any_field(),
+        steps in proptest::collection::vec((signal(), any_field(), any_field()), 1..50),
+    ) {
+        let mut pi = Pi::new(cfg);
+        pi.config = cfg;
+        pi.state.integral = integral;
+        let checked = cfg.sanitized() == cfg && integral.is_finite();
+        for (e, lo, hi) in steps {
+            let u = pi.step_error(e, lo, hi);
+            prop_assert!(u.is_finite(), "u {u} for {cfg:?}");
+            if !usable_limits(lo, hi) {
+                // State left as it was.
+                prop_assert_eq!(u, 0.0);
+                continue;
+            }
+            prop_assert!(pi.state.integral.is_finite());
+            if checked {
+                prop_assert!(u >= lo && u <= hi, "u {u} not in [{lo}, {hi}] for {cfg:?}");
+                let i = pi.state.integral;
+                prop_assert!(i >= lo && i <= hi, "integral {i} for {cfg:?}");
+            }
+            prop_assert_eq!(u.to_bits(), pi.state.output.to_bits());
+            prop_assert!(pi.step(e, 0.0).is_finite());
+        }
+    }
+}
+
+/// The neutralisation, field by field: each unusable value on an otherwise
+/// good configuration.
+#[test]
+fn unusable_fields_are_neutralised() {
+    let good = PiConfig {
+        kp: 2.0,
+        ki_per_s: 100.0,
+        ts_s: 1e-3,
+        out_min: 1.0,
+        out_max: 5.0,
+        anti_windup: AntiWindup::BackCalculation { kb_per_s: 50.0 },
+    };
+    assert_eq!(good.sanitized(), good);
+    // A legitimate reverse-acting controller and a zero sample time: kept.
+    let reverse = PiConfig {
+        kp: -2.0,
+        ki_per_s: -100.0,
+        ..good
+    };
+    assert_eq!(reverse.sanitized(), reverse);
+    let no_time = PiConfig { ts_s: 0.0, ..good };
+    assert_eq!(no_time.sanitized(), no_time);
+    for bad in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY] {
+        for cfg in [
+            PiConfig { kp: bad, ..good },
+            PiConfig {
+                ki_per_s: bad,
+                ..good
+            },
+            PiConfig { ts_s: bad, ..good },
+        ] {
+            let c = cfg.sanitized();
+            assert_eq!((c.kp, c.ki_per_s), (0.0, 0.0), "{cfg:?}");
+            // Limits 1..5: the neutral value is the limit nearest 0.
+            assert_eq!((c.out_min, c.out_max), (1.0, 1.0), "{cfg:?}");
+            let mut pi = Pi::new(cfg);
+            pi.preload(4.0);
+            assert_eq!(pi.step(100.0, 0.0), 1.0);
+            // Through step_error: that value, clamped into the step's limits.
+            assert_eq!(pi.step_error(-3.0, -2.0, 2.0), 1.0);
+            assert_eq!(pi.step_error(-3.0, -0.5, 0.5), 0.5);
+        }
+        for cfg in [
+            PiConfig {
+                out_min: bad,
+                ..good
+            },
+            PiConfig {
+                out_max: bad,
+                ..good
+            },
+        ] {
+            let c = cfg.sanitized();
+            assert_eq!((c.out_min, c.out_max), (0.0, 0.0), "{cfg:?}");
+            assert_eq!((c.kp, c.ki_per_s), (2.0, 100.0));
+            assert_eq!(Pi::new(cfg).step(1.0, 0.0), 0.0);
+        }
+    }
+    // Inverted limits.
+    let inverted = PiConfig {
+        out_min: 5.0,
+        out_max: 1.0,
+        ..good
+    };
+    assert_eq!(Pi::new(inverted).step(1.0, 0.0), 0.0);
+    // A negative sample time, and a product ki ts that overflows.
+    for cfg in [
+        PiConfig {
+            ts_s: -1e-3,
+            ..good
+        },
+        PiConfig {
+            ki_per_s: 1e30,
+            ts_s: 1e30,
+            ..good
+        },
+    ] {
+        let c = cfg.sanitized();
+        assert_eq!(
+            (c.kp, c.ki_per_s, c.out_min, c.out_max),
+            (0.0, 0.0, 1.0, 1.0)
+        );
+        assert!(c.ts_s.is_finite() && c.ts_s >= 0.0);
+    }
+    // A NaN tracking gain: no tracking, the rest kept.
+    let nan_kb = PiConfig {
+        anti_windup: AntiWindup::BackCalculation { kb_per_s: f32::NAN },
+        ..good
+    };
+    let c = nan_kb.sanitized();
+    assert_eq!(c.anti_windup, AntiWindup::BackCalculation { kb_per_s: 0.0 });
+    assert_eq!(
+        (c.kp, c.ki_per_s, c.out_min, c.out_max),
+        (2.0, 100.0, 1.0, 5.0)
+    );
+}
+
+/// A NaN integrator written directly into the state, with a NaN error or
+/// not: never a NaN output (0; the integrator follows).
+#[test]
+fn nan_integrator_written_directly_gives_no_nan() {
+    let mut pi = Pi::new(PiConfig {
+        kp: 1.0,
+        ki_per_s: 10.0,
+        ts_s: 1e-3,
+        out_min: -2.0,
+        out_max: 5.0,
+        anti_windup: AntiWindup::Clamp,
+    });
+    pi.state.integral = f32::NAN;
+    assert_eq!(pi.step(f32::NAN, 0.0), 0.0);
+    assert_eq!(pi.state.integral, 0.0);
+    pi.state.integral = f32::NAN;
+    assert_eq!(pi.step(1.0, 0.0), 0.0);
+    assert_eq!(pi.state.integral, 0.0);
+    // Then it runs normally again.
+    assert!(pi.step(1.0, 0.0) > 0.0);
+}
+
+/// Back-calculation with a zero tracking gain when `kp e` overflows
+/// (`0 * inf`): the integrator takes the output, the active limit, so both
+/// stay within limits that exclude 0.
+#[test]
+fn back_calculation_overflow_stays_in_limits() {
+    let mut pi = Pi::new(PiConfig {
+        kp: 1e30,
+        ki_per_s: 10.0,
+        ts_s: 1e-3,
+        out_min: 1.0,
+        out_max: 5.0,
+        anti_windup: AntiWindup::BackCalculation { kb_per_s: 0.0 },
+    });
+    for e in [1e30f32, -1e30, f32::MAX, 1.0] {
+        let u = pi.step_error(e, 1.0, 5.0);
+        assert!((1.0..=5.0).contains(&u), "{e}: {u}");
+        let i = pi.state.integral;
+        assert!((1.0..=5.0).contains(&i), "{e}: integral {i}");
+    }
+}

@@ -9,7 +9,8 @@
 //! COBS (consistent overhead byte stuffing) removes every 0x00 from the
 //! payload at a cost of one byte per 254, so a receiver that starts in the
 //! middle of a frame, or after line noise, is back in step at the next 0x00.
-//! An empty frame (two delimiters in a row) is ignored: a sender may start
+//! An empty frame (two delimiters in a row, or a frame whose payload is
+//! empty once un-stuffed, such as `01 00`) is ignored: a sender may start
 //! with a 0x00 to flush whatever the receiver had half-collected.
 //!
 //! The [`FrameDecoder`] un-stuffs on the fly into a fixed buffer of
@@ -251,7 +252,9 @@ impl FrameDecoder {
     }
 
     /// Feed one byte: the un-stuffed payload when it completes a frame.
-    /// `Some(Ok(&[]))` is never returned (empty frames are skipped).
+    /// `Some(Ok(&[]))` is never returned: empty frames (nothing between two
+    /// delimiters, or a valid COBS frame whose payload is empty, `01 00`)
+    /// are skipped like an idle line.
     pub fn feed_raw(&mut self, byte: u8) -> Option<Result<&[u8], FrameErrorKind>> {
         if byte == 0 {
             let result = if self.prev_code == 0 {
@@ -261,6 +264,10 @@ impl FrameDecoder {
                 Some(Err(FrameErrorKind::TooLong))
             } else if self.remaining != 0 {
                 Some(Err(FrameErrorKind::Cobs))
+            } else if self.len == 0 {
+                // A complete frame with an empty payload (a lone `01` code
+                // byte): nothing to deliver, skip it like an idle line.
+                None
             } else {
                 Some(Ok(()))
             };
@@ -385,6 +392,44 @@ mod tests {
         assert!(d.feed_raw(1).is_none());
         assert!(d.feed_raw(2).is_none());
         assert_eq!(d.feed_raw(0), Some(Err(FrameErrorKind::Cobs)));
+    }
+
+    /// Regression: `fd 00 01 00 00` used to yield `Some(Ok(&[]))` at the
+    /// second delimiter (`01` is the COBS encoding of an empty payload),
+    /// against `feed_raw`'s contract. Now: the COBS error of the
+    /// truncated first frame, then nothing; the decoder stays in step.
+    #[test]
+    fn empty_payload_after_unstuffing_is_skipped() {
+        let mut d = FrameDecoder::new();
+        let out: Vec<_> = [0xfd, 0x00, 0x01, 0x00, 0x00]
+            .iter()
+            .filter_map(|&b| d.feed_raw(b).map(|r| r.map(|p| p.to_vec())))
+            .collect();
+        assert_eq!(out, [Err(FrameErrorKind::Cobs)]);
+        // Any number of empty COBS frames, alone or between real ones.
+        let mut d = FrameDecoder::new();
+        for &b in &[0x01, 0x00, 0x01, 0x00, 0x00, 0x01] {
+            assert_eq!(d.feed_raw(b), None);
+        }
+        assert_eq!(d.feed_raw(0x00), None);
+        // The message-level decode: no frame (in particular no Truncated
+        // error) for the empty payload, then a real frame decodes.
+        let mut d = FrameDecoder::new();
+        let mut frames = Vec::new();
+        d.feed_slice::<crate::message::Request>(&[0xfd, 0x00, 0x01, 0x00, 0x00], |r| {
+            frames.push(r)
+        });
+        assert_eq!(frames.len(), 1);
+        assert_eq!(frames[0].unwrap_err().kind, FrameErrorKind::Cobs);
+        let mut buf = [0u8; MAX_FRAME];
+        let n = encode(9, &crate::message::Request::Ping, &mut buf).unwrap();
+        let mut wire = std::vec![0x01, 0x00];
+        wire.extend_from_slice(&buf[..n]);
+        let mut frames = Vec::new();
+        d.feed_slice::<crate::message::Request>(&wire, |r| frames.push(r));
+        assert_eq!(frames.len(), 1);
+        let p = frames[0].unwrap();
+        assert_eq!((p.seq, p.msg), (9, crate::message::Request::Ping));
     }
 
     #[test]

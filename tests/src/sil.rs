@@ -48,6 +48,12 @@
 //! duties centred) until `clear_faults`. An invalid command alone is refused
 //! (the period still runs with the previous command).
 //!
+//! A line is at most [`MAX_LINE`] bytes (64 KiB, without its newline): a
+//! longer one is read and discarded up to its newline without being held
+//! in memory ([`read_line_bounded`]) and answered like an invalid line (one
+//! output line with its `error`, bridge off, `CurrentSenseError` latched;
+//! [`SilRunner::refuse`]).
+//!
 //! Frame: phase A's axis at electrical angle 0, positive rotation
 //! A -> B -> C, `theta_e = p theta_m - zero_offset`.
 //!
@@ -82,6 +88,78 @@ use foc_core::frames::Abc;
 use foc_core::hal::PhaseCurrents;
 use serde::Deserialize;
 use serde_json::json;
+use std::io::{self, BufRead};
+
+/// Longest input line [bytes], without its newline: 64 KiB.
+pub const MAX_LINE: usize = 64 * 1024;
+
+/// What [`read_line_bounded`] read.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum BoundedLine {
+    /// A line (in the buffer, without its `\n` or `\r\n`).
+    Line,
+    /// A line longer than the bound: discarded up to its newline (the
+    /// buffer is left empty); its length in bytes, without the newline.
+    TooLong(u64),
+    /// End of input, nothing read.
+    Eof,
+}
+
+/// Read one line into `buf` (cleared first), holding at most `max` bytes:
+/// the bytes of a longer line are consumed and dropped up to and including
+/// its newline, so the next call starts at the next line. A last line
+/// without a newline counts as a line. `Interrupted` reads are retried;
+/// other I/O errors are returned (what was read of the line is lost).
+pub fn read_line_bounded<R: BufRead + ?Sized>(
+    r: &mut R,
+    buf: &mut Vec<u8>,
+    max: usize,
+) -> io::Result<BoundedLine> {
+    buf.clear();
+    let mut len: u64 = 0;
+    let mut too_long = false;
+    let mut any = false;
+    loop {
+        let chunk = match r.fill_buf() {
+            Ok(c) => c,
+            Err(e) if e.kind() == io::ErrorKind::Interrupted => continue,
+            Err(e) => return Err(e),
+        };
+        if chunk.is_empty() {
+            if !any {
+                return Ok(BoundedLine::Eof);
+            }
+            break;
+        }
+        any = true;
+        let (part, used, end) = match chunk.iter().position(|&b| b == b'\n') {
+            Some(i) => (&chunk[..i], i + 1, true),
+            None => (chunk, chunk.len(), false),
+        };
+        len = len.saturating_add(part.len() as u64);
+        if !too_long {
+            if buf.len() + part.len() <= max {
+                // Exact growth: the buffer never holds more than `max`.
+                buf.reserve_exact(part.len());
+                buf.extend_from_slice(part);
+            } else {
+                too_long = true;
+                buf.clear();
+            }
+        }
+        r.consume(used);
+        if end {
+            break;
+        }
+    }
+    if too_long {
+        return Ok(BoundedLine::TooLong(len));
+    }
+    if buf.last() == Some(&b'\r') {
+        buf.pop();
+    }
+    Ok(BoundedLine::Line)
+}
 
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -181,57 +259,73 @@ impl SilRunner {
     /// Handle one input line: returns the output line (no newline) and,
     /// when the line or its command was refused, the reason (for stderr).
     pub fn line(&mut self, text: &str) -> (String, Option<String>) {
-        self.lines += 1;
         let parsed: Result<InLine, String> =
             serde_json::from_str::<InLine>(text).map_err(|e| format!("bad input line: {e}"));
         let parsed = parsed.and_then(|l| match l.i_abc.len() {
             2 | 3 => Ok(l),
             n => Err(format!("bad input line: `i_abc` has {n} values (2 or 3)")),
         });
-        let (sample, t, error) = match parsed {
-            Err(e) => (
-                Sample {
-                    currents: None,
-                    angle: None,
-                    v_bus_v: None,
-                    temperature_c: None,
-                },
-                None,
-                Some(e),
-            ),
-            Ok(l) => {
-                if l.clear_faults {
-                    self.cascade.clear_faults();
-                }
-                let mut error = None;
-                if let Some(c) = &l.cmd {
-                    match command_of(c) {
-                        // After `clear_faults` above the cascade accepts the
-                        // command: its step clears first, then takes it.
-                        Ok(cmd) => {
-                            if let Err(e) = self.cascade.command(cmd) {
-                                error = Some(format!("command refused: {e:?}"));
-                            }
-                        }
-                        Err(e) => error = Some(format!("command refused: {e}")),
+        match parsed {
+            Err(e) => self.refuse(&e),
+            Ok(l) => self.period(l),
+        }
+    }
+
+    /// A line that could not be used (unreadable, too long...): a period
+    /// without a valid sample, answered like an invalid line (bridge off,
+    /// `CurrentSenseError` latched) with `reason` as its `error`.
+    pub fn refuse(&mut self, reason: &str) -> (String, Option<String>) {
+        let sample = Sample {
+            currents: None,
+            angle: None,
+            v_bus_v: None,
+            temperature_c: None,
+        };
+        self.run(&sample, None, Some(reason.to_string()))
+    }
+
+    /// One period on a parsed line.
+    fn period(&mut self, l: InLine) -> (String, Option<String>) {
+        if l.clear_faults {
+            self.cascade.clear_faults();
+        }
+        let mut error = None;
+        if let Some(c) = &l.cmd {
+            match command_of(c) {
+                // After `clear_faults` above the cascade accepts the
+                // command: its step clears first, then takes it.
+                Ok(cmd) => {
+                    if let Err(e) = self.cascade.command(cmd) {
+                        error = Some(format!("command refused: {e:?}"));
                     }
                 }
-                let currents = match l.i_abc[..] {
-                    [a, b] => PhaseCurrents::TwoPhase { a_a: a, b_a: b },
-                    [a, b, c] => PhaseCurrents::ThreePhase(Abc::new(a, b, c)),
-                    _ => PhaseCurrents::TwoPhase { a_a: 0.0, b_a: 0.0 }, // excluded above
-                };
-                let sample = Sample {
-                    currents: Some(currents),
-                    // A non-finite angle is a failed read (angle-sensor error).
-                    angle: MechanicalAngle::try_from_radians(l.theta_m),
-                    v_bus_v: Some(l.v_bus),
-                    temperature_c: None,
-                };
-                (sample, l.t, error)
+                Err(e) => error = Some(format!("command refused: {e}")),
             }
+        }
+        let currents = match l.i_abc[..] {
+            [a, b] => PhaseCurrents::TwoPhase { a_a: a, b_a: b },
+            [a, b, c] => PhaseCurrents::ThreePhase(Abc::new(a, b, c)),
+            _ => PhaseCurrents::TwoPhase { a_a: 0.0, b_a: 0.0 }, // excluded above
         };
-        let bridge = self.cascade.step(&sample);
+        let sample = Sample {
+            currents: Some(currents),
+            // A non-finite angle is a failed read (angle-sensor error).
+            angle: MechanicalAngle::try_from_radians(l.theta_m),
+            v_bus_v: Some(l.v_bus),
+            temperature_c: None,
+        };
+        self.run(&sample, l.t, error)
+    }
+
+    /// Step the cascade on `sample` and format the output line.
+    fn run(
+        &mut self,
+        sample: &Sample,
+        t: Option<f64>,
+        error: Option<String>,
+    ) -> (String, Option<String>) {
+        self.lines += 1;
+        let bridge = self.cascade.step(sample);
         let fb = *self.cascade.feedback();
         let (duties, on) = match bridge {
             BridgeCommand::SafeState => ([0.5f32; 3], false),

@@ -146,3 +146,123 @@ fn sil_runner_needs_a_calibration_for_closed_loop() {
     let (out, err) = sil.line(&line(r#"{"mode":"torque","target":1}"#));
     assert!(err.is_none() && out.contains(r#""mode":"torque""#), "{out}");
 }
+
+/// A line over the 64 KiB bound (here 1 MB) is refused with one error
+/// reply in the safe state (bridge off, `CurrentSenseError` latched, like
+/// any invalid line), and the next line is read and answered normally.
+#[test]
+fn sil_binary_refuses_an_over_long_line_then_goes_on() {
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/motors/dji-m2006.toml");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_foc-sil"))
+        .args(["--motor", path])
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut stdin = child.stdin.take().unwrap();
+    let mut stdout = BufReader::new(child.stdout.take().unwrap());
+    let valid = |t: f64, extra: &str| {
+        format!(r#"{{"t":{t},"i_abc":[0,0,0],"v_bus":24,"theta_m":0{extra}}}"#)
+    };
+    // A valid start (closed loop), then 1 MB on one line (a JSON prefix
+    // and padding), then a valid line, written in one go.
+    let mut input = valid(0.0, r#","cmd":{"mode":"torque","target":0.5}"#);
+    input.push('\n');
+    input.push_str(r#"{"t":1,"i_abc":[0,0,0],"v_bus":24,"theta_m":0,"pad":""#);
+    input.push_str(&"x".repeat(1 << 20));
+    input.push_str("\"}\n");
+    input.push_str(&valid(2.0, ""));
+    input.push('\n');
+    stdin.write_all(input.as_bytes()).unwrap();
+    stdin.flush().unwrap();
+    let mut read = || -> Value {
+        let mut reply = String::new();
+        stdout.read_line(&mut reply).unwrap();
+        serde_json::from_str(&reply).unwrap_or_else(|e| panic!("{e}: {reply}"))
+    };
+    let first = read();
+    assert_eq!(first["bridge"], true, "{first}");
+    assert_eq!(first["mode"], "torque", "{first}");
+
+    let refused = read();
+    let msg = refused["error"].as_str().unwrap();
+    assert!(msg.contains("input line too long"), "{refused}");
+    assert!(msg.contains("65536"), "{refused}");
+    assert_eq!(refused["bridge"], false);
+    assert_eq!(refused["duties"], serde_json::json!([0.5, 0.5, 0.5]));
+    assert_eq!(refused["mode"], "disabled");
+    assert_eq!(refused["fault"], "CurrentSenseError");
+    assert!(refused["t"].is_null());
+
+    let next = read();
+    assert!(next["error"].is_null(), "{next}");
+    assert_eq!(next["t"], 2.0);
+    // Still safe: the refused period latched its fault until a clear.
+    assert_eq!(next["bridge"], false);
+    assert_eq!(next["fault"], "CurrentSenseError");
+    // A clear and a command: running again.
+    writeln!(
+        stdin,
+        "{}",
+        valid(
+            3.0,
+            r#","clear_faults":true,"cmd":{"mode":"torque","target":0.5}"#
+        )
+    )
+    .unwrap();
+    stdin.flush().unwrap();
+    let run = read();
+    assert!(run["error"].is_null() && run["fault"].is_null(), "{run}");
+    assert_eq!(run["bridge"], true);
+
+    drop(stdin);
+    // Exactly one reply per line: nothing more.
+    let mut rest = String::new();
+    stdout.read_to_string(&mut rest).unwrap();
+    assert!(rest.is_empty(), "{rest}");
+    assert!(child.wait().unwrap().success());
+    let mut err = String::new();
+    child
+        .stderr
+        .take()
+        .unwrap()
+        .read_to_string(&mut err)
+        .unwrap();
+    assert_eq!(err.matches("too long").count(), 1, "{err}");
+    assert!(err.contains("line 2: input line too long"), "{err}");
+}
+
+/// The bounded line reader itself: the bound is inclusive, a longer line
+/// is dropped through its newline without growing the buffer past the
+/// bound, `\r\n` is stripped, and a last line without a newline counts.
+#[test]
+fn bounded_line_reader() {
+    use foc_bench::sil::{read_line_bounded, BoundedLine, MAX_LINE};
+    let mut text = Vec::new();
+    text.extend(std::iter::repeat_n(b'a', MAX_LINE));
+    text.push(b'\n');
+    text.extend(std::iter::repeat_n(b'b', MAX_LINE + 1));
+    text.push(b'\n');
+    text.extend(std::iter::repeat_n(b'c', 1 << 20));
+    text.extend_from_slice(b"\nok\r\n\nlast");
+    // A small read buffer: the long lines arrive in many chunks.
+    let mut r = BufReader::with_capacity(1000, &text[..]);
+    let mut buf = Vec::new();
+    let mut next = |buf: &mut Vec<u8>| read_line_bounded(&mut r, buf, MAX_LINE).unwrap();
+    assert_eq!(next(&mut buf), BoundedLine::Line);
+    assert_eq!(buf.len(), MAX_LINE);
+    assert!(buf.iter().all(|&b| b == b'a'));
+    assert_eq!(next(&mut buf), BoundedLine::TooLong(MAX_LINE as u64 + 1));
+    assert!(buf.is_empty());
+    assert_eq!(next(&mut buf), BoundedLine::TooLong(1 << 20));
+    assert!(buf.capacity() <= MAX_LINE, "{}", buf.capacity());
+    assert_eq!(next(&mut buf), BoundedLine::Line);
+    assert_eq!(buf, b"ok");
+    assert_eq!(next(&mut buf), BoundedLine::Line);
+    assert!(buf.is_empty());
+    assert_eq!(next(&mut buf), BoundedLine::Line);
+    assert_eq!(buf, b"last");
+    assert_eq!(next(&mut buf), BoundedLine::Eof);
+    assert_eq!(next(&mut buf), BoundedLine::Eof);
+}

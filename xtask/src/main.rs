@@ -10,6 +10,7 @@ mod build;
 mod check;
 mod dyno;
 mod e2e;
+mod fuzz;
 mod qemu;
 mod sim;
 mod size;
@@ -61,6 +62,9 @@ enum Command {
     /// The command channel end to end: the emulated board driven through
     /// foc-ctl's client over QEMU's USART2 (loopback TCP).
     E2e(e2e::E2eArgs),
+    /// Fuzz foc-protocol (cargo-fuzz targets in fuzz/; nightly + cargo-fuzz),
+    /// or `--replay` the corpus through the same checks on stable.
+    Fuzz(fuzz::FuzzArgs),
 }
 
 fn main() -> ExitCode {
@@ -77,6 +81,7 @@ fn main() -> ExitCode {
         Command::Qemu(args) => qemu::run_cmd(args),
         Command::Bench => bench::run_cmd(),
         Command::E2e(args) => e2e::run_cmd(args),
+        Command::Fuzz(args) => fuzz::run_cmd(args),
         Command::Boards => {
             list_boards();
             Ok(())

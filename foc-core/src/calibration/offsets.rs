@@ -5,6 +5,11 @@
 //! zero (i.e. the amplifier sits near mid-scale) and the noise (standard
 //! deviation) stays below `max_noise_a`.
 //!
+//! Unusable limits (no samples, or a limit that is not a finite positive
+//! number) fail at the first step with [`OffsetError::InvalidLimits`]; a
+//! non-finite reading fails with [`OffsetError::InvalidReading`]. `Done`
+//! only ever carries finite offsets, each within `max_offset_a`.
+//!
 //! ```
 //! use foc_core::calibration::offsets::{OffsetCalibrator, OffsetLimits, OffsetStep};
 //! use foc_core::frames::Abc;
@@ -24,12 +29,26 @@ use crate::sqrtf;
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct OffsetLimits {
-    /// Samples to average (e.g. 1024 PWM periods).
+    /// Samples to average (e.g. 1024 PWM periods); at least 1.
     pub samples: u32,
-    /// Largest acceptable offset [A] per phase.
+    /// Largest acceptable offset [A] per phase (finite, `> 0`).
     pub max_offset_a: f32,
-    /// Largest acceptable standard deviation [A] per phase.
+    /// Largest acceptable standard deviation [A] per phase (finite, `> 0`).
     pub max_noise_a: f32,
+}
+
+impl OffsetLimits {
+    /// True when the limits can be used: `samples >= 1` and both limits
+    /// finite and `> 0` (NaN, infinite, zero or negative limits could let
+    /// any offset through, or none).
+    pub const fn is_valid(&self) -> bool {
+        self.samples > 0 && positive_finite(self.max_offset_a) && positive_finite(self.max_noise_a)
+    }
+}
+
+/// `0 < x < inf` (false for NaN).
+const fn positive_finite(x: f32) -> bool {
+    x.is_finite() && x > 0.0
 }
 
 /// Why the offset calibration failed.
@@ -40,8 +59,10 @@ pub enum OffsetError {
     OffsetTooLarge(u8),
     /// A phase is too noisy (phase index 0..3).
     TooNoisy(u8),
-    /// A reading was not finite, or the limits are unusable.
+    /// A reading was not finite (or the readings' sum overflowed).
     InvalidReading,
+    /// The limits are unusable (see [`OffsetLimits::is_valid`]).
+    InvalidLimits,
 }
 
 /// Progress of the calibration.
@@ -50,7 +71,8 @@ pub enum OffsetError {
 pub enum OffsetStep {
     /// More samples needed.
     InProgress,
-    /// Offsets [A] to pass to `CurrentSense::set_offsets_a`.
+    /// Offsets [A] to pass to `CurrentSense::set_offsets_a` (always
+    /// finite, each within `max_offset_a`).
     Done(Abc),
     /// Rejected.
     Failed(OffsetError),
@@ -78,13 +100,21 @@ impl OffsetCalibrator {
         }
     }
 
-    /// Feed one reading [A] (taken with zero offsets, bridge off).
+    /// Feed one reading [A] (taken with zero offsets, bridge off). Once
+    /// done or failed, the same result is returned for every later call.
     pub fn step(&mut self, reading: Abc) -> OffsetStep {
         if let Some(d) = self.done {
             return d;
         }
-        if !reading.is_finite() || self.limits.samples == 0 {
-            let f = OffsetStep::Failed(OffsetError::InvalidReading);
+        let error = if !self.limits.is_valid() {
+            Some(OffsetError::InvalidLimits)
+        } else if !reading.is_finite() {
+            Some(OffsetError::InvalidReading)
+        } else {
+            None
+        };
+        if let Some(e) = error {
+            let f = OffsetStep::Failed(e);
             self.done = Some(f);
             return f;
         }
@@ -115,7 +145,10 @@ impl OffsetCalibrator {
             let var = q / n - *m * *m;
             let sd = if var > 0.0 { sqrtf(var) } else { 0.0 };
             if result.is_none() {
-                if m.abs() > self.limits.max_offset_a {
+                if !m.is_finite() {
+                    // The sum overflowed (readings near f32::MAX).
+                    result = Some(OffsetError::InvalidReading);
+                } else if m.abs() > self.limits.max_offset_a {
                     result = Some(OffsetError::OffsetTooLarge(k as u8));
                 } else if sd > self.limits.max_noise_a {
                     result = Some(OffsetError::TooNoisy(k as u8));
@@ -188,6 +221,83 @@ mod tests {
         assert_eq!(
             run(&mut cal, |_| Abc::new(f32::NAN, 0.0, 0.0)),
             OffsetStep::Failed(OffsetError::InvalidReading)
+        );
+    }
+
+    /// Unusable limits fail at the first step, whatever the readings, and
+    /// the failure sticks.
+    #[test]
+    fn unusable_limits_fail_cleanly() {
+        let bad = [f32::NAN, f32::INFINITY, f32::NEG_INFINITY, 0.0, -0.0, -0.5];
+        let cases = bad.iter().flat_map(|&x| {
+            [
+                OffsetLimits {
+                    samples: 0,
+                    ..lim()
+                },
+                OffsetLimits {
+                    max_offset_a: x,
+                    ..lim()
+                },
+                OffsetLimits {
+                    max_noise_a: x,
+                    ..lim()
+                },
+                OffsetLimits {
+                    samples: 0,
+                    max_offset_a: x,
+                    max_noise_a: x,
+                },
+            ]
+        });
+        for l in cases {
+            assert!(!l.is_valid(), "{l:?}");
+            for reading in [
+                Abc::new(0.1, -0.05, 0.02),
+                Abc::new(1e38, 1e38, 1e38),
+                Abc::new(f32::NAN, 0.0, 0.0),
+            ] {
+                let mut cal = OffsetCalibrator::new(l);
+                let failed = OffsetStep::Failed(OffsetError::InvalidLimits);
+                assert_eq!(cal.step(reading), failed, "{l:?} {reading:?}");
+                assert_eq!(cal.step(Abc::new(0.0, 0.0, 0.0)), failed);
+            }
+        }
+        assert!(lim().is_valid());
+    }
+
+    /// Finite readings whose sum overflows never give infinite offsets,
+    /// even with the largest finite limits.
+    #[test]
+    fn never_done_with_non_finite_offsets() {
+        let wide = OffsetLimits {
+            samples: 8,
+            max_offset_a: f32::MAX,
+            max_noise_a: f32::MAX,
+        };
+        for x in [f32::MAX, -f32::MAX, 3e38, 1e38] {
+            let mut cal = OffsetCalibrator::new(wide);
+            let r = run(&mut cal, |_| Abc::new(0.0, x, 0.0));
+            match r {
+                OffsetStep::Done(o) => assert!(o.is_finite(), "{x}: {o:?}"),
+                OffsetStep::Failed(_) => {}
+                OffsetStep::InProgress => panic!("{x}: not finished"),
+            }
+        }
+        // Sums that overflow: rejected as invalid readings.
+        let mut cal = OffsetCalibrator::new(wide);
+        assert_eq!(
+            run(&mut cal, |_| Abc::new(0.0, f32::MAX, 0.0)),
+            OffsetStep::Failed(OffsetError::InvalidReading)
+        );
+        // One sample is enough with valid limits.
+        let mut cal = OffsetCalibrator::new(OffsetLimits {
+            samples: 1,
+            ..lim()
+        });
+        assert_eq!(
+            cal.step(Abc::new(0.1, 0.2, 0.3)),
+            OffsetStep::Done(Abc::new(0.1, 0.2, 0.3))
         );
     }
 }

@@ -226,21 +226,21 @@ impl Command {
             Command::Disable => Ok(()),
             Command::Torque { iq_a } => {
                 fin(iq_a)?;
-                if iq_a.abs() > l.max_current_a {
+                if !within(iq_a.abs(), l.max_current_a) {
                     return Err(CommandError::CurrentOutOfRange);
                 }
                 Ok(())
             }
             Command::Velocity { rad_s } => {
                 fin(rad_s)?;
-                if rad_s.abs() > l.max_velocity_rad_s {
+                if !within(rad_s.abs(), l.max_velocity_rad_s) {
                     return Err(CommandError::VelocityOutOfRange);
                 }
                 Ok(())
             }
             Command::Position { rad } => {
                 fin(rad)?;
-                if rad < l.min_position_rad || rad > l.max_position_rad {
+                if !(within(l.min_position_rad, rad) && within(rad, l.max_position_rad)) {
                     return Err(CommandError::PositionOutOfRange);
                 }
                 Ok(())
@@ -254,16 +254,22 @@ impl Command {
                 fin(v_d_v)?;
                 fin(v_q_v)?;
                 fin(omega_e_rad_s)?;
-                if Dq::new(v_d_v, v_q_v).magnitude() > l.max_open_loop_voltage_v {
+                if !within(Dq::new(v_d_v, v_q_v).magnitude(), l.max_open_loop_voltage_v) {
                     return Err(CommandError::VoltageOutOfRange);
                 }
-                if omega_e_rad_s.abs() > l.max_open_loop_omega_e_rad_s {
+                if !within(omega_e_rad_s.abs(), l.max_open_loop_omega_e_rad_s) {
                     return Err(CommandError::VelocityOutOfRange);
                 }
                 Ok(())
             }
         }
     }
+}
+
+/// `x <= limit`, false when either is NaN: a NaN limit refuses.
+#[inline(always)]
+fn within(x: f32, limit: f32) -> bool {
+    x <= limit
 }
 
 /// Whether the current stage takes `cmd` now: the one rule every command

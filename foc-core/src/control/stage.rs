@@ -218,8 +218,10 @@ pub struct CurrentStage {
 }
 
 impl CurrentStage {
-    /// New stage, disabled, no fault.
-    pub fn new(config: CurrentStageConfig) -> Self {
+    /// New stage, disabled, no fault (a non-finite current limit becomes 0,
+    /// see [`Self::set_limits`]).
+    pub fn new(mut config: CurrentStageConfig) -> Self {
+        config.limits = sanitize_limits(config.limits);
         Self {
             current: CurrentLoop::new(config.current),
             tracker: AngleTracker::new(config.tracker),
@@ -309,8 +311,10 @@ impl CurrentStage {
     }
 
     /// Replace the command limits.
+    /// A current limit that is not a finite, non-negative number becomes 0
+    /// (closed-loop current refused and clamped to nothing).
     pub fn set_limits(&mut self, l: Limits) {
-        self.config.limits = l;
+        self.config.limits = sanitize_limits(l);
     }
 
     /// The fault supervisor.
@@ -748,6 +752,14 @@ impl CurrentStage {
         };
         (bridge, fb)
     }
+}
+
+/// `max_current_a` not finite and non-negative -> 0.
+fn sanitize_limits(mut l: Limits) -> Limits {
+    if !(l.max_current_a >= 0.0 && l.max_current_a < f32::INFINITY) {
+        l.max_current_a = 0.0;
+    }
+    l
 }
 
 /// What [`CurrentStage::step`] measured this period (zeros where a read

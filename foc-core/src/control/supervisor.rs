@@ -251,6 +251,33 @@ impl Default for SupervisorConfig {
     }
 }
 
+impl SupervisorConfig {
+    /// NaN limits replaced by ones that trip at once (0 for the upper
+    /// limits, `+inf` for the under-voltage limit); the current limits also
+    /// when infinite (no drive has unlimited current). Other infinite
+    /// limits stay (an explicit "no limit").
+    pub fn sanitized(self) -> Self {
+        let upper = |x: f32| if x.is_nan() { 0.0 } else { x };
+        let current = |x: f32| if x.is_finite() { x } else { 0.0 };
+        Self {
+            max_phase_current_a: current(self.max_phase_current_a),
+            max_vector_current_a: current(self.max_vector_current_a),
+            bus_over_voltage_v: upper(self.bus_over_voltage_v),
+            bus_under_voltage_v: if self.bus_under_voltage_v.is_nan() {
+                f32::INFINITY
+            } else {
+                self.bus_under_voltage_v
+            },
+            max_current_sum_a: upper(self.max_current_sum_a),
+            max_angle_innovation_rad: upper(self.max_angle_innovation_rad),
+            max_angle_step_e_rad: upper(self.max_angle_step_e_rad),
+            max_temperature_c: upper(self.max_temperature_c),
+            max_speed_rad_s: upper(self.max_speed_rad_s),
+            ..self
+        }
+    }
+}
+
 /// Measurements the supervisor checks in one current-loop period.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Checks {
@@ -291,8 +318,11 @@ pub struct Supervisor {
 }
 
 impl Supervisor {
-    /// New supervisor with no fault latched.
-    pub const fn new(config: SupervisorConfig) -> Self {
+    /// New supervisor with no fault latched. Limits that are not numbers
+    /// (NaN) are replaced by values that trip at once (a NaN limit would
+    /// never trip: over-current protection silently off).
+    pub fn new(config: SupervisorConfig) -> Self {
+        let config = config.sanitized();
         Self {
             config,
             latched: FaultSet::EMPTY,

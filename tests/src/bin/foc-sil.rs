@@ -3,7 +3,10 @@
 //! Reads one JSON sample per line on stdin, writes one JSON decision per line
 //! on stdout (flushed after each line); see `foc_bench::sil` for the protocol.
 //! Refused lines and commands are reported on stderr; the process never
-//! stops on bad input, only at the end of stdin.
+//! stops on bad input, only at the end of stdin (or on a read error). A
+//! line longer than 64 KiB (`foc_bench::sil::MAX_LINE`) is never held in
+//! memory: it is skipped up to its newline and answered like an invalid
+//! line (one output line with an `error`, bridge off).
 //!
 //! The controller starts calibrated with a *supplied* permit: the
 //! current-loop gains from the motor values, the angle calibration from
@@ -19,10 +22,10 @@
 use clap::Parser;
 use foc_bench::mission::Setup;
 use foc_bench::plant::{BenchConfig, MotorParams};
-use foc_bench::sil::SilRunner;
+use foc_bench::sil::{read_line_bounded, BoundedLine, SilRunner, MAX_LINE};
 use foc_core::angle::ElectricalAngle;
 use foc_core::calibration::Calibrated;
-use std::io::{BufRead, Write};
+use std::io::Write;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -164,18 +167,26 @@ fn main() -> ExitCode {
         }
     };
     let stdin = std::io::stdin();
+    let mut input = stdin.lock();
     let stdout = std::io::stdout();
     let mut out = stdout.lock();
-    for line in stdin.lock().lines() {
-        let line = match line {
-            Ok(l) => l,
+    let mut buf = Vec::new();
+    loop {
+        let (reply, err) = match read_line_bounded(&mut input, &mut buf, MAX_LINE) {
+            Ok(BoundedLine::Eof) => break,
+            Ok(BoundedLine::Line) => match std::str::from_utf8(&buf) {
+                Ok(line) => sil.line(line),
+                // Still one period without a sample.
+                Err(e) => sil.refuse(&format!("unreadable input line: not UTF-8 ({e})")),
+            },
+            Ok(BoundedLine::TooLong(n)) => sil.refuse(&format!(
+                "input line too long: {n} bytes (at most {MAX_LINE})"
+            )),
             Err(e) => {
-                // Not UTF-8, for example: still one period without a sample.
-                eprintln!("foc-sil: unreadable input: {e}");
-                String::new()
+                eprintln!("foc-sil: cannot read stdin: {e}");
+                return ExitCode::FAILURE;
             }
         };
-        let (reply, err) = sil.line(&line);
         if let Some(e) = err {
             eprintln!("foc-sil: {e}");
         }
