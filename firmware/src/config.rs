@@ -155,5 +155,13 @@ pub fn cascade(pwm_frequency_hz: f32) -> CascadeConfig {
     c.current.angle.sensor_counts_per_rev = identification(pwm_frequency_hz)
         .alignment
         .sensor_counts_per_rev;
+    // Hall sensors: the decoder's reading jumps a whole sector when it
+    // resynchronises (start, reversal, stall timeout): never call that a
+    // slip.
+    #[cfg(not(feature = "qemu"))]
+    if let board_support::board::AngleSource::Hall(_) = board_support::board::ANGLE_SOURCE {
+        c.current.supervisor.angle_step_floor_rad =
+            1.5 * core::f32::consts::TAU / (6.0 * f32::from(motor.pole_pairs.max(1)));
+    }
     c
 }

@@ -320,8 +320,9 @@ impl DeviceState {
         }
     }
 
-    /// Watchdog off until the first closed-loop command (torque, velocity,
-    /// position) is accepted, which arms `auto` unless the host has sent
+    /// Watchdog off until the first command that runs the motor (anything
+    /// but `Disable`, open loop included) is accepted, which arms `auto`
+    /// unless the host has sent
     /// `SetWatchdog` (its choice stands, off included): a host that goes
     /// silent mid-move does not leave the motor running (the firmware's
     /// default).
@@ -428,7 +429,10 @@ impl DeviceState {
             None => 0,
         };
         self.last_poll = Some(now_period);
-        let enabled = ctx.mode() != Mode::Disabled;
+        // Held while the drive does not take commands (start-up, a
+        // calibration): nothing the link could send would be taken.
+        let st = ctx.status();
+        let enabled = st.running && st.mode != Mode::Disabled;
         if let Some(reaction) = self.watchdog.tick(elapsed, enabled) {
             let cmd = match reaction {
                 TimeoutReaction::Disable => None,
@@ -502,7 +506,7 @@ impl DeviceState {
                     .check_command(&cmd, &ctx.limits())
                     .map_err(|e| nack(command_field(&cmd, e)))?;
                 ctx.post(cmd).map_err(|e| nack(command_field(&cmd, e)))?;
-                if cmd.mode().is_closed_loop()
+                if cmd != Command::Disable
                     && !self.host_configured
                     && self.watchdog.config().timeout_periods == 0
                 {

@@ -887,7 +887,8 @@ fn watchdog_reactions() {
     }
 }
 
-/// The firmware's default: a closed-loop command arms the link watchdog
+/// The firmware's default: a command that runs the motor arms the link
+/// watchdog
 /// (Stop, then Disable after a second timeout of silence); a keep-alive
 /// feeds it; a host's own `SetWatchdog` (even off) is never overridden.
 #[test]
@@ -899,18 +900,24 @@ fn closed_loop_command_arms_the_link_watchdog_stop_then_disable() {
     let mut dev = DeviceState::with_auto_watchdog(auto);
     let mut ctx = RecordingContext::default();
     dev.poll(&mut ctx, 0);
-    // Open loop does not arm it.
     let ol = Command::OpenLoop {
         v_d_v: 1.0,
         v_q_v: 0.0,
         theta_e: ElectricalAngle::ZERO,
         omega_e_rad_s: 0.0,
     };
+    // Disable does not arm it; open loop does (a spinning field too).
     assert_eq!(
-        handle(&mut dev, &mut ctx, 1, Request::SetCommand(ol)),
+        handle(&mut dev, &mut ctx, 1, Request::SetCommand(Command::Disable)),
         Response::Ack
     );
     assert_eq!(dev.watchdog().config(), WatchdogConfig::OFF);
+    let mut dev_ol = DeviceState::with_auto_watchdog(auto);
+    assert_eq!(
+        handle(&mut dev_ol, &mut ctx, 1, Request::SetCommand(ol)),
+        Response::Ack
+    );
+    assert_eq!(dev_ol.watchdog().config(), auto);
     let v = Command::Velocity { rad_s: 10.0 };
     assert_eq!(
         handle(&mut dev, &mut ctx, 2, Request::SetCommand(v)),

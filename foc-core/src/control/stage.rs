@@ -250,6 +250,7 @@ impl CurrentStage {
         self.current.reset();
         self.tracker.reset();
         self.state.reset();
+        self.state.last_innovation_rad = 0.0;
     }
 
     /// The configuration.
@@ -263,6 +264,7 @@ impl CurrentStage {
     pub fn set_calibration(&mut self, c: &Calibrated) {
         self.config.angle = c.angle();
         self.state.interpolation = self.config.angle.interpolation_half_count();
+        self.state.last_innovation_rad = 0.0;
         self.supervisor.set_angle_resolution(
             self.config.angle.pole_pairs,
             self.config.angle.sensor_counts_per_rev,
@@ -295,6 +297,7 @@ impl CurrentStage {
     pub fn set_angle_calibration(&mut self, a: AngleCalibration) {
         self.config.angle = a;
         self.state.interpolation = a.interpolation_half_count();
+        self.state.last_innovation_rad = 0.0;
         self.supervisor
             .set_angle_resolution(a.pole_pairs, a.sensor_counts_per_rev);
         self.tracker.reset();
@@ -403,6 +406,9 @@ impl CurrentStage {
             }
             (Mode::Disabled, _) => self.current.reset(),
             _ => {}
+        }
+        if let Command::Velocity { .. } = cmd {
+            self.supervisor.restart_runaway();
         }
         self.state.active = cmd;
     }
@@ -664,9 +670,16 @@ impl CurrentStage {
             return true;
         };
         let (ed, eq) = (i_ref.d - o.i_dq_a.d, i_ref.q - o.i_dq_a.q);
-        let emf_v = w_e_rad_s * self.config.current.motor.flux_linkage_wb;
-        let emf_limited =
-            o.voltage_limited && emf_v * emf_v > 0.25 * (v_bus_v * v_bus_v * (1.0 / 3.0));
+        // The reference may be out of reach: the voltage it needs in steady
+        // state (resistive drop, back-EMF and the inductive cross term, an
+        // upper bound) above 90 % of the voltage available, or the back-EMF
+        // alone above half of it.
+        let m = &self.config.current.motor;
+        let i_mag = i_ref.d.abs() + i_ref.q.abs();
+        let emf_v = (w_e_rad_s * m.flux_linkage_wb).abs();
+        let need_v = m.r_ohm * i_mag + emf_v + (w_e_rad_s * m.lq_h).abs() * i_mag;
+        let avail_v = self.config.current.max_modulation * v_bus_v * crate::FRAC_1_SQRT_3;
+        let emf_limited = o.voltage_limited && (2.0 * emf_v > avail_v || need_v > 0.9 * avail_v);
         // A reading frozen while the tracked or commanded speed says it
         // should have moved two counts is the angle sensor's fault (the
         // stuck check's to name): a wrong angle makes the loop lose track

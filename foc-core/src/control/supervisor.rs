@@ -189,6 +189,10 @@ pub struct SupervisorConfig {
     /// counts of a counting sensor of known resolution (2.5: the reading
     /// and the prediction each move by up to a count).
     pub max_angle_step_e_rad: f32,
+    /// Smallest angle-step limit [rad, mechanical] whatever the pole pairs:
+    /// for sensors whose readings move in steps the resolution does not
+    /// describe (halls: a whole sector when the decoder resynchronises).
+    pub angle_step_floor_rad: f32,
     /// Over-speed limit [rad/s, mechanical] on the tracked speed
     /// ([`Fault::OverSpeed`]).
     pub max_speed_rad_s: f32,
@@ -237,6 +241,7 @@ impl Default for SupervisorConfig {
             max_current_sum_a: 1.0,
             max_angle_innovation_rad: 0.5,
             max_angle_step_e_rad: 0.3,
+            angle_step_floor_rad: 0.0,
             max_speed_rad_s: 1.0e4,
             runaway_periods: 2000, // 100 ms at 20 kHz
             runaway_band_rad_s: 5.0,
@@ -273,6 +278,9 @@ impl SupervisorConfig {
             max_angle_step_e_rad: upper(self.max_angle_step_e_rad),
             max_temperature_c: upper(self.max_temperature_c),
             max_speed_rad_s: upper(self.max_speed_rad_s),
+            tracking_band_a: upper(self.tracking_band_a),
+            runaway_band_rad_s: upper(self.runaway_band_rad_s),
+            stuck_current_a: upper(self.stuck_current_a),
             ..self
         }
     }
@@ -370,11 +378,19 @@ impl Supervisor {
         } else {
             0.0
         };
-        self.angle_step_limit_rad = if counts > electrical {
+        let floor = self.config.angle_step_floor_rad;
+        let lim = if counts > electrical {
             counts
         } else {
             electrical
         };
+        self.angle_step_limit_rad = if floor > lim { floor } else { lim };
+    }
+
+    /// Restart the runaway window (a new speed setpoint: the error is
+    /// judged against it from now on).
+    pub fn restart_runaway(&mut self) {
+        self.runaway_count = 0;
     }
 
     /// The innovation-step limit in force [rad, mechanical].
@@ -580,6 +596,26 @@ mod tests {
             speed_rad_s: 10.0,
             temperature_c: Some(40.0),
         }
+    }
+
+    /// The angle-step limit: electrical over the pole pairs, never below
+    /// 2.5 counts of a known resolution nor below the configured floor.
+    #[test]
+    fn angle_step_limit_scales_with_pole_pairs_and_floors() {
+        let c = SupervisorConfig::default();
+        let mut s = Supervisor::new(c);
+        s.set_angle_resolution(7, 0);
+        assert!((s.angle_step_limit_rad() - 0.3 / 7.0).abs() < 1e-6);
+        s.set_angle_resolution(8, 48);
+        let count = core::f32::consts::TAU / 48.0;
+        assert!((s.angle_step_limit_rad() - 2.5 * count).abs() < 1e-6);
+        let hall = 1.5 * core::f32::consts::TAU / 66.0;
+        let mut s = Supervisor::new(SupervisorConfig {
+            angle_step_floor_rad: hall,
+            ..c
+        });
+        s.set_angle_resolution(11, 0);
+        assert!((s.angle_step_limit_rad() - hall).abs() < 1e-6);
     }
 
     #[test]
