@@ -150,6 +150,8 @@ mod app {
             identify_at_start_up: config::IDENTIFY_AT_STARTUP,
             speed_divider: cfg.rates.speed_divider,
             position_divider: cfg.rates.position_divider,
+            angle_kind: foc_core::drive::AngleKind::Incremental,
+            stored: None,
         };
         let mut drive = Drive::new(b.pwm, b.currents, b.angle, b.bus, cfg.current, life);
         if watchdog_reset {

@@ -8,7 +8,7 @@ use foc_core::calibration::offsets::OffsetLimits;
 use foc_core::calibration::Calibrated;
 use foc_core::control::cascade::CascadeConfig;
 use foc_core::control::{Command, CommandSlot, Fault, MotorParams};
-use foc_core::drive::{ConfigChange, Drive, Inputs, LifecycleConfig, Phase};
+use foc_core::drive::{AngleKind, ConfigChange, Drive, Event, Inputs, LifecycleConfig, Phase};
 use foc_core::frames::Abc;
 use foc_core::hal::{AngleSensor, BusVoltage, CurrentSense, PhaseCurrents, PwmDriver};
 
@@ -84,6 +84,15 @@ impl BusVoltage for Bus {
 }
 
 fn drive() -> (Drive<Pwm, Cs, Enc, Bus>, CascadeConfig) {
+    drive_with(AngleKind::Incremental, false, |_| None)
+}
+
+/// A drive whose lifecycle holds the permit `stored(cfg)` from its store.
+fn drive_with(
+    kind: AngleKind,
+    identify_at_start_up: bool,
+    stored: impl Fn(&CascadeConfig) -> Option<Calibrated>,
+) -> (Drive<Pwm, Cs, Enc, Bus>, CascadeConfig) {
     let motor = MotorParams {
         pole_pairs: 7,
         r_ohm: 0.1,
@@ -99,10 +108,14 @@ fn drive() -> (Drive<Pwm, Cs, Enc, Bus>, CascadeConfig) {
             max_noise_a: 0.1,
         }),
         sensor_check_reads: 4,
-        identification: None,
-        identify_at_start_up: false,
+        identification: identify_at_start_up.then(|| {
+            foc_core::calibration::identification::IdentificationConfig::new(7, 20_000.0, 1.0, 2.0)
+        }),
+        identify_at_start_up,
         speed_divider: 10,
         position_divider: 20,
+        angle_kind: kind,
+        stored: stored(&cfg),
     };
     let d = Drive::new(Pwm::default(), Cs::default(), Enc, Bus, cfg.current, life);
     (d, cfg)
@@ -193,4 +206,67 @@ fn break_between_reading_the_inputs_and_driving_the_bridge() {
     assert_eq!(d.stage().supervisor().first_fault(), Some(Fault::PwmError));
     d.step(&inputs);
     assert!(!d.pwm.on);
+}
+
+/// Start-up from reset: the events seen, whether the bridge ever conducted.
+fn start_up(d: &mut Drive<Pwm, Cs, Enc, Bus>, periods: u32) -> (Vec<Event>, bool) {
+    let inputs = Inputs::new(CommandSlot::INIT, 0.0);
+    let mut events = Vec::new();
+    let mut bridge_on = false;
+    for _ in 0..periods {
+        let out = d.step(&inputs);
+        bridge_on |= d.pwm.on;
+        events.extend(out.event);
+    }
+    (events, bridge_on)
+}
+
+fn permit(cfg: &CascadeConfig) -> Option<Calibrated> {
+    Calibrated::supplied(cfg.current.angle, cfg.current.current).ok()
+}
+
+#[test]
+fn a_stored_permit_calibrates_absolute_and_hall_sensors_at_boot_without_motion() {
+    for kind in [AngleKind::Absolute, AngleKind::Hall] {
+        // Identification at start-up is configured: the stored calibration
+        // replaces it.
+        let (mut d, _) = drive_with(kind, true, permit);
+        let (events, bridge_on) = start_up(&mut d, 20);
+        assert_eq!(d.lifecycle().phase(), Phase::Run, "{kind:?}");
+        assert!(d.status().calibrated, "{kind:?}: permit installed");
+        assert!(!bridge_on, "{kind:?}: no motion before the first command");
+        assert_eq!(events.last(), Some(&Event::CalibrationRestored), "{kind:?}");
+        assert!(!events.contains(&Event::IdentificationStarted), "{kind:?}");
+        // And it unlocks closed loop.
+        let mut slot = CommandSlot::INIT;
+        slot.post(Command::Torque { iq_a: 1.0 });
+        d.step(&Inputs::new(slot, 0.0));
+        assert!(d.pwm.on, "{kind:?}: torque accepted");
+    }
+}
+
+#[test]
+fn an_incremental_encoder_ignores_a_stored_zero() {
+    // Without start-up identification: uncalibrated, closed loop refused.
+    let (mut d, _) = drive_with(AngleKind::Incremental, false, permit);
+    let (events, bridge_on) = start_up(&mut d, 20);
+    assert_eq!(d.lifecycle().phase(), Phase::Run);
+    assert!(!d.status().calibrated);
+    assert!(!bridge_on);
+    assert_eq!(events.last(), Some(&Event::StartUpDone));
+    // With it: the identification runs as if nothing were stored.
+    let (mut d, _) = drive_with(AngleKind::Incremental, true, permit);
+    let (events, _) = start_up(&mut d, 20);
+    assert_eq!(events.last(), Some(&Event::IdentificationStarted));
+    assert_eq!(d.lifecycle().phase(), Phase::Identify);
+}
+
+#[test]
+fn no_stored_permit_means_start_up_as_before() {
+    for kind in [AngleKind::Absolute, AngleKind::Hall, AngleKind::Incremental] {
+        let (mut d, _) = drive_with(kind, false, |_| None);
+        let (events, _) = start_up(&mut d, 20);
+        assert!(!d.status().calibrated, "{kind:?}");
+        assert_eq!(events.last(), Some(&Event::StartUpDone), "{kind:?}");
+    }
 }

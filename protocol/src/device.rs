@@ -30,6 +30,7 @@
 //! assert_eq!(ctx.posted, Some(Command::Torque { iq_a: 1.0 }));
 //! ```
 
+use crate::config::{Chunk, ConfigSource, Staging, StoreOp, MAX_RECORD};
 use crate::frame::{
     encode, FrameDecoder, FrameError, FrameErrorKind, Packet, MAX_FRAME, MAX_PAYLOAD,
 };
@@ -122,6 +123,34 @@ pub trait DeviceContext {
     fn telemetry(&self) -> Telemetry;
     /// Firmware version `[major, minor, patch]`.
     fn firmware_version(&self) -> [u8; 3];
+    /// The live or the stored configuration record, encoded into `out`:
+    /// its length. `link` is the link-watchdog setting in force (part of
+    /// the live record). Default: no store, [`ErrorCode::Unsupported`].
+    fn config_record(
+        &mut self,
+        source: ConfigSource,
+        link: WatchdogConfig,
+        out: &mut [u8; MAX_RECORD],
+    ) -> Result<usize, ErrorCode> {
+        let _ = (source, link, out);
+        Err(ErrorCode::Unsupported)
+    }
+    /// Run a store operation (only called while started and disabled).
+    /// `staged` is the whole record the host wrote, for the `Apply`
+    /// operations (empty otherwise); `link` the link-watchdog setting in
+    /// force, saved with the configuration. An applied record is validated
+    /// whole before anything changes; its link-watchdog setting is
+    /// returned for the protocol to take. Default: no store,
+    /// [`ErrorCode::Unsupported`].
+    fn store(
+        &mut self,
+        op: StoreOp,
+        staged: &[u8],
+        link: WatchdogConfig,
+    ) -> Result<Option<WatchdogConfig>, ErrorCode> {
+        let _ = (op, staged, link);
+        Err(ErrorCode::Unsupported)
+    }
 }
 
 /// Link watchdog: counts current-loop periods since the last valid command
@@ -233,6 +262,8 @@ pub struct DeviceState {
     auto_watchdog: WatchdogConfig,
     /// The host sent `SetWatchdog` (its choice stands, `OFF` included).
     host_configured: bool,
+    /// A configuration record being written by the host.
+    staging: Staging,
 }
 
 impl Default for DeviceState {
@@ -317,6 +348,7 @@ impl DeviceState {
             last_command: None,
             auto_watchdog: WatchdogConfig::OFF,
             host_configured: false,
+            staging: Staging::new(),
         }
     }
 
@@ -342,6 +374,27 @@ impl DeviceState {
     /// The link watchdog.
     pub const fn watchdog(&self) -> &CommandWatchdog {
         &self.watchdog
+    }
+
+    /// The link-watchdog setting a saved configuration carries: the host's
+    /// (`SetWatchdog`), or the automatic one.
+    pub const fn link_setting(&self) -> WatchdogConfig {
+        if self.host_configured {
+            self.watchdog.config()
+        } else {
+            self.auto_watchdog
+        }
+    }
+
+    /// Take the link-watchdog setting of an applied configuration: the
+    /// automatic one stays automatic, anything else is as if the host had
+    /// sent it.
+    fn adopt_link_setting(&mut self, c: WatchdogConfig) {
+        if !self.host_configured && c == self.auto_watchdog {
+            return;
+        }
+        self.host_configured = true;
+        self.watchdog.configure(c);
     }
 
     /// Telemetry divider in force (periods; 0 = off).
@@ -612,7 +665,66 @@ impl DeviceState {
                 self.telemetry_every = 0;
                 Ok(Response::Ack)
             }
+            Request::ReadConfig { source, offset } => self.read_config(ctx, source, offset),
+            Request::WriteConfig(chunk) => {
+                self.staging.write(&chunk).map_err(nack)?;
+                Ok(Response::Ack)
+            }
+            Request::Store(op) => self.store(ctx, op),
         }
+    }
+
+    fn read_config<C: DeviceContext>(
+        &mut self,
+        ctx: &mut C,
+        source: ConfigSource,
+        offset: u16,
+    ) -> Result<Response, Response> {
+        // Reading the store may repair it (a write): not while running.
+        if source == ConfigSource::Stored {
+            ctx.status()
+                .check_config()
+                .map_err(|r| Response::Nack(r.into()))?;
+        }
+        let mut buf = [0u8; MAX_RECORD];
+        let n = ctx
+            .config_record(source, self.link_setting(), &mut buf)
+            .map_err(Response::Nack)?;
+        let record = buf.get(..n).ok_or(Response::Nack(ErrorCode::BadRecord))?;
+        if usize::from(offset) > n {
+            return Err(out_of_range(1));
+        }
+        Chunk::of(record, offset)
+            .map(Response::ConfigChunk)
+            .ok_or(Response::Nack(ErrorCode::BadRecord))
+    }
+
+    fn store<C: DeviceContext>(&mut self, ctx: &mut C, op: StoreOp) -> Result<Response, Response> {
+        ctx.status()
+            .check_config()
+            .map_err(|r| Response::Nack(r.into()))?;
+        let mut staged = [0u8; MAX_RECORD];
+        let mut n = 0;
+        if op.uses_staged() {
+            let rec = self
+                .staging
+                .complete()
+                .ok_or(Response::Nack(ErrorCode::BadRecord))?;
+            n = rec.len();
+            staged
+                .get_mut(..n)
+                .ok_or(Response::Nack(ErrorCode::BadRecord))?
+                .copy_from_slice(rec);
+            // Applied or refused, a staged record is used once.
+            self.staging.clear();
+        }
+        let link = ctx
+            .store(op, staged.get(..n).unwrap_or(&[]), self.link_setting())
+            .map_err(Response::Nack)?;
+        if let Some(c) = link {
+            self.adopt_link_setting(c);
+        }
+        Ok(Response::Ack)
     }
 }
 
@@ -659,6 +771,24 @@ pub mod tests_support {
         pub pwm_hz: f32,
         /// Telemetry sample returned.
         pub sample: Telemetry,
+        /// Length of the configuration record it reports (bytes `i * 7 + 3`;
+        /// 0: no store, `Unsupported`).
+        pub record_len: usize,
+        /// The last store operation run.
+        pub last_store: Option<StoreOp>,
+        /// The staged record it was given (first `staged_len` bytes).
+        pub staged: [u8; MAX_RECORD],
+        /// Length of `staged`.
+        pub staged_len: usize,
+        /// The link-watchdog setting it was given last.
+        pub link: Option<WatchdogConfig>,
+        /// The link-watchdog setting an applied record carries.
+        pub applied_link: Option<WatchdogConfig>,
+    }
+
+    /// Byte `i` of [`RecordingContext`]'s configuration record.
+    pub const fn record_byte(i: usize) -> u8 {
+        (i.wrapping_mul(7).wrapping_add(3)) as u8
     }
 
     impl Default for RecordingContext {
@@ -688,6 +818,12 @@ pub mod tests_support {
                 refuse: None,
                 pwm_hz: 20_000.0,
                 sample: Telemetry::ZERO,
+                record_len: 0,
+                last_store: None,
+                staged: [0; MAX_RECORD],
+                staged_len: 0,
+                link: None,
+                applied_link: None,
             }
         }
     }
@@ -782,6 +918,40 @@ pub mod tests_support {
         }
         fn firmware_version(&self) -> [u8; 3] {
             [0, 1, 0]
+        }
+        fn config_record(
+            &mut self,
+            _source: ConfigSource,
+            link: WatchdogConfig,
+            out: &mut [u8; MAX_RECORD],
+        ) -> Result<usize, ErrorCode> {
+            if self.record_len == 0 {
+                return Err(ErrorCode::Unsupported);
+            }
+            self.link = Some(link);
+            for (i, b) in out.iter_mut().enumerate().take(self.record_len) {
+                *b = record_byte(i);
+            }
+            Ok(self.record_len.min(MAX_RECORD))
+        }
+        fn store(
+            &mut self,
+            op: StoreOp,
+            staged: &[u8],
+            link: WatchdogConfig,
+        ) -> Result<Option<WatchdogConfig>, ErrorCode> {
+            self.mutate().map_err(ErrorCode::from)?;
+            self.last_store = Some(op);
+            self.link = Some(link);
+            self.staged_len = staged.len();
+            if let Some(dst) = self.staged.get_mut(..staged.len()) {
+                dst.copy_from_slice(staged);
+            }
+            Ok(if matches!(op, StoreOp::Save | StoreOp::Erase) {
+                None
+            } else {
+                self.applied_link
+            })
         }
     }
 }

@@ -56,6 +56,7 @@
     )
 )]
 
+pub mod config;
 pub mod device;
 pub mod frame;
 pub mod message;

@@ -24,6 +24,9 @@
 //! | 0x24 | `ReadTelemetry` | - | `Telemetry` (one sample, `seq` echoed) |
 //! | 0x30 | `StartTelemetry` | `kind:u8` (0 every K periods, 1 rate in Hz), `value:u32 K` or `f32 Hz` | `Ack` |
 //! | 0x31 | `StopTelemetry` | - | `Ack` |
+//! | 0x40 | `ReadConfig` | `source:u8` (0 live, 1 stored) `offset:u16` | `ConfigChunk` |
+//! | 0x41 | `WriteConfig` | a chunk: `offset:u16 total:u16 len:u8` then `len` (<= 48) record bytes | `Ack` (staged) |
+//! | 0x42 | `Store` | `op:u8` (0 save, 1 load, 2 erase, 3 apply staged, 4 apply staged and save) | `Ack` (done) |
 //!
 //! Device to host ([`Response`]):
 //!
@@ -36,6 +39,7 @@
 //! | 0x84 | `Param` | `id:u8 value:f32` |
 //! | 0x85 | `Telemetry` | `period:u32 i_d_a i_q_a v_d_v v_q_v velocity_rad_s position_rad (f32) mode:u8 fault:u8 max_loop_cycles:u32 v_bus_v:f32` (reply to `ReadTelemetry`) |
 //! | 0x86 | `Stream` | as `Telemetry`; unsolicited, after `StartTelemetry`, `seq` = wrapping stream counter |
+//! | 0x87 | `ConfigChunk` | a chunk, as in `WriteConfig` (see [`crate::config`]) |
 //!
 //! A frame-level error (bad CRC, bad COBS, too long, too short) cannot be
 //! trusted to carry a sequence number: its Nack goes out with `seq = 0`, and
@@ -43,6 +47,7 @@
 //! it is never taken for a reply) and a wrapping stream counter in `seq` (so
 //! the host can count lost frames).
 
+pub use crate::config::{Chunk, ConfigSource, StoreOp};
 pub use crate::wire::DecodeError;
 use crate::wire::{Reader, Writer};
 use foc_core::angle::ElectricalAngle;
@@ -269,6 +274,13 @@ pub enum ErrorCode {
     NotDisabled,
     /// Not supported by this device.
     Unsupported,
+    /// The flash store failed (flash error, corrupt, full).
+    StoreFailed,
+    /// A configuration record was refused: incomplete, bad checksum,
+    /// unknown version, or a value out of range (nothing applied).
+    BadRecord,
+    /// Nothing is stored.
+    NothingStored,
     /// A code this version does not know (decoding only).
     Other(u8),
 }
@@ -286,6 +298,9 @@ impl ErrorCode {
             Self::NotCalibrated => (7, 0),
             Self::NotDisabled => (8, 0),
             Self::Unsupported => (9, 0),
+            Self::StoreFailed => (10, 0),
+            Self::BadRecord => (11, 0),
+            Self::NothingStored => (12, 0),
             Self::Other(c) => (c, 0),
         }
     }
@@ -301,6 +316,9 @@ impl ErrorCode {
             7 => Self::NotCalibrated,
             8 => Self::NotDisabled,
             9 => Self::Unsupported,
+            10 => Self::StoreFailed,
+            11 => Self::BadRecord,
+            12 => Self::NothingStored,
             c => Self::Other(c),
         }
     }
@@ -476,6 +494,17 @@ pub enum Request {
     StartTelemetry(TelemetryRate),
     /// Stop streaming.
     StopTelemetry,
+    /// A chunk of the live or the stored configuration record.
+    ReadConfig {
+        /// Which record.
+        source: ConfigSource,
+        /// From this byte on.
+        offset: u16,
+    },
+    /// Stage a chunk of a configuration record (applied by `Store`).
+    WriteConfig(Chunk),
+    /// A store operation (only while started and disabled).
+    Store(StoreOp),
 }
 
 impl Request {
@@ -484,7 +513,11 @@ impl Request {
     pub const fn is_query(&self) -> bool {
         matches!(
             self,
-            Request::Ping | Request::ReadFaults | Request::ReadParam(_) | Request::ReadTelemetry
+            Request::Ping
+                | Request::ReadFaults
+                | Request::ReadParam(_)
+                | Request::ReadTelemetry
+                | Request::ReadConfig { .. }
         )
     }
 }
@@ -542,6 +575,20 @@ fn get_command(r: &mut Reader<'_>) -> Result<Command, DecodeError> {
     })
 }
 
+fn put_chunk(w: &mut Writer<'_>, c: &Chunk) {
+    w.u16(c.offset);
+    w.u16(c.total);
+    w.u8(c.data().len() as u8);
+    w.bytes(c.data());
+}
+
+fn get_chunk(r: &mut Reader<'_>) -> Result<Chunk, DecodeError> {
+    let offset = r.u16()?;
+    let total = r.u16()?;
+    let len = r.u8()?;
+    Chunk::new(offset, total, r.slice(usize::from(len))?).ok_or(DecodeError::BadField(2))
+}
+
 mod tags {
     pub const PING: u8 = 0x01;
     pub const KEEP_ALIVE: u8 = 0x02;
@@ -559,6 +606,9 @@ mod tags {
     pub const READ_TELEMETRY: u8 = 0x24;
     pub const START_TELEMETRY: u8 = 0x30;
     pub const STOP_TELEMETRY: u8 = 0x31;
+    pub const READ_CONFIG: u8 = 0x40;
+    pub const WRITE_CONFIG: u8 = 0x41;
+    pub const STORE: u8 = 0x42;
 
     pub const ACK: u8 = 0x80;
     pub const NACK: u8 = 0x81;
@@ -567,6 +617,7 @@ mod tags {
     pub const PARAM: u8 = 0x84;
     pub const TELEMETRY: u8 = 0x85;
     pub const STREAM: u8 = 0x86;
+    pub const CONFIG_CHUNK: u8 = 0x87;
 }
 
 impl Message for Request {
@@ -589,6 +640,9 @@ impl Message for Request {
             Request::ReadTelemetry => READ_TELEMETRY,
             Request::StartTelemetry(_) => START_TELEMETRY,
             Request::StopTelemetry => STOP_TELEMETRY,
+            Request::ReadConfig { .. } => READ_CONFIG,
+            Request::WriteConfig(_) => WRITE_CONFIG,
+            Request::Store(_) => STORE,
         }
     }
 
@@ -644,6 +698,12 @@ impl Message for Request {
                     w.f32(hz);
                 }
             },
+            Request::ReadConfig { source, offset } => {
+                w.u8(*source as u8);
+                w.u16(*offset);
+            }
+            Request::WriteConfig(c) => put_chunk(w, c),
+            Request::Store(op) => w.u8(*op as u8),
         }
     }
 
@@ -703,6 +763,12 @@ impl Message for Request {
                 _ => return Err(DecodeError::BadField(0)),
             }),
             STOP_TELEMETRY => Request::StopTelemetry,
+            READ_CONFIG => Request::ReadConfig {
+                source: ConfigSource::from_code(r.u8()?).ok_or(DecodeError::BadField(0))?,
+                offset: r.u16()?,
+            },
+            WRITE_CONFIG => Request::WriteConfig(get_chunk(r)?),
+            STORE => Request::Store(StoreOp::from_code(r.u8()?).ok_or(DecodeError::BadField(0))?),
             _ => return Err(DecodeError::UnknownTag),
         })
     }
@@ -731,6 +797,8 @@ pub enum Response {
     Telemetry(Telemetry),
     /// A streamed telemetry sample (unsolicited; `seq` is a stream counter).
     Stream(Telemetry),
+    /// A chunk of a configuration record (reply to `ReadConfig`).
+    ConfigChunk(Chunk),
 }
 
 impl Message for Response {
@@ -744,6 +812,7 @@ impl Message for Response {
             Response::Param { .. } => PARAM,
             Response::Telemetry(_) => TELEMETRY,
             Response::Stream(_) => STREAM,
+            Response::ConfigChunk(_) => CONFIG_CHUNK,
         }
     }
 
@@ -781,6 +850,7 @@ impl Message for Response {
                 w.u32(t.max_loop_cycles);
                 w.f32(t.v_bus_v);
             }
+            Response::ConfigChunk(c) => put_chunk(w, c),
         }
     }
 
@@ -808,6 +878,7 @@ impl Message for Response {
             },
             TELEMETRY => Response::Telemetry(get_telemetry(r)?),
             STREAM => Response::Stream(get_telemetry(r)?),
+            CONFIG_CHUNK => Response::ConfigChunk(get_chunk(r)?),
             _ => return Err(DecodeError::UnknownTag),
         })
     }

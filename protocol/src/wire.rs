@@ -103,6 +103,12 @@ impl<'a> Reader<'a> {
         self.buf = rest;
         Ok(out)
     }
+    /// Read `n` bytes.
+    pub fn slice(&mut self, n: usize) -> Result<&'a [u8], DecodeError> {
+        let (head, rest) = self.buf.split_at_checked(n).ok_or(DecodeError::Short)?;
+        self.buf = rest;
+        Ok(head)
+    }
     /// Read a byte.
     pub fn u8(&mut self) -> Result<u8, DecodeError> {
         Ok(u8::from_le_bytes(self.take::<1>()?))

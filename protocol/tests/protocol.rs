@@ -3,6 +3,7 @@
 use foc_core::angle::ElectricalAngle;
 use foc_core::control::stage::TimeoutReaction;
 use foc_core::control::{Command, Fault, FaultSet, Limits, Mode};
+use foc_protocol::config::{Chunk, ConfigSource, StoreOp};
 use foc_protocol::device::tests_support::RecordingContext;
 use foc_protocol::device::{CommandWatchdog, DeviceState, WatchdogConfig};
 use foc_protocol::frame::{
@@ -100,6 +101,17 @@ fn all_requests() -> Vec<Request> {
         Request::StartTelemetry(TelemetryRate::EveryPeriods(200)),
         Request::StartTelemetry(TelemetryRate::Hz(100.0)),
         Request::StopTelemetry,
+        Request::ReadConfig {
+            source: ConfigSource::Stored,
+            offset: 96,
+        },
+        Request::WriteConfig(Chunk::new(48, 130, &[0xA5; 48]).unwrap()),
+        Request::WriteConfig(Chunk::new(96, 130, &[1, 2, 3]).unwrap()),
+        Request::Store(StoreOp::Save),
+        Request::Store(StoreOp::Load),
+        Request::Store(StoreOp::Erase),
+        Request::Store(StoreOp::Apply),
+        Request::Store(StoreOp::ApplyAndSave),
     ]
 }
 
@@ -108,6 +120,11 @@ fn all_responses() -> Vec<Response> {
         Response::Ack,
         Response::Nack(ErrorCode::Malformed),
         Response::Nack(ErrorCode::BadCrc),
+        Response::Nack(ErrorCode::StoreFailed),
+        Response::Nack(ErrorCode::BadRecord),
+        Response::Nack(ErrorCode::NothingStored),
+        Response::ConfigChunk(Chunk::new(0, 200, &[0x00; 48]).unwrap()),
+        Response::ConfigChunk(Chunk::new(192, 200, &[7; 8]).unwrap()),
         Response::Nack(ErrorCode::UnknownMessage),
         Response::Nack(ErrorCode::OutOfRange { field: 3 }),
         Response::Nack(ErrorCode::Faulted),
@@ -156,7 +173,7 @@ fn every_message_round_trips() {
     tags.extend(all_responses().iter().map(Message::tag));
     tags.sort();
     tags.dedup();
-    assert_eq!(tags.len(), 16 + 7);
+    assert_eq!(tags.len(), 19 + 8);
 }
 
 #[test]
@@ -956,4 +973,197 @@ fn closed_loop_command_arms_the_link_watchdog_stop_then_disable() {
         Response::Ack
     );
     assert_eq!(dev.watchdog().config(), WatchdogConfig::OFF);
+}
+
+mod config_transfer {
+    use foc_core::control::stage::TimeoutReaction;
+    use foc_core::control::Mode;
+    use foc_protocol::config::{Chunk, ConfigSource, StoreOp, CHUNK_BYTES};
+    use foc_protocol::device::tests_support::{record_byte, RecordingContext};
+    use foc_protocol::message::{ErrorCode, Request, Response};
+    use foc_protocol::{DeviceState, WatchdogConfig};
+
+    const AUTO: WatchdogConfig = WatchdogConfig {
+        timeout_periods: 20_000,
+        reaction: TimeoutReaction::Stop,
+    };
+
+    fn read_all(dev: &mut DeviceState, ctx: &mut RecordingContext) -> Vec<u8> {
+        let mut out = Vec::new();
+        let mut seq = 1;
+        loop {
+            let r = dev.handle(
+                ctx,
+                seq,
+                0,
+                &Request::ReadConfig {
+                    source: ConfigSource::Live,
+                    offset: out.len() as u16,
+                },
+            );
+            seq += 1;
+            let Response::ConfigChunk(c) = r else {
+                panic!("{r:?}")
+            };
+            assert_eq!(usize::from(c.offset), out.len());
+            out.extend_from_slice(c.data());
+            if out.len() >= usize::from(c.total) {
+                assert!(c.data().len() <= CHUNK_BYTES);
+                return out;
+            }
+        }
+    }
+
+    #[test]
+    fn a_record_is_read_in_chunks() {
+        let mut ctx = RecordingContext {
+            record_len: 130,
+            ..Default::default()
+        };
+        let mut dev = DeviceState::with_auto_watchdog(AUTO);
+        let rec = read_all(&mut dev, &mut ctx);
+        assert_eq!(rec, (0..130).map(record_byte).collect::<Vec<_>>());
+        // The live record carries the automatic link watchdog.
+        assert_eq!(ctx.link, Some(AUTO));
+        // Past the end: out of range, field 1 (the offset).
+        let r = dev.handle(
+            &mut ctx,
+            99,
+            0,
+            &Request::ReadConfig {
+                source: ConfigSource::Live,
+                offset: 131,
+            },
+        );
+        assert_eq!(r, Response::Nack(ErrorCode::OutOfRange { field: 1 }));
+        // A device without a store says so.
+        let mut bare = RecordingContext::default();
+        let r = dev.handle(
+            &mut bare,
+            100,
+            0,
+            &Request::ReadConfig {
+                source: ConfigSource::Live,
+                offset: 0,
+            },
+        );
+        assert_eq!(r, Response::Nack(ErrorCode::Unsupported));
+    }
+
+    fn write_all(dev: &mut DeviceState, ctx: &mut RecordingContext, rec: &[u8], seq0: u16) {
+        for (i, part) in rec.chunks(CHUNK_BYTES).enumerate() {
+            let c = Chunk::new((i * CHUNK_BYTES) as u16, rec.len() as u16, part).unwrap();
+            let r = dev.handle(ctx, seq0 + i as u16, i as u32, &Request::WriteConfig(c));
+            assert_eq!(r, Response::Ack);
+        }
+    }
+
+    #[test]
+    fn a_staged_record_reaches_the_device_whole_and_only_once() {
+        let mut ctx = RecordingContext::default();
+        let mut dev = DeviceState::new();
+        let rec: Vec<u8> = (0..200u32).map(|i| (i * 13) as u8).collect();
+        write_all(&mut dev, &mut ctx, &rec, 10);
+        // A retransmitted chunk is answered from the cache, not appended twice.
+        let last = Chunk::new(192, 200, &rec[192..]).unwrap();
+        assert_eq!(
+            dev.handle(&mut ctx, 10 + 4, 4, &Request::WriteConfig(last)),
+            Response::Ack
+        );
+        let r = dev.handle(&mut ctx, 50, 0, &Request::Store(StoreOp::ApplyAndSave));
+        assert_eq!(r, Response::Ack);
+        assert_eq!(ctx.last_store, Some(StoreOp::ApplyAndSave));
+        assert_eq!(&ctx.staged[..ctx.staged_len], &rec[..]);
+        // Used once: applying again finds nothing staged.
+        let calls = ctx.calls;
+        let r = dev.handle(&mut ctx, 51, 0, &Request::Store(StoreOp::Apply));
+        assert_eq!(r, Response::Nack(ErrorCode::BadRecord));
+        assert_eq!(ctx.calls, calls, "nothing handed on");
+    }
+
+    #[test]
+    fn an_incomplete_record_is_never_applied() {
+        let mut ctx = RecordingContext::default();
+        let mut dev = DeviceState::new();
+        let rec = [0x42u8; 100];
+        // Announces 100 bytes, sends 48.
+        let c = Chunk::new(0, 100, &rec[..48]).unwrap();
+        assert_eq!(
+            dev.handle(&mut ctx, 20, 0, &Request::WriteConfig(c)),
+            Response::Ack
+        );
+        let r = dev.handle(&mut ctx, 21, 0, &Request::Store(StoreOp::Apply));
+        assert_eq!(r, Response::Nack(ErrorCode::BadRecord));
+        assert_eq!(ctx.last_store, None);
+        // A chunk that skips ahead drops the staging.
+        let c = Chunk::new(0, 100, &rec[..48]).unwrap();
+        dev.handle(&mut ctx, 22, 0, &Request::WriteConfig(c));
+        let c = Chunk::new(96, 100, &rec[96..]).unwrap();
+        let r = dev.handle(&mut ctx, 23, 0, &Request::WriteConfig(c));
+        assert_eq!(r, Response::Nack(ErrorCode::OutOfRange { field: 0 }));
+    }
+
+    #[test]
+    fn store_operations_need_a_started_disabled_drive() {
+        let mut ctx = RecordingContext {
+            mode: Mode::Torque,
+            ..Default::default()
+        };
+        let mut dev = DeviceState::new();
+        for (i, op) in [StoreOp::Save, StoreOp::Load, StoreOp::Erase]
+            .into_iter()
+            .enumerate()
+        {
+            let r = dev.handle(&mut ctx, 1 + i as u16, 0, &Request::Store(op));
+            assert_eq!(r, Response::Nack(ErrorCode::NotDisabled));
+        }
+        let r = dev.handle(
+            &mut ctx,
+            9,
+            0,
+            &Request::ReadConfig {
+                source: ConfigSource::Stored,
+                offset: 0,
+            },
+        );
+        assert_eq!(r, Response::Nack(ErrorCode::NotDisabled));
+        assert_eq!(ctx.calls, 0);
+        assert_eq!(ctx.last_store, None);
+    }
+
+    #[test]
+    fn an_applied_record_sets_the_link_watchdog() {
+        let hold = WatchdogConfig {
+            timeout_periods: 5000,
+            reaction: TimeoutReaction::Hold,
+        };
+        let mut ctx = RecordingContext {
+            applied_link: Some(hold),
+            ..Default::default()
+        };
+        let mut dev = DeviceState::with_auto_watchdog(AUTO);
+        assert_eq!(dev.link_setting(), AUTO);
+        assert_eq!(
+            dev.handle(&mut ctx, 1, 0, &Request::Store(StoreOp::Load)),
+            Response::Ack
+        );
+        assert_eq!(dev.link_setting(), hold);
+        assert_eq!(dev.watchdog().config(), hold);
+        // Saving hands the setting in force to the store.
+        dev.handle(&mut ctx, 2, 0, &Request::Store(StoreOp::Save));
+        assert_eq!(ctx.link, Some(hold));
+        // A record carrying the automatic setting keeps it automatic.
+        let mut ctx = RecordingContext {
+            applied_link: Some(AUTO),
+            ..Default::default()
+        };
+        let mut dev = DeviceState::with_auto_watchdog(AUTO);
+        dev.handle(&mut ctx, 1, 0, &Request::Store(StoreOp::Load));
+        assert_eq!(
+            dev.watchdog().config(),
+            WatchdogConfig::OFF,
+            "not armed yet"
+        );
+        assert_eq!(dev.link_setting(), AUTO);
+    }
 }

@@ -166,6 +166,8 @@ pub fn lifecycle_config(sim: &Sim, setup: &Setup, cfg: IdentificationConfig) -> 
         identify_at_start_up: true,
         speed_divider: rates.speed_divider,
         position_divider: rates.position_divider,
+        angle_kind: foc_core::drive::AngleKind::Incremental,
+        stored: None,
     }
 }
 

@@ -154,6 +154,8 @@ impl Cascade {
             identify_at_start_up: false,
             speed_divider: config.rates.speed_divider,
             position_divider: config.rates.position_divider,
+            angle_kind: crate::drive::AngleKind::Incremental,
+            stored: None,
         };
         Self::with_lifecycle(config, Lifecycle::started(life))
     }

@@ -24,6 +24,7 @@
 
 use super::identify::{Identifier, Outcome};
 use super::rules::{ConfigChange, Refusal, Status};
+use super::AngleKind;
 use crate::calibration::identification::{IdentificationConfig, IdentificationResult, Stage};
 use crate::calibration::offsets::{OffsetCalibrator, OffsetError, OffsetLimits, OffsetStep};
 use crate::calibration::CalError;
@@ -63,6 +64,13 @@ pub struct LifecycleConfig {
     pub speed_divider: u16,
     /// Position loop every M periods (0 is taken as 1).
     pub position_divider: u16,
+    /// What the angle sensor knows at power-up.
+    pub angle_kind: AngleKind,
+    /// A calibration permit from the drive's store (design §17). Installed
+    /// at the end of start-up, in place of a start-up identification, when
+    /// [`AngleKind::zero_survives_reset`]; otherwise unused (an incremental
+    /// encoder's zero is wherever the rotor was at reset).
+    pub stored: Option<Calibrated>,
 }
 
 /// What the owner hands the drive each period.
@@ -108,6 +116,9 @@ pub enum Event {
     IdentificationStarted,
     /// The identification finished; its permit is installed.
     Identified(IdentificationResult),
+    /// Start-up finished with the stored calibration's permit installed
+    /// (no identification, no motion): disabled, waiting for a command.
+    CalibrationRestored,
     /// A routine failed (fault `CalibrationFailed` latched).
     IdentificationFailed(CalError, Stage),
     /// Stopped by a fault, or by an operator `Disable` (`None`).
@@ -435,12 +446,23 @@ impl Lifecycle {
             out.event = Some(Event::SensorCheckFailed);
         } else if n.saturating_add(1) < self.config.sensor_check_reads {
             self.phase = Phase::SensorCheck(n + 1);
+        } else if let Some(p) = self.stored_permit() {
+            stage.set_calibration(&p);
+            self.enter_run(stage);
+            out.event = Some(Event::CalibrationRestored);
         } else if self.config.identify_at_start_up && self.config.identification.is_some() {
             self.start_identification(stage, &inp.command, out);
         } else {
             self.enter_run(stage);
             out.event = Some(Event::StartUpDone);
         }
+    }
+
+    /// The stored permit, where the sensor's angle at boot makes it valid.
+    fn stored_permit(&self) -> Option<Calibrated> {
+        self.config
+            .stored
+            .filter(|_| self.config.angle_kind.zero_survives_reset())
     }
 
     /// From the start-up phases (bridge off, stage not stepped) to `Run`:

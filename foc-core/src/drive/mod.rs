@@ -41,6 +41,8 @@
 //!     identify_at_start_up: false,
 //!     speed_divider: 10,
 //!     position_divider: 20,
+//!     angle_kind: foc_core::drive::AngleKind::Incremental,
+//!     stored: None,
 //! };
 //! let mut drive = Drive::new(Pwm(false), Cs, Enc, Bus, cascade.current, life);
 //! let inputs = Inputs::new(CommandSlot::INIT, 0.0);
@@ -57,6 +59,34 @@ pub mod lifecycle;
 pub mod rules;
 
 pub use lifecycle::{Event, Inputs, Lifecycle, LifecycleConfig, Output, Phase};
+
+/// What the angle sensor knows at power-up. It decides what a stored
+/// calibration is worth at boot (design §17): the stored electrical zero
+/// is a sensor reading, so it only applies where the sensor reads the same
+/// angle for the same rotor position after every reset.
+///
+/// | kind | angle at boot | stored calibration at boot | motion before the first command |
+/// |---|---|---|---|
+/// | `Absolute` | known (e.g. AS5047P) | permit installed, no identification | none |
+/// | `Hall` | known to a sector (60 electrical degrees) | permit installed, no identification; coarse-angle start until the first edge | none |
+/// | `Incremental` | unknown (counts from 0 at reset) | motor model and gains only; the electrical zero needs an identification (or an index search) | that routine's |
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum AngleKind {
+    /// The sensor reads the absolute rotor angle from the first sample.
+    Absolute,
+    /// Hall sensors: the sector is known from the first sample.
+    Hall,
+    /// A counting encoder that starts from zero at reset.
+    Incremental,
+}
+
+impl AngleKind {
+    /// True when a stored electrical zero is still right after a reset.
+    pub const fn zero_survives_reset(self) -> bool {
+        matches!(self, AngleKind::Absolute | AngleKind::Hall)
+    }
+}
 pub use rules::{ConfigChange, Refusal, Status};
 
 use crate::control::drive::{apply, read_sample};
