@@ -513,3 +513,99 @@ fn commands_other_than_disable_are_busy_until_started() {
     assert_eq!(sim.cascade.command(open_loop), Err(CommandError::Busy));
     assert!(sim.cascade.command(Command::Disable).is_ok());
 }
+
+mod stored_calibration {
+    //! Identify once, boot ready (design §17): the permit an identification
+    //! gave on one power-on, handed to the lifecycle at the next one as the
+    //! store would, on the plant with an absolute sensor and the rotor
+    //! somewhere else.
+    use super::*;
+    use foc_bench::plant::AngleSensorKind;
+    use foc_core::calibration::Calibrated;
+    use foc_core::drive::AngleKind;
+
+    /// The emulated AS5047P's mounting offset [rad].
+    const MOUNTING_RAD: f32 = 0.9;
+
+    fn absolute_plant(s: &Setup, rotor_rad: f32) -> Plant {
+        let mut plant = Plant::new(s.motor, s.bench);
+        plant.set_angle_sensor(AngleSensorKind::Absolute {
+            mounting_offset_rad: MOUNTING_RAD.into(),
+        });
+        plant.start_rotor_at(rotor_rad.into());
+        plant
+    }
+
+    /// Power-on 1: identify from reset; the permit the stage holds after.
+    fn identified_permit(s: &Setup) -> Calibrated {
+        let mut sim = from_reset(s, absolute_plant(s, 0.0), true);
+        let limit = ((identify::TIME_LIMIT_S + 1.0) * s.pwm_hz()) as usize;
+        let seen = run_until(
+            &mut sim,
+            limit,
+            |_| None,
+            |e| matches!(e, Event::Identified(_) | Event::IdentificationFailed(..)),
+        );
+        assert!(matches!(seen.last(), Some((_, Event::Identified(_)))), "{seen:?}");
+        let c = sim.cascade.current.config();
+        Calibrated::supplied(c.angle, c.current).unwrap()
+    }
+
+    /// Power-on 2: from reset with `stored`, the sensor of `kind`.
+    fn boot(s: &Setup, plant: Plant, kind: AngleKind, stored: Calibrated) -> Sim {
+        let mut sim = Sim::with_plant(s, plant, s.cascade_config(), false);
+        let mut life = lifecycle_config(&sim, s, identify::config(s, s.motor.pole_pairs));
+        life.identify_at_start_up = true;
+        life.angle_kind = kind;
+        life.stored = Some(stored);
+        sim.cascade = Cascade::from_reset(*sim.cascade.config(), life);
+        sim
+    }
+
+    #[test]
+    fn an_absolute_sensor_boots_calibrated_without_motion_and_commutates_right() {
+        let s = dji();
+        let permit = identified_permit(&s);
+        let start_rad = 2.1;
+        let mut sim = boot(&s, absolute_plant(&s, start_rad), AngleKind::Absolute, permit);
+        let seen = run_until(&mut sim, 5000, |_| None, |e| *e == Event::CalibrationRestored);
+        let (period, _) = *seen.last().unwrap();
+        assert!(
+            !seen.iter().any(|(_, e)| *e == Event::IdentificationStarted),
+            "{seen:?}"
+        );
+        let ms = period as f64 * 1e3 / s.pwm_hz() as f64;
+        assert!(ms < 100.0, "calibrated {ms} ms after reset");
+        assert!(sim.cascade.is_calibrated());
+        let motion = (sim.plant.position_rad() as f64 - f64::from(start_rad)).abs();
+        assert!(motion < 0.01, "rotor moved {motion} rad before the first command");
+        // A torque command gives the torque the motor's constant says: the
+        // stored zero is right although the rotor started elsewhere.
+        let iq_a = 0.5 * s.max_current_a as f32;
+        sim.cascade.command(Command::Torque { iq_a }).unwrap();
+        let w0 = sim.plant.omega_m_rad_s() as f64;
+        let t_s = 0.02;
+        sim.run((t_s * s.pwm_hz() as f64) as usize);
+        let gained = sim.plant.omega_m_rad_s() as f64 - w0;
+        let kt = 1.5 * f64::from(s.motor.pole_pairs) * s.motor.flux_linkage_wb;
+        let ideal = kt * f64::from(iq_a) / s.motor.inertia_kg_m2 * t_s;
+        assert!(
+            gained > 0.8 * ideal && gained < 1.1 * ideal,
+            "speed gained {gained} rad/s, rigid rotor with ideal torque {ideal}"
+        );
+    }
+
+    #[test]
+    fn an_incremental_encoder_does_not_trust_a_stored_zero() {
+        let s = dji();
+        let permit = identified_permit(&s);
+        // Same motor, an incremental encoder: its zero is where the rotor
+        // was at power-on, so the stored zero would be wrong by 2.1 rad.
+        let mut plant = Plant::new(s.motor, s.bench);
+        plant.start_rotor_at(2.1);
+        let mut sim = boot(&s, plant, AngleKind::Incremental, permit);
+        let seen = run_until(&mut sim, 5000, |_| None, |e| *e == Event::IdentificationStarted);
+        assert!(!seen.iter().any(|(_, e)| *e == Event::CalibrationRestored));
+        assert!(!sim.cascade.is_calibrated());
+    }
+}

@@ -1,0 +1,54 @@
+//! The drive's persistent configuration and calibration.
+//!
+//! - [`record`]: the on-flash schema [`DriveRecord`], its versioned,
+//!   checksummed envelope and its validation.
+//! - [`settings`]: the live [`Settings`] and their conversion to and from a
+//!   record.
+//! - [`store`]: [`Store`], the record in a power-fail-safe log over NOR
+//!   flash (sequential-storage's map).
+//! - `fake` (tests, feature `fake`): a RAM NOR flash with power-cut
+//!   injection.
+//! - `text` (feature `std`): TOML export and import.
+//!
+//! `no_std`, no alloc, no unsafe, no panics.
+//!
+//! ```
+//! use foc_store::{fake::FakeFlash, DriveRecord, Store, MAX_RECORD_BYTES};
+//! # let record = foc_store::record::example();
+//! let mut store = Store::new(FakeFlash::<4, 1024, 1>::new(), 0..4096).unwrap();
+//! store.save(&record).unwrap();
+//! let loaded: Option<DriveRecord> = store.load().unwrap();
+//! assert_eq!(loaded, Some(record));
+//! ```
+#![no_std]
+#![forbid(unsafe_code)]
+#![warn(missing_docs)]
+#![cfg_attr(
+    not(test),
+    deny(
+        clippy::unwrap_used,
+        clippy::expect_used,
+        clippy::panic,
+        clippy::indexing_slicing,
+        clippy::unreachable,
+        clippy::todo
+    )
+)]
+
+#[cfg(any(test, feature = "std"))]
+extern crate std;
+
+#[cfg(any(test, feature = "fake"))]
+pub mod fake;
+pub mod record;
+pub mod settings;
+pub mod store;
+#[cfg(feature = "std")]
+pub mod text;
+
+#[cfg(test)]
+mod tests;
+
+pub use record::{DriveRecord, Invalid, Label, RecordError, MAX_RECORD_BYTES, SCHEMA_VERSION};
+pub use settings::Settings;
+pub use store::{Store, StoreError};

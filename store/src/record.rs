@@ -1,0 +1,634 @@
+//! The on-flash schema ([`DriveRecord`]), its envelope and its validation.
+//!
+//! These are plain structs, deliberately separate from foc-core's types: a
+//! change to foc-core never silently changes what is stored. Nothing that
+//! makes the bridge start by itself is stored (no command, no mode).
+//!
+//! # Envelope
+//!
+//! The bytes stored as the map value:
+//!
+//! ```text
+//! version:u16 LE | len:u16 LE | postcard(DriveRecord) (len bytes) | crc32:u32 LE
+//! ```
+//!
+//! The CRC is CRC-32/ISO-HDLC (the Ethernet/zlib CRC) over
+//! `version | len | payload`. [`DriveRecord::decode`] checks the length, the
+//! CRC, then the version, and never returns a partially decoded record.
+//!
+//! ```
+//! use foc_store::record::{DriveRecord, MAX_RECORD_BYTES};
+//! # let r = foc_store::record::example();
+//! let mut buf = [0u8; MAX_RECORD_BYTES];
+//! let n = r.encode(&mut buf).unwrap();
+//! assert_eq!(DriveRecord::decode(&buf[..n]), Ok(r));
+//! assert!(DriveRecord::decode(&buf[..n - 1]).is_err());
+//! ```
+
+use core::f32::consts::TAU;
+use core::fmt;
+
+use foc_core::angle::ElectricalAngle;
+use foc_core::control::current::CurrentLoopConfig;
+use foc_core::control::permit::Calibrated;
+use foc_core::control::stage::AngleCalibration;
+use foc_core::control::{Limits, LimitsError, MotorParams};
+use foc_core::pi::AntiWindup;
+use foc_core::tuning::CurrentPiGains;
+use serde::{Deserialize, Serialize};
+
+/// Version of the schema written by this build ([`DriveRecord`]'s postcard
+/// layout). Bump it on any change of the layout and add a migration step in
+/// `migrate` for the old version.
+pub const SCHEMA_VERSION: u16 = 1;
+
+/// Largest envelope (header, payload and CRC) in bytes.
+pub const MAX_RECORD_BYTES: usize = 256;
+
+/// Bytes of the envelope around the payload: version, length, CRC.
+const HEADER_BYTES: usize = 4;
+const CRC_BYTES: usize = 4;
+
+const CRC32: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
+
+/// A user label: printable ASCII, at most 32 bytes.
+pub type Label = heapless::String<32>;
+
+/// Motor parameters (as identified or supplied).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MotorRecord {
+    /// Pole pairs (>= 1).
+    pub pole_pairs: u8,
+    /// Phase resistance [ohm] (> 0).
+    pub r_ohm: f32,
+    /// d-axis inductance [H] (> 0).
+    pub ld_h: f32,
+    /// q-axis inductance [H] (> 0).
+    pub lq_h: f32,
+    /// Permanent-magnet flux linkage [Wb] (>= 0).
+    pub flux_linkage_wb: f32,
+}
+
+/// Current-loop PI gains of both axes (all > 0).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CurrentGainsRecord {
+    /// d-axis proportional gain [V/A].
+    pub kp_d_v_per_a: f32,
+    /// d-axis integral gain [V/(A s)].
+    pub ki_d_v_per_a_s: f32,
+    /// q-axis proportional gain [V/A].
+    pub kp_q_v_per_a: f32,
+    /// q-axis integral gain [V/(A s)].
+    pub ki_q_v_per_a_s: f32,
+}
+
+/// The identified angle calibration.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AngleRecord {
+    /// Electrical angle the sensor reads when the rotor d axis is on phase A
+    /// [rad, electrical], in `[0, 2 pi)`.
+    pub zero_offset_e_rad: f32,
+    /// True when the sensor counts backwards relative to A -> B -> C.
+    pub reversed: bool,
+    /// Pole pairs (must equal the motor's).
+    pub pole_pairs: u8,
+    /// Counts per mechanical turn of a counting sensor, 0 if unknown.
+    pub sensor_counts_per_rev: u32,
+}
+
+/// Command limits (checked by foc-core's `Limits::validate`).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LimitsRecord {
+    /// Largest q-current reference [A].
+    pub max_current_a: f32,
+    /// Largest velocity [rad/s, mechanical].
+    pub max_velocity_rad_s: f32,
+    /// Lower end of the position range [rad, mechanical].
+    pub min_position_rad: f32,
+    /// Upper end of the position range [rad, mechanical].
+    pub max_position_rad: f32,
+    /// Largest open-loop voltage magnitude [V].
+    pub max_open_loop_voltage_v: f32,
+    /// Largest open-loop electrical speed [rad/s].
+    pub max_open_loop_omega_e_rad_s: f32,
+}
+
+/// Speed-loop PI gains (>= 0).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SpeedRecord {
+    /// Proportional gain [A / (rad/s)].
+    pub kp_a_per_rad_s: f32,
+    /// Integral gain [A / rad].
+    pub ki_a_per_rad: f32,
+}
+
+/// Position loop and trajectory.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PositionRecord {
+    /// Proportional gain [(rad/s) / rad] (> 0).
+    pub kp_per_s: f32,
+    /// Trajectory velocity limit [rad/s] (> 0, at most the limits' one).
+    pub max_velocity_rad_s: f32,
+    /// Trajectory acceleration limit [rad/s^2] (> 0).
+    pub max_acceleration_rad_s2: f32,
+}
+
+/// Loop rate dividers [current-loop periods per run] (>= 1).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DividersRecord {
+    /// The speed loop runs every `speed` current-loop periods.
+    pub speed: u16,
+    /// The position loop runs every `position` current-loop periods.
+    pub position: u16,
+}
+
+/// What the command watchdog does when it expires.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum WatchdogReaction {
+    /// Latch a fault (bridge off).
+    Disable,
+    /// Switch to velocity 0.
+    Stop,
+    /// Hold the current position.
+    Hold,
+}
+
+/// The command watchdog.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[serde(deny_unknown_fields)]
+pub struct WatchdogRecord {
+    /// Current-loop periods without a command before the reaction (0 = off).
+    pub timeout_periods: u32,
+    /// The reaction.
+    pub reaction: WatchdogReaction,
+}
+
+/// Everything the drive keeps across power-off: configuration and the
+/// identified calibration (the on-flash schema, version [`SCHEMA_VERSION`]).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DriveRecord {
+    /// User label, printable ASCII.
+    pub label: Label,
+    /// The PWM rate the gains and watchdog periods were made for [Hz].
+    pub pwm_frequency_hz: u32,
+    /// Motor parameters.
+    pub motor: MotorRecord,
+    /// Current-loop gains.
+    pub current_gains: CurrentGainsRecord,
+    /// Angle calibration; `None`: never identified.
+    pub calibration: Option<AngleRecord>,
+    /// Command limits.
+    pub limits: LimitsRecord,
+    /// Speed loop.
+    pub speed: SpeedRecord,
+    /// Position loop.
+    pub position: PositionRecord,
+    /// Loop rate dividers.
+    pub dividers: DividersRecord,
+    /// Command watchdog.
+    pub watchdog: WatchdogRecord,
+}
+
+/// Why bytes are not a record (see [`DriveRecord::decode`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum RecordError {
+    /// Fewer bytes than the envelope's header and CRC, or than its length
+    /// field announces.
+    TooShort,
+    /// More bytes than the length field announces, more than
+    /// [`MAX_RECORD_BYTES`], or (encoding) an output buffer too small.
+    TooLong,
+    /// The envelope's CRC does not match its contents.
+    BadChecksum,
+    /// A schema version this build cannot read.
+    UnsupportedVersion {
+        /// Version in the envelope.
+        found: u16,
+        /// [`SCHEMA_VERSION`] of this build.
+        supported: u16,
+    },
+    /// The payload is not a record (postcard failed or left trailing bytes).
+    Malformed,
+}
+
+impl fmt::Display for RecordError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::TooShort => f.write_str("the stored record is truncated"),
+            Self::TooLong => f.write_str("the record is longer than its envelope or the buffer allows"),
+            Self::BadChecksum => f.write_str("the stored record's checksum does not match (corrupted)"),
+            Self::UnsupportedVersion { found, supported } => write!(
+                f,
+                "the stored record has schema version {found}, this firmware reads version {supported}"
+            ),
+            Self::Malformed => f.write_str("the stored record's contents cannot be decoded"),
+        }
+    }
+}
+
+/// A record value out of range: `field` is its TOML path (e.g. `"motor.r_ohm"`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Invalid {
+    /// The offending field, as its TOML path.
+    pub field: &'static str,
+}
+
+impl fmt::Display for Invalid {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "stored value `{}` is out of range", self.field)
+    }
+}
+
+fn invalid(field: &'static str) -> Invalid {
+    Invalid { field }
+}
+
+/// `Ok` when `ok`, else the field.
+fn check(ok: bool, field: &'static str) -> Result<(), Invalid> {
+    if ok {
+        Ok(())
+    } else {
+        Err(invalid(field))
+    }
+}
+
+fn positive(x: f32) -> bool {
+    x.is_finite() && x > 0.0
+}
+
+fn non_negative(x: f32) -> bool {
+    x.is_finite() && x >= 0.0
+}
+
+/// Upgrade the payload of an older schema version to a record of this one.
+///
+/// Today no older version exists (version 1 is the first), so every call
+/// refuses with [`RecordError::UnsupportedVersion`]. When the schema changes
+/// to version 2, keep the version-1 structs in a `v1` module and add here
+/// `1 => v1::decode(payload).map(v1_to_v2)`: each step converts one version
+/// to the next, so a v3 build chains `1 -> 2 -> 3`. A migrated record is
+/// validated by the caller like any other.
+fn migrate(found: u16, payload: &[u8]) -> Result<DriveRecord, RecordError> {
+    // No older version is known: nothing to read `payload` as.
+    let _ = payload;
+    Err(RecordError::UnsupportedVersion {
+        found,
+        supported: SCHEMA_VERSION,
+    })
+}
+
+fn le_u16(bytes: &[u8], at: usize) -> Option<u16> {
+    let b = bytes.get(at..at.checked_add(2)?)?;
+    Some(u16::from_le_bytes([*b.first()?, *b.get(1)?]))
+}
+
+impl DriveRecord {
+    /// Write the envelope into `out`; returns the number of bytes used.
+    /// [`RecordError::TooLong`] when it does not fit in `out` or exceeds
+    /// [`MAX_RECORD_BYTES`]. Does not validate (see [`Self::validate`]).
+    pub fn encode(&self, out: &mut [u8]) -> Result<usize, RecordError> {
+        let limit = out.len().min(MAX_RECORD_BYTES);
+        let out = out.get_mut(..limit).ok_or(RecordError::TooLong)?;
+        let payload_room = limit
+            .checked_sub(HEADER_BYTES + CRC_BYTES)
+            .ok_or(RecordError::TooLong)?;
+        let payload_len = {
+            let room = out
+                .get_mut(HEADER_BYTES..HEADER_BYTES + payload_room)
+                .ok_or(RecordError::TooLong)?;
+            postcard::to_slice(self, room)
+                .map_err(|_| RecordError::TooLong)?
+                .len()
+        };
+        let len = u16::try_from(payload_len).map_err(|_| RecordError::TooLong)?;
+        let header = out.get_mut(..HEADER_BYTES).ok_or(RecordError::TooLong)?;
+        header.copy_from_slice(&[
+            SCHEMA_VERSION.to_le_bytes()[0],
+            SCHEMA_VERSION.to_le_bytes()[1],
+            len.to_le_bytes()[0],
+            len.to_le_bytes()[1],
+        ]);
+        let body_end = HEADER_BYTES + payload_len;
+        let crc = CRC32.checksum(out.get(..body_end).ok_or(RecordError::TooLong)?);
+        out.get_mut(body_end..body_end + CRC_BYTES)
+            .ok_or(RecordError::TooLong)?
+            .copy_from_slice(&crc.to_le_bytes());
+        Ok(body_end + CRC_BYTES)
+    }
+
+    /// Read an envelope: length, then CRC, then version ([`SCHEMA_VERSION`]
+    /// decodes; a newer one is [`RecordError::UnsupportedVersion`]; an older
+    /// one goes through the migration steps, of which there are none yet).
+    /// `bytes` must be exactly one envelope. Does not validate.
+    pub fn decode(bytes: &[u8]) -> Result<DriveRecord, RecordError> {
+        if bytes.len() > MAX_RECORD_BYTES {
+            return Err(RecordError::TooLong);
+        }
+        let version = le_u16(bytes, 0).ok_or(RecordError::TooShort)?;
+        let len = usize::from(le_u16(bytes, 2).ok_or(RecordError::TooShort)?);
+        let body_end = HEADER_BYTES + len;
+        let total = body_end + CRC_BYTES;
+        if bytes.len() < total {
+            return Err(RecordError::TooShort);
+        }
+        if bytes.len() > total {
+            return Err(RecordError::TooLong);
+        }
+        let body = bytes.get(..body_end).ok_or(RecordError::TooShort)?;
+        let crc_bytes = bytes.get(body_end..total).ok_or(RecordError::TooShort)?;
+        let stored = u32::from_le_bytes(crc_bytes.try_into().map_err(|_| RecordError::TooShort)?);
+        if CRC32.checksum(body) != stored {
+            return Err(RecordError::BadChecksum);
+        }
+        let payload = body.get(HEADER_BYTES..).ok_or(RecordError::TooShort)?;
+        match version.cmp(&SCHEMA_VERSION) {
+            core::cmp::Ordering::Greater => Err(RecordError::UnsupportedVersion {
+                found: version,
+                supported: SCHEMA_VERSION,
+            }),
+            core::cmp::Ordering::Less => migrate(version, payload),
+            core::cmp::Ordering::Equal => match postcard::take_from_bytes::<DriveRecord>(payload) {
+                Ok((r, [])) => Ok(r),
+                _ => Err(RecordError::Malformed),
+            },
+        }
+    }
+
+    /// Check every value (see the module docs of [`crate::record`] and the
+    /// field docs); the error names the first bad field by its TOML path.
+    pub fn validate(&self) -> Result<(), Invalid> {
+        check(
+            self.label.bytes().all(|b| (0x20..=0x7e).contains(&b)),
+            "label",
+        )?;
+        check(self.pwm_frequency_hz > 0, "pwm_frequency_hz")?;
+
+        let m = &self.motor;
+        check(m.pole_pairs >= 1, "motor.pole_pairs")?;
+        check(positive(m.r_ohm), "motor.r_ohm")?;
+        check(positive(m.ld_h), "motor.ld_h")?;
+        check(positive(m.lq_h), "motor.lq_h")?;
+        check(non_negative(m.flux_linkage_wb), "motor.flux_linkage_wb")?;
+
+        let g = &self.current_gains;
+        check(positive(g.kp_d_v_per_a), "current_gains.kp_d_v_per_a")?;
+        check(positive(g.ki_d_v_per_a_s), "current_gains.ki_d_v_per_a_s")?;
+        check(positive(g.kp_q_v_per_a), "current_gains.kp_q_v_per_a")?;
+        check(positive(g.ki_q_v_per_a_s), "current_gains.ki_q_v_per_a_s")?;
+
+        self.limits.to_limits().validate().map_err(|e| {
+            invalid(match e {
+                LimitsError::MaxCurrent => "limits.max_current_a",
+                LimitsError::MaxVelocity => "limits.max_velocity_rad_s",
+                LimitsError::MinPosition => "limits.min_position_rad",
+                LimitsError::MaxPosition => "limits.max_position_rad",
+                LimitsError::OpenLoopVoltage => "limits.max_open_loop_voltage_v",
+                LimitsError::OpenLoopOmega => "limits.max_open_loop_omega_e_rad_s",
+            })
+        })?;
+
+        check(
+            non_negative(self.speed.kp_a_per_rad_s),
+            "speed.kp_a_per_rad_s",
+        )?;
+        check(non_negative(self.speed.ki_a_per_rad), "speed.ki_a_per_rad")?;
+
+        let p = &self.position;
+        check(positive(p.kp_per_s), "position.kp_per_s")?;
+        check(
+            positive(p.max_velocity_rad_s)
+                && p.max_velocity_rad_s <= self.limits.max_velocity_rad_s,
+            "position.max_velocity_rad_s",
+        )?;
+        check(
+            positive(p.max_acceleration_rad_s2),
+            "position.max_acceleration_rad_s2",
+        )?;
+
+        check(self.dividers.speed >= 1, "dividers.speed")?;
+        check(self.dividers.position >= 1, "dividers.position")?;
+
+        if let Some(c) = &self.calibration {
+            check(c.pole_pairs == m.pole_pairs, "calibration.pole_pairs")?;
+            check(
+                c.zero_offset_e_rad.is_finite() && (0.0..TAU).contains(&c.zero_offset_e_rad),
+                "calibration.zero_offset_e_rad",
+            )?;
+            // The same plausibility check the firmware applies before it
+            // unlocks the closed-loop modes with this calibration.
+            let current = CurrentLoopConfig {
+                ts_s: 1.0 / self.pwm_frequency_hz as f32,
+                d_gains: self.current_gains.d(),
+                q_gains: self.current_gains.q(),
+                motor: m.to_params(),
+                decoupling: true,
+                max_modulation: 0.95,
+                anti_windup: AntiWindup::Clamp,
+                delay_compensation_periods: 1.5,
+            };
+            Calibrated::supplied(c.to_calibration(), current)
+                .map_err(|_| invalid("calibration"))?;
+        }
+        Ok(())
+    }
+}
+
+impl MotorRecord {
+    /// The record of foc-core's motor parameters.
+    pub fn from_params(m: &MotorParams) -> Self {
+        Self {
+            pole_pairs: m.pole_pairs,
+            r_ohm: m.r_ohm,
+            ld_h: m.ld_h,
+            lq_h: m.lq_h,
+            flux_linkage_wb: m.flux_linkage_wb,
+        }
+    }
+
+    /// As foc-core's motor parameters.
+    pub fn to_params(&self) -> MotorParams {
+        MotorParams {
+            pole_pairs: self.pole_pairs,
+            r_ohm: self.r_ohm,
+            ld_h: self.ld_h,
+            lq_h: self.lq_h,
+            flux_linkage_wb: self.flux_linkage_wb,
+        }
+    }
+}
+
+impl CurrentGainsRecord {
+    /// The record of both axes' gains.
+    pub fn from_gains(d: &CurrentPiGains, q: &CurrentPiGains) -> Self {
+        Self {
+            kp_d_v_per_a: d.kp_v_per_a,
+            ki_d_v_per_a_s: d.ki_v_per_a_s,
+            kp_q_v_per_a: q.kp_v_per_a,
+            ki_q_v_per_a_s: q.ki_v_per_a_s,
+        }
+    }
+
+    /// The d-axis gains.
+    pub fn d(&self) -> CurrentPiGains {
+        CurrentPiGains {
+            kp_v_per_a: self.kp_d_v_per_a,
+            ki_v_per_a_s: self.ki_d_v_per_a_s,
+        }
+    }
+
+    /// The q-axis gains.
+    pub fn q(&self) -> CurrentPiGains {
+        CurrentPiGains {
+            kp_v_per_a: self.kp_q_v_per_a,
+            ki_v_per_a_s: self.ki_q_v_per_a_s,
+        }
+    }
+}
+
+/// One turn in units of the angle's least significant bit.
+const TURN_LSB: f64 = 4_294_967_296.0;
+
+/// Radians in `[0, 2 pi)` of an electrical angle, correctly rounded to f32
+/// (computed in f64, once at load or save, so the angle's 32 bits lose
+/// only the final rounding). An angle within half an f32 step of a full
+/// turn rounds to `2 pi`: it is stored as 0, the same angle wrapped.
+pub fn angle_to_e_rad(a: ElectricalAngle) -> f32 {
+    let r = (f64::from(a.to_bits()) * (core::f64::consts::TAU / TURN_LSB)) as f32;
+    if r < TAU {
+        r
+    } else {
+        0.0
+    }
+}
+
+/// The electrical angle of radians, rounded to the nearest of its 2^32
+/// steps (wrapping; non-finite gives zero). For radians in `[0.02, 2 pi)`,
+/// `angle_to_e_rad(e_rad_to_angle(r)) == r` exactly; below, within one
+/// angle step (1.5e-9 rad).
+pub fn e_rad_to_angle(rad: f32) -> ElectricalAngle {
+    if !rad.is_finite() {
+        return ElectricalAngle::ZERO;
+    }
+    let turns = f64::from(rad) / core::f64::consts::TAU;
+    // Fraction of a turn in [0, 1) (f32 radians are far below 2^63 turns).
+    let mut frac = turns - (turns as i64) as f64;
+    if frac < 0.0 {
+        frac += 1.0;
+    }
+    // Round to the nearest step; a full turn wraps to 0.
+    let steps = (frac * TURN_LSB + 0.5) as u64;
+    ElectricalAngle::from_bits(steps as u32)
+}
+
+impl AngleRecord {
+    /// The record of an angle calibration.
+    pub fn from_calibration(a: &AngleCalibration) -> Self {
+        Self {
+            zero_offset_e_rad: angle_to_e_rad(a.zero_offset),
+            reversed: a.reversed,
+            pole_pairs: a.pole_pairs,
+            sensor_counts_per_rev: a.sensor_counts_per_rev,
+        }
+    }
+
+    /// As foc-core's angle calibration.
+    pub fn to_calibration(&self) -> AngleCalibration {
+        AngleCalibration {
+            pole_pairs: self.pole_pairs,
+            zero_offset: e_rad_to_angle(self.zero_offset_e_rad),
+            reversed: self.reversed,
+            sensor_counts_per_rev: self.sensor_counts_per_rev,
+        }
+    }
+}
+
+impl LimitsRecord {
+    /// The record of foc-core's limits.
+    pub fn from_limits(l: &Limits) -> Self {
+        Self {
+            max_current_a: l.max_current_a,
+            max_velocity_rad_s: l.max_velocity_rad_s,
+            min_position_rad: l.min_position_rad,
+            max_position_rad: l.max_position_rad,
+            max_open_loop_voltage_v: l.max_open_loop_voltage_v,
+            max_open_loop_omega_e_rad_s: l.max_open_loop_omega_e_rad_s,
+        }
+    }
+
+    /// As foc-core's limits.
+    pub fn to_limits(&self) -> Limits {
+        Limits {
+            max_current_a: self.max_current_a,
+            max_velocity_rad_s: self.max_velocity_rad_s,
+            min_position_rad: self.min_position_rad,
+            max_position_rad: self.max_position_rad,
+            max_open_loop_voltage_v: self.max_open_loop_voltage_v,
+            max_open_loop_omega_e_rad_s: self.max_open_loop_omega_e_rad_s,
+        }
+    }
+}
+
+/// A plausible record (for examples and tests).
+#[doc(hidden)]
+pub fn example() -> DriveRecord {
+    DriveRecord {
+        label: Label::try_from("bench motor").unwrap_or_default(),
+        pwm_frequency_hz: 20_000,
+        motor: MotorRecord {
+            pole_pairs: 7,
+            r_ohm: 0.2,
+            ld_h: 60e-6,
+            lq_h: 70e-6,
+            flux_linkage_wb: 0.004,
+        },
+        current_gains: CurrentGainsRecord {
+            kp_d_v_per_a: 0.3,
+            ki_d_v_per_a_s: 1000.0,
+            kp_q_v_per_a: 0.35,
+            ki_q_v_per_a_s: 1000.0,
+        },
+        calibration: Some(AngleRecord {
+            zero_offset_e_rad: 1.25,
+            reversed: true,
+            pole_pairs: 7,
+            sensor_counts_per_rev: 4096,
+        }),
+        limits: LimitsRecord {
+            max_current_a: 5.0,
+            max_velocity_rad_s: 300.0,
+            min_position_rad: -100.0,
+            max_position_rad: 100.0,
+            max_open_loop_voltage_v: 3.0,
+            max_open_loop_omega_e_rad_s: 500.0,
+        },
+        speed: SpeedRecord {
+            kp_a_per_rad_s: 0.05,
+            ki_a_per_rad: 1.5,
+        },
+        position: PositionRecord {
+            kp_per_s: 30.0,
+            max_velocity_rad_s: 100.0,
+            max_acceleration_rad_s2: 1000.0,
+        },
+        dividers: DividersRecord {
+            speed: 10,
+            position: 20,
+        },
+        watchdog: WatchdogRecord {
+            timeout_periods: 2000,
+            reaction: WatchdogReaction::Stop,
+        },
+    }
+}

@@ -1,0 +1,180 @@
+//! The live configuration ([`Settings`]) and its conversion to and from a
+//! [`DriveRecord`].
+//!
+//! The record keeps what is tuned or identified (motor, gains, calibration,
+//! limits, loop gains, dividers, watchdog); the rest (loop periods,
+//! modulation, decoupling, anti-windup, delay compensation, acceleration
+//! feed-forward) comes from the build-time settings the record is applied
+//! on ([`DriveRecord::apply`]).
+//!
+//! ```
+//! use foc_core::control::{cascade::CascadeConfig, MotorParams};
+//! use foc_store::{record::Label, DriveRecord, Settings};
+//! let motor = MotorParams { pole_pairs: 7, r_ohm: 0.2, ld_h: 60e-6, lq_h: 60e-6, flux_linkage_wb: 0.004 };
+//! let base = Settings::from_cascade(&CascadeConfig::for_motor(motor, 20_000.0, 5.0));
+//! let record = DriveRecord::from_settings(&Label::new(), 20_000, &base);
+//! assert_eq!(record.apply(&base, 20_000), Ok(base));
+//! // A record made for another PWM frequency is refused.
+//! assert_eq!(record.apply(&base, 16_000).unwrap_err().field, "pwm_frequency_hz");
+//! ```
+
+use foc_core::control::cascade::CascadeConfig;
+use foc_core::control::current::CurrentLoopConfig;
+use foc_core::control::permit::Calibrated;
+use foc_core::control::position::PositionLoopConfig;
+use foc_core::control::speed::SpeedLoopConfig;
+use foc_core::control::stage::{AngleCalibration, TimeoutReaction};
+use foc_core::control::Limits;
+
+use crate::record::{
+    AngleRecord, CurrentGainsRecord, DividersRecord, DriveRecord, Invalid, Label, LimitsRecord,
+    MotorRecord, PositionRecord, SpeedRecord, WatchdogReaction, WatchdogRecord,
+};
+
+/// The configuration in force on the drive.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Settings {
+    /// Command limits.
+    pub limits: Limits,
+    /// Current loop (motor, gains, period, modulation, ...).
+    pub current: CurrentLoopConfig,
+    /// The angle calibration in force (or the build-time one).
+    pub angle: AngleCalibration,
+    /// `angle` and the motor/gains in `current` come from an identification
+    /// or a loaded record.
+    pub calibrated: bool,
+    /// Speed loop.
+    pub speed: SpeedLoopConfig,
+    /// Position loop.
+    pub position: PositionLoopConfig,
+    /// Speed / position loop dividers [current-loop periods].
+    pub dividers: (u16, u16),
+    /// Command watchdog.
+    pub watchdog: WatchdogRecord,
+}
+
+impl Settings {
+    /// The settings of a cascade configuration (uncalibrated).
+    pub fn from_cascade(c: &CascadeConfig) -> Self {
+        Self {
+            limits: c.current.limits,
+            current: c.current.current,
+            angle: c.current.angle,
+            calibrated: false,
+            speed: c.speed,
+            position: c.position,
+            dividers: (c.rates.speed_divider, c.rates.position_divider),
+            watchdog: WatchdogRecord {
+                timeout_periods: c.current.command_timeout_periods,
+                reaction: reaction_record(c.current.timeout_reaction),
+            },
+        }
+    }
+
+    /// The calibration permit these settings vouch for: `Some` only when
+    /// `calibrated` and `Calibrated::supplied(self.angle, self.current)`
+    /// accepts them.
+    pub fn permit(&self) -> Option<Calibrated> {
+        if self.calibrated {
+            Calibrated::supplied(self.angle, self.current).ok()
+        } else {
+            None
+        }
+    }
+}
+
+/// The record's form of foc-core's timeout reaction.
+pub fn reaction_record(r: TimeoutReaction) -> WatchdogReaction {
+    match r {
+        TimeoutReaction::Disable => WatchdogReaction::Disable,
+        TimeoutReaction::Stop => WatchdogReaction::Stop,
+        TimeoutReaction::Hold => WatchdogReaction::Hold,
+    }
+}
+
+/// foc-core's form of the record's watchdog reaction.
+pub fn timeout_reaction(r: WatchdogReaction) -> TimeoutReaction {
+    match r {
+        WatchdogReaction::Disable => TimeoutReaction::Disable,
+        WatchdogReaction::Stop => TimeoutReaction::Stop,
+        WatchdogReaction::Hold => TimeoutReaction::Hold,
+    }
+}
+
+impl DriveRecord {
+    /// The record of these live settings (calibration = `Some(angle)` iff
+    /// `s.calibrated`).
+    pub fn from_settings(label: &Label, pwm_frequency_hz: u32, s: &Settings) -> Self {
+        Self {
+            label: label.clone(),
+            pwm_frequency_hz,
+            motor: MotorRecord::from_params(&s.current.motor),
+            current_gains: CurrentGainsRecord::from_gains(&s.current.d_gains, &s.current.q_gains),
+            calibration: if s.calibrated {
+                Some(AngleRecord::from_calibration(&s.angle))
+            } else {
+                None
+            },
+            limits: LimitsRecord::from_limits(&s.limits),
+            speed: SpeedRecord {
+                kp_a_per_rad_s: s.speed.kp_a_per_rad_s,
+                ki_a_per_rad: s.speed.ki_a_per_rad,
+            },
+            position: PositionRecord {
+                kp_per_s: s.position.kp_per_s,
+                max_velocity_rad_s: s.position.max_velocity_rad_s,
+                max_acceleration_rad_s2: s.position.max_acceleration_rad_s2,
+            },
+            dividers: DividersRecord {
+                speed: s.dividers.0,
+                position: s.dividers.1,
+            },
+            watchdog: s.watchdog,
+        }
+    }
+
+    /// These settings with the record applied on top of `base` (the
+    /// build-time ones). Validates the whole record first (nothing applied on
+    /// any error); refuses a record made for another PWM frequency
+    /// (`Invalid { field: "pwm_frequency_hz" }`); recomputes the speed and
+    /// position loop periods from the dividers; sets the speed loop's
+    /// current limit to `limits.max_current_a`; keeps base's current-loop
+    /// period, modulation, decoupling, anti-windup, delay compensation and
+    /// acceleration feed-forward, and base's angle calibration (with the
+    /// record's pole pairs) when the record has no calibration.
+    pub fn apply(&self, base: &Settings, pwm_frequency_hz: u32) -> Result<Settings, Invalid> {
+        self.validate()?;
+        if self.pwm_frequency_hz != pwm_frequency_hz {
+            return Err(Invalid {
+                field: "pwm_frequency_hz",
+            });
+        }
+        let pwm = pwm_frequency_hz as f32;
+        let mut s = *base;
+        s.limits = self.limits.to_limits();
+        s.current.motor = self.motor.to_params();
+        s.current.d_gains = self.current_gains.d();
+        s.current.q_gains = self.current_gains.q();
+        match &self.calibration {
+            Some(c) => {
+                s.angle = c.to_calibration();
+                s.calibrated = true;
+            }
+            None => {
+                s.angle.pole_pairs = self.motor.pole_pairs;
+                s.calibrated = false;
+            }
+        }
+        s.speed.ts_s = f32::from(self.dividers.speed) / pwm;
+        s.speed.kp_a_per_rad_s = self.speed.kp_a_per_rad_s;
+        s.speed.ki_a_per_rad = self.speed.ki_a_per_rad;
+        s.speed.current_limit_a = self.limits.max_current_a;
+        s.position.ts_s = f32::from(self.dividers.position) / pwm;
+        s.position.kp_per_s = self.position.kp_per_s;
+        s.position.max_velocity_rad_s = self.position.max_velocity_rad_s;
+        s.position.max_acceleration_rad_s2 = self.position.max_acceleration_rad_s2;
+        s.dividers = (self.dividers.speed, self.dividers.position);
+        s.watchdog = self.watchdog;
+        Ok(s)
+    }
+}

@@ -1,0 +1,96 @@
+//! Tests of the whole crate: records, settings, the store under power cuts
+//! and garbage, wear, TOML.
+
+mod power_cut;
+#[cfg(feature = "std")]
+mod props;
+mod record_tests;
+#[cfg(feature = "std")]
+mod settings_text;
+mod store_tests;
+
+use crate::record::{
+    example, AngleRecord, CurrentGainsRecord, DividersRecord, DriveRecord, Label, LimitsRecord,
+    MotorRecord, PositionRecord, SpeedRecord, WatchdogReaction, WatchdogRecord,
+};
+
+/// Record A of the tests.
+pub(crate) fn record_a() -> DriveRecord {
+    example()
+}
+
+/// Record B: differs from A in every part (so a mix would be visible).
+pub(crate) fn record_b() -> DriveRecord {
+    let mut r = example();
+    r.label = Label::try_from("second record, other motor").unwrap();
+    r.pwm_frequency_hz = 16_000;
+    r.motor.pole_pairs = 4;
+    r.motor.r_ohm = 0.5;
+    r.motor.ld_h = 1e-4;
+    r.current_gains.kp_q_v_per_a = 0.9;
+    r.calibration = Some(AngleRecord {
+        zero_offset_e_rad: 4.5,
+        reversed: false,
+        pole_pairs: 4,
+        sensor_counts_per_rev: 16_384,
+    });
+    r.limits.max_current_a = 10.0;
+    r.speed.ki_a_per_rad = 3.0;
+    r.position.kp_per_s = 12.0;
+    r.dividers.speed = 8;
+    r.watchdog.reaction = WatchdogReaction::Hold;
+    r
+}
+
+/// The largest record: 32-character label, every option `Some`, every
+/// varint at its widest.
+pub(crate) fn largest_record() -> DriveRecord {
+    DriveRecord {
+        label: Label::try_from("~~~~~~~~~~~~~~~~~~~~~~~~~~~~~~~~").unwrap(),
+        pwm_frequency_hz: u32::MAX,
+        motor: MotorRecord {
+            pole_pairs: u8::MAX,
+            r_ohm: f32::MAX,
+            ld_h: f32::MAX,
+            lq_h: f32::MAX,
+            flux_linkage_wb: f32::MAX,
+        },
+        current_gains: CurrentGainsRecord {
+            kp_d_v_per_a: f32::MAX,
+            ki_d_v_per_a_s: f32::MAX,
+            kp_q_v_per_a: f32::MAX,
+            ki_q_v_per_a_s: f32::MAX,
+        },
+        calibration: Some(AngleRecord {
+            zero_offset_e_rad: 6.0,
+            reversed: true,
+            pole_pairs: u8::MAX,
+            sensor_counts_per_rev: u32::MAX,
+        }),
+        limits: LimitsRecord {
+            max_current_a: f32::MAX,
+            max_velocity_rad_s: f32::MAX,
+            min_position_rad: f32::MIN,
+            max_position_rad: f32::MAX,
+            max_open_loop_voltage_v: f32::MAX,
+            max_open_loop_omega_e_rad_s: f32::MAX,
+        },
+        speed: SpeedRecord {
+            kp_a_per_rad_s: f32::MAX,
+            ki_a_per_rad: f32::MAX,
+        },
+        position: PositionRecord {
+            kp_per_s: f32::MAX,
+            max_velocity_rad_s: f32::MAX,
+            max_acceleration_rad_s2: f32::MAX,
+        },
+        dividers: DividersRecord {
+            speed: u16::MAX,
+            position: u16::MAX,
+        },
+        watchdog: WatchdogRecord {
+            timeout_periods: u32::MAX,
+            reaction: WatchdogReaction::Hold,
+        },
+    }
+}

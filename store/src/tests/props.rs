@@ -1,0 +1,157 @@
+//! Property tests: round trips through the envelope, the store, TOML and
+//! the settings; decode never panics.
+
+use crate::fake::FakeFlash;
+use crate::record::{
+    AngleRecord, CurrentGainsRecord, DividersRecord, DriveRecord, Label, LimitsRecord, MotorRecord,
+    PositionRecord, SpeedRecord, WatchdogReaction, WatchdogRecord, MAX_RECORD_BYTES,
+};
+use crate::settings::Settings;
+use crate::store::Store;
+use core::f32::consts::TAU;
+use foc_core::control::cascade::CascadeConfig;
+use foc_core::control::MotorParams;
+use proptest::prelude::*;
+
+fn pos() -> impl Strategy<Value = f32> {
+    prop_oneof![1e-6f32..1e-3, 1e-3f32..10.0, 10.0f32..1e6]
+}
+
+fn non_neg() -> impl Strategy<Value = f32> {
+    prop_oneof![Just(0.0f32), pos()]
+}
+
+fn label() -> impl Strategy<Value = Label> {
+    "[ -~]{0,32}".prop_map(|s| Label::try_from(s.as_str()).unwrap())
+}
+
+fn reaction() -> impl Strategy<Value = WatchdogReaction> {
+    prop_oneof![
+        Just(WatchdogReaction::Disable),
+        Just(WatchdogReaction::Stop),
+        Just(WatchdogReaction::Hold)
+    ]
+}
+
+prop_compose! {
+    fn valid_record()(
+        label in label(),
+        pwm in 1u32..200_000,
+        pole_pairs in 1u8..=50,
+        motor in (pos(), pos(), pos(), non_neg()),
+        gains in (pos(), pos(), pos(), pos()),
+        cal in proptest::option::of((0.0f32..TAU, any::<bool>(), any::<u32>())),
+        lim in (pos(), pos(), -1e4f32..0.0, 0.0f32..1e4, non_neg(), non_neg()),
+        speed in (non_neg(), non_neg()),
+        position in (pos(), 0.0f32..=1.0, pos()),
+        dividers in (1u16.., 1u16..),
+        watchdog in (any::<u32>(), reaction()),
+    ) -> DriveRecord {
+        DriveRecord {
+            label,
+            pwm_frequency_hz: pwm,
+            motor: MotorRecord { pole_pairs, r_ohm: motor.0, ld_h: motor.1, lq_h: motor.2, flux_linkage_wb: motor.3 },
+            current_gains: CurrentGainsRecord {
+                kp_d_v_per_a: gains.0, ki_d_v_per_a_s: gains.1, kp_q_v_per_a: gains.2, ki_q_v_per_a_s: gains.3,
+            },
+            calibration: cal.map(|(z, reversed, counts)| AngleRecord {
+                zero_offset_e_rad: z, reversed, pole_pairs, sensor_counts_per_rev: counts,
+            }),
+            limits: LimitsRecord {
+                max_current_a: lim.0, max_velocity_rad_s: lim.1,
+                min_position_rad: lim.2, max_position_rad: lim.3 + 1.0,
+                max_open_loop_voltage_v: lim.4, max_open_loop_omega_e_rad_s: lim.5,
+            },
+            speed: SpeedRecord { kp_a_per_rad_s: speed.0, ki_a_per_rad: speed.1 },
+            position: PositionRecord {
+                kp_per_s: position.0,
+                // A fraction of the limit, but never 0.
+                max_velocity_rad_s: (lim.1 * position.1).max(lim.1 * 1e-3),
+                max_acceleration_rad_s2: position.2,
+            },
+            dividers: DividersRecord { speed: dividers.0, position: dividers.1 },
+            watchdog: WatchdogRecord { timeout_periods: watchdog.0, reaction: watchdog.1 },
+        }
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 128, ..ProptestConfig::default() })]
+
+    #[test]
+    fn valid_records_round_trip_through_the_envelope(r in valid_record()) {
+        prop_assert_eq!(r.validate(), Ok(()));
+        let mut buf = [0u8; MAX_RECORD_BYTES];
+        let n = r.encode(&mut buf).unwrap();
+        prop_assert_eq!(DriveRecord::decode(&buf[..n]), Ok(r));
+    }
+
+    #[test]
+    fn valid_records_round_trip_through_the_store(r in valid_record(), other in valid_record()) {
+        let mut f = FakeFlash::<2, 1024, 4>::new();
+        let mut s = Store::new(&mut f, 0..2048).unwrap();
+        s.save(&other).unwrap();
+        s.save(&r).unwrap();
+        prop_assert_eq!(s.load(), Ok(Some(r.clone())));
+        let _ = s.into_flash();
+        prop_assert_eq!(Store::new(&mut f, 0..2048).unwrap().load(), Ok(Some(r)));
+    }
+
+    #[test]
+    fn valid_records_round_trip_through_toml(r in valid_record()) {
+        let text = crate::text::to_toml(&r);
+        prop_assert_eq!(crate::text::from_toml(&text), Ok(r), "{}", text);
+    }
+
+    #[test]
+    fn decode_never_panics(bytes in proptest::collection::vec(any::<u8>(), 0..300)) {
+        let _ = DriveRecord::decode(&bytes);
+    }
+
+    #[test]
+    fn decode_of_a_mutated_envelope_never_panics(r in valid_record(), at in any::<usize>(), byte in any::<u8>()) {
+        let mut buf = [0u8; MAX_RECORD_BYTES];
+        let n = r.encode(&mut buf).unwrap();
+        buf[at % n] = byte;
+        if let Ok(d) = DriveRecord::decode(&buf[..n]) {
+            // Only the unchanged byte decodes.
+            prop_assert_eq!(d, r);
+        }
+    }
+
+    #[test]
+    fn settings_round_trip_through_a_record(
+        pole_pairs in 1u8..=30,
+        r_ohm in 0.01f32..10.0,
+        ld_h in 1e-5f32..1e-2,
+        lq_ratio in 1.0f32..3.0,
+        flux in 1e-4f32..0.1,
+        pwm in prop_oneof![Just(8_000u32), Just(16_000), Just(20_000), Just(40_000)],
+        max_current_a in 0.5f32..50.0,
+        calibrated in any::<bool>(),
+        zero_offset_e_rad in 0.02f32..TAU,
+        reversed in any::<bool>(),
+        counts in any::<u32>(),
+        watchdog in (any::<u32>(), reaction()),
+    ) {
+        let motor = MotorParams { pole_pairs, r_ohm, ld_h, lq_h: ld_h * lq_ratio, flux_linkage_wb: flux };
+        let mut s = Settings::from_cascade(&CascadeConfig::for_motor(motor, pwm as f32, max_current_a));
+        s.watchdog = WatchdogRecord { timeout_periods: watchdog.0, reaction: watchdog.1 };
+        let base = s;
+        if calibrated {
+            s.calibrated = true;
+            s.angle.zero_offset = crate::record::e_rad_to_angle(zero_offset_e_rad);
+            s.angle.reversed = reversed;
+            s.angle.sensor_counts_per_rev = counts;
+            prop_assert!(s.permit().is_some());
+        } else {
+            prop_assert!(s.permit().is_none());
+        }
+        let r = DriveRecord::from_settings(&Label::try_from("x").unwrap(), pwm, &s);
+        prop_assert_eq!(r.calibration.is_some(), calibrated);
+        prop_assert_eq!(r.apply(&base, pwm), Ok(s));
+        // Applied on itself too (what a reload at start-up does).
+        prop_assert_eq!(r.apply(&s, pwm), Ok(s));
+        prop_assert_eq!(DriveRecord::from_settings(&r.label, pwm, &s), r);
+    }
+}

@@ -1,0 +1,252 @@
+//! Envelope, validation and settings conversion.
+
+use super::{largest_record, record_a, record_b};
+use crate::record::{
+    angle_to_e_rad, e_rad_to_angle, DriveRecord, Invalid, RecordError, MAX_RECORD_BYTES,
+    SCHEMA_VERSION,
+};
+use core::f32::consts::TAU;
+use foc_core::angle::ElectricalAngle;
+
+/// A hand-built envelope with a valid CRC around any payload and version.
+pub(crate) fn envelope(version: u16, payload: &[u8]) -> std::vec::Vec<u8> {
+    let mut v = std::vec::Vec::new();
+    v.extend_from_slice(&version.to_le_bytes());
+    v.extend_from_slice(&(payload.len() as u16).to_le_bytes());
+    v.extend_from_slice(payload);
+    let crc = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC).checksum(&v);
+    v.extend_from_slice(&crc.to_le_bytes());
+    v
+}
+
+fn encoded(r: &DriveRecord) -> std::vec::Vec<u8> {
+    let mut buf = [0u8; MAX_RECORD_BYTES];
+    let n = r.encode(&mut buf).unwrap();
+    buf[..n].to_vec()
+}
+
+#[test]
+fn largest_record_fits() {
+    let r = largest_record();
+    let bytes = encoded(&r);
+    assert!(bytes.len() <= MAX_RECORD_BYTES, "{} bytes", bytes.len());
+    std::eprintln!(
+        "largest envelope: {} bytes (limit {MAX_RECORD_BYTES})",
+        bytes.len()
+    );
+    assert_eq!(DriveRecord::decode(&bytes), Ok(r));
+    // It is valid apart from the calibration's pole pairs vs the motor's:
+    // make them agree and check validation accepts the extremes.
+    let mut r = largest_record();
+    r.calibration.as_mut().unwrap().pole_pairs = r.motor.pole_pairs;
+    assert_eq!(r.validate(), Ok(()));
+}
+
+#[test]
+fn envelope_layout_and_errors() {
+    let r = record_a();
+    let bytes = encoded(&r);
+    assert_eq!(u16::from_le_bytes([bytes[0], bytes[1]]), SCHEMA_VERSION);
+    assert_eq!(
+        usize::from(u16::from_le_bytes([bytes[2], bytes[3]])),
+        bytes.len() - 8
+    );
+    // Every truncation is refused.
+    for n in 0..bytes.len() {
+        assert!(DriveRecord::decode(&bytes[..n]).is_err(), "{n}");
+    }
+    assert_eq!(DriveRecord::decode(&bytes[..3]), Err(RecordError::TooShort));
+    let mut long = bytes.clone();
+    long.push(0);
+    assert_eq!(DriveRecord::decode(&long), Err(RecordError::TooLong));
+    // Every single-bit flip is refused.
+    for i in 0..bytes.len() * 8 {
+        let mut b = bytes.clone();
+        b[i / 8] ^= 1 << (i % 8);
+        assert!(DriveRecord::decode(&b).is_err(), "bit {i}");
+    }
+    let mut b = bytes.clone();
+    let last = b.len() - 1;
+    b[last] ^= 0x80;
+    assert_eq!(DriveRecord::decode(&b), Err(RecordError::BadChecksum));
+    // A buffer too small to encode into.
+    let mut small = [0u8; 20];
+    assert_eq!(r.encode(&mut small), Err(RecordError::TooLong));
+}
+
+#[test]
+fn versions_other_than_ours_are_refused() {
+    let payload = &encoded(&record_a())[4..];
+    let payload = &payload[..payload.len() - 4];
+    assert_eq!(
+        DriveRecord::decode(&envelope(SCHEMA_VERSION, payload)),
+        Ok(record_a())
+    );
+    for v in [0, SCHEMA_VERSION + 1, u16::MAX] {
+        assert_eq!(
+            DriveRecord::decode(&envelope(v, payload)),
+            Err(RecordError::UnsupportedVersion {
+                found: v,
+                supported: SCHEMA_VERSION
+            })
+        );
+    }
+}
+
+#[test]
+fn trailing_payload_bytes_are_malformed() {
+    let payload = &encoded(&record_a())[4..];
+    let mut p = payload[..payload.len() - 4].to_vec();
+    p.push(0);
+    assert_eq!(
+        DriveRecord::decode(&envelope(SCHEMA_VERSION, &p)),
+        Err(RecordError::Malformed)
+    );
+    assert_eq!(
+        DriveRecord::decode(&envelope(SCHEMA_VERSION, &[1, 2, 3])),
+        Err(RecordError::Malformed)
+    );
+}
+
+#[test]
+fn validation_names_the_field() {
+    let ok = record_a();
+    assert_eq!(ok.validate(), Ok(()));
+    assert_eq!(record_b().validate(), Ok(()));
+    type Spoil = fn(&mut DriveRecord);
+    let cases: [(&str, Spoil); 24] = [
+        ("label", |r| {
+            r.label = crate::Label::try_from("tab\there").unwrap()
+        }),
+        ("pwm_frequency_hz", |r| r.pwm_frequency_hz = 0),
+        ("motor.pole_pairs", |r| r.motor.pole_pairs = 0),
+        ("motor.r_ohm", |r| r.motor.r_ohm = f32::NAN),
+        ("motor.r_ohm", |r| r.motor.r_ohm = 0.0),
+        ("motor.ld_h", |r| r.motor.ld_h = -1e-6),
+        ("motor.lq_h", |r| r.motor.lq_h = f32::INFINITY),
+        ("motor.flux_linkage_wb", |r| r.motor.flux_linkage_wb = -0.1),
+        ("current_gains.kp_d_v_per_a", |r| {
+            r.current_gains.kp_d_v_per_a = 0.0
+        }),
+        ("current_gains.ki_q_v_per_a_s", |r| {
+            r.current_gains.ki_q_v_per_a_s = f32::NAN
+        }),
+        ("limits.max_current_a", |r| r.limits.max_current_a = 0.0),
+        ("limits.max_velocity_rad_s", |r| {
+            r.limits.max_velocity_rad_s = f32::NAN
+        }),
+        ("limits.min_position_rad", |r| {
+            r.limits.min_position_rad = f32::NEG_INFINITY
+        }),
+        ("limits.max_position_rad", |r| {
+            r.limits.max_position_rad = -200.0
+        }),
+        ("limits.max_open_loop_voltage_v", |r| {
+            r.limits.max_open_loop_voltage_v = -1.0
+        }),
+        ("speed.kp_a_per_rad_s", |r| r.speed.kp_a_per_rad_s = -0.1),
+        ("speed.ki_a_per_rad", |r| r.speed.ki_a_per_rad = f32::NAN),
+        ("position.kp_per_s", |r| r.position.kp_per_s = 0.0),
+        ("position.max_velocity_rad_s", |r| {
+            r.position.max_velocity_rad_s = 301.0
+        }),
+        ("position.max_acceleration_rad_s2", |r| {
+            r.position.max_acceleration_rad_s2 = 0.0
+        }),
+        ("dividers.speed", |r| r.dividers.speed = 0),
+        ("dividers.position", |r| r.dividers.position = 0),
+        ("calibration.pole_pairs", |r| {
+            r.calibration.as_mut().unwrap().pole_pairs = 8
+        }),
+        ("calibration.zero_offset_e_rad", |r| {
+            r.calibration.as_mut().unwrap().zero_offset_e_rad = TAU
+        }),
+    ];
+    for (field, spoil) in cases {
+        let mut r = ok.clone();
+        spoil(&mut r);
+        assert_eq!(r.validate(), Err(Invalid { field }), "{field}");
+    }
+    let mut r = ok.clone();
+    r.calibration = None;
+    assert_eq!(r.validate(), Ok(()));
+    assert_eq!(
+        std::format!(
+            "{}",
+            Invalid {
+                field: "motor.r_ohm"
+            }
+        ),
+        "stored value `motor.r_ohm` is out of range"
+    );
+}
+
+#[test]
+fn error_messages_are_sentences() {
+    let e = RecordError::UnsupportedVersion {
+        found: 2,
+        supported: 1,
+    };
+    assert_eq!(
+        std::format!("{e}"),
+        "the stored record has schema version 2, this firmware reads version 1"
+    );
+    for e in [
+        RecordError::TooShort,
+        RecordError::TooLong,
+        RecordError::BadChecksum,
+        RecordError::Malformed,
+    ] {
+        assert!(std::format!("{e}").starts_with("the "));
+    }
+}
+
+#[test]
+fn electrical_angle_round_trip_is_exact_to_f32_precision() {
+    // Angle -> radians -> angle: within one f32 step of 2 pi (the coarsest
+    // radians spacing in [0, 2 pi)).
+    let step = TAU - f32::from_bits(TAU.to_bits() - 1);
+    let mut bits: u32 = 0x1234_5678;
+    for i in 0..200_000u32 {
+        bits = bits.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+        let a = ElectricalAngle::from_bits(if i < 4 {
+            [0, 1, u32::MAX, 1 << 31][i as usize]
+        } else {
+            bits
+        });
+        let r = angle_to_e_rad(a);
+        assert!((0.0..TAU).contains(&r), "{r}");
+        let back = e_rad_to_angle(r);
+        assert!(back.diff_radians(a).abs() <= step, "{:?} {:?}", a, back);
+    }
+    // Radians -> angle -> radians: exact from 0.02 rad, within one angle
+    // step below.
+    let lsb = TAU / 4_294_967_296.0;
+    let mut x: u32 = 1;
+    for i in 0..200_000u32 {
+        x = x.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+        let r = match i {
+            0 => 0.0,
+            1 => f32::from_bits(TAU.to_bits() - 1),
+            2 => 0.02,
+            3 => 1e-30,
+            _ if i % 2 == 0 => (x >> 8) as f32 * (TAU / 16_777_216.0),
+            _ => f32::from_bits(x % TAU.to_bits()),
+        };
+        let back = angle_to_e_rad(e_rad_to_angle(r));
+        if r >= 0.02 {
+            assert_eq!(back.to_bits(), r.to_bits(), "{r}");
+        } else {
+            assert!((back - r).abs() <= lsb, "{r} {back}");
+        }
+    }
+    // Wrapping and non-finite input.
+    assert!(
+        e_rad_to_angle(-0.5)
+            .diff_radians(e_rad_to_angle(TAU - 0.5))
+            .abs()
+            < 1e-6
+    );
+    assert_eq!(e_rad_to_angle(f32::NAN), ElectricalAngle::ZERO);
+    assert_eq!(angle_to_e_rad(ElectricalAngle::from_bits(u32::MAX)), 0.0);
+}

@@ -1,0 +1,97 @@
+//! TOML export and import of a [`DriveRecord`] (host side, feature `std`).
+//!
+//! One table per part, units in the key names, and a top-level
+//! `schema_version` so a file written for another schema is refused:
+//!
+//! ```
+//! use foc_store::text::{from_toml, to_toml};
+//! # let r = foc_store::record::example();
+//! let text = to_toml(&r);
+//! assert!(text.contains("schema_version = 1"));
+//! assert!(text.contains("[motor]"));
+//! assert_eq!(from_toml(&text), Ok(r));
+//! let bad = text.replace("r_ohm = 0.2", "r_ohm = -0.2");
+//! assert!(from_toml(&bad).unwrap_err().contains("motor.r_ohm"));
+//! ```
+
+use std::format;
+use std::string::{String, ToString};
+
+use serde::{Deserialize, Serialize};
+
+use crate::record::{
+    AngleRecord, CurrentGainsRecord, DividersRecord, DriveRecord, Label, LimitsRecord, MotorRecord,
+    PositionRecord, SpeedRecord, WatchdogRecord, SCHEMA_VERSION,
+};
+
+/// The file layout: the record's fields with the schema version first.
+#[derive(Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct TomlFile {
+    schema_version: u16,
+    label: Label,
+    pwm_frequency_hz: u32,
+    motor: MotorRecord,
+    current_gains: CurrentGainsRecord,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    calibration: Option<AngleRecord>,
+    limits: LimitsRecord,
+    speed: SpeedRecord,
+    position: PositionRecord,
+    dividers: DividersRecord,
+    watchdog: WatchdogRecord,
+}
+
+/// The record as a TOML document (no `[calibration]` table when there is
+/// no calibration).
+pub fn to_toml(r: &DriveRecord) -> String {
+    let file = TomlFile {
+        schema_version: SCHEMA_VERSION,
+        label: r.label.clone(),
+        pwm_frequency_hz: r.pwm_frequency_hz,
+        motor: r.motor,
+        current_gains: r.current_gains,
+        calibration: r.calibration,
+        limits: r.limits,
+        speed: r.speed,
+        position: r.position,
+        dividers: r.dividers,
+        watchdog: r.watchdog,
+    };
+    match toml::to_string(&file) {
+        Ok(s) => s,
+        // The record has no maps or other shapes TOML cannot hold.
+        Err(e) => format!("# cannot export the record: {e}\n"),
+    }
+}
+
+/// Parse and validate a TOML document written by [`to_toml`] (or by hand).
+/// The error is a sentence that names the field (or the TOML parser's
+/// message, with line and column).
+pub fn from_toml(s: &str) -> Result<DriveRecord, String> {
+    let table: toml::Table = toml::from_str(s).map_err(|e| e.to_string())?;
+    match table.get("schema_version") {
+        None => return Err("missing top-level key `schema_version`".to_string()),
+        Some(toml::Value::Integer(v)) if *v == i64::from(SCHEMA_VERSION) => {}
+        Some(v) => {
+            return Err(format!(
+                "`schema_version` is {v}; this build reads schema version {SCHEMA_VERSION} only"
+            ))
+        }
+    }
+    let f: TomlFile = toml::from_str(s).map_err(|e| e.to_string())?;
+    let r = DriveRecord {
+        label: f.label,
+        pwm_frequency_hz: f.pwm_frequency_hz,
+        motor: f.motor,
+        current_gains: f.current_gains,
+        calibration: f.calibration,
+        limits: f.limits,
+        speed: f.speed,
+        position: f.position,
+        dividers: f.dividers,
+        watchdog: f.watchdog,
+    };
+    r.validate().map_err(|e| e.to_string())?;
+    Ok(r)
+}
