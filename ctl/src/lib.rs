@@ -3,6 +3,8 @@
 //! - [`Client`]: typed requests with timeouts, retransmission and
 //!   sequence-number checking over any [`Transport`] (TCP, e.g. QEMU's
 //!   `-serial tcp:127.0.0.1:PORT,server,nowait`; or a serial port).
+//! - [`config`]: configuration records over the link (read, write, store
+//!   operations with a longer timeout for flash stalls).
 //! - [`sim`]: a simulated device (the real [`foc_protocol::DeviceState`]
 //!   over a kinematic drive model) served on a TCP socket, for tests and for
 //!   trying `foc-ctl` without hardware.
@@ -25,6 +27,7 @@
 #![forbid(unsafe_code)]
 #![warn(missing_docs)]
 
+pub mod config;
 pub mod sim;
 pub mod transport;
 
@@ -55,6 +58,8 @@ pub enum ClientError {
     Nack(ErrorCode),
     /// A reply of the wrong kind for the request.
     Unexpected(Response),
+    /// A configuration transfer that does not add up.
+    Transfer(config::TransferError),
 }
 
 impl fmt::Display for ClientError {
@@ -66,6 +71,7 @@ impl fmt::Display for ClientError {
             }
             ClientError::Nack(e) => write!(f, "refused by the device: {}", describe_error(*e)),
             ClientError::Unexpected(r) => write!(f, "unexpected reply: {r:?}"),
+            ClientError::Transfer(e) => write!(f, "configuration transfer failed: {e}"),
         }
     }
 }
@@ -90,6 +96,11 @@ pub fn describe_error(e: ErrorCode) -> String {
         ErrorCode::NotCalibrated => "not calibrated".into(),
         ErrorCode::NotDisabled => "only allowed while disabled".into(),
         ErrorCode::Unsupported => "not supported by this device".into(),
+        ErrorCode::StoreFailed => "the flash store failed (see the device log)".into(),
+        ErrorCode::BadRecord => {
+            "configuration record refused (incomplete, corrupt, other version or out of range; nothing applied)".into()
+        }
+        ErrorCode::NothingStored => "nothing is stored".into(),
         ErrorCode::Other(c) => format!("error code {c}"),
     }
 }
@@ -131,6 +142,8 @@ pub struct Client {
     decoder: FrameDecoder,
     seq: u16,
     timeout: Duration,
+    /// Reply timeout of flash operations (see [`config`]).
+    store_timeout: Duration,
     retries: u32,
     queue: VecDeque<StreamSample>,
     last_stream_seq: Option<u16>,
@@ -147,6 +160,7 @@ impl Client {
             decoder: FrameDecoder::new(),
             seq: 0,
             timeout: Duration::from_millis(250),
+            store_timeout: config::DEFAULT_STORE_TIMEOUT,
             retries: 3,
             queue: VecDeque::new(),
             last_stream_seq: None,
@@ -237,6 +251,11 @@ impl Client {
     /// the same frame on timeout or on a frame-level Nack. A Nack for the
     /// request itself is returned as [`ClientError::Nack`].
     pub fn request(&mut self, req: &Request) -> Result<Response, ClientError> {
+        self.request_timed(req, self.timeout)
+    }
+
+    /// [`Self::request`] waiting `timeout` per attempt.
+    fn request_timed(&mut self, req: &Request, timeout: Duration) -> Result<Response, ClientError> {
         let seq = self.next_seq();
         let mut frame = [0u8; MAX_FRAME];
         let n = encode(seq, req, &mut frame)
@@ -248,7 +267,7 @@ impl Client {
                 self.stats.retransmissions += 1;
             }
             self.transport.write_all(&frame[..n])?;
-            let deadline = Instant::now() + self.timeout;
+            let deadline = Instant::now() + timeout;
             while Instant::now() < deadline {
                 match self.pump(deadline)? {
                     None => {}

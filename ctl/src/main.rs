@@ -4,10 +4,14 @@ use clap::{Parser, Subcommand, ValueEnum};
 use foc_core::angle::ElectricalAngle;
 use foc_core::control::stage::TimeoutReaction;
 use foc_core::control::{Command, Fault, Limits};
-use foc_ctl::{sim::SimServer, Client, ClientError, StreamSample};
+use foc_ctl::{describe_error, sim::SimServer, Client, ClientError, StreamSample};
+use foc_protocol::config::{ConfigSource, StoreOp};
 use foc_protocol::message::{
-    Calibration, CurrentGains, ParamId, PositionGains, SpeedGains, TelemetryRate, WatchdogConfig,
+    Calibration, CurrentGains, ErrorCode, ParamId, PositionGains, SpeedGains, TelemetryRate,
+    WatchdogConfig,
 };
+use foc_store::text::{from_toml, to_toml};
+use foc_store::{DriveRecord, MAX_RECORD_BYTES};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -40,6 +44,10 @@ struct Cli {
     /// Retransmissions after the first attempt.
     #[arg(long, default_value_t = 3, global = true)]
     retries: u32,
+    /// Reply timeout per attempt of flash operations (`config save|load|erase|import`,
+    /// reads of the stored record) [ms]: an erase stalls a board for seconds.
+    #[arg(long, default_value_t = 5000, global = true)]
+    store_timeout_ms: u64,
     #[command(subcommand)]
     cmd: Cmd,
 }
@@ -141,6 +149,11 @@ enum Cmd {
         #[arg(value_enum)]
         routine: Routine,
     },
+    /// The drive's configuration record: show, save, load, erase, export, import.
+    Config {
+        #[command(subcommand)]
+        op: ConfigCmd,
+    },
     /// Serve a simulated device (kinematic model) on a TCP address, for trying the tool.
     Simulate {
         /// Address to listen on.
@@ -216,6 +229,39 @@ enum GainsCmd {
     },
 }
 
+#[derive(Subcommand)]
+enum ConfigCmd {
+    /// Print the configuration in force (or the stored one) as TOML.
+    Show {
+        /// The record in the drive's flash store instead (drive disabled).
+        #[arg(long)]
+        stored: bool,
+    },
+    /// Write the configuration in force to the flash store (drive disabled).
+    Save,
+    /// Apply the stored record (drive disabled; validated whole first).
+    Load,
+    /// Erase the flash store (the configuration in force is kept; the next
+    /// boot starts from the build-time defaults, uncalibrated).
+    Erase,
+    /// Write the configuration in force (or the stored one) to a TOML file.
+    Export {
+        /// The file to write.
+        file: PathBuf,
+        /// The record in the drive's flash store instead (drive disabled).
+        #[arg(long)]
+        stored: bool,
+    },
+    /// Check a TOML file on the host, send it, apply it and save it (drive disabled).
+    Import {
+        /// The file to read.
+        file: PathBuf,
+        /// Apply only; the flash store keeps its record.
+        #[arg(long)]
+        no_save: bool,
+    },
+}
+
 #[derive(Clone, Copy, ValueEnum)]
 enum Reaction {
     Disable,
@@ -241,6 +287,7 @@ fn connect(cli: &Cli) -> Result<Client, Box<dyn std::error::Error>> {
     };
     c.set_timeout(Duration::from_millis(cli.timeout_ms));
     c.set_retries(cli.retries);
+    c.set_store_timeout(Duration::from_millis(cli.store_timeout_ms));
     Ok(c)
 }
 
@@ -375,6 +422,7 @@ fn run(cli: Cli) -> CliResult {
             stream_telemetry(&mut c, r, duration, csv, plot, svg)
         }
         Cmd::Calibrate { routine } => calibrate(&mut c, routine),
+        Cmd::Config { op } => config(&mut c, op),
         setting => configure(&mut c, setting),
     }
 }
@@ -488,7 +536,7 @@ fn stream_telemetry(
     let mut stderr = std::io::stderr();
     c.telemetry_with(rate, Duration::from_secs_f64(duration.max(0.0)), |s| {
         samples.push(*s);
-        if plot && samples.len() % 5 == 0 {
+        if plot && samples.len().is_multiple_of(5) {
             plot_tail(&mut stderr, &samples, s);
         } else if !plot && csv.is_none() {
             print_sample(s);
@@ -579,7 +627,8 @@ fn configure(c: &mut Client, setting: Cmd) -> CliResult {
         | Cmd::Faults
         | Cmd::Param { .. }
         | Cmd::Telemetry { .. }
-        | Cmd::Calibrate { .. } => return Err("not a setting (handled by `run`)".into()),
+        | Cmd::Calibrate { .. }
+        | Cmd::Config { .. } => return Err("not a setting (handled by `run`)".into()),
     }
     println!("ok");
     Ok(())
@@ -593,6 +642,159 @@ fn calibrate(c: &mut Client, routine: Routine) -> CliResult {
         Routine::Alignment => Calibration::Alignment,
     })?;
     println!("started");
+    Ok(())
+}
+
+/// What a `config` Nack means for the operation `what`, with a hint.
+fn config_error(what: &str, e: ClientError) -> Box<dyn std::error::Error> {
+    let ClientError::Nack(code) = e else {
+        return format!("{what}: {e}").into();
+    };
+    let hint = match code {
+        ErrorCode::NotDisabled => "disable the drive first (`foc-ctl mode disable`)",
+        ErrorCode::Busy => "the drive is starting up or calibrating; try again when it is done",
+        ErrorCode::NothingStored => {
+            "the flash store is empty; `foc-ctl config save` writes the configuration in force"
+        }
+        ErrorCode::BadRecord if what == "config save" => {
+            "a value in force is out of range for a record (see `config show`); nothing was written"
+        }
+        ErrorCode::BadRecord if what.starts_with("reading") => {
+            "the stored record is corrupt, from another version or out of range; \
+             `config erase` clears it, `config import FILE` sends a good one"
+        }
+        ErrorCode::BadRecord => {
+            "the configuration in force is unchanged; `config erase` clears a bad stored record, \
+             `config import FILE` sends a good one"
+        }
+        ErrorCode::StoreFailed => {
+            "the configuration in force is unchanged; the stored record may be the old one, \
+             check it with `config show --stored`"
+        }
+        ErrorCode::Unsupported => "this device has no configuration store",
+        _ => "nothing was changed",
+    };
+    format!(
+        "{what}: refused by the device: {} ({hint})",
+        describe_error(code)
+    )
+    .into()
+}
+
+fn source_name(source: ConfigSource) -> &'static str {
+    match source {
+        ConfigSource::Live => "live",
+        ConfigSource::Stored => "stored",
+    }
+}
+
+/// The live or stored record from the device, decoded; a record that
+/// fails its CRC or version check is an error that says so, an
+/// out-of-range one a warning.
+fn read_record(
+    c: &mut Client,
+    source: ConfigSource,
+) -> Result<DriveRecord, Box<dyn std::error::Error>> {
+    let name = source_name(source);
+    let bytes = c
+        .read_config(source)
+        .map_err(|e| config_error(&format!("reading the {name} record"), e))?;
+    let r = DriveRecord::decode(&bytes).map_err(|e| {
+        format!(
+            "the {name} record from the device ({} bytes) is not readable: {e}",
+            bytes.len()
+        )
+    })?;
+    if let Err(e) = r.validate() {
+        eprintln!(
+            "warning: the {name} record has a value out of range ({e}); it would be refused on import"
+        );
+    }
+    Ok(r)
+}
+
+/// `config ...`.
+fn config(c: &mut Client, op: ConfigCmd) -> CliResult {
+    let source = |stored: bool| {
+        if stored {
+            ConfigSource::Stored
+        } else {
+            ConfigSource::Live
+        }
+    };
+    match op {
+        ConfigCmd::Show { stored } => {
+            let r = read_record(c, source(stored))?;
+            print!("{}", to_toml(&r));
+        }
+        ConfigCmd::Export { file, stored } => {
+            let r = read_record(c, source(stored))?;
+            std::fs::write(&file, to_toml(&r))
+                .map_err(|e| format!("cannot write {}: {e}", file.display()))?;
+            println!("wrote {}", file.display());
+        }
+        ConfigCmd::Save => {
+            c.store(StoreOp::Save)
+                .map_err(|e| config_error("config save", e))?;
+            println!("saved the configuration in force");
+        }
+        ConfigCmd::Load => {
+            c.store(StoreOp::Load)
+                .map_err(|e| config_error("config load", e))?;
+            println!("loaded and applied the stored record");
+        }
+        ConfigCmd::Erase => {
+            c.store(StoreOp::Erase)
+                .map_err(|e| config_error("config erase", e))?;
+            println!(
+                "erased the store (the configuration in force is kept; the next boot starts from the defaults)"
+            );
+        }
+        ConfigCmd::Import { file, no_save } => import(c, &file, no_save)?,
+    }
+    Ok(())
+}
+
+/// `config import FILE [--no-save]`: parse and validate on the host (nothing
+/// is sent for a bad file), check the PWM frequency, then send, apply and
+/// (unless `no_save`) save.
+fn import(c: &mut Client, file: &Path, no_save: bool) -> CliResult {
+    let text = std::fs::read_to_string(file)
+        .map_err(|e| format!("cannot read {}: {e}", file.display()))?;
+    let r = from_toml(&text)
+        .map_err(|e| format!("{}: {e} (nothing was sent to the device)", file.display()))?;
+    let mut buf = [0u8; MAX_RECORD_BYTES];
+    let n = r
+        .encode(&mut buf)
+        .map_err(|e| format!("{}: cannot encode the record: {e:?}", file.display()))?;
+    match c.param(ParamId::PwmFrequencyHz) {
+        Ok(pwm) if pwm != r.pwm_frequency_hz as f32 => {
+            return Err(format!(
+                "{}: made for a PWM frequency of {} Hz, the drive runs at {pwm} Hz                  (the gains and watchdog periods would be wrong; nothing was sent)",
+                file.display(),
+                r.pwm_frequency_hz
+            )
+            .into())
+        }
+        Ok(_) | Err(ClientError::Nack(ErrorCode::Unsupported)) => {}
+        Err(e) => return Err(e.into()),
+    }
+    c.write_config(&buf[..n])
+        .map_err(|e| config_error("config import (sending the record)", e))?;
+    let op = if no_save {
+        StoreOp::Apply
+    } else {
+        StoreOp::ApplyAndSave
+    };
+    c.store(op).map_err(|e| config_error("config import", e))?;
+    if no_save {
+        println!(
+            "applied {} (not saved: `foc-ctl config save` keeps it)",
+            file.display()
+        );
+    } else {
+        println!("applied and saved {}", file.display());
+    }
     Ok(())
 }
 

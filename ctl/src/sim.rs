@@ -4,6 +4,12 @@
 //! torque mode). It exercises the protocol, not the control: the motor and
 //! inverter physics live in the `foc-bench` crate.
 //!
+//! Its configuration is a [`foc_store::Settings`] (limits, motor, gains,
+//! dividers, calibrated flag: what the drive reports and checks commands
+//! against), kept in a [`foc_store::Store`] over a RAM flash
+//! ([`SimFlash`]) that lives as long as the drive model, so the `config`
+//! commands (read, save, load, erase, apply) work as on a board.
+//!
 //! ```no_run
 //! use std::net::TcpListener;
 //! let server = foc_ctl::sim::SimServer::spawn(TcpListener::bind("127.0.0.1:0")?)?;
@@ -12,12 +18,20 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 
-use foc_core::control::{Command, CommandError, Fault, FaultSet, Limits, Mode};
-use foc_protocol::device::{DeviceContext, DeviceState, Refusal};
+use foc_core::control::cascade::CascadeConfig;
+use foc_core::control::{Command, CommandError, Fault, FaultSet, Limits, Mode, MotorParams};
+use foc_core::tuning::CurrentPiGains;
+use foc_protocol::config::{ConfigSource, StoreOp, MAX_RECORD};
+use foc_protocol::device::{DeviceContext, DeviceState, Refusal, WatchdogConfig};
 use foc_protocol::frame::{encode, FrameDecoder, MAX_FRAME};
 use foc_protocol::message::{
-    Calibration, CurrentGains, ParamId, PositionGains, SpeedGains, Telemetry,
+    Calibration, CurrentGains, ErrorCode, ParamId, PositionGains, SpeedGains, Telemetry,
 };
+use foc_store::fake::FakeFlash;
+use foc_store::record::WatchdogRecord;
+use foc_store::settings::{reaction_record, timeout_reaction};
+use foc_store::{DriveRecord, Label, Settings, Store, StoreError};
+use std::fmt;
 use std::io::{self, Read, Write};
 use std::net::{SocketAddr, TcpListener, TcpStream};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -35,6 +49,12 @@ pub const L_H: f32 = 40e-6;
 pub const PSI_WB: f32 = 0.004;
 /// PWM frequency [Hz].
 pub const PWM_HZ: f32 = 20_000.0;
+/// PWM frequency as the configuration record carries it [Hz].
+pub const PWM_HZ_RECORD: u32 = 20_000;
+/// Current limit of the default configuration [A].
+pub const MAX_CURRENT_A: f32 = 10.0;
+/// Label of the default configuration.
+pub const DEFAULT_LABEL: &str = "simulated drive";
 /// Rotor inertia [kg m^2].
 pub const J_KG_M2: f32 = 1e-5;
 /// Viscous friction [N m s].
@@ -44,8 +64,37 @@ pub const TAU_S: f32 = 0.02;
 /// Time a calibration routine keeps the simulated drive busy [s].
 pub const CALIBRATION_S: f32 = 0.05;
 
+/// The simulated configuration flash: 4 pages of 1 KiB, 4-byte words.
+pub type SimFlash = FakeFlash<4, 1024, 4>;
+
+/// Bytes of [`SimFlash`] the store uses (all of it).
+const SIM_FLASH_BYTES: u32 = 4 * 1024;
+
+/// The default configuration of the simulated motor: foc-core's
+/// [`CascadeConfig::for_motor`] for the constants above, with the sim's
+/// command limits; uncalibrated.
+pub fn default_settings() -> Settings {
+    let motor = MotorParams {
+        pole_pairs: POLE_PAIRS,
+        r_ohm: R_OHM,
+        ld_h: L_H,
+        lq_h: L_H,
+        flux_linkage_wb: PSI_WB,
+    };
+    let mut s = Settings::from_cascade(&CascadeConfig::for_motor(motor, PWM_HZ, MAX_CURRENT_A));
+    s.limits = Limits {
+        max_current_a: MAX_CURRENT_A,
+        max_velocity_rad_s: 1000.0,
+        min_position_rad: -1000.0,
+        max_position_rad: 1000.0,
+        max_open_loop_voltage_v: 12.0,
+        max_open_loop_omega_e_rad_s: 5000.0,
+    };
+    s.calibrated = false;
+    s
+}
+
 /// The kinematic drive model, a [`DeviceContext`].
-#[derive(Clone, Debug)]
 pub struct SimDrive {
     /// Active command.
     pub command: Command,
@@ -55,18 +104,17 @@ pub struct SimDrive {
     pub faults: FaultSet,
     /// First fault.
     pub first_fault: Option<Fault>,
-    /// Limits.
-    pub limits: Limits,
-    /// Current gains (stored, reported; the model does not use them).
-    pub current_gains: CurrentGains,
-    /// Speed gains (stored).
-    pub speed_gains: SpeedGains,
-    /// Position gain and trajectory limits (used by the model).
-    pub position_gains: PositionGains,
-    /// Loop dividers.
-    pub dividers: (u16, u16),
-    /// Calibrated (alignment done).
-    pub calibrated: bool,
+    /// The configuration in force: limits (commands are checked against
+    /// them), motor (reported as parameters, used by the model), gains
+    /// (position gains used by the model, the others stored and reported),
+    /// dividers, and the calibrated flag (alignment done or a calibrated
+    /// record applied).
+    pub settings: Settings,
+    /// Label of the configuration in force.
+    pub label: Label,
+    /// The configuration store; `None`: a device without one (the `config`
+    /// requests answer `Unsupported`).
+    pub store: Option<Store<SimFlash>>,
     /// Remaining calibration time [s] and routine.
     pub calibrating: Option<(f32, Calibration)>,
     /// Mechanical position [rad].
@@ -88,31 +136,10 @@ impl Default for SimDrive {
             keep_alives: 0,
             faults: FaultSet::EMPTY,
             first_fault: None,
-            limits: Limits {
-                max_current_a: 10.0,
-                max_velocity_rad_s: 1000.0,
-                min_position_rad: -1000.0,
-                max_position_rad: 1000.0,
-                max_open_loop_voltage_v: 12.0,
-                max_open_loop_omega_e_rad_s: 5000.0,
-            },
-            current_gains: CurrentGains {
-                kp_d: 0.4,
-                ki_d: 1000.0,
-                kp_q: 0.4,
-                ki_q: 1000.0,
-            },
-            speed_gains: SpeedGains {
-                kp_a_per_rad_s: 0.05,
-                ki_a_per_rad: 1.0,
-            },
-            position_gains: PositionGains {
-                kp_per_s: 20.0,
-                max_velocity_rad_s: 100.0,
-                max_acceleration_rad_s2: 1000.0,
-            },
-            dividers: (10, 20),
-            calibrated: false,
+            settings: default_settings(),
+            label: Label::try_from(DEFAULT_LABEL).unwrap_or_default(),
+            // An empty, erased flash.
+            store: Store::new(SimFlash::new(), 0..SIM_FLASH_BYTES).ok(),
             calibrating: None,
             position_rad: 0.0,
             velocity_rad_s: 0.0,
@@ -123,7 +150,74 @@ impl Default for SimDrive {
     }
 }
 
+impl fmt::Debug for SimDrive {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("SimDrive")
+            .field("command", &self.command)
+            .field("keep_alives", &self.keep_alives)
+            .field("faults", &self.faults)
+            .field("first_fault", &self.first_fault)
+            .field("settings", &self.settings)
+            .field("label", &self.label)
+            .field("store", &self.store.as_ref().map(|_| "SimFlash"))
+            .field("calibrating", &self.calibrating)
+            .field("position_rad", &self.position_rad)
+            .field("velocity_rad_s", &self.velocity_rad_s)
+            .field("iq_a", &self.iq_a)
+            .field("period", &self.period)
+            .field("v_bus_v", &self.v_bus_v)
+            .finish()
+    }
+}
+
+/// A store failure as the protocol reports it: a record that is not one
+/// (damaged, other version, out of range) is `BadRecord`, anything else
+/// (flash, layout, full, inconsistent region) `StoreFailed`.
+fn store_error(e: StoreError) -> ErrorCode {
+    match e {
+        StoreError::Record(_) | StoreError::Invalid(_) | StoreError::NoValidRecord => {
+            ErrorCode::BadRecord
+        }
+        StoreError::Layout | StoreError::Flash(_) | StoreError::Corrupt | StoreError::Full => {
+            ErrorCode::StoreFailed
+        }
+    }
+}
+
+/// The record's watchdog as the protocol's link-watchdog setting.
+fn link_of(w: &WatchdogRecord) -> WatchdogConfig {
+    WatchdogConfig {
+        timeout_periods: w.timeout_periods,
+        reaction: timeout_reaction(w.reaction),
+    }
+}
+
 impl SimDrive {
+    /// The record of the configuration in force, with `link` (the
+    /// link-watchdog setting in force) as its watchdog.
+    pub fn live_record(&self, link: WatchdogConfig) -> DriveRecord {
+        let mut r = DriveRecord::from_settings(&self.label, PWM_HZ_RECORD, &self.settings);
+        r.watchdog = WatchdogRecord {
+            timeout_periods: link.timeout_periods,
+            reaction: reaction_record(link.reaction),
+        };
+        r
+    }
+
+    /// Validate `r` whole and make it the configuration in force; nothing
+    /// changes when it is refused. Its watchdog, for the protocol to take.
+    fn apply_record(&mut self, r: &DriveRecord) -> Result<WatchdogConfig, ErrorCode> {
+        self.settings = self.applied(r)?;
+        self.label = r.label.clone();
+        Ok(link_of(&r.watchdog))
+    }
+
+    /// The settings `r` would make (validated whole), without changing any.
+    fn applied(&self, r: &DriveRecord) -> Result<Settings, ErrorCode> {
+        r.apply(&self.settings, PWM_HZ_RECORD)
+            .map_err(|_| ErrorCode::BadRecord)
+    }
+
     /// Latch a fault as the supervisor would (bridge off).
     pub fn trip(&mut self, f: Fault) {
         self.faults.insert(f);
@@ -132,7 +226,11 @@ impl SimDrive {
     }
 
     fn kt(&self) -> f32 {
-        1.5 * POLE_PAIRS as f32 * PSI_WB
+        self.settings.current.motor.torque_constant_nm_per_a()
+    }
+
+    fn pole_pairs(&self) -> f32 {
+        f32::from(self.settings.current.motor.pole_pairs.max(1))
     }
 
     /// Advance by `periods` current-loop periods.
@@ -152,7 +250,7 @@ impl SimDrive {
             if t <= 0.0 {
                 self.calibrating = None;
                 if routine == Calibration::Alignment {
-                    self.calibrated = true;
+                    self.settings.calibrated = true;
                 }
             } else {
                 self.calibrating = Some((t, routine));
@@ -165,12 +263,12 @@ impl SimDrive {
             Command::Torque { iq_a } => w0 + (self.kt() * iq_a - B_NM_S * w0) / J_KG_M2 * dt,
             Command::Velocity { rad_s } => follow(w0, rad_s),
             Command::Position { rad } => {
-                let g = self.position_gains;
+                let g = self.settings.position;
                 let w_ref = (g.kp_per_s * (rad - self.position_rad))
                     .clamp(-g.max_velocity_rad_s, g.max_velocity_rad_s);
                 follow(w0, w_ref)
             }
-            Command::OpenLoop { omega_e_rad_s, .. } => omega_e_rad_s / POLE_PAIRS as f32,
+            Command::OpenLoop { omega_e_rad_s, .. } => omega_e_rad_s / self.pole_pairs(),
         };
         self.iq_a = match self.command {
             Command::Disable | Command::OpenLoop { .. } => 0.0,
@@ -187,7 +285,7 @@ impl DeviceContext for SimDrive {
         if !self.faults.is_empty() && cmd != Command::Disable {
             return Err(CommandError::Faulted);
         }
-        cmd.validate(&self.limits)?;
+        cmd.validate(&self.settings.limits)?;
         self.command = cmd;
         Ok(())
     }
@@ -208,26 +306,40 @@ impl DeviceContext for SimDrive {
         self.trip(fault);
     }
     fn limits(&self) -> Limits {
-        self.limits
+        self.settings.limits
     }
     fn set_limits(&mut self, limits: Limits) -> Result<(), Refusal> {
-        self.limits = limits;
+        self.settings.limits = limits;
+        // As `DriveRecord::apply` does: the speed loop's output limit.
+        self.settings.speed.current_limit_a = limits.max_current_a;
         Ok(())
     }
-    fn set_current_gains(&mut self, gains: CurrentGains) -> Result<(), Refusal> {
-        self.current_gains = gains;
+    fn set_current_gains(&mut self, g: CurrentGains) -> Result<(), Refusal> {
+        self.settings.current.d_gains = CurrentPiGains {
+            kp_v_per_a: g.kp_d,
+            ki_v_per_a_s: g.ki_d,
+        };
+        self.settings.current.q_gains = CurrentPiGains {
+            kp_v_per_a: g.kp_q,
+            ki_v_per_a_s: g.ki_q,
+        };
         Ok(())
     }
-    fn set_speed_gains(&mut self, gains: SpeedGains) -> Result<(), Refusal> {
-        self.speed_gains = gains;
+    fn set_speed_gains(&mut self, g: SpeedGains) -> Result<(), Refusal> {
+        self.settings.speed.kp_a_per_rad_s = g.kp_a_per_rad_s;
+        self.settings.speed.ki_a_per_rad = g.ki_a_per_rad;
         Ok(())
     }
-    fn set_position_gains(&mut self, gains: PositionGains) -> Result<(), Refusal> {
-        self.position_gains = gains;
+    fn set_position_gains(&mut self, g: PositionGains) -> Result<(), Refusal> {
+        self.settings.position.kp_per_s = g.kp_per_s;
+        self.settings.position.max_velocity_rad_s = g.max_velocity_rad_s;
+        self.settings.position.max_acceleration_rad_s2 = g.max_acceleration_rad_s2;
         Ok(())
     }
     fn set_dividers(&mut self, speed: u16, position: u16) -> Result<(), Refusal> {
-        self.dividers = (speed, position);
+        self.settings.dividers = (speed, position);
+        self.settings.speed.ts_s = f32::from(speed) / PWM_HZ;
+        self.settings.position.ts_s = f32::from(position) / PWM_HZ;
         Ok(())
     }
     fn start_calibration(&mut self, routine: Calibration) -> Result<(), Refusal> {
@@ -238,20 +350,22 @@ impl DeviceContext for SimDrive {
         Ok(())
     }
     fn is_calibrated(&self) -> bool {
-        self.calibrated
+        self.settings.calibrated
     }
     fn param(&self, id: ParamId) -> Option<f32> {
+        let m = &self.settings.current.motor;
         Some(match id {
-            ParamId::PolePairs => f32::from(POLE_PAIRS),
-            ParamId::ResistanceOhm => R_OHM,
-            ParamId::LdH | ParamId::LqH => L_H,
-            ParamId::FluxLinkageWb => PSI_WB,
+            ParamId::PolePairs => f32::from(m.pole_pairs),
+            ParamId::ResistanceOhm => m.r_ohm,
+            ParamId::LdH => m.ld_h,
+            ParamId::LqH => m.lq_h,
+            ParamId::FluxLinkageWb => m.flux_linkage_wb,
             ParamId::PwmFrequencyHz => PWM_HZ,
-            ParamId::SpeedDivider => f32::from(self.dividers.0),
-            ParamId::PositionDivider => f32::from(self.dividers.1),
+            ParamId::SpeedDivider => f32::from(self.settings.dividers.0),
+            ParamId::PositionDivider => f32::from(self.settings.dividers.1),
             ParamId::FirmwareVersion => 100.0,
             ParamId::BusVoltageV => self.v_bus_v,
-            ParamId::Calibrated => f32::from(u8::from(self.calibrated)),
+            ParamId::Calibrated => f32::from(u8::from(self.settings.calibrated)),
             // Not simulated; protocol-layer parameters are answered before.
             ParamId::MaxLoopCycles
             | ParamId::ProtocolVersion
@@ -260,11 +374,15 @@ impl DeviceContext for SimDrive {
         })
     }
     fn telemetry(&self) -> Telemetry {
-        let w_e = self.velocity_rad_s * POLE_PAIRS as f32;
+        let m = &self.settings.current.motor;
+        let w_e = self.velocity_rad_s * self.pole_pairs();
         let (v_d, v_q) = match self.command {
             Command::Disable => (0.0, 0.0),
             Command::OpenLoop { v_d_v, v_q_v, .. } => (v_d_v, v_q_v),
-            _ => (-w_e * L_H * self.iq_a, R_OHM * self.iq_a + w_e * PSI_WB),
+            _ => (
+                -w_e * m.lq_h * self.iq_a,
+                m.r_ohm * self.iq_a + w_e * m.flux_linkage_wb,
+            ),
         };
         Telemetry {
             period: self.period,
@@ -282,6 +400,73 @@ impl DeviceContext for SimDrive {
     }
     fn firmware_version(&self) -> [u8; 3] {
         [0, 1, 0]
+    }
+    fn config_record(
+        &mut self,
+        source: ConfigSource,
+        link: WatchdogConfig,
+        out: &mut [u8; MAX_RECORD],
+    ) -> Result<usize, ErrorCode> {
+        let record = match source {
+            ConfigSource::Live => self.live_record(link),
+            ConfigSource::Stored => self
+                .store
+                .as_mut()
+                .ok_or(ErrorCode::Unsupported)?
+                .load()
+                .map_err(store_error)?
+                .ok_or(ErrorCode::NothingStored)?,
+        };
+        record.encode(out).map_err(|_| ErrorCode::BadRecord)
+    }
+    fn store(
+        &mut self,
+        op: StoreOp,
+        staged: &[u8],
+        link: WatchdogConfig,
+    ) -> Result<Option<WatchdogConfig>, ErrorCode> {
+        if self.store.is_none() {
+            return Err(ErrorCode::Unsupported);
+        }
+        // A flash stall in the middle of a calibration: not now.
+        if self.calibrating.is_some() {
+            return Err(ErrorCode::Busy);
+        }
+        let live = self.live_record(link);
+        let store = self.store.as_mut().ok_or(ErrorCode::Unsupported)?;
+        match op {
+            StoreOp::Save => {
+                store.save(&live).map_err(store_error)?;
+                Ok(None)
+            }
+            StoreOp::Erase => {
+                store.erase().map_err(store_error)?;
+                Ok(None)
+            }
+            StoreOp::Load => {
+                let r = store
+                    .load()
+                    .map_err(store_error)?
+                    .ok_or(ErrorCode::NothingStored)?;
+                self.apply_record(&r).map(Some)
+            }
+            StoreOp::Apply => {
+                let r = DriveRecord::decode(staged).map_err(|_| ErrorCode::BadRecord)?;
+                self.apply_record(&r).map(Some)
+            }
+            StoreOp::ApplyAndSave => {
+                let r = DriveRecord::decode(staged).map_err(|_| ErrorCode::BadRecord)?;
+                // Validated whole and saved before anything changes: a
+                // refusal (BadRecord, StoreFailed) leaves all as it was.
+                self.applied(&r)?;
+                self.store
+                    .as_mut()
+                    .ok_or(ErrorCode::Unsupported)?
+                    .save(&r)
+                    .map_err(store_error)?;
+                self.apply_record(&r).map(Some)
+            }
+        }
     }
 }
 

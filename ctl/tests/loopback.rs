@@ -95,13 +95,13 @@ fn velocity_and_position_over_tcp() {
     assert_eq!(st.bad_frames, 0);
     drop(c);
     let dev = server.stop().unwrap();
-    assert_eq!(dev.drive.dividers, (8, 16));
+    assert_eq!(dev.drive.settings.dividers, (8, 16));
 }
 
 #[test]
 fn faults_and_watchdog_over_tcp() {
     let mut dev = SimDevice::default();
-    dev.drive.calibrated = true;
+    dev.drive.settings.calibrated = true;
     dev.drive.trip(Fault::BusOverVoltage);
     let server = SimServer::spawn_with(TcpListener::bind("127.0.0.1:0").unwrap(), dev).unwrap();
     let mut c = Client::connect_tcp(server.addr()).unwrap();

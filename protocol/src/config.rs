@@ -175,7 +175,7 @@ impl Staging {
             Some(0)
         } else if c.total != self.total || usize::from(c.total) > MAX_RECORD {
             Some(1)
-        } else if usize::from(c.offset) + c.data().len() > usize::from(c.total) {
+        } else if usize::from(c.offset).saturating_add(c.data().len()) > usize::from(c.total) {
             Some(2)
         } else {
             None
@@ -185,7 +185,7 @@ impl Staging {
             return Err(ErrorCode::OutOfRange { field });
         }
         let start = usize::from(self.len);
-        let end = start + c.data().len();
+        let end = start.saturating_add(c.data().len());
         let Some(dst) = self.buf.get_mut(start..end) else {
             *self = Self::new();
             return Err(ErrorCode::OutOfRange { field: 2 });

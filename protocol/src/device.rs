@@ -386,6 +386,12 @@ impl DeviceState {
         }
     }
 
+    /// Take the link-watchdog setting of a configuration loaded at boot
+    /// (as [`Request::Store`] does for one loaded later).
+    pub fn restore_link_setting(&mut self, c: WatchdogConfig) {
+        self.adopt_link_setting(c);
+    }
+
     /// Take the link-watchdog setting of an applied configuration: the
     /// automatic one stays automatic, anything else is as if the host had
     /// sent it.
