@@ -36,22 +36,24 @@
 //! | calibration `alignment` alone | always: it is part of `identification` | `Unsupported` |
 
 use crate::config;
+use crate::persist::{self, BoardStore};
 use board_support::board;
 use foc_core::calibration::identification::IdentificationResult;
 use foc_core::calibration::Calibrated;
-use foc_core::control::current::CurrentLoopConfig;
 use foc_core::control::position::PositionLoopConfig;
 use foc_core::control::speed::SpeedLoopConfig;
-use foc_core::control::stage::AngleCalibration;
 use foc_core::control::{
     Command, CommandError, CommandSlot, Fault, FaultSet, Feedback, Limits, Mode,
 };
 use foc_core::drive::{ConfigChange, Status};
+use foc_protocol::config::{ConfigSource, StoreOp, MAX_RECORD};
 use foc_protocol::frame::{encode, FrameDecoder, MAX_FRAME};
+use foc_protocol::message::ErrorCode;
 use foc_protocol::message::{
     Calibration, CurrentGains, ParamId, PositionGains, SpeedGains, Telemetry,
 };
 use foc_protocol::{DeviceContext, DeviceState, Refusal, WatchdogConfig};
+use foc_store::{DriveRecord, Label, StoreError};
 
 /// Link watchdog armed by the first closed-loop command over the link
 /// (unless the host configured it with `SetWatchdog`, `foc-ctl watchdog`):
@@ -98,37 +100,22 @@ impl ConfigMailbox {
     }
 }
 
-/// The configuration in force (as last requested over the link; the
-/// owning tasks apply it within one position-loop period).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Settings {
-    /// Command limits.
-    pub limits: Limits,
-    /// Current loop.
-    pub current: CurrentLoopConfig,
-    /// Angle calibration of the current stage (for a new permit).
-    pub angle: AngleCalibration,
-    /// Speed loop.
-    pub speed: SpeedLoopConfig,
-    /// Position loop.
-    pub position: PositionLoopConfig,
-    /// Speed / position loop dividers [periods].
-    pub dividers: (u16, u16),
-}
+/// The configuration in force, as last requested over the link or loaded
+/// from the store (the owning tasks apply it within one position-loop
+/// period). Its `watchdog` is the *link* watchdog's setting (the current
+/// stage's own command timeout is off in this firmware).
+pub use foc_store::Settings;
 
-impl Settings {
-    /// The build-time configuration (`config::cascade`).
-    pub fn from_config() -> Self {
-        let c = config::cascade(board::PWM_FREQUENCY_HZ as f32);
-        Self {
-            limits: c.current.limits,
-            current: c.current.current,
-            angle: c.current.angle,
-            speed: c.speed,
-            position: c.position,
-            dividers: (c.rates.speed_divider, c.rates.position_divider),
-        }
-    }
+/// A successful identification, as the current loop publishes it.
+#[derive(Clone, Copy, Debug)]
+pub struct Identified {
+    /// What was measured.
+    pub result: IdentificationResult,
+    /// The permit the stage holds since: angle calibration, motor model
+    /// and current-loop gains.
+    pub permit: Calibrated,
+    /// Identifications so far (tells the channel a new one happened).
+    pub count: u32,
 }
 
 /// What the shared state looked like when a frame arrived.
@@ -141,7 +128,7 @@ pub struct Snapshot {
     /// The drive's status (started, mode, faulted, calibrated).
     pub status: Status,
     /// The last successful identification.
-    pub identified: Option<IdentificationResult>,
+    pub identified: Option<Identified>,
 }
 
 /// Mutations a frame asked for, committed after it was handled.
@@ -187,18 +174,77 @@ pub struct Link<'a> {
     pub snap: Snapshot,
     /// The configuration in force.
     pub settings: &'a mut Settings,
+    /// The drive's label (saved with the configuration).
+    pub label: &'a mut Label,
+    /// The configuration store (`None`: this board's region is unusable).
+    pub store: &'a mut Option<BoardStore>,
     /// What to commit.
     pub out: Outbox,
 }
 
 impl Link<'_> {
-    /// The motor model in use: the identified one when an identification
-    /// has succeeded, the build-time one otherwise.
+    /// The motor model in use (the identified one after an identification,
+    /// see [`Comms::fold_identification`]).
     fn motor(&self) -> foc_core::control::MotorParams {
-        self.snap
-            .identified
-            .map(|r| r.motor_params())
-            .unwrap_or(self.settings.current.motor)
+        self.settings.current.motor
+    }
+
+    /// Make `s` (a whole, validated record's settings) the configuration in
+    /// force: every owning task gets its part. The record's calibration
+    /// becomes the drive's permit only where the sensor's angle survives a
+    /// reset (`AngleKind::zero_survives_reset`); elsewhere its motor model
+    /// and gains apply to the calibration the drive has.
+    fn adopt(&mut self, s: Settings, label: Label) {
+        *self.settings = s;
+        *self.label = label;
+        let permit = s
+            .permit()
+            .filter(|_| board::angle_kind().zero_survives_reset());
+        let c = self.out.config.current.get_or_insert_with(Default::default);
+        c.merge(ConfigChange {
+            limits: Some(s.limits),
+            current: Some(s.current),
+            dividers: Some(s.dividers),
+            permit,
+            ..ConfigChange::default()
+        });
+        self.out.config.speed = Some(s.speed);
+        self.out.config.position = Some(s.position);
+    }
+
+    /// Decode, check and adopt a record: whole, or nothing changes.
+    fn apply_record(&mut self, rec: &DriveRecord) -> Result<WatchdogConfig, ErrorCode> {
+        let s = persist::admit(rec).map_err(|e| {
+            defmt::warn!("store: record refused: {}", e);
+            ErrorCode::BadRecord
+        })?;
+        self.adopt(s, rec.label.clone());
+        Ok(persist::link_setting(rec))
+    }
+
+    fn load_stored(&mut self) -> Result<DriveRecord, ErrorCode> {
+        let store = self.store.as_mut().ok_or(ErrorCode::Unsupported)?;
+        match persist::guarded(|| store.load()) {
+            Ok(Some(r)) => Ok(r),
+            Ok(None) => Err(ErrorCode::NothingStored),
+            Err(e) => Err(store_error(e)),
+        }
+    }
+
+    fn save(&mut self, rec: &DriveRecord) -> Result<(), ErrorCode> {
+        let store = self.store.as_mut().ok_or(ErrorCode::Unsupported)?;
+        persist::guarded(|| store.save(rec)).map_err(store_error)?;
+        defmt::info!("store: saved \"{=str}\"", rec.label.as_str());
+        Ok(())
+    }
+}
+
+/// A store failure as a Nack, logged.
+fn store_error(e: StoreError) -> ErrorCode {
+    defmt::warn!("store: {}", e);
+    match e {
+        StoreError::Record(_) | StoreError::Invalid(_) => ErrorCode::BadRecord,
+        _ => ErrorCode::StoreFailed,
     }
 }
 
@@ -262,12 +308,10 @@ impl DeviceContext for Link<'_> {
         Ok(())
     }
     fn set_current_gains(&mut self, gains: CurrentGains) -> Result<(), Refusal> {
+        // After an identification `settings.current` holds the measured
+        // motor model (decoupling, back-EMF feed-forward): only the gains
+        // change.
         let mut cur = self.settings.current;
-        // After an identification the loop runs on the measured motor model
-        // (decoupling, back-EMF feed-forward): keep it, change only gains.
-        if let Some(r) = self.snap.identified {
-            cur.motor = r.motor_params();
-        }
         gains.apply(&mut cur);
         // The stage keeps its calibration only with values a permit vouches
         // for; the current loop re-checks when it installs them.
@@ -332,9 +376,8 @@ impl DeviceContext for Link<'_> {
         self.snap.status
     }
     fn param(&self, id: ParamId) -> Option<f32> {
-        let (m, _) = config::MOTOR;
         Some(match id {
-            ParamId::PolePairs => f32::from(m.pole_pairs),
+            ParamId::PolePairs => f32::from(self.motor().pole_pairs),
             ParamId::ResistanceOhm => self.motor().r_ohm,
             ParamId::LdH => self.motor().ld_h,
             ParamId::LqH => self.motor().lq_h,
@@ -367,6 +410,59 @@ impl DeviceContext for Link<'_> {
     fn firmware_version(&self) -> [u8; 3] {
         FIRMWARE_VERSION
     }
+    fn config_record(
+        &mut self,
+        source: ConfigSource,
+        link: WatchdogConfig,
+        out: &mut [u8; MAX_RECORD],
+    ) -> Result<usize, ErrorCode> {
+        let rec = match source {
+            ConfigSource::Live => persist::live_record(self.label, self.settings, link),
+            ConfigSource::Stored => self.load_stored()?,
+        };
+        rec.encode(out).map_err(|e| {
+            defmt::warn!("store: record does not encode: {}", e);
+            ErrorCode::BadRecord
+        })
+    }
+    fn store(
+        &mut self,
+        op: StoreOp,
+        staged: &[u8],
+        link: WatchdogConfig,
+    ) -> Result<Option<WatchdogConfig>, ErrorCode> {
+        match op {
+            StoreOp::Save => {
+                let rec = persist::live_record(self.label, self.settings, link);
+                self.save(&rec).map(|()| None)
+            }
+            StoreOp::Erase => {
+                let store = self.store.as_mut().ok_or(ErrorCode::Unsupported)?;
+                persist::guarded(|| store.erase()).map_err(store_error)?;
+                defmt::info!("store: erased (the next boot starts from the build-time defaults)");
+                Ok(None)
+            }
+            StoreOp::Load => {
+                let rec = self.load_stored()?;
+                self.apply_record(&rec).map(Some)
+            }
+            StoreOp::Apply | StoreOp::ApplyAndSave => {
+                let rec = DriveRecord::decode(staged).map_err(|e| {
+                    defmt::warn!("store: staged record refused: {}", e);
+                    ErrorCode::BadRecord
+                })?;
+                // Checked whole before anything is written or applied.
+                persist::admit(&rec).map_err(|e| {
+                    defmt::warn!("store: staged record refused: {}", e);
+                    ErrorCode::BadRecord
+                })?;
+                if op == StoreOp::ApplyAndSave {
+                    self.save(&rec)?;
+                }
+                self.apply_record(&rec).map(Some)
+            }
+        }
+    }
 }
 
 /// Link counters (for the log).
@@ -388,6 +484,12 @@ pub struct Comms {
     pub device: DeviceState,
     /// The configuration in force.
     pub settings: Settings,
+    /// The drive's label.
+    pub label: Label,
+    /// The configuration store.
+    pub store: Option<BoardStore>,
+    /// The identification last folded into `settings`.
+    seen_identification: u32,
     /// Counters.
     pub counters: LinkCounters,
     tx: [u8; MAX_FRAME],
@@ -396,15 +498,63 @@ pub struct Comms {
 impl Comms {
     /// Channel over `serial`, watchdog [`AUTO_WATCHDOG`] (armed by the first
     /// closed-loop command), telemetry off.
-    pub fn new(serial: board::CommandSerial) -> Self {
+    /// The settings, label and store come from `boot` (see `persist`).
+    pub fn new(serial: board::CommandSerial, boot: persist::Boot) -> Self {
+        let mut device = DeviceState::with_auto_watchdog(AUTO_WATCHDOG);
+        // A stored link-watchdog setting other than the automatic one is
+        // taken as the host's (see `DeviceState::link_setting`).
+        if let Some(link) = boot.link {
+            device.restore_link_setting(link);
+        }
         Self {
             serial,
             decoder: FrameDecoder::new(),
-            device: DeviceState::with_auto_watchdog(AUTO_WATCHDOG),
-            settings: Settings::from_config(),
+            device,
+            settings: boot.settings,
+            label: boot.label,
+            store: boot.store,
+            seen_identification: 0,
             counters: LinkCounters::default(),
             tx: [0; MAX_FRAME],
         }
+    }
+
+    /// Save the configuration in force and read it back: true when saved
+    /// and equal (the emulated board's store mission).
+    #[cfg(feature = "qemu")]
+    pub fn save_and_verify(&mut self) -> bool {
+        let rec = persist::live_record(&self.label, &self.settings, self.device.link_setting());
+        let Some(store) = self.store.as_mut() else {
+            defmt::error!("store: none on this run");
+            return false;
+        };
+        match store.save(&rec).and_then(|()| store.load()) {
+            Ok(Some(back)) => {
+                defmt::info!("store: saved \"{=str}\"", rec.label.as_str());
+                back == rec
+            }
+            Ok(None) => false,
+            Err(e) => {
+                defmt::error!("store: {}", e);
+                false
+            }
+        }
+    }
+
+    /// Take a new identification into the settings: from now on they
+    /// carry its angle calibration, motor model and gains (and so a save
+    /// stores them).
+    fn fold_identification(&mut self, id: Option<Identified>) {
+        let Some(id) = id else {
+            return;
+        };
+        if id.count == self.seen_identification {
+            return;
+        }
+        self.seen_identification = id.count;
+        self.settings.angle = id.permit.angle();
+        self.settings.current = id.permit.current_config();
+        self.settings.calibrated = true;
     }
 
     /// Queue a whole frame, or nothing when it does not fit (a cut frame
@@ -423,10 +573,13 @@ impl Comms {
     /// of the completed frame (commit it, then call again), or `None` when
     /// no more bytes are waiting.
     pub fn receive(&mut self, snap: Snapshot) -> Option<Outbox> {
+        self.fold_identification(snap.identified);
         while let Some(b) = self.serial.read_byte() {
             let mut link = Link {
                 snap,
                 settings: &mut self.settings,
+                label: &mut self.label,
+                store: &mut self.store,
                 out: Outbox::default(),
             };
             if let Some(n) = self
@@ -445,9 +598,12 @@ impl Comms {
     /// Link watchdog and telemetry stream, at `now_period` (current-loop
     /// periods). Returns the outbox to commit (a watchdog reaction).
     pub fn poll(&mut self, snap: Snapshot, now_period: u32) -> Outbox {
+        self.fold_identification(snap.identified);
         let mut link = Link {
             snap,
             settings: &mut self.settings,
+            label: &mut self.label,
+            store: &mut self.store,
             out: Outbox::default(),
         };
         let sample = self.device.poll(&mut link, now_period);

@@ -35,6 +35,20 @@ pub const WATCHDOG_TIMEOUT_MS: u32 = 50;
 /// refused) until identification is run on command.
 pub const IDENTIFY_AT_STARTUP: bool = cfg!(feature = "qemu");
 
+/// [`IDENTIFY_AT_STARTUP`], except for the emulated board's store missions
+/// (`cargo xtask qemu`), which boot as a real board does: the first run
+/// identifies, the others must not (they boot from the store, or
+/// uncalibrated from a corrupt one).
+pub fn identify_at_start_up() -> bool {
+    #[cfg(feature = "qemu")]
+    if crate::store_mission::requested()
+        .is_some_and(|m| m != crate::store_mission::StoreMission::Save)
+    {
+        return false;
+    }
+    IDENTIFY_AT_STARTUP
+}
+
 /// The identification's settings for this board's motor: test current
 /// (a third of the current limit), open-loop voltage limit [V].
 pub fn identification(
@@ -51,9 +65,13 @@ pub fn identification(
     // bias of a counting sensor.
     #[cfg(feature = "qemu")]
     {
-        c.alignment.sensor_counts_per_rev = board_support::board::sim_config()
-            .sensors
-            .encoder_counts_per_rev;
+        c.alignment.sensor_counts_per_rev = if board_support::board::args().absolute_sensor {
+            board_support::board::SIM_AS5047P_COUNTS_PER_REV
+        } else {
+            board_support::board::sim_config()
+                .sensors
+                .encoder_counts_per_rev
+        };
     }
     #[cfg(not(feature = "qemu"))]
     if let board_support::board::AngleSource::Encoder { cpr } = board_support::board::ANGLE_SOURCE {

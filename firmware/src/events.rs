@@ -15,6 +15,11 @@ pub fn log(e: &Event) -> Option<IdentificationResult> {
         Event::StartUpDone => {
             defmt::info!("start-up done: disabled, waiting for a command")
         }
+        Event::CalibrationRestored => {
+            defmt::info!(
+                "start-up done: calibrated from the store, disabled, waiting for a command"
+            )
+        }
         Event::IdentificationStarted => defmt::info!("identifying the motor"),
         Event::Identified(r) => {
             defmt::info!(

@@ -38,6 +38,9 @@ mod config;
 mod events;
 #[cfg(feature = "qemu")]
 mod mission;
+mod persist;
+#[cfg(feature = "qemu")]
+mod store_mission;
 mod timing;
 mod watchdog;
 
@@ -53,12 +56,12 @@ static CURRENT_LOOP_RUNS: AtomicU32 = AtomicU32::new(0);
 
 #[rtic::app(device = board_support::pac, peripherals = true)]
 mod app {
-    use super::{comms, config, events, timing, watchdog, CURRENT_LOOP_RUNS};
+    use super::{comms, config, events, persist, timing, watchdog, CURRENT_LOOP_RUNS};
     use board_support::board;
     use board_support::pac::Interrupt;
     use core::sync::atomic::Ordering;
-    use foc_core::calibration::identification::IdentificationResult;
     use foc_core::calibration::offsets::OffsetLimits;
+    use foc_core::calibration::Calibrated;
     use foc_core::control::stage::{PositionStage, SpeedStage, VelocityRef};
     use foc_core::control::{CommandSlot, Fault, Feedback, Mode};
     use foc_core::drive::{Drive, Inputs, LifecycleConfig, Status};
@@ -100,9 +103,10 @@ mod app {
         /// command channel's rules look at. Written by `current_loop` (4)
         /// every period; read by `housekeeping` (1) and `serial` (1).
         status: Status,
-        /// The last successful identification. Written by `current_loop`
-        /// (4) when one ends; read by `housekeeping` and `serial` (1).
-        identified: Option<IdentificationResult>,
+        /// The last successful identification and the permit it gave.
+        /// Written by `current_loop` (4) when one ends; read by
+        /// `housekeeping` and `serial` (1).
+        identified: Option<comms::Identified>,
         /// Configuration changes from the command channel. Written (merged)
         /// by `serial` and `housekeeping` (1); each part taken by its owner:
         /// `current` by `current_loop` (4) (applied or refused whole by the
@@ -138,7 +142,16 @@ mod app {
         cp.DWT.enable_cycle_counter();
         let watchdog_reset = watchdog::take_reset_flag();
         let b = board::init(cx.device);
-        let cfg = config::cascade(board::PWM_FREQUENCY_HZ as f32);
+        // The stored configuration, or the build-time one (see `persist`).
+        let boot = persist::boot(b.store);
+        let cfg = persist::cascade(&boot.settings);
+        let angle_kind = board::angle_kind();
+        let stored = boot.settings.permit();
+        if stored.is_some() && !angle_kind.zero_survives_reset() {
+            defmt::warn!(
+                "store: the stored electrical zero does not apply to an incremental encoder (its zero is where the rotor was at reset): motor model and gains kept, identification needed"
+            );
+        }
         let life = LifecycleConfig {
             offsets: Some(OffsetLimits {
                 samples: config::OFFSET_CAL_SAMPLES,
@@ -147,11 +160,11 @@ mod app {
             }),
             sensor_check_reads: config::SENSOR_CHECK_READS,
             identification: Some(config::identification(board::PWM_FREQUENCY_HZ as f32)),
-            identify_at_start_up: config::IDENTIFY_AT_STARTUP,
+            identify_at_start_up: config::identify_at_start_up(),
             speed_divider: cfg.rates.speed_divider,
             position_divider: cfg.rates.position_divider,
-            angle_kind: foc_core::drive::AngleKind::Incremental,
-            stored: None,
+            angle_kind,
+            stored,
         };
         let mut drive = Drive::new(b.pwm, b.currents, b.angle, b.bus, cfg.current, life);
         if watchdog_reset {
@@ -189,7 +202,7 @@ mod app {
                 status: STARTING,
                 identified: None,
                 config_request: comms::ConfigMailbox::EMPTY,
-                comms: comms::Comms::new(b.serial),
+                comms: comms::Comms::new(b.serial, boot),
             },
             Local {
                 drive,
@@ -244,8 +257,22 @@ mod app {
         let status = cx.local.drive.status();
         cx.shared.status.lock(|s| *s = status);
         if let Some(e) = out.event {
-            if let Some(r) = events::log(&e) {
-                cx.shared.identified.lock(|x| *x = Some(r));
+            #[cfg(feature = "qemu")]
+            if e == foc_core::drive::Event::CalibrationRestored {
+                super::store_mission::CALIBRATED_AT_PERIOD.store(*cx.local.tick, Ordering::Relaxed);
+            }
+            if let Some(result) = events::log(&e) {
+                let c = cx.local.drive.stage().config();
+                if let Ok(permit) = Calibrated::supplied(c.angle, c.current) {
+                    cx.shared.identified.lock(|x| {
+                        let count = x.map_or(0, |i| i.count).wrapping_add(1);
+                        *x = Some(comms::Identified {
+                            result,
+                            permit,
+                            count,
+                        });
+                    });
+                }
             }
         }
         if let Some(Err(r)) = out.change {
@@ -272,7 +299,7 @@ mod app {
         if position {
             rtic::pend(Interrupt::EXTI2);
         }
-        if tick % config::HOUSEKEEPING_DIVIDER == 0 {
+        if tick.is_multiple_of(config::HOUSEKEEPING_DIVIDER) {
             rtic::pend(Interrupt::EXTI3);
         }
     }
@@ -305,7 +332,7 @@ mod app {
         fb: &Feedback,
         tm: &timing::LoopTiming,
         status: Status,
-        identified: Option<IdentificationResult>,
+        identified: Option<comms::Identified>,
     ) -> comms::Snapshot {
         comms::Snapshot {
             feedback: *fb,
@@ -377,15 +404,28 @@ mod app {
             // so the current loop is never blocked for the mission's logging.
             let mut slot = cx.shared.command.lock(|c| *c);
             let before = slot;
-            let done = super::mission::tick(
-                &fb,
-                &mut slot,
-                &super::mission::DriveState {
-                    running,
-                    overruns: tm.overruns,
-                    identified,
-                },
-            );
+            let done = match super::store_mission::requested() {
+                Some(m) => {
+                    let view = super::store_mission::View {
+                        fb: &fb,
+                        running,
+                        calibrated: status.calibrated,
+                        identified: identified.is_some(),
+                    };
+                    let mut comms = cx.shared.comms;
+                    let mut save = || comms.lock(|c| c.save_and_verify());
+                    super::store_mission::tick(m, &view, &mut slot, &mut save)
+                }
+                None => super::mission::tick(
+                    &fb,
+                    &mut slot,
+                    &super::mission::DriveState {
+                        running,
+                        overruns: tm.overruns,
+                        identified: identified.map(|i| i.result),
+                    },
+                ),
+            };
             if slot != before {
                 cx.shared.command.lock(|c| *c = slot);
             }

@@ -19,10 +19,13 @@
 //!    cleared, velocity 50 rad/s: running again;
 //! 7. no current-loop overrun during the whole run.
 //!
-//! With the semihosting argument `panic` it instead panics during the
-//! position move; the panic handler must leave the bridge off.
+//! With the semihosting argument `mission=panic` it instead panics during
+//! the position move; the panic handler must leave the bridge off.
 //!
-//! With the semihosting argument `e2e` the mission stays passive: it posts
+//! With `mission=store-save`, `store-boot` or `store-corrupt` the store
+//! missions run instead (see `store_mission`).
+//!
+//! With the semihosting argument `mission=e2e` the mission stays passive: it posts
 //! nothing, checks nothing and never exits, so that only the command
 //! channel (USART2, `cargo xtask e2e`) drives the drive.
 //! The outcome is the QEMU exit status (see [`exit`]).
@@ -48,27 +51,15 @@ pub fn exit(code: u32) -> ! {
     sim::exit(code)
 }
 
-/// True when QEMU passed `panic` as a semihosting argument.
+/// True when QEMU passed `mission=panic` as a semihosting argument.
 pub fn panic_run_requested() -> bool {
-    cmdline_has(b"panic")
+    board_support::board::args().mission() == "panic"
 }
 
-/// True when QEMU passed `e2e` as a semihosting argument (passive mission).
+/// True when QEMU passed `mission=e2e` as a semihosting argument (passive
+/// mission).
 pub fn e2e_run_requested() -> bool {
-    cmdline_has(b"e2e")
-}
-
-/// True when the semihosting command line contains `word`.
-fn cmdline_has(word: &[u8]) -> bool {
-    const SYS_GET_CMDLINE: usize = 0x15;
-    let mut buf = [0u8; 64];
-    // SAFETY: semihosting GET_CMDLINE writes at most `buf.len()` bytes.
-    let block = [buf.as_mut_ptr() as usize, buf.len()];
-    let r = unsafe { cortex_m_semihosting::syscall(SYS_GET_CMDLINE, &block) };
-    if r != 0 {
-        return false;
-    }
-    buf.windows(word.len()).any(|w| w == word)
+    board_support::board::args().mission() == "e2e"
 }
 
 /// Mission steps.

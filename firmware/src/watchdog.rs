@@ -51,3 +51,40 @@ pub fn take_reset_flag() -> bool {
     rcc.csr().modify(|_, w| w.rmvf().set_bit());
     was
 }
+
+/// Run `f` with the watchdog stretched to its longest timeout (prescaler
+/// /256, reload 4095: about 32 s at the nominal 32 kHz LSI), then restore
+/// `timeout_ms`. For the flash store only: erasing a 128 KiB sector of the
+/// internal flash stalls instruction fetch, and so every task, for 1-2 s
+/// (RM0390 / RM0090 section 3.6; datasheet t_ERASE128KB), far beyond the
+/// normal timeout. Callers keep the bridge off while `f` runs (the
+/// protocol allows store operations only while disabled).
+pub fn stretched<T>(timeout_ms: u32, f: impl FnOnce() -> T) -> T {
+    // SAFETY: see `start`; PR/RLR writes after the unlock key only change
+    // the timeout (RM0090 21.3.2).
+    let iwdg = unsafe { &*pac::IWDG::ptr() };
+    feed();
+    iwdg.kr().write(|w| w.key().unlock());
+    iwdg.pr().write(|w| w.pr().divide_by256());
+    iwdg.rlr().write(|w| w.rl().set(0x0FFF));
+    wait_update(iwdg);
+    feed();
+    let out = f();
+    feed();
+    iwdg.kr().write(|w| w.key().unlock());
+    iwdg.pr().write(|w| w.pr().divide_by32());
+    iwdg.rlr()
+        .write(|w| w.rl().set(timeout_ms.clamp(1, 0x0FFF) as u16));
+    wait_update(iwdg);
+    feed();
+    out
+}
+
+/// Wait (bounded, for emulators that do not model the IWDG) until the
+/// prescaler and reload updates are done (SR.PVU/RVU clear).
+fn wait_update(iwdg: &pac::iwdg::RegisterBlock) {
+    let mut n = 0u32;
+    while iwdg.sr().read().bits() != 0 && n < 100_000 {
+        n += 1;
+    }
+}

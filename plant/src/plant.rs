@@ -280,6 +280,23 @@ impl SensorConfig {
     }
 }
 
+/// What the rotor angle sensor reads relative to the rotor (chosen with
+/// [`Plant::set_angle_sensor`]; [`SensorConfig::encoder_offset_rad`] and the
+/// encoder faults apply on top, in both cases).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum AngleSensorKind {
+    /// A counting encoder: reads 0 at power-on ([`Plant::new`],
+    /// [`Plant::start_rotor_at`]) wherever the rotor is, and counts the
+    /// rotor's motion from there. The default.
+    Incremental,
+    /// An absolute sensor (AS5047P-like): reads the true mechanical angle
+    /// minus a fixed mounting offset from the first sample.
+    Absolute {
+        /// Mechanical angle of the rotor at which the sensor reads 0 [rad].
+        mounting_offset_rad: Real,
+    },
+}
+
 /// Inverter, supply and timing configuration.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct BenchConfig {
@@ -478,6 +495,12 @@ pub struct Plant {
     v_terminal_avg: [Real; 3],
     load_nm: Real,
     last_encoder_counts: u32,
+    /// Sensor model.
+    angle_sensor: AngleSensorKind,
+    /// Mechanical angle at which the sensor reads 0 (before
+    /// `encoder_offset_rad`) [rad]: the power-on angle of an incremental
+    /// encoder, the mounting offset of an absolute sensor.
+    sensor_zero_m_rad: Real,
     time_s: f64,
     period: u64,
     energy: EnergyAccount,
@@ -511,6 +534,8 @@ impl Plant {
             v_terminal_avg: [0.0; 3],
             load_nm: 0.0,
             last_encoder_counts: 0,
+            angle_sensor: AngleSensorKind::Incremental,
+            sensor_zero_m_rad: 0.0,
             time_s: 0.0,
             period: 0,
             energy: EnergyAccount::default(),
@@ -546,7 +571,35 @@ impl Plant {
             Mechanics::ConstantSpeed(w) => self.omega_m = w,
         }
     }
-    /// Put the rotor at mechanical angle `theta_m` [rad].
+    /// Start the rotor at mechanical angle `theta_m_rad` [rad] as at
+    /// power-on: position counted from here (no turns), and an incremental
+    /// encoder reads 0 here. An absolute sensor keeps its mounting offset.
+    pub fn start_rotor_at(&mut self, theta_m_rad: Real) {
+        let (r, _) = real::wrap_tau(theta_m_rad);
+        self.theta_m = r;
+        self.turns = 0;
+        if self.angle_sensor == AngleSensorKind::Incremental {
+            self.sensor_zero_m_rad = r;
+        }
+    }
+    /// Choose the angle sensor. [`AngleSensorKind::Incremental`] reads 0 at
+    /// the rotor's present angle (as if the drive had just been powered on);
+    /// [`AngleSensorKind::Absolute`] reads `theta_m - mounting_offset_rad`.
+    pub fn set_angle_sensor(&mut self, kind: AngleSensorKind) {
+        self.angle_sensor = kind;
+        self.sensor_zero_m_rad = match kind {
+            AngleSensorKind::Incremental => self.theta_m,
+            AngleSensorKind::Absolute {
+                mounting_offset_rad,
+            } => mounting_offset_rad,
+        };
+    }
+    /// The angle sensor model.
+    pub fn angle_sensor(&self) -> AngleSensorKind {
+        self.angle_sensor
+    }
+    /// Put the rotor at mechanical angle `theta_m` [rad] (a jump: an
+    /// incremental encoder counts it, see [`Plant::start_rotor_at`]).
     pub fn set_rotor_angle(&mut self, theta_m_rad: Real) {
         let (r, _) = real::wrap_tau(theta_m_rad);
         self.theta_m = r;
@@ -1140,7 +1193,7 @@ impl Plant {
         } else {
             1.0
         };
-        let turns = (dir * self.theta_m - s.encoder_offset_rad) / TAU;
+        let turns = (dir * (self.theta_m - self.sensor_zero_m_rad) - s.encoder_offset_rad) / TAU;
         let frac = turns - real::floor(turns);
         let mut counts = (real::floor(frac * cpr as Real) as i64).rem_euclid(cpr as i64);
         match self.faults.encoder {
@@ -1222,6 +1275,71 @@ mod tests {
             hs += phase_fractions(0.37, 0.01, j as Real / 16.0, (j + 1) as Real / 16.0).0;
         }
         assert!((hs - 0.36).abs() < 1e-12);
+    }
+
+    /// One period with the bridge off and the rotor at rest: what the
+    /// sensor reads [rad], and one encoder count [rad].
+    fn first_reading(plant: &mut Plant) -> (f32, f32) {
+        let m = plant.step_period([0.5; 3], false, 0.0);
+        let count = TAU as f32 / plant.config().sensors.encoder_counts_per_rev as f32;
+        (m.angle.to_radians(), count)
+    }
+
+    /// Distance between two angles on the circle [rad].
+    fn circle_distance(a: f32, b: f32) -> f32 {
+        let d = (a - b).rem_euclid(TAU as f32);
+        d.min(TAU as f32 - d)
+    }
+
+    #[test]
+    fn default_sensor_reads_as_before() {
+        let mut plant = Plant::new(MotorParams::example(), BenchConfig::default());
+        assert_eq!(plant.angle_sensor(), AngleSensorKind::Incremental);
+        let (a, _) = first_reading(&mut plant);
+        assert_eq!(a, 0.0);
+    }
+
+    #[test]
+    fn incremental_reads_zero_at_start_and_counts() {
+        let mut plant = Plant::new(MotorParams::example(), BenchConfig::default());
+        plant.start_rotor_at(1.3);
+        let (a, count) = first_reading(&mut plant);
+        assert!(circle_distance(a, 0.0) <= count, "{a}");
+        assert!((plant.theta_m_rad() - 1.3).abs() < 1e-6);
+        // It counts the motion from there.
+        plant.set_rotor_angle(1.3 + 0.5);
+        let (a, count) = first_reading(&mut plant);
+        assert!(circle_distance(a, 0.5) <= count, "{a}");
+        // Chosen after the start: reads 0 where the rotor is.
+        plant.set_angle_sensor(AngleSensorKind::Incremental);
+        let (a, count) = first_reading(&mut plant);
+        assert!(circle_distance(a, 0.0) <= count, "{a}");
+    }
+
+    #[test]
+    fn absolute_reads_true_angle_minus_mounting_offset() {
+        for start in [1.3, 0.2, 0.0, 6.0] {
+            // Either order of the two calls.
+            for sensor_first in [true, false] {
+                let mut plant = Plant::new(MotorParams::example(), BenchConfig::default());
+                let abs = AngleSensorKind::Absolute {
+                    mounting_offset_rad: 0.9,
+                };
+                if sensor_first {
+                    plant.set_angle_sensor(abs);
+                    plant.start_rotor_at(start);
+                } else {
+                    plant.start_rotor_at(start);
+                    plant.set_angle_sensor(abs);
+                }
+                let (a, count) = first_reading(&mut plant);
+                let expected = real::wrap_tau(start - 0.9).0 as f32;
+                assert!(
+                    circle_distance(a, expected) <= count,
+                    "start {start}: {a} vs {expected}"
+                );
+            }
+        }
     }
 
     #[test]

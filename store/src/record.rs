@@ -225,14 +225,16 @@ pub enum RecordError {
 impl fmt::Display for RecordError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
-            Self::TooShort => f.write_str("the stored record is truncated"),
-            Self::TooLong => f.write_str("the record is longer than its envelope or the buffer allows"),
-            Self::BadChecksum => f.write_str("the stored record's checksum does not match (corrupted)"),
+            Self::TooShort => f.write_str("the record is truncated"),
+            Self::TooLong => {
+                f.write_str("the record is longer than its envelope or the buffer allows")
+            }
+            Self::BadChecksum => f.write_str("the record's checksum does not match (corrupted)"),
             Self::UnsupportedVersion { found, supported } => write!(
                 f,
-                "the stored record has schema version {found}, this firmware reads version {supported}"
+                "the record has schema version {found}, this firmware reads version {supported}"
             ),
-            Self::Malformed => f.write_str("the stored record's contents cannot be decoded"),
+            Self::Malformed => f.write_str("the record's contents cannot be decoded"),
         }
     }
 }
@@ -247,7 +249,7 @@ pub struct Invalid {
 
 impl fmt::Display for Invalid {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "stored value `{}` is out of range", self.field)
+        write!(f, "record value `{}` is out of range", self.field)
     }
 }
 

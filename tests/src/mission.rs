@@ -1179,7 +1179,7 @@ struct Progress<'a> {
 impl Progress<'_> {
     /// Report the fraction done every 2048 rows.
     fn tick(&mut self, sim: &Sim) {
-        if sim.rows() % 2048 == 0 {
+        if sim.rows().is_multiple_of(2048) {
             (self.report)((sim.rows() as f64 / self.total as f64).min(1.0));
         }
     }

@@ -546,7 +546,10 @@ mod stored_calibration {
             |_| None,
             |e| matches!(e, Event::Identified(_) | Event::IdentificationFailed(..)),
         );
-        assert!(matches!(seen.last(), Some((_, Event::Identified(_)))), "{seen:?}");
+        assert!(
+            matches!(seen.last(), Some((_, Event::Identified(_)))),
+            "{seen:?}"
+        );
         let c = sim.cascade.current.config();
         Calibrated::supplied(c.angle, c.current).unwrap()
     }
@@ -567,8 +570,18 @@ mod stored_calibration {
         let s = dji();
         let permit = identified_permit(&s);
         let start_rad = 2.1;
-        let mut sim = boot(&s, absolute_plant(&s, start_rad), AngleKind::Absolute, permit);
-        let seen = run_until(&mut sim, 5000, |_| None, |e| *e == Event::CalibrationRestored);
+        let mut sim = boot(
+            &s,
+            absolute_plant(&s, start_rad),
+            AngleKind::Absolute,
+            permit,
+        );
+        let seen = run_until(
+            &mut sim,
+            5000,
+            |_| None,
+            |e| *e == Event::CalibrationRestored,
+        );
         let (period, _) = *seen.last().unwrap();
         assert!(
             !seen.iter().any(|(_, e)| *e == Event::IdentificationStarted),
@@ -578,7 +591,10 @@ mod stored_calibration {
         assert!(ms < 100.0, "calibrated {ms} ms after reset");
         assert!(sim.cascade.is_calibrated());
         let motion = (sim.plant.position_rad() as f64 - f64::from(start_rad)).abs();
-        assert!(motion < 0.01, "rotor moved {motion} rad before the first command");
+        assert!(
+            motion < 0.01,
+            "rotor moved {motion} rad before the first command"
+        );
         // A torque command gives the torque the motor's constant says: the
         // stored zero is right although the rotor started elsewhere.
         let iq_a = 0.5 * s.max_current_a as f32;
@@ -604,7 +620,12 @@ mod stored_calibration {
         let mut plant = Plant::new(s.motor, s.bench);
         plant.start_rotor_at(2.1);
         let mut sim = boot(&s, plant, AngleKind::Incremental, permit);
-        let seen = run_until(&mut sim, 5000, |_| None, |e| *e == Event::IdentificationStarted);
+        let seen = run_until(
+            &mut sim,
+            5000,
+            |_| None,
+            |e| *e == Event::IdentificationStarted,
+        );
         assert!(!seen.iter().any(|(_, e)| *e == Event::CalibrationRestored));
         assert!(!sim.cascade.is_calibrated());
     }

@@ -14,7 +14,11 @@
 //!    malformed, `seq` 0), nothing changed;
 //! 5. an out-of-range velocity (1e6 rad/s) and dividers while running:
 //!    Nack (field 1 out of range / not disabled), nothing changed;
-//! 6. faults read (none latched), disable, QEMU killed.
+//! 6. faults read (none latched), disable;
+//! 7. the configuration store (a fresh file, semihosting `store=`): save,
+//!    read back equal; export as TOML, edit, import (applied and saved),
+//!    read back equal; erase, nothing stored;
+//! 8. the link watchdog; QEMU killed.
 //!
 //! Every wait is bounded in emulated time, counted in the firmware's own
 //! PWM periods (telemetry `period`, at the PWM frequency the firmware
@@ -48,8 +52,10 @@ use std::time::{Duration, Instant};
 use clap::Args;
 use foc_core::control::{Command as DriveCommand, Fault, Mode};
 use foc_ctl::{Client, ClientError, TcpTransport};
+use foc_protocol::config::{ConfigSource, StoreOp};
 use foc_protocol::frame::{encode, FrameDecoder, MAX_FRAME};
 use foc_protocol::message::{ErrorCode, ParamId, Request, Response, Telemetry, TelemetryRate};
+use foc_store::DriveRecord;
 
 use crate::qemu;
 use crate::util::{Error, Result};
@@ -118,8 +124,18 @@ impl Drop for Emulator {
 impl Emulator {
     fn start(elf: &Path, port: u16, verbose: bool) -> Result<Self> {
         let serial = format!("tcp:127.0.0.1:{port},server,nowait");
-        let (qemu, lines) =
-            qemu::spawn_decoded(elf, &["e2e"], "shift=0,align=off,sleep=off", &serial)?;
+        // A fresh configuration store for this run (semihosting `store=`).
+        let dir = crate::util::target_dir().join("qemu-store");
+        std::fs::create_dir_all(&dir).map_err(|e| Error(format!("{}: {e}", dir.display())))?;
+        let store = dir.join("e2e-store.bin");
+        let _ = std::fs::remove_file(&store);
+        let store_arg = format!("store={}", store.display());
+        let (qemu, lines) = qemu::spawn_decoded(
+            elf,
+            &["mission=e2e", store_arg.as_str()],
+            "shift=0,align=off,sleep=off",
+            &serial,
+        )?;
         let log = Arc::new(Mutex::new(VecDeque::new()));
         let tail = log.clone();
         // Ends when QEMU's output closes (QEMU killed).
@@ -370,6 +386,7 @@ fn run_session(emu: &mut Emulator, port: u16, start: Instant) -> Result {
     s.malformed_frames(target)?;
     s.refused_commands(target)?;
     s.faults_and_disable()?;
+    s.configuration_store()?;
     s.link_watchdog()?;
     emu.alive()
 }
@@ -648,6 +665,81 @@ impl Session {
             st.requests, st.retransmissions, st.bad_frames, st.stale_replies, st.stream_samples
         );
         Ok(())
+    }
+
+    /// Step 7, the configuration store (drive disabled): save and read the
+    /// stored record back equal to the live one; export it as TOML, edit
+    /// the label and a gain, import it (checked on the host, then applied
+    /// and saved by the drive) and read both records back equal to the
+    /// edit; erase: nothing stored, and a load says so.
+    fn configuration_store(&mut self) -> Result {
+        let live = self
+            .client
+            .read_config(ConfigSource::Live)
+            .map_err(client_err("read the live configuration"))?;
+        let rec = DriveRecord::decode(&live)
+            .map_err(|e| Error(format!("FAIL live configuration record: {e}")))?;
+        check(
+            rec.calibration.is_some(),
+            format!(
+                "live configuration: {} bytes, calibration from the start-up identification",
+                live.len()
+            ),
+        )?;
+        self.client
+            .store(StoreOp::Save)
+            .map_err(client_err("config save"))?;
+        let stored = self
+            .client
+            .read_config(ConfigSource::Stored)
+            .map_err(client_err("read the stored configuration"))?;
+        check(stored == live, "config save: stored record read back equal")?;
+
+        // Export, edit, import (as `foc-ctl config export` / `import`):
+        // through the TOML text, checked on the host.
+        let mut want = rec.clone();
+        want.label = foc_store::Label::try_from("e2e joint 3")
+            .map_err(|_| Error("label too long".into()))?;
+        want.speed.kp_a_per_rad_s *= 0.5;
+        let edited = foc_store::text::from_toml(&foc_store::text::to_toml(&want))
+            .map_err(|e| Error(format!("FAIL import: the edited file is refused: {e}")))?;
+        check(
+            edited == want,
+            "export -> TOML -> edit (label, speed kp) -> checked on the host",
+        )?;
+        let mut bytes = [0u8; foc_store::MAX_RECORD_BYTES];
+        let n = edited
+            .encode(&mut bytes)
+            .map_err(|e| Error(format!("FAIL encode: {e}")))?;
+        self.client
+            .write_config(&bytes[..n])
+            .map_err(client_err("config import (write)"))?;
+        self.client
+            .store(StoreOp::ApplyAndSave)
+            .map_err(client_err("config import (apply and save)"))?;
+        let live = self
+            .client
+            .read_config(ConfigSource::Live)
+            .map_err(client_err("read the live configuration"))?;
+        let stored = self
+            .client
+            .read_config(ConfigSource::Stored)
+            .map_err(client_err("read the stored configuration"))?;
+        check(
+            live == bytes[..n] && stored == live,
+            "config import: live and stored records read back equal to the edit",
+        )?;
+
+        self.client
+            .store(StoreOp::Erase)
+            .map_err(client_err("config erase"))?;
+        let after = self.client.read_config(ConfigSource::Stored);
+        let load = self.client.store(StoreOp::Load);
+        check(
+            matches!(after, Err(ClientError::Nack(ErrorCode::NothingStored)))
+                && matches!(load, Err(ClientError::Nack(ErrorCode::NothingStored))),
+            format!("config erase: nothing stored (read {after:?}, load {load:?})"),
+        )
     }
 
     /// The link watchdog armed by the first closed-loop command (1 s, Stop

@@ -34,6 +34,7 @@
 use super::Led;
 use crate::hw::adc::{setup_adc1, InjectedCurrents, RegularBus, SampleTime, Shunts};
 use crate::hw::angle::{AngleInput, AngleSource, HallSensor, QuadEncoder};
+use crate::hw::flash::StoreFlash;
 use crate::hw::pwm::{PwmConfig, Tim1Pwm, Topology};
 use crate::hw::serial::CommandSerial;
 use crate::hw::{enable_cycle_counter, PinId, Port};
@@ -81,6 +82,26 @@ pub const ANGLE_SOURCE: AngleSource = AngleSource::Hall(HallConfig {
     pole_pairs: 11,
     ..HallConfig::DEFAULT
 });
+
+/// The configuration store: flash sectors 6-7 (0x0804_0000..0x0808_0000) of
+/// the 512 KiB STM32F446RE / F401RE, as offsets from the flash base
+/// (RM0390 §3.3 table 4, RM0368 §3.3 table 5). The linker scripts keep the
+/// program out of it (`STORE` region of `memory/<board>.x`).
+pub const STORE_RANGE: core::ops::Range<u32> = 0x4_0000..0x8_0000;
+const _: () = assert!(
+    STORE_RANGE
+        .start
+        .is_multiple_of(crate::hw::flash::SECTOR_SIZE)
+        && STORE_RANGE
+            .end
+            .is_multiple_of(crate::hw::flash::SECTOR_SIZE)
+        && STORE_RANGE.end <= 512 * 1024
+);
+
+/// What the angle input tells at reset (from [`ANGLE_SOURCE`]).
+pub const fn angle_kind() -> foc_core::drive::AngleKind {
+    ANGLE_SOURCE.kind()
+}
 
 /// The L6230 enable pins EN1..3 (PC10, PC11, PC12).
 pub const ENABLE_PINS: [PinId; 3] = [
@@ -143,6 +164,9 @@ pub struct Board {
     pub led: Led,
     /// Command UART: USART2 on PA2/PA3, the ST-LINK virtual COM port.
     pub serial: CommandSerial,
+    /// The configuration store's flash region ([`STORE_RANGE`]). Erasing a
+    /// sector stalls the CPU for 1-2 s: bridge off first (`hw::flash`).
+    pub store: StoreFlash,
 }
 
 /// Baud rate of the command UART [bit/s] (8N1).
@@ -250,6 +274,9 @@ pub(crate) fn init(dp: pac::Peripherals, p: Params) -> Board {
         bus,
         led: Led::new(Some(LED_PIN)),
         serial,
+        // After `rcc.freeze`, which sets the wait states through its own
+        // FLASH_ACR pointer and does not need the peripheral.
+        store: StoreFlash::new(dp.FLASH, STORE_RANGE),
     }
 }
 

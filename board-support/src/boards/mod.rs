@@ -18,6 +18,9 @@ pub mod odrive_v3;
 #[cfg(feature = "qemu")]
 pub mod qemu;
 
+#[cfg(feature = "qemu")]
+pub mod qemu_store;
+
 /// A status LED (no-op on boards without one).
 pub struct Led {
     pin: Option<PinId>,

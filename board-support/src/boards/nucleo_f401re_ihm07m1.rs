@@ -8,14 +8,15 @@
 //! below). Memory: `board-support/memory/nucleo-f401re-ihm07m1.x`.
 
 pub use super::ihm07m1::{
-    break_isr_ack, emergency_disable, gate_driver_fault, Angle, Board, Bus, Currents, Pwm,
-    ANGLE_SOURCE, BREAK_IRQ, BUS_SCALE, BUS_VOLTAGE_MAX_V, BUS_VOLTAGE_MIN_V, CURRENT_IRQ,
+    angle_kind, break_isr_ack, emergency_disable, gate_driver_fault, Angle, Board, Bus, Currents,
+    Pwm, ANGLE_SOURCE, BREAK_IRQ, BUS_SCALE, BUS_VOLTAGE_MAX_V, BUS_VOLTAGE_MIN_V, CURRENT_IRQ,
     CURRENT_SCALE, DEAD_TIME_NS, DIAG_PIN, ENABLE_PINS, HALL_PINS, HAS_BREAK_INPUT, LED_PIN,
     MAX_MEASURABLE_CURRENT_A, MAX_PHASE_CURRENT_A, PWM_FREQUENCY_15K_HZ, PWM_FREQUENCY_HZ,
-    SERIAL_BAUD, SERIAL_IRQ,
+    SERIAL_BAUD, SERIAL_IRQ, STORE_RANGE,
 };
 pub use super::Led;
 pub use crate::hw::angle::AngleSource;
+pub use crate::hw::flash::StoreFlash;
 pub use crate::hw::serial::CommandSerial;
 use crate::pac;
 use fugit::RateExtU32;

@@ -50,6 +50,7 @@ use crate::hw::adc::{setup_adc1, InjectedCurrents, RegularBus, SampleTime, Shunt
 pub use crate::hw::angle::AngleSource;
 use crate::hw::angle::{AngleInput, HallSensor, QuadEncoder};
 use crate::hw::drv8301::{Drv8301, Drv8301Error};
+pub use crate::hw::flash::StoreFlash;
 use crate::hw::pwm::{PwmConfig, Tim1Pwm, Topology};
 pub use crate::hw::serial::CommandSerial;
 use crate::hw::{delay_us, enable_cycle_counter, PinId, Port};
@@ -94,6 +95,26 @@ pub const BUS_VOLTAGE_MAX_V: f32 = 56.0;
 /// Rotor angle input chosen at `init`: the M0 encoder (CUI AMT102 at 2048
 /// lines = 8192 counts, the usual ODrive encoder; change to suit).
 pub const ANGLE_SOURCE: AngleSource = AngleSource::Encoder { cpr: 8192 };
+
+/// The configuration store: flash sectors 10-11 (0x080C_0000..0x0810_0000)
+/// of the 1 MiB STM32F405RG, as offsets from the flash base (RM0090 §3.3
+/// table 5). The linker script keeps the program out of it (`STORE` region
+/// of `memory/odrive-v3.x`).
+pub const STORE_RANGE: core::ops::Range<u32> = 0xC_0000..0x10_0000;
+const _: () = assert!(
+    STORE_RANGE
+        .start
+        .is_multiple_of(crate::hw::flash::SECTOR_SIZE)
+        && STORE_RANGE
+            .end
+            .is_multiple_of(crate::hw::flash::SECTOR_SIZE)
+        && STORE_RANGE.end <= 1024 * 1024
+);
+
+/// What the angle input tells at reset (from [`ANGLE_SOURCE`]).
+pub const fn angle_kind() -> foc_core::drive::AngleKind {
+    ANGLE_SOURCE.kind()
+}
 
 /// Shunt resistance [ohm] (v3.4+).
 pub const SHUNT_OHM: f32 = 0.0005;
@@ -171,6 +192,9 @@ pub struct Board {
     pub gate_driver_config: Result<(), Drv8301Error>,
     /// Command UART: USART2 on GPIO3 (PA2, TX) / GPIO4 (PA3, RX).
     pub serial: CommandSerial,
+    /// The configuration store's flash region ([`STORE_RANGE`]). Erasing a
+    /// sector stalls the CPU for 1-2 s: bridge off first (`hw::flash`).
+    pub store: StoreFlash,
 }
 
 /// Set up clocks, pins, TIM1, ADC1, the DRV8301 and the angle input.
@@ -311,6 +335,9 @@ pub fn init(dp: pac::Peripherals) -> Board {
         gate_driver,
         gate_driver_config,
         serial,
+        // After `rcc.freeze`, which sets the wait states through its own
+        // FLASH_ACR pointer and does not need the peripheral.
+        store: StoreFlash::new(dp.FLASH, STORE_RANGE),
     }
 }
 

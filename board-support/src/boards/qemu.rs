@@ -23,6 +23,16 @@
 //!
 //! [`sim`] is the test harness's handle on the plant (load torque, fault
 //! injection, the true state) for the scripted mission.
+//!
+//! Options come from the semihosting command line ([`args`], see
+//! [`crate::logic::emu_args`]): `store=PATH` backs [`StoreFlash`] with a
+//! host file (`super::qemu_store`), `sensor=absolute` replaces the
+//! incremental encoder by an absolute (AS5047P-like, 14-bit) sensor
+//! mounted [`SIM_AS5047P_MOUNTING_OFFSET_RAD`] from the rotor's zero,
+//! `rotor=X` starts the rotor at `X` rad, `mission=NAME` names the test
+//! mission. Without options the board behaves as before: incremental
+//! encoder, rotor at 0, reading exactly what it read before the options
+//! existed.
 
 pub use crate::hw::serial::CommandSerial;
 use crate::hw::serial::SerialConfig;
@@ -31,14 +41,17 @@ use core::cell::{Cell, RefCell};
 use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 use cortex_m::interrupt::{free, Mutex};
 use foc_core::angle::MechanicalAngle;
+use foc_core::drive::AngleKind;
 use foc_core::frames::Abc;
 use foc_core::hal::{AngleSensor, BusVoltage, CurrentSense, PhaseCurrents, PwmDriver};
 use foc_plant::plant::{
-    BenchConfig, Measurements, MotorParams, Plant, PwmMode, SensorConfig, Shunts,
+    AngleSensorKind, BenchConfig, Measurements, MotorParams, Plant, PwmMode, SensorConfig, Shunts,
 };
 use pac::interrupt;
 
+pub use super::qemu_store::{args, SimStoreError, StoreFlash, STORE_RANGE};
 pub use super::Led;
+pub use crate::logic::emu_args::EmuArgs;
 
 /// Board name.
 pub const NAME: &str = "QEMU netduinoplus2 (STM32F405) + simulated motor";
@@ -114,6 +127,36 @@ pub fn sim_config() -> BenchConfig {
             seed: 7,
         },
     }
+}
+
+/// Mounting offset of the emulated absolute sensor (`sensor=absolute`):
+/// the rotor's mechanical angle at which it reads 0 [rad]. Non-zero so that
+/// a stored calibration is meaningfully non-trivial.
+pub const SIM_AS5047P_MOUNTING_OFFSET_RAD: f32 = 0.9;
+/// Counts per turn of the emulated absolute sensor (AS5047P: 14 bits).
+pub const SIM_AS5047P_COUNTS_PER_REV: u32 = 1 << 14;
+
+/// What the angle sensor tells at reset: `Absolute` with
+/// `sensor=absolute`, else `Incremental` (from [`args`]).
+pub fn angle_kind() -> AngleKind {
+    if args().absolute_sensor {
+        AngleKind::Absolute
+    } else {
+        AngleKind::Incremental
+    }
+}
+
+/// The plant as the options ask: sensor model and rotor start angle.
+fn sim_plant(args: &EmuArgs) -> Plant {
+    let mut plant = Plant::new(SIM_MOTOR, sim_config());
+    if args.absolute_sensor {
+        plant.config_mut().sensors.encoder_counts_per_rev = SIM_AS5047P_COUNTS_PER_REV;
+        plant.set_angle_sensor(AngleSensorKind::Absolute {
+            mounting_offset_rad: SIM_AS5047P_MOUNTING_OFFSET_RAD,
+        });
+    }
+    plant.start_rotor_at(args.rotor_start_rad);
+    plant
 }
 
 struct World {
@@ -320,6 +363,9 @@ pub struct Board {
     pub led: Led,
     /// Command UART: USART2 (QEMU `-serial` number two).
     pub serial: CommandSerial,
+    /// The configuration store: a host file through semihosting
+    /// (`store=PATH`), failing every operation without one.
+    pub store: StoreFlash,
 }
 
 /// Create the plant, start TIM2 as the period source, bridge off.
@@ -328,10 +374,15 @@ pub struct Board {
 /// ([`QEMU_TIMER_CLOCK_HZ`]), auto-reload for [`EMULATED_PERIOD_US`],
 /// update interrupt enabled. Its
 /// NVIC priority stays 0 (the highest, above every RTIC task).
+///
+/// First reads the options ([`args`]) from the semihosting command line and
+/// opens the store file they name.
 pub fn init(dp: pac::Peripherals) -> Board {
+    let args = super::qemu_store::init_args();
+    let plant = sim_plant(args);
     free(|cs| {
         WORLD.borrow(cs).replace(Some(World {
-            plant: Plant::new(SIM_MOTOR, sim_config()),
+            plant,
             load_nm: 0.0,
         }));
         DUTIES.borrow(cs).set([0.5; 3]);
@@ -377,6 +428,7 @@ pub fn init(dp: pac::Peripherals) -> Board {
         bus: SimBus { _private: () },
         led: Led::new(None),
         serial,
+        store: StoreFlash::open(args),
     }
 }
 
@@ -459,6 +511,9 @@ pub mod sim {
         pub omega_m_rad_s: f32,
         /// Mechanical position, unwrapped [rad].
         pub position_rad: f32,
+        /// Mechanical angle of the rotor, wrapped to `[0, 2 pi)` [rad] (the
+        /// truth behind the sensor: no mounting offset, no quantisation).
+        pub theta_m_rad: f32,
         /// d and q currents [A].
         pub id_a: f32,
         /// q current [A].
@@ -515,6 +570,7 @@ pub mod sim {
                 .map(|w| Truth {
                     omega_m_rad_s: w.plant.omega_m_rad_s(),
                     position_rad: w.plant.position_rad(),
+                    theta_m_rad: w.plant.theta_m_rad(),
                     id_a: w.plant.id_a(),
                     iq_a: w.plant.iq_a(),
                     torque_nm: w.plant.torque_nm(),

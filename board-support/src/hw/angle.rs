@@ -6,6 +6,7 @@ use crate::logic::encoder::EncoderTracker;
 use crate::logic::hall::{HallConfig, HallDecoder, HallError};
 use crate::pac;
 use foc_core::angle::MechanicalAngle;
+use foc_core::drive::AngleKind;
 use foc_core::hal::AngleSensor;
 
 /// A general-purpose timer running in encoder mode, with an optional index
@@ -170,6 +171,17 @@ pub enum AngleSource {
     },
     /// Hall sensors.
     Hall(HallConfig),
+}
+
+impl AngleSource {
+    /// What the source tells at reset: an encoder counts from 0
+    /// ([`AngleKind::Incremental`]), halls know the sector ([`AngleKind::Hall`]).
+    pub const fn kind(&self) -> AngleKind {
+        match self {
+            AngleSource::Encoder { .. } => AngleKind::Incremental,
+            AngleSource::Hall(_) => AngleKind::Hall,
+        }
+    }
 }
 
 /// The board's rotor angle input: encoder or halls.

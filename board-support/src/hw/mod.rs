@@ -9,6 +9,8 @@ pub mod adc;
 pub mod angle;
 pub mod as5047p;
 pub mod drv8301;
+#[cfg(not(feature = "qemu"))]
+pub mod flash;
 pub mod pwm;
 pub mod serial;
 

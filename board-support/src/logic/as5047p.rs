@@ -53,7 +53,7 @@ pub enum FrameError {
 /// True when `x` has an even number of ones.
 #[inline]
 pub const fn even_parity_ok(x: u16) -> bool {
-    x.count_ones() % 2 == 0
+    x.count_ones().is_multiple_of(2)
 }
 
 /// Command frame reading register `addr` (14 bits), with parity.

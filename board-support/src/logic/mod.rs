@@ -6,8 +6,10 @@
 pub mod as5047p;
 pub mod dead_time;
 pub mod drv8301;
+pub mod emu_args;
 pub mod encoder;
 pub mod hall;
+pub mod nor_region;
 pub mod pwm_timing;
 pub mod scaling;
 pub mod serial;

@@ -288,8 +288,8 @@ impl Lifecycle {
         }
         self.feedback = out.feedback;
         self.tick = self.tick.wrapping_add(1);
-        out.run_speed = self.tick % self.dividers.0 == 0;
-        out.run_position = self.tick % self.dividers.1 == 0;
+        out.run_speed = self.tick.is_multiple_of(self.dividers.0);
+        out.run_position = self.tick.is_multiple_of(self.dividers.1);
         out
     }
 

@@ -177,7 +177,7 @@ fn validation_names_the_field() {
                 field: "motor.r_ohm"
             }
         ),
-        "stored value `motor.r_ohm` is out of range"
+        "record value `motor.r_ohm` is out of range"
     );
 }
 
@@ -189,7 +189,7 @@ fn error_messages_are_sentences() {
     };
     assert_eq!(
         std::format!("{e}"),
-        "the stored record has schema version 2, this firmware reads version 1"
+        "the record has schema version 2, this firmware reads version 1"
     );
     for e in [
         RecordError::TooShort,

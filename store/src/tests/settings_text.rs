@@ -108,7 +108,7 @@ fn toml_is_readable_and_checked() {
     assert!(e.contains("schema_version"), "{e}");
     // A bad value names the field.
     let e = from_toml(&text.replace("max_current_a = 5.0", "max_current_a = -5.0")).unwrap_err();
-    assert_eq!(e, "stored value `limits.max_current_a` is out of range");
+    assert_eq!(e, "record value `limits.max_current_a` is out of range");
     // A typo or a missing key is an error naming the key.
     let e = from_toml(&text.replace("r_ohm", "r_ohms")).unwrap_err();
     assert!(e.contains("r_ohm"), "{e}");

@@ -251,7 +251,7 @@ fn store_error_messages() {
                 field: "limits.max_current_a"
             })
         ),
-        "stored value `limits.max_current_a` is out of range"
+        "record value `limits.max_current_a` is out of range"
     );
     assert!(std::format!("{}", StoreError::Corrupt).contains("erase"));
     let mut f = Flash4::new();

@@ -1,0 +1,149 @@
+//! The configuration store of this board (design §17): what boot does with
+//! it, and the flash operations behind the command channel's `Store`
+//! requests. The record format, its checks and the power-fail-safe log are
+//! `foc_store`'s (host-tested there); the region and the flash driver are
+//! the board's (`board::STORE_RANGE`, `board::StoreFlash`).
+
+use crate::{config, watchdog};
+use board_support::board;
+use foc_core::control::cascade::CascadeConfig;
+use foc_protocol::WatchdogConfig;
+use foc_store::record::WatchdogRecord;
+use foc_store::settings::{reaction_record, timeout_reaction};
+use foc_store::{DriveRecord, Invalid, Label, Settings, Store};
+
+/// The store over this board's flash region.
+pub type BoardStore = Store<board::StoreFlash>;
+
+/// The board's PWM frequency, which a record's gains must have been made for.
+const PWM_HZ: u32 = board::PWM_FREQUENCY_HZ;
+
+/// The build-time settings (`config::cascade`), uncalibrated.
+pub fn build_time_settings() -> Settings {
+    Settings::from_cascade(&config::cascade(PWM_HZ as f32))
+}
+
+/// What boot found.
+pub struct Boot {
+    /// The settings to start with.
+    pub settings: Settings,
+    /// The drive's label.
+    pub label: Label,
+    /// The store (`None`: the region is unusable).
+    pub store: Option<BoardStore>,
+    /// The link-watchdog setting of the loaded record.
+    pub link: Option<WatchdogConfig>,
+}
+
+/// Open the store and take its record, or the build-time settings. Runs in
+/// `init`, before the independent watchdog starts (a repair after an
+/// interrupted write may erase a sector). Never fails: any problem is
+/// logged and the drive boots from the build-time settings, uncalibrated.
+pub fn boot(flash: board::StoreFlash) -> Boot {
+    let base = build_time_settings();
+    #[cfg(feature = "qemu")]
+    if board::args().store_path().is_none() {
+        defmt::info!("store: none (emulated board without `store=`): build-time defaults");
+        return Boot {
+            settings: base,
+            label: Label::new(),
+            store: None,
+            link: None,
+        };
+    }
+    let mut store = match Store::new(flash, board::STORE_RANGE) {
+        Ok(s) => Some(s),
+        Err(e) => {
+            defmt::error!(
+                "store: unusable region ({}): build-time defaults, uncalibrated",
+                e
+            );
+            None
+        }
+    };
+    let mut boot = Boot {
+        settings: base,
+        label: Label::new(),
+        store: None,
+        link: None,
+    };
+    match store.as_mut().map(|s| s.load()) {
+        None => {}
+        Some(Ok(None)) => defmt::info!("store: empty: build-time defaults, uncalibrated"),
+        Some(Ok(Some(rec))) => match admit(&rec) {
+            Ok(s) => {
+                defmt::info!(
+                    "store: loaded \"{=str}\" ({=str})",
+                    rec.label.as_str(),
+                    if s.calibrated {
+                        "with calibration"
+                    } else {
+                        "no calibration"
+                    }
+                );
+                boot.settings = s;
+                boot.link = Some(link_setting(&rec));
+                boot.label = rec.label;
+            }
+            Err(e) => defmt::error!(
+                "store: record refused ({}): build-time defaults, uncalibrated",
+                e
+            ),
+        },
+        Some(Err(e)) => defmt::error!(
+            "store: unreadable ({}): build-time defaults, uncalibrated",
+            e
+        ),
+    }
+    boot.store = store;
+    boot
+}
+
+/// `rec` applied onto the build-time settings, within this board's own
+/// current limit (`config::MOTOR`): whole, or refused.
+pub fn admit(rec: &DriveRecord) -> Result<Settings, Invalid> {
+    let s = rec.apply(&build_time_settings(), PWM_HZ)?;
+    if s.limits.max_current_a > config::MOTOR.1 {
+        return Err(Invalid {
+            field: "limits.max_current_a",
+        });
+    }
+    Ok(s)
+}
+
+/// The cascade configuration of `s` (the build-time one with `s` applied).
+pub fn cascade(s: &Settings) -> CascadeConfig {
+    let mut c = config::cascade(PWM_HZ as f32);
+    c.current.limits = s.limits;
+    c.current.current = s.current;
+    c.current.angle = s.angle;
+    c.speed = s.speed;
+    c.position = s.position;
+    c.rates.speed_divider = s.dividers.0;
+    c.rates.position_divider = s.dividers.1;
+    c
+}
+
+/// The record of the live settings, with the link watchdog in force.
+pub fn live_record(label: &Label, s: &Settings, link: WatchdogConfig) -> DriveRecord {
+    let mut s = *s;
+    s.watchdog = WatchdogRecord {
+        timeout_periods: link.timeout_periods,
+        reaction: reaction_record(link.reaction),
+    };
+    DriveRecord::from_settings(label, PWM_HZ, &s)
+}
+
+/// The link-watchdog setting a record carries.
+pub fn link_setting(rec: &DriveRecord) -> WatchdogConfig {
+    WatchdogConfig {
+        timeout_periods: rec.watchdog.timeout_periods,
+        reaction: timeout_reaction(rec.watchdog.reaction),
+    }
+}
+
+/// Run a flash operation with the watchdog stretched: a sector erase
+/// stalls the processor for seconds (see `watchdog::stretched`).
+pub fn guarded<T>(f: impl FnOnce() -> T) -> T {
+    watchdog::stretched(config::WATCHDOG_TIMEOUT_MS, f)
+}
