@@ -467,8 +467,11 @@ pub struct MissionSummary {
     pub pwm_hz: f32,
     /// Speed and position loop dividers.
     pub dividers: (u16, u16),
-    /// The identification's figures (None: it failed, see `identification_failure`).
+    /// The identification's figures (None: it failed, see
+    /// `identification_failure`, or the calibration was restored).
     pub identification: Option<IdentificationSummary>,
+    /// The calibration came from a stored configuration (no identification).
+    pub restored: bool,
     /// Why the identification failed (the mission then runs on the
     /// supplied calibration and fails).
     pub identification_failure: Option<String>,
@@ -609,6 +612,12 @@ impl MissionSummary {
         let mut row = |k: &str, v: String| {
             let _ = writeln!(s, "| {k} | {v} |");
         };
+        if self.restored {
+            row(
+                "calibration",
+                "restored from the stored configuration (no identification)".into(),
+            );
+        }
         match &self.identification {
             Some(id) => {
                 row(
@@ -646,6 +655,7 @@ impl MissionSummary {
                     format!("{} ({})", dir(id.reversed.0), dir(id.reversed.1)),
                 );
             }
+            None if self.restored => {}
             None => row(
                 "identification",
                 format!(
@@ -655,7 +665,11 @@ impl MissionSummary {
             ),
         }
         row(
-            "identified electrical zero / error",
+            if self.restored {
+                "stored electrical zero / error"
+            } else {
+                "identified electrical zero / error"
+            },
             format!(
                 "{:.2} deg / {:+.2} deg",
                 self.align_found_deg, self.align_error_deg
@@ -752,6 +766,9 @@ pub struct MissionResult {
     pub segments: Vec<Segment>,
     /// The measured figures.
     pub summary: MissionSummary,
+    /// The configuration the mission ended with (identified or restored),
+    /// as the drive would save it.
+    pub record: foc_store::DriveRecord,
 }
 
 impl MissionResult {
@@ -1063,8 +1080,37 @@ fn identification_summary(
 
 /// Run the mission on `setup`. `progress` is called with the fraction done (0..=1).
 pub fn run_mission(setup: &Setup, progress: &mut dyn FnMut(f64)) -> MissionResult {
+    match run_mission_from(setup, None, progress) {
+        Ok(r) => r,
+        // Without a record there is nothing to refuse.
+        Err(e) => unreachable!("{e}"),
+    }
+}
+
+/// [`run_mission`], starting from a stored configuration when `stored` is
+/// given (design §17): its settings on top of the setup's, and its
+/// calibration installed by the drive's start-up (the bench's encoder
+/// reads the same angle for the same rotor position after every start, as
+/// an absolute sensor does) instead of an identification. The rest of the
+/// mission is the same; its alignment figure then measures the stored
+/// electrical zero against the plant's truth. `Err` when the record does
+/// not apply to this setup (another PWM frequency, a value out of range,
+/// no calibration) or the start-up does not install it.
+pub fn run_mission_from(
+    setup: &Setup,
+    stored: Option<&foc_store::DriveRecord>,
+    progress: &mut dyn FnMut(f64),
+) -> Result<MissionResult, String> {
     let wall = Instant::now();
-    let config = setup.cascade_config();
+    let base = setup.cascade_config();
+    let settings = match stored {
+        Some(r) => Some(
+            r.apply(&foc_store::Settings::from_cascade(&base), pwm_hz_u32(setup))
+                .map_err(|e| e.to_string())?,
+        ),
+        None => None,
+    };
+    let config = settings.map_or(base, |s| with_settings(&base, &s));
     let sim = Sim::new(setup, config, true);
     let plan = MissionPlan::new(setup, &config);
     let total = secs(setup, plan.expected_s).max(1);
@@ -1083,7 +1129,10 @@ pub fn run_mission(setup: &Setup, progress: &mut dyn FnMut(f64)) -> MissionResul
     // The rotor starts somewhere arbitrary.
     m.sim.set_rotor_angle(0.7);
 
-    let identified = m.identify();
+    let identified = match &settings {
+        None => m.identify(),
+        Some(s) => m.restore(s)?,
+    };
     let i_step = m.current_step(&identified.config);
     m.speed_step();
     m.ramp();
@@ -1093,12 +1142,42 @@ pub fn run_mission(setup: &Setup, progress: &mut dyn FnMut(f64)) -> MissionResul
     (m.progress.report)(1.0);
 
     let trace = m.sim.take_trace().unwrap_or_default();
-    let summary = m.summary(&trace, identified, i_step, load, p0_true, wall);
-    MissionResult {
+    let record = m.record(settings.map_or(auto_link(setup), |s| s.watchdog));
+    let mut summary = m.summary(&trace, identified, i_step, load, p0_true, wall);
+    summary.restored = stored.is_some();
+    Ok(MissionResult {
         trace,
         segments: m.segments,
         summary,
+        record,
+    })
+}
+
+/// The link-watchdog setting a record made by the bench carries: the
+/// firmware's automatic one (1 s, stop).
+fn auto_link(setup: &Setup) -> foc_store::record::WatchdogRecord {
+    foc_store::record::WatchdogRecord {
+        timeout_periods: pwm_hz_u32(setup),
+        reaction: foc_store::record::WatchdogReaction::Stop,
     }
+}
+
+/// The setup's PWM frequency as a record states it [Hz].
+fn pwm_hz_u32(setup: &Setup) -> u32 {
+    setup.pwm_hz().round() as u32
+}
+
+/// `base` with the settings of a stored record.
+fn with_settings(base: &CascadeConfig, s: &foc_store::Settings) -> CascadeConfig {
+    let mut c = *base;
+    c.current.limits = s.limits;
+    c.current.current = s.current;
+    c.current.angle = s.angle;
+    c.speed = s.speed;
+    c.position = s.position;
+    c.rates.speed_divider = s.dividers.0;
+    c.rates.position_divider = s.dividers.1;
+    c
 }
 
 /// The mission's speeds and durations, derived from the setup before it
@@ -1275,6 +1354,70 @@ impl Mission<'_> {
         }
     }
 
+    /// Segment 1 from a stored configuration: the drive's start-up (offsets,
+    /// sensor check) installs the stored permit, no identification.
+    fn restore(&mut self, s: &foc_store::Settings) -> Result<Identified, String> {
+        let setup = self.setup;
+        let permit = s.permit().ok_or(
+            "the configuration has no calibration (save one with `cargo xtask sim --save-config FILE`)",
+        )?;
+        let start = self.sim.rows();
+        let mut life = identify::lifecycle_config(&self.sim, setup, self.plan.id_cfg);
+        life.identify_at_start_up = false;
+        life.angle_kind = foc_core::drive::AngleKind::Absolute;
+        life.stored = Some(permit);
+        self.sim.cascade = Cascade::from_reset(self.config, life);
+        let limit = secs(setup, 1.0);
+        let mut restored = false;
+        for _ in 0..limit {
+            self.sim.step();
+            match self.sim.cascade.last_output().and_then(|o| o.event) {
+                Some(foc_core::drive::Event::CalibrationRestored) => {
+                    restored = true;
+                    break;
+                }
+                Some(e @ foc_core::drive::Event::StartUpDone)
+                | Some(e @ foc_core::drive::Event::OffsetsFailed(_))
+                | Some(e @ foc_core::drive::Event::CurrentSenseFailed)
+                | Some(e @ foc_core::drive::Event::SensorCheckFailed) => {
+                    return Err(format!("start-up did not restore the calibration: {e:?}"))
+                }
+                _ => {}
+            }
+        }
+        if !restored {
+            return Err("start-up did not end within 1 s simulated".into());
+        }
+        self.sim.run(secs(setup, 0.02));
+        self.end_segment("identify", start);
+        let found = self.sim.cascade.current.config().angle.zero_offset;
+        let align_error_deg = found
+            .diff_radians(setup.true_angle_calibration().zero_offset)
+            .to_degrees() as f64;
+        Ok(Identified {
+            summary: None,
+            failure: None,
+            found,
+            align_error_deg,
+            config: *self.sim.cascade.config(),
+        })
+    }
+
+    /// The configuration in force as a record (calibrated when the stage is).
+    fn record(&self, link: foc_store::record::WatchdogRecord) -> foc_store::DriveRecord {
+        let c = self.sim.cascade.config();
+        let mut s = foc_store::Settings::from_cascade(c);
+        s.calibrated = self.sim.cascade.is_calibrated();
+        s.watchdog = link;
+        let mut label = foc_store::Label::new();
+        for ch in self.setup.name.chars().filter(|c| (' '..='~').contains(c)) {
+            if label.push(ch).is_err() {
+                break;
+            }
+        }
+        foc_store::DriveRecord::from_settings(&label, pwm_hz_u32(self.setup), &s)
+    }
+
     /// Segment 2, q-current step with the rotor locked. Returns the step [A].
     fn current_step(&mut self, config: &CascadeConfig) -> f32 {
         let setup = self.setup;
@@ -1415,6 +1558,7 @@ impl Mission<'_> {
             pwm_hz: setup.pwm_hz(),
             dividers: (config.rates.speed_divider, config.rates.position_divider),
             identification: identified.summary,
+            restored: false,
             identification_failure: identified.failure,
             align_found_deg: identified.found.to_degrees() as f64,
             align_error_deg: identified.align_error_deg,

@@ -630,3 +630,54 @@ mod stored_calibration {
         assert!(!sim.cascade.is_calibrated());
     }
 }
+
+mod mission_from_a_saved_configuration {
+    //! `cargo xtask sim --save-config` / `--config`: the bench mission run
+    //! once (identifying), its configuration saved as TOML, then run again
+    //! from that file (no identification).
+    use super::*;
+    use foc_bench::mission::{run_mission, run_mission_from};
+
+    #[test]
+    fn a_saved_configuration_runs_the_mission_without_identifying() {
+        let s = dji();
+        let first = run_mission(&s, &mut |_| {});
+        assert!(
+            first.summary.failures().is_empty(),
+            "{:?}",
+            first.summary.failures()
+        );
+        let text = foc_store::text::to_toml(&first.record);
+        let saved = foc_store::text::from_toml(&text).unwrap();
+        assert_eq!(saved, first.record);
+        assert!(saved.calibration.is_some());
+
+        let second = run_mission_from(&s, Some(&saved), &mut |_| {}).unwrap();
+        let sum = &second.summary;
+        assert!(sum.restored && sum.identification.is_none());
+        assert!(sum.failures().is_empty(), "{:?}", sum.failures());
+        assert!(sum.align_error_deg.abs() < 1.0, "{}", sum.align_error_deg);
+        assert!(
+            second.trace.len() < first.trace.len() / 2,
+            "no identification"
+        );
+
+        // A stored zero a quarter electrical turn off is installed as
+        // stored, and the mission says it is wrong.
+        let mut off = saved.clone();
+        let cal = off.calibration.as_mut().unwrap();
+        cal.zero_offset_e_rad =
+            (cal.zero_offset_e_rad + std::f32::consts::FRAC_PI_2) % std::f32::consts::TAU;
+        let third = run_mission_from(&s, Some(&off), &mut |_| {}).unwrap();
+        assert!(third.summary.align_error_deg.abs() > 80.0);
+        assert!(!third.summary.failures().is_empty());
+
+        // A record made for another PWM frequency is refused.
+        let mut other = saved.clone();
+        other.pwm_frequency_hz += 1000;
+        let e = run_mission_from(&s, Some(&other), &mut |_| {})
+            .err()
+            .unwrap();
+        assert!(e.contains("pwm_frequency_hz"), "{e}");
+    }
+}

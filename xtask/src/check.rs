@@ -82,12 +82,25 @@ pub fn steps() -> Vec<Step> {
 
     // Smoke run of the closed-loop simulation (the default motor's mission,
     // a few seconds): it must pass its criteria and write its reports.
+    // Then the same mission started from the configuration the first one
+    // saved (its calibration restored at start-up, no identification).
     steps.push(Step::new("simulation smoke run (cargo xtask sim)", || {
+        let saved = crate::util::root().join("out/sim/drive.toml");
         sim::run_cmd(&sim::SimArgs {
             motor: None,
             all: false,
             out: None,
             bench: false,
+            config: None,
+            save_config: Some(saved.clone()),
+        })?;
+        sim::run_cmd(&sim::SimArgs {
+            motor: None,
+            all: false,
+            out: Some(crate::util::root().join("out/sim-restored")),
+            bench: false,
+            config: Some(saved),
+            save_config: None,
         })
     }));
 

@@ -11,6 +11,11 @@
 //! the output directory and prints the summary. Fails when the mission's
 //! pass criteria fail. `--all` runs every motor file in `tests/motors` (one
 //! sub-directory each); `--bench` also measures the simulation speed.
+//! `--save-config FILE.toml` writes the configuration the mission ended
+//! with (the identified calibration included) as `foc-ctl config export`
+//! does; `--config FILE.toml` starts from such a file instead of
+//! identifying: its settings, and its calibration installed by the drive's
+//! start-up (design §17).
 //!
 //! It runs in this process: a mission is about 100 000 to 500 000 PWM
 //! periods (the identification is most of them: its alignment sweeps run at
@@ -44,6 +49,15 @@ pub struct SimArgs {
     /// Also measure the simulation speed (controller steps/s, plant+controller periods/s).
     #[arg(long)]
     pub bench: bool,
+    /// Start from a saved configuration (TOML, as `foc-ctl config export`
+    /// or `--save-config` writes it): its settings and its calibration,
+    /// installed at start-up without an identification.
+    #[arg(long, value_name = "FILE.toml", conflicts_with = "all")]
+    pub config: Option<PathBuf>,
+    /// Write the configuration the mission ended with (identified or
+    /// restored) to FILE.toml.
+    #[arg(long, value_name = "FILE.toml", conflicts_with = "all")]
+    pub save_config: Option<PathBuf>,
 }
 
 /// `path` as given if absolute or existing from the current directory, else
@@ -85,13 +99,33 @@ fn stem(p: &Path) -> String {
         .map_or("motor".into(), |s| s.to_string_lossy().into_owned())
 }
 
-fn run_one(motor: &Path, out: &Path, bench: bool) -> Result<bool> {
+/// The configuration file at `path`, parsed and checked.
+fn read_config(path: &Path) -> Result<foc_store::DriveRecord> {
+    let text =
+        std::fs::read_to_string(path).map_err(|e| Error(format!("{}: {e}", path.display())))?;
+    foc_store::text::from_toml(&text).map_err(|e| Error(format!("{}: {e}", path.display())))
+}
+
+fn run_one(motor: &Path, out: &Path, args: &SimArgs) -> Result<bool> {
     let setup = Setup::load(motor).map_err(|e| Error(e.to_string()))?;
     banner(&format!("sim: {}", setup.name));
+    let stored = args.config.as_deref().map(read_config).transpose()?;
+    if let Some(p) = &args.config {
+        println!("starting from the configuration in {}", p.display());
+    }
     let pb = progress_bar(&stem(motor));
     let t = Instant::now();
-    let result = mission::run_mission(&setup, &mut |f| pb.set_position((f * 1000.0) as u64));
+    let result = mission::run_mission_from(&setup, stored.as_ref(), &mut |f| {
+        pb.set_position((f * 1000.0) as u64)
+    })
+    .map_err(|e| Error(format!("the stored configuration does not apply: {e}")))?;
     pb.finish_and_clear();
+    if let Some(p) = &args.save_config {
+        std::fs::write(p, foc_store::text::to_toml(&result.record))
+            .map_err(|e| Error(format!("{}: {e}", p.display())))?;
+        println!("  wrote the configuration to {}", p.display());
+    }
+    let bench = args.bench;
     let files = result.write(out)?;
     print!("{}", result.summary.to_markdown());
     println!(
@@ -142,7 +176,7 @@ pub fn run_cmd(args: &SimArgs) -> Result {
         } else {
             out.clone()
         };
-        if !run_one(m, &dir, args.bench)? {
+        if !run_one(m, &dir, args)? {
             failed.push(stem(m));
         }
     }
