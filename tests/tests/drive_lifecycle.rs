@@ -590,19 +590,19 @@ mod stored_calibration {
         let ms = period as f64 * 1e3 / s.pwm_hz() as f64;
         assert!(ms < 100.0, "calibrated {ms} ms after reset");
         assert!(sim.cascade.is_calibrated());
-        let motion = (sim.plant.position_rad() as f64 - f64::from(start_rad)).abs();
+        let motion = (sim.plant.position_rad() - f64::from(start_rad)).abs();
         assert!(
             motion < 0.01,
             "rotor moved {motion} rad before the first command"
         );
         // A torque command gives the torque the motor's constant says: the
         // stored zero is right although the rotor started elsewhere.
-        let iq_a = 0.5 * s.max_current_a as f32;
+        let iq_a = 0.5 * s.max_current_a;
         sim.cascade.command(Command::Torque { iq_a }).unwrap();
-        let w0 = sim.plant.omega_m_rad_s() as f64;
+        let w0 = sim.plant.omega_m_rad_s();
         let t_s = 0.02;
         sim.run((t_s * s.pwm_hz() as f64) as usize);
-        let gained = sim.plant.omega_m_rad_s() as f64 - w0;
+        let gained = sim.plant.omega_m_rad_s() - w0;
         let kt = 1.5 * f64::from(s.motor.pole_pairs) * s.motor.flux_linkage_wb;
         let ideal = kt * f64::from(iq_a) / s.motor.inertia_kg_m2 * t_s;
         assert!(
