@@ -9,6 +9,7 @@ use std::path::Path;
 
 use foc_core::angle::ElectricalAngle;
 use foc_core::control::{Command, Limits, Mode};
+use foc_protocol::config::{Chunk, ConfigSource, StoreOp};
 use foc_protocol::frame::{encode, FrameDecoder, MAX_FRAME};
 use foc_protocol::message::{
     Calibration, CurrentGains, ErrorCode, FaultReport, Hello, Message, ParamId, PositionGains,
@@ -128,7 +129,25 @@ fn requests() -> Vec<(&'static str, Request)> {
             Request::StartTelemetry(TelemetryRate::Hz(50.0)),
         ),
         ("stop-telemetry", Request::StopTelemetry),
+        (
+            "read-config",
+            Request::ReadConfig {
+                source: ConfigSource::Stored,
+                offset: 48,
+            },
+        ),
+        ("write-config", Request::WriteConfig(config_chunk())),
+        (
+            "store-apply-and-save",
+            Request::Store(StoreOp::ApplyAndSave),
+        ),
     ]
+}
+
+/// A chunk of a configuration record.
+fn config_chunk() -> Chunk {
+    let bytes: Vec<u8> = (0u8..48).map(|i| i.wrapping_mul(11)).collect();
+    Chunk::new(48, 120, &bytes).unwrap_or_else(|| unreachable!())
 }
 
 fn sample() -> Telemetry {
@@ -179,6 +198,8 @@ fn responses() -> Vec<(&'static str, Response)> {
         ),
         ("telemetry", Response::Telemetry(sample())),
         ("stream", Response::Stream(sample())),
+        ("config-chunk", Response::ConfigChunk(config_chunk())),
+        ("nack-bad-record", Response::Nack(ErrorCode::BadRecord)),
     ]
 }
 

@@ -2,7 +2,7 @@
 //!
 //! Builds the `qemu` board (QEMU's `netduinoplus2`, an STM32F405, with the
 //! bench's motor and inverter plant running on the emulated Cortex-M4F),
-//! runs it twice under `qemu-system-arm` with semihosting, decodes its defmt
+//! runs it under `qemu-system-arm` with semihosting, decodes its defmt
 //! output in process (the `defmt-decoder` library, lines formatted as
 //! `defmt-print` prints them), and checks the exit status:
 //!
@@ -10,7 +10,16 @@
 //!    position move, injected encoder fault and its clear): must exit 0
 //!    (every check passed, no overrun);
 //! 2. the same firmware told to panic during the position move: must exit
-//!    3 (the panic handler left the bridge in the safe state).
+//!    3 (the panic handler left the bridge in the safe state);
+//! 3. three runs on one configuration store (a host file under
+//!    `target/qemu-store/`, semihosting `store=`), with the emulated
+//!    absolute sensor (`sensor=absolute`): `store-save` identifies and
+//!    saves; `store-boot` starts with the rotor elsewhere and must boot
+//!    calibrated from the store, without identifying, within 100 ms, with
+//!    no rotor motion before its torque command, which must accelerate the
+//!    rotor as the torque constant says; `store-corrupt` (the file
+//!    overwritten with pseudo-random bytes) must boot uncalibrated, say so,
+//!    and refuse the torque command.
 //!
 //! QEMU runs with `-icount shift=0,align=off,sleep=off`: virtual time is
 //! 1 ns per instruction and idle time is skipped, so every run executes the
