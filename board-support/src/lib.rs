@@ -21,6 +21,10 @@
 //! | `nucleo-f401re-ihm07m1`  | NUCLEO-F401RE + X-NUCLEO-IHM07M1           |
 //! | `odrive-v3`              | ODrive v3.x (STM32F405RG), axis M0         |
 //!
+//! Option: `as5047p` (with `odrive-v3` only) reads the rotor angle from an
+//! AS5047P on the ODrive's SPI3 bus instead of the M0 encoder input
+//! (firmware feature `odrive-v3-as5047p`; see `boards::odrive_v3`).
+//!
 //! Never build two boards in one cargo invocation: the HAL chip features
 //! clash. The linker memory layout of each board is in
 //! `board-support/memory/<feature>.x`.
@@ -105,3 +109,6 @@ pub use boards::qemu as board;
     all(feature = "nucleo-f401re-ihm07m1", feature = "odrive-v3"),
 ))]
 compile_error!("board-support: select exactly one board feature per build");
+
+#[cfg(all(feature = "as5047p", not(feature = "odrive-v3")))]
+compile_error!("board-support: feature `as5047p` is an option of `odrive-v3` only");

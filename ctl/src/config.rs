@@ -7,7 +7,8 @@
 //! read belong together).
 //!
 //! Flash operations stall a real drive for seconds (a 128 KiB sector erase
-//! takes 1-2 s), so `Store` requests and reads of the stored record (which
+//! takes 2-4 s at the HAL's x8 parallelism; an erase of the whole store two
+//! of them), so `Store` requests and reads of the stored record (which
 //! may repair the store, a write) wait [`Client::set_store_timeout`] per
 //! attempt instead of the normal reply timeout. Retrying them is safe: a
 //! retransmitted `Store` is answered from the device's reply cache, not run
@@ -31,7 +32,7 @@ use std::fmt;
 use std::time::Duration;
 
 /// Default reply timeout of flash operations (per attempt).
-pub const DEFAULT_STORE_TIMEOUT: Duration = Duration::from_secs(5);
+pub const DEFAULT_STORE_TIMEOUT: Duration = Duration::from_secs(10);
 
 /// A configuration transfer that does not add up.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

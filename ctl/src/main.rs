@@ -46,7 +46,7 @@ struct Cli {
     retries: u32,
     /// Reply timeout per attempt of flash operations (`config save|load|erase|import`,
     /// reads of the stored record) [ms]: an erase stalls a board for seconds.
-    #[arg(long, default_value_t = 5000, global = true)]
+    #[arg(long, default_value_t = 10000, global = true)]
     store_timeout_ms: u64,
     #[command(subcommand)]
     cmd: Cmd,

@@ -95,6 +95,12 @@ impl ConfigMailbox {
         self.position = o.position.or(self.position);
     }
 
+    /// A calibration request is waiting for the current loop.
+    pub fn calibration_pending(&self) -> bool {
+        self.current
+            .is_some_and(|c| c.identify || c.calibrate_offsets)
+    }
+
     fn is_empty(&self) -> bool {
         self.current.is_none() && self.speed.is_none() && self.position.is_none()
     }
@@ -129,6 +135,18 @@ pub struct Snapshot {
     pub status: Status,
     /// The last successful identification.
     pub identified: Option<Identified>,
+    /// What the drive has been asked but has not taken yet.
+    pub pending: Pending,
+}
+
+/// Requests committed to the drive's mailboxes that the current loop may
+/// not have taken yet (the status in a [`Snapshot`] is the last period's).
+#[derive(Clone, Copy, Debug)]
+pub struct Pending {
+    /// The operator's command in the mailbox (taken or not).
+    pub command: Command,
+    /// A calibration (offsets, identification) requested and not taken.
+    pub calibration: bool,
 }
 
 /// Mutations a frame asked for, committed after it was handled.
@@ -222,7 +240,25 @@ impl Link<'_> {
         Ok(persist::link_setting(rec))
     }
 
+    /// A flash operation stalls the processor for seconds: only when the
+    /// bridge is off and stays off while it runs. The protocol checked the
+    /// last period's status (started, disabled); a command or calibration
+    /// committed since (an earlier frame of the same burst) and not yet
+    /// taken by the current loop would turn the bridge on during the
+    /// stall. Nothing else posts commands while this runs: every other
+    /// writer of the mailboxes is a priority-1 task like this one.
+    fn quiet(&self) -> Result<(), ErrorCode> {
+        if self.snap.pending.command != Command::Disable {
+            return Err(ErrorCode::NotDisabled);
+        }
+        if self.snap.pending.calibration {
+            return Err(ErrorCode::Busy);
+        }
+        Ok(())
+    }
+
     fn load_stored(&mut self) -> Result<DriveRecord, ErrorCode> {
+        self.quiet()?;
         let store = self.store.as_mut().ok_or(ErrorCode::Unsupported)?;
         match persist::guarded(|| store.load()) {
             Ok(Some(r)) => Ok(r),
@@ -232,6 +268,7 @@ impl Link<'_> {
     }
 
     fn save(&mut self, rec: &DriveRecord) -> Result<(), ErrorCode> {
+        self.quiet()?;
         let store = self.store.as_mut().ok_or(ErrorCode::Unsupported)?;
         persist::guarded(|| store.save(rec)).map_err(store_error)?;
         defmt::info!("store: saved \"{=str}\"", rec.label.as_str());
@@ -431,6 +468,10 @@ impl DeviceContext for Link<'_> {
         staged: &[u8],
         link: WatchdogConfig,
     ) -> Result<Option<WatchdogConfig>, ErrorCode> {
+        // Applying is refused too while something is pending: the drive
+        // would refuse the current loop's part and the slower loops would
+        // still take theirs.
+        self.quiet()?;
         match op {
             StoreOp::Save => {
                 let rec = persist::live_record(self.label, self.settings, link);

@@ -35,15 +35,14 @@ pub const WATCHDOG_TIMEOUT_MS: u32 = 50;
 /// refused) until identification is run on command.
 pub const IDENTIFY_AT_STARTUP: bool = cfg!(feature = "qemu");
 
-/// [`IDENTIFY_AT_STARTUP`], except for the emulated board's store missions
-/// (`cargo xtask qemu`), which boot as a real board does: the first run
-/// identifies, the others must not (they boot from the store, or
-/// uncalibrated from a corrupt one).
+/// [`IDENTIFY_AT_STARTUP`], except for the emulated board's damaged-store
+/// mission (`cargo xtask qemu`), which boots as a real board does, to show
+/// that it comes up uncalibrated. (The boot-from-store mission keeps the
+/// start-up identification configured: the stored calibration must replace
+/// it.)
 pub fn identify_at_start_up() -> bool {
     #[cfg(feature = "qemu")]
-    if crate::store_mission::requested()
-        .is_some_and(|m| m != crate::store_mission::StoreMission::Save)
-    {
+    if crate::store_mission::requested() == Some(crate::store_mission::StoreMission::Corrupt) {
         return false;
     }
     IDENTIFY_AT_STARTUP
@@ -74,8 +73,8 @@ pub fn identification(
         };
     }
     #[cfg(not(feature = "qemu"))]
-    if let board_support::board::AngleSource::Encoder { cpr } = board_support::board::ANGLE_SOURCE {
-        c.alignment.sensor_counts_per_rev = cpr;
+    if let Some(counts) = board_support::board::ANGLE_SOURCE.counts_per_rev() {
+        c.alignment.sensor_counts_per_rev = counts;
     }
     c
 }

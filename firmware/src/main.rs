@@ -146,12 +146,9 @@ mod app {
         let boot = persist::boot(b.store);
         let cfg = persist::cascade(&boot.settings);
         let angle_kind = board::angle_kind();
+        // `persist::admit` kept a calibration only where the sensor's
+        // zero survives a reset; the lifecycle checks that again.
         let stored = boot.settings.permit();
-        if stored.is_some() && !angle_kind.zero_survives_reset() {
-            defmt::warn!(
-                "store: the stored electrical zero does not apply to an incremental encoder (its zero is where the rotor was at reset): motor model and gains kept, identification needed"
-            );
-        }
         let life = LifecycleConfig {
             offsets: Some(OffsetLimits {
                 samples: config::OFFSET_CAL_SAMPLES,
@@ -285,7 +282,9 @@ mod app {
         // Overrun: over the cycle budget, or the next period's conversion
         // (the interrupt that triggers this task) already pending again.
         let repended = cortex_m::peripheral::NVIC::is_pending(board::CURRENT_IRQ);
-        if cx.shared.timing.lock(|tm| tm.record(dt, repended)) {
+        // A run stretched by a flash stall (a store operation, bridge off)
+        // is not an overrun of the control code.
+        if cx.shared.timing.lock(|tm| tm.record(dt, repended)) && !persist::flash_busy() {
             cx.local.drive.trip(Fault::LoopOverrun);
         }
     }
@@ -333,12 +332,14 @@ mod app {
         tm: &timing::LoopTiming,
         status: Status,
         identified: Option<comms::Identified>,
+        pending: comms::Pending,
     ) -> comms::Snapshot {
         comms::Snapshot {
             feedback: *fb,
             max_loop_cycles: tm.max_cycles,
             status,
             identified,
+            pending,
         }
     }
 
@@ -357,7 +358,11 @@ mod app {
             let tm = cx.shared.timing.lock(|t| *t);
             let status = cx.shared.status.lock(|s| *s);
             let identified = cx.shared.identified.lock(|x| *x);
-            let snap = link_snapshot(&fb, &tm, status, identified);
+            let pending = comms::Pending {
+                command: cx.shared.command.lock(|c| c.command),
+                calibration: cx.shared.config_request.lock(|m| m.calibration_pending()),
+            };
+            let snap = link_snapshot(&fb, &tm, status, identified, pending);
             let Some(out) = cx.shared.comms.lock(|c| c.receive(snap)) else {
                 break;
             };
@@ -389,7 +394,11 @@ mod app {
         let fb = cx.shared.feedback.lock(|f| *f);
         let tm = cx.shared.timing.lock(|t| *t);
         // Command channel: link watchdog and streamed telemetry.
-        let snap = link_snapshot(&fb, &tm, status, identified);
+        let pending = comms::Pending {
+            command: cx.shared.command.lock(|c| c.command),
+            calibration: cx.shared.config_request.lock(|m| m.calibration_pending()),
+        };
+        let snap = link_snapshot(&fb, &tm, status, identified, pending);
         let out = cx.shared.comms.lock(|c| c.poll(snap, fb.period));
         if out.touches_config() {
             cx.shared.config_request.lock(|m| m.merge(&out.config));

@@ -6,6 +6,7 @@
 
 use crate::{config, watchdog};
 use board_support::board;
+use core::sync::atomic::{AtomicBool, Ordering};
 use foc_core::control::cascade::CascadeConfig;
 use foc_protocol::WatchdogConfig;
 use foc_store::record::WatchdogRecord;
@@ -84,6 +85,9 @@ pub fn boot(flash: board::StoreFlash) -> Boot {
                 boot.settings = s;
                 boot.link = Some(link_setting(&rec));
                 boot.label = rec.label;
+                if rec.watchdog.timeout_periods == 0 {
+                    defmt::warn!("store: the link watchdog is off (stored setting): a silent host leaves the motor running");
+                }
             }
             Err(e) => defmt::error!(
                 "store: record refused ({}): build-time defaults, uncalibrated",
@@ -99,14 +103,37 @@ pub fn boot(flash: board::StoreFlash) -> Boot {
     boot
 }
 
-/// `rec` applied onto the build-time settings, within this board's own
-/// current limit (`config::MOTOR`): whole, or refused.
+/// `rec` applied onto the build-time settings: whole, or refused. On top
+/// of the record's own checks, this board's: its current limit
+/// (`config::MOTOR`), its motor's pole pairs (the identification and the
+/// hall decoder are built for them) and its sensor's counts per turn (a
+/// calibration from another sensor is meaningless here). Where the
+/// sensor's zero does not survive a reset (an incremental encoder), the
+/// record's motor model and gains apply but not its calibration: the
+/// settings stay uncalibrated until an identification.
 pub fn admit(rec: &DriveRecord) -> Result<Settings, Invalid> {
-    let s = rec.apply(&build_time_settings(), PWM_HZ)?;
+    let base = build_time_settings();
+    let invalid = |field| Err(Invalid { field });
+    if rec.motor.pole_pairs != base.current.motor.pole_pairs {
+        return invalid("motor.pole_pairs");
+    }
+    if rec
+        .calibration
+        .as_ref()
+        .is_some_and(|c| c.sensor_counts_per_rev != base.angle.sensor_counts_per_rev)
+    {
+        return invalid("calibration.sensor_counts_per_rev");
+    }
+    let mut s = rec.apply(&base, PWM_HZ)?;
     if s.limits.max_current_a > config::MOTOR.1 {
-        return Err(Invalid {
-            field: "limits.max_current_a",
-        });
+        return invalid("limits.max_current_a");
+    }
+    if s.calibrated && !board::angle_kind().zero_survives_reset() {
+        defmt::warn!(
+            "store: the stored electrical zero does not apply to an incremental encoder (its zero is where the rotor was at reset): motor model and gains kept, identification needed"
+        );
+        s.calibrated = false;
+        s.angle = base.angle;
     }
     Ok(s)
 }
@@ -142,8 +169,22 @@ pub fn link_setting(rec: &DriveRecord) -> WatchdogConfig {
     }
 }
 
+/// A flash operation is running (set by [`guarded`]): the current loop
+/// does not count a run stretched by a flash stall as an overrun.
+static FLASH_BUSY: AtomicBool = AtomicBool::new(false);
+
+/// True while a flash operation runs.
+pub fn flash_busy() -> bool {
+    FLASH_BUSY.load(Ordering::Relaxed)
+}
+
 /// Run a flash operation with the watchdog stretched: a sector erase
-/// stalls the processor for seconds (see `watchdog::stretched`).
+/// stalls the processor for seconds (see `watchdog::stretched`). The
+/// caller has made sure the bridge is off and stays off
+/// (`comms::Link::quiet`).
 pub fn guarded<T>(f: impl FnOnce() -> T) -> T {
-    watchdog::stretched(config::WATCHDOG_TIMEOUT_MS, f)
+    FLASH_BUSY.store(true, Ordering::Relaxed);
+    let out = watchdog::stretched(config::WATCHDOG_TIMEOUT_MS, f);
+    FLASH_BUSY.store(false, Ordering::Relaxed);
+    out
 }

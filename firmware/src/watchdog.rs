@@ -55,7 +55,7 @@ pub fn take_reset_flag() -> bool {
 /// Run `f` with the watchdog stretched to its longest timeout (prescaler
 /// /256, reload 4095: about 32 s at the nominal 32 kHz LSI), then restore
 /// `timeout_ms`. For the flash store only: erasing a 128 KiB sector of the
-/// internal flash stalls instruction fetch, and so every task, for 1-2 s
+/// internal flash stalls instruction fetch, and so every task, for seconds
 /// (RM0390 / RM0090 section 3.6; datasheet t_ERASE128KB), far beyond the
 /// normal timeout. Callers keep the bridge off while `f` runs (the
 /// protocol allows store operations only while disabled).

@@ -1,6 +1,8 @@
 //! The boards the firmware is built for: the one list every subcommand uses.
 //!
-//! A board's name is also its cargo feature in `firmware` and `board-support`.
+//! A board's name is also its cargo feature in `firmware` and, for the
+//! boards themselves, in `board-support` (`odrive-v3-as5047p` is the
+//! firmware's name for `odrive-v3` with board-support's `as5047p` option).
 //! Exactly one board is built per cargo invocation (the HAL's chip features
 //! clash when two are unified).
 
@@ -11,7 +13,8 @@ use std::fmt;
 pub struct Board {
     /// Name on the command line (`--board <name>`).
     pub name: &'static str,
-    /// Cargo feature of `firmware` (and `board-support`) that selects it.
+    /// Cargo feature of `firmware` that selects it (and of `board-support`,
+    /// except for a board option such as `odrive-v3-as5047p`).
     pub feature: &'static str,
     /// Chip name for `probe-rs run --chip <chip>`.
     pub chip: &'static str,
@@ -23,7 +26,7 @@ pub struct Board {
 }
 
 /// All boards, the default one first.
-pub const BOARDS: [Board; 4] = [
+pub const BOARDS: [Board; 5] = [
     Board {
         name: "nucleo-f446re-ihm07m1",
         feature: "nucleo-f446re-ihm07m1",
@@ -44,6 +47,13 @@ pub const BOARDS: [Board; 4] = [
         chip: "STM32F405RGTx",
         qemu: false,
         description: "ODrive v3.x (STM32F405)",
+    },
+    Board {
+        name: "odrive-v3-as5047p",
+        feature: "odrive-v3-as5047p",
+        chip: "STM32F405RGTx",
+        qemu: false,
+        description: "ODrive v3.x (STM32F405) + AS5047P on the SPI bus",
     },
     Board {
         name: "qemu",
@@ -135,6 +145,10 @@ mod tests {
         assert_eq!(
             parse_selection("odrive-v3").map(Selection::boards),
             Ok(vec![&BOARDS[2]])
+        );
+        assert_eq!(
+            parse_selection("odrive-v3-as5047p").map(Selection::boards),
+            Ok(vec![&BOARDS[3]])
         );
         assert!(parse_selection("nucleo").is_err());
         assert_eq!(Selection::default().boards(), vec![DEFAULT_BOARD]);

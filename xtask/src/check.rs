@@ -216,8 +216,14 @@ mod tests {
     fn every_board_is_linted_and_built_once() {
         let steps = steps();
         for board in &BOARDS {
-            let tag = format!("for {}", board.name);
-            let n = steps.iter().filter(|s| s.name.contains(&tag)).count();
+            // Whole words: `odrive-v3` must not count `odrive-v3-as5047p`.
+            let n = steps
+                .iter()
+                .filter(|s| {
+                    let words: Vec<&str> = s.name.split_whitespace().collect();
+                    words.windows(2).any(|w| w == ["for", board.name])
+                })
+                .count();
             assert_eq!(n, 2, "{}", board.name);
         }
         assert!(steps[0].name.starts_with("rustfmt"));

@@ -124,7 +124,8 @@ impl Drop for Emulator {
 impl Emulator {
     fn start(elf: &Path, port: u16, verbose: bool) -> Result<Self> {
         let serial = format!("tcp:127.0.0.1:{port},server,nowait");
-        // A fresh configuration store for this run (semihosting `store=`).
+        // A fresh configuration store for this run (semihosting `store=`),
+        // and the absolute sensor, whose calibration a record can carry.
         let dir = crate::util::target_dir().join("qemu-store");
         std::fs::create_dir_all(&dir).map_err(|e| Error(format!("{}: {e}", dir.display())))?;
         let store = dir.join("e2e-store.bin");
@@ -132,7 +133,7 @@ impl Emulator {
         let store_arg = format!("store={}", store.display());
         let (qemu, lines) = qemu::spawn_decoded(
             elf,
-            &["mission=e2e", store_arg.as_str()],
+            &["mission=e2e", "sensor=absolute", store_arg.as_str()],
             "shift=0,align=off,sleep=off",
             &serial,
         )?;

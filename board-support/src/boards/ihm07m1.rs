@@ -165,7 +165,7 @@ pub struct Board {
     /// Command UART: USART2 on PA2/PA3, the ST-LINK virtual COM port.
     pub serial: CommandSerial,
     /// The configuration store's flash region ([`STORE_RANGE`]). Erasing a
-    /// sector stalls the CPU for 1-2 s: bridge off first (`hw::flash`).
+    /// sector stalls the CPU for seconds: bridge off first (`hw::flash`).
     pub store: StoreFlash,
 }
 

@@ -19,6 +19,7 @@
 //! | M0 ENC Z             | PC9              | TIM3_CH4 (AF2, index capture)  |
 //! | M1 AH/BH/CH, AL/BL/CL| PC6-8, PA7/PB0/PB1 | GPIO out low (M1 unused)     |
 //! | GPIO3 / GPIO4        | PA2 / PA3        | USART2 TX / RX (AF7), command UART, 115200 8N1 |
+//! | GPIO1 (feature `as5047p`) | PA0         | GPIO out, idle high: AS5047P CSn |
 //!
 //! Command UART: USART2 on the J3 header pins GPIO3 (PA2, TX) and GPIO4
 //! (PA3, RX). The ODrive firmware calls this port UART_B; its default
@@ -44,10 +45,60 @@
 //! configuration; [`emergency_disable`] also pulls EN_GATE low (gate
 //! drivers shut down), after which `Pwm::enable` refuses until `init` runs
 //! again.
+//!
+//! # Option `as5047p`: an AS5047P on SPI3
+//!
+//! With the board-support feature `as5047p` (firmware feature
+//! `odrive-v3-as5047p`) the rotor angle comes from an AS5047P magnetic
+//! sensor (14 bits, absolute: [`ANGLE_SOURCE`] is
+//! `AngleSource::Absolute { counts_per_rev: 16384 }`, so a stored
+//! calibration applies at boot) instead of the M0 encoder input, which is
+//! left unconfigured. Wiring: sensor CLK, MISO (its `MISO`/`DO`) and MOSI
+//! (`MOSI`/`DI`) to the ODrive's SPI3 SCK / MISO / MOSI (PC10 / PC11 /
+//! PC12, shared with both DRV8301s), CSn to J3 GPIO1 (PA0), 3.3 V and GND.
+//!
+//! Chip select on GPIO1 (PA0): the ODrive firmware's own default SPI
+//! encoder chip select (`abs_spi_cs_gpio_pin = 1` in
+//! `MotorControl/encoder.hpp`; GPIO1 = PA0 on v3.3-v3.6 in
+//! `Board/v3/board.cpp`). Its docs (`encoders.md`, "Using SPI") let the
+//! user pick any GPIO, show GPIO4 as the example and warn that GPIO1/2
+//! usually carry UART_A: here GPIO4 (PA3) is the command UART's RX, while
+//! GPIO1/2 are free because the command UART is on GPIO3/4.
+//!
+//! MOSI: the ODrive docs (`encoders.md`, "Using SPI") tie the sensor's
+//! MOSI to 3.3 V: the ODrive firmware only ever sends `READ ANGLECOM`
+//! (0xFFFF). This driver also reads `ERRFL` after an error flag (to clear
+//! it), which needs MOSI wired; with MOSI tied high that read is an angle
+//! read the driver discards (`As5047pError::NotAnAngle`), one sample per
+//! error.
+//!
+//! Bus hand-over: `init` configures the DRV8301 over SPI3 exactly as the
+//! encoder build does (mode 1, 1 MHz requested), then takes the bus back
+//! (`Drv8301::release`, `Spi::release`) and sets SPI3 up again for the
+//! sensor (mode 1, `AS5047P_SPI_HZ` = APB1 42 MHz / 8 = 5.25 MHz, the
+//! fastest divider within the AS5047P's 10 MHz: /4 would be 10.5 MHz;
+//! `SPI_CR1.BR`, RM0090 28.5.1). From then on the bus belongs to the
+//! sensor (an `embedded-hal-bus` `ExclusiveDevice` with CSn on PA0 and the
+//! HAL's DWT delay for the sensor's CSn-to-clock time; SCK and MOSI at
+//! medium output speed for the faster clock); the DRV8301 chip
+//! selects (PC13, PC14) are held high in `Board::gate_driver_ncs`, so
+//! the DRV8301 status registers are not read after `init` (nFAULT still
+//! is: [`gate_driver_fault`]). The DRV8301 keeps its configuration while
+//! EN_GATE stays high.
+//!
+//! Timing: one 16-bit frame per PWM period, read in the current-loop
+//! interrupt: 16 clocks at 5.25 MHz = 3.05 us plus the 0.4 us CSn set-up,
+//! about 3.5 us of the 50 us period at 20 kHz (at the DRV8301's 1 MHz
+//! request, which the HAL rounds to 42 MHz / 32 = 1.3125 MHz, the frame
+//! would take 12.2 us, and two frames for an angle of the same period
+//! 24.4 us; at 5.25 MHz two frames would take about 7 us). The angle is
+//! one frame (one period) old (see `hw::as5047p`); `init` sends the first
+//! frame so the first read in the current loop already returns an angle.
 
 pub use super::Led;
 use crate::hw::adc::{setup_adc1, InjectedCurrents, RegularBus, SampleTime, Shunts};
 pub use crate::hw::angle::AngleSource;
+#[cfg(not(feature = "as5047p"))]
 use crate::hw::angle::{AngleInput, HallSensor, QuadEncoder};
 use crate::hw::drv8301::{Drv8301, Drv8301Error};
 pub use crate::hw::flash::StoreFlash;
@@ -59,14 +110,30 @@ use crate::logic::scaling::{CurrentScale, VoltageScale};
 use crate::pac;
 use fugit::RateExtU32;
 use stm32f4xx_hal::gpio::{GpioExt, Output, PinState, PC13};
+#[cfg(not(feature = "as5047p"))]
 use stm32f4xx_hal::qei::Qei;
 use stm32f4xx_hal::rcc::{Config, Enable, RccExt, Reset};
 use stm32f4xx_hal::spi::{Spi, SpiExt};
+#[cfg(feature = "as5047p")]
+use {
+    crate::hw::as5047p::As5047p,
+    embedded_hal_bus::spi::ExclusiveDevice,
+    foc_core::hal::AngleSensor,
+    stm32f4xx_hal::dwt::{self, DwtExt},
+    stm32f4xx_hal::gpio::{PinSpeed, Speed, PA0, PC14},
+    stm32f4xx_hal::rcc::Rcc,
+};
 
 /// Board name.
+#[cfg(not(feature = "as5047p"))]
 pub const NAME: &str = "ODrive v3.x (M0)";
+/// Board name.
+#[cfg(feature = "as5047p")]
+pub const NAME: &str = "ODrive v3.x (M0) + AS5047P";
 /// Core clock [Hz].
 pub const SYSCLK_HZ: u32 = 168_000_000;
+/// APB1 clock [Hz] (SPI3, USART2).
+pub const PCLK1_HZ: u32 = 42_000_000;
 /// The source's alternative PWM frequency [Hz].
 pub const PWM_FREQUENCY_15K_HZ: u32 = 15_000;
 /// PWM frequency [Hz] (set to [`PWM_FREQUENCY_15K_HZ`] for 15 kHz).
@@ -94,7 +161,27 @@ pub const BUS_VOLTAGE_MIN_V: f32 = 12.0;
 pub const BUS_VOLTAGE_MAX_V: f32 = 56.0;
 /// Rotor angle input chosen at `init`: the M0 encoder (CUI AMT102 at 2048
 /// lines = 8192 counts, the usual ODrive encoder; change to suit).
+#[cfg(not(feature = "as5047p"))]
 pub const ANGLE_SOURCE: AngleSource = AngleSource::Encoder { cpr: 8192 };
+/// Rotor angle input: the AS5047P on SPI3, 14 bits, absolute.
+#[cfg(feature = "as5047p")]
+pub const ANGLE_SOURCE: AngleSource = AngleSource::Absolute {
+    counts_per_rev: crate::logic::as5047p::COUNTS_PER_TURN,
+};
+
+/// AS5047P chip select: J3 GPIO1 (see the module docs).
+#[cfg(feature = "as5047p")]
+pub const AS5047P_NCS_PIN: PinId = PinId::new(Port::A, 0);
+/// SPI3 clock for the AS5047P [Hz]: the fastest APB1 divider within the
+/// sensor's limit (42 MHz / 8 = 5.25 MHz).
+#[cfg(feature = "as5047p")]
+pub const AS5047P_SPI_HZ: u32 = match crate::logic::spi_clock::fastest_spi_clock_hz(
+    PCLK1_HZ,
+    crate::logic::as5047p::MAX_SPI_HZ,
+) {
+    Some(hz) => hz,
+    None => panic!("no SPI3 divider within the AS5047P's clock limit"),
+};
 
 /// The configuration store: flash sectors 10-11 (0x080C_0000..0x0810_0000)
 /// of the 1 MiB STM32F405RG, as offsets from the flash base (RM0090 §3.3
@@ -167,7 +254,11 @@ pub type Pwm = Tim1Pwm;
 /// Phase currents (shunts on B and C, A derived).
 pub type Currents = InjectedCurrents;
 /// Rotor angle: encoder on TIM3 or halls.
+#[cfg(not(feature = "as5047p"))]
 pub type Angle = AngleInput<pac::TIM3>;
+/// Rotor angle: the AS5047P on SPI3, CSn on PA0.
+#[cfg(feature = "as5047p")]
+pub type Angle = As5047p<ExclusiveDevice<Spi<pac::SPI3>, PA0<Output>, dwt::Delay>>;
 /// Bus voltage.
 pub type Bus = RegularBus;
 /// The M0 DRV8301 on SPI3.
@@ -186,7 +277,12 @@ pub struct Board {
     /// No user LED on the ODrive: a no-op.
     pub led: Led,
     /// The M0 gate driver (status reads).
+    #[cfg(not(feature = "as5047p"))]
     pub gate_driver: GateDriver,
+    /// The chip selects of both DRV8301 (M0 PC13, M1 PC14), held high:
+    /// after `init` SPI3 belongs to the angle sensor.
+    #[cfg(feature = "as5047p")]
+    pub gate_driver_ncs: (PC13<Output>, PC14<Output>),
     /// Result of the DRV8301 configuration at init. On error EN_GATE is
     /// left low and `pwm.enable()` fails.
     pub gate_driver_config: Result<(), Drv8301Error>,
@@ -205,7 +301,7 @@ pub fn init(dp: pac::Peripherals) -> Board {
         Config::hse(8.MHz())
             .sysclk(SYSCLK_HZ.Hz())
             .hclk(SYSCLK_HZ.Hz())
-            .pclk1(42.MHz())
+            .pclk1(PCLK1_HZ.Hz())
             .pclk2(84.MHz()),
     );
     let gpioa = dp.GPIOA.split(&mut rcc);
@@ -296,6 +392,7 @@ pub fn init(dp: pac::Peripherals) -> Board {
     let currents = InjectedCurrents::new(Shunts::BC(CURRENT_CHANNELS), CURRENT_SCALE);
     let bus = RegularBus::new(BUS_SCALE);
 
+    #[cfg(not(feature = "as5047p"))]
     let angle = match ANGLE_SOURCE {
         AngleSource::Encoder { cpr } => {
             let qei = Qei::new(
@@ -320,6 +417,13 @@ pub fn init(dp: pac::Peripherals) -> Board {
             AngleInput::Hall(HallSensor::new(HALL_PINS, cfg.at_tick_rate(SYSCLK_HZ)))
         }
     };
+    // SPI3 from the DRV8301 to the AS5047P (module docs, "Bus hand-over").
+    #[cfg(feature = "as5047p")]
+    let (angle, gate_driver_ncs) = {
+        let (spi, m0_ncs) = gate_driver.release();
+        let ncs = gpioa.pa0.into_push_pull_output_in_state(PinState::High);
+        (as5047p_on_spi3(spi, ncs, &mut rcc), (m0_ncs, _m1_ncs))
+    };
 
     // Command UART: USART2 on PA2/PA3 (AF7). Clock enable and reset
     // through the HAL (RCC_APB1ENR.USART2EN, RM0090 7.3.13).
@@ -332,13 +436,54 @@ pub fn init(dp: pac::Peripherals) -> Board {
         angle,
         bus,
         led: Led::new(None),
+        #[cfg(not(feature = "as5047p"))]
         gate_driver,
+        #[cfg(feature = "as5047p")]
+        gate_driver_ncs,
         gate_driver_config,
         serial,
         // After `rcc.freeze`, which sets the wait states through its own
         // FLASH_ACR pointer and does not need the peripheral.
         store: StoreFlash::new(dp.FLASH, STORE_RANGE),
     }
+}
+
+/// SPI3 set up again for the AS5047P (mode 1, [`AS5047P_SPI_HZ`]; the
+/// HAL enables and resets SPI3 through RCC_APB1ENR / RCC_APB1RSTR,
+/// RM0090 7.3.13 / 7.3.8) as an `ExclusiveDevice` with CSn `ncs` (high),
+/// and the sensor's first frame sent (its answer comes with the next).
+#[cfg(feature = "as5047p")]
+fn as5047p_on_spi3(spi: Spi<pac::SPI3>, ncs: PA0<Output>, rcc: &mut Rcc) -> Angle {
+    let (spi3, (mut sck, miso, mut mosi)) = spi.release();
+    // The outputs at medium speed (GPIOx_OSPEEDR = 01, RM0090 8.4.3): the
+    // reset value (low) is meant for a few MHz, the clock here is 5.25 MHz.
+    if let Some(p) = sck.as_mut() {
+        p.set_speed(Speed::Medium);
+    }
+    if let Some(p) = mosi.as_mut() {
+        p.set_speed(Speed::Medium);
+    }
+    let spi = spi3.spi(
+        (sck, miso, mosi),
+        embedded_hal::spi::MODE_1,
+        AS5047P_SPI_HZ.Hz(),
+        rcc,
+    );
+    // The HAL's DWT delay reads the cycle counter `init` enabled; DWT and
+    // DCB are taken only to build it (`enable_cycle_counter` steals them
+    // the same way, the RTIC app enables the same bits again).
+    // SAFETY: only DCB_DEMCR.TRCENA and DWT_CTRL.CYCCNTENA are set
+    // (ARMv7-M ARM C1.6.5, C1.8.7), idempotently; nothing else is touched.
+    let cp = unsafe { cortex_m::Peripherals::steal() };
+    let delay = cp.DWT.constrain(cp.DCB, &rcc.clocks).delay();
+    let device = match ExclusiveDevice::new(spi, ncs, delay) {
+        Ok(d) => d,
+        Err(never) => match never {},
+    };
+    let mut sensor = As5047p::new(device);
+    // Nothing to answer yet: the first frame only primes the pipeline.
+    let _ = sensor.read_angle();
+    sensor
 }
 
 /// Safe state from any context: `MOE = 0` and EN_GATE low (both DRV8301

@@ -205,6 +205,8 @@ static EMERGENCY: AtomicBool = AtomicBool::new(false);
 static BREAK_LATCH: AtomicBool = AtomicBool::new(false);
 /// Periods the bridge conducted while the break latch was set (must stay 0).
 static ON_AFTER_BREAK: AtomicU32 = AtomicU32::new(0);
+/// Periods the bridge conducted since reset.
+static ON_PERIODS: AtomicU32 = AtomicU32::new(0);
 
 /// The emulated PWM stage.
 pub struct SimPwm {
@@ -454,6 +456,9 @@ pub fn gate_driver_fault() -> bool {
 /// Advance the plant by one PWM period and latch its sample.
 fn step_physics() {
     let on = BRIDGE_ON.load(Ordering::SeqCst);
+    if on {
+        ON_PERIODS.fetch_add(1, Ordering::SeqCst);
+    }
     if on && BREAK_LATCH.load(Ordering::SeqCst) {
         ON_AFTER_BREAK.fetch_add(1, Ordering::SeqCst);
     }
@@ -484,7 +489,9 @@ fn TIM2() {
 
 /// The test harness's handle on the simulated world.
 pub mod sim {
-    use super::{free, Ordering, BREAK_LATCH, BRIDGE_ON, EMERGENCY, ON_AFTER_BREAK, WORLD};
+    use super::{
+        free, Ordering, BREAK_LATCH, BRIDGE_ON, EMERGENCY, ON_AFTER_BREAK, ON_PERIODS, WORLD,
+    };
     use foc_plant::plant::{EncoderFault, Phase, PhaseShort};
 
     /// A fault to inject into the plant.
@@ -596,6 +603,11 @@ pub mod sim {
     /// True when the bridge outputs are commanded on.
     pub fn outputs_on() -> bool {
         BRIDGE_ON.load(Ordering::SeqCst)
+    }
+
+    /// Periods the bridge conducted since reset (counted by the physics).
+    pub fn on_periods() -> u32 {
+        ON_PERIODS.load(Ordering::SeqCst)
     }
 
     /// End the emulation with `code` as QEMU's exit status (semihosting

@@ -171,15 +171,37 @@ pub enum AngleSource {
     },
     /// Hall sensors.
     Hall(HallConfig),
+    /// An absolute angle sensor (the AS5047P of the ODrive v3 option):
+    /// only in builds that have its driver (feature `as5047p`), so a
+    /// board without one cannot select it.
+    #[cfg(feature = "as5047p")]
+    Absolute {
+        /// Counts per turn of the sensor's angle (2^14 for the AS5047P).
+        counts_per_rev: u32,
+    },
 }
 
 impl AngleSource {
     /// What the source tells at reset: an encoder counts from 0
-    /// ([`AngleKind::Incremental`]), halls know the sector ([`AngleKind::Hall`]).
+    /// ([`AngleKind::Incremental`]), halls know the sector ([`AngleKind::Hall`]),
+    /// an absolute sensor the angle ([`AngleKind::Absolute`]).
     pub const fn kind(&self) -> AngleKind {
         match self {
             AngleSource::Encoder { .. } => AngleKind::Incremental,
             AngleSource::Hall(_) => AngleKind::Hall,
+            #[cfg(feature = "as5047p")]
+            AngleSource::Absolute { .. } => AngleKind::Absolute,
+        }
+    }
+
+    /// The sensor's counts per mechanical turn, where it counts (encoder,
+    /// absolute sensor); `None` for halls.
+    pub const fn counts_per_rev(&self) -> Option<u32> {
+        match self {
+            AngleSource::Encoder { cpr } => Some(*cpr),
+            AngleSource::Hall(_) => None,
+            #[cfg(feature = "as5047p")]
+            AngleSource::Absolute { counts_per_rev } => Some(*counts_per_rev),
         }
     }
 }

@@ -4,11 +4,27 @@
 //! Every call sends `READ ANGLECOM` and decodes the answer to the previous
 //! command (the AS5047P answers one frame late), so the angle is one call
 //! old. After an error flag the next call reads (and so clears) `ERRFL`.
+//!
+//! Each frame is one `SpiDevice` transaction: a wait of
+//! [`CSN_SETUP_NS`] after CSn falls (the sensor's `tL`; the device's
+//! `DelayNs` provides it), then the two-byte transfer. Calls must be at
+//! least `tCSn` = [`T_CSN_NS`] apart (CSn high between frames): once per
+//! PWM period is far more.
+//!
+//! ```ignore
+//! // On a board: SPI bus + chip select + delay as an embedded-hal-bus device.
+//! let dev = embedded_hal_bus::spi::ExclusiveDevice::new(spi, ncs, delay)?;
+//! let mut sensor = As5047p::new(dev);
+//! let _ = sensor.read_angle(); // first frame: no answer yet
+//! let angle = sensor.read_angle()?;
+//! ```
 
+#[cfg(doc)]
+use crate::logic::as5047p::T_CSN_NS;
 use crate::logic::as5047p::{
-    angle_bits, decode_response, read_command, FrameError, Response, ANGLECOM, ERRFL,
+    angle_bits, decode_response, read_command, FrameError, Response, ANGLECOM, CSN_SETUP_NS, ERRFL,
 };
-use embedded_hal::spi::SpiDevice;
+use embedded_hal::spi::{Operation, SpiDevice};
 use foc_core::angle::MechanicalAngle;
 use foc_core::hal::AngleSensor;
 
@@ -58,7 +74,10 @@ impl<SPI: SpiDevice<u8>> As5047p<SPI> {
         let tx = cmd.to_be_bytes();
         let mut rx = [0u8; 2];
         self.spi
-            .transfer(&mut rx, &tx)
+            .transaction(&mut [
+                Operation::DelayNs(CSN_SETUP_NS),
+                Operation::Transfer(&mut rx, &tx),
+            ])
             .map_err(|_| As5047pError::Spi)?;
         Ok(u16::from_be_bytes(rx))
     }

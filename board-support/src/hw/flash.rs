@@ -21,11 +21,11 @@
 //! program operation is under way (`FLASH_SR.BSY`), a read of the flash
 //! (instruction fetch, literal pool, constant) stalls the bus until it
 //! completes (RM0090 §3.5 / RM0390 §3.5 and §3.6, "Erase and program
-//! operations"). A 128 KiB sector erase takes on the order of 1-2 s
-//! (datasheet table "Flash memory programming", parameter `t_ERASE128KB`,
-//! STM32F405xx DS8626 / STM32F446xx DS10693: typically 1 s at x32
-//! parallelism, longer at x8, which the HAL uses; figures from memory of
-//! the datasheets, check the current revision): no code in flash runs
+//! operations"). A 128 KiB sector erase takes seconds (datasheet table
+//! "Flash memory programming", parameter `t_ERASE128KB`, STM32F405xx
+//! DS8626 / STM32F446xx DS10693: about 1 s typical at x32 parallelism,
+//! about 2 s typical and 4 s maximum at x8, which the HAL uses; figures
+//! from memory of the datasheets, not checked here): no code in flash runs
 //! meanwhile, interrupt handlers included, so the control loop stops.
 //! Callers must have the bridge **disabled** and the independent watchdog
 //! stretched before erasing (the firmware does that). Byte programs are
@@ -138,7 +138,7 @@ impl NorFlash for StoreFlash {
     const WRITE_SIZE: usize = 1;
     const ERASE_SIZE: usize = SECTOR_SIZE as usize;
 
-    /// Erase the sectors `from..to`: stalls the CPU for about 1-2 s per
+    /// Erase the sectors `from..to`: stalls the CPU for seconds per
     /// sector (module docs).
     fn erase(&mut self, from: u32, to: u32) -> Result<(), Self::Error> {
         check_erase(&self.region, from, to, SECTOR_SIZE)?;
@@ -146,6 +146,7 @@ impl NorFlash for StoreFlash {
             // The HAL would erase the sector at `from` before comparing.
             return Ok(());
         }
+        clear_error_flags();
         let mut unlocked = self.flash.unlocked();
         NorFlash::erase(&mut unlocked, from, to).map_err(StoreFlashError::Hal)
         // `unlocked` drops here: FLASH_CR.LOCK set again (RM0390 §3.7.1).
@@ -153,9 +154,34 @@ impl NorFlash for StoreFlash {
 
     fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), Self::Error> {
         check_access(&self.region, offset, bytes.len())?;
+        clear_error_flags();
         let mut unlocked = self.flash.unlocked();
         NorFlash::write(&mut unlocked, offset, bytes).map_err(StoreFlashError::Hal)
     }
+}
+
+/// Clear the sticky error flags of `FLASH_SR` (OPERR, WRPERR, PGAERR,
+/// PGPERR, PGSERR: `rc_w1`, RM0090 §3.9.5, RM0390 §3.8.4, RM0368 §3.8.4).
+/// The HAL reports them after an operation but leaves them set, so one
+/// failed operation would fail every later one (a stale PGSERR even blocks
+/// the next program, RM0390 §3.6.4): clear them before each operation.
+fn clear_error_flags() {
+    // SAFETY: writing 1 to an `rc_w1` error bit clears it and writing 0
+    // changes nothing (EOP and BSY untouched); this driver is the only
+    // user of the flash interface after the clock set-up.
+    let flash = unsafe { &*pac::FLASH::ptr() };
+    flash.sr().write(|w| {
+        w.operr()
+            .clear()
+            .wrperr()
+            .clear()
+            .pgaerr()
+            .clear()
+            .pgperr()
+            .clear()
+            .pgserr()
+            .clear()
+    });
 }
 
 /// A byte can be programmed again (only clearing bits), as the HAL says for

@@ -33,6 +33,18 @@ pub const ANGLECOM: u16 = 0x3FFF;
 /// Counts per turn of the 14-bit angle.
 pub const COUNTS_PER_TURN: u32 = 1 << 14;
 
+/// Highest SPI clock [Hz] (datasheet: SPI timing, `1/tclk`).
+pub const MAX_SPI_HZ: u32 = 10_000_000;
+/// Shortest time from CSn falling to the first CLK rising edge [ns]
+/// (datasheet: SPI timing, `tL`).
+pub const T_L_NS: u32 = 350;
+/// Shortest CSn high time between two frames [ns] (datasheet: SPI
+/// timing, `tCSn`).
+pub const T_CSN_NS: u32 = 350;
+/// The wait after CSn falls, before the frame's clock starts [ns]: `tL`
+/// with margin for a delay that rounds its cycle count down.
+pub const CSN_SETUP_NS: u32 = T_L_NS + 50;
+
 /// A decoded read data frame.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Response {

@@ -13,3 +13,4 @@ pub mod nor_region;
 pub mod pwm_timing;
 pub mod scaling;
 pub mod serial;
+pub mod spi_clock;
