@@ -17,7 +17,8 @@
 //! 6. faults read (none latched), disable;
 //! 7. the configuration store (a fresh file, semihosting `store=`): save,
 //!    read back equal; export as TOML, edit, import (applied and saved),
-//!    read back equal; erase, nothing stored;
+//!    read back equal; erase, nothing stored; a velocity command and a
+//!    save in one burst: the save refused (not disabled), nothing stored;
 //! 8. the link watchdog; QEMU killed.
 //!
 //! Every wait is bounded in emulated time, counted in the firmware's own
@@ -316,17 +317,27 @@ impl Session {
 
     /// Send raw bytes and wait for one non-stream reply (seq, response).
     fn raw_exchange(&mut self, bytes: &[u8]) -> Result<(u16, Response)> {
+        let mut replies = self.raw_replies(bytes, 1)?;
+        replies
+            .pop()
+            .ok_or_else(|| Error("no reply to a raw frame".into()))
+    }
+
+    /// Write `bytes` (one or more frames) on the raw socket and read `n`
+    /// replies (streamed telemetry skipped).
+    fn raw_replies(&mut self, bytes: &[u8], n: usize) -> Result<Vec<(u16, Response)>> {
         self.raw.write_all(bytes)?;
         self.raw.flush()?;
         let end = Instant::now() + RAW_REPLY_HOST_LIMIT.min(self.remaining()?);
         let mut dec = FrameDecoder::new();
         let mut buf = [0u8; 256];
+        let mut replies = Vec::new();
         while Instant::now() < end {
             self.raw
                 .set_read_timeout(Some(Duration::from_millis(100)))?;
-            let n = match self.raw.read(&mut buf) {
+            let got = match self.raw.read(&mut buf) {
                 Ok(0) => return Err(Error("QEMU closed the connection".into())),
-                Ok(n) => n,
+                Ok(got) => got,
                 Err(e)
                     if matches!(
                         e.kind(),
@@ -337,10 +348,13 @@ impl Session {
                 }
                 Err(e) => return Err(e.into()),
             };
-            for &b in &buf[..n] {
+            for &b in &buf[..got] {
                 if let Some(Ok(p)) = dec.feed::<Response>(b) {
                     if !matches!(p.msg, Response::Stream(_)) {
-                        return Ok((p.seq, p.msg));
+                        replies.push((p.seq, p.msg));
+                        if replies.len() == n {
+                            return Ok(replies);
+                        }
                     }
                 }
             }
@@ -740,6 +754,37 @@ impl Session {
             matches!(after, Err(ClientError::Nack(ErrorCode::NothingStored)))
                 && matches!(load, Err(ClientError::Nack(ErrorCode::NothingStored))),
             format!("config erase: nothing stored (read {after:?}, load {load:?})"),
+        )?;
+
+        // A command and a save in one burst: whether or not the current
+        // loop has taken the command when the save is handled (the firmware
+        // checks the mailbox too, not only the last period's status), the
+        // save is refused, so a flash stall never meets a running bridge.
+        let mut burst = [0u8; 2 * MAX_FRAME];
+        let a = encode(
+            61_000,
+            &Request::SetCommand(DriveCommand::Velocity { rad_s: 5.0 }),
+            &mut burst,
+        )
+        .map_err(|e| Error(format!("encode: {e:?}")))?;
+        let b = encode(61_001, &Request::Store(StoreOp::Save), &mut burst[a..])
+            .map_err(|e| Error(format!("encode: {e:?}")))?;
+        let replies = self.raw_replies(&burst[..a + b], 2)?;
+        self.client
+            .set_command(DriveCommand::Disable)
+            .map_err(client_err("disable"))?;
+        self.wait_for("disable", DISABLE_EMULATED_S, 1, |t| {
+            t.mode == Mode::Disabled
+        })?;
+        let after = self.client.read_config(ConfigSource::Stored);
+        check(
+            replies
+                == [
+                    (61_000, Response::Ack),
+                    (61_001, Response::Nack(ErrorCode::NotDisabled)),
+                ]
+                && matches!(after, Err(ClientError::Nack(ErrorCode::NothingStored))),
+            format!("velocity + save in one burst: save refused, nothing stored ({replies:?})"),
         )
     }
 
