@@ -140,15 +140,7 @@ pub fn admit(rec: &DriveRecord) -> Result<Settings, Invalid> {
 
 /// The cascade configuration of `s` (the build-time one with `s` applied).
 pub fn cascade(s: &Settings) -> CascadeConfig {
-    let mut c = config::cascade(PWM_HZ as f32);
-    c.current.limits = s.limits;
-    c.current.current = s.current;
-    c.current.angle = s.angle;
-    c.speed = s.speed;
-    c.position = s.position;
-    c.rates.speed_divider = s.dividers.0;
-    c.rates.position_divider = s.dividers.1;
-    c
+    s.apply_to(&config::cascade(PWM_HZ as f32))
 }
 
 /// The record of the live settings, with the link watchdog in force.

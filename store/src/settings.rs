@@ -71,6 +71,21 @@ impl Settings {
         }
     }
 
+    /// `base` with these settings in force (limits, current loop, angle
+    /// calibration, speed and position loops, dividers); the rest of
+    /// `base` (tracker, supervisor, rates, timeouts) is kept.
+    pub fn apply_to(&self, base: &CascadeConfig) -> CascadeConfig {
+        let mut c = *base;
+        c.current.limits = self.limits;
+        c.current.current = self.current;
+        c.current.angle = self.angle;
+        c.speed = self.speed;
+        c.position = self.position;
+        c.rates.speed_divider = self.dividers.0;
+        c.rates.position_divider = self.dividers.1;
+        c
+    }
+
     /// The calibration permit these settings vouch for: `Some` only when
     /// `calibrated` and `Calibrated::supplied(self.angle, self.current)`
     /// accepts them.

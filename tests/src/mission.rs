@@ -1110,7 +1110,7 @@ pub fn run_mission_from(
         ),
         None => None,
     };
-    let config = settings.map_or(base, |s| with_settings(&base, &s));
+    let config = settings.map_or(base, |s| s.apply_to(&base));
     let sim = Sim::new(setup, config, true);
     let plan = MissionPlan::new(setup, &config);
     let total = secs(setup, plan.expected_s).max(1);
@@ -1165,19 +1165,6 @@ fn auto_link(setup: &Setup) -> foc_store::record::WatchdogRecord {
 /// The setup's PWM frequency as a record states it [Hz].
 fn pwm_hz_u32(setup: &Setup) -> u32 {
     setup.pwm_hz().round() as u32
-}
-
-/// `base` with the settings of a stored record.
-fn with_settings(base: &CascadeConfig, s: &foc_store::Settings) -> CascadeConfig {
-    let mut c = *base;
-    c.current.limits = s.limits;
-    c.current.current = s.current;
-    c.current.angle = s.angle;
-    c.speed = s.speed;
-    c.position = s.position;
-    c.rates.speed_divider = s.dividers.0;
-    c.rates.position_divider = s.dividers.1;
-    c
 }
 
 /// The mission's speeds and durations, derived from the setup before it

@@ -88,15 +88,7 @@ pub const ANGLE_SOURCE: AngleSource = AngleSource::Hall(HallConfig {
 /// (RM0390 §3.3 table 4, RM0368 §3.3 table 5). The linker scripts keep the
 /// program out of it (`STORE` region of `memory/<board>.x`).
 pub const STORE_RANGE: core::ops::Range<u32> = 0x4_0000..0x8_0000;
-const _: () = assert!(
-    STORE_RANGE
-        .start
-        .is_multiple_of(crate::hw::flash::SECTOR_SIZE)
-        && STORE_RANGE
-            .end
-            .is_multiple_of(crate::hw::flash::SECTOR_SIZE)
-        && STORE_RANGE.end <= 512 * 1024
-);
+const _: () = assert!(crate::hw::flash::is_store_region(&STORE_RANGE, 512 * 1024));
 
 /// What the angle input tells at reset (from [`ANGLE_SOURCE`]).
 pub const fn angle_kind() -> foc_core::drive::AngleKind {

@@ -188,15 +188,7 @@ pub const AS5047P_SPI_HZ: u32 = match crate::logic::spi_clock::fastest_spi_clock
 /// table 5). The linker script keeps the program out of it (`STORE` region
 /// of `memory/odrive-v3.x`).
 pub const STORE_RANGE: core::ops::Range<u32> = 0xC_0000..0x10_0000;
-const _: () = assert!(
-    STORE_RANGE
-        .start
-        .is_multiple_of(crate::hw::flash::SECTOR_SIZE)
-        && STORE_RANGE
-            .end
-            .is_multiple_of(crate::hw::flash::SECTOR_SIZE)
-        && STORE_RANGE.end <= 1024 * 1024
-);
+const _: () = assert!(crate::hw::flash::is_store_region(&STORE_RANGE, 1024 * 1024));
 
 /// What the angle input tells at reset (from [`ANGLE_SOURCE`]).
 pub const fn angle_kind() -> foc_core::drive::AngleKind {

@@ -58,6 +58,16 @@ use stm32f4xx_hal::flash::{Error as HalFlashError, FlashExt, LockedFlash};
 /// Erase unit of the store's sectors [bytes] (128 KiB sectors).
 pub const SECTOR_SIZE: u32 = 128 * 1024;
 
+/// True when `region` is made of whole 128 KiB sectors of a flash of
+/// `flash_bytes` (the boards check their `STORE_RANGE` with it at compile
+/// time).
+pub const fn is_store_region(region: &Range<u32>, flash_bytes: u32) -> bool {
+    region.start < region.end
+        && region.start.is_multiple_of(SECTOR_SIZE)
+        && region.end.is_multiple_of(SECTOR_SIZE)
+        && region.end <= flash_bytes
+}
+
 /// Error of [`StoreFlash`].
 #[derive(Clone, Copy, Debug)]
 pub enum StoreFlashError {

@@ -124,3 +124,29 @@ fn from_settings_marks_calibration() {
     assert_eq!(r.calibration, None);
     assert_eq!(r.validate(), Ok(()));
 }
+
+#[test]
+fn settings_go_back_into_the_cascade_configuration() {
+    let motor = MotorParams {
+        pole_pairs: 7,
+        r_ohm: 0.2,
+        ld_h: 60e-6,
+        lq_h: 60e-6,
+        flux_linkage_wb: 0.005,
+    };
+    let c = CascadeConfig::for_motor(motor, 20_000.0, 5.0);
+    // Unchanged settings give the same configuration back.
+    assert_eq!(Settings::from_cascade(&c).apply_to(&c), c);
+    // A record's settings land where the drive reads them.
+    let s = record_a().apply(&base(20_000.0), 20_000).unwrap();
+    let d = s.apply_to(&c);
+    assert_eq!(d.current.limits, s.limits);
+    assert_eq!(d.current.current, s.current);
+    assert_eq!(d.current.angle, s.angle);
+    assert_eq!((d.speed, d.position), (s.speed, s.position));
+    assert_eq!(
+        (d.rates.speed_divider, d.rates.position_divider),
+        s.dividers
+    );
+    assert_eq!(d.current.supervisor, c.current.supervisor);
+}
