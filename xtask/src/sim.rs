@@ -121,6 +121,9 @@ fn run_one(motor: &Path, out: &Path, args: &SimArgs) -> Result<bool> {
     .map_err(|e| Error(format!("the stored configuration does not apply: {e}")))?;
     pb.finish_and_clear();
     if let Some(p) = &args.save_config {
+        if let Some(dir) = p.parent().filter(|d| !d.as_os_str().is_empty()) {
+            std::fs::create_dir_all(dir).map_err(|e| Error(format!("{}: {e}", dir.display())))?;
+        }
         std::fs::write(p, foc_store::text::to_toml(&result.record))
             .map_err(|e| Error(format!("{}: {e}", p.display())))?;
         println!("  wrote the configuration to {}", p.display());
