@@ -202,4 +202,14 @@ impl BusVoltage for BenchBusVoltage<'_, '_> {
             .map(|m| m.v_bus_v)
             .ok_or(BenchError::NoSample)
     }
+    /// The power-stage temperature of the latest sample: `None` (no sensor)
+    /// unless the plant has a stage thermal model
+    /// ([`Plant::set_stage_thermal`]) and has been stepped.
+    fn read_temperature_c(&mut self) -> Option<Result<f32, BenchError>> {
+        self.s
+            .latest
+            .get()
+            .and_then(|m| m.stage_temperature_c)
+            .map(Ok)
+    }
 }

@@ -9,6 +9,9 @@
 //!
 //! - [`plant`]: motor, inverter (averaged or carrier-compared PWM, dead time,
 //!   computation delay, disabled bridge), DC source, sensors, fault injection.
+//! - [`power`]: optional power-stage models: DC link (capacitor, limited,
+//!   sinking or non-sinking source), brake chopper, winding and power-stage
+//!   temperatures (all off by default).
 //! - [`adapters`]: `foc-core` hardware traits on a shared plant.
 //! - [`rng`]: deterministic noise for the sensors.
 //! - [`real`]: the plant's scalar, [`real::Real`]: `f64` by default, `f32`
@@ -36,5 +39,6 @@
 
 pub mod adapters;
 pub mod plant;
+pub mod power;
 pub mod real;
 pub mod rng;

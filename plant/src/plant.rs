@@ -59,9 +59,17 @@
 //!   when its terminal voltage would leave `[0, V_bus]`, and with all three
 //!   open, only when the line-to-line back-EMF exceeds `V_bus`: below the bus
 //!   the back-EMF cannot drive current, above it the bridge rectifies and brakes.
-//! - DC source: `V_bus = V_source - bus_sag - R_source i_dc`, where
+//! - DC source (default): `V_bus = V_source - bus_sag - R_source i_dc`, where
 //!   `i_dc = sum_k h_k i_k` is the (sub-step average) supply current. Regenerated
 //!   current is absorbed by the source (no capacitor, no over-voltage).
+//! - DC link (optional, [`Plant::set_dc_link`]): a bulk capacitor whose voltage
+//!   is integrated with the rest of the state, fed by a resistive,
+//!   current-limited, sinking or non-sinking source, with an optional brake
+//!   chopper ([`Plant::set_brake`]): see [`crate::power`].
+//! - Thermal models (optional, [`Plant::set_winding_thermal`],
+//!   [`Plant::set_stage_thermal`]): winding and power-stage temperatures fed
+//!   by the copper and switch losses; the winding's can make the phase
+//!   resistance follow its temperature. See [`crate::power`].
 //! - Sensors: see [`SensorConfig`] and [`Faults`].
 //!
 //! ```
@@ -79,6 +87,7 @@
 // Loops over the three phases index several parallel arrays.
 #![allow(clippy::needless_range_loop)]
 
+use crate::power::{self, BusSolution, DcLinkConfig, StageThermal, WindingThermal};
 use crate::real::{self, Real, TAU, TWO_PI_3};
 use crate::rng::Rng;
 use foc_core::angle::{ElectricalAngle, MechanicalAngle};
@@ -398,6 +407,11 @@ pub struct Measurements {
     pub angle: MechanicalAngle,
     /// Bus voltage [V] as the ADC reads it.
     pub v_bus_v: f32,
+    /// Power-stage temperature [deg C] as the board's sensor reads it: `Some`
+    /// only with the stage thermal model ([`Plant::set_stage_thermal`]).
+    /// The bench feeds it to the drive as `Sample::temperature_c` (the bench
+    /// adapter's `BusVoltage::read_temperature_c` returns it).
+    pub stage_temperature_c: Option<f32>,
     /// Time of the sample [s].
     pub time_s: f64,
     /// Index of the period that just ended (0 for the first).
@@ -419,6 +433,22 @@ pub struct EnergyAccount {
     pub load_j: Real,
     /// Dissipated in an injected phase short.
     pub short_j: Real,
+    /// DC link only (zero without): delivered by the source at its
+    /// terminals, `V_bus i_source` while `i_source > 0`.
+    pub source_out_j: Real,
+    /// DC link only: returned into the source, `-V_bus i_source` while
+    /// `i_source < 0` (a sinking source).
+    pub source_in_j: Real,
+    /// DC link only: dissipated inside the source, `(V_source - V_bus)
+    /// i_source` (its resistance, or its regulator while current-limiting).
+    pub source_loss_j: Real,
+    /// DC link only: into the capacitor, `v_C i_C` (the change of
+    /// `C v_C^2 / 2`, see [`Plant::capacitor_energy_j`]).
+    pub capacitor_j: Real,
+    /// DC link only: dissipated in the capacitor's ESR.
+    pub esr_j: Real,
+    /// DC link only: dissipated in the brake resistor.
+    pub brake_j: Real,
 }
 
 /// How the rotor moves.
@@ -466,6 +496,31 @@ struct Deriv {
     p_load: Real,
     p_short: Real,
     i_dc: Real,
+    /// Capacitor voltage derivative (DC link only).
+    v_cap: Real,
+    /// Power at the source terminals `V i_source`.
+    p_source: Real,
+    /// Power dissipated inside the source.
+    p_source_loss: Real,
+    /// Power into the capacitor `v_C i_C`.
+    p_cap: Real,
+    /// Power in the ESR.
+    p_esr: Real,
+    /// Power in the brake resistor.
+    p_brake: Real,
+    i_source: Real,
+    i_brake: Real,
+}
+
+/// What one sub-step integrated.
+#[derive(Clone, Copy, Debug, Default)]
+struct SubstepOut {
+    e_in: Real,
+    q_dc: Real,
+    vt: [Real; 3],
+    copper_j: Real,
+    q_source: Real,
+    q_brake: Real,
 }
 
 /// The simulated motor, inverter and sensors.
@@ -504,6 +559,18 @@ pub struct Plant {
     time_s: f64,
     period: u64,
     energy: EnergyAccount,
+    // Power stage (all optional, off by default).
+    dc_link: Option<DcLinkConfig>,
+    /// Capacitor voltage [V] (the state; the bus when there is no DC link
+    /// is not a state).
+    v_cap: Real,
+    brake_on: bool,
+    i_source_avg: Real,
+    i_brake_avg: Real,
+    winding_thermal: Option<WindingThermal>,
+    t_winding_c: Real,
+    stage_thermal: Option<StageThermal>,
+    t_stage_c: Real,
 }
 
 impl Plant {
@@ -539,6 +606,15 @@ impl Plant {
             time_s: 0.0,
             period: 0,
             energy: EnergyAccount::default(),
+            dc_link: None,
+            v_cap: cfg.bus_voltage_v,
+            brake_on: false,
+            i_source_avg: 0.0,
+            i_brake_avg: 0.0,
+            winding_thermal: None,
+            t_winding_c: 20.0,
+            stage_thermal: None,
+            t_stage_c: 20.0,
         }
     }
 
@@ -664,15 +740,36 @@ impl Plant {
     }
     /// Bus voltage averaged over the sub-steps of the last period [V].
     ///
-    /// There is no DC-link capacitor in the model: with a source resistance
-    /// and carrier-compared PWM the instantaneous bus voltage (and so the
-    /// sampled one) moves with the switching state.
+    /// Without a DC link ([`Plant::set_dc_link`]) there is no capacitor: with
+    /// a source resistance and carrier-compared PWM the instantaneous bus
+    /// voltage (and so the sampled one) moves with the switching state.
     pub fn v_bus_avg_v(&self) -> Real {
         self.v_bus_avg
     }
-    /// Supply (DC) current averaged over the last period [A].
+    /// Supply (DC) current averaged over the last period [A]: the
+    /// inverter's DC input (legs and an injected short), see
+    /// [`Plant::inverter_current_a`].
     pub fn supply_current_a(&self) -> Real {
         self.i_dc_avg
+    }
+    /// Inverter DC input current averaged over the last period [A]
+    /// (`sum_k h_k i_k` plus an injected short's; negative while
+    /// regenerating). The same as [`Plant::supply_current_a`].
+    pub fn inverter_current_a(&self) -> Real {
+        self.i_dc_avg
+    }
+    /// Source current into the bus averaged over the last period [A]. With
+    /// a DC link it differs from the inverter's by the capacitor and brake
+    /// currents; without, it is the inverter's.
+    pub fn source_current_a(&self) -> Real {
+        match self.dc_link {
+            Some(_) => self.i_source_avg,
+            None => self.i_dc_avg,
+        }
+    }
+    /// Brake-resistor current averaged over the last period [A].
+    pub fn brake_current_a(&self) -> Real {
+        self.i_brake_avg
     }
     /// Input power `V_bus i_dc` averaged over the last period [W].
     pub fn input_power_w(&self) -> Real {
@@ -719,6 +816,117 @@ impl Plant {
         self.enabled
     }
 
+    // ----- power stage -----
+
+    /// Add (`Some`) or remove (`None`) the DC link of [`crate::power`]. The
+    /// capacitor starts charged to the source voltage (after the injected
+    /// sag); see [`Plant::set_capacitor_voltage`]. Parameters are used as
+    /// given; call [`DcLinkConfig::validate`] first when they come from a
+    /// user. Without a DC link (the default) the bus is the resistive source
+    /// of [`BenchConfig`]; with one, [`BenchConfig::bus_voltage_v`] and
+    /// [`BenchConfig::source_resistance_ohm`] are not used (the link's
+    /// `v_source_v` and `r_source_ohm` are), and [`Plant::v_bus_v`] is the
+    /// voltage at the capacitor's terminals (`v_C` plus the ESR drop).
+    pub fn set_dc_link(&mut self, dc: Option<DcLinkConfig>) {
+        self.dc_link = dc;
+        if let Some(d) = dc {
+            self.v_cap = d.v_source_v - self.faults.bus_sag_v;
+            self.v_bus = self.v_cap;
+            self.v_bus_avg = self.v_cap;
+        }
+    }
+    /// The DC link, if any.
+    pub fn dc_link(&self) -> Option<&DcLinkConfig> {
+        self.dc_link.as_ref()
+    }
+    /// Change the DC link's parameters (e.g. the source voltage) on the fly.
+    pub fn dc_link_mut(&mut self) -> Option<&mut DcLinkConfig> {
+        self.dc_link.as_mut()
+    }
+    /// Set the capacitor voltage [V] (an initial condition; DC link only).
+    pub fn set_capacitor_voltage(&mut self, v: Real) {
+        if self.dc_link.is_some() {
+            self.v_cap = v;
+        }
+    }
+    /// Capacitor voltage [V] (DC link only; without, the source voltage).
+    pub fn capacitor_voltage_v(&self) -> Real {
+        match self.dc_link {
+            Some(_) => self.v_cap,
+            None => self.source_v(),
+        }
+    }
+    /// Energy stored in the capacitor `C v_C^2 / 2` [J] (0 without a DC link).
+    pub fn capacitor_energy_j(&self) -> Real {
+        match &self.dc_link {
+            Some(d) => d.capacitor_energy_j(self.v_cap),
+            None => 0.0,
+        }
+    }
+    /// Switch the brake chopper (acts at once; draws `V / R` while on, with
+    /// a DC link that has a brake resistor).
+    pub fn set_brake(&mut self, on: bool) {
+        self.brake_on = on;
+    }
+    /// The brake chopper's command.
+    pub fn brake_on(&self) -> bool {
+        self.brake_on
+    }
+    /// Energy dissipated in the brake resistor [J] (also in [`Plant::energy`]).
+    pub fn brake_energy_j(&self) -> Real {
+        self.energy.brake_j
+    }
+
+    /// Add or remove the winding thermal model; the winding starts at its
+    /// ambient temperature.
+    pub fn set_winding_thermal(&mut self, w: Option<WindingThermal>) {
+        self.winding_thermal = w;
+        if let Some(w) = w {
+            self.t_winding_c = w.ambient_c;
+        }
+    }
+    /// The winding thermal model, if any.
+    pub fn winding_thermal(&self) -> Option<&WindingThermal> {
+        self.winding_thermal.as_ref()
+    }
+    /// Set the winding temperature [deg C] (an initial condition).
+    pub fn set_winding_temperature_c(&mut self, t_c: Real) {
+        self.t_winding_c = t_c;
+    }
+    /// Winding temperature [deg C] (`None` without the model).
+    pub fn winding_temperature_c(&self) -> Option<Real> {
+        self.winding_thermal.map(|_| self.t_winding_c)
+    }
+    /// Phase resistance in use [ohm]: [`MotorParams::r_ohm`], or its value
+    /// at the winding temperature when the model's `copper_tempco` is on.
+    pub fn winding_resistance_ohm(&self) -> Real {
+        match self.winding_thermal {
+            Some(w) if w.copper_tempco => w.resistance_ohm(self.motor.r_ohm, self.t_winding_c),
+            _ => self.motor.r_ohm,
+        }
+    }
+    /// Add or remove the power-stage thermal model; the stage starts at its
+    /// ambient temperature. With it, [`Measurements::stage_temperature_c`]
+    /// is `Some`.
+    pub fn set_stage_thermal(&mut self, s: Option<StageThermal>) {
+        self.stage_thermal = s;
+        if let Some(s) = s {
+            self.t_stage_c = s.ambient_c;
+        }
+    }
+    /// The power-stage thermal model, if any.
+    pub fn stage_thermal(&self) -> Option<&StageThermal> {
+        self.stage_thermal.as_ref()
+    }
+    /// Set the power-stage temperature [deg C] (an initial condition).
+    pub fn set_stage_temperature_c(&mut self, t_c: Real) {
+        self.t_stage_c = t_c;
+    }
+    /// Power-stage temperature [deg C] (`None` without the model).
+    pub fn stage_temperature_c(&self) -> Option<Real> {
+        self.stage_thermal.map(|_| self.t_stage_c)
+    }
+
     // ----- stepping -----
 
     /// Simulate one PWM period and return what the controller samples at its end.
@@ -759,21 +967,57 @@ impl Plant {
         let mut q_dc = 0.0;
         let mut v_term = [0.0; 3];
         let mut v_bus_sum = 0.0;
+        let (mut e_copper, mut q_source, mut q_brake, mut p_stage_sum) = (0.0, 0.0, 0.0, 0.0);
         for j in 0..n {
             let u0 = j as Real / n as Real;
             let u1 = (j + 1) as Real / n as Real;
-            let (de_in, dq_dc, vt) = self.substep(u0, u1, dt);
-            e_in += de_in;
-            q_dc += dq_dc;
+            let out = self.substep(u0, u1, dt);
+            e_in += out.e_in;
+            q_dc += out.q_dc;
             v_bus_sum += self.v_bus;
             for k in 0..3 {
-                v_term[k] += vt[k] / n as Real;
+                v_term[k] += out.vt[k] / n as Real;
+            }
+            e_copper += out.copper_j;
+            q_source += out.q_source;
+            q_brake += out.q_brake;
+            if let Some(st) = &self.stage_thermal {
+                p_stage_sum += st.loss_w(
+                    self.phase_currents_a(),
+                    self.v_bus,
+                    self.cfg.pwm_frequency_hz,
+                    self.enabled,
+                );
             }
         }
         self.v_bus_avg = v_bus_sum / n as Real;
         self.p_in_avg = e_in / t_period;
         self.i_dc_avg = q_dc / t_period;
         self.v_terminal_avg = v_term;
+        if self.dc_link.is_some() {
+            self.i_source_avg = q_source / t_period;
+            self.i_brake_avg = q_brake / t_period;
+        }
+        if let Some(w) = self.winding_thermal {
+            self.t_winding_c = power::thermal_step(
+                self.t_winding_c,
+                w.ambient_c,
+                e_copper / t_period,
+                w.r_th_k_per_w,
+                w.tau_s,
+                t_period,
+            );
+        }
+        if let Some(st) = self.stage_thermal {
+            self.t_stage_c = power::thermal_step(
+                self.t_stage_c,
+                st.ambient_c,
+                p_stage_sum / n as Real,
+                st.r_th_k_per_w,
+                st.tau_s,
+                t_period,
+            );
+        }
         self.time_s += t_period as f64;
         let m = self.sample();
         self.period += 1;
@@ -814,8 +1058,8 @@ impl Plant {
         out
     }
 
-    /// One RK4 sub-step. Returns (supply energy, supply charge, terminal voltages).
-    fn substep(&mut self, u0: Real, u1: Real, dt: Real) -> (Real, Real, [Real; 3]) {
+    /// One RK4 sub-step.
+    fn substep(&mut self, u0: Real, u1: Real, dt: Real) -> SubstepOut {
         let i_abc = self.phase_currents_a();
         if !self.enabled {
             self.update_diodes(i_abc);
@@ -823,8 +1067,8 @@ impl Plant {
         let drives = self.drives(u0, u1, i_abc);
         let open = drives.iter().filter(|d| matches!(d, Drive::Open)).count();
 
-        let x0 = [self.id, self.iq, self.omega_m, self.theta_m];
-        let f = |x: [Real; 4]| self.deriv(x, &drives, open);
+        let x0 = [self.id, self.iq, self.omega_m, self.theta_m, self.v_cap];
+        let f = |x: [Real; 5]| self.deriv(x, &drives, open);
         let k1 = f(x0);
         let k2 = f(add(x0, &k1, 0.5 * dt));
         let k3 = f(add(x0, &k2, 0.5 * dt));
@@ -834,6 +1078,7 @@ impl Plant {
         let mut iq = self.iq + w(k1.iq, k2.iq, k3.iq, k4.iq);
         let mut omega = self.omega_m + w(k1.omega, k2.omega, k3.omega, k4.omega);
         let theta = self.theta_m + w(k1.theta, k2.theta, k3.theta, k4.theta);
+        let v_cap = self.v_cap + w(k1.v_cap, k2.v_cap, k3.v_cap, k4.v_cap);
         self.energy.supply_j += w(k1.p_supply, k2.p_supply, k3.p_supply, k4.p_supply);
         self.energy.copper_j += w(k1.p_copper, k2.p_copper, k3.p_copper, k4.p_copper);
         self.energy.shaft_j += w(k1.p_shaft, k2.p_shaft, k3.p_shaft, k4.p_shaft);
@@ -842,6 +1087,36 @@ impl Plant {
         self.energy.short_j += w(k1.p_short, k2.p_short, k3.p_short, k4.p_short);
         let e_in = w(k1.p_supply, k2.p_supply, k3.p_supply, k4.p_supply);
         let q_dc = w(k1.i_dc, k2.i_dc, k3.i_dc, k4.i_dc);
+        let copper_j = w(k1.p_copper, k2.p_copper, k3.p_copper, k4.p_copper);
+        let (mut q_source, mut q_brake) = (0.0, 0.0);
+        if self.dc_link.is_some() {
+            let out = |p: Real| if p > 0.0 { p } else { 0.0 };
+            let e = &mut self.energy;
+            e.source_out_j += w(
+                out(k1.p_source),
+                out(k2.p_source),
+                out(k3.p_source),
+                out(k4.p_source),
+            );
+            e.source_in_j += w(
+                out(-k1.p_source),
+                out(-k2.p_source),
+                out(-k3.p_source),
+                out(-k4.p_source),
+            );
+            e.source_loss_j += w(
+                k1.p_source_loss,
+                k2.p_source_loss,
+                k3.p_source_loss,
+                k4.p_source_loss,
+            );
+            e.capacitor_j += w(k1.p_cap, k2.p_cap, k3.p_cap, k4.p_cap);
+            e.esr_j += w(k1.p_esr, k2.p_esr, k3.p_esr, k4.p_esr);
+            e.brake_j += w(k1.p_brake, k2.p_brake, k3.p_brake, k4.p_brake);
+            q_source = w(k1.i_source, k2.i_source, k3.i_source, k4.i_source);
+            q_brake = w(k1.i_brake, k2.i_brake, k3.i_brake, k4.i_brake);
+            self.v_cap = v_cap;
+        }
 
         // Coulomb friction and stiction: the speed does not cross zero under friction.
         if matches!(self.mechanics, Mechanics::Free)
@@ -893,7 +1168,7 @@ impl Plant {
         self.iq = iq;
 
         // Bus and terminal voltages at the end of the sub-step (for outputs).
-        let v_bus = self.bus_voltage(&drives, self.phase_currents_a());
+        let v_bus = self.bus(self.v_cap, &drives, self.phase_currents_a()).v_bus;
         self.v_bus = v_bus;
         let mut vt = [0.0; 3];
         for k in 0..3 {
@@ -902,12 +1177,72 @@ impl Plant {
                 Drive::Open => self.open_terminal_voltage(k, &drives, v_bus),
             };
         }
-        (e_in, q_dc, vt)
+        SubstepOut {
+            e_in,
+            q_dc,
+            vt,
+            copper_j,
+            q_source,
+            q_brake,
+        }
     }
 
     /// Source voltage after the injected sag.
     fn source_v(&self) -> Real {
-        self.cfg.bus_voltage_v - self.faults.bus_sag_v
+        match &self.dc_link {
+            Some(d) => d.v_source_v - self.faults.bus_sag_v,
+            None => self.cfg.bus_voltage_v - self.faults.bus_sag_v,
+        }
+    }
+
+    /// Bus voltage with no load current: the source's, or the capacitor's.
+    fn open_circuit_bus_v(&self) -> Real {
+        match self.dc_link {
+            Some(_) => self.v_cap,
+            None => self.source_v(),
+        }
+    }
+
+    /// The bus at capacitor voltage `v_cap` (ignored without a DC link),
+    /// given drives and phase currents.
+    fn bus(&self, v_cap: Real, drives: &[Drive; 3], i_abc: [Real; 3]) -> BusSolution {
+        match &self.dc_link {
+            None => BusSolution {
+                v_bus: self.bus_voltage(drives, i_abc),
+                ..BusSolution::default()
+            },
+            Some(dc) => {
+                let mut i_dc = 0.0;
+                for k in 0..3 {
+                    if let Drive::Bus(h) = drives[k] {
+                        i_dc += h * i_abc[k];
+                    }
+                }
+                let g_brake = match dc.brake_resistor_ohm {
+                    Some(r) if self.brake_on && r > 0.0 => 1.0 / r,
+                    _ => 0.0,
+                };
+                power::solve_bus(
+                    dc,
+                    v_cap,
+                    self.source_v(),
+                    i_dc,
+                    self.short_conductance(drives),
+                    g_brake,
+                )
+            }
+        }
+    }
+
+    /// Conductance a phase short adds between the bus rails, `(h_a - h_b)^2 / r`.
+    fn short_conductance(&self, drives: &[Drive; 3]) -> Real {
+        match self.faults.phase_short {
+            Some(s) if s.r_ohm > 0.0 => match (drives[s.a.index()], drives[s.b.index()]) {
+                (Drive::Bus(ha), Drive::Bus(hb)) => (ha - hb) * (ha - hb) / s.r_ohm,
+                _ => 0.0,
+            },
+            _ => 0.0,
+        }
     }
 
     /// Bus voltage with source resistance, given drives and phase currents.
@@ -920,13 +1255,7 @@ impl Plant {
         }
         let rs = self.cfg.source_resistance_ohm;
         // A short adds (h_a - h_b)^2 V_bus / r: solve the linear equation for V_bus.
-        let g_short = match self.faults.phase_short {
-            Some(s) if s.r_ohm > 0.0 => match (drives[s.a.index()], drives[s.b.index()]) {
-                (Drive::Bus(ha), Drive::Bus(hb)) => (ha - hb) * (ha - hb) / s.r_ohm,
-                _ => 0.0,
-            },
-            _ => 0.0,
-        };
+        let g_short = self.short_conductance(drives);
         (self.source_v() - rs * i_dc) / (1.0 + rs * g_short)
     }
 
@@ -971,10 +1300,11 @@ impl Plant {
         v
     }
 
-    /// State derivative. `x = [id, iq, omega_m, theta_m]`.
-    fn deriv(&self, x: [Real; 4], drives: &[Drive; 3], open: usize) -> Deriv {
+    /// State derivative. `x = [id, iq, omega_m, theta_m, v_cap]`.
+    fn deriv(&self, x: [Real; 5], drives: &[Drive; 3], open: usize) -> Deriv {
         let m = &self.motor;
-        let [id0, iq0, omega, theta] = x;
+        let r_ohm = self.winding_resistance_ohm();
+        let [id0, iq0, omega, theta, v_cap] = x;
         let p = m.pole_pairs as Real;
         let th_e = p * theta;
         let we = p * omega;
@@ -987,7 +1317,8 @@ impl Plant {
             cs[k] = (c, s);
             i_abc[k] = id * c - iq * s;
         }
-        let v_bus = self.bus_voltage(drives, i_abc);
+        let bus = self.bus(v_cap, drives, i_abc);
+        let v_bus = bus.v_bus;
         let v = self.motor_terminal_v(drives, v_bus);
         let (mut vd, mut vq) = (0.0, 0.0);
         for k in 0..3 {
@@ -996,8 +1327,8 @@ impl Plant {
                 vq -= (2.0 / 3.0) * v[k] * cs[k].1;
             }
         }
-        let mut did = (vd - m.r_ohm * id + we * m.lq_h * iq) / m.ld_h;
-        let mut diq = (vq - m.r_ohm * iq - we * m.ld_h * id - we * m.flux_linkage_wb) / m.lq_h;
+        let mut did = (vd - r_ohm * id + we * m.lq_h * iq) / m.ld_h;
+        let mut diq = (vq - r_ohm * iq - we * m.ld_h * id - we * m.flux_linkage_wb) / m.lq_h;
         if open >= 2 {
             did = 0.0;
             diq = 0.0;
@@ -1041,11 +1372,26 @@ impl Plant {
             Some(s) => i_short * i_short * s.r_ohm,
             None => 0.0,
         };
-        let copper = m.r_ohm * (i_abc[0] * i_abc[0] + i_abc[1] * i_abc[1] + i_abc[2] * i_abc[2]);
+        let copper = r_ohm * (i_abc[0] * i_abc[0] + i_abc[1] * i_abc[1] + i_abc[2] * i_abc[2]);
         let friction = if matches!(self.mechanics, Mechanics::Free) {
             m.viscous_friction_nm_s_per_rad * omega * omega + m.coulomb_friction_nm * omega.abs()
         } else {
             0.0
+        };
+        // DC link: capacitor, source, ESR and brake terms (zero without).
+        let link = match &self.dc_link {
+            Some(dc) => Deriv {
+                v_cap: bus.i_cap / dc.c_f,
+                p_source: v_bus * bus.i_source,
+                p_source_loss: (self.source_v() - v_bus) * bus.i_source,
+                p_cap: v_cap * bus.i_cap,
+                p_esr: dc.esr_ohm * bus.i_cap * bus.i_cap,
+                p_brake: v_bus * bus.i_brake,
+                i_source: bus.i_source,
+                i_brake: bus.i_brake,
+                ..Deriv::default()
+            },
+            None => Deriv::default(),
         };
         Deriv {
             id: did,
@@ -1060,6 +1406,7 @@ impl Plant {
             p_load: self.load_nm * omega,
             p_short,
             i_dc: i_dc + self.short_dc_current(drives, v_bus),
+            ..link
         }
     }
 
@@ -1082,7 +1429,11 @@ impl Plant {
             return star + e[z];
         }
         // One open phase: recompute the multiplier of `deriv` at the present state.
-        let d = self.deriv([self.id, self.iq, self.omega_m, self.theta_m], drives, 0);
+        let d = self.deriv(
+            [self.id, self.iq, self.omega_m, self.theta_m, self.v_cap],
+            drives,
+            0,
+        );
         let (c, s) = (
             real::cos(th_e - PHASE_AXIS[z]),
             real::sin(th_e - PHASE_AXIS[z]),
@@ -1114,7 +1465,7 @@ impl Plant {
             self.diodes[p.index()] = Diode::Open;
         }
         let open = self.diodes.iter().filter(|d| **d == Diode::Open).count();
-        let v_bus = self.source_v();
+        let v_bus = self.open_circuit_bus_v();
         let drives = self.drives(0.0, 1.0, i_abc);
         if open == 3 {
             // All open: conduction starts when the line-to-line EMF exceeds the bus.
@@ -1214,18 +1565,20 @@ impl Plant {
             currents,
             angle,
             v_bus_v: (vc * lsb_v) as f32,
+            stage_temperature_c: self.stage_thermal.map(|_| self.t_stage_c as f32),
             time_s: self.time_s,
             period: self.period,
         }
     }
 }
 
-fn add(x: [Real; 4], d: &Deriv, h: Real) -> [Real; 4] {
+fn add(x: [Real; 5], d: &Deriv, h: Real) -> [Real; 5] {
     [
         x[0] + h * d.id,
         x[1] + h * d.iq,
         x[2] + h * d.omega,
         x[3] + h * d.theta,
+        x[4] + h * d.v_cap,
     ]
 }
 
@@ -1265,16 +1618,18 @@ mod tests {
 
     #[test]
     fn fractions_sum_and_dead_time() {
+        // Rounding of the scalar (f64, or f32 with `plant-f32`).
+        let tol: Real = 64.0 * Real::EPSILON;
         let (h, l) = phase_fractions(0.3, 0.0, 0.0, 1.0);
-        assert!((h - 0.3).abs() < 1e-12 && (l - 0.7).abs() < 1e-12);
+        assert!((h - 0.3).abs() < tol && (l - 0.7).abs() < tol);
         let (h, l) = phase_fractions(0.3, 0.01, 0.0, 1.0);
-        assert!((h - 0.29).abs() < 1e-12 && (l - 0.69).abs() < 1e-12);
+        assert!((h - 0.29).abs() < tol && (l - 0.69).abs() < tol);
         // Windows add up to the whole period.
         let mut hs = 0.0;
         for j in 0..16 {
             hs += phase_fractions(0.37, 0.01, j as Real / 16.0, (j + 1) as Real / 16.0).0;
         }
-        assert!((hs - 0.36).abs() < 1e-12);
+        assert!((hs - 0.36).abs() < tol);
     }
 
     /// One period with the bridge off and the rotor at rest: what the

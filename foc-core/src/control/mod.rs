@@ -66,6 +66,7 @@ pub mod drive;
 pub mod estimator;
 pub mod permit;
 pub mod position;
+pub mod power;
 pub mod speed;
 pub mod stage;
 pub mod supervisor;

@@ -1,0 +1,954 @@
+//! Power-stage protection as *limits before faults* (design §18, issue 17):
+//! a regenerative-power limit as the bus voltage rises towards the
+//! over-voltage threshold, bus-current and power limits for motoring and
+//! regeneration, thermal derating (a winding temperature model and the
+//! measured power-stage temperature) and a brake-chopper hysteresis. Pure
+//! math: no hardware, no allocation, no panics; every non-finite or missing
+//! input gives the safe answer (no current, chopper off).
+//!
+//! The result is a q-current *window* `[min_a, max_a]` ([`IqWindow`]) that
+//! the current stage clamps the q-current reference to (after the speed
+//! loop, before the current loop), with the limit that set it
+//! ([`ActiveLimit`]) and by how much ([`IqWindow::factor`]) for the
+//! feedback and telemetry.
+//!
+//! # The math (short derivation; design §18)
+//!
+//! **Power balance.** With an ideal (lossless) inverter the bus power equals
+//! the electrical power into the motor, in the amplitude-invariant dq frame
+//! `P = 1.5 (v_d i_d + v_q i_q)` [W]. In steady state (no `L di/dt`)
+//!
+//! ```text
+//! v_d = R i_d - w_e L_q i_q
+//! v_q = R i_q + w_e (L_d i_d + psi)
+//! P(i_q) = 1.5 R (i_d^2 + i_q^2) + 1.5 w_e (psi + (L_d - L_q) i_d) i_q
+//!        = a i_q^2 + b i_q + c,   a = 1.5 R,  b = 1.5 w_e psi_eff,  c = 1.5 R i_d^2
+//! ```
+//!
+//! copper loss plus mechanical power. This module solves that quadratic
+//! *exactly* (numerically stable root forms, no cancellation): there is no
+//! approximation beyond the steady-state model itself. `P > 0` is motoring
+//! (drawn from the supply), `P < 0` regeneration; the bus current is
+//! `I_bus = P / V_bus`. `R` is corrected for the winding temperature:
+//! `R(T) = R_20 (1 + 0.00393 (T - 20))` (copper).
+//!
+//! *Error of the model* (what the tests cannot see): the `L di/dt` terms
+//! (the magnetic energy `0.75 (L_d i_d^2 + L_q i_q^2)`, exchanged once per
+//! current step, e.g. 3 mJ at 40 uH and 10 A: transient only); inverter
+//! conduction and switching losses (not modelled: the supply delivers that
+//! much *more* than the limit in motoring and receives that much *less* in
+//! regeneration, which is the safe side there); parameter errors
+//! (`dP = 1.5 dR i^2 + 1.5 w_e dpsi i_q`). A first-order alternative,
+//! `i_q = P / (1.5 w_e psi)`, would ignore the copper loss: its relative
+//! error is `R i_q / (w_e psi)`, unbounded near standstill, which is why the
+//! quadratic is solved instead.
+//!
+//! **Power limits.** The allowed bus power is `[-P_regen, P_mot]` with
+//! `P_mot = min(power_motoring_max_w, V_bus bus_current_motoring_max_a)` and
+//! `P_regen = min(power_regen_max_w, V_bus bus_current_regen_max_a)`. The
+//! set `{i_q : P(i_q) <= P_mot}` is the interval between the two roots of
+//! `P = P_mot` (one on each side of 0); `{i_q : P(i_q) >= -P_regen}` is the
+//! outside of the interval between the roots of `P = -P_regen` (both on the
+//! regenerating side, `i_q w_e psi_eff < 0`). The window is the interval
+//! *around 0* inside both, so every `i_q` in it keeps the steady-state power
+//! within the limits. (Consequence at low speed: beyond the current of the
+//! largest regenerative power, `w_e psi_eff / (2 R)`, braking is dissipative
+//! again (plugging, `P > 0`); that region lies beyond a forbidden gap and is
+//! not offered. When the regenerative peak `b^2 / (4 a) - c` crosses
+//! `P_regen` (speed rising) the regenerating end moves from the current
+//! limit to that current in one step: a window cannot hold the gap.)
+//!
+//! **Regen limit on the bus voltage.** With `s(V)` falling linearly from 1
+//! at `regen_start_v` to 0 at `regen_end_v`, the regenerating end of the
+//! window (after every other limit) is multiplied by `s(V_bus)`. The largest
+//! regenerative power inside the window then falls continuously and
+//! monotonically to 0 at `regen_end_v` (at high speed, where `P` is nearly
+//! linear in `i_q`, it falls linearly with `V_bus`); the window shrinks
+//! monotonically with `V_bus`, and nothing changes below `regen_start_v`.
+//! Scaling the current rather than a power keeps the limit continuous in
+//! `V_bus` (the variable it regulates) and works with the power limits
+//! switched off.
+//!
+//! **Thermal derating.** `k = min(k_winding, k_stage)`, each falling linearly
+//! from 1 at its `*_derate_start_c` to 0 at its `*_derate_end_c`; both ends
+//! of the current limit are multiplied by `k`. The winding temperature is
+//! [`ThermalEstimate`]'s first-order model: copper loss
+//! `P_cu = 1.5 R(T) (i_d^2 + i_q^2)`, `tau dT/dt = T_amb + R_th P_cu - T`,
+//! integrated with a backward-Euler step (stable for any `dt`).
+//!
+//! **Brake chopper.** [`BrakeChopper`]: on at `V_bus >= brake_on_v`, off at
+//! `V_bus <= brake_off_v`, off on a missing or non-finite reading.
+//!
+//! ```
+//! use foc_core::control::power::{iq_window, ActiveLimit, PowerInputs, PowerLimitsConfig};
+//! use foc_core::control::supervisor::SupervisorConfig;
+//! use foc_core::control::MotorParams;
+//! let motor = MotorParams { pole_pairs: 7, r_ohm: 0.1, ld_h: 40e-6, lq_h: 40e-6, flux_linkage_wb: 0.004 };
+//! let cfg = PowerLimitsConfig::for_board(&SupervisorConfig::default(), motor, false).sanitized();
+//! let mut inputs = PowerInputs {
+//!     v_bus_v: Some(24.0),
+//!     omega_e_rad_s: 2000.0,
+//!     i_d_a: 0.0,
+//!     current_limit_a: 10.0,
+//!     winding_temperature_c: Some(40.0),
+//!     stage_temperature_c: None,
+//! };
+//! let w = iq_window(&cfg, &inputs);
+//! assert_eq!((w.min_a, w.max_a, w.active), (-10.0, 10.0, ActiveLimit::None));
+//! // The bus near the over-voltage threshold: no regenerative current.
+//! inputs.v_bus_v = Some(cfg.regen_end_v);
+//! let w = iq_window(&cfg, &inputs);
+//! assert_eq!((w.min_a, w.max_a, w.active), (0.0, 10.0, ActiveLimit::Regen));
+//! // A missing bus reading: no current at all.
+//! inputs.v_bus_v = None;
+//! assert_eq!(iq_window(&cfg, &inputs).max_a, 0.0);
+//! ```
+
+use crate::control::supervisor::SupervisorConfig;
+use crate::control::MotorParams;
+use crate::frames::Dq;
+use crate::{all_finite, sqrtf};
+
+/// Copper's temperature coefficient of resistance [1/K] (at 20 deg C).
+pub const COPPER_TEMPCO_PER_K: f32 = 0.003_93;
+/// The temperature at which [`MotorParams::r_ohm`] is taken [deg C].
+pub const R_REFERENCE_C: f32 = 20.0;
+/// The winding estimate saturates here [deg C] (far beyond any insulation
+/// class: the winding derating is at 0 long before).
+pub const THERMAL_MAX_C: f32 = 400.0;
+/// The winding estimate never goes below this [deg C].
+pub const THERMAL_MIN_C: f32 = -60.0;
+
+/// Limits of the power stage, the winding model and the brake chopper.
+///
+/// "Off" is `f32::INFINITY` for every limit and threshold (a current or
+/// power limit of `+inf`, a derating or regen window ending at `+inf`, a
+/// brake threshold of `+inf`). NaN never means "off": see
+/// [`Self::sanitized`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct PowerLimitsConfig {
+    /// The motor model of the power balance and of the copper loss. Its
+    /// `r_ohm` is the phase resistance at [`R_REFERENCE_C`] (20 deg C).
+    /// Keep it equal to the current loop's motor (update both after an
+    /// identification).
+    pub motor: MotorParams,
+    /// Bus voltage [V] above which regenerative current is reduced
+    /// (linearly, to 0 at [`Self::regen_end_v`]).
+    pub regen_start_v: f32,
+    /// Bus voltage [V] at and above which no regenerative current is
+    /// allowed; below the supervisor's `bus_over_voltage_v`. `+inf`: off.
+    pub regen_end_v: f32,
+    /// Largest current drawn from the supply [A] (`P / V_bus`, averaged
+    /// over a PWM period). Size: the supply's or battery's discharge limit
+    /// (or its fuse). `+inf`: off.
+    pub bus_current_motoring_max_a: f32,
+    /// Largest current returned to the supply [A] (magnitude, `>= 0`).
+    /// Size: what the supply can sink, a battery's (BMS) charge-current
+    /// limit. A diode-fed bench supply sinks nothing, but the bus
+    /// capacitor does: leave this off there and let the bus-voltage ramp
+    /// ([`Self::regen_start_v`]) hold the bus; 0 forbids regenerative
+    /// braking altogether (only copper-loss braking remains). `+inf`: off.
+    pub bus_current_regen_max_a: f32,
+    /// Largest power drawn from the supply [W]. `+inf`: off.
+    pub power_motoring_max_w: f32,
+    /// Largest power returned to the supply [W] (magnitude). `+inf`: off.
+    pub power_regen_max_w: f32,
+    /// Winding-to-ambient thermal resistance [K/W]: the steady temperature
+    /// rise per watt of copper loss.
+    pub thermal_resistance_k_per_w: f32,
+    /// Winding thermal time constant [s] (63 % of a step's final rise).
+    pub thermal_time_constant_s: f32,
+    /// Ambient temperature of the winding model [deg C] (also its start).
+    pub ambient_c: f32,
+    /// Modelled winding temperature [deg C] where derating starts.
+    pub winding_derate_start_c: f32,
+    /// Modelled winding temperature [deg C] where the current limit reaches
+    /// 0. `+inf`: winding derating off.
+    pub winding_derate_end_c: f32,
+    /// Measured power-stage temperature [deg C] where derating starts.
+    pub stage_derate_start_c: f32,
+    /// Measured power-stage temperature [deg C] where the current limit
+    /// reaches 0 (below the supervisor's `max_temperature_c`). `+inf`:
+    /// stage derating off (and no stage sensor needed).
+    pub stage_derate_end_c: f32,
+    /// Bus voltage [V] at which the brake chopper switches on. `+inf`: no
+    /// brake resistor.
+    pub brake_on_v: f32,
+    /// Bus voltage [V] at which the brake chopper switches off again
+    /// (`<= brake_on_v`: the hysteresis).
+    pub brake_off_v: f32,
+}
+
+/// `x` unless NaN or negative (then 0): a limit magnitude.
+#[inline(always)]
+fn limit_or_zero(x: f32) -> f32 {
+    if x >= 0.0 {
+        x
+    } else {
+        0.0
+    }
+}
+
+/// A `(start, end)` window with `start <= end` (a start above the end is
+/// lowered to it: derating starts earlier, never later); a NaN in either
+/// makes both `-inf` (always past the end, even when the other said "off").
+#[inline(always)]
+fn ordered_window(start: f32, end: f32) -> (f32, f32) {
+    if start.is_nan() || end.is_nan() {
+        return (f32::NEG_INFINITY, f32::NEG_INFINITY);
+    }
+    (if start > end { end } else { start }, end)
+}
+
+impl PowerLimitsConfig {
+    /// Defaults from the supervisor's thresholds and the motor:
+    ///
+    /// - regen window: `regen_end_v = 0.95 bus_over_voltage_v` (30 V ->
+    ///   28.5 V, a margin for the bus rising within a speed-loop period and
+    ///   the measurement's noise), `regen_start_v = regen_end_v - 0.10
+    ///   bus_over_voltage_v` (25.5 V), not below `bus_under_voltage_v`.
+    ///   Raise `regen_start_v` above a battery's full-charge voltage.
+    /// - bus currents and powers: off (`+inf`): they depend on the supply,
+    ///   which the board does not know (see each field for sizing).
+    /// - winding model: `R_th = 2 K/W`, `tau = 60 s`, ambient 40 deg C,
+    ///   derating 100 -> 120 deg C (class B insulation, 130 deg C, with a
+    ///   margin for the model's error). The thermal figures are
+    ///   placeholders for a small outrunner: measure yours (`R_th` = the
+    ///   steady rise over the copper loss at a known current, `tau` = the
+    ///   time to 63 % of it).
+    /// - stage derating (with `stage_sensor`): from `max_temperature_c - 25`
+    ///   to `max_temperature_c - 5` (65 -> 85 deg C at the default 90), so
+    ///   the current is at 0 before the over-temperature fault; without a
+    ///   sensor it is off.
+    /// - brake chopper: off (see [`Self::with_brake_resistor`]).
+    pub fn for_board(
+        supervisor: &SupervisorConfig,
+        motor: MotorParams,
+        stage_sensor: bool,
+    ) -> Self {
+        let ov = supervisor.bus_over_voltage_v;
+        let regen_end_v = 0.95 * ov;
+        let mut regen_start_v = regen_end_v - 0.10 * ov;
+        if regen_start_v < supervisor.bus_under_voltage_v {
+            regen_start_v = supervisor.bus_under_voltage_v;
+        }
+        let t_max = supervisor.max_temperature_c;
+        let (stage_derate_start_c, stage_derate_end_c) = if stage_sensor {
+            (t_max - 25.0, t_max - 5.0)
+        } else {
+            (f32::INFINITY, f32::INFINITY)
+        };
+        Self {
+            motor,
+            regen_start_v,
+            regen_end_v,
+            bus_current_motoring_max_a: f32::INFINITY,
+            bus_current_regen_max_a: f32::INFINITY,
+            power_motoring_max_w: f32::INFINITY,
+            power_regen_max_w: f32::INFINITY,
+            thermal_resistance_k_per_w: 2.0,
+            thermal_time_constant_s: 60.0,
+            ambient_c: 40.0,
+            winding_derate_start_c: 100.0,
+            winding_derate_end_c: 120.0,
+            stage_derate_start_c,
+            stage_derate_end_c,
+            brake_on_v: f32::INFINITY,
+            brake_off_v: f32::INFINITY,
+        }
+        .sanitized()
+    }
+
+    /// With a brake resistor: the chopper switches on at `regen_start_v`
+    /// (before the regen limit cuts the braking torque) and off 3 % (at
+    /// least 0.5 V) lower.
+    pub fn with_brake_resistor(self) -> Self {
+        let on = self.regen_start_v;
+        let band = 0.03 * on;
+        let band = if band > 0.5 { band } else { 0.5 };
+        Self {
+            brake_on_v: on,
+            brake_off_v: on - band,
+            ..self
+        }
+        .sanitized()
+    }
+
+    /// The safe reading of every field:
+    ///
+    /// - current and power limits: NaN or negative -> 0 (no current in that
+    ///   direction); `+inf` stays (off).
+    /// - regen and derating windows: a NaN start or end -> both `-inf` (the
+    ///   window is always past its end: no regenerative current,
+    ///   respectively no current at all, until the configuration is fixed,
+    ///   even if the other threshold said "off"); a start above the end is
+    ///   lowered to the end (a step at the end).
+    /// - thermal model: a NaN, negative or zero `thermal_resistance_k_per_w`
+    ///   and a NaN `ambient_c` -> the estimate saturates at
+    ///   [`THERMAL_MAX_C`] (derated to 0 when winding derating is on); a NaN
+    ///   or negative time constant -> 0 (the estimate follows the loss at
+    ///   once).
+    /// - brake: a NaN `brake_on_v` -> `+inf` (never switches on: a resistor
+    ///   switched on blindly could burn); `brake_off_v` NaN or above
+    ///   `brake_on_v` -> `brake_on_v`.
+    ///
+    /// The motor model is left as it is: [`iq_window`] answers
+    /// [`ActiveLimit::InvalidModel`] (no current) while it is not finite or
+    /// its resistance is negative.
+    pub fn sanitized(self) -> Self {
+        let (regen_start_v, regen_end_v) = ordered_window(self.regen_start_v, self.regen_end_v);
+        let (winding_derate_start_c, winding_derate_end_c) =
+            ordered_window(self.winding_derate_start_c, self.winding_derate_end_c);
+        let (stage_derate_start_c, stage_derate_end_c) =
+            ordered_window(self.stage_derate_start_c, self.stage_derate_end_c);
+        let brake_on_v = if self.brake_on_v.is_nan() {
+            f32::INFINITY
+        } else {
+            self.brake_on_v
+        };
+        let brake_off_v = if self.brake_off_v <= brake_on_v {
+            self.brake_off_v
+        } else {
+            brake_on_v
+        };
+        let thermal_resistance_k_per_w = if self.thermal_resistance_k_per_w > 0.0 {
+            self.thermal_resistance_k_per_w
+        } else {
+            f32::INFINITY
+        };
+        let ambient_c = if self.ambient_c.is_nan() {
+            THERMAL_MAX_C
+        } else {
+            self.ambient_c
+        };
+        Self {
+            motor: self.motor,
+            regen_start_v,
+            regen_end_v,
+            bus_current_motoring_max_a: limit_or_zero(self.bus_current_motoring_max_a),
+            bus_current_regen_max_a: limit_or_zero(self.bus_current_regen_max_a),
+            power_motoring_max_w: limit_or_zero(self.power_motoring_max_w),
+            power_regen_max_w: limit_or_zero(self.power_regen_max_w),
+            thermal_resistance_k_per_w,
+            thermal_time_constant_s: limit_or_zero(self.thermal_time_constant_s),
+            ambient_c,
+            winding_derate_start_c,
+            winding_derate_end_c,
+            stage_derate_start_c,
+            stage_derate_end_c,
+            brake_on_v,
+            brake_off_v,
+        }
+    }
+
+    /// Phase resistance at winding temperature `t_c` [ohm]:
+    /// `R_20 (1 + 0.00393 (T - 20))`, never below 0; `t_c` is clamped to
+    /// `[THERMAL_MIN_C, THERMAL_MAX_C]` (NaN reads as [`THERMAL_MAX_C`]).
+    #[inline]
+    pub fn r_at_ohm(&self, t_c: f32) -> f32 {
+        let t = clamp_temperature(t_c);
+        let r = self.motor.r_ohm * (1.0 + COPPER_TEMPCO_PER_K * (t - R_REFERENCE_C));
+        if r > 0.0 {
+            r
+        } else {
+            0.0
+        }
+    }
+
+    /// The regen factor `s(V_bus)` in `[0, 1]`: 1 at or below
+    /// `regen_start_v`, 0 at or above `regen_end_v`, linear between; 0 for
+    /// a NaN voltage.
+    #[inline]
+    pub fn regen_factor(&self, v_bus_v: f32) -> f32 {
+        ramp_down(v_bus_v, self.regen_start_v, self.regen_end_v)
+    }
+
+    /// The winding derating factor in `[0, 1]` at a winding temperature
+    /// [deg C] (0 for NaN).
+    #[inline]
+    pub fn winding_factor(&self, t_c: f32) -> f32 {
+        ramp_down(t_c, self.winding_derate_start_c, self.winding_derate_end_c)
+    }
+
+    /// The stage derating factor in `[0, 1]` at a stage temperature
+    /// [deg C] (0 for NaN).
+    #[inline]
+    pub fn stage_factor(&self, t_c: f32) -> f32 {
+        ramp_down(t_c, self.stage_derate_start_c, self.stage_derate_end_c)
+    }
+
+    /// Stage derating is configured (and so a stage sensor is needed).
+    #[inline]
+    pub fn stage_derating_on(&self) -> bool {
+        self.stage_derate_end_c < f32::INFINITY
+    }
+}
+
+/// 1 at or below `start`, 0 at or above `end`, linear between; 1
+/// everywhere for `end = +inf` (off); 0 when `x`, `start` or `end` is NaN
+/// (also unsanitized: NaN never switches a limit off). Expects
+/// `start <= end` (sanitized); otherwise a step at `end`.
+#[inline(always)]
+pub fn ramp_down(x: f32, start: f32, end: f32) -> f32 {
+    if x.is_nan() || start.is_nan() || end.is_nan() {
+        return 0.0;
+    }
+    if end == f32::INFINITY {
+        return 1.0;
+    }
+    if x >= end {
+        return 0.0;
+    }
+    if x <= start {
+        return 1.0;
+    }
+    // start < x < end < inf.
+    let k = (end - x) / (end - start);
+    if k >= 0.0 {
+        if k <= 1.0 {
+            k
+        } else {
+            1.0
+        }
+    } else {
+        0.0
+    }
+}
+
+#[inline(always)]
+fn clamp_temperature(t_c: f32) -> f32 {
+    if t_c < THERMAL_MIN_C {
+        THERMAL_MIN_C
+    } else if t_c <= THERMAL_MAX_C {
+        t_c
+    } else {
+        THERMAL_MAX_C
+    }
+}
+
+/// Which limit set a bound of the q-current window.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[repr(u8)]
+pub enum ActiveLimit {
+    /// No limit below the current limit.
+    None = 0,
+    /// The bus-voltage regen ramp ([`PowerLimitsConfig::regen_start_v`]).
+    Regen = 1,
+    /// [`PowerLimitsConfig::bus_current_motoring_max_a`].
+    BusCurrentMotoring = 2,
+    /// [`PowerLimitsConfig::bus_current_regen_max_a`].
+    BusCurrentRegen = 3,
+    /// [`PowerLimitsConfig::power_motoring_max_w`].
+    PowerMotoring = 4,
+    /// [`PowerLimitsConfig::power_regen_max_w`].
+    PowerRegen = 5,
+    /// Winding-temperature derating (the modelled temperature).
+    WindingTemperature = 6,
+    /// Power-stage temperature derating (the measured temperature).
+    StageTemperature = 7,
+    /// A needed input missing or not finite (the bus voltage, the speed,
+    /// `i_d`, the current limit, a temperature): window `[0, 0]`.
+    MissingSensor = 8,
+    /// The motor model is not finite or its resistance negative: window
+    /// `[0, 0]`.
+    InvalidModel = 9,
+}
+
+/// The q-current window for this period.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct IqWindow {
+    /// Lowest allowed q-current [A] (`<= 0`).
+    pub min_a: f32,
+    /// Highest allowed q-current [A] (`>= 0`).
+    pub max_a: f32,
+    /// The limit that set `min_a` ([`ActiveLimit::None`]: the current limit).
+    pub min_by: ActiveLimit,
+    /// The limit that set `max_a`.
+    pub max_by: ActiveLimit,
+    /// The limit that cut the window the most (of `min_by` / `max_by`, by
+    /// [`Self::factor`]); [`ActiveLimit::None`] when nothing cut.
+    pub active: ActiveLimit,
+    /// How much of the current limit is left at the more restricted end,
+    /// in `[0, 1]`: `min(max_a, -min_a) / current_limit_a` (1 with a zero
+    /// current limit; 0 for the safe window).
+    pub factor: f32,
+}
+
+impl IqWindow {
+    /// No current: the answer to a missing or invalid input.
+    pub const fn zero(why: ActiveLimit) -> Self {
+        Self {
+            min_a: 0.0,
+            max_a: 0.0,
+            min_by: why,
+            max_by: why,
+            active: why,
+            factor: 0.0,
+        }
+    }
+
+    /// `iq_a` clamped into the window; NaN gives 0.
+    #[inline]
+    pub fn clamp(&self, iq_a: f32) -> f32 {
+        if iq_a < self.min_a {
+            self.min_a
+        } else if iq_a > self.max_a {
+            self.max_a
+        } else if iq_a.is_nan() {
+            0.0
+        } else {
+            iq_a
+        }
+    }
+
+    /// True when `iq_a` lies in the window.
+    #[inline]
+    pub fn contains(&self, iq_a: f32) -> bool {
+        self.min_a <= iq_a && iq_a <= self.max_a
+    }
+}
+
+/// What [`iq_window`] needs each period.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct PowerInputs {
+    /// Measured bus voltage [V] (`None`: the read failed).
+    pub v_bus_v: Option<f32>,
+    /// Electrical angular velocity [rad/s] (the tracker's speed times the
+    /// pole pairs).
+    pub omega_e_rad_s: f32,
+    /// d-axis current [A] (the reference, or the measurement).
+    pub i_d_a: f32,
+    /// The q-current limit before this module [A] (`Limits::max_current_a`
+    /// or the stage's limit in force), finite and `>= 0`.
+    pub current_limit_a: f32,
+    /// Winding temperature [deg C] ([`ThermalEstimate::checked_temperature_c`]):
+    /// needed (the power model's `R(T)` and the winding derating).
+    pub winding_temperature_c: Option<f32>,
+    /// Measured power-stage temperature [deg C]; `None` where the board
+    /// has no sensor, allowed only with stage derating off.
+    pub stage_temperature_c: Option<f32>,
+}
+
+/// The steady-state bus power [W] at q-current `iq_a` (the model of this
+/// module: `1.5 R(T) (i_d^2 + i_q^2) + 1.5 w_e (psi + (L_d - L_q) i_d) i_q`);
+/// `None` for the inputs [`iq_window`] refuses.
+pub fn bus_power_w(cfg: &PowerLimitsConfig, inputs: &PowerInputs, iq_a: f32) -> Option<f32> {
+    let (a, b, c) = coefficients(cfg, inputs)?;
+    let p = (a * iq_a + b) * iq_a + c;
+    if p.is_finite() {
+        Some(p)
+    } else {
+        None
+    }
+}
+
+/// `(a, b, c)` of `P(i_q) = a i_q^2 + b i_q + c` [W], `None` when an
+/// input or the model is not valid.
+fn coefficients(cfg: &PowerLimitsConfig, inp: &PowerInputs) -> Option<(f32, f32, f32)> {
+    let t = inp.winding_temperature_c?;
+    let m = &cfg.motor;
+    if !(all_finite([
+        m.r_ohm,
+        m.ld_h,
+        m.lq_h,
+        m.flux_linkage_wb,
+        inp.omega_e_rad_s,
+        inp.i_d_a,
+        t,
+    ]) && m.r_ohm >= 0.0)
+    {
+        return None;
+    }
+    let r = cfg.r_at_ohm(t);
+    let psi_eff = m.flux_linkage_wb + (m.ld_h - m.lq_h) * inp.i_d_a;
+    let a = 1.5 * r;
+    let b = 1.5 * inp.omega_e_rad_s * psi_eff;
+    let c = a * inp.i_d_a * inp.i_d_a;
+    if all_finite([a, b, c]) {
+        Some((a, b, c))
+    } else {
+        None
+    }
+}
+
+/// The interval around 0 where `a x^2 + b x + q <= 0`, for `q <= 0`,
+/// `a >= 0` (the roots on each side of 0, in the forms without
+/// cancellation).
+#[inline(always)]
+fn below_roots(a: f32, b: f32, q: f32) -> (f32, f32) {
+    let s = sqrtf(b * b - 4.0 * a * q); // >= |b|
+                                        // Both roots 0 (a > 0, q = 0, b = 0), or no bound (a = 0).
+    let flat = if q < 0.0 || a == 0.0 {
+        f32::INFINITY
+    } else {
+        0.0
+    };
+    let hi = if b >= 0.0 {
+        let d = b + s;
+        if d > 0.0 {
+            -2.0 * q / d
+        } else {
+            flat
+        }
+    } else {
+        (s - b) / (2.0 * a)
+    };
+    let lo = if b <= 0.0 {
+        let d = s - b;
+        if d > 0.0 {
+            2.0 * q / d
+        } else {
+            -flat
+        }
+    } else {
+        -(b + s) / (2.0 * a)
+    };
+    (lo, hi)
+}
+
+/// The interval around 0 where `a x^2 + b x + q >= 0`, for `q >= 0`,
+/// `a >= 0`: unbounded except on the side of the roots (`-b`'s sign),
+/// bounded there by the root nearer 0.
+#[inline(always)]
+fn above_roots(a: f32, b: f32, q: f32) -> (f32, f32) {
+    let disc = b * b - 4.0 * a * q;
+    if disc <= 0.0 {
+        return (f32::NEG_INFINITY, f32::INFINITY);
+    }
+    if disc.is_nan() {
+        return (0.0, 0.0); // NaN: the safe interval
+    }
+    let s = sqrtf(disc); // <= |b|
+    if b > 0.0 {
+        (-2.0 * q / (b + s), f32::INFINITY)
+    } else {
+        // b < 0 (b = 0 gives disc <= 0)
+        (f32::NEG_INFINITY, 2.0 * q / (s - b))
+    }
+}
+
+/// One end of the window being narrowed.
+#[derive(Clone, Copy)]
+struct End {
+    mag: f32,
+    by: ActiveLimit,
+}
+
+impl End {
+    #[inline(always)]
+    fn cut(&mut self, mag: f32, by: ActiveLimit) {
+        // A NaN bound cuts to 0 (never widens).
+        if mag.is_nan() || mag < self.mag {
+            self.mag = if mag > 0.0 { mag } else { 0.0 };
+            self.by = by;
+        }
+    }
+}
+
+/// The q-current window for this period: the current limit, derated by
+/// temperature, cut by the power and bus-current limits (exact roots of the
+/// steady-state power balance, see the module docs), its regenerating end
+/// scaled by the bus-voltage regen factor.
+///
+/// Always contains 0 for valid inputs (a limit never forces torque);
+/// `[0, 0]` with [`ActiveLimit::MissingSensor`] when the bus voltage is
+/// missing, non-finite or `<= 0`, when the speed, `i_d`, the current limit
+/// or a needed temperature is missing or not finite (or the current limit
+/// negative), and with [`ActiveLimit::InvalidModel`] for an invalid motor
+/// model. Expects a [`sanitized`](PowerLimitsConfig::sanitized) `cfg`; an
+/// unsanitized NaN limit still gives no current in its direction.
+pub fn iq_window(cfg: &PowerLimitsConfig, inp: &PowerInputs) -> IqWindow {
+    let m = &cfg.motor;
+    if !(all_finite([m.r_ohm, m.ld_h, m.lq_h, m.flux_linkage_wb]) && m.r_ohm >= 0.0) {
+        return IqWindow::zero(ActiveLimit::InvalidModel);
+    }
+    let missing = IqWindow::zero(ActiveLimit::MissingSensor);
+    let v = match inp.v_bus_v {
+        Some(v) if v > 0.0 && v < f32::INFINITY => v,
+        _ => return missing,
+    };
+    let i_lim = inp.current_limit_a;
+    if !(0.0..f32::INFINITY).contains(&i_lim) {
+        return missing;
+    }
+    let k_stage = match inp.stage_temperature_c {
+        Some(t) if t.is_finite() => cfg.stage_factor(t),
+        None if !cfg.stage_derating_on() => 1.0,
+        _ => return missing,
+    };
+    let Some((a, b, c)) = coefficients(cfg, inp) else {
+        return missing;
+    };
+    // `coefficients` checked the winding temperature.
+    let k_winding = cfg.winding_factor(inp.winding_temperature_c.unwrap_or(f32::NAN));
+
+    // 1. Thermal derating of the current limit (both ends).
+    let (k, k_by) = if k_stage < k_winding {
+        (k_stage, ActiveLimit::StageTemperature)
+    } else {
+        (k_winding, ActiveLimit::WindingTemperature)
+    };
+    let mut lo = End {
+        mag: i_lim,
+        by: ActiveLimit::None,
+    };
+    let mut hi = lo;
+    lo.cut(k * i_lim, k_by);
+    hi.cut(k * i_lim, k_by);
+
+    // 2. Motoring: P(iq) <= P_mot (NaN limits read as 0).
+    let p_bus_mot = v * cfg.bus_current_motoring_max_a;
+    let p_cfg = limit_or_zero(cfg.power_motoring_max_w);
+    let p_bus_mot = limit_or_zero(p_bus_mot);
+    let (p_mot, mot_by) = if p_cfg <= p_bus_mot {
+        (p_cfg, ActiveLimit::PowerMotoring)
+    } else {
+        (p_bus_mot, ActiveLimit::BusCurrentMotoring)
+    };
+    if p_mot < f32::INFINITY {
+        // The loss of i_d alone is not this module's to limit: 0 stays in.
+        let q = if c > p_mot { 0.0 } else { c - p_mot };
+        let (x_lo, x_hi) = below_roots(a, b, q);
+        lo.cut(-x_lo, mot_by);
+        hi.cut(x_hi, mot_by);
+    }
+
+    // 3. Regeneration: P(iq) >= -P_regen.
+    let p_bus_regen = v * cfg.bus_current_regen_max_a;
+    let p_cfg = limit_or_zero(cfg.power_regen_max_w);
+    let p_bus_regen = limit_or_zero(p_bus_regen);
+    let (p_regen, regen_by) = if p_cfg <= p_bus_regen {
+        (p_cfg, ActiveLimit::PowerRegen)
+    } else {
+        (p_bus_regen, ActiveLimit::BusCurrentRegen)
+    };
+    if p_regen < f32::INFINITY {
+        let (x_lo, x_hi) = above_roots(a, b, c + p_regen);
+        lo.cut(-x_lo, regen_by);
+        hi.cut(x_hi, regen_by);
+    }
+
+    // 4. The bus-voltage regen ramp on the regenerating end (i_q b < 0).
+    let s = cfg.regen_factor(v);
+    if s < 1.0 {
+        if b > 0.0 {
+            lo.cut(s * lo.mag, ActiveLimit::Regen);
+        } else if b < 0.0 {
+            hi.cut(s * hi.mag, ActiveLimit::Regen);
+        }
+    }
+
+    if !(lo.mag >= 0.0 && hi.mag >= 0.0) {
+        return missing; // unreachable for finite inputs; NaN-safe anyway
+    }
+    let (factor, active) = if i_lim > 0.0 {
+        let (tight, by) = if lo.mag < hi.mag {
+            (lo.mag, lo.by)
+        } else {
+            (hi.mag, hi.by)
+        };
+        let f = tight / i_lim;
+        if f >= 1.0 {
+            (1.0, ActiveLimit::None)
+        } else {
+            (f, by)
+        }
+    } else {
+        (1.0, ActiveLimit::None)
+    };
+    IqWindow {
+        min_a: 0.0 - lo.mag, // +0.0, not -0.0, for an empty end
+        max_a: hi.mag,
+        min_by: lo.by,
+        max_by: hi.by,
+        active,
+        factor,
+    }
+}
+
+/// The winding temperature model (state; the parameters are in
+/// [`PowerLimitsConfig`]): `tau dT/dt = T_amb + R_th P_cu - T` with the
+/// copper loss `P_cu = 1.5 R(T) (i_d^2 + i_q^2)`, a backward-Euler step in
+/// the decay (stable for any `dt`, the loss taken at the old temperature),
+/// saturated to `[THERMAL_MIN_C, THERMAL_MAX_C]`.
+///
+/// A non-finite current or `dt` (or a negative `dt`) keeps the old estimate
+/// and marks it invalid for that step: [`Self::is_valid`] is false and
+/// [`Self::checked_temperature_c`] is `None` (so [`iq_window`] gives no
+/// current) until the next valid step; [`Self::invalid_steps`] counts them.
+/// (A NaN current means the current read failed: the supervisor has the
+/// bridge off then, so no heating is missed.)
+///
+/// ```
+/// use foc_core::control::power::{PowerLimitsConfig, ThermalEstimate};
+/// use foc_core::control::{supervisor::SupervisorConfig, MotorParams};
+/// use foc_core::frames::Dq;
+/// let motor = MotorParams { pole_pairs: 7, r_ohm: 0.1, ld_h: 40e-6, lq_h: 40e-6, flux_linkage_wb: 0.004 };
+/// let cfg = PowerLimitsConfig::for_board(&SupervisorConfig::default(), motor, false);
+/// let mut t = ThermalEstimate::at_ambient(&cfg);
+/// for _ in 0..1000 {
+///     t.step(&cfg, Dq::new(0.0, 10.0), 0.01);
+/// }
+/// assert!(t.temperature_c() > cfg.ambient_c);
+/// t.step(&cfg, Dq::new(0.0, f32::NAN), 0.01);
+/// assert_eq!(t.checked_temperature_c(), None);
+/// ```
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct ThermalEstimate {
+    temperature_c: f32,
+    valid: bool,
+    invalid_steps: u32,
+}
+
+impl ThermalEstimate {
+    /// Starting at `temperature_c` [deg C] (clamped; NaN starts hot, at
+    /// [`THERMAL_MAX_C`]).
+    pub const fn new(temperature_c: f32) -> Self {
+        let t = if temperature_c.is_nan() || temperature_c > THERMAL_MAX_C {
+            THERMAL_MAX_C
+        } else if temperature_c < THERMAL_MIN_C {
+            THERMAL_MIN_C
+        } else {
+            temperature_c
+        };
+        Self {
+            temperature_c: t,
+            valid: true,
+            invalid_steps: 0,
+        }
+    }
+
+    /// Starting at the configured ambient.
+    pub const fn at_ambient(cfg: &PowerLimitsConfig) -> Self {
+        Self::new(cfg.ambient_c)
+    }
+
+    /// Back to the ambient (e.g. after a long power-off), valid.
+    pub fn reset(&mut self, cfg: &PowerLimitsConfig) {
+        *self = Self::at_ambient(cfg);
+    }
+
+    /// Copper loss [W] at dq current `i_dq_a` and winding temperature
+    /// `t_c`: `1.5 R(T) (i_d^2 + i_q^2)`.
+    #[inline]
+    pub fn copper_loss_w(cfg: &PowerLimitsConfig, i_dq_a: Dq, t_c: f32) -> f32 {
+        1.5 * cfg.r_at_ohm(t_c) * (i_dq_a.d * i_dq_a.d + i_dq_a.q * i_dq_a.q)
+    }
+
+    /// Advance by `dt_s` [s] with the dq current `i_dq_a` [A] (measured);
+    /// returns the new estimate [deg C].
+    pub fn step(&mut self, cfg: &PowerLimitsConfig, i_dq_a: Dq, dt_s: f32) -> f32 {
+        if !(all_finite([i_dq_a.d, i_dq_a.q, dt_s]) && dt_s >= 0.0) {
+            self.valid = false;
+            self.invalid_steps = self.invalid_steps.saturating_add(1);
+            return self.temperature_c;
+        }
+        self.valid = true;
+        let t = self.temperature_c;
+        let loss = Self::copper_loss_w(cfg, i_dq_a, t);
+        // NaN (inf * 0, a bad model) reads as the hot end.
+        let target = clamp_temperature(cfg.ambient_c + cfg.thermal_resistance_k_per_w * loss);
+        let tau = cfg.thermal_time_constant_s;
+        let next = if tau > 0.0 {
+            // Backward Euler, T + (target - T) h / (1 + h): exactly
+            // still at the target.
+            let h = dt_s / tau;
+            t + (target - t) * (h / (1.0 + h))
+        } else if tau.is_nan() || tau < 0.0 || dt_s > 0.0 {
+            target
+        } else {
+            t
+        };
+        self.temperature_c = clamp_temperature(next);
+        self.temperature_c
+    }
+
+    /// The estimate [deg C] (the last valid one).
+    pub const fn temperature_c(&self) -> f32 {
+        self.temperature_c
+    }
+
+    /// The estimate, `None` after a step with an invalid input.
+    pub const fn checked_temperature_c(&self) -> Option<f32> {
+        if self.valid {
+            Some(self.temperature_c)
+        } else {
+            None
+        }
+    }
+
+    /// False after a step with a non-finite input, until the next valid step.
+    pub const fn is_valid(&self) -> bool {
+        self.valid
+    }
+
+    /// Steps refused so far (saturating).
+    pub const fn invalid_steps(&self) -> u32 {
+        self.invalid_steps
+    }
+}
+
+/// Brake-chopper hysteresis on the bus voltage (state; thresholds in
+/// [`PowerLimitsConfig`]): on at `V_bus >= brake_on_v`, off again at
+/// `V_bus <= brake_off_v`.
+///
+/// A missing or non-finite reading switches it *off*: a resistor switched
+/// on without knowing the bus could discharge a healthy bus into itself
+/// until it burns. (A motor coasting with its bridge off can still pump
+/// the bus through the body diodes; the supervisor's over-voltage fault
+/// and the bus-sense fault are the reaction there.)
+///
+/// ```
+/// use foc_core::control::power::{BrakeChopper, PowerLimitsConfig};
+/// use foc_core::control::{supervisor::SupervisorConfig, MotorParams};
+/// let motor = MotorParams { pole_pairs: 7, r_ohm: 0.1, ld_h: 40e-6, lq_h: 40e-6, flux_linkage_wb: 0.004 };
+/// let cfg = PowerLimitsConfig::for_board(&SupervisorConfig::default(), motor, false).with_brake_resistor();
+/// let mut b = BrakeChopper::new();
+/// assert!(!b.step(&cfg, Some(24.0)));
+/// assert!(b.step(&cfg, Some(cfg.brake_on_v)));
+/// assert!(b.step(&cfg, Some(cfg.brake_on_v - 0.1))); // hysteresis
+/// assert!(!b.step(&cfg, Some(f32::NAN)));
+/// ```
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct BrakeChopper {
+    on: bool,
+}
+
+impl BrakeChopper {
+    /// Off.
+    pub const fn new() -> Self {
+        Self { on: false }
+    }
+
+    /// Off.
+    pub fn reset(&mut self) {
+        self.on = false;
+    }
+
+    /// Whether the chopper is on.
+    pub const fn is_on(&self) -> bool {
+        self.on
+    }
+
+    /// One bus reading [V]; returns whether the chopper is on.
+    pub fn step(&mut self, cfg: &PowerLimitsConfig, v_bus_v: Option<f32>) -> bool {
+        self.on = match v_bus_v {
+            Some(v) if v.is_finite() => {
+                if self.on {
+                    // NaN threshold (unsanitized): off.
+                    v > cfg.brake_off_v
+                } else {
+                    v >= cfg.brake_on_v
+                }
+            }
+            _ => false,
+        };
+        self.on
+    }
+}
