@@ -46,7 +46,7 @@
 // `Real` is f64 or f32 by feature: a cast to or from it is a no-op in one of the two.
 #![allow(clippy::unnecessary_cast)]
 
-pub use foc_plant::{adapters, plant, real, rng};
+pub use foc_plant::{adapters, plant, power, real, rng};
 
 #[cfg(feature = "std")]
 pub mod dyno;

@@ -186,7 +186,8 @@ pub fn sample_of(m: &Measurements) -> Sample {
         currents: Some(m.currents),
         angle: Some(m.angle),
         v_bus_v: Some(m.v_bus_v),
-        temperature_c: None,
+        // The power stage's temperature, where the plant models it.
+        temperature_c: m.stage_temperature_c,
     }
 }
 
@@ -356,6 +357,8 @@ impl Sim {
             self.record(on);
         }
         self.last_bridge = bridge;
+        // The brake chopper the drive asks for (a no-op without a DC link).
+        self.plant.set_brake(self.cascade.feedback().power.brake_on);
         // What the firmware's `CurrentSense::set_offsets_a` does when the
         // drive hands over calibrated offsets.
         if let Some(o) = self.cascade.take_offsets() {

@@ -101,6 +101,7 @@ impl CascadeConfig {
                 },
                 command_timeout_periods: 0,
                 timeout_reaction: TimeoutReaction::Disable,
+                power: None,
             },
             speed: SpeedLoopConfig::from_bandwidth(
                 inertia_kg_m2,

@@ -462,6 +462,10 @@ pub struct Feedback {
     /// limit; lower during an identification): the speed stage keeps its
     /// output, and so its anti-windup, within it.
     pub current_limit_a: f32,
+    /// The power limits this period (q-current window, active limit,
+    /// winding temperature, brake chopper; design §18): the speed stage
+    /// keeps its output within the window as well.
+    pub power: power::PowerReport,
     /// Periods since start (wraps).
     pub period: u32,
 }
@@ -483,6 +487,7 @@ impl Feedback {
         first_fault: None,
         voltage_limited: false,
         current_limit_a: 0.0,
+        power: power::PowerReport::INIT,
         period: 0,
     };
 }

@@ -952,3 +952,124 @@ impl BrakeChopper {
         self.on
     }
 }
+
+/// What the current stage publishes of its power limits each period
+/// ([`crate::control::Feedback::power`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct PowerReport {
+    /// Lowest q-current allowed this period [A] (the current limit's
+    /// `-max_current_a` when no power limits are configured).
+    pub iq_min_a: f32,
+    /// Highest q-current allowed this period [A].
+    pub iq_max_a: f32,
+    /// The limit that cut the window the most.
+    pub active: ActiveLimit,
+    /// Fraction of the current limit left at the more restricted end (1:
+    /// nothing cut).
+    pub factor: f32,
+    /// Estimated winding temperature [deg C] (NaN without power limits).
+    pub winding_c: f32,
+    /// The brake chopper conducts (a board with a brake resistor switches
+    /// it; the bench drives the plant's).
+    pub brake_on: bool,
+}
+
+impl PowerReport {
+    /// Before the first period.
+    pub const INIT: Self = Self::unlimited(0.0);
+
+    /// No power limits: the window of the current limit `limit_a`.
+    pub const fn unlimited(limit_a: f32) -> Self {
+        Self {
+            iq_min_a: -limit_a,
+            iq_max_a: limit_a,
+            active: ActiveLimit::None,
+            factor: 1.0,
+            winding_c: f32::NAN,
+            brake_on: false,
+        }
+    }
+
+    /// `iq_a` within the window (NaN gives 0).
+    pub fn clamp(&self, iq_a: f32) -> f32 {
+        if iq_a < self.iq_min_a {
+            self.iq_min_a
+        } else if iq_a > self.iq_max_a {
+            self.iq_max_a
+        } else if iq_a.is_nan() {
+            0.0
+        } else {
+            iq_a
+        }
+    }
+}
+
+/// The current stage's power limits: the configuration, the winding
+/// temperature estimate and the brake chopper, stepped once per period.
+#[derive(Clone, Copy, Debug)]
+pub struct PowerStage {
+    cfg: PowerLimitsConfig,
+    thermal: ThermalEstimate,
+    chopper: BrakeChopper,
+}
+
+impl PowerStage {
+    /// From `cfg` (sanitized here); the winding starts at the ambient
+    /// temperature.
+    pub fn new(cfg: PowerLimitsConfig) -> Self {
+        let cfg = cfg.sanitized();
+        Self {
+            cfg,
+            thermal: ThermalEstimate::new(cfg.ambient_c),
+            chopper: BrakeChopper::new(),
+        }
+    }
+
+    /// The configuration in force (sanitized).
+    pub fn config(&self) -> &PowerLimitsConfig {
+        &self.cfg
+    }
+
+    /// Follow a new motor model (after an identification or a gains
+    /// change): the power model's resistance, inductances and flux linkage.
+    pub fn set_motor(&mut self, motor: MotorParams) {
+        self.cfg.motor = motor;
+    }
+
+    /// One period: the winding estimate from the measured currents over
+    /// `dt_s`, the chopper from the bus voltage, and the q-current window
+    /// for the electrical speed `omega_e_rad_s` under `current_limit_a`
+    /// (`i_d` reference 0).
+    pub fn step(
+        &mut self,
+        i_dq_measured_a: Dq,
+        dt_s: f32,
+        v_bus_v: Option<f32>,
+        omega_e_rad_s: f32,
+        current_limit_a: f32,
+        stage_temperature_c: Option<f32>,
+    ) -> PowerReport {
+        self.thermal.step(&self.cfg, i_dq_measured_a, dt_s);
+        let brake_on = self.chopper.step(&self.cfg, v_bus_v);
+        let w = iq_window(
+            &self.cfg,
+            &PowerInputs {
+                v_bus_v,
+                omega_e_rad_s,
+                i_d_a: 0.0,
+                current_limit_a,
+                winding_temperature_c: self.thermal.checked_temperature_c(),
+                stage_temperature_c,
+            },
+        );
+        PowerReport {
+            iq_min_a: w.min_a,
+            iq_max_a: w.max_a,
+            active: w.active,
+            factor: w.factor,
+            winding_c: self.thermal.temperature_c(),
+            brake_on,
+        }
+    }
+}

@@ -131,20 +131,41 @@ impl SpeedLoop {
         iq_ff_a: f32,
         limit_a: f32,
     ) -> f32 {
+        self.step_in(w_ref_rad_s, w_est_rad_s, iq_ff_a, -limit_a, limit_a)
+    }
+
+    /// As [`Self::step`] with the output held within `[min_a, max_a]` [A]
+    /// (an asymmetric window: the power limits of design §18 may cut
+    /// regeneration and not motoring) as well as the configured limit;
+    /// the integrator's anti-windup works against it. `min_a` above 0,
+    /// `max_a` below 0 or NaN are ignored (the configured limit applies).
+    pub fn step_in(
+        &mut self,
+        w_ref_rad_s: f32,
+        w_est_rad_s: f32,
+        iq_ff_a: f32,
+        min_a: f32,
+        max_a: f32,
+    ) -> f32 {
         let cfg = self.pi.config.out_max;
-        let lim = if limit_a >= 0.0 && limit_a < cfg {
-            limit_a
+        let hi = if max_a >= 0.0 && max_a < cfg {
+            max_a
         } else {
             cfg
         };
+        let lo = if min_a <= 0.0 && min_a > -cfg {
+            min_a
+        } else {
+            -cfg
+        };
         let ff = if iq_ff_a.is_finite() {
-            clamp(iq_ff_a, -lim, lim)
+            clamp(iq_ff_a, lo, hi)
         } else {
             0.0
         };
-        // Feed-forward shifts the PI's limits so the total stays within +-lim.
+        // Feed-forward shifts the PI's limits so the total stays within the window.
         self.pi
-            .step_error(w_ref_rad_s - w_est_rad_s, -lim - ff, lim - ff)
+            .step_error(w_ref_rad_s - w_est_rad_s, lo - ff, hi - ff)
             + ff
     }
 }

@@ -4,6 +4,7 @@ use super::current::{CurrentLoop, CurrentLoopConfig, CurrentLoopInput, CurrentLo
 use super::estimator::{AngleTracker, AngleTrackerConfig};
 use super::permit::Calibrated;
 use super::position::{PositionLoop, PositionLoopConfig};
+use super::power::{PowerLimitsConfig, PowerReport, PowerStage};
 use super::speed::{SpeedLoop, SpeedLoopConfig};
 use super::supervisor::{Checks, Fault, Supervisor, SupervisorConfig};
 use super::{BridgeCommand, Command, CommandSlot, Feedback, Limits, Mode};
@@ -117,6 +118,9 @@ pub struct CurrentStageConfig {
     pub command_timeout_periods: u32,
     /// The timeout reaction.
     pub timeout_reaction: TimeoutReaction,
+    /// Power limits (regen, bus current, power, thermal derating, brake
+    /// chopper; design §18); `None`: only the current limit.
+    pub power: Option<PowerLimitsConfig>,
 }
 
 /// One period's measurements; `None` where the read failed.
@@ -215,6 +219,10 @@ pub struct CurrentStage {
     tracker: AngleTracker,
     supervisor: Supervisor,
     state: CurrentStageState,
+    /// Power limits, when configured.
+    power: Option<PowerStage>,
+    /// Their report of this period.
+    power_report: PowerReport,
 }
 
 impl CurrentStage {
@@ -235,7 +243,21 @@ impl CurrentStage {
             },
             config,
             state: CurrentStageState::new(config.angle.interpolation_half_count()),
+            power: config.power.map(PowerStage::new),
+            power_report: PowerReport::unlimited(config.limits.max_current_a),
         }
+    }
+
+    /// Configure (or switch off, `None`) the power limits (design §18);
+    /// the winding estimate restarts at the ambient temperature.
+    pub fn set_power_limits(&mut self, cfg: Option<PowerLimitsConfig>) {
+        self.config.power = cfg;
+        self.power = cfg.map(PowerStage::new);
+    }
+
+    /// The power limits' report of the last period.
+    pub fn power_report(&self) -> &PowerReport {
+        &self.power_report
     }
 
     /// The run-time state.
@@ -273,6 +295,9 @@ impl CurrentStage {
         let cur = c.current_config();
         self.config.current = cur;
         self.current.set_config(cur);
+        if let Some(p) = self.power.as_mut() {
+            p.set_motor(cur.motor);
+        }
         self.state.calibrated = true;
     }
 
@@ -288,6 +313,9 @@ impl CurrentStage {
     pub fn set_current_config(&mut self, c: CurrentLoopConfig) {
         self.config.current = c;
         self.current.set_config(c);
+        if let Some(p) = self.power.as_mut() {
+            p.set_motor(c.motor);
+        }
         self.revoke_calibration();
     }
 
@@ -453,6 +481,8 @@ impl CurrentStage {
             i_abc: crate::frames::Abc::default(),
             i_ab: crate::frames::AlphaBeta::new(0.0, 0.0),
             v_bus_v: s.v_bus_v.unwrap_or(0.0),
+            v_bus_read_v: s.v_bus_v,
+            temperature_c: s.temperature_c,
         };
         match (s.currents, s.angle, s.v_bus_v) {
             (None, _, _) => self.supervisor.trip(Fault::CurrentSenseError),
@@ -591,6 +621,7 @@ impl CurrentStage {
         let pp = self.config.angle.pole_pairs as f32;
         let w_e = self.tracker.velocity_rad_s() * pp;
         let mut i_ref = Dq::ZERO;
+        let window = self.power_window(sensed, w_e);
         if self.supervisor.is_faulted() {
             self.state.active = Command::Disable;
             return (None, i_ref, theta_e);
@@ -599,11 +630,11 @@ impl CurrentStage {
         let closed_iq = match self.state.active {
             Command::Disable => None,
             Command::OpenLoop { .. } => None,
-            Command::Torque { iq_a } => Some(iq_a),
+            Command::Torque { iq_a } => Some(window.clamp(iq_a)),
             Command::Velocity { .. } | Command::Position { .. } => {
                 let lim = self.config.limits.max_current_a;
                 Some(if iq_ref_from_speed_a.is_finite() {
-                    clamp(iq_ref_from_speed_a, -lim, lim)
+                    window.clamp(clamp(iq_ref_from_speed_a, -lim, lim))
                 } else {
                     0.0
                 })
@@ -651,6 +682,26 @@ impl CurrentStage {
             return (None, i_ref, theta_e);
         }
         (out, i_ref, theta_e)
+    }
+
+    /// The power limits' q-current window of this period (the current
+    /// limit's without power limits): steps the winding estimate (from the
+    /// last measured currents) and the brake chopper.
+    #[inline(always)]
+    fn power_window(&mut self, sensed: &Sensed, w_e: f32) -> PowerReport {
+        let lim = self.config.limits.max_current_a;
+        self.power_report = match self.power.as_mut() {
+            None => PowerReport::unlimited(lim),
+            Some(p) => p.step(
+                self.state.last_i_dq,
+                self.config.current.ts_s,
+                sensed.v_bus_read_v,
+                w_e,
+                lim,
+                sensed.temperature_c,
+            ),
+        };
+        self.power_report
     }
 
     /// Current-sense plausibility (closed loop): the loop's tracking error
@@ -761,6 +812,7 @@ impl CurrentStage {
             first_fault: self.supervisor.first_fault(),
             voltage_limited: limited,
             current_limit_a: self.config.limits.max_current_a,
+            power: self.power_report,
             period: self.state.period,
         };
         (bridge, fb)
@@ -787,6 +839,10 @@ struct Sensed {
     i_ab: crate::frames::AlphaBeta,
     /// Bus voltage [V] (0 when the read failed).
     v_bus_v: f32,
+    /// The bus voltage as read.
+    v_bus_read_v: Option<f32>,
+    /// Power-stage temperature as read.
+    temperature_c: Option<f32>,
 }
 
 /// What the position stage hands the speed stage.
@@ -836,8 +892,10 @@ impl SpeedStage {
                 if entering {
                     self.speed.preload(fb.i_dq_ref_a.q);
                 }
-                self.speed
-                    .step_within(w, fb.velocity_rad_s, ff, fb.current_limit_a)
+                // Within the current limit and the power limits' window.
+                let lim = fb.current_limit_a;
+                let (lo, hi) = (fb.power.iq_min_a.max(-lim), fb.power.iq_max_a.min(lim));
+                self.speed.step_in(w, fb.velocity_rad_s, ff, lo, hi)
             }
             None => {
                 self.speed.preload(fb.i_dq_ref_a.q);
