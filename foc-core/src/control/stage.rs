@@ -255,9 +255,14 @@ impl CurrentStage {
         self.power = cfg.map(PowerStage::new);
     }
 
-    /// The power limits' report of the last period.
-    pub fn power_report(&self) -> &PowerReport {
-        &self.power_report
+    /// The power limits' report of the last period (the current limit's
+    /// window without power limits).
+    pub fn power_report(&self) -> PowerReport {
+        if self.power.is_some() {
+            self.power_report
+        } else {
+            PowerReport::unlimited(self.config.limits.max_current_a)
+        }
     }
 
     /// The run-time state.
@@ -622,6 +627,10 @@ impl CurrentStage {
         let w_e = self.tracker.velocity_rad_s() * pp;
         let mut i_ref = Dq::ZERO;
         let window = self.power_window(sensed, w_e);
+        let limit = |iq: f32| match &window {
+            Some(w) => w.clamp(iq),
+            None => iq,
+        };
         if self.supervisor.is_faulted() {
             self.state.active = Command::Disable;
             return (None, i_ref, theta_e);
@@ -630,11 +639,11 @@ impl CurrentStage {
         let closed_iq = match self.state.active {
             Command::Disable => None,
             Command::OpenLoop { .. } => None,
-            Command::Torque { iq_a } => Some(window.clamp(iq_a)),
+            Command::Torque { iq_a } => Some(limit(iq_a)),
             Command::Velocity { .. } | Command::Position { .. } => {
                 let lim = self.config.limits.max_current_a;
                 Some(if iq_ref_from_speed_a.is_finite() {
-                    window.clamp(clamp(iq_ref_from_speed_a, -lim, lim))
+                    limit(clamp(iq_ref_from_speed_a, -lim, lim))
                 } else {
                     0.0
                 })
@@ -684,24 +693,24 @@ impl CurrentStage {
         (out, i_ref, theta_e)
     }
 
-    /// The power limits' q-current window of this period (the current
-    /// limit's without power limits): steps the winding estimate (from the
-    /// last measured currents) and the brake chopper.
+    /// The power limits' q-current window of this period, when they are
+    /// configured: steps the winding estimate (from the last measured
+    /// currents) and the brake chopper. Without them nothing is computed
+    /// (the published report is the current limit's window).
     #[inline(always)]
-    fn power_window(&mut self, sensed: &Sensed, w_e: f32) -> PowerReport {
+    fn power_window(&mut self, sensed: &Sensed, w_e: f32) -> Option<PowerReport> {
+        let p = self.power.as_mut()?;
         let lim = self.config.limits.max_current_a;
-        self.power_report = match self.power.as_mut() {
-            None => PowerReport::unlimited(lim),
-            Some(p) => p.step(
-                self.state.last_i_dq,
-                self.config.current.ts_s,
-                sensed.v_bus_read_v,
-                w_e,
-                lim,
-                sensed.temperature_c,
-            ),
-        };
-        self.power_report
+        let r = p.step(
+            self.state.last_i_dq,
+            self.config.current.ts_s,
+            sensed.v_bus_read_v,
+            w_e,
+            lim,
+            sensed.temperature_c,
+        );
+        self.power_report = r;
+        Some(r)
     }
 
     /// Current-sense plausibility (closed loop): the loop's tracking error
@@ -812,7 +821,11 @@ impl CurrentStage {
             first_fault: self.supervisor.first_fault(),
             voltage_limited: limited,
             current_limit_a: self.config.limits.max_current_a,
-            power: self.power_report,
+            power: if self.power.is_some() {
+                self.power_report
+            } else {
+                PowerReport::unlimited(self.config.limits.max_current_a)
+            },
             period: self.state.period,
         };
         (bridge, fb)
@@ -893,8 +906,11 @@ impl SpeedStage {
                     self.speed.preload(fb.i_dq_ref_a.q);
                 }
                 // Within the current limit and the power limits' window.
+                // (Plain comparisons: `f32::max` is branchy on the M4F.)
                 let lim = fb.current_limit_a;
-                let (lo, hi) = (fb.power.iq_min_a.max(-lim), fb.power.iq_max_a.min(lim));
+                let (p_lo, p_hi) = (fb.power.iq_min_a, fb.power.iq_max_a);
+                let lo = if p_lo > -lim { p_lo } else { -lim };
+                let hi = if p_hi < lim { p_hi } else { lim };
                 self.speed.step_in(w, fb.velocity_rad_s, ff, lo, hi)
             }
             None => {
