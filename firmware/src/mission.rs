@@ -62,6 +62,17 @@ pub fn e2e_run_requested() -> bool {
     board_support::board::args().mission() == "e2e"
 }
 
+/// Log one check's verdict (`mission: PASS ...` / `mission: FAIL ...`,
+/// which `cargo xtask qemu` counts); true when it passed.
+pub fn report(ok: bool, what: &str) -> bool {
+    if ok {
+        defmt::info!("mission: PASS {}", what);
+    } else {
+        defmt::error!("mission: FAIL {}", what);
+    }
+    ok
+}
+
 /// Mission steps.
 #[derive(Clone, Copy, PartialEq, Eq, defmt::Format)]
 enum Step {
@@ -112,10 +123,7 @@ impl Mission {
     }
 
     fn check(&mut self, ok: bool, what: &str) {
-        if ok {
-            defmt::info!("mission: PASS {}", what);
-        } else {
-            defmt::error!("mission: FAIL {}", what);
+        if !report(ok, what) {
             self.failures += 1;
         }
     }

@@ -102,10 +102,7 @@ impl Run {
     }
 
     fn check(&mut self, ok: bool, what: &str) {
-        if ok {
-            defmt::info!("mission: PASS {}", what);
-        } else {
-            defmt::error!("mission: FAIL {}", what);
+        if !crate::mission::report(ok, what) {
             self.failures += 1;
         }
     }

@@ -161,7 +161,8 @@ impl core::fmt::Display for ParamError {
     }
 }
 
-fn positive(x: Real, name: &'static str) -> Result<(), ParamError> {
+/// `x` finite and positive, else [`ParamError::NotPositive`] naming it.
+pub(crate) fn positive(x: Real, name: &'static str) -> Result<(), ParamError> {
     if x.is_finite() && x > 0.0 {
         Ok(())
     } else {
@@ -169,7 +170,8 @@ fn positive(x: Real, name: &'static str) -> Result<(), ParamError> {
     }
 }
 
-fn non_negative(x: Real, name: &'static str) -> Result<(), ParamError> {
+/// `x` finite and not negative, else [`ParamError::Negative`] naming it.
+pub(crate) fn non_negative(x: Real, name: &'static str) -> Result<(), ParamError> {
     if x.is_finite() && x >= 0.0 {
         Ok(())
     } else {

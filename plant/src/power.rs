@@ -132,7 +132,7 @@
 //! [`MotorParams::example`]: crate::plant::MotorParams::example
 //! [`Measurements::stage_temperature_c`]: crate::plant::Measurements::stage_temperature_c
 
-use crate::plant::ParamError;
+use crate::plant::{non_negative, positive, ParamError};
 use crate::real::{self, Real};
 
 /// Temperature coefficient of copper's resistance near 20 deg C [1/K].
@@ -427,22 +427,6 @@ pub(crate) fn thermal_step(
 ) -> Real {
     let t_ss = ambient_c + p_w * r_th;
     t_ss + (t_c - t_ss) * real::exp(-dt_s / tau_s)
-}
-
-fn positive(x: Real, name: &'static str) -> Result<(), ParamError> {
-    if x.is_finite() && x > 0.0 {
-        Ok(())
-    } else {
-        Err(ParamError::NotPositive(name))
-    }
-}
-
-fn non_negative(x: Real, name: &'static str) -> Result<(), ParamError> {
-    if x.is_finite() && x >= 0.0 {
-        Ok(())
-    } else {
-        Err(ParamError::Negative(name))
-    }
 }
 
 fn finite(x: Real, name: &'static str) -> Result<(), ParamError> {
