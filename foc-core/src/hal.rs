@@ -138,8 +138,44 @@ pub trait BusVoltage {
     /// The latest bus voltage [V].
     fn read_bus_voltage_v(&mut self) -> Result<f32, Self::Error>;
 
-    /// Power-stage temperature [deg C] if the board measures it.
+    /// Power-stage temperature [deg C] (e.g. a FET thermistor) if the board
+    /// measures it: the supervisor's over-temperature fault and the power
+    /// limits' stage derating read it (design §18). `None`: the board has
+    /// no sensor; `Some(Err(_))`: it has one and the reading failed (open
+    /// or shorted thermistor), which the stage derating treats as a
+    /// missing sensor (no current).
     fn read_temperature_c(&mut self) -> Option<Result<f32, Self::Error>> {
         None
+    }
+}
+
+/// The switch of a brake resistor across the DC bus (a "brake chopper"),
+/// where the board has one (design §18). The current stage decides on/off
+/// each period ([`crate::control::power::BrakeChopper`], reported in
+/// `Feedback::power.brake_on`); the caller applies it here.
+///
+/// Infallible on purpose, like [`PwmDriver::disable`]: switching the
+/// resistor off must work from any context (also a panic handler), and a
+/// board without a resistor implements it with [`NoBrake`].
+pub trait BrakeOutput {
+    /// Conduct (`true`: the resistor dissipates the bus energy) or not.
+    fn set_brake(&mut self, on: bool);
+
+    /// True while the resistor conducts.
+    fn is_brake_on(&self) -> bool;
+}
+
+/// A board without a brake resistor: [`BrakeOutput::set_brake`] does
+/// nothing and the brake never conducts.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct NoBrake;
+
+impl BrakeOutput for NoBrake {
+    #[inline]
+    fn set_brake(&mut self, _on: bool) {}
+
+    #[inline]
+    fn is_brake_on(&self) -> bool {
+        false
     }
 }

@@ -255,6 +255,13 @@ impl CurrentStage {
         self.power = cfg.map(PowerStage::new);
     }
 
+    /// The power limits' brake chopper conducts (false without power
+    /// limits).
+    #[inline]
+    pub fn brake_on(&self) -> bool {
+        self.power.is_some() && self.power_report.brake_on
+    }
+
     /// The power limits' report of the last period (the current limit's
     /// window without power limits).
     pub fn power_report(&self) -> PowerReport {

@@ -93,12 +93,15 @@ use crate::control::drive::{apply, read_sample};
 use crate::control::stage::{CurrentStage, CurrentStageConfig};
 use crate::control::Fault;
 use crate::frames::Abc;
-use crate::hal::{AngleSensor, BusVoltage, CurrentSense, PwmDriver};
+use crate::hal::{AngleSensor, BrakeOutput, BusVoltage, CurrentSense, NoBrake, PwmDriver};
 
 /// The drive: the board's hardware, the current stage and the lifecycle.
 /// The hardware fields are public for the owner's other duties (e.g. an
 /// emergency stop); the decisions go through [`Drive::step`].
-pub struct Drive<P, C, A, B> {
+///
+/// `K` is the brake resistor's switch (design §18): [`NoBrake`] unless
+/// [`Drive::with_brake`] gives one.
+pub struct Drive<P, C, A, B, K = NoBrake> {
     /// PWM / bridge.
     pub pwm: P,
     /// Phase-current sensor.
@@ -107,11 +110,14 @@ pub struct Drive<P, C, A, B> {
     pub angle: A,
     /// Bus-voltage (and temperature) sensor.
     pub bus: B,
+    /// Brake-resistor switch (set every period from the power limits'
+    /// chopper, off without them).
+    pub brake: K,
     stage: CurrentStage,
     life: Lifecycle,
 }
 
-impl<P, C, A, B> Drive<P, C, A, B>
+impl<P, C, A, B> Drive<P, C, A, B, NoBrake>
 where
     P: PwmDriver,
     C: CurrentSense,
@@ -135,16 +141,44 @@ where
             currents,
             angle,
             bus,
+            brake: NoBrake,
             stage: CurrentStage::new(stage),
             life: Lifecycle::new(life),
         }
     }
 
+    /// The same drive with a brake resistor's switch (switched off here;
+    /// [`Drive::step`] drives it from then on).
+    pub fn with_brake<K: BrakeOutput>(self, mut brake: K) -> Drive<P, C, A, B, K> {
+        brake.set_brake(false);
+        Drive {
+            pwm: self.pwm,
+            currents: self.currents,
+            angle: self.angle,
+            bus: self.bus,
+            brake,
+            stage: self.stage,
+            life: self.life,
+        }
+    }
+}
+
+impl<P, C, A, B, K> Drive<P, C, A, B, K>
+where
+    P: PwmDriver,
+    C: CurrentSense,
+    A: AngleSensor,
+    B: BusVoltage,
+    K: BrakeOutput,
+{
+
     /// One PWM period: read the sensors, decide, install offsets, release
     /// the PWM's hardware fault latch after an explicit clear (not while
     /// the power stage still reports a fault), drive the bridge (duties
     /// before enable; a PWM error is latched as [`Fault::PwmError`] with
-    /// the bridge off).
+    /// the bridge off), switch the brake resistor as the power limits'
+    /// chopper decided (also with the bridge off: a coasting motor's
+    /// back-EMF still charges the bus through the body diodes).
     pub fn step(&mut self, inputs: &Inputs) -> Output {
         let sample = read_sample(&mut self.currents, &mut self.angle, &mut self.bus);
         let out = self.life.step(&mut self.stage, inputs, &sample);
@@ -156,6 +190,10 @@ where
         }
         if let Err(f) = apply(&mut self.pwm, out.bridge) {
             self.stage.report_fault(f);
+        }
+        let brake_on = self.stage.brake_on();
+        if brake_on != self.brake.is_brake_on() {
+            self.brake.set_brake(brake_on);
         }
         out
     }
