@@ -10,7 +10,10 @@ use foc_core::control::cascade::CascadeConfig;
 use foc_core::control::{Command, CommandSlot, Fault, MotorParams};
 use foc_core::drive::{AngleKind, ConfigChange, Drive, Event, Inputs, LifecycleConfig, Phase};
 use foc_core::frames::Abc;
-use foc_core::hal::{AngleSensor, BusVoltage, CurrentSense, PhaseCurrents, PwmDriver};
+use foc_core::control::power::PowerLimitsConfig;
+use foc_core::hal::{
+    AngleSensor, BrakeOutput, BusVoltage, CurrentSense, PhaseCurrents, PwmDriver,
+};
 
 /// A PWM with a break latch like the STM32 boards': set by the break,
 /// refused `enable` while set, released only by `release_fault_latch`.
@@ -269,4 +272,105 @@ fn no_stored_permit_means_start_up_as_before() {
         assert!(!d.status().calibrated, "{kind:?}");
         assert_eq!(events.last(), Some(&Event::StartUpDone), "{kind:?}");
     }
+}
+
+/// A bus whose voltage the test sets.
+struct SetBus(f32);
+impl BusVoltage for SetBus {
+    type Error = ();
+    fn read_bus_voltage_v(&mut self) -> Result<f32, ()> {
+        if self.0.is_nan() {
+            Err(())
+        } else {
+            Ok(self.0)
+        }
+    }
+}
+
+/// A brake switch that counts its switchings.
+#[derive(Default)]
+struct Brake {
+    on: bool,
+    switchings: u32,
+}
+impl BrakeOutput for Brake {
+    fn set_brake(&mut self, on: bool) {
+        self.switchings += u32::from(self.on != on);
+        self.on = on;
+    }
+    fn is_brake_on(&self) -> bool {
+        self.on
+    }
+}
+
+#[test]
+fn the_brake_follows_the_power_limits_chopper_with_hysteresis_and_goes_off_with_them() {
+    let motor = MotorParams {
+        pole_pairs: 7,
+        r_ohm: 0.1,
+        ld_h: 40e-6,
+        lq_h: 40e-6,
+        flux_linkage_wb: 0.004,
+    };
+    let cfg = CascadeConfig::for_motor(motor, 20_000.0, 10.0);
+    let life = LifecycleConfig {
+        offsets: None,
+        sensor_check_reads: 4,
+        identification: None,
+        identify_at_start_up: false,
+        speed_divider: 10,
+        position_divider: 20,
+        angle_kind: AngleKind::Incremental,
+        stored: None,
+    };
+    let mut d = Drive::new(Pwm::default(), Cs::default(), Enc, SetBus(24.0), cfg.current, life)
+        .with_brake(Brake::default());
+    let mut inputs = Inputs::new(CommandSlot::INIT, 0.0);
+    let steps = |d: &mut Drive<Pwm, Cs, Enc, SetBus, Brake>, inputs: &Inputs, v: f32| {
+        d.bus.0 = v;
+        for _ in 0..3 {
+            d.step(inputs);
+        }
+        d.brake.on
+    };
+    for _ in 0..10 {
+        d.step(&inputs);
+    }
+    assert_eq!(d.lifecycle().phase(), Phase::Run);
+    // No power limits: the brake never conducts (below the over-voltage
+    // threshold, 30 V).
+    assert!(!steps(&mut d, &inputs, 29.0));
+    // Limits with a brake resistor, given with another motor model: the
+    // stage's motor replaces it.
+    let mut other = motor;
+    other.r_ohm = 5.0;
+    let p = PowerLimitsConfig::for_board(&cfg.current.supervisor, other, false).with_brake_resistor();
+    d.bus.0 = 24.0;
+    inputs.change = Some(ConfigChange {
+        power: Some(Some(p)),
+        ..ConfigChange::default()
+    });
+    d.step(&inputs);
+    inputs.change = None;
+    let installed = d.stage().config().power.expect("installed");
+    assert_eq!(installed.motor, cfg.current.current.motor);
+    let (on_v, off_v) = (p.brake_on_v, p.brake_off_v);
+    assert!(off_v < on_v && on_v < cfg.current.supervisor.bus_over_voltage_v);
+    assert!(!steps(&mut d, &inputs, off_v - 0.1));
+    assert!(steps(&mut d, &inputs, on_v + 0.1), "on above brake_on_v");
+    assert!(steps(&mut d, &inputs, 0.5 * (on_v + off_v)), "hysteresis");
+    assert!(!steps(&mut d, &inputs, off_v - 0.1), "off below brake_off_v");
+    assert!(steps(&mut d, &inputs, on_v + 0.1));
+    // A failed bus reading: off (never switched on blindly).
+    assert!(!steps(&mut d, &inputs, f32::NAN));
+    assert!(steps(&mut d, &inputs, on_v + 0.1));
+    // Power limits switched off: the brake goes off with them.
+    inputs.change = Some(ConfigChange {
+        power: Some(None),
+        ..ConfigChange::default()
+    });
+    d.step(&inputs);
+    assert!(!d.brake.on);
+    assert!(d.stage().config().power.is_none());
+    assert_eq!(d.brake.switchings, 6);
 }

@@ -970,6 +970,9 @@ pub struct PowerReport {
     pub factor: f32,
     /// Estimated winding temperature [deg C] (NaN without power limits).
     pub winding_c: f32,
+    /// Measured power-stage temperature [deg C] (NaN: the board has no
+    /// sensor, the reading failed, or no power limits are configured).
+    pub stage_c: f32,
     /// The brake chopper conducts (a board with a brake resistor switches
     /// it; the bench drives the plant's).
     pub brake_on: bool,
@@ -987,6 +990,7 @@ impl PowerReport {
             active: ActiveLimit::None,
             factor: 1.0,
             winding_c: f32::NAN,
+            stage_c: f32::NAN,
             brake_on: false,
         }
     }
@@ -1037,6 +1041,17 @@ impl PowerStage {
         self.cfg.motor = motor;
     }
 
+    /// A new configuration that keeps this stage's winding estimate and
+    /// chopper state (a reconfiguration must not cool the modelled
+    /// winding down to the ambient temperature).
+    pub fn reconfigured(&self, cfg: PowerLimitsConfig) -> Self {
+        Self {
+            cfg: cfg.sanitized(),
+            thermal: self.thermal,
+            chopper: self.chopper,
+        }
+    }
+
     /// One period: the winding estimate from the measured currents over
     /// `dt_s`, the chopper from the bus voltage, and the q-current window
     /// for the electrical speed `omega_e_rad_s` under `current_limit_a`
@@ -1069,6 +1084,10 @@ impl PowerStage {
             active: w.active,
             factor: w.factor,
             winding_c: self.thermal.temperature_c(),
+            stage_c: match stage_temperature_c {
+                Some(t) => t,
+                None => f32::NAN,
+            },
             brake_on,
         }
     }

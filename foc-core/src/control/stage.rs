@@ -230,6 +230,8 @@ impl CurrentStage {
     /// see [`Self::set_limits`]).
     pub fn new(mut config: CurrentStageConfig) -> Self {
         config.limits = sanitize_limits(config.limits);
+        let motor = config.current.motor;
+        config.power = config.power.map(|c| PowerLimitsConfig { motor, ..c });
         Self {
             current: CurrentLoop::new(config.current),
             tracker: AngleTracker::new(config.tracker),
@@ -243,16 +245,25 @@ impl CurrentStage {
             },
             config,
             state: CurrentStageState::new(config.angle.interpolation_half_count()),
-            power: config.power.map(PowerStage::new),
+power: config.power.map(PowerStage::new),
             power_report: PowerReport::unlimited(config.limits.max_current_a),
         }
     }
 
-    /// Configure (or switch off, `None`) the power limits (design §18);
-    /// the winding estimate restarts at the ambient temperature.
+    /// Configure (or switch off, `None`) the power limits (design §18).
+    /// Their motor model is the current loop's (`cfg.motor` is replaced).
+    /// A stage that already had power limits keeps its winding estimate
+    /// (reconfiguring does not cool the winding); the first configuration
+    /// starts it at the ambient temperature.
     pub fn set_power_limits(&mut self, cfg: Option<PowerLimitsConfig>) {
+        let motor = self.config.current.motor;
+        let cfg = cfg.map(|c| PowerLimitsConfig { motor, ..c });
         self.config.power = cfg;
-        self.power = cfg.map(PowerStage::new);
+        self.power = match (cfg, self.power.as_ref()) {
+            (Some(c), Some(old)) => Some(old.reconfigured(c)),
+            (Some(c), None) => Some(PowerStage::new(c)),
+            (None, _) => None,
+        };
     }
 
     /// The power limits' brake chopper conducts (false without power

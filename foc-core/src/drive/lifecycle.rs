@@ -372,6 +372,10 @@ impl Lifecycle {
         if let Some(p) = ch.permit {
             stage.set_calibration(&p);
         }
+        // After the current loop's motor: the power model follows it.
+        if let Some(p) = ch.power {
+            stage.set_power_limits(p);
+        }
     }
 
     fn restart_offsets(&mut self, out: &mut Output) {

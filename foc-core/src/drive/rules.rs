@@ -21,6 +21,7 @@
 
 use crate::control::current::CurrentLoopConfig;
 use crate::control::permit::Calibrated;
+use crate::control::power::PowerLimitsConfig;
 use crate::control::{admit, Command, CommandError, Fault, Limits, Mode};
 
 /// Why a configuration change or a calibration request was refused
@@ -108,6 +109,10 @@ pub struct ConfigChange {
     pub current: Option<CurrentLoopConfig>,
     /// New speed / position dividers [periods] (0 is taken as 1).
     pub dividers: Option<(u16, u16)>,
+    /// New power limits (design §18): `Some(Some(cfg))` installs them
+    /// (sanitized; their motor model is the current loop's; the winding
+    /// estimate carries on), `Some(None)` switches them off.
+    pub power: Option<Option<PowerLimitsConfig>>,
     /// A calibration permit to install (e.g. one stored after an earlier
     /// identification and checked with `Calibrated::supplied`): unlocks the
     /// closed-loop modes once the offsets are calibrated.
@@ -128,18 +133,20 @@ impl ConfigChange {
         self.limits = newer.limits.or(self.limits);
         self.current = newer.current.or(self.current);
         self.dividers = newer.dividers.or(self.dividers);
+        self.power = newer.power.or(self.power);
         self.permit = newer.permit.or(self.permit);
         self.calibrate_offsets |= newer.calibrate_offsets;
         self.identify |= newer.identify;
         self.fault = self.fault.or(newer.fault);
     }
 
-    /// True when it carries settings (limits, current loop, dividers, a
-    /// permit).
+    /// True when it carries settings (limits, current loop, dividers,
+    /// power limits, a permit).
     pub fn has_settings(&self) -> bool {
         self.limits.is_some()
             || self.current.is_some()
             || self.dividers.is_some()
+            || self.power.is_some()
             || self.permit.is_some()
     }
 }
