@@ -2,6 +2,7 @@
 
 use clap::{Parser, Subcommand, ValueEnum};
 use foc_core::angle::ElectricalAngle;
+use foc_core::control::power::ActiveLimit;
 use foc_core::control::stage::TimeoutReaction;
 use foc_core::control::{Command, Fault, Limits};
 use foc_ctl::{describe_error, sim::SimServer, Client, ClientError, StreamSample};
@@ -324,13 +325,13 @@ fn write_csv(path: &Path, samples: &[StreamSample]) -> std::io::Result<()> {
     let mut f = std::io::BufWriter::new(std::fs::File::create(path)?);
     writeln!(
         f,
-        "host_time_s,seq,period,i_d_a,i_q_a,v_d_v,v_q_v,velocity_rad_s,position_rad,mode,fault_code,max_loop_cycles,v_bus_v"
+        "host_time_s,seq,period,i_d_a,i_q_a,v_d_v,v_q_v,velocity_rad_s,position_rad,mode,fault_code,max_loop_cycles,v_bus_v,bus_power_w,bus_current_a,power_limit,limit_left_pct,brake_on,winding_c,stage_c"
     )?;
     for s in samples {
         let t = &s.sample;
         writeln!(
             f,
-            "{:.6},{},{},{},{},{},{},{},{},{},{},{},{}",
+            "{:.6},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{:?},{},{},{},{}",
             s.host_time.as_secs_f64(),
             s.seq,
             t.period,
@@ -343,7 +344,14 @@ fn write_csv(path: &Path, samples: &[StreamSample]) -> std::io::Result<()> {
             t.mode as u8,
             t.fault_code,
             t.max_loop_cycles,
-            t.v_bus_v
+            t.v_bus_v,
+            bus_power_w(t),
+            bus_power_w(t) / t.v_bus_v,
+            t.power_limit,
+            t.limit_left_pct,
+            u8::from(t.brake_on),
+            t.winding_c,
+            t.stage_c
         )?;
     }
     f.flush()
@@ -577,13 +585,34 @@ fn plot_tail(out: &mut impl Write, samples: &[StreamSample], s: &StreamSample) {
     );
 }
 
+/// The bus power of a sample [W]: the dq power `1.5 (v_d i_d + v_q i_q)`
+/// of the commanded voltages and measured currents (inverter losses not
+/// included; > 0 motoring, < 0 regenerating).
+fn bus_power_w(t: &foc_protocol::message::Telemetry) -> f32 {
+    1.5 * (t.v_d_v * t.i_d_a + t.v_q_v * t.i_q_a)
+}
+
+/// The power limit of a sample, when one cuts the current, e.g.
+/// ` limit=Regen(37%)`; empty otherwise. ` brake` while the chopper conducts.
+fn power_text(t: &foc_protocol::message::Telemetry) -> String {
+    let mut s = String::new();
+    if t.power_limit != ActiveLimit::None {
+        s += &format!(" limit={:?}({}%)", t.power_limit, t.limit_left_pct);
+    }
+    if t.brake_on {
+        s += " brake";
+    }
+    s
+}
+
 /// One sample as a line on stdout.
 fn print_sample(s: &StreamSample) {
     let t = &s.sample;
     println!(
-        "{:>10} {:?} w={:.3} p={:.4} id={:.3} iq={:.3} vd={:.3} vq={:.3} vbus={:.2} fault={} cyc={}",
+        "{:>10} {:?} w={:.3} p={:.4} id={:.3} iq={:.3} vd={:.3} vq={:.3} vbus={:.2} pbus={:.1} twind={:.1} tstage={:.1} fault={} cyc={}{}",
         t.period, t.mode, t.velocity_rad_s, t.position_rad, t.i_d_a, t.i_q_a,
-        t.v_d_v, t.v_q_v, t.v_bus_v, t.fault_code, t.max_loop_cycles
+        t.v_d_v, t.v_q_v, t.v_bus_v, bus_power_w(t), t.winding_c, t.stage_c,
+        t.fault_code, t.max_loop_cycles, power_text(t)
     );
 }
 

@@ -396,6 +396,8 @@ impl DeviceContext for SimDrive {
             fault_code: self.first_fault.map_or(0, Fault::code),
             max_loop_cycles: 0,
             v_bus_v: self.v_bus_v,
+            // The simulated drive models no power stage.
+            ..Telemetry::ZERO
         }
     }
     fn firmware_version(&self) -> [u8; 3] {

@@ -7,13 +7,11 @@ use foc_core::angle::MechanicalAngle;
 use foc_core::calibration::offsets::OffsetLimits;
 use foc_core::calibration::Calibrated;
 use foc_core::control::cascade::CascadeConfig;
+use foc_core::control::power::PowerLimitsConfig;
 use foc_core::control::{Command, CommandSlot, Fault, MotorParams};
 use foc_core::drive::{AngleKind, ConfigChange, Drive, Event, Inputs, LifecycleConfig, Phase};
 use foc_core::frames::Abc;
-use foc_core::control::power::PowerLimitsConfig;
-use foc_core::hal::{
-    AngleSensor, BrakeOutput, BusVoltage, CurrentSense, PhaseCurrents, PwmDriver,
-};
+use foc_core::hal::{AngleSensor, BrakeOutput, BusVoltage, CurrentSense, PhaseCurrents, PwmDriver};
 
 /// A PWM with a break latch like the STM32 boards': set by the break,
 /// refused `enable` while set, released only by `release_fault_latch`.
@@ -323,8 +321,15 @@ fn the_brake_follows_the_power_limits_chopper_with_hysteresis_and_goes_off_with_
         angle_kind: AngleKind::Incremental,
         stored: None,
     };
-    let mut d = Drive::new(Pwm::default(), Cs::default(), Enc, SetBus(24.0), cfg.current, life)
-        .with_brake(Brake::default());
+    let mut d = Drive::new(
+        Pwm::default(),
+        Cs::default(),
+        Enc,
+        SetBus(24.0),
+        cfg.current,
+        life,
+    )
+    .with_brake(Brake::default());
     let mut inputs = Inputs::new(CommandSlot::INIT, 0.0);
     let steps = |d: &mut Drive<Pwm, Cs, Enc, SetBus, Brake>, inputs: &Inputs, v: f32| {
         d.bus.0 = v;
@@ -344,7 +349,8 @@ fn the_brake_follows_the_power_limits_chopper_with_hysteresis_and_goes_off_with_
     // stage's motor replaces it.
     let mut other = motor;
     other.r_ohm = 5.0;
-    let p = PowerLimitsConfig::for_board(&cfg.current.supervisor, other, false).with_brake_resistor();
+    let p =
+        PowerLimitsConfig::for_board(&cfg.current.supervisor, other, false).with_brake_resistor();
     d.bus.0 = 24.0;
     inputs.change = Some(ConfigChange {
         power: Some(Some(p)),
@@ -359,7 +365,10 @@ fn the_brake_follows_the_power_limits_chopper_with_hysteresis_and_goes_off_with_
     assert!(!steps(&mut d, &inputs, off_v - 0.1));
     assert!(steps(&mut d, &inputs, on_v + 0.1), "on above brake_on_v");
     assert!(steps(&mut d, &inputs, 0.5 * (on_v + off_v)), "hysteresis");
-    assert!(!steps(&mut d, &inputs, off_v - 0.1), "off below brake_off_v");
+    assert!(
+        !steps(&mut d, &inputs, off_v - 0.1),
+        "off below brake_off_v"
+    );
     assert!(steps(&mut d, &inputs, on_v + 0.1));
     // A failed bus reading: off (never switched on blindly).
     assert!(!steps(&mut d, &inputs, f32::NAN));

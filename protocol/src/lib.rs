@@ -68,4 +68,4 @@ pub use message::{ErrorCode, Message, Request, Response};
 
 /// Version of this protocol, reported in [`message::Hello`]. Bumped on any
 /// incompatible change of the frame or of a message layout.
-pub const PROTOCOL_VERSION: u8 = 1;
+pub const PROTOCOL_VERSION: u8 = 2;

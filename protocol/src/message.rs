@@ -37,7 +37,7 @@
 //! | 0x82 | `Hello` | `protocol_version:u8 fw_major:u8 fw_minor:u8 fw_patch:u8 max_payload:u8` |
 //! | 0x83 | `Faults` | `bits:u32` ([`FaultSet`], bit n = fault code n), `first:u8` (first fault code, 0 none) |
 //! | 0x84 | `Param` | `id:u8 value:f32` |
-//! | 0x85 | `Telemetry` | `period:u32 i_d_a i_q_a v_d_v v_q_v velocity_rad_s position_rad (f32) mode:u8 fault:u8 max_loop_cycles:u32 v_bus_v:f32` (reply to `ReadTelemetry`) |
+//! | 0x85 | `Telemetry` | `period:u32 i_d_a i_q_a v_d_v v_q_v velocity_rad_s position_rad (f32) mode:u8 fault:u8 max_loop_cycles:u32 v_bus_v:f32 power_limit:u8 limit_left_pct:u8 flags:u8 winding_dC:i16 stage_dC:i16` (reply to `ReadTelemetry`; `power_limit` an [`ActiveLimit`] code, `flags` bit 0 brake on, temperatures in 0.1 deg C with -32768 for none) |
 //! | 0x86 | `Stream` | as `Telemetry`; unsolicited, after `StartTelemetry`, `seq` = wrapping stream counter |
 //! | 0x87 | `ConfigChunk` | a chunk, as in `WriteConfig` (see [`crate::config`]) |
 //!
@@ -51,6 +51,7 @@ pub use crate::config::{Chunk, ConfigSource, StoreOp};
 pub use crate::wire::DecodeError;
 use crate::wire::{Reader, Writer};
 use foc_core::angle::ElectricalAngle;
+use foc_core::control::power::ActiveLimit;
 use foc_core::control::stage::TimeoutReaction;
 use foc_core::control::{Command, Fault, FaultSet, Feedback, Limits, Mode};
 
@@ -360,8 +361,9 @@ impl FaultReport {
     }
 }
 
-/// One telemetry sample.
-#[derive(Clone, Copy, Debug, PartialEq)]
+/// One telemetry sample. Equality compares the temperatures as they
+/// travel (0.1 deg C, "none" equal to "none"), every other field exactly.
+#[derive(Clone, Copy, Debug)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Telemetry {
     /// Current-loop period counter (wraps).
@@ -386,6 +388,41 @@ pub struct Telemetry {
     pub max_loop_cycles: u32,
     /// Bus voltage [V].
     pub v_bus_v: f32,
+    /// The power limit that cut the q-current window the most (design
+    /// §18; `None` while nothing is cut).
+    pub power_limit: ActiveLimit,
+    /// Share of the current limit left at that end [%] (100: nothing
+    /// cut; rounded down, so 99 means a cut of at most 1 %).
+    pub limit_left_pct: u8,
+    /// The brake chopper conducts.
+    pub brake_on: bool,
+    /// Estimated winding temperature [deg C] (NaN: no power limits; 0.1
+    /// deg C on the wire).
+    pub winding_c: f32,
+    /// Measured power-stage temperature [deg C] (NaN: no sensor or no
+    /// reading; 0.1 deg C on the wire).
+    pub stage_c: f32,
+}
+
+impl PartialEq for Telemetry {
+    fn eq(&self, o: &Self) -> bool {
+        self.period == o.period
+            && self.i_d_a == o.i_d_a
+            && self.i_q_a == o.i_q_a
+            && self.v_d_v == o.v_d_v
+            && self.v_q_v == o.v_q_v
+            && self.velocity_rad_s == o.velocity_rad_s
+            && self.position_rad == o.position_rad
+            && self.mode == o.mode
+            && self.fault_code == o.fault_code
+            && self.max_loop_cycles == o.max_loop_cycles
+            && self.v_bus_v == o.v_bus_v
+            && self.power_limit == o.power_limit
+            && self.limit_left_pct == o.limit_left_pct
+            && self.brake_on == o.brake_on
+            && temperature_to_wire(self.winding_c) == temperature_to_wire(o.winding_c)
+            && temperature_to_wire(self.stage_c) == temperature_to_wire(o.stage_c)
+    }
 }
 
 impl Telemetry {
@@ -402,6 +439,11 @@ impl Telemetry {
         fault_code: 0,
         max_loop_cycles: 0,
         v_bus_v: 0.0,
+        power_limit: ActiveLimit::None,
+        limit_left_pct: 100,
+        brake_on: false,
+        winding_c: f32::NAN,
+        stage_c: f32::NAN,
     };
 
     /// The sample of a current-stage [`Feedback`].
@@ -418,8 +460,69 @@ impl Telemetry {
             fault_code: fb.first_fault.map_or(0, Fault::code),
             max_loop_cycles,
             v_bus_v: fb.v_bus_v,
+            power_limit: fb.power.active,
+            limit_left_pct: percent(fb.power.factor),
+            brake_on: fb.power.brake_on,
+            winding_c: fb.power.winding_c,
+            stage_c: fb.power.stage_c,
         }
     }
+}
+
+/// `f` in `[0, 1]` as a whole percentage, rounded down (NaN: 0).
+fn percent(f: f32) -> u8 {
+    let p = f * 100.0;
+    if p >= 100.0 {
+        100
+    } else if p >= 0.0 {
+        p as u8
+    } else {
+        0
+    }
+}
+
+/// Wire code of "no temperature" ([`Telemetry::winding_c`], `stage_c`).
+pub const NO_TEMPERATURE: i16 = i16::MIN;
+
+/// A temperature [deg C] in 0.1 deg C (saturated; NaN: [`NO_TEMPERATURE`]).
+pub fn temperature_to_wire(t_c: f32) -> i16 {
+    let d = t_c * 10.0;
+    if d.is_nan() {
+        NO_TEMPERATURE
+    } else if d >= 32767.0 {
+        i16::MAX
+    } else if d <= -32767.0 {
+        -i16::MAX
+    } else {
+        // Round half away from zero without `round` (no_std).
+        (if d >= 0.0 { d + 0.5 } else { d - 0.5 }) as i16
+    }
+}
+
+/// A wire temperature back in deg C ([`NO_TEMPERATURE`]: NaN).
+pub fn temperature_from_wire(w: i16) -> f32 {
+    if w == NO_TEMPERATURE {
+        f32::NAN
+    } else {
+        f32::from(w) / 10.0
+    }
+}
+
+/// [`ActiveLimit`] from its wire code (its `u8` value).
+pub const fn active_limit_from_code(c: u8) -> Option<ActiveLimit> {
+    Some(match c {
+        0 => ActiveLimit::None,
+        1 => ActiveLimit::Regen,
+        2 => ActiveLimit::BusCurrentMotoring,
+        3 => ActiveLimit::BusCurrentRegen,
+        4 => ActiveLimit::PowerMotoring,
+        5 => ActiveLimit::PowerRegen,
+        6 => ActiveLimit::WindingTemperature,
+        7 => ActiveLimit::StageTemperature,
+        8 => ActiveLimit::MissingSensor,
+        9 => ActiveLimit::InvalidModel,
+        _ => return None,
+    })
 }
 
 /// Mode from its wire code ([`Mode`] as `u8`).
@@ -535,6 +638,18 @@ fn get_telemetry(r: &mut Reader<'_>) -> Result<Telemetry, DecodeError> {
         fault_code: r.u8()?,
         max_loop_cycles: r.u32()?,
         v_bus_v: r.f32()?,
+        power_limit: active_limit_from_code(r.u8()?).ok_or(DecodeError::BadField(11))?,
+        limit_left_pct: match r.u8()? {
+            p @ 0..=100 => p,
+            _ => return Err(DecodeError::BadField(12)),
+        },
+        brake_on: match r.u8()? {
+            0 => false,
+            1 => true,
+            _ => return Err(DecodeError::BadField(13)),
+        },
+        winding_c: temperature_from_wire(r.u16()? as i16),
+        stage_c: temperature_from_wire(r.u16()? as i16),
     })
 }
 
@@ -849,6 +964,11 @@ impl Message for Response {
                 w.u8(t.fault_code);
                 w.u32(t.max_loop_cycles);
                 w.f32(t.v_bus_v);
+                w.u8(t.power_limit as u8);
+                w.u8(t.limit_left_pct.min(100));
+                w.u8(u8::from(t.brake_on));
+                w.u16(temperature_to_wire(t.winding_c) as u16);
+                w.u16(temperature_to_wire(t.stage_c) as u16);
             }
             Response::ConfigChunk(c) => put_chunk(w, c),
         }

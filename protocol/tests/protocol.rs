@@ -1,6 +1,7 @@
 //! Round trips, decoder robustness (property tests) and device-side validation.
 
 use foc_core::angle::ElectricalAngle;
+use foc_core::control::power::ActiveLimit;
 use foc_core::control::stage::TimeoutReaction;
 use foc_core::control::{Command, Fault, FaultSet, Limits, Mode};
 use foc_protocol::config::{Chunk, ConfigSource, StoreOp};
@@ -50,6 +51,11 @@ fn telemetry() -> Telemetry {
         fault_code: 9,
         max_loop_cycles: 1234,
         v_bus_v: 24.5,
+        power_limit: ActiveLimit::Regen,
+        limit_left_pct: 37,
+        brake_on: true,
+        winding_c: 81.3,
+        stage_c: -12.5,
     }
 }
 
@@ -305,8 +311,15 @@ fn tel() -> impl Strategy<Value = Telemetry> {
         any::<u8>(),
         any::<u32>(),
         finite(),
+        (
+            0u8..10,
+            0u8..=100,
+            any::<bool>(),
+            -32767i16..=32767,
+            -32767i16..=32767,
+        ),
     )
-        .prop_map(|(p, v, m, f, c, b)| Telemetry {
+        .prop_map(|(p, v, m, f, c, b, (l, pct, brake, tw, ts))| Telemetry {
             period: p,
             i_d_a: v[0],
             i_q_a: v[1],
@@ -318,6 +331,11 @@ fn tel() -> impl Strategy<Value = Telemetry> {
             fault_code: f,
             max_loop_cycles: c,
             v_bus_v: b,
+            power_limit: active_limit_from_code(l).unwrap(),
+            limit_left_pct: pct,
+            brake_on: brake,
+            winding_c: f32::from(tw) / 10.0,
+            stage_c: f32::from(ts) / 10.0,
         })
 }
 
@@ -1166,4 +1184,48 @@ mod config_transfer {
         );
         assert_eq!(dev.link_setting(), AUTO);
     }
+}
+
+#[test]
+fn telemetry_power_fields_on_the_wire() {
+    // NaN temperatures travel as "none" and come back NaN; out-of-range
+    // ones saturate; the percentage is rounded down and capped.
+    let mut t = telemetry();
+    t.winding_c = f32::NAN;
+    t.stage_c = 1e6;
+    let bytes = wire(7, &Response::Telemetry(t));
+    let back = decode_stream::<Response>(&bytes);
+    let Some(Ok(Packet {
+        msg: Response::Telemetry(b),
+        ..
+    })) = back.first()
+    else {
+        panic!("{back:?}")
+    };
+    assert!(b.winding_c.is_nan());
+    assert_eq!(b.stage_c, 3276.7);
+    assert_eq!(
+        (b.power_limit, b.limit_left_pct, b.brake_on),
+        (ActiveLimit::Regen, 37, true)
+    );
+    assert_eq!(temperature_to_wire(-0.04), 0);
+    assert_eq!(temperature_to_wire(-0.06), -1);
+    assert_eq!(temperature_to_wire(f32::NEG_INFINITY), -i16::MAX);
+    assert_eq!(
+        temperature_from_wire(NO_TEMPERATURE).to_bits(),
+        f32::NAN.to_bits()
+    );
+    // From the feedback: the power report's fields.
+    let mut fb = foc_core::control::Feedback::INIT;
+    fb.power.active = ActiveLimit::BusCurrentRegen;
+    fb.power.factor = 0.4567;
+    fb.power.brake_on = true;
+    fb.power.winding_c = 55.0;
+    let t = Telemetry::from_feedback(&fb, 0);
+    assert_eq!(
+        (t.power_limit, t.limit_left_pct, t.brake_on, t.winding_c),
+        (ActiveLimit::BusCurrentRegen, 45, true, 55.0)
+    );
+    fb.power.factor = f32::NAN;
+    assert_eq!(Telemetry::from_feedback(&fb, 0).limit_left_pct, 0);
 }

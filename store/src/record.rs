@@ -31,6 +31,7 @@ use core::fmt;
 use foc_core::angle::ElectricalAngle;
 use foc_core::control::current::CurrentLoopConfig;
 use foc_core::control::permit::Calibrated;
+use foc_core::control::power::PowerLimitsConfig;
 use foc_core::control::stage::AngleCalibration;
 use foc_core::control::{Limits, LimitsError, MotorParams};
 use foc_core::pi::AntiWindup;
@@ -40,7 +41,7 @@ use serde::{Deserialize, Serialize};
 /// Version of the schema written by this build ([`DriveRecord`]'s postcard
 /// layout). Bump it on any change of the layout and add a migration step in
 /// `migrate` for the old version.
-pub const SCHEMA_VERSION: u16 = 1;
+pub const SCHEMA_VERSION: u16 = 2;
 
 /// Largest envelope (header, payload and CRC) in bytes.
 pub const MAX_RECORD_BYTES: usize = 256;
@@ -172,6 +173,44 @@ pub struct WatchdogRecord {
     pub reaction: WatchdogReaction,
 }
 
+/// Power limits (design §18; foc-core's `PowerLimitsConfig` without the
+/// motor model, which is the record's [`MotorRecord`]). `inf` switches a
+/// limit or threshold off; NaN is refused.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PowerRecord {
+    /// Bus voltage where regenerative current starts to be reduced [V].
+    pub regen_start_v: f32,
+    /// Bus voltage with no regenerative current left [V] (>= start).
+    pub regen_end_v: f32,
+    /// Largest current drawn from the supply [A] (>= 0).
+    pub bus_current_motoring_max_a: f32,
+    /// Largest current returned to the supply [A] (>= 0).
+    pub bus_current_regen_max_a: f32,
+    /// Largest power drawn from the supply [W] (>= 0).
+    pub power_motoring_max_w: f32,
+    /// Largest power returned to the supply [W] (>= 0).
+    pub power_regen_max_w: f32,
+    /// Winding-to-ambient thermal resistance [K/W] (> 0, finite).
+    pub thermal_resistance_k_per_w: f32,
+    /// Winding thermal time constant [s] (>= 0, finite).
+    pub thermal_time_constant_s: f32,
+    /// Ambient temperature of the winding model [deg C] (finite).
+    pub ambient_c: f32,
+    /// Modelled winding temperature where derating starts [deg C].
+    pub winding_derate_start_c: f32,
+    /// Modelled winding temperature with no current left [deg C].
+    pub winding_derate_end_c: f32,
+    /// Measured stage temperature where derating starts [deg C].
+    pub stage_derate_start_c: f32,
+    /// Measured stage temperature with no current left [deg C].
+    pub stage_derate_end_c: f32,
+    /// Bus voltage where the brake chopper switches on [V].
+    pub brake_on_v: f32,
+    /// Bus voltage where it switches off again [V] (<= on).
+    pub brake_off_v: f32,
+}
+
 /// Everything the drive keeps across power-off: configuration and the
 /// identified calibration (the on-flash schema, version [`SCHEMA_VERSION`]).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -197,6 +236,9 @@ pub struct DriveRecord {
     pub dividers: DividersRecord,
     /// Command watchdog.
     pub watchdog: WatchdogRecord,
+    /// Power limits; `None`: the build's defaults for the board (what a
+    /// version-1 record, from before the power limits, becomes).
+    pub power: Option<PowerRecord>,
 }
 
 /// Why bytes are not a record (see [`DriveRecord::decode`]).
@@ -276,19 +318,74 @@ fn non_negative(x: f32) -> bool {
 
 /// Upgrade the payload of an older schema version to a record of this one.
 ///
-/// Today no older version exists (version 1 is the first), so every call
-/// refuses with [`RecordError::UnsupportedVersion`]. When the schema changes
-/// to version 2, keep the version-1 structs in a `v1` module and add here
-/// `1 => v1::decode(payload).map(v1_to_v2)`: each step converts one version
-/// to the next, so a v3 build chains `1 -> 2 -> 3`. A migrated record is
-/// validated by the caller like any other.
+/// Version 1 (before the power limits) is read with its own struct
+/// ([`v1::DriveRecordV1`]) and gets `power: None` (the build's defaults).
+/// Each step converts one version to the next, so a later build chains
+/// `1 -> 2 -> 3`. A migrated record is validated by the caller like any
+/// other; version 0 and unknown versions are refused.
 fn migrate(found: u16, payload: &[u8]) -> Result<DriveRecord, RecordError> {
-    // No older version is known: nothing to read `payload` as.
-    let _ = payload;
-    Err(RecordError::UnsupportedVersion {
-        found,
-        supported: SCHEMA_VERSION,
-    })
+    match found {
+        1 => match postcard::take_from_bytes::<v1::DriveRecordV1>(payload) {
+            Ok((r, [])) => Ok(r.into_v2()),
+            _ => Err(RecordError::Malformed),
+        },
+        _ => Err(RecordError::UnsupportedVersion {
+            found,
+            supported: SCHEMA_VERSION,
+        }),
+    }
+}
+
+/// Schema version 1: [`DriveRecord`] without `power`.
+pub mod v1 {
+    use super::*;
+
+    /// The version-1 layout (field for field [`DriveRecord`] up to
+    /// `watchdog`).
+    #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    pub struct DriveRecordV1 {
+        /// See [`DriveRecord::label`].
+        pub label: Label,
+        /// See [`DriveRecord::pwm_frequency_hz`].
+        pub pwm_frequency_hz: u32,
+        /// See [`DriveRecord::motor`].
+        pub motor: MotorRecord,
+        /// See [`DriveRecord::current_gains`].
+        pub current_gains: CurrentGainsRecord,
+        /// See [`DriveRecord::calibration`].
+        pub calibration: Option<AngleRecord>,
+        /// See [`DriveRecord::limits`].
+        pub limits: LimitsRecord,
+        /// See [`DriveRecord::speed`].
+        pub speed: SpeedRecord,
+        /// See [`DriveRecord::position`].
+        pub position: PositionRecord,
+        /// See [`DriveRecord::dividers`].
+        pub dividers: DividersRecord,
+        /// See [`DriveRecord::watchdog`].
+        pub watchdog: WatchdogRecord,
+    }
+
+    impl DriveRecordV1 {
+        /// Version 2: the same values, the power limits at the build's
+        /// defaults.
+        pub fn into_v2(self) -> DriveRecord {
+            DriveRecord {
+                label: self.label,
+                pwm_frequency_hz: self.pwm_frequency_hz,
+                motor: self.motor,
+                current_gains: self.current_gains,
+                calibration: self.calibration,
+                limits: self.limits,
+                speed: self.speed,
+                position: self.position,
+                dividers: self.dividers,
+                watchdog: self.watchdog,
+                power: None,
+            }
+        }
+    }
 }
 
 fn le_u16(bytes: &[u8], at: usize) -> Option<u16> {
@@ -421,6 +518,9 @@ impl DriveRecord {
 
         check(self.dividers.speed >= 1, "dividers.speed")?;
         check(self.dividers.position >= 1, "dividers.position")?;
+        if let Some(p) = &self.power {
+            p.validate()?;
+        }
 
         if let Some(c) = &self.calibration {
             check(c.pole_pairs == m.pole_pairs, "calibration.pole_pairs")?;
@@ -444,6 +544,104 @@ impl DriveRecord {
                 .map_err(|_| invalid("calibration"))?;
         }
         Ok(())
+    }
+}
+
+/// `>= 0`, `inf` allowed (off).
+fn limit(x: f32) -> bool {
+    x >= 0.0
+}
+
+/// A `(start, end)` window: no NaN, `start <= end` (`end = inf`: off).
+fn window(start: f32, end: f32) -> bool {
+    !start.is_nan() && !end.is_nan() && start <= end
+}
+
+impl PowerRecord {
+    /// Check every value (see the field docs).
+    pub fn validate(&self) -> Result<(), Invalid> {
+        check(
+            window(self.regen_start_v, self.regen_end_v) && self.regen_start_v > 0.0,
+            "power.regen_start_v",
+        )?;
+        check(
+            limit(self.bus_current_motoring_max_a),
+            "power.bus_current_motoring_max_a",
+        )?;
+        check(
+            limit(self.bus_current_regen_max_a),
+            "power.bus_current_regen_max_a",
+        )?;
+        check(
+            limit(self.power_motoring_max_w),
+            "power.power_motoring_max_w",
+        )?;
+        check(limit(self.power_regen_max_w), "power.power_regen_max_w")?;
+        check(
+            positive(self.thermal_resistance_k_per_w),
+            "power.thermal_resistance_k_per_w",
+        )?;
+        check(
+            non_negative(self.thermal_time_constant_s),
+            "power.thermal_time_constant_s",
+        )?;
+        check(self.ambient_c.is_finite(), "power.ambient_c")?;
+        check(
+            window(self.winding_derate_start_c, self.winding_derate_end_c),
+            "power.winding_derate_start_c",
+        )?;
+        check(
+            window(self.stage_derate_start_c, self.stage_derate_end_c),
+            "power.stage_derate_start_c",
+        )?;
+        check(
+            window(self.brake_off_v, self.brake_on_v) && self.brake_off_v > 0.0,
+            "power.brake_off_v",
+        )?;
+        Ok(())
+    }
+
+    /// From foc-core's configuration (its motor model is not stored).
+    pub fn from_config(c: &PowerLimitsConfig) -> Self {
+        Self {
+            regen_start_v: c.regen_start_v,
+            regen_end_v: c.regen_end_v,
+            bus_current_motoring_max_a: c.bus_current_motoring_max_a,
+            bus_current_regen_max_a: c.bus_current_regen_max_a,
+            power_motoring_max_w: c.power_motoring_max_w,
+            power_regen_max_w: c.power_regen_max_w,
+            thermal_resistance_k_per_w: c.thermal_resistance_k_per_w,
+            thermal_time_constant_s: c.thermal_time_constant_s,
+            ambient_c: c.ambient_c,
+            winding_derate_start_c: c.winding_derate_start_c,
+            winding_derate_end_c: c.winding_derate_end_c,
+            stage_derate_start_c: c.stage_derate_start_c,
+            stage_derate_end_c: c.stage_derate_end_c,
+            brake_on_v: c.brake_on_v,
+            brake_off_v: c.brake_off_v,
+        }
+    }
+
+    /// foc-core's configuration for `motor`.
+    pub fn to_config(&self, motor: MotorParams) -> PowerLimitsConfig {
+        PowerLimitsConfig {
+            motor,
+            regen_start_v: self.regen_start_v,
+            regen_end_v: self.regen_end_v,
+            bus_current_motoring_max_a: self.bus_current_motoring_max_a,
+            bus_current_regen_max_a: self.bus_current_regen_max_a,
+            power_motoring_max_w: self.power_motoring_max_w,
+            power_regen_max_w: self.power_regen_max_w,
+            thermal_resistance_k_per_w: self.thermal_resistance_k_per_w,
+            thermal_time_constant_s: self.thermal_time_constant_s,
+            ambient_c: self.ambient_c,
+            winding_derate_start_c: self.winding_derate_start_c,
+            winding_derate_end_c: self.winding_derate_end_c,
+            stage_derate_start_c: self.stage_derate_start_c,
+            stage_derate_end_c: self.stage_derate_end_c,
+            brake_on_v: self.brake_on_v,
+            brake_off_v: self.brake_off_v,
+        }
     }
 }
 
@@ -632,5 +830,22 @@ pub fn example() -> DriveRecord {
             timeout_periods: 2000,
             reaction: WatchdogReaction::Stop,
         },
+        power: Some(PowerRecord {
+            regen_start_v: 25.5,
+            regen_end_v: 28.5,
+            bus_current_motoring_max_a: 10.0,
+            bus_current_regen_max_a: 2.0,
+            power_motoring_max_w: f32::INFINITY,
+            power_regen_max_w: f32::INFINITY,
+            thermal_resistance_k_per_w: 2.0,
+            thermal_time_constant_s: 60.0,
+            ambient_c: 40.0,
+            winding_derate_start_c: 100.0,
+            winding_derate_end_c: 120.0,
+            stage_derate_start_c: 65.0,
+            stage_derate_end_c: 85.0,
+            brake_on_v: f32::INFINITY,
+            brake_off_v: f32::INFINITY,
+        }),
     }
 }

@@ -22,13 +22,14 @@ use foc_core::control::cascade::CascadeConfig;
 use foc_core::control::current::CurrentLoopConfig;
 use foc_core::control::permit::Calibrated;
 use foc_core::control::position::PositionLoopConfig;
+use foc_core::control::power::PowerLimitsConfig;
 use foc_core::control::speed::SpeedLoopConfig;
 use foc_core::control::stage::{AngleCalibration, TimeoutReaction};
 use foc_core::control::Limits;
 
 use crate::record::{
     AngleRecord, CurrentGainsRecord, DividersRecord, DriveRecord, Invalid, Label, LimitsRecord,
-    MotorRecord, PositionRecord, SpeedRecord, WatchdogReaction, WatchdogRecord,
+    MotorRecord, PositionRecord, PowerRecord, SpeedRecord, WatchdogReaction, WatchdogRecord,
 };
 
 /// The configuration in force on the drive.
@@ -51,6 +52,9 @@ pub struct Settings {
     pub dividers: (u16, u16),
     /// Command watchdog.
     pub watchdog: WatchdogRecord,
+    /// Power limits (design §18); `None`: off. Their motor model is
+    /// `current.motor`'s.
+    pub power: Option<PowerLimitsConfig>,
 }
 
 impl Settings {
@@ -68,6 +72,7 @@ impl Settings {
                 timeout_periods: c.current.command_timeout_periods,
                 reaction: reaction_record(c.current.timeout_reaction),
             },
+            power: c.current.power,
         }
     }
 
@@ -79,6 +84,10 @@ impl Settings {
         c.current.limits = self.limits;
         c.current.current = self.current;
         c.current.angle = self.angle;
+        c.current.power = self.power.map(|p| PowerLimitsConfig {
+            motor: self.current.motor,
+            ..p
+        });
         c.speed = self.speed;
         c.position = self.position;
         c.rates.speed_divider = self.dividers.0;
@@ -145,6 +154,7 @@ impl DriveRecord {
                 position: s.dividers.1,
             },
             watchdog: s.watchdog,
+            power: s.power.as_ref().map(PowerRecord::from_config),
         }
     }
 
@@ -190,6 +200,13 @@ impl DriveRecord {
         s.position.max_acceleration_rad_s2 = self.position.max_acceleration_rad_s2;
         s.dividers = (self.dividers.speed, self.dividers.position);
         s.watchdog = self.watchdog;
+        if let Some(p) = &self.power {
+            s.power = Some(p.to_config(s.current.motor));
+        }
+        s.power = s.power.map(|p| PowerLimitsConfig {
+            motor: s.current.motor,
+            ..p
+        });
         Ok(s)
     }
 }

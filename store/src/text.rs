@@ -7,7 +7,7 @@
 //! use foc_store::text::{from_toml, to_toml};
 //! # let r = foc_store::record::example();
 //! let text = to_toml(&r);
-//! assert!(text.contains("schema_version = 1"));
+//! assert!(text.contains("schema_version = 2"));
 //! assert!(text.contains("[motor]"));
 //! assert_eq!(from_toml(&text), Ok(r));
 //! let bad = text.replace("r_ohm = 0.2", "r_ohm = -0.2");
@@ -21,7 +21,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::record::{
     AngleRecord, CurrentGainsRecord, DividersRecord, DriveRecord, Label, LimitsRecord, MotorRecord,
-    PositionRecord, SpeedRecord, WatchdogRecord, SCHEMA_VERSION,
+    PositionRecord, PowerRecord, SpeedRecord, WatchdogRecord, SCHEMA_VERSION,
 };
 
 /// The file layout: the record's fields with the schema version first.
@@ -40,6 +40,8 @@ struct TomlFile {
     position: PositionRecord,
     dividers: DividersRecord,
     watchdog: WatchdogRecord,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    power: Option<PowerRecord>,
 }
 
 /// The record as a TOML document (no `[calibration]` table when there is
@@ -57,6 +59,7 @@ pub fn to_toml(r: &DriveRecord) -> String {
         position: r.position,
         dividers: r.dividers,
         watchdog: r.watchdog,
+        power: r.power,
     };
     match toml::to_string(&file) {
         Ok(s) => s,
@@ -72,10 +75,11 @@ pub fn from_toml(s: &str) -> Result<DriveRecord, String> {
     let table: toml::Table = toml::from_str(s).map_err(|e| e.to_string())?;
     match table.get("schema_version") {
         None => return Err("missing top-level key `schema_version`".to_string()),
-        Some(toml::Value::Integer(v)) if *v == i64::from(SCHEMA_VERSION) => {}
+        // Version 1 is version 2 without the `[power]` table.
+        Some(toml::Value::Integer(v)) if (1..=i64::from(SCHEMA_VERSION)).contains(v) => {}
         Some(v) => {
             return Err(format!(
-                "`schema_version` is {v}; this build reads schema version {SCHEMA_VERSION} only"
+                "`schema_version` is {v}; this build reads schema versions 1 to {SCHEMA_VERSION}"
             ))
         }
     }
@@ -91,6 +95,7 @@ pub fn from_toml(s: &str) -> Result<DriveRecord, String> {
         position: f.position,
         dividers: f.dividers,
         watchdog: f.watchdog,
+        power: f.power,
     };
     r.validate().map_err(|e| e.to_string())?;
     Ok(r)

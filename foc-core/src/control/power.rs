@@ -1084,10 +1084,7 @@ impl PowerStage {
             active: w.active,
             factor: w.factor,
             winding_c: self.thermal.temperature_c(),
-            stage_c: match stage_temperature_c {
-                Some(t) => t,
-                None => f32::NAN,
-            },
+            stage_c: stage_temperature_c.unwrap_or(f32::NAN),
             brake_on,
         }
     }

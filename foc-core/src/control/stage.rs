@@ -245,7 +245,7 @@ impl CurrentStage {
             },
             config,
             state: CurrentStageState::new(config.angle.interpolation_half_count()),
-power: config.power.map(PowerStage::new),
+            power: config.power.map(PowerStage::new),
             power_report: PowerReport::unlimited(config.limits.max_current_a),
         }
     }

@@ -171,7 +171,6 @@ where
     B: BusVoltage,
     K: BrakeOutput,
 {
-
     /// One PWM period: read the sensors, decide, install offsets, release
     /// the PWM's hardware fault latch after an explicit clear (not while
     /// the power stage still reports a fault), drive the bridge (duties

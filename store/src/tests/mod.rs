@@ -11,7 +11,7 @@ mod store_tests;
 
 use crate::record::{
     example, AngleRecord, CurrentGainsRecord, DividersRecord, DriveRecord, Label, LimitsRecord,
-    MotorRecord, PositionRecord, SpeedRecord, WatchdogReaction, WatchdogRecord,
+    MotorRecord, PositionRecord, PowerRecord, SpeedRecord, WatchdogReaction, WatchdogRecord,
 };
 
 /// Record A of the tests.
@@ -39,6 +39,7 @@ pub(crate) fn record_b() -> DriveRecord {
     r.position.kp_per_s = 12.0;
     r.dividers.speed = 8;
     r.watchdog.reaction = WatchdogReaction::Hold;
+    r.power = None;
     r
 }
 
@@ -92,5 +93,22 @@ pub(crate) fn largest_record() -> DriveRecord {
             timeout_periods: u32::MAX,
             reaction: WatchdogReaction::Hold,
         },
+        power: Some(PowerRecord {
+            regen_start_v: f32::MAX,
+            regen_end_v: f32::MAX,
+            bus_current_motoring_max_a: f32::MAX,
+            bus_current_regen_max_a: f32::MAX,
+            power_motoring_max_w: f32::MAX,
+            power_regen_max_w: f32::MAX,
+            thermal_resistance_k_per_w: f32::MAX,
+            thermal_time_constant_s: f32::MAX,
+            ambient_c: f32::MAX,
+            winding_derate_start_c: f32::MAX,
+            winding_derate_end_c: f32::MAX,
+            stage_derate_start_c: f32::MAX,
+            stage_derate_end_c: f32::MAX,
+            brake_on_v: f32::MAX,
+            brake_off_v: f32::MAX,
+        }),
     }
 }

@@ -4,7 +4,7 @@
 use crate::fake::FakeFlash;
 use crate::record::{
     AngleRecord, CurrentGainsRecord, DividersRecord, DriveRecord, Label, LimitsRecord, MotorRecord,
-    PositionRecord, SpeedRecord, WatchdogReaction, WatchdogRecord, MAX_RECORD_BYTES,
+    PositionRecord, PowerRecord, SpeedRecord, WatchdogReaction, WatchdogRecord, MAX_RECORD_BYTES,
 };
 use crate::settings::Settings;
 use crate::store::Store;
@@ -19,6 +19,39 @@ fn pos() -> impl Strategy<Value = f32> {
 
 fn non_neg() -> impl Strategy<Value = f32> {
     prop_oneof![Just(0.0f32), pos()]
+}
+
+/// A limit: `>= 0` or `inf` (off).
+fn limit() -> impl Strategy<Value = f32> {
+    prop_oneof![non_neg(), Just(f32::INFINITY)]
+}
+
+/// An ordered window `(start, end)`; `end` may be `inf` (off).
+fn window(lo: f32, hi: f32) -> impl Strategy<Value = (f32, f32)> {
+    (lo..hi, prop_oneof![0.0f32..(hi - lo), Just(f32::INFINITY)])
+        .prop_map(|(start, width)| (start, start + width))
+}
+
+prop_compose! {
+    fn power()(
+        regen in window(1.0, 100.0),
+        limits in (limit(), limit(), limit(), limit()),
+        thermal in (pos(), non_neg(), -40.0f32..60.0),
+        winding in window(-40.0, 300.0),
+        stage in window(-40.0, 300.0),
+        brake in window(1.0, 100.0),
+    ) -> PowerRecord {
+        PowerRecord {
+            regen_start_v: regen.0, regen_end_v: regen.1,
+            bus_current_motoring_max_a: limits.0, bus_current_regen_max_a: limits.1,
+            power_motoring_max_w: limits.2, power_regen_max_w: limits.3,
+            thermal_resistance_k_per_w: thermal.0, thermal_time_constant_s: thermal.1,
+            ambient_c: thermal.2,
+            winding_derate_start_c: winding.0, winding_derate_end_c: winding.1,
+            stage_derate_start_c: stage.0, stage_derate_end_c: stage.1,
+            brake_off_v: brake.0, brake_on_v: brake.1,
+        }
+    }
 }
 
 fn label() -> impl Strategy<Value = Label> {
@@ -46,6 +79,7 @@ prop_compose! {
         position in (pos(), 0.0f32..=1.0, pos()),
         dividers in (1u16.., 1u16..),
         watchdog in (any::<u32>(), reaction()),
+        power in proptest::option::of(power()),
     ) -> DriveRecord {
         DriveRecord {
             label,
@@ -71,6 +105,7 @@ prop_compose! {
             },
             dividers: DividersRecord { speed: dividers.0, position: dividers.1 },
             watchdog: WatchdogRecord { timeout_periods: watchdog.0, reaction: watchdog.1 },
+            power,
         }
     }
 }

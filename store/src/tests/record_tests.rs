@@ -83,6 +83,7 @@ fn versions_other_than_ours_are_refused() {
         Ok(record_a())
     );
     for v in [0, SCHEMA_VERSION + 1, u16::MAX] {
+        assert_ne!(v, 1, "version 1 migrates");
         assert_eq!(
             DriveRecord::decode(&envelope(v, payload)),
             Err(RecordError::UnsupportedVersion {
@@ -249,4 +250,103 @@ fn electrical_angle_round_trip_is_exact_to_f32_precision() {
     );
     assert_eq!(e_rad_to_angle(f32::NAN), ElectricalAngle::ZERO);
     assert_eq!(angle_to_e_rad(ElectricalAngle::from_bits(u32::MAX)), 0.0);
+}
+
+#[test]
+fn a_version_1_record_migrates_with_the_build_default_power_limits() {
+    let v2 = record_a();
+    let v1 = crate::record::v1::DriveRecordV1 {
+        label: v2.label.clone(),
+        pwm_frequency_hz: v2.pwm_frequency_hz,
+        motor: v2.motor,
+        current_gains: v2.current_gains,
+        calibration: v2.calibration,
+        limits: v2.limits,
+        speed: v2.speed,
+        position: v2.position,
+        dividers: v2.dividers,
+        watchdog: v2.watchdog,
+    };
+    let mut buf = [0u8; MAX_RECORD_BYTES];
+    let payload = postcard::to_slice(&v1, &mut buf).unwrap();
+    let migrated = DriveRecord::decode(&envelope(1, payload)).unwrap();
+    assert_eq!(migrated.power, None);
+    assert_eq!(
+        DriveRecord {
+            power: v2.power,
+            ..migrated.clone()
+        },
+        v2
+    );
+    assert_eq!(migrated.validate(), Ok(()));
+    // A version-2 payload under version 1 is not a version-1 record.
+    let p2 = &encoded(&v2)[4..];
+    let p2 = &p2[..p2.len() - 4];
+    assert_eq!(
+        DriveRecord::decode(&envelope(1, p2)),
+        Err(RecordError::Malformed)
+    );
+}
+
+#[test]
+fn power_limits_are_checked_field_by_field() {
+    let ok = record_a();
+    assert_eq!(ok.validate(), Ok(()));
+    type Spoil = fn(&mut crate::record::PowerRecord);
+    let cases: [(&str, Spoil); 8] = [
+        ("power.regen_start_v", |p| {
+            p.regen_start_v = p.regen_end_v + 1.0
+        }),
+        ("power.regen_start_v", |p| p.regen_end_v = f32::NAN),
+        ("power.bus_current_motoring_max_a", |p| {
+            p.bus_current_motoring_max_a = -1.0
+        }),
+        ("power.power_regen_max_w", |p| {
+            p.power_regen_max_w = f32::NAN
+        }),
+        ("power.thermal_resistance_k_per_w", |p| {
+            p.thermal_resistance_k_per_w = 0.0
+        }),
+        ("power.ambient_c", |p| p.ambient_c = f32::INFINITY),
+        ("power.winding_derate_start_c", |p| {
+            p.winding_derate_start_c = 130.0
+        }),
+        ("power.brake_off_v", |p| p.brake_off_v = 30.0),
+    ];
+    for (field, f) in cases {
+        let mut r = ok.clone();
+        let mut p = r.power.unwrap();
+        // brake thresholds finite for the last case
+        p.brake_on_v = 27.0;
+        p.brake_off_v = 26.0;
+        r.power = Some(p);
+        assert_eq!(r.validate(), Ok(()), "{field}: base");
+        f(r.power.as_mut().unwrap());
+        assert_eq!(r.validate(), Err(Invalid { field }), "{field}");
+    }
+}
+
+#[test]
+fn power_limits_round_trip_through_settings_with_the_records_motor() {
+    use crate::Settings;
+    use foc_core::control::cascade::CascadeConfig;
+    let r = record_a();
+    let base = Settings::from_cascade(&CascadeConfig::for_motor(
+        r.motor.to_params(),
+        20_000.0,
+        5.0,
+    ));
+    assert_eq!(base.power, None);
+    let s = r.apply(&base, 20_000).unwrap();
+    let p = s.power.expect("the record's limits");
+    assert_eq!(p.motor, r.motor.to_params());
+    assert_eq!(p.bus_current_regen_max_a, 2.0);
+    assert_eq!(
+        DriveRecord::from_settings(&r.label, 20_000, &s).power,
+        r.power
+    );
+    // None in the record keeps the build's (here: none).
+    let mut n = r.clone();
+    n.power = None;
+    assert_eq!(n.apply(&base, 20_000).unwrap().power, None);
 }

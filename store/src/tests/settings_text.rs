@@ -78,7 +78,7 @@ fn toml_is_readable_and_checked() {
     let text = to_toml(&r);
     std::eprintln!("{text}");
     for key in [
-        "schema_version = 1",
+        "schema_version = 2",
         "label = \"bench motor\"",
         "[motor]",
         "r_ohm = ",
@@ -91,6 +91,8 @@ fn toml_is_readable_and_checked() {
         "[dividers]",
         "[watchdog]",
         "reaction = \"Stop\"",
+        "[power]",
+        "power_regen_max_w = inf",
     ] {
         assert!(text.contains(key), "{key} missing in\n{text}");
     }
@@ -101,10 +103,36 @@ fn toml_is_readable_and_checked() {
     let t = to_toml(&u);
     assert!(!t.contains("[calibration]"));
     assert_eq!(from_toml(&t), Ok(u));
+    // No power limits: no table, and back to None (the build's defaults).
+    let mut n = r.clone();
+    n.power = None;
+    let t = to_toml(&n);
+    assert!(!t.contains("[power]"));
+    assert_eq!(from_toml(&t), Ok(n.clone()));
+    // A version-1 file (before the power limits) reads as version 2
+    // without them.
+    assert_eq!(
+        from_toml(&t.replace("schema_version = 2", "schema_version = 1")),
+        Ok(n)
+    );
     // Another schema version.
-    let e = from_toml(&text.replace("schema_version = 1", "schema_version = 2")).unwrap_err();
-    assert!(e.contains("schema_version") && e.contains('2'), "{e}");
-    let e = from_toml(&text.replace("schema_version = 1\n", "")).unwrap_err();
+    for v in ["0", "3"] {
+        let e =
+            from_toml(&text.replace("schema_version = 2", &std::format!("schema_version = {v}")))
+                .unwrap_err();
+        assert!(e.contains("schema_version") && e.contains(v), "{e}");
+    }
+    // A NaN power limit names its field.
+    let e = from_toml(&text.replace(
+        "bus_current_regen_max_a = 2.0",
+        "bus_current_regen_max_a = nan",
+    ))
+    .unwrap_err();
+    assert_eq!(
+        e,
+        "record value `power.bus_current_regen_max_a` is out of range"
+    );
+    let e = from_toml(&text.replace("schema_version = 2\n", "")).unwrap_err();
     assert!(e.contains("schema_version"), "{e}");
     // A bad value names the field.
     let e = from_toml(&text.replace("max_current_a = 5.0", "max_current_a = -5.0")).unwrap_err();
@@ -114,7 +142,7 @@ fn toml_is_readable_and_checked() {
     assert!(e.contains("r_ohm"), "{e}");
     let e = from_toml(&text.replace("lq_h", "# lq_h")).unwrap_err();
     assert!(e.contains("lq_h"), "{e}");
-    assert_eq!(SCHEMA_VERSION, 1);
+    assert_eq!(SCHEMA_VERSION, 2);
 }
 
 #[test]
