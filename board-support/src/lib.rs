@@ -43,19 +43,26 @@
 //!   `MAX_MEASURABLE_CURRENT_A: f32` (current-sense range),
 //!   `BUS_VOLTAGE_MIN_V: f32`, `BUS_VOLTAGE_MAX_V: f32`, `HAS_BREAK_INPUT: bool`,
 //!   `SERIAL_IRQ: pac::Interrupt` (the command UART's interrupt, `USART2`
-//!   on every board), `SERIAL_BAUD: u32` (115200, 8N1);
-//! - type aliases `Pwm`, `Currents`, `Angle`, `Bus` implementing
+//!   on every board), `SERIAL_BAUD: u32` (115200, 8N1),
+//!   `BRAKE_OUTPUT: bool` (the board switches a brake resistor),
+//!   `STAGE_TEMPERATURE_SENSOR: bool` (the board measures its power-stage
+//!   temperature);
+//! - type aliases `Pwm`, `Currents`, `Angle`, `Bus`, `Brake` implementing
 //!   [`foc_core::hal::PwmDriver`], [`foc_core::hal::CurrentSense`],
-//!   [`foc_core::hal::AngleSensor`], [`foc_core::hal::BusVoltage`];
+//!   [`foc_core::hal::AngleSensor`], [`foc_core::hal::BusVoltage`] (with
+//!   `read_temperature_c` where the board has a sensor),
+//!   [`foc_core::hal::BrakeOutput`] ([`foc_core::hal::NoBrake`] where the
+//!   board has no brake output);
 //! - `pub struct Board { pub pwm: Pwm, pub currents: Currents, pub angle: Angle,
-//!   pub bus: Bus, pub led: Led, pub serial: CommandSerial }` and
+//!   pub bus: Bus, pub brake: Brake, pub led: Led, pub serial: CommandSerial }` and
 //!   `pub fn init(dp: pac::Peripherals) -> Board`: clocks, pins, timers, ADC,
 //!   the command UART (and the DRV8301 over SPI on the ODrive). On
-//!   return the bridge is **disabled** (safe state), the PWM counter runs
+//!   return the bridge is **disabled** (safe state), the brake output off,
+//!   the PWM counter runs
 //!   (so the ADC is triggered every period and `CURRENT_IRQ` becomes pending
 //!   once the NVIC line is unmasked, which is left to the RTIC app);
 //! - `pub fn emergency_disable()`: safe state from any context (steals the
-//!   peripherals; for panic / HardFault handlers);
+//!   peripherals; for panic / HardFault handlers), brake output included;
 //! - `pub fn break_isr_ack()`: clears the TIM1 break flag, outputs stay off;
 //! - `pub fn gate_driver_fault() -> bool`: the power stage's fault pin is
 //!   asserted (DRV8301 nFAULT on the ODrive, L6230 DIAG/EN on the IHM07M1).
@@ -70,7 +77,19 @@
 //! task bound to `SERIAL_IRQ`), errors counted, never a panic.
 //!
 //! Safe state = TIM1 `BDTR.MOE = 0` (outputs forced to their idle level,
-//! low: every switch off) **and** the power stage's enable pins low.
+//! low: every switch off) **and** the power stage's enable pins low (and,
+//! in `emergency_disable`, the brake switch off).
+//!
+//! # Power-stage temperature and brake, per board
+//!
+//! | board            | temperature (`Bus::read_temperature_c`)          | brake (`Brake`)                      |
+//! |------------------|--------------------------------------------------|--------------------------------------|
+//! | ODrive v3.x      | M0 FET NTC, PC5 = ADC12_IN15, ODrive's cubic fit  | AUX high side, PB11 TIM2_CH4 (10 kHz, 95 %) |
+//! | NUCLEO + IHM07M1 | shield NTC, PC2 = ADC1_IN12, ST MC SDK linear law | none (`NoBrake`)                     |
+//! | QEMU             | the plant's stage thermal model                  | `SimBrake` (the plant has no resistor by default) |
+//!
+//! Counts to deg C with open / short detection: [`logic::thermistor`]. The
+//! thermistor and VBUS share ADC1's regular group, alternating (`hw::adc`).
 //!
 //! Phase currents are sampled by ADC1 injected conversions triggered by
 //! TIM1 (`TRGO = OC4REF`, channel 4 compare just before the counter peak,

@@ -223,6 +223,7 @@ impl Link<'_> {
             limits: Some(s.limits),
             current: Some(s.current),
             dividers: Some(s.dividers),
+            power: Some(s.power),
             permit,
             ..ConfigChange::default()
         });

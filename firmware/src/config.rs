@@ -6,6 +6,7 @@
 //! identification routines).
 
 use foc_core::control::cascade::CascadeConfig;
+use foc_core::control::power::PowerLimitsConfig;
 use foc_core::control::{Command, MotorParams};
 
 /// Speed loop every N current-loop periods (20 kHz / 10 = 2 kHz).
@@ -180,5 +181,25 @@ pub fn cascade(pwm_frequency_hz: f32) -> CascadeConfig {
         c.current.supervisor.angle_step_floor_rad =
             1.5 * core::f32::consts::TAU / (6.0 * f32::from(motor.pole_pairs.max(1)));
     }
+    c.current.power = Some(power_limits(&c));
     c
+}
+
+/// The board's power limits (design §18): `PowerLimitsConfig::for_board`
+/// (regen ramp below the over-voltage threshold, winding-temperature
+/// derating, stage derating where the board measures its temperature; no
+/// supply-current or power limit: those depend on the supply, see the
+/// README), with the brake chopper where the board has a brake output.
+pub fn power_limits(c: &CascadeConfig) -> PowerLimitsConfig {
+    use board_support::board;
+    let p = PowerLimitsConfig::for_board(
+        &c.current.supervisor,
+        c.current.current.motor,
+        board::STAGE_TEMPERATURE_SENSOR,
+    );
+    if board::BRAKE_OUTPUT {
+        p.with_brake_resistor()
+    } else {
+        p
+    }
 }

@@ -62,12 +62,15 @@ mod app {
     use core::sync::atomic::Ordering;
     use foc_core::calibration::offsets::OffsetLimits;
     use foc_core::calibration::Calibrated;
+    use foc_core::control::power::ActiveLimit;
     use foc_core::control::stage::{PositionStage, SpeedStage, VelocityRef};
     use foc_core::control::{CommandSlot, Fault, Feedback, Mode};
     use foc_core::drive::{Drive, Inputs, LifecycleConfig, Status};
 
-    /// The board's drive: its hardware, current stage and lifecycle.
-    pub type BoardDrive = Drive<board::Pwm, board::Currents, board::Angle, board::Bus>;
+    /// The board's drive: its hardware (and brake resistor switch), current
+    /// stage and lifecycle.
+    pub type BoardDrive =
+        Drive<board::Pwm, board::Currents, board::Angle, board::Bus, board::Brake>;
 
     /// Status before the first period: starting, disabled, uncalibrated.
     const STARTING: Status = Status {
@@ -131,6 +134,8 @@ mod app {
         position: PositionStage,
         /// `housekeeping` only: start command posted.
         started: bool,
+        /// `housekeeping` only: the power limit last logged.
+        power_limit: ActiveLimit,
         /// `idle` only: last run count seen.
         seen_runs: u32,
     }
@@ -163,7 +168,8 @@ mod app {
             angle_kind,
             stored,
         };
-        let mut drive = Drive::new(b.pwm, b.currents, b.angle, b.bus, cfg.current, life);
+        let mut drive =
+            Drive::new(b.pwm, b.currents, b.angle, b.bus, cfg.current, life).with_brake(b.brake);
         if watchdog_reset {
             defmt::error!("reset by the watchdog");
             drive.trip(Fault::Watchdog);
@@ -207,6 +213,7 @@ mod app {
                 speed: SpeedStage::new(cfg.speed),
                 position: PositionStage::new(cfg.position),
                 started: false,
+                power_limit: ActiveLimit::None,
                 seen_runs: 0,
             },
         )
@@ -380,7 +387,7 @@ mod app {
         binds = EXTI3,
         priority = 1,
         shared = [command, feedback, timing, status, identified, config_request, comms],
-        local = [started]
+        local = [started, power_limit]
     )]
     fn housekeeping(mut cx: housekeeping::Context) {
         let status = cx.shared.status.lock(|s| *s);
@@ -393,6 +400,7 @@ mod app {
         }
         let fb = cx.shared.feedback.lock(|f| *f);
         let tm = cx.shared.timing.lock(|t| *t);
+        super::log_power_limit(cx.local.power_limit, &fb);
         // Command channel: link watchdog and streamed telemetry.
         let pending = comms::Pending {
             command: cx.shared.command.lock(|c| c.command),
@@ -456,6 +464,26 @@ mod app {
             fb.i_dq_a.q,
             fb.first_fault,
             tm.max_cycles
+        );
+    }
+}
+
+/// Log when the power limit that cuts the current changes (design §18):
+/// which one, and the share of the current limit left.
+fn log_power_limit(
+    last: &mut foc_core::control::power::ActiveLimit,
+    fb: &foc_core::control::Feedback,
+) {
+    let p = &fb.power;
+    if p.active != *last {
+        *last = p.active;
+        defmt::info!(
+            "power limit: {} ({=f32} % of the current limit left; winding {=f32} C, stage {=f32} C, bus {=f32} V)",
+            p.active,
+            100.0 * p.factor,
+            p.winding_c,
+            p.stage_c,
+            fb.v_bus_v
         );
     }
 }

@@ -105,7 +105,8 @@ pub fn boot(flash: board::StoreFlash) -> Boot {
 
 /// `rec` applied onto the build-time settings: whole, or refused. On top
 /// of the record's own checks, this board's: its current limit
-/// (`config::MOTOR`), its motor's pole pairs (the identification and the
+/// (`config::MOTOR`), its over-voltage threshold (the regen limit's end
+/// and the brake's switch-on voltage below it), its motor's pole pairs (the identification and the
 /// hall decoder are built for them) and its sensor's counts per turn (a
 /// calibration from another sensor is meaningless here). Where the
 /// sensor's zero does not survive a reset (an incremental encoder), the
@@ -127,6 +128,21 @@ pub fn admit(rec: &DriveRecord) -> Result<Settings, Invalid> {
     let mut s = rec.apply(&base, PWM_HZ)?;
     if s.limits.max_current_a > config::MOTOR.1 {
         return invalid("limits.max_current_a");
+    }
+    // The regen limit and the brake must act below this board's
+    // over-voltage fault, or the fault lets the motor coast and its
+    // back-EMF charges the bus through the body diodes.
+    let over_voltage_v = config::cascade(PWM_HZ as f32)
+        .current
+        .supervisor
+        .bus_over_voltage_v;
+    if let Some(p) = &rec.power {
+        if p.regen_end_v > over_voltage_v {
+            return invalid("power.regen_end_v");
+        }
+        if p.brake_on_v < f32::INFINITY && p.brake_on_v >= over_voltage_v {
+            return invalid("power.brake_on_v");
+        }
     }
     if s.calibrated && !board::angle_kind().zero_survives_reset() {
         defmt::warn!(

@@ -15,7 +15,7 @@
 //! | DIAG/EN (L6230 fault)  | PA11  | GPIO in, low = fault          |
 //! | current U / V / W      | PA0 / PC1 / PC0 | ADC1_IN0 / IN11 / IN10 |
 //! | VBUS                   | PA1   | ADC1_IN1                      |
-//! | temperature (NTC)      | PC2   | ADC1_IN12 (not converted)     |
+//! | temperature (NTC)      | PC2   | ADC1_IN12, regular, alternating with VBUS |
 //! | ENC A / H1             | PA15  | TIM2_CH1 (AF1) or GPIO        |
 //! | ENC B / H2             | PB3   | TIM2_CH2 (AF1) or GPIO        |
 //! | ENC Z / H3             | PB10  | TIM2_CH3 (AF1, index capture) or GPIO |
@@ -26,13 +26,34 @@
 //! -1.53 (inverting, biased), bus divider 169k / 9.31k (ratio 19.152),
 //! bus 8..48 V, L6230 output 1.4 A rms (2.8 A peak).
 //!
+//! Power-stage temperature ([`STAGE_TEMPERATURE_SENSOR`] = true): the
+//! shield's NTC network on PC2 (the NuttX pin table above: "Temperature",
+//! PC2; ADC1_IN12 on the F401/F446, datasheets' pin tables), converted with
+//! ST's Motor Control SDK law for this power stage, 1.055 V at 25 deg C and
+//! 23 mV/K (a `power_stage_parameters.h` of the MC SDK for the stage with
+//! 0.33 Ohm shunts, gain 1.53 and bus divider 0.0522; its `T_MAX`, the
+//! sensor temperature at the stage's limit, is 110 deg C): see
+//! [`crate::logic::thermistor::IHM07M1`]. It sits near the L6230 on the
+//! board, so it lags the die; the L6230's own thermal shutdown (which pulls
+//! DIAG/EN low, [`gate_driver_fault`]) stays the last line. ADC1's regular
+//! group converts it and VBUS in turn (`hw::adc`): each is refreshed every
+//! other PWM period. UM1943 itself was not available to check the part;
+//! unverified on hardware.
+//!
+//! Brake resistor ([`BRAKE_OUTPUT`] = false): the shield has none and no
+//! switch for one ([`Brake`] is `foc_core::hal::NoBrake`); regenerated
+//! energy can only be limited (design §18) or absorbed by the supply.
+//!
 //! No TIM1 break input: the shield's BKIN1 signal lands on PB14, which is
 //! TIM1_CH2N on the F4, not BKIN. The L6230's own over-current/thermal
 //! protection pulls DIAG/EN low and disables the bridge by itself; that pin
 //! is what [`gate_driver_fault`] reports.
 
 use super::Led;
-use crate::hw::adc::{setup_adc1, InjectedCurrents, RegularBus, SampleTime, Shunts};
+use crate::hw::adc::{
+    set_regular_sample_time, setup_adc1, InjectedCurrents, RegularBus, SampleTime, Shunts,
+    Thermistor,
+};
 use crate::hw::angle::{AngleInput, AngleSource, HallSensor, QuadEncoder};
 use crate::hw::flash::StoreFlash;
 use crate::hw::pwm::{PwmConfig, Tim1Pwm, Topology};
@@ -41,6 +62,7 @@ use crate::hw::{enable_cycle_counter, PinId, Port};
 use crate::logic::hall::HallConfig;
 use crate::logic::scaling::{CurrentScale, VoltageScale};
 use crate::pac;
+use foc_core::hal::NoBrake;
 use stm32f4xx_hal::gpio::{GpioExt, PinState};
 use stm32f4xx_hal::qei::Qei;
 use stm32f4xx_hal::rcc::{Config, Enable, RccExt, Reset};
@@ -72,6 +94,12 @@ pub const MAX_MEASURABLE_CURRENT_A: f32 = 3.2;
 pub const BUS_VOLTAGE_MIN_V: f32 = 8.0;
 /// Highest bus voltage of the power stage [V].
 pub const BUS_VOLTAGE_MAX_V: f32 = 48.0;
+/// No brake resistor and no switch for one on the shield ([`Brake`] is
+/// `NoBrake`).
+pub const BRAKE_OUTPUT: bool = false;
+/// The shield's NTC near the L6230 is read ([`Bus`]'s `read_temperature_c`,
+/// module docs).
+pub const STAGE_TEMPERATURE_SENSOR: bool = true;
 /// Rotor angle input chosen at `init` (the shield's connector carries either
 /// halls or an encoder on the same pins). Halls: the P-NUCLEO-IHM001 kit
 /// motor has them; set the pole pairs and offset here or at run time.
@@ -116,6 +144,13 @@ pub const HALL_PINS: [PinId; 3] = [
 pub const CURRENT_CHANNELS: [u8; 3] = [0, 11, 10];
 /// ADC channel of the bus voltage.
 pub const BUS_CHANNEL: u8 = 1;
+/// ADC channel of the power-stage NTC (PC2).
+pub const THERMISTOR_CHANNEL: u8 = 12;
+/// The power-stage NTC as the bus reader converts it.
+pub const THERMISTOR: Thermistor = Thermistor {
+    channel: THERMISTOR_CHANNEL,
+    divider: crate::logic::thermistor::IHM07M1,
+};
 
 /// Shunt resistance [ohm].
 pub const SHUNT_OHM: f32 = 0.33;
@@ -139,8 +174,10 @@ pub type Pwm = Tim1Pwm;
 pub type Currents = InjectedCurrents;
 /// Rotor angle: encoder on TIM2 or halls (see `ANGLE_SOURCE`).
 pub type Angle = AngleInput<pac::TIM2>;
-/// Bus voltage.
+/// Bus voltage and the power-stage NTC.
 pub type Bus = RegularBus;
+/// No brake output on this shield.
+pub type Brake = NoBrake;
 
 /// Everything `init` sets up.
 pub struct Board {
@@ -150,8 +187,10 @@ pub struct Board {
     pub currents: Currents,
     /// Rotor angle.
     pub angle: Angle,
-    /// Bus voltage (ADC1 regular).
+    /// Bus voltage and power-stage temperature (ADC1 regular, alternating).
     pub bus: Bus,
+    /// No brake output: `NoBrake` (does nothing, never on).
+    pub brake: Brake,
     /// NUCLEO LED LD2.
     pub led: Led,
     /// Command UART: USART2 on PA2/PA3, the ST-LINK virtual COM port.
@@ -214,6 +253,7 @@ pub(crate) fn init(dp: pac::Peripherals, p: Params) -> Board {
     let _ib = gpioc.pc1.into_analog();
     let _ic = gpioc.pc0.into_analog();
     let _vbus = gpioa.pa1.into_analog();
+    let _ntc = gpioc.pc2.into_analog();
     pac::ADC1::enable(&mut rcc);
     pac::ADC1::reset(&mut rcc);
     setup_adc1(
@@ -225,7 +265,8 @@ pub(crate) fn init(dp: pac::Peripherals, p: Params) -> Board {
         SampleTime::Cycles144,
     );
     let currents = InjectedCurrents::new(Shunts::Three(CURRENT_CHANNELS), CURRENT_SCALE);
-    let bus = RegularBus::new(BUS_SCALE);
+    set_regular_sample_time(&dp.ADC1, THERMISTOR_CHANNEL, SampleTime::Cycles144);
+    let bus = RegularBus::new(BUS_SCALE, BUS_CHANNEL).with_thermistor(THERMISTOR);
 
     // Angle input on PA15 / PB3 / PB10.
     let angle = match p.angle {
@@ -264,6 +305,7 @@ pub(crate) fn init(dp: pac::Peripherals, p: Params) -> Board {
         currents,
         angle,
         bus,
+        brake: NoBrake,
         led: Led::new(Some(LED_PIN)),
         serial,
         // After `rcc.freeze`, which sets the wait states through its own
@@ -272,7 +314,8 @@ pub(crate) fn init(dp: pac::Peripherals, p: Params) -> Board {
     }
 }
 
-/// Safe state from any context: `MOE = 0` and EN1..3 low.
+/// Safe state from any context: `MOE = 0` and EN1..3 low. (No brake
+/// output to switch off on this shield.)
 pub fn emergency_disable() {
     crate::hw::pwm::safe_state_hard(&ENABLE_PINS);
 }

@@ -5,14 +5,17 @@
 //! configuration), PLL to 180 MHz (over-drive enabled by the HAL), APB2 =
 //! 90 MHz so TIM1 runs at 180 MHz, APB1 = 45 MHz. Pin map and power stage:
 //! see the shared X-NUCLEO-IHM07M1 module documentation (re-exported items
-//! below). Memory: `board-support/memory/nucleo-f446re-ihm07m1.x`.
+//! below), which also covers the power-stage NTC (read, on PC2) and the
+//! brake (none: `Brake` is `NoBrake`).
+//! Memory: `board-support/memory/nucleo-f446re-ihm07m1.x`.
 
 pub use super::ihm07m1::{
-    angle_kind, break_isr_ack, emergency_disable, gate_driver_fault, Angle, Board, Bus, Currents,
-    Pwm, ANGLE_SOURCE, BREAK_IRQ, BUS_SCALE, BUS_VOLTAGE_MAX_V, BUS_VOLTAGE_MIN_V, CURRENT_IRQ,
-    CURRENT_SCALE, DEAD_TIME_NS, DIAG_PIN, ENABLE_PINS, HALL_PINS, HAS_BREAK_INPUT, LED_PIN,
-    MAX_MEASURABLE_CURRENT_A, MAX_PHASE_CURRENT_A, PWM_FREQUENCY_15K_HZ, PWM_FREQUENCY_HZ,
-    SERIAL_BAUD, SERIAL_IRQ, STORE_RANGE,
+    angle_kind, break_isr_ack, emergency_disable, gate_driver_fault, Angle, Board, Brake, Bus,
+    Currents, Pwm, ANGLE_SOURCE, BRAKE_OUTPUT, BREAK_IRQ, BUS_SCALE, BUS_VOLTAGE_MAX_V,
+    BUS_VOLTAGE_MIN_V, CURRENT_IRQ, CURRENT_SCALE, DEAD_TIME_NS, DIAG_PIN, ENABLE_PINS, HALL_PINS,
+    HAS_BREAK_INPUT, LED_PIN, MAX_MEASURABLE_CURRENT_A, MAX_PHASE_CURRENT_A, PWM_FREQUENCY_15K_HZ,
+    PWM_FREQUENCY_HZ, SERIAL_BAUD, SERIAL_IRQ, STAGE_TEMPERATURE_SENSOR, STORE_RANGE, THERMISTOR,
+    THERMISTOR_CHANNEL,
 };
 pub use super::Led;
 pub use crate::hw::angle::AngleSource;

@@ -15,6 +15,9 @@
 //! | M0 SO1 (phase B)     | PC0              | ADC1_IN10                      |
 //! | M0 SO2 (phase C)     | PC1              | ADC1_IN11                      |
 //! | VBUS_S               | PA6              | ADC1_IN6                       |
+//! | M0_TEMP (FET NTC)    | PC5              | ADC1_IN15, regular, alternating with VBUS |
+//! | AUX_L (low side)     | PB10             | GPIO out, held low (never on)  |
+//! | AUX_H (high side)    | PB11             | TIM2_CH4 (AF1): brake chopper  |
 //! | M0 ENC A / B         | PB4 / PB5        | TIM3_CH1 / CH2 (AF2)           |
 //! | M0 ENC Z             | PC9              | TIM3_CH4 (AF2, index capture)  |
 //! | M1 AH/BH/CH, AL/BL/CL| PC6-8, PA7/PB0/PB1 | GPIO out low (M1 unused)     |
@@ -39,6 +42,26 @@
 //! EN_GATE). The DRV8301 latches its own over-current shut-down (OCP
 //! latch mode, V_DS threshold 0.730 V as the ODrive firmware sets) and
 //! reports on nFAULT: [`gate_driver_fault`].
+//!
+//! Brake resistor ([`BRAKE_OUTPUT`] = true): on the AUX half-bridge, the
+//! resistor from the AUX switch node to ground, switched by the high-side
+//! FET (AUX_H, PB11, active high) as TIM2_CH4 PWM at 10 kHz / 95 % while on
+//! (the high-side gate supply is a bootstrap that must recharge every
+//! period); the low side (AUX_L, PB10) is held off for good, so the two
+//! never conduct together. Off at `init` and in [`emergency_disable`].
+//! Sources and register details: [`crate::hw::brake`]. **Unverified on
+//! hardware.**
+//!
+//! Power-stage temperature ([`STAGE_TEMPERATURE_SENSOR`] = true): the M0
+//! FET thermistor on PC5 = ADC12_IN15 (ODrive firmware `Board/v3/board.cpp`,
+//! `fet_thermistors[0]`: ADC channel 15 on every v3.x; `main.h`:
+//! `M0_TEMP_Pin` = PC5), converted with the ODrive firmware's cubic fit
+//! ([`crate::logic::thermistor::ODRIVE_V3_FET`]; open or shorted NTC is an
+//! error, not a temperature). ADC1's regular group converts it and VBUS in
+//! turn (`hw::adc`, [`RegularBus::with_thermistor`]): each is refreshed
+//! every other read, i.e. every other PWM period. M1's thermistor (ADC
+//! channel 4, PA4) and the AUX thermistor (PA5) are not read. Unverified on
+//! hardware.
 //!
 //! `Pwm::disable` clears MOE only (all gate inputs low = every FET off) and
 //! keeps EN_GATE high, because EN_GATE low resets the DRV8301's SPI
@@ -96,10 +119,14 @@
 //! frame so the first read in the current loop already returns an angle.
 
 pub use super::Led;
-use crate::hw::adc::{setup_adc1, InjectedCurrents, RegularBus, SampleTime, Shunts};
+use crate::hw::adc::{
+    set_regular_sample_time, setup_adc1, InjectedCurrents, RegularBus, SampleTime, Shunts,
+    Thermistor,
+};
 pub use crate::hw::angle::AngleSource;
 #[cfg(not(feature = "as5047p"))]
 use crate::hw::angle::{AngleInput, HallSensor, QuadEncoder};
+use crate::hw::brake::{aux_off_hard, AuxBrake};
 use crate::hw::drv8301::{Drv8301, Drv8301Error};
 pub use crate::hw::flash::StoreFlash;
 use crate::hw::pwm::{PwmConfig, Tim1Pwm, Topology};
@@ -159,6 +186,12 @@ pub const MAX_MEASURABLE_CURRENT_A: f32 = 82.0;
 pub const BUS_VOLTAGE_MIN_V: f32 = 12.0;
 /// Highest bus voltage [V] (56 V variant; 24 V on the 24 V variant).
 pub const BUS_VOLTAGE_MAX_V: f32 = 56.0;
+/// The board switches a brake resistor: the AUX output ([`Brake`], module
+/// docs). Connect the resistor to the AUX terminals before enabling it.
+pub const BRAKE_OUTPUT: bool = true;
+/// The board measures its power-stage temperature: the M0 FET thermistor
+/// ([`Bus`]'s `read_temperature_c`, module docs).
+pub const STAGE_TEMPERATURE_SENSOR: bool = true;
 /// Rotor angle input chosen at `init`: the M0 encoder (CUI AMT102 at 2048
 /// lines = 8192 counts, the usual ODrive encoder; change to suit).
 #[cfg(not(feature = "as5047p"))]
@@ -240,6 +273,13 @@ const ENABLE_PINS: [PinId; 1] = [EN_GATE];
 pub const CURRENT_CHANNELS: [u8; 2] = [10, 11];
 /// ADC channel of VBUS.
 pub const BUS_CHANNEL: u8 = 6;
+/// ADC channel of the M0 FET thermistor (PC5).
+pub const THERMISTOR_CHANNEL: u8 = 15;
+/// The M0 FET thermistor as the bus reader converts it.
+pub const THERMISTOR: Thermistor = Thermistor {
+    channel: THERMISTOR_CHANNEL,
+    divider: crate::logic::thermistor::ODRIVE_V3_FET,
+};
 
 /// The PWM stage.
 pub type Pwm = Tim1Pwm;
@@ -251,8 +291,10 @@ pub type Angle = AngleInput<pac::TIM3>;
 /// Rotor angle: the AS5047P on SPI3, CSn on PA0.
 #[cfg(feature = "as5047p")]
 pub type Angle = As5047p<ExclusiveDevice<Spi<pac::SPI3>, PA0<Output>, dwt::Delay>>;
-/// Bus voltage.
+/// Bus voltage and the M0 FET temperature.
 pub type Bus = RegularBus;
+/// The brake chopper on the AUX output (TIM2_CH4 on AUX_H).
+pub type Brake = AuxBrake;
 /// The M0 DRV8301 on SPI3.
 pub type GateDriver = Drv8301<Spi<pac::SPI3>, PC13<Output>>;
 
@@ -264,8 +306,10 @@ pub struct Board {
     pub currents: Currents,
     /// Rotor angle.
     pub angle: Angle,
-    /// Bus voltage (ADC1 regular).
+    /// Bus voltage and M0 FET temperature (ADC1 regular, alternating).
     pub bus: Bus,
+    /// Brake chopper on the AUX output, off.
+    pub brake: Brake,
     /// No user LED on the ODrive: a no-op.
     pub led: Led,
     /// The M0 gate driver (status reads).
@@ -300,6 +344,10 @@ pub fn init(dp: pac::Peripherals) -> Board {
     let gpiob = dp.GPIOB.split(&mut rcc);
     let gpioc = dp.GPIOC.split(&mut rcc);
     let gpiod = dp.GPIOD.split(&mut rcc);
+    // AUX half-bridge off first: both gate inputs low (AUX_H goes to
+    // TIM2_CH4 once the timer holds it off, below).
+    let _aux_l = gpiob.pb10.into_push_pull_output_in_state(PinState::Low);
+    let aux_h = gpiob.pb11.into_push_pull_output_in_state(PinState::Low);
     // Gate drivers off, M1 inputs low.
     let _en_gate = gpiob.pb12.into_push_pull_output_in_state(PinState::Low);
     let _m1 = (
@@ -367,10 +415,11 @@ pub fn init(dp: pac::Peripherals) -> Board {
         EN_GATE.set(false);
     }
 
-    // ADC1: B and C shunts, VBUS.
+    // ADC1: B and C shunts, VBUS, M0 FET thermistor.
     let _ib = gpioc.pc0.into_analog();
     let _ic = gpioc.pc1.into_analog();
     let _vbus = gpioa.pa6.into_analog();
+    let _m0_temp = gpioc.pc5.into_analog();
     pac::ADC1::enable(&mut rcc);
     pac::ADC1::reset(&mut rcc);
     setup_adc1(
@@ -382,7 +431,16 @@ pub fn init(dp: pac::Peripherals) -> Board {
         SampleTime::Cycles144,
     );
     let currents = InjectedCurrents::new(Shunts::BC(CURRENT_CHANNELS), CURRENT_SCALE);
-    let bus = RegularBus::new(BUS_SCALE);
+    set_regular_sample_time(&dp.ADC1, THERMISTOR_CHANNEL, SampleTime::Cycles144);
+    let bus = RegularBus::new(BUS_SCALE, BUS_CHANNEL).with_thermistor(THERMISTOR);
+
+    // Brake chopper: TIM2 (clock and reset through the HAL: RCC_APB1ENR /
+    // RCC_APB1RSTR, RM0090 7.3.13 / 7.3.8) with CCR4 = 0, then AUX_H to
+    // TIM2_CH4 (AF1): the pin goes from driven low to the timer's low.
+    pac::TIM2::enable(&mut rcc);
+    pac::TIM2::reset(&mut rcc);
+    let brake = AuxBrake::new(dp.TIM2, rcc.clocks.timclk1().raw());
+    let _aux_h = aux_h.into_alternate::<1>();
 
     #[cfg(not(feature = "as5047p"))]
     let angle = match ANGLE_SOURCE {
@@ -427,6 +485,7 @@ pub fn init(dp: pac::Peripherals) -> Board {
         currents,
         angle,
         bus,
+        brake,
         led: Led::new(None),
         #[cfg(not(feature = "as5047p"))]
         gate_driver,
@@ -479,9 +538,13 @@ fn as5047p_on_spi3(spi: Spi<pac::SPI3>, ncs: PA0<Output>, rcc: &mut Rcc) -> Angl
 }
 
 /// Safe state from any context: `MOE = 0` and EN_GATE low (both DRV8301
-/// shut down; `init` must run again before the bridge can be enabled).
+/// shut down; `init` must run again before the bridge can be enabled), and
+/// the brake chopper off (AUX_H low, taken from the timer; it stays off
+/// until `init`): a brake left on by dead software would hold a resistor
+/// sized for braking pulses across the full bus until it burns.
 pub fn emergency_disable() {
     crate::hw::pwm::safe_state_hard(&ENABLE_PINS);
+    aux_off_hard();
 }
 
 /// Clear the TIM1 break flag; the outputs stay off.

@@ -15,6 +15,21 @@
 //! - [`SimPwm`], [`SimCurrents`], [`SimAngle`], [`SimBus`] read and write
 //!   that latched state.
 //!
+//! Power-stage temperature ([`STAGE_TEMPERATURE_SENSOR`] = true): the plant
+//! runs a stage thermal model ([`SIM_STAGE_THERMAL`], starting at its
+//! 25 deg C ambient); [`SimBus`]'s `read_temperature_c` returns the
+//! temperature latched with the other measurements
+//! (`Measurements::stage_temperature_c`), so the firmware's over-temperature
+//! and derating path runs as on a board with a sensor. The model is a loss
+//! estimate only: the plant's electrical behaviour and every other
+//! measurement are unchanged.
+//!
+//! Brake ([`BRAKE_OUTPUT`] = false): [`SimBrake`] switches the plant's brake
+//! chopper (`Plant::set_brake`, applied at the start of the next simulated
+//! period), but the emulated plant has no DC link by default, so no brake
+//! resistor: the command is recorded and draws nothing (harmless). Off at
+//! `init` and in [`emergency_disable`].
+//!
 //! The TIM2 period in *emulated* time ([`EMULATED_PERIOD_US`]) is longer
 //! than the simulated PWM period: the plant runs on the same emulated CPU,
 //! and the firmware's lower-priority tasks must still get time. Simulated
@@ -43,10 +58,11 @@ use cortex_m::interrupt::{free, Mutex};
 use foc_core::angle::MechanicalAngle;
 use foc_core::drive::AngleKind;
 use foc_core::frames::Abc;
-use foc_core::hal::{AngleSensor, BusVoltage, CurrentSense, PhaseCurrents, PwmDriver};
+use foc_core::hal::{AngleSensor, BrakeOutput, BusVoltage, CurrentSense, PhaseCurrents, PwmDriver};
 use foc_plant::plant::{
     AngleSensorKind, BenchConfig, Measurements, MotorParams, Plant, PwmMode, SensorConfig, Shunts,
 };
+use foc_plant::power::StageThermal;
 use pac::interrupt;
 
 pub use super::qemu_store::{args, SimStoreError, StoreFlash, STORE_RANGE};
@@ -83,6 +99,12 @@ pub const MAX_MEASURABLE_CURRENT_A: f32 = 40.0;
 pub const BUS_VOLTAGE_MIN_V: f32 = 10.0;
 /// Bus range [V].
 pub const BUS_VOLTAGE_MAX_V: f32 = 30.0;
+/// No brake resistor in the emulated plant (no DC link configured):
+/// [`SimBrake`] switches the plant's chopper command, which draws nothing.
+pub const BRAKE_OUTPUT: bool = false;
+/// The emulated plant models the power stage's temperature
+/// ([`SIM_STAGE_THERMAL`]); [`SimBus`] reads it.
+pub const STAGE_TEMPERATURE_SENSOR: bool = true;
 /// TIM2 update period in emulated time [us] (see the module docs).
 pub const EMULATED_PERIOD_US: u32 = 250;
 /// Input clock of QEMU's STM32F2xx/F405 timer model (its `clock-frequency`
@@ -129,6 +151,13 @@ pub fn sim_config() -> BenchConfig {
     }
 }
 
+/// The emulated power stage's thermal model: the plant's ODrive v3 preset
+/// (`StageThermal::odrive_v3`: a MOSFET bridge of the simulated inverter's
+/// class, R_ds_on 3.4 mOhm, 20 ns switching, 8 K/W, 30 s, body diodes
+/// 0.8 V; assumed values, see `foc_plant::power`), starting at its 25 deg C
+/// ambient. At the simulated currents it warms by a few kelvin at most.
+pub const SIM_STAGE_THERMAL: StageThermal = StageThermal::odrive_v3();
+
 /// Mounting offset of the emulated absolute sensor (`sensor=absolute`):
 /// the rotor's mechanical angle at which it reads 0 [rad]. Non-zero so that
 /// a stored calibration is meaningfully non-trivial.
@@ -156,6 +185,7 @@ fn sim_plant(args: &EmuArgs) -> Plant {
         });
     }
     plant.start_rotor_at(args.rotor_start_rad);
+    plant.set_stage_thermal(Some(SIM_STAGE_THERMAL));
     plant
 }
 
@@ -179,6 +209,8 @@ struct Latch {
     angle: MechanicalAngle,
     /// Bus voltage [V].
     v_bus_v: f32,
+    /// Power-stage temperature [deg C] (`None` without the plant's model).
+    stage_temperature_c: Option<f32>,
     /// A sample has been latched since start-up.
     valid: bool,
     /// Not yet read by [`SimCurrents::read_currents`].
@@ -189,6 +221,7 @@ static LATCH: Mutex<Cell<Latch>> = Mutex::new(Cell::new(Latch {
     currents: PhaseCurrents::TwoPhase { a_a: 0.0, b_a: 0.0 },
     angle: MechanicalAngle::ZERO,
     v_bus_v: 0.0,
+    stage_temperature_c: None,
     valid: false,
     fresh: false,
 }));
@@ -207,6 +240,9 @@ static BREAK_LATCH: AtomicBool = AtomicBool::new(false);
 static ON_AFTER_BREAK: AtomicU32 = AtomicU32::new(0);
 /// Periods the bridge conducted since reset.
 static ON_PERIODS: AtomicU32 = AtomicU32::new(0);
+/// Brake chopper command (written by [`SimBrake`], cleared by
+/// `emergency_disable`), applied to the plant by the physics each period.
+static BRAKE_CMD: AtomicBool = AtomicBool::new(false);
 
 /// The emulated PWM stage.
 pub struct SimPwm {
@@ -340,6 +376,33 @@ impl BusVoltage for SimBus {
     fn read_bus_voltage_v(&mut self) -> Result<f32, Self::Error> {
         latched().map(|m| m.v_bus_v).ok_or(SimAngleError::NotReady)
     }
+    /// The plant's power-stage temperature, latched with the other
+    /// measurements; `None` only if the plant had no stage model.
+    fn read_temperature_c(&mut self) -> Option<Result<f32, Self::Error>> {
+        match latched() {
+            None => Some(Err(SimAngleError::NotReady)),
+            Some(m) => m.stage_temperature_c.map(Ok),
+        }
+    }
+}
+
+/// The emulated brake chopper: the plant's `set_brake`, applied by the
+/// physics at the start of each simulated period. Without a DC link (the
+/// default) the plant records the command and draws nothing.
+pub struct SimBrake {
+    _private: (),
+}
+
+impl BrakeOutput for SimBrake {
+    fn set_brake(&mut self, on: bool) {
+        // After `emergency_disable` the bridge stays off until reset; so
+        // does the brake.
+        let on = on && !EMERGENCY.load(Ordering::SeqCst);
+        BRAKE_CMD.store(on, Ordering::SeqCst);
+    }
+    fn is_brake_on(&self) -> bool {
+        BRAKE_CMD.load(Ordering::SeqCst)
+    }
 }
 
 /// PWM driver type.
@@ -348,8 +411,10 @@ pub type Pwm = SimPwm;
 pub type Currents = SimCurrents;
 /// Angle-sensor type.
 pub type Angle = SimAngle;
-/// Bus-voltage type.
+/// Bus-voltage (and stage-temperature) type.
 pub type Bus = SimBus;
+/// Brake-chopper type.
+pub type Brake = SimBrake;
 
 /// The board's drivers.
 pub struct Board {
@@ -359,8 +424,10 @@ pub struct Board {
     pub currents: Currents,
     /// Encoder.
     pub angle: Angle,
-    /// Bus voltage.
+    /// Bus voltage and stage temperature.
     pub bus: Bus,
+    /// The plant's brake chopper command, off.
+    pub brake: Brake,
     /// No LED.
     pub led: Led,
     /// Command UART: USART2 (QEMU `-serial` number two).
@@ -396,6 +463,7 @@ pub fn init(dp: pac::Peripherals) -> Board {
         });
     });
     BRIDGE_ON.store(false, Ordering::SeqCst);
+    BRAKE_CMD.store(false, Ordering::SeqCst);
     // RCC_APB1ENR.TIM2EN (RM0090 7.3.13); harmless where RCC is not modelled.
     dp.RCC.apb1enr().modify(|_, w| w.tim2en().set_bit());
     let tim = &dp.TIM2;
@@ -428,16 +496,20 @@ pub fn init(dp: pac::Peripherals) -> Board {
         },
         angle: SimAngle { _private: () },
         bus: SimBus { _private: () },
+        brake: SimBrake { _private: () },
         led: Led::new(None),
         serial,
         store: StoreFlash::open(args),
     }
 }
 
-/// Bridge off from any context (panic, HardFault); stays off until reset.
+/// Bridge and brake off from any context (panic, HardFault); they stay
+/// off until reset. (Only atomics: the plant itself may be borrowed by the
+/// interrupted code; the physics applies the brake command next period.)
 pub fn emergency_disable() {
     EMERGENCY.store(true, Ordering::SeqCst);
     BRIDGE_ON.store(false, Ordering::SeqCst);
+    BRAKE_CMD.store(false, Ordering::SeqCst);
 }
 
 /// The break ISR ran ([`sim::raise_break`]): its `emergency_disable` was a
@@ -464,11 +536,13 @@ fn step_physics() {
     }
     free(|cs| {
         if let Some(w) = WORLD.borrow(cs).borrow_mut().as_mut() {
+            w.plant.set_brake(BRAKE_CMD.load(Ordering::SeqCst));
             let m: Measurements = w.plant.step_period(DUTIES.borrow(cs).get(), on, w.load_nm);
             LATCH.borrow(cs).set(Latch {
                 currents: m.currents,
                 angle: m.angle,
                 v_bus_v: m.v_bus_v,
+                stage_temperature_c: m.stage_temperature_c,
                 valid: true,
                 fresh: true,
             });

@@ -14,8 +14,26 @@
 //!   a trigger of the injected group interrupts it and it resumes after.
 //!
 //! `read_currents` must run after `JEOC` (the `CURRENT_IRQ` handler).
+//!
+//! # Bus voltage and power-stage thermistor (regular group)
+//!
+//! [`RegularBus`] converts one regular channel at a time (`SQR1.L = 0`, one
+//! conversion per `SWSTART`, `CR2.EOCS = 1`: `EOC` after each regular
+//! conversion; RM0090 13.3.3 channel selection, 13.3.4 single conversion
+//! mode, 13.13.9 SQR1, 13.13.11 SQR3, 13.13.1 SR). Without a thermistor
+//! `SQ1` always holds the bus channel, as before. With one
+//! ([`RegularBus::with_thermistor`]) each completed conversion is stored as
+//! the newest value of the channel that was in `SQ1`, and the *other*
+//! channel is written to `SQ1` before the next `SWSTART`: VBUS and the
+//! thermistor alternate, each refreshed every other read (the firmware
+//! reads once per PWM period: the bus voltage is at most two periods old).
+//! `SQR3` is written only between `EOC` and `SWSTART`, while the regular
+//! group is idle, so a sequence change never lands in the middle of a
+//! conversion. The thermistor's sample time is set by
+//! [`set_regular_sample_time`].
 
 use crate::logic::scaling::{CurrentScale, VoltageScale};
+use crate::logic::thermistor::{NtcDivider, ThermistorError};
 use crate::pac;
 use foc_core::frames::Abc;
 use foc_core::hal::{BusVoltage, CurrentSense, PhaseCurrents};
@@ -80,6 +98,12 @@ fn set_sample_time(adc: &pac::adc1::RegisterBlock, ch: u8, smp: SampleTime) {
                 .modify(|r, w| w.bits((r.bits() & !(7 << sh)) | (s << sh)));
         }
     }
+}
+
+/// Sample time of one more regular channel (e.g. a thermistor) of an ADC
+/// set up by [`setup_adc1`] (`SMPRx`, RM0090 13.13.4-5).
+pub fn set_regular_sample_time(adc: &pac::ADC1, channel: u8, smp: SampleTime) {
+    set_sample_time(adc, channel, smp);
 }
 
 /// Configure ADC1 (clock already enabled and reset by the caller, analog
@@ -204,29 +228,64 @@ impl CurrentSense for InjectedCurrents {
     }
 }
 
-/// Bus-voltage error.
+/// Bus-voltage (or thermistor) error.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "_hal", derive(defmt::Format))]
 pub enum BusError {
     /// No conversion has completed yet.
     NotReady,
+    /// The thermistor reads open or shorted (not a temperature).
+    Thermistor(ThermistorError),
 }
 
-/// Bus voltage from the ADC1 regular group, one software-started
-/// conversion at a time: each read returns the newest completed result and
-/// starts the next conversion.
+/// A power-stage thermistor on a regular ADC channel.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Thermistor {
+    /// ADC1 channel (0..=18).
+    pub channel: u8,
+    /// Counts to deg C, with open / short detection.
+    pub divider: NtcDivider,
+}
+
+/// Bus voltage (and, where the board has one, the power-stage thermistor)
+/// from the ADC1 regular group, one software-started conversion at a time:
+/// each [`BusVoltage::read_bus_voltage_v`] takes the newest completed
+/// result and starts the next conversion (module docs).
 pub struct RegularBus {
     scale: VoltageScale,
+    bus_channel: u8,
+    thermistor: Option<Thermistor>,
+    /// The channel now in `SQ1` (being converted or done) is the
+    /// thermistor's.
+    converting_thermistor: bool,
     last_v: Option<f32>,
+    last_thermistor_counts: Option<u16>,
 }
 
 impl RegularBus {
-    /// Bus voltage reader (ADC set up by [`setup_adc1`]).
-    pub const fn new(scale: VoltageScale) -> Self {
+    /// Bus voltage reader (ADC set up by [`setup_adc1`], which starts the
+    /// first conversion of `bus_channel`).
+    pub const fn new(scale: VoltageScale, bus_channel: u8) -> Self {
         Self {
             scale,
+            bus_channel,
+            thermistor: None,
+            converting_thermistor: false,
             last_v: None,
+            last_thermistor_counts: None,
         }
+    }
+
+    /// Also read `thermistor`, alternating with the bus channel (set its
+    /// sample time with [`set_regular_sample_time`]).
+    pub const fn with_thermistor(mut self, thermistor: Thermistor) -> Self {
+        self.thermistor = Some(thermistor);
+        self
+    }
+
+    /// Newest raw thermistor reading (diagnostics).
+    pub const fn thermistor_counts(&self) -> Option<u16> {
+        self.last_thermistor_counts
     }
 }
 
@@ -234,19 +293,43 @@ impl BusVoltage for RegularBus {
     type Error = BusError;
 
     fn read_bus_voltage_v(&mut self) -> Result<f32, BusError> {
-        // SAFETY: ADC1 SR/DR/CR2 (RM0090 13.13.1-3, 13.13.14). Reading DR
-        // clears EOC; SWSTART is only written here; CR2 is not written by
-        // the current-sense ISR.
+        // SAFETY: ADC1 SR/DR/CR2/SQR3 (RM0090 13.13.1-3, 13.13.11,
+        // 13.13.14). Reading DR clears EOC; SWSTART and SQR3 are only
+        // written here (after init); CR2 is not written by the current-sense
+        // ISR; SQR3 is written while the regular group is idle (after EOC,
+        // before SWSTART); every channel written is < 19.
         let adc = unsafe { &*pac::ADC1::ptr() };
         if adc.sr().read().eoc().bit_is_set() {
             let counts = adc.dr().read().data().bits();
-            self.last_v = Some(self.scale.volts(counts));
+            if self.converting_thermistor {
+                self.last_thermistor_counts = Some(counts);
+            } else {
+                self.last_v = Some(self.scale.volts(counts));
+            }
+            if let Some(t) = self.thermistor {
+                self.converting_thermistor = !self.converting_thermistor;
+                let ch = if self.converting_thermistor {
+                    t.channel
+                } else {
+                    self.bus_channel
+                };
+                adc.sqr3().write(|w| unsafe { w.sq1().bits(ch & 0x1F) });
+            }
             adc.cr2().modify(|_, w| w.swstart().set_bit());
         } else if adc.sr().read().ovr().bit_is_set() {
-            // Overrun (RM0090 13.8.2): conversions stopped; start again.
+            // Overrun (RM0090 13.8.2): conversions stopped; start the same
+            // channel again.
             adc.sr().write(|w| w.ovr().clear_bit());
             adc.cr2().modify(|_, w| w.swstart().set_bit());
         }
         self.last_v.ok_or(BusError::NotReady)
+    }
+
+    fn read_temperature_c(&mut self) -> Option<Result<f32, BusError>> {
+        let t = self.thermistor?;
+        Some(match self.last_thermistor_counts {
+            None => Err(BusError::NotReady),
+            Some(c) => t.divider.temperature_c(c, 12).map_err(BusError::Thermistor),
+        })
     }
 }

@@ -8,6 +8,8 @@
 pub mod adc;
 pub mod angle;
 pub mod as5047p;
+#[cfg(feature = "odrive-v3")]
+pub mod brake;
 pub mod drv8301;
 #[cfg(not(feature = "qemu"))]
 pub mod flash;

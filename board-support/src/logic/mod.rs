@@ -14,3 +14,4 @@ pub mod pwm_timing;
 pub mod scaling;
 pub mod serial;
 pub mod spi_clock;
+pub mod thermistor;
