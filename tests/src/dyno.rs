@@ -2,7 +2,7 @@
 //! mode on the plant, a brake (load torque) on the shaft, and the operating
 //! points measured in steady state.
 //!
-//! Two sweeps:
+//! Three sweeps:
 //!
 //! - [`Sweep::Load`]: speed command fixed (half the no-load speed, at most
 //!   [`Setup::max_mission_speed_rad_s`]), load
@@ -11,11 +11,23 @@
 //!   a tenth of it (as the source's report), speed command 80 % of the
 //!   no-load speed (capped as above) scaled by the voltage, load torque fixed at 30 % of rated. The
 //!   supervisor's under-voltage limit is lowered to 5 % of nominal for it.
+//! - [`Sweep::Regen`]: the load sweep's speed command, an *overhauling*
+//!   load (it drives the shaft forwards, as a vehicle downhill or a lowered
+//!   weight) stepped from 0 to the rated torque: the drive brakes and
+//!   returns energy to the supply (generator points, negative input and
+//!   mechanical power; the efficiency column is then electrical out over
+//!   mechanical in).
 //!
 //! Every figure is *measured* on the plant over a window after settling:
 //! supply voltage and current are the plant's period averages, input power
 //! is the supply energy over the window, torque is the brake's absorbed
 //! energy over the shaft angle travelled, speed is the mean shaft speed.
+//! The bus columns: the bus current is the mean current at the source's
+//! terminals (the dyno's plain source: the same as the supply current; with
+//! a DC link, the source's side of the capacitor), and the regenerated
+//! energy is what went back into the source over the window,
+//! `sum max(0, -P) T_pwm` with `P` each period's mean power at the source's
+//! terminals (0 at motoring points).
 //!
 //! ```no_run
 //! use foc_bench::{dyno, mission::Setup};
@@ -35,6 +47,8 @@ pub enum Sweep {
     Load,
     /// Supply-voltage steps with a speed command proportional to the voltage.
     Voltage,
+    /// Overhauling-load steps at a fixed speed command (regeneration).
+    Regen,
 }
 
 impl Sweep {
@@ -43,6 +57,7 @@ impl Sweep {
         match self {
             Sweep::Load => "load",
             Sweep::Voltage => "voltage",
+            Sweep::Regen => "regen",
         }
     }
 }
@@ -86,11 +101,25 @@ fn measure(sim: &mut Sim, settle_s: f64, window_s: f64) -> DynoRow {
     sim.plant.reset_energy();
     let p0 = sim.plant.position_rad() as f64;
     let (mut v, mut i, mut w) = (0.0, 0.0, 0.0);
+    let (mut i_bus, mut regen_j) = (0.0, 0.0);
     for _ in 0..n {
         sim.step();
         v += sim.plant.v_bus_avg_v() as f64;
         i += sim.plant.supply_current_a() as f64;
         w += sim.plant.omega_m_rad_s() as f64;
+        let i_src = sim.plant.source_current_a() as f64;
+        i_bus += i_src;
+        // The period's mean power at the source's terminals: exact without
+        // a DC link (the inverter's input power), the product of the
+        // period means with one (the capacitor holds the voltage).
+        let p = if sim.plant.dc_link().is_some() {
+            sim.plant.v_bus_avg_v() as f64 * i_src
+        } else {
+            sim.plant.input_power_w() as f64
+        };
+        if p < 0.0 {
+            regen_j -= p / f;
+        }
     }
     let t = n as f64 / f;
     let e = *sim.plant.energy();
@@ -108,10 +137,12 @@ fn measure(sim: &mut Sim, settle_s: f64, window_s: f64) -> DynoRow {
         w * 60.0 / std::f64::consts::TAU,
         torque,
     )
+    .with_bus(i_bus / n as f64, regen_j)
 }
 
-/// Run a sweep of `steps` steps (`steps + 1` rows for the load sweep,
-/// `steps` rows for the voltage sweep). `progress` gets the fraction done.
+/// Run a sweep of `steps` steps (`steps + 1` rows for the load and regen
+/// sweeps, `steps` rows for the voltage sweep). `progress` gets the
+/// fraction done.
 pub fn run_dyno(
     setup: &Setup,
     sweep: Sweep,
@@ -149,11 +180,13 @@ pub fn run_dyno(
     let mut set_points = Vec::new();
     let (settle, window) = (0.35, 0.1);
     match sweep {
-        Sweep::Load => {
+        Sweep::Load | Sweep::Regen => {
             let w_cmd = (0.5 * setup.max_speed_rad_s()).min(setup.max_mission_speed_rad_s());
             ramp(&mut sim, 0.0, w_cmd);
+            // The load opposes positive rotation: negative, it drives it.
+            let sign = if sweep == Sweep::Regen { -1.0 } else { 1.0 };
             for k in 0..=steps {
-                let load = t_rated * k as f32 / steps as f32;
+                let load = sign * t_rated * k as f32 / steps as f32;
                 sim.load_nm = load;
                 rows.push(measure(&mut sim, settle, window));
                 set_points.push((load as f64, v_nom as f64, w_cmd as f64));

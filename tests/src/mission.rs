@@ -24,6 +24,17 @@
 //! 3. **speed step** 0 -> `w1`, then a **ramp** `w1` -> `w2` (velocity mode).
 //! 4. **load step** at `w2` (about 40 % of the rated torque).
 //! 5. stop (load removed), then a **position move** of one turn.
+//! 6. **braking** (design §18): a DC link with the ODrive v3's bus capacitor
+//!    on a battery, a spin-up to the ramp's speed, then the supply made
+//!    non-sinking (a diode-fed bench supply) and a stop with the board's
+//!    regen limit ([`PowerLimitsConfig::for_board`]): the peak bus voltage
+//!    against the over-voltage threshold, the stopping time and where the
+//!    kinetic energy went; then the same stop with the ODrive's 2 ohm brake
+//!    resistor switched by the drive's chopper. It fails on a bus at or
+//!    above the over-voltage threshold or a fault; a stop that takes longer
+//!    than the segment (the regen limit leaves the braking to friction and
+//!    copper) is reported, not failed. The power limits and the DC link are
+//!    only in this segment (every earlier figure is unchanged).
 //!
 //! ```no_run
 //! use foc_bench::mission::{run_mission, Setup};
@@ -37,11 +48,13 @@ use crate::identify;
 use crate::metrics;
 use crate::motor_file::{MotorFile, MotorFileError};
 use crate::plant::{self, BenchConfig, Measurements, Mechanics, Plant};
+use crate::power::{DcLinkConfig, SourceKind};
 use crate::report::{Panel, Trace};
 use foc_core::angle::{ElectricalAngle, MechanicalAngle};
 use foc_core::calibration::identification::IdentificationResult;
 use foc_core::calibration::Calibrated;
 use foc_core::control::cascade::{Cascade, CascadeConfig};
+use foc_core::control::power::{ActiveLimit, PowerLimitsConfig};
 use foc_core::control::stage::{AngleCalibration, Sample};
 use foc_core::control::{BridgeCommand, Command, Mode};
 use foc_core::frames::Abc;
@@ -461,6 +474,65 @@ pub struct IdentificationSummary {
     pub wall_time_s: f64,
 }
 
+/// One stop of the braking segment.
+#[derive(Clone, Debug, PartialEq)]
+pub struct StopFigures {
+    /// The speed command's ramp to 0 [s] (0: a hard stop, 0 rad/s at once).
+    pub ramp_s: f64,
+    /// Highest bus voltage [V] (the plant's, at the capacitor's terminals).
+    pub peak_bus_v: f64,
+    /// Speed at the stop command [rad/s].
+    pub from_rad_s: f64,
+    /// Time from the stop command to |speed| < 2 % of the commanded speed [s]
+    /// (None: not within the segment).
+    pub stop_s: Option<f64>,
+    /// Speed at the end of the segment [rad/s].
+    pub end_rad_s: f64,
+    /// Kinetic energy removed [J].
+    pub kinetic_j: f64,
+    /// Into the bus capacitor (change of `C v^2 / 2`) [J].
+    pub capacitor_j: f64,
+    /// Into the brake resistor [J].
+    pub resistor_j: f64,
+    /// Copper loss of the winding [J].
+    pub copper_j: f64,
+    /// Friction [J].
+    pub friction_j: f64,
+    /// Delivered by the supply [J].
+    pub source_j: f64,
+    /// PWM periods with the regen limit active.
+    pub regen_limited_periods: usize,
+    /// PWM periods with the brake chopper on.
+    pub brake_periods: usize,
+    /// Faults latched during the stop (names).
+    pub faults: Vec<String>,
+}
+
+/// The braking segment's figures (design §18).
+#[derive(Clone, Debug, PartialEq)]
+pub struct BrakingSummary {
+    /// The DC link: its name and capacitance [F].
+    pub link: &'static str,
+    /// Bus capacitance [F].
+    pub c_f: f64,
+    /// Supply voltage [V].
+    pub v_source_v: f64,
+    /// The supervisor's over-voltage threshold [V].
+    pub over_voltage_v: f64,
+    /// The regen ramp [V] (start, end).
+    pub regen_v: (f64, f64),
+    /// Speed commanded before the stops [rad/s].
+    pub from_rad_s: f64,
+    /// The stop into the capacitor alone (regen limit on), along the
+    /// mission's deceleration ramp.
+    pub capacitor: StopFigures,
+    /// A hard stop with the brake resistor (chopper on at the regen ramp's
+    /// start).
+    pub resistor: StopFigures,
+    /// Its resistance [ohm].
+    pub resistor_ohm: f64,
+}
+
 /// The figures measured on one mission.
 #[derive(Clone, Debug, PartialEq)]
 pub struct MissionSummary {
@@ -517,6 +589,8 @@ pub struct MissionSummary {
     pub position_final_error_rad: f64,
     /// One encoder count [rad].
     pub encoder_count_rad: f64,
+    /// The braking segment (None: not run).
+    pub braking: Option<BrakingSummary>,
     /// Faults latched during the mission (names).
     pub faults: Vec<String>,
     /// PWM periods simulated.
@@ -596,6 +670,22 @@ impl MissionSummary {
         }
         if self.position_settling_ms.is_none() {
             f.push("position did not settle".into());
+        }
+        if let Some(b) = &self.braking {
+            for (name, stop) in [("capacitor", &b.capacitor), ("resistor", &b.resistor)] {
+                if !below(stop.peak_bus_v, b.over_voltage_v) {
+                    f.push(format!(
+                        "braking ({name}): bus {:.2} V, over-voltage threshold {:.2} V",
+                        stop.peak_bus_v, b.over_voltage_v
+                    ));
+                }
+                if !stop.faults.is_empty() {
+                    f.push(format!(
+                        "braking ({name}): faults latched: {}",
+                        stop.faults.join(", ")
+                    ));
+                }
+            }
         }
         f
     }
@@ -733,6 +823,66 @@ impl MissionSummary {
                 self.position_final_error_rad / self.encoder_count_rad
             ),
         );
+        if let Some(b) = &self.braking {
+            row(
+                "braking: DC link",
+                format!(
+                    "{} ({:.0} uF), {:.1} V supply that cannot sink current; over-voltage threshold {:.2} V, regen ramp {:.2} -> {:.2} V",
+                    b.link,
+                    b.c_f * 1e6,
+                    b.v_source_v,
+                    b.over_voltage_v,
+                    b.regen_v.0,
+                    b.regen_v.1
+                ),
+            );
+            let how = |st: &StopFigures| {
+                if st.ramp_s > 0.0 {
+                    format!("ramp to 0 in {:.0} ms", st.ramp_s * 1e3)
+                } else {
+                    "hard stop".to_string()
+                }
+            };
+            for (name, stop) in [
+                (
+                    format!("braking into the capacitor ({})", how(&b.capacitor)),
+                    &b.capacitor,
+                ),
+                (
+                    format!(
+                        "braking with a {:.1} ohm brake resistor ({})",
+                        b.resistor_ohm,
+                        how(&b.resistor)
+                    ),
+                    &b.resistor,
+                ),
+            ] {
+                row(
+                    &name,
+                    format!(
+                        "from {:.1} rad/s: peak bus {:.2} V, stop {}; kinetic {:.3} J -> capacitor {:.3} J, resistor {:.3} J, copper {:.3} J, friction {:.3} J (supply {:+.3} J); regen limit active {:.1} ms, chopper on {:.1} ms",
+                        stop.from_rad_s,
+                        stop.peak_bus_v,
+                        stop.stop_s.map_or(
+                            format!(
+                                "{:.1} rad/s after {:.0} ms (not stopped)",
+                                stop.end_rad_s,
+                                BRAKE_STOP_S * 1e3
+                            ),
+                            |t| format!("{:.1} ms", t * 1e3)
+                        ),
+                        stop.kinetic_j,
+                        stop.capacitor_j,
+                        stop.resistor_j,
+                        stop.copper_j,
+                        stop.friction_j,
+                        stop.source_j,
+                        stop.regen_limited_periods as f64 / self.pwm_hz as f64 * 1e3,
+                        stop.brake_periods as f64 / self.pwm_hz as f64 * 1e3,
+                    ),
+                );
+            }
+        }
         row(
             "faults",
             if self.faults.is_empty() {
@@ -815,7 +965,8 @@ impl MissionResult {
     /// it is most of the simulated time), `mission.csv` (every PWM period
     /// from the end of the identification on, simulation time),
     /// `mission.svg` (the same, decimated), `current_step.csv`,
-    /// `current_step.svg`, `speed.svg`, `position.svg` and `summary.md`.
+    /// `current_step.svg`, `speed.svg`, `position.svg`, `braking.svg` and
+    /// `summary.md`.
     /// Returns the paths.
     pub fn write(&self, dir: &Path) -> std::io::Result<Vec<std::path::PathBuf>> {
         std::fs::create_dir_all(dir)?;
@@ -963,6 +1114,28 @@ impl MissionResult {
                 )?;
                 out.push(p);
             }
+        }
+        if let (Some(a), Some(b)) = (self.segment("braking"), self.segment("braking, resistor")) {
+            let whole = Segment {
+                name: "braking",
+                start: a.start,
+                end: b.end,
+            };
+            let p = dir.join("braking.svg");
+            crate::report::plot_svg(
+                &p,
+                &format!(
+                    "Braking into a supply that cannot sink current (capacitor alone, then a brake resistor): {}",
+                    self.summary.motor
+                ),
+                &decimate(&self.slice(&whole), 4000),
+                &[
+                    Panel::new("speed", "rad/s", &["speed_ref_rad_s", "speed_rad_s"]),
+                    Panel::new("bus voltage", "V", &["v_bus_v"]),
+                    Panel::new("q current", "A", &["iq_ref_a", "iq_a"]),
+                ],
+            )?;
+            out.push(p);
         }
         let p = dir.join("summary.md");
         std::fs::write(&p, self.summary.to_markdown())?;
@@ -1142,12 +1315,14 @@ pub fn run_mission_from(
     let load = m.load_step();
     m.stop();
     let p0_true = m.position_move();
+    let braking = m.braking();
     (m.progress.report)(1.0);
 
     let trace = m.sim.take_trace().unwrap_or_default();
     let record = m.record(settings.map_or(auto_link(setup), |s| s.watchdog));
     let mut summary = m.summary(&trace, identified, i_step, load, p0_true, wall);
     summary.restored = stored.is_some();
+    summary.braking = Some(braking);
     Ok(MissionResult {
         trace,
         segments: m.segments,
@@ -1224,7 +1399,16 @@ impl MissionPlan {
             * (f32::from(a.lead_in_turns_e + a.turns_e) * std::f32::consts::TAU / a.speed_e_rad_s
                 + a.hold_s);
         let t_id = 0.1 + 1.0 + t_align as f64 + if id_cfg.measure_flux { 2.0 } else { 0.0 };
-        let expected_s = t_id + 0.03 + 0.5 + t_ramp + 0.3 + 0.6 + t_ramp + 0.4 + t_move;
+        let expected_s = t_id
+            + 0.03
+            + 0.5
+            + t_ramp
+            + 0.3
+            + 0.6
+            + t_ramp
+            + 0.4
+            + t_move
+            + 2.0 * (BRAKE_SPIN_S + BRAKE_STOP_S);
         Self {
             kt,
             w1,
@@ -1238,6 +1422,11 @@ impl MissionPlan {
         }
     }
 }
+
+/// The braking segment's longest spin-up before each stop [s].
+const BRAKE_SPIN_S: f64 = 1.0;
+/// The braking segment's time after each stop command [s].
+const BRAKE_STOP_S: f64 = 0.4;
 
 /// The progress callback and the expected number of periods.
 struct Progress<'a> {
@@ -1510,6 +1699,152 @@ impl Mission<'_> {
         p0_true
     }
 
+    /// Segment 6, braking (design §18): two stops from the ramp's speed
+    /// into a supply that cannot sink current with the ODrive v3's bus
+    /// capacitor, the board's regen limit on; the first into the capacitor
+    /// alone, the second with the ODrive's brake resistor. Each: the DC link
+    /// on a battery (it sinks the spin-up's overshoot), a spin-up, then the
+    /// supply made non-sinking, the limits installed and 0 rad/s
+    /// commanded. Afterwards the power limits are off again and the plant
+    /// is back on its plain source.
+    fn braking(&mut self) -> BrakingSummary {
+        let setup = self.setup;
+        let v_src = setup.bench.bus_voltage_v;
+        let base = DcLinkConfig::odrive_v3();
+        let resistor_ohm = base.brake_resistor_ohm.unwrap_or(2.0);
+        let supervisor = self.sim.cascade.current.config().supervisor;
+        let limits = PowerLimitsConfig::for_board(
+            &supervisor,
+            self.sim.cascade.current.config().current.motor,
+            false,
+        );
+        let w0 = self.plan.w2;
+        let mut stops = Vec::new();
+        // Into the capacitor alone: the mission's deceleration (the ramp to
+        // 0 of segment 5). A hard stop (0 rad/s at once) there lifts the
+        // bus past the regen ramp before the current loop follows on the
+        // high-inductance default motor (M153: 32.1 V within 5 ms, then the
+        // threshold): that needs the resistor, the second stop.
+        let t_ramp = self.plan.t_ramp;
+        for (name, brake, ramp_s) in [("braking", false, t_ramp), ("braking, resistor", true, 0.0)]
+        {
+            let start = self.sim.rows();
+            let mut link = base.battery(v_src, 0.02);
+            link.brake_resistor_ohm = brake.then_some(resistor_ohm);
+            self.sim.plant.set_dc_link(Some(link));
+            self.sim
+                .cascade
+                .command(Command::Velocity { rad_s: w0 })
+                .ok();
+            // Until settled within 2 % of the speed for 50 ms (at most
+            // BRAKE_SPIN_S).
+            let mut settled = 0;
+            for _ in 0..secs(setup, BRAKE_SPIN_S) {
+                self.sim.step();
+                self.progress.tick(&self.sim);
+                let w = self.sim.plant.omega_m_rad_s() as f32;
+                settled = if (w - w0).abs() < 0.02 * w0.abs() {
+                    settled + 1
+                } else {
+                    0
+                };
+                if settled >= secs(setup, 0.05) {
+                    break;
+                }
+            }
+            if let Some(l) = self.sim.plant.dc_link_mut() {
+                l.source = SourceKind::NonSinking;
+            }
+            let cfg = if brake {
+                limits.with_brake_resistor()
+            } else {
+                limits
+            };
+            self.sim.cascade.current.set_power_limits(Some(cfg));
+            self.sim.plant.reset_energy();
+            let ke0 = self.sim.plant.kinetic_energy_j() as f64;
+            let faults0: Vec<_> = self.sim.cascade.feedback().faults.iter().collect();
+            let n_ramp = (ramp_s * setup.bench.pwm_frequency_hz as f64).round() as usize;
+            let n = secs(setup, BRAKE_STOP_S);
+            let ts = 1.0 / setup.bench.pwm_frequency_hz as f64;
+            let mut stop = StopFigures {
+                ramp_s,
+                from_rad_s: self.sim.plant.omega_m_rad_s() as f64,
+                peak_bus_v: 0.0,
+                stop_s: None,
+                end_rad_s: 0.0,
+                kinetic_j: 0.0,
+                capacitor_j: 0.0,
+                resistor_j: 0.0,
+                copper_j: 0.0,
+                friction_j: 0.0,
+                source_j: 0.0,
+                regen_limited_periods: 0,
+                brake_periods: 0,
+                faults: Vec::new(),
+            };
+            for k in 0..n {
+                if k <= n_ramp && k % self.plan.speed_div == 0 {
+                    let w = if n_ramp == 0 {
+                        0.0
+                    } else {
+                        w0 * (1.0 - k as f32 / n_ramp as f32)
+                    };
+                    self.sim
+                        .cascade
+                        .command(Command::Velocity { rad_s: w })
+                        .ok();
+                }
+                self.sim.step();
+                self.progress.tick(&self.sim);
+                stop.peak_bus_v = stop.peak_bus_v.max(self.sim.plant.v_bus_v() as f64);
+                let fb = self.sim.cascade.feedback();
+                stop.regen_limited_periods += usize::from(fb.power.active == ActiveLimit::Regen);
+                stop.brake_periods += usize::from(fb.power.brake_on);
+                if stop.stop_s.is_none()
+                    && (self.sim.plant.omega_m_rad_s() as f64).abs() < 0.02 * w0 as f64
+                {
+                    stop.stop_s = Some((k + 1) as f64 * ts);
+                }
+            }
+            let e = *self.sim.plant.energy();
+            stop.end_rad_s = self.sim.plant.omega_m_rad_s() as f64;
+            stop.kinetic_j = ke0 - self.sim.plant.kinetic_energy_j() as f64;
+            stop.capacitor_j = e.capacitor_j as f64;
+            stop.resistor_j = e.brake_j as f64;
+            stop.copper_j = e.copper_j as f64;
+            stop.friction_j = e.friction_j as f64;
+            stop.source_j = (e.source_out_j - e.source_in_j) as f64;
+            stop.faults = self
+                .sim
+                .cascade
+                .feedback()
+                .faults
+                .iter()
+                .filter(|f| !faults0.contains(f))
+                .map(|f| f.name().to_string())
+                .collect();
+            self.sim.cascade.current.set_power_limits(None);
+            self.sim.plant.set_brake(false);
+            self.sim.plant.set_dc_link(None);
+            self.end_segment(name, start);
+            stops.push(stop);
+        }
+        let resistor = stops.pop().expect("two stops");
+        let capacitor = stops.pop().expect("two stops");
+        BrakingSummary {
+            link: "ODrive v3 bus (DcLinkConfig::odrive_v3)",
+            c_f: base.c_f as f64,
+            v_source_v: v_src as f64,
+            over_voltage_v: supervisor.bus_over_voltage_v as f64,
+            regen_v: (limits.regen_start_v as f64, limits.regen_end_v as f64),
+            from_rad_s: w0 as f64,
+            capacitor,
+            resistor,
+            resistor_ohm: resistor_ohm as f64,
+        }
+    }
+
     /// The segment `name` (every segment is recorded once).
     fn segment(&self, name: &str) -> Segment {
         self.segments
@@ -1569,6 +1904,7 @@ impl Mission<'_> {
             position_settling_ms: position.0,
             position_final_error_rad: position.1,
             encoder_count_rad: std::f64::consts::TAU / cpr as f64,
+            braking: None,
             faults: mission_faults(trace),
             periods,
             sim_time_s: periods as f64 * ts,

@@ -287,8 +287,16 @@ pub struct DynoRow {
     pub torque_nm: f64,
     /// Mechanical output power [W].
     pub mechanical_power_w: f64,
-    /// Efficiency, mechanical / input [%].
+    /// Efficiency [%]: mechanical / input while motoring; electrical out /
+    /// mechanical in while generating (both powers negative).
     pub efficiency_percent: f64,
+    /// Mean current at the source's terminals [A] (negative: returned to
+    /// it). `None`: not measured (the column is left out of the report
+    /// when no row has it).
+    pub bus_current_a: Option<f64>,
+    /// Energy returned to the source over the measurement window [J]
+    /// (`None`: not measured, as above).
+    pub regen_energy_j: Option<f64>,
 }
 
 impl DynoRow {
@@ -304,6 +312,9 @@ impl DynoRow {
         let mech = torque_nm * speed_rpm * std::f64::consts::TAU / 60.0;
         let eff = if input_power_w > 0.0 {
             100.0 * mech / input_power_w
+        } else if input_power_w < 0.0 && mech < 0.0 {
+            // Generating: the electrical power out over the mechanical in.
+            100.0 * input_power_w / mech
         } else {
             0.0
         };
@@ -315,8 +326,21 @@ impl DynoRow {
             torque_nm,
             mechanical_power_w: mech,
             efficiency_percent: eff,
+            bus_current_a: None,
+            regen_energy_j: None,
         }
     }
+
+    /// With the bus figures: the mean source current [A] and the energy
+    /// returned to the source [J].
+    pub fn with_bus(self, bus_current_a: f64, regen_energy_j: f64) -> Self {
+        Self {
+            bus_current_a: Some(bus_current_a),
+            regen_energy_j: Some(regen_energy_j),
+            ..self
+        }
+    }
+
     fn values(&self) -> [f64; 7] {
         [
             self.supply_voltage_v,
@@ -341,40 +365,79 @@ pub const DYNO_COLUMNS: [&str; 7] = [
     "Efficiency [%]",
 ];
 
-/// CSV: `# key: value` header lines, then the table.
+/// Column headings of the bus figures, after [`DYNO_COLUMNS`] when any row
+/// has them ([`DynoRow::with_bus`]).
+pub const DYNO_BUS_COLUMNS: [&str; 2] = ["Bus current [A]", "Regenerated energy [J]"];
+
+/// Whether any row carries the bus figures.
+fn has_bus(rows: &[DynoRow]) -> bool {
+    rows.iter()
+        .any(|r| r.bus_current_a.is_some() || r.regen_energy_j.is_some())
+}
+
+/// The bus figures of a row (NaN where not measured).
+fn bus_values(r: &DynoRow) -> [f64; 2] {
+    [
+        r.bus_current_a.unwrap_or(f64::NAN),
+        r.regen_energy_j.unwrap_or(f64::NAN),
+    ]
+}
+
+/// CSV: `# key: value` header lines, then the table (with the bus columns
+/// when any row has them).
 pub fn dyno_csv(header: &DynoHeader, rows: &[DynoRow]) -> String {
+    let bus = has_bus(rows);
     let mut s = String::new();
     for (k, v) in header.fields() {
         let _ = writeln!(s, "# {k}: {v}");
     }
     s.push_str(&DYNO_COLUMNS.join(","));
+    if bus {
+        s.push(',');
+        s.push_str(&DYNO_BUS_COLUMNS.join(","));
+    }
     s.push('\n');
     for r in rows {
-        let v: Vec<String> = r.values().iter().map(|x| format!("{x:.3}")).collect();
+        let mut v: Vec<String> = r.values().iter().map(|x| format!("{x:.3}")).collect();
+        if bus {
+            v.extend(bus_values(r).iter().map(|x| format!("{x:.3}")));
+        }
         s.push_str(&v.join(","));
         s.push('\n');
     }
     s
 }
 
-/// Markdown: title, header table, data table.
+/// Markdown: title, header table, data table (with the bus columns when
+/// any row has them).
 pub fn dyno_markdown(header: &DynoHeader, rows: &[DynoRow]) -> String {
+    let bus = has_bus(rows);
     let mut s = String::from("# Performance Curve Report\n\n| Field | Value |\n|---|---|\n");
     for (k, v) in header.fields() {
         let _ = writeln!(s, "| {k} | {v} |");
     }
+    let n = DYNO_COLUMNS.len() + if bus { DYNO_BUS_COLUMNS.len() } else { 0 };
     s.push_str("\n| ");
     s.push_str(&DYNO_COLUMNS.join(" | "));
+    if bus {
+        s.push_str(" | ");
+        s.push_str(&DYNO_BUS_COLUMNS.join(" | "));
+    }
     s.push_str(" |\n|");
-    s.push_str(&"---:|".repeat(DYNO_COLUMNS.len()));
+    s.push_str(&"---:|".repeat(n));
     s.push('\n');
     for r in rows {
         let v = r.values();
-        let _ = writeln!(
+        let _ = write!(
             s,
             "| {:.1} | {:.2} | {:.1} | {:.0} | {:.3} | {:.1} | {:.1} |",
             v[0], v[1], v[2], v[3], v[4], v[5], v[6]
         );
+        if bus {
+            let b = bus_values(r);
+            let _ = write!(s, " {:.2} | {:.3} |", b[0], b[1]);
+        }
+        s.push('\n');
     }
     s
 }
@@ -405,30 +468,50 @@ pub fn dyno_svg(path: impl AsRef<Path>, header: &DynoHeader, rows: &[DynoRow]) -
     } else {
         (0, "supply voltage [V]", "supply-voltage sweep")
     };
-    let mut t = Trace::new(&[
+    let bus = has_bus(rows);
+    let mut names = vec![
         "speed_rpm",
         "torque_nm",
         "supply_current_a",
         "input_power_w",
         "mechanical_power_w",
         "efficiency_percent",
-    ]);
+    ];
+    if bus {
+        names.extend(["bus_current_a", "regen_energy_j"]);
+    }
+    let mut t = Trace::new(&names);
     let mut sorted: Vec<DynoRow> = rows.to_vec();
     sorted.sort_by(|a, b| a.values()[x_col].total_cmp(&b.values()[x_col]));
     for r in &sorted {
         let v = r.values();
-        t.push(v[x_col], &[v[3], v[4], v[1], v[2], v[5], v[6]]);
+        let mut row = vec![v[3], v[4], v[1], v[2], v[5], v[6]];
+        if bus {
+            row.extend(bus_values(r));
+        }
+        t.push(v[x_col], &row);
     }
     let title = format!("Performance Curve Report: {} ({what})", header.motor_model);
     let mut panels = vec![Panel::new("Speed", "rpm", &["speed_rpm"])];
     if !torque_sweep {
         panels.push(Panel::new("Torque", "N m", &["torque_nm"]));
     }
+    if bus {
+        panels.push(Panel::new(
+            "Supply and bus current",
+            "A",
+            &["supply_current_a", "bus_current_a"],
+        ));
+    } else {
+        panels.push(Panel::new("Supply current", "A", &["supply_current_a"]));
+    }
     panels.extend([
-        Panel::new("Supply current", "A", &["supply_current_a"]),
         Panel::new("Power", "W", &["input_power_w", "mechanical_power_w"]),
         Panel::new("Efficiency", "%", &["efficiency_percent"]),
     ]);
+    if bus {
+        panels.push(Panel::new("Regenerated energy", "J", &["regen_energy_j"]));
+    }
     plot_svg_against(path, &title, &t, &panels, x_desc)
 }
 

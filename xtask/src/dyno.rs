@@ -1,10 +1,15 @@
 //! `cargo xtask dyno`: the simulated dynamometer of `foc_bench::dyno`.
 //!
-//! Load-torque steps at a fixed speed command (`--sweep load`, default) or
+//! Load-torque steps at a fixed speed command (`--sweep load`, default),
 //! supply-voltage steps with a proportional speed command (`--sweep
-//! voltage`), each operating point measured on the plant in steady state
-//! (averaged over 0.1 s after 0.35 s of settling). Writes the Performance
-//! Curve Report as `<out>/dyno-<sweep>.{csv,md,svg}` and prints the table.
+//! voltage`) or overhauling-load steps at a fixed speed command, the drive
+//! braking and returning energy to the supply (`--sweep regen`), each
+//! operating point measured on the plant in steady state (averaged over
+//! 0.1 s after 0.35 s of settling). Besides the report's columns, each row
+//! has the mean bus current at the source's terminals and the energy
+//! regenerated into the source over the 0.1 s window. Writes the
+//! Performance Curve Report as `<out>/dyno-<sweep>.{csv,md,svg}` and
+//! prints the table.
 
 use std::path::{Path, PathBuf};
 
@@ -23,8 +28,13 @@ pub enum SweepArg {
     Load,
     /// Supply-voltage steps, nominal down to a tenth, speed command proportional.
     Voltage,
-    /// Both sweeps.
+    /// Overhauling-load steps, 0 to rated torque driving the shaft, at half
+    /// the no-load speed: the drive regenerates.
+    Regen,
+    /// The load and voltage sweeps.
     Both,
+    /// All three sweeps.
+    All,
 }
 
 /// Arguments of `cargo xtask dyno`.
@@ -39,7 +49,7 @@ pub struct DynoArgs {
     /// Which sweep.
     #[arg(long, value_enum, default_value_t = SweepArg::Load)]
     pub sweep: SweepArg,
-    /// Number of steps (rows: steps + 1 for the load sweep, steps for the voltage sweep).
+    /// Number of steps (rows: steps + 1 for the load and regen sweeps, steps for the voltage sweep).
     #[arg(long, default_value_t = 10)]
     pub steps: usize,
 }
@@ -55,7 +65,9 @@ pub fn run_cmd(args: &DynoArgs) -> Result {
     let sweeps: &[Sweep] = match args.sweep {
         SweepArg::Load => &[Sweep::Load],
         SweepArg::Voltage => &[Sweep::Voltage],
+        SweepArg::Regen => &[Sweep::Regen],
         SweepArg::Both => &[Sweep::Load, Sweep::Voltage],
+        SweepArg::All => &[Sweep::Load, Sweep::Voltage, Sweep::Regen],
     };
     for &sweep in sweeps {
         banner(&format!("dyno ({} sweep): {}", sweep.name(), setup.name));

@@ -2,14 +2,18 @@
 //! through the scripted mission of `foc_bench::mission` (identification:
 //! current offsets, R, L, gains, alignment, flux linkage; then q-current
 //! step, speed step and ramp, load step, position move, all on the
-//! identification's permit).
+//! identification's permit; then the braking segment: stops into a supply
+//! that cannot sink current with the ODrive v3's bus capacitor, the regen
+//! limit on, into the capacitor alone and with the brake resistor, design
+//! §18).
 //!
 //! Writes `identification.csv` / `identification.svg` (the identify
 //! segment, decimated), `mission.csv` (every PWM period after the
 //! identification), `current_step.csv`, SVG plots (`mission.svg`,
-//! `current_step.svg`, `speed.svg`, `position.svg`) and `summary.md` into
-//! the output directory and prints the summary. Fails when the mission's
-//! pass criteria fail. `--all` runs every motor file in `tests/motors` (one
+//! `current_step.svg`, `speed.svg`, `position.svg`, `braking.svg`) and
+//! `summary.md` into the output directory and prints the summary. Fails
+//! when the mission's pass criteria fail (the braking segment's: the bus
+//! at or above the over-voltage threshold, no stop, a fault). `--all` runs every motor file in `tests/motors` (one
 //! sub-directory each); `--bench` also measures the simulation speed.
 //! `--save-config FILE.toml` writes the configuration the mission ended
 //! with (the identified calibration included) as `foc-ctl config export`

@@ -285,8 +285,9 @@ impl PowerLimitsConfig {
     ///   even if the other threshold said "off"); a start above the end is
     ///   lowered to the end (a step at the end).
     /// - thermal model: a NaN, negative or zero `thermal_resistance_k_per_w`
-    ///   and a NaN `ambient_c` -> the estimate saturates at
-    ///   [`THERMAL_MAX_C`] (derated to 0 when winding derating is on); a NaN
+    ///   and a NaN `ambient_c` -> the estimate is at [`THERMAL_MAX_C`]
+    ///   from its next step on (derated to 0 when winding derating is on;
+    ///   an `ambient_c` at or above it reads the same); a NaN
     ///   or negative time constant -> 0 (the estimate follows the loss at
     ///   once).
     /// - brake: a NaN `brake_on_v` -> `+inf` (never switches on: a resistor
@@ -849,6 +850,15 @@ impl ThermalEstimate {
             return self.temperature_c;
         }
         self.valid = true;
+        // A model the configuration left invalid (sanitized: a NaN, zero
+        // or negative `R_th` is +inf, a NaN ambient is THERMAL_MAX_C) reads
+        // hot at once, not one time constant later: a drive reconfigured
+        // with it keeps its estimate and would otherwise run at the full
+        // current for seconds (tau ln(...) ~ 11 s at the default 60 s).
+        if !(cfg.thermal_resistance_k_per_w < f32::INFINITY && cfg.ambient_c < THERMAL_MAX_C) {
+            self.temperature_c = THERMAL_MAX_C;
+            return self.temperature_c;
+        }
         let t = self.temperature_c;
         let loss = Self::copper_loss_w(cfg, i_dq_a, t);
         // NaN (inf * 0, a bad model) reads as the hot end.
