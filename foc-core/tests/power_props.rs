@@ -92,6 +92,7 @@ fn inputs() -> impl Strategy<Value = PowerInputs> {
             v_bus_v: Some(v),
             omega_e_rad_s: w,
             i_d_a: id,
+            iq_request_a: 0.0,
             current_limit_a: i_lim,
             winding_temperature_c: Some(t),
             stage_temperature_c: None,
@@ -272,6 +273,79 @@ proptest! {
                 prop_assert!(peak <= lpeak + 1e-3 + 1e-4 * lpeak, "{v}: {peak} after {lpeak}");
             }
             last = Some((w, peak));
+        }
+    }
+
+    /// d-axis braking: only while braking is asked (the request opposes
+    /// the speed) and the bus is in the regen ramp; `-(1 - s)` times the
+    /// cap, growing with the bus voltage; the current vector within the
+    /// limit; at and above `regen_end_v` no net power into the bus, and
+    /// still braking torque where the copper loss pays for it.
+    #[test]
+    fn d_axis_braking(
+        m in motor(),
+        mut inp in inputs(),
+        start in 20.0f32..50.0,
+        span in 0.5f32..10.0,
+        cap in prop_oneof![Just(f32::INFINITY), 0.1f32..50.0],
+        xs in proptest::collection::vec(0.0f32..1.2, 2..12),
+    ) {
+        let mut c = base(m);
+        c.regen_start_v = start;
+        c.regen_end_v = start + span;
+        c.regen_id_max_a = cap;
+        let c = c.sanitized();
+        inp.i_d_a = 0.0;
+        let i_lim = inp.current_limit_a;
+        let w_e = inp.omega_e_rad_s;
+        // Not braking (request along the speed, or none): no d-current.
+        for req in [0.0, w_e.signum() * 5.0] {
+            inp.iq_request_a = req;
+            inp.v_bus_v = Some(start + span);
+            prop_assert_eq!(iq_window(&c, &inp).id_a, 0.0);
+        }
+        inp.iq_request_a = -w_e.signum() * 5.0;
+        // Below the start: none.
+        inp.v_bus_v = Some(start);
+        prop_assert_eq!(iq_window(&c, &inp).id_a, 0.0);
+        let mut vs: Vec<f32> = xs.iter().map(|x| start + span * x).collect();
+        vs.sort_by(|a, b| a.partial_cmp(b).unwrap());
+        let mut last_id = 0.0f32;
+        for v in vs {
+            inp.v_bus_v = Some(v);
+            let w = iq_window(&c, &inp);
+            check_shape(&w, i_lim)?;
+            let s = c.regen_factor(v);
+            if w_e != 0.0 {
+                let want = -(1.0 - s) * cap.min(i_lim);
+                prop_assert!((w.id_a - want).abs() <= 1e-5 * (1.0 + want.abs()), "{v}: {} vs {want}", w.id_a);
+            }
+            prop_assert!(w.id_a <= 0.0 && w.id_a <= last_id + 1e-6, "{v}: {} after {last_id}", w.id_a);
+            last_id = w.id_a;
+            // The vector within the limit at both ends.
+            for iq in [w.min_a, w.max_a] {
+                prop_assert!((iq * iq + w.id_a * w.id_a).sqrt() <= i_lim * (1.0 + 1e-5) + 1e-6);
+            }
+            if v >= start + span && w_e != 0.0 {
+                let with_id = PowerInputs { i_d_a: w.id_a, ..inp };
+                for k in 0..=16 {
+                    let iq = w.min_a + (w.max_a - w.min_a) * k as f32 / 16.0;
+                    let (p, scale) = power(&c, &with_id, iq);
+                    prop_assert!(p >= -tol(scale), "v {v}, iq {iq}: P {p}");
+                }
+                // Braking torque is left where the winding's copper loss
+                // pays for it (and the current limit leaves room).
+                let regen_end = if w_e > 0.0 { -w.min_a } else { w.max_a };
+                let t = inp.winding_temperature_c.unwrap() as f64;
+                let r = m.r_ohm as f64 * (1.0 + COPPER_TEMPCO_PER_K as f64 * (t - 20.0));
+                let free = (w_e as f64 * (m.flux_linkage_wb as f64 + (m.ld_h - m.lq_h) as f64 * w.id_a as f64)).abs();
+                let room = (i_lim * i_lim - w.id_a * w.id_a).max(0.0).sqrt() as f64;
+                if r > 0.0 && w.id_a < -0.1 && free > 0.0 {
+                    // The zero-power current r id^2 / |w psi| (first order).
+                    let expect = (r * (w.id_a as f64).powi(2) / free).min(room);
+                    prop_assert!(regen_end as f64 >= 0.5 * expect - 1e-4, "v {v}: {regen_end} vs {expect}");
+                }
+            }
         }
     }
 
@@ -581,6 +655,7 @@ fn thermal_nan_and_saturation() {
         v_bus_v: Some(24.0),
         omega_e_rad_s: 100.0,
         i_d_a: 0.0,
+        iq_request_a: 0.0,
         current_limit_a: 10.0,
         winding_temperature_c: t.checked_temperature_c(),
         stage_temperature_c: None,
@@ -628,6 +703,7 @@ fn board_defaults() {
         v_bus_v: Some(24.0),
         omega_e_rad_s: 3000.0,
         i_d_a: 0.0,
+        iq_request_a: 0.0,
         current_limit_a: 10.0,
         winding_temperature_c: Some(60.0),
         stage_temperature_c: Some(40.0),
@@ -666,6 +742,7 @@ fn worked_example() {
         v_bus_v: Some(24.0),
         omega_e_rad_s: 2000.0,
         i_d_a: 0.0,
+        iq_request_a: 0.0,
         current_limit_a: 10.0,
         winding_temperature_c: Some(20.0),
         stage_temperature_c: None,

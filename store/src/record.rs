@@ -183,6 +183,9 @@ pub struct PowerRecord {
     pub regen_start_v: f32,
     /// Bus voltage with no regenerative current left [V] (>= start).
     pub regen_end_v: f32,
+    /// Largest d-axis braking current in the regen ramp [A] (>= 0, `inf`:
+    /// up to the current limit, 0: off).
+    pub regen_id_max_a: f32,
     /// Largest current drawn from the supply [A] (>= 0).
     pub bus_current_motoring_max_a: f32,
     /// Largest current returned to the supply [A] (>= 0).
@@ -564,6 +567,7 @@ impl PowerRecord {
             window(self.regen_start_v, self.regen_end_v) && self.regen_start_v > 0.0,
             "power.regen_start_v",
         )?;
+        check(limit(self.regen_id_max_a), "power.regen_id_max_a")?;
         check(
             limit(self.bus_current_motoring_max_a),
             "power.bus_current_motoring_max_a",
@@ -606,6 +610,7 @@ impl PowerRecord {
         Self {
             regen_start_v: c.regen_start_v,
             regen_end_v: c.regen_end_v,
+            regen_id_max_a: c.regen_id_max_a,
             bus_current_motoring_max_a: c.bus_current_motoring_max_a,
             bus_current_regen_max_a: c.bus_current_regen_max_a,
             power_motoring_max_w: c.power_motoring_max_w,
@@ -628,6 +633,7 @@ impl PowerRecord {
             motor,
             regen_start_v: self.regen_start_v,
             regen_end_v: self.regen_end_v,
+            regen_id_max_a: self.regen_id_max_a,
             bus_current_motoring_max_a: self.bus_current_motoring_max_a,
             bus_current_regen_max_a: self.bus_current_regen_max_a,
             power_motoring_max_w: self.power_motoring_max_w,
@@ -833,6 +839,7 @@ pub fn example() -> DriveRecord {
         power: Some(PowerRecord {
             regen_start_v: 25.5,
             regen_end_v: 28.5,
+            regen_id_max_a: f32::INFINITY,
             bus_current_motoring_max_a: 10.0,
             bus_current_regen_max_a: 2.0,
             power_motoring_max_w: f32::INFINITY,

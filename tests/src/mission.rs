@@ -26,15 +26,16 @@
 //! 5. stop (load removed), then a **position move** of one turn.
 //! 6. **braking** (design §18): a DC link with the ODrive v3's bus capacitor
 //!    on a battery, a spin-up to the ramp's speed, then the supply made
-//!    non-sinking (a diode-fed bench supply) and a stop with the board's
-//!    regen limit ([`PowerLimitsConfig::for_board`]): the peak bus voltage
-//!    against the over-voltage threshold, the stopping time and where the
-//!    kinetic energy went; then the same stop with the ODrive's 2 ohm brake
-//!    resistor switched by the drive's chopper. It fails on a bus at or
-//!    above the over-voltage threshold or a fault; a stop that takes longer
-//!    than the segment (the regen limit leaves the braking to friction and
-//!    copper) is reported, not failed. The power limits and the DC link are
-//!    only in this segment (every earlier figure is unchanged).
+//!    non-sinking (a diode-fed bench supply) and a hard stop (0 rad/s at
+//!    once) with the board's power limits
+//!    ([`PowerLimitsConfig::for_board`]: regen ramp and d-axis braking):
+//!    the peak bus voltage against the over-voltage threshold, the
+//!    stopping time and where the kinetic energy went; then the same stop
+//!    with the ODrive's 2 ohm brake resistor switched by the drive's
+//!    chopper. It fails on a bus at or above the over-voltage threshold or
+//!    a fault; a stop that takes longer than the segment is reported, not
+//!    failed. The power limits and the DC link are only in this segment
+//!    (every earlier figure is unchanged).
 //!
 //! ```no_run
 //! use foc_bench::mission::{run_mission, Setup};
@@ -1720,14 +1721,8 @@ impl Mission<'_> {
         );
         let w0 = self.plan.w2;
         let mut stops = Vec::new();
-        // Into the capacitor alone: the mission's deceleration (the ramp to
-        // 0 of segment 5). A hard stop (0 rad/s at once) there lifts the
-        // bus past the regen ramp before the current loop follows on the
-        // high-inductance default motor (M153: 32.1 V within 5 ms, then the
-        // threshold): that needs the resistor, the second stop.
-        let t_ramp = self.plan.t_ramp;
-        for (name, brake, ramp_s) in [("braking", false, t_ramp), ("braking, resistor", true, 0.0)]
-        {
+        // Both hard stops (0 rad/s at once).
+        for (name, brake, ramp_s) in [("braking", false, 0.0), ("braking, resistor", true, 0.0)] {
             let start = self.sim.rows();
             let mut link = base.battery(v_src, 0.02);
             link.brake_resistor_ohm = brake.then_some(resistor_ohm);

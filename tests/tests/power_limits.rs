@@ -49,8 +49,13 @@ struct Stop {
 }
 
 /// Spin to `w_rad_s` on a non-sinking supply with the board's capacitor
-/// (ODrive v3 preset, no brake resistor), then command 0 rad/s.
-fn stop_from(s: &Setup, w_rad_s: f32, limits: bool) -> Stop {
+/// (ODrive v3 preset, no brake resistor), then command 0 rad/s; with the
+/// board's power limits changed by `limits` (`None`: no power limits).
+fn stop_from(
+    s: &Setup,
+    w_rad_s: f32,
+    limits: Option<fn(PowerLimitsConfig) -> PowerLimitsConfig>,
+) -> Stop {
     let cfg = s.cascade_config();
     let mut plant = Plant::new(s.motor, s.bench);
     let mut link = DcLinkConfig::odrive_v3();
@@ -63,10 +68,10 @@ fn stop_from(s: &Setup, w_rad_s: f32, limits: bool) -> Stop {
     plant.set_dc_link(Some(link));
     let mut sim = Sim::with_plant(s, plant, cfg, false);
     sim.cascade.set_calibration(&s.supplied_calibration(&cfg));
-    if limits {
+    if let Some(change) = limits {
         let p =
             PowerLimitsConfig::for_board(&cfg.current.supervisor, control_motor(&s.motor), false);
-        sim.cascade.current.set_power_limits(Some(p));
+        sim.cascade.current.set_power_limits(Some(change(p)));
     }
     sim.cascade
         .command(Command::Velocity { rad_s: w_rad_s })
@@ -109,10 +114,11 @@ fn stop_from(s: &Setup, w_rad_s: f32, limits: bool) -> Stop {
 fn a_stop_into_a_non_sinking_supply_stays_below_the_over_voltage_threshold() {
     let s = cheetah();
     let ov = s.cascade_config().current.supervisor.bus_over_voltage_v as f64;
-    let without = stop_from(&s, 150.0, false);
-    let with = stop_from(&s, 150.0, true);
+    let without = stop_from(&s, 150.0, None);
+    let ramp_only = stop_from(&s, 150.0, Some(no_d_axis_braking));
+    let with = stop_from(&s, 150.0, Some(|p| p));
     println!(
-        "over-voltage threshold {ov} V; without the regen limit: {without:?}; with it: {with:?}"
+        "over-voltage threshold {ov} V\n  without the regen limit: {without:?}\n  regen ramp alone (no d-axis braking): {ramp_only:?}\n  regen ramp and d-axis braking (the default): {with:?}"
     );
     // Without the limit the braking energy lifts the bus over the threshold.
     assert!(without.peak_bus_v > ov, "{without:?}");
@@ -121,10 +127,27 @@ fn a_stop_into_a_non_sinking_supply_stays_below_the_over_voltage_threshold() {
         "{without:?}"
     );
     // With it: below the threshold, no fault, stopped.
-    assert!(with.peak_bus_v < ov, "{with:?}");
-    assert!(with.faults.is_empty(), "{with:?}");
-    assert!(with.regen_limited, "{with:?}");
-    assert!(with.stop_s.is_some(), "{with:?}");
+    for with in [&ramp_only, &with] {
+        assert!(with.peak_bus_v < ov, "{with:?}");
+        assert!(with.faults.is_empty(), "{with:?}");
+        assert!(with.regen_limited, "{with:?}");
+        assert!(with.stop_s.is_some(), "{with:?}");
+    }
+    // The ramp alone leaves only friction and the copper loss of the
+    // q-current to brake once the bus is full: d-axis braking stops in a
+    // fraction of that time.
+    assert!(
+        with.stop_s.unwrap() < 0.1 * ramp_only.stop_s.unwrap(),
+        "{with:?} vs {ramp_only:?}"
+    );
+}
+
+/// The board's limits without d-axis braking.
+fn no_d_axis_braking(p: PowerLimitsConfig) -> PowerLimitsConfig {
+    PowerLimitsConfig {
+        regen_id_max_a: 0.0,
+        ..p
+    }
 }
 
 // ----- shared set-up of the tests below -----
@@ -270,17 +293,22 @@ fn a_reversal_into_a_non_sinking_supply_stays_below_the_over_voltage_threshold()
     // more (it must stay near: the speed loop's overshoot of the
     // re-acceleration is braked again into the same capacitor, so it
     // decays slowly).
-    let mut sim = base.clone();
-    non_sinking(&mut sim, None);
-    let cfg = board_limits(&s, sim.cascade.config());
-    sim.cascade.current.set_power_limits(Some(cfg));
-    let mut with = run_to(&mut sim, pwm, -w, 4.0, &|r| r.reached_s.is_some());
-    let hold = run_to(&mut sim, pwm, -w, 0.3, &|_| false);
-    with.peak_bus_v = with.peak_bus_v.max(hold.peak_bus_v);
-    with.faults = hold.faults;
-    with.final_rad_s = hold.final_rad_s;
+    let cfg = board_limits(&s, base.cascade.config());
+    let reverse = |cfg: PowerLimitsConfig| {
+        let mut sim = base.clone();
+        non_sinking(&mut sim, None);
+        sim.cascade.current.set_power_limits(Some(cfg));
+        let mut with = run_to(&mut sim, pwm, -w, 4.0, &|r| r.reached_s.is_some());
+        let hold = run_to(&mut sim, pwm, -w, 0.3, &|_| false);
+        with.peak_bus_v = with.peak_bus_v.max(hold.peak_bus_v);
+        with.faults = hold.faults;
+        with.final_rad_s = hold.final_rad_s;
+        with
+    };
+    let ramp_only = reverse(no_d_axis_braking(cfg));
+    let with = reverse(cfg);
     println!(
-        "reversal +{w} -> -{w} rad/s into a non-sinking 24 V supply, 1880 uF, over-voltage threshold {ov} V\n  without the regen limit: {without:?}\n  with it (regen ramp {} V -> {} V): {with:?}",
+        "reversal +{w} -> -{w} rad/s into a non-sinking 24 V supply, 1880 uF, over-voltage threshold {ov} V\n  without the regen limit: {without:?}\n  regen ramp {} V -> {} V alone: {ramp_only:?}\n  with d-axis braking (the default): {with:?}",
         cfg.regen_start_v, cfg.regen_end_v
     );
     assert!(without.peak_bus_v > ov, "{without:?}");
@@ -293,13 +321,19 @@ fn a_reversal_into_a_non_sinking_supply_stays_below_the_over_voltage_threshold()
         (without.final_rad_s + w as f64).abs() > 0.05 * w as f64,
         "{without:?}"
     );
-    assert!(with.peak_bus_v < ov, "{with:?}");
-    assert!(with.faults.is_empty(), "{with:?}");
-    assert!(with.regen_periods > 0, "{with:?}");
-    assert!(with.reached_s.is_some(), "{with:?}");
+    for with in [&ramp_only, &with] {
+        assert!(with.peak_bus_v < ov, "{with:?}");
+        assert!(with.faults.is_empty(), "{with:?}");
+        assert!(with.regen_periods > 0, "{with:?}");
+        assert!(with.reached_s.is_some(), "{with:?}");
+        assert!(
+            (with.final_rad_s + w as f64).abs() < 0.10 * w as f64,
+            "{with:?}"
+        );
+    }
     assert!(
-        (with.final_rad_s + w as f64).abs() < 0.10 * w as f64,
-        "{with:?}"
+        with.reached_s.unwrap() < 0.1 * ramp_only.reached_s.unwrap(),
+        "{with:?} vs {ramp_only:?}"
     );
 }
 
@@ -368,11 +402,11 @@ fn a_brake_resistor_stops_faster_and_takes_the_braking_energy() {
     //    limit on, without and with the resistor (chopper on at the regen
     //    ramp's start, 25.5 V, off at 24.7 V).
     let (s, base) = at_150();
-    let board = board_limits(s, base.cascade.config());
+    let board = no_d_axis_braking(board_limits(s, base.cascade.config()));
     let (cap_only, e_cap) = stop_energy(s, base.clone(), board, false, 1.5);
     let (resistor, e_res) = stop_energy(s, base.clone(), board.with_brake_resistor(), true, 0.1);
     println!(
-        "stop from 150 rad/s, regen limit on, 40 A current limit\n  capacitor only: {cap_only:?}\n    {e_cap:?}\n  2 ohm brake resistor: {resistor:?}\n    {e_res:?}"
+        "stop from 150 rad/s, regen limit on (no d-axis braking), 40 A current limit\n  capacitor only: {cap_only:?}\n    {e_cap:?}\n  2 ohm brake resistor: {resistor:?}\n    {e_res:?}"
     );
     let (t_cap, t_res) = (cap_only.zero_s.unwrap(), resistor.zero_s.unwrap());
     assert!(cap_only.faults.is_empty() && resistor.faults.is_empty());

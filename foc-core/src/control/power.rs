@@ -89,6 +89,7 @@
 //!     v_bus_v: Some(24.0),
 //!     omega_e_rad_s: 2000.0,
 //!     i_d_a: 0.0,
+//!     iq_request_a: 0.0,
 //!     current_limit_a: 10.0,
 //!     winding_temperature_c: Some(40.0),
 //!     stage_temperature_c: None,
@@ -99,6 +100,13 @@
 //! inputs.v_bus_v = Some(cfg.regen_end_v);
 //! let w = iq_window(&cfg, &inputs);
 //! assert_eq!((w.min_a, w.max_a, w.active), (0.0, 10.0, ActiveLimit::Regen));
+//! // Braking asked (q-current against the speed): the d-axis braking
+//! // current turns the vector (up to the current limit at `regen_end_v`)
+//! // and keeps the braking that the winding's copper loss pays for.
+//! inputs.iq_request_a = -5.0;
+//! let w = iq_window(&cfg, &inputs);
+//! assert_eq!(w.id_a, -10.0);
+//! assert_eq!(w.max_a, 0.0);
 //! // A missing bus reading: no current at all.
 //! inputs.v_bus_v = None;
 //! assert_eq!(iq_window(&cfg, &inputs).max_a, 0.0);
@@ -139,6 +147,17 @@ pub struct PowerLimitsConfig {
     /// Bus voltage [V] at and above which no regenerative current is
     /// allowed; below the supervisor's `bus_over_voltage_v`. `+inf`: off.
     pub regen_end_v: f32,
+    /// d-axis braking [A] (magnitude): while the drive brakes (the
+    /// requested q-current opposes the speed) and the bus voltage is in the
+    /// regen ramp, a negative d-current of `(1 - s(V_bus))` times this (at
+    /// most the derated current limit) dissipates braking energy in the
+    /// winding, so the motor keeps braking (up to zero net power into the
+    /// bus) instead of coasting on a full bus, and the current vector turns
+    /// towards the d axis instead of collapsing (its magnetic energy stays
+    /// in the winding rather than charging the bus). Costs winding heat
+    /// (counted by the winding model). `+inf`: up to the current limit; 0:
+    /// off.
+    pub regen_id_max_a: f32,
     /// Largest current drawn from the supply [A] (`P / V_bus`, averaged
     /// over a PWM period). Size: the supply's or battery's discharge limit
     /// (or its fuse). `+inf`: off.
@@ -209,6 +228,8 @@ impl PowerLimitsConfig {
     ///   the measurement's noise), `regen_start_v = regen_end_v - 0.10
     ///   bus_over_voltage_v` (25.5 V), not below `bus_under_voltage_v`.
     ///   Raise `regen_start_v` above a battery's full-charge voltage.
+    /// - d-axis braking in the regen ramp: up to the current limit
+    ///   (`regen_id_max_a = +inf`).
     /// - bus currents and powers: off (`+inf`): they depend on the supply,
     ///   which the board does not know (see each field for sizing).
     /// - winding model: `R_th = 2 K/W`, `tau = 60 s`, ambient 40 deg C,
@@ -243,6 +264,7 @@ impl PowerLimitsConfig {
             motor,
             regen_start_v,
             regen_end_v,
+            regen_id_max_a: f32::INFINITY,
             bus_current_motoring_max_a: f32::INFINITY,
             bus_current_regen_max_a: f32::INFINITY,
             power_motoring_max_w: f32::INFINITY,
@@ -278,7 +300,8 @@ impl PowerLimitsConfig {
     /// The safe reading of every field:
     ///
     /// - current and power limits: NaN or negative -> 0 (no current in that
-    ///   direction); `+inf` stays (off).
+    ///   direction); `+inf` stays (off). `regen_id_max_a` the same (0: no
+    ///   d-axis braking).
     /// - regen and derating windows: a NaN start or end -> both `-inf` (the
     ///   window is always past its end: no regenerative current,
     ///   respectively no current at all, until the configuration is fixed,
@@ -327,6 +350,7 @@ impl PowerLimitsConfig {
             motor: self.motor,
             regen_start_v,
             regen_end_v,
+            regen_id_max_a: limit_or_zero(self.regen_id_max_a),
             bus_current_motoring_max_a: limit_or_zero(self.bus_current_motoring_max_a),
             bus_current_regen_max_a: limit_or_zero(self.bus_current_regen_max_a),
             power_motoring_max_w: limit_or_zero(self.power_motoring_max_w),
@@ -476,6 +500,9 @@ pub struct IqWindow {
     /// in `[0, 1]`: `min(max_a, -min_a) / current_limit_a` (1 with a zero
     /// current limit; 0 for the safe window).
     pub factor: f32,
+    /// The d-current reference [A]: [`PowerInputs::i_d_a`] plus the d-axis
+    /// braking current (`<= 0`, see [`PowerLimitsConfig::regen_id_max_a`]).
+    pub id_a: f32,
 }
 
 impl IqWindow {
@@ -488,6 +515,7 @@ impl IqWindow {
             max_by: why,
             active: why,
             factor: 0.0,
+            id_a: 0.0,
         }
     }
 
@@ -521,8 +549,13 @@ pub struct PowerInputs {
     /// Electrical angular velocity [rad/s] (the tracker's speed times the
     /// pole pairs).
     pub omega_e_rad_s: f32,
-    /// d-axis current [A] (the reference, or the measurement).
+    /// d-axis current [A] (the reference, or the measurement), without the
+    /// d-axis braking this module adds.
     pub i_d_a: f32,
+    /// The q-current the controller asks for before the window [A]: only
+    /// its direction against the speed matters (braking or not, for the
+    /// d-axis braking).
+    pub iq_request_a: f32,
     /// The q-current limit before this module [A] (`Limits::max_current_a`
     /// or the stage's limit in force), finite and `>= 0`.
     pub current_limit_a: f32,
@@ -538,7 +571,7 @@ pub struct PowerInputs {
 /// module: `1.5 R(T) (i_d^2 + i_q^2) + 1.5 w_e (psi + (L_d - L_q) i_d) i_q`);
 /// `None` for the inputs [`iq_window`] refuses.
 pub fn bus_power_w(cfg: &PowerLimitsConfig, inputs: &PowerInputs, iq_a: f32) -> Option<f32> {
-    let (a, b, c) = coefficients(cfg, inputs)?;
+    let (a, b, c) = coefficients(cfg, inputs, inputs.i_d_a)?;
     let p = (a * iq_a + b) * iq_a + c;
     if p.is_finite() {
         Some(p)
@@ -549,7 +582,7 @@ pub fn bus_power_w(cfg: &PowerLimitsConfig, inputs: &PowerInputs, iq_a: f32) -> 
 
 /// `(a, b, c)` of `P(i_q) = a i_q^2 + b i_q + c` [W], `None` when an
 /// input or the model is not valid.
-fn coefficients(cfg: &PowerLimitsConfig, inp: &PowerInputs) -> Option<(f32, f32, f32)> {
+fn coefficients(cfg: &PowerLimitsConfig, inp: &PowerInputs, i_d_a: f32) -> Option<(f32, f32, f32)> {
     let t = inp.winding_temperature_c?;
     let m = &cfg.motor;
     if !(all_finite([
@@ -558,17 +591,17 @@ fn coefficients(cfg: &PowerLimitsConfig, inp: &PowerInputs) -> Option<(f32, f32,
         m.lq_h,
         m.flux_linkage_wb,
         inp.omega_e_rad_s,
-        inp.i_d_a,
+        i_d_a,
         t,
     ]) && m.r_ohm >= 0.0)
     {
         return None;
     }
     let r = cfg.r_at_ohm(t);
-    let psi_eff = m.flux_linkage_wb + (m.ld_h - m.lq_h) * inp.i_d_a;
+    let psi_eff = m.flux_linkage_wb + (m.ld_h - m.lq_h) * i_d_a;
     let a = 1.5 * r;
     let b = 1.5 * inp.omega_e_rad_s * psi_eff;
-    let c = a * inp.i_d_a * inp.i_d_a;
+    let c = a * i_d_a * i_d_a;
     if all_finite([a, b, c]) {
         Some((a, b, c))
     } else {
@@ -681,17 +714,23 @@ pub fn iq_window(cfg: &PowerLimitsConfig, inp: &PowerInputs) -> IqWindow {
         None if !cfg.stage_derating_on() => 1.0,
         _ => return missing,
     };
-    let Some((a, b, c)) = coefficients(cfg, inp) else {
+    let Some(t_winding) = inp.winding_temperature_c else {
         return missing;
     };
-    // `coefficients` checked the winding temperature.
-    let k_winding = cfg.winding_factor(inp.winding_temperature_c.unwrap_or(f32::NAN));
+    let k_winding = cfg.winding_factor(t_winding);
 
     // 1. Thermal derating of the current limit (both ends).
     let (k, k_by) = if k_stage < k_winding {
         (k_stage, ActiveLimit::StageTemperature)
     } else {
         (k_winding, ActiveLimit::WindingTemperature)
+    };
+    // The d-axis braking current (bus in the regen ramp, braking asked).
+    let s = cfg.regen_factor(v);
+    let id_brake = braking_id_a(cfg, s, inp, k * i_lim);
+    let i_d = inp.i_d_a + id_brake;
+    let Some((a, b, c)) = coefficients(cfg, inp, i_d) else {
+        return missing;
     };
     let mut lo = End {
         mag: i_lim,
@@ -700,6 +739,19 @@ pub fn iq_window(cfg: &PowerLimitsConfig, inp: &PowerInputs) -> IqWindow {
     let mut hi = lo;
     lo.cut(k * i_lim, k_by);
     hi.cut(k * i_lim, k_by);
+    // The current vector within the (derated) limit: |i_q| <= sqrt(I^2 - i_d^2).
+    if i_d != 0.0 {
+        let kk = k * i_lim;
+        let room = kk * kk - i_d * i_d;
+        let q = if room > 0.0 { sqrtf(room) } else { 0.0 };
+        let by = if id_brake != 0.0 {
+            ActiveLimit::Regen
+        } else {
+            k_by
+        };
+        lo.cut(q, by);
+        hi.cut(q, by);
+    }
 
     // 2. Motoring: P(iq) <= P_mot (NaN limits read as 0).
     let p_bus_mot = v * cfg.bus_current_motoring_max_a;
@@ -733,13 +785,17 @@ pub fn iq_window(cfg: &PowerLimitsConfig, inp: &PowerInputs) -> IqWindow {
         hi.cut(x_hi, regen_by);
     }
 
-    // 4. The bus-voltage regen ramp on the regenerating end (i_q b < 0).
-    let s = cfg.regen_factor(v);
+    // 4. The bus-voltage regen ramp on the regenerating end (i_q b < 0),
+    // never below the current of zero net power (the copper loss of the
+    // d-current pays for that much braking).
     if s < 1.0 {
+        let keep = zero_power_q_a(a, b, c);
         if b > 0.0 {
-            lo.cut(s * lo.mag, ActiveLimit::Regen);
+            let m = lo.mag;
+            lo.cut(max_of(s * m, min_of(keep, m)), ActiveLimit::Regen);
         } else if b < 0.0 {
-            hi.cut(s * hi.mag, ActiveLimit::Regen);
+            let m = hi.mag;
+            hi.cut(max_of(s * m, min_of(keep, m)), ActiveLimit::Regen);
         }
     }
 
@@ -768,6 +824,66 @@ pub fn iq_window(cfg: &PowerLimitsConfig, inp: &PowerInputs) -> IqWindow {
         max_by: hi.by,
         active,
         factor,
+        id_a: i_d,
+    }
+}
+
+/// The d-axis braking current [A] (`<= 0`): `-(1 - s) min(regen_id_max_a,
+/// limit)` while `s < 1` and the requested q-current opposes the speed,
+/// else 0 (also for any non-finite input).
+#[inline(always)]
+fn braking_id_a(cfg: &PowerLimitsConfig, s: f32, inp: &PowerInputs, limit_a: f32) -> f32 {
+    let braking = inp.iq_request_a * inp.omega_e_rad_s < 0.0;
+    if !(s < 1.0 && braking && cfg.regen_id_max_a > 0.0) {
+        return 0.0;
+    }
+    let cap = min_of(cfg.regen_id_max_a, limit_a);
+    let id = -(1.0 - s) * cap;
+    if id <= 0.0 && id > f32::NEG_INFINITY {
+        id
+    } else {
+        0.0
+    }
+}
+
+/// The regenerating q-current magnitude up to which `P >= 0` (the smaller
+/// root of `a m^2 - |b| m + c = 0`, `m` along the regenerating direction):
+/// 0 without a d-current (`c = 0`), `+inf` when `P > 0` everywhere on that
+/// side (`b^2 < 4 a c`).
+#[inline(always)]
+fn zero_power_q_a(a: f32, b: f32, c: f32) -> f32 {
+    // `c` is `>= 0` (a square); 0 (or NaN): no d-current to pay for any.
+    if c.is_nan() || c <= 0.0 {
+        return 0.0;
+    }
+    let bb = if b < 0.0 { -b } else { b };
+    let disc = bb * bb - 4.0 * a * c;
+    if disc < 0.0 {
+        return f32::INFINITY;
+    }
+    let d = bb + sqrtf(disc);
+    if d > 0.0 {
+        2.0 * c / d
+    } else {
+        0.0
+    }
+}
+
+#[inline(always)]
+fn min_of(x: f32, y: f32) -> f32 {
+    if x < y {
+        x
+    } else {
+        y
+    }
+}
+
+#[inline(always)]
+fn max_of(x: f32, y: f32) -> f32 {
+    if x > y {
+        x
+    } else {
+        y
     }
 }
 
@@ -973,6 +1089,9 @@ pub struct PowerReport {
     pub iq_min_a: f32,
     /// Highest q-current allowed this period [A].
     pub iq_max_a: f32,
+    /// The d-current reference of this period [A] (`<= 0`: d-axis braking
+    /// while the bus is in the regen ramp; 0 otherwise).
+    pub id_ref_a: f32,
     /// The limit that cut the window the most.
     pub active: ActiveLimit,
     /// Fraction of the current limit left at the more restricted end (1:
@@ -997,6 +1116,7 @@ impl PowerReport {
         Self {
             iq_min_a: -limit_a,
             iq_max_a: limit_a,
+            id_ref_a: 0.0,
             active: ActiveLimit::None,
             factor: 1.0,
             winding_c: f32::NAN,
@@ -1064,37 +1184,26 @@ impl PowerStage {
 
     /// One period: the winding estimate from the measured currents over
     /// `dt_s`, the chopper from the bus voltage, and the q-current window
-    /// for the electrical speed `omega_e_rad_s` under `current_limit_a`
-    /// (`i_d` reference 0).
-    pub fn step(
-        &mut self,
-        i_dq_measured_a: Dq,
-        dt_s: f32,
-        v_bus_v: Option<f32>,
-        omega_e_rad_s: f32,
-        current_limit_a: f32,
-        stage_temperature_c: Option<f32>,
-    ) -> PowerReport {
+    /// (with the d-axis braking current) for `inputs`, whose winding
+    /// temperature is replaced by the estimate's.
+    pub fn step(&mut self, i_dq_measured_a: Dq, dt_s: f32, inputs: PowerInputs) -> PowerReport {
         self.thermal.step(&self.cfg, i_dq_measured_a, dt_s);
-        let brake_on = self.chopper.step(&self.cfg, v_bus_v);
+        let brake_on = self.chopper.step(&self.cfg, inputs.v_bus_v);
         let w = iq_window(
             &self.cfg,
             &PowerInputs {
-                v_bus_v,
-                omega_e_rad_s,
-                i_d_a: 0.0,
-                current_limit_a,
                 winding_temperature_c: self.thermal.checked_temperature_c(),
-                stage_temperature_c,
+                ..inputs
             },
         );
         PowerReport {
             iq_min_a: w.min_a,
             iq_max_a: w.max_a,
+            id_ref_a: w.id_a,
             active: w.active,
             factor: w.factor,
             winding_c: self.thermal.temperature_c(),
-            stage_c: stage_temperature_c.unwrap_or(f32::NAN),
+            stage_c: inputs.stage_temperature_c.unwrap_or(f32::NAN),
             brake_on,
         }
     }

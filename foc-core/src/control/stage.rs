@@ -4,7 +4,7 @@ use super::current::{CurrentLoop, CurrentLoopConfig, CurrentLoopInput, CurrentLo
 use super::estimator::{AngleTracker, AngleTrackerConfig};
 use super::permit::Calibrated;
 use super::position::{PositionLoop, PositionLoopConfig};
-use super::power::{PowerLimitsConfig, PowerReport, PowerStage};
+use super::power::{PowerInputs, PowerLimitsConfig, PowerReport, PowerStage};
 use super::speed::{SpeedLoop, SpeedLoopConfig};
 use super::supervisor::{Checks, Fault, Supervisor, SupervisorConfig};
 use super::{BridgeCommand, Command, CommandSlot, Feedback, Limits, Mode};
@@ -644,32 +644,34 @@ impl CurrentStage {
         let pp = self.config.angle.pole_pairs as f32;
         let w_e = self.tracker.velocity_rad_s() * pp;
         let mut i_ref = Dq::ZERO;
-        let window = self.power_window(sensed, w_e);
-        let limit = |iq: f32| match &window {
-            Some(w) => w.clamp(iq),
-            None => iq,
-        };
-        if self.supervisor.is_faulted() {
-            self.state.active = Command::Disable;
-            return (None, i_ref, theta_e);
-        }
-        // The closed-loop modes share one (inlined) current-loop call.
-        let closed_iq = match self.state.active {
-            Command::Disable => None,
-            Command::OpenLoop { .. } => None,
-            Command::Torque { iq_a } => Some(limit(iq_a)),
+        // The q-current each closed-loop mode asks for, before the window.
+        let requested = match self.state.active {
+            Command::Disable | Command::OpenLoop { .. } => None,
+            Command::Torque { iq_a } => Some(iq_a),
             Command::Velocity { .. } | Command::Position { .. } => {
                 let lim = self.config.limits.max_current_a;
                 Some(if iq_ref_from_speed_a.is_finite() {
-                    limit(clamp(iq_ref_from_speed_a, -lim, lim))
+                    clamp(iq_ref_from_speed_a, -lim, lim)
                 } else {
                     0.0
                 })
             }
         };
-        let out = match (closed_iq, self.state.active) {
-            (Some(iq), _) => {
-                i_ref = Dq::new(0.0, iq);
+        // Stepped every period (winding estimate, chopper), faulted or not.
+        let window = self.power_window(sensed, w_e, requested.unwrap_or(0.0));
+        if self.supervisor.is_faulted() {
+            self.state.active = Command::Disable;
+            return (None, i_ref, theta_e);
+        }
+        // The closed-loop modes share one (inlined) current-loop call.
+        let closed = requested.map(|iq| match &window {
+            Some(w) => Dq::new(w.id_ref_a, w.clamp(iq)),
+            None => Dq::new(0.0, iq),
+        });
+        let closed_iq = closed.map(|i| i.q);
+        let out = match (closed, self.state.active) {
+            (Some(i), _) => {
+                i_ref = i;
                 // `i_ab` is `clarke(i_abc)` (both zero when a read failed).
                 Some(self.current.step_inline_ab(
                     &CurrentLoopInput {
@@ -716,16 +718,25 @@ impl CurrentStage {
     /// currents) and the brake chopper. Without them nothing is computed
     /// (the published report is the current limit's window).
     #[inline(always)]
-    fn power_window(&mut self, sensed: &Sensed, w_e: f32) -> Option<PowerReport> {
+    fn power_window(
+        &mut self,
+        sensed: &Sensed,
+        w_e: f32,
+        iq_request_a: f32,
+    ) -> Option<PowerReport> {
         let p = self.power.as_mut()?;
-        let lim = self.config.limits.max_current_a;
         let r = p.step(
             self.state.last_i_dq,
             self.config.current.ts_s,
-            sensed.v_bus_read_v,
-            w_e,
-            lim,
-            sensed.temperature_c,
+            PowerInputs {
+                v_bus_v: sensed.v_bus_read_v,
+                omega_e_rad_s: w_e,
+                i_d_a: 0.0,
+                iq_request_a,
+                current_limit_a: self.config.limits.max_current_a,
+                winding_temperature_c: None,
+                stage_temperature_c: sensed.temperature_c,
+            },
         );
         self.power_report = r;
         Some(r)

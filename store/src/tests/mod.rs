@@ -96,6 +96,7 @@ pub(crate) fn largest_record() -> DriveRecord {
         power: Some(PowerRecord {
             regen_start_v: f32::MAX,
             regen_end_v: f32::MAX,
+            regen_id_max_a: f32::MAX,
             bus_current_motoring_max_a: f32::MAX,
             bus_current_regen_max_a: f32::MAX,
             power_motoring_max_w: f32::MAX,

@@ -36,13 +36,14 @@ prop_compose! {
     fn power()(
         regen in window(1.0, 100.0),
         limits in (limit(), limit(), limit(), limit()),
+        id_max in limit(),
         thermal in (pos(), non_neg(), -40.0f32..60.0),
         winding in window(-40.0, 300.0),
         stage in window(-40.0, 300.0),
         brake in window(1.0, 100.0),
     ) -> PowerRecord {
         PowerRecord {
-            regen_start_v: regen.0, regen_end_v: regen.1,
+            regen_start_v: regen.0, regen_end_v: regen.1, regen_id_max_a: id_max,
             bus_current_motoring_max_a: limits.0, bus_current_regen_max_a: limits.1,
             power_motoring_max_w: limits.2, power_regen_max_w: limits.3,
             thermal_resistance_k_per_w: thermal.0, thermal_time_constant_s: thermal.1,
