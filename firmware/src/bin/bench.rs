@@ -187,6 +187,18 @@ fn main() -> ! {
     }
     let mut fb_out = Feedback::INIT;
     report(
+        "sensor reads of the emulated board (drive::read_sample)",
+        measure(
+            baseline,
+            n,
+            &mut |_| board::sim::step_physics(),
+            &mut |_| {
+                let s = drive::read_sample(&mut b.currents, &mut b.angle, &mut b.bus);
+                black_box(s);
+            },
+        ),
+    );
+    report(
         "current-loop task body (sensor reads, CurrentStage::step, PWM write)",
         measure(
             baseline,
@@ -204,6 +216,48 @@ fn main() -> ! {
         "INFO task body ran in mode {} with bridge on: {}",
         fb_out.mode,
         b.pwm.is_enabled()
+    );
+
+    // 3b. The same with the power limits the firmware configures on this
+    //     board (`config::power_limits`: regen ramp, d-axis braking,
+    //     winding and stage derating; issue 17).
+    let mut cfg_p = cfg.current;
+    cfg_p.power = Some(foc_core::control::power::PowerLimitsConfig::for_board(
+        &cfg.current.supervisor,
+        cfg.current.current.motor,
+        board::STAGE_TEMPERATURE_SENSOR,
+    ));
+    let mut stage_p = CurrentStage::new(cfg_p);
+    match foc_core::calibration::Calibrated::supplied(cfg.current.angle, cfg.current.current) {
+        Ok(p) => stage_p.set_calibration(&p),
+        Err(_) => mission_exit(1),
+    }
+    for _ in 0..50 {
+        board::sim::step_physics();
+        let s = drive::read_sample(&mut b.currents, &mut b.angle, &mut b.bus);
+        let (br, _) = stage_p.step(&slot, 0.0, &s);
+        let _ = drive::apply(&mut b.pwm, br);
+    }
+    report(
+        "current-loop task body with the board's power limits",
+        measure(
+            baseline,
+            n,
+            &mut |_| board::sim::step_physics(),
+            &mut |_| {
+                let s = drive::read_sample(&mut b.currents, &mut b.angle, &mut b.bus);
+                let (br, fb) = stage_p.step(black_box(&slot), 0.0, &s);
+                let _ = drive::apply(&mut b.pwm, br);
+                fb_out = fb;
+            },
+        ),
+    );
+    defmt::println!(
+        "INFO power-limited task body: mode {}, active limit {}, winding {=f32} C, stage {=f32} C",
+        fb_out.mode,
+        fb_out.power.active,
+        fb_out.power.winding_c,
+        fb_out.power.stage_c
     );
 
     // 4. Speed and position stages with a live feedback (precomputed, so

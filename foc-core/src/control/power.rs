@@ -725,8 +725,30 @@ pub fn iq_window(cfg: &PowerLimitsConfig, inp: &PowerInputs) -> IqWindow {
     } else {
         (k_winding, ActiveLimit::WindingTemperature)
     };
-    // The d-axis braking current (bus in the regen ramp, braking asked).
     let s = cfg.regen_factor(v);
+    // The common case, cheaply: no derating, the bus below the regen ramp,
+    // no d-current and no bus-current or power limit configured: the
+    // window is the current limit (what the full computation gives then).
+    if k >= 1.0
+        && s >= 1.0
+        && inp.i_d_a == 0.0
+        && inp.omega_e_rad_s.is_finite()
+        && cfg.bus_current_motoring_max_a == f32::INFINITY
+        && cfg.bus_current_regen_max_a == f32::INFINITY
+        && cfg.power_motoring_max_w == f32::INFINITY
+        && cfg.power_regen_max_w == f32::INFINITY
+    {
+        return IqWindow {
+            min_a: 0.0 - i_lim,
+            max_a: i_lim,
+            min_by: ActiveLimit::None,
+            max_by: ActiveLimit::None,
+            active: ActiveLimit::None,
+            factor: 1.0,
+            id_a: 0.0,
+        };
+    }
+    // The d-axis braking current (bus in the regen ramp, braking asked).
     let id_brake = braking_id_a(cfg, s, inp, k * i_lim);
     let i_d = inp.i_d_a + id_brake;
     let Some((a, b, c)) = coefficients(cfg, inp, i_d) else {
