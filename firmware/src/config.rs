@@ -189,7 +189,9 @@ pub fn cascade(pwm_frequency_hz: f32) -> CascadeConfig {
 /// (regen ramp below the over-voltage threshold, winding-temperature
 /// derating, stage derating where the board measures its temperature; no
 /// supply-current or power limit: those depend on the supply, see the
-/// README), with the brake chopper where the board has a brake output.
+/// README), with the brake chopper where the board has a brake output
+/// (`BRAKE_OUTPUT`; on the emulated board a run-time option,
+/// `board::brake_output()`: semihosting `brake=OHMS`).
 pub fn power_limits(c: &CascadeConfig) -> PowerLimitsConfig {
     use board_support::board;
     let p = PowerLimitsConfig::for_board(
@@ -197,7 +199,11 @@ pub fn power_limits(c: &CascadeConfig) -> PowerLimitsConfig {
         c.current.current.motor,
         board::STAGE_TEMPERATURE_SENSOR,
     );
-    if board::BRAKE_OUTPUT {
+    #[cfg(feature = "qemu")]
+    let brake_output = board::brake_output();
+    #[cfg(not(feature = "qemu"))]
+    let brake_output = board::BRAKE_OUTPUT;
+    if brake_output {
         p.with_brake_resistor()
     } else {
         p

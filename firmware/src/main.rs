@@ -33,6 +33,8 @@
 #![no_std]
 #![no_main]
 
+#[cfg(feature = "qemu")]
+mod brake_mission;
 mod comms;
 mod config;
 mod events;
@@ -432,6 +434,9 @@ mod app {
                     let mut comms = cx.shared.comms;
                     let mut save = || comms.lock(|c| c.save_and_verify());
                     super::store_mission::tick(m, &view, &mut slot, &mut save)
+                }
+                None if super::brake_mission::requested() => {
+                    super::brake_mission::tick(&fb, running, &mut slot)
                 }
                 None => super::mission::tick(
                     &fb,

@@ -19,7 +19,17 @@
 //!    no rotor motion before its torque command, which must accelerate the
 //!    rotor as the torque constant says; `store-corrupt` (the file
 //!    overwritten with pseudo-random bytes) must boot uncalibrated, say so,
-//!    and refuse the torque command.
+//!    and refuse the torque command;
+//! 4. two braking runs (`mission=brake`, design §18): the emulated plant
+//!    gets a DC link fed by a supply that cannot sink current
+//!    (`supply=nonsinking`); the firmware spins the motor up to three
+//!    quarters of its no-load speed and commands 0 rad/s, once with the
+//!    regen limit only and once with a brake resistor on its chopper
+//!    (`brake=2`, ohm). Each must keep the true bus voltage below the
+//!    over-voltage threshold, latch no fault and stop within its bound (the
+//!    resistor must absorb energy); the run with the resistor must also
+//!    stop sooner than the one without. Their figures (peak bus voltage,
+//!    stop time, brake energy) are printed.
 //!
 //! QEMU runs with `-icount shift=0,align=off,sleep=off`: virtual time is
 //! 1 ns per instruction and idle time is skipped, so every run executes the
@@ -68,7 +78,7 @@ pub struct QemuArgs {
     /// Skip the three store runs (save, boot from the store, damaged store).
     #[arg(long)]
     pub no_store_runs: bool,
-    /// Only the three store runs.
+    /// Only the three store runs (no mission, panic or braking run).
     #[arg(long, conflicts_with = "no_store_runs")]
     pub store_runs_only: bool,
 }
@@ -405,11 +415,12 @@ pub fn run_cmd(args: &QemuArgs) -> Result {
             )));
         }
     }
+    let brake = brake_runs(&elf, icount, timeout)?;
     if !args.no_store_runs {
         store_runs(&elf, icount, timeout)?;
     }
     println!(
-        "cargo xtask qemu: mission passed{}{}",
+        "cargo xtask qemu: mission passed{}; {brake}{}",
         if args.no_panic_run {
             " (forced-panic run skipped)"
         } else {
@@ -422,6 +433,104 @@ pub fn run_cmd(args: &QemuArgs) -> Result {
         }
     );
     Ok(())
+}
+
+/// The braking runs (design §18): `mission=brake` on a DC link fed by a
+/// supply that cannot sink current, without and with a brake resistor.
+/// Returns a one-line summary.
+fn brake_runs(elf: &Path, icount: &str, timeout: Duration) -> Result<String> {
+    let regen = brake_run(elf, icount, timeout, "regen limit only", &[])?;
+    let chopper = brake_run(
+        elf,
+        icount,
+        timeout,
+        "brake resistor 2 ohm",
+        &[BRAKE_RESISTOR_ARG],
+    )?;
+    if chopper.stop_s >= regen.stop_s {
+        return Err(Error(format!(
+            "the stop with the brake resistor ({:.3} s) is not faster than on the regen limit alone ({:.3} s)",
+            chopper.stop_s, regen.stop_s
+        )));
+    }
+    Ok(format!(
+        "braked into a non-sinking supply: peak {:.2} V / {:.2} V, stopped in {:.3} s / {:.3} s (regen limit / brake resistor, {:.2} J in the resistor)",
+        regen.peak_v, chopper.peak_v, regen.stop_s, chopper.stop_s, chopper.brake_j
+    ))
+}
+
+/// The brake resistor of the second braking run [ohm]: the ODrive v3's
+/// (and the plant preset's) 2 ohm.
+const BRAKE_RESISTOR_ARG: &str = "brake=2";
+
+/// Figures of one braking run, parsed from its `brake:` line.
+struct BrakeFigures {
+    peak_v: f32,
+    stop_s: f32,
+    brake_j: f32,
+}
+
+/// The number that follows `key` in `line` (`"peak bus "` -> 28.61).
+fn figure_after(line: &str, key: &str) -> Option<f32> {
+    let rest = &line[line.find(key)? + key.len()..];
+    let end = rest
+        .find(|c: char| !(c.is_ascii_digit() || matches!(c, '.' | '-' | 'e' | '+')))
+        .unwrap_or(rest.len());
+    rest[..end].parse().ok()
+}
+
+/// One braking run with the extra semihosting arguments `extra`: passes
+/// when the mission exits 0 with no failed check and its figures were
+/// logged.
+fn brake_run(
+    elf: &Path,
+    icount: &str,
+    timeout: Duration,
+    what: &str,
+    extra: &[&str],
+) -> Result<BrakeFigures> {
+    let mut args = vec!["mission=brake", "supply=nonsinking"];
+    args.extend_from_slice(extra);
+    println!(
+        "== braking run, {what} ({}; expect exit status {EXIT_PASSED})",
+        args.join(" ")
+    );
+    let r = run(elf, &args, icount, timeout, true)?;
+    let count = |t: &str| r.lines.iter().filter(|l| l.contains(t)).count();
+    let (passes, fails) = (count("mission: PASS"), count("mission: FAIL"));
+    let line = r.lines.iter().find(|l| l.contains("brake: peak bus"));
+    let figures = line.and_then(|l| {
+        Some(BrakeFigures {
+            peak_v: figure_after(l, "peak bus ")?,
+            stop_s: figure_after(l, " after ")?,
+            brake_j: figure_after(l, "brake energy ")?,
+        })
+    });
+    let simulated_s = r
+        .lines
+        .iter()
+        .find_map(|l| figure_after(l, "brake: run ended at "));
+    println!(
+        "brake ({what}): exit status {:?}, {passes} checks passed, {fails} failed, {:.1} s simulated, {:.1} s wall",
+        r.code,
+        simulated_s.unwrap_or(f32::NAN),
+        r.elapsed.as_secs_f32()
+    );
+    if let Some(l) = line {
+        println!("brake ({what}): {}", l.trim_start_matches("INFO  brake: "));
+    }
+    match figures {
+        Some(f) if r.code == Some(EXIT_PASSED) && fails == 0 && passes > 0 => Ok(f),
+        _ => Err(Error(format!(
+            "braking run ({what}) failed (exit status {:?}, {fails} failed checks{})",
+            r.code,
+            if line.is_none() {
+                ", no figures logged"
+            } else {
+                ""
+            }
+        ))),
+    }
 }
 
 /// Rotor angle at reset of the boot runs [rad]: not where run 1 identified

@@ -24,11 +24,17 @@
 //! estimate only: the plant's electrical behaviour and every other
 //! measurement are unchanged.
 //!
-//! Brake ([`BRAKE_OUTPUT`] = false): [`SimBrake`] switches the plant's brake
-//! chopper (`Plant::set_brake`, applied at the start of the next simulated
-//! period), but the emulated plant has no DC link by default, so no brake
-//! resistor: the command is recorded and draws nothing (harmless). Off at
-//! `init` and in [`emergency_disable`].
+//! DC link and brake: by default the emulated plant has no DC link (an
+//! ideal 24 V source behind 0.05 ohm, which takes any regenerated current
+//! back). `supply=nonsinking` gives it [`sim_dc_link`]: the ODrive v3
+//! preset's bulk capacitor fed by a 24 V bench supply that cannot sink
+//! current, so a braking motor charges the capacitor. [`SimBrake`] switches
+//! the plant's brake chopper (`Plant::set_brake`, applied at the start of
+//! the next simulated period); `brake=OHMS` fits a brake resistor of that
+//! value across the DC link and makes [`brake_output`] true, so the
+//! firmware runs its chopper ([`BRAKE_OUTPUT`], false, is the default
+//! without `brake=`). Without a resistor the command is recorded and draws
+//! nothing (harmless). Off at `init` and in [`emergency_disable`].
 //!
 //! The TIM2 period in *emulated* time ([`EMULATED_PERIOD_US`]) is longer
 //! than the simulated PWM period: the plant runs on the same emulated CPU,
@@ -45,9 +51,10 @@
 //! incremental encoder by an absolute (AS5047P-like, 14-bit) sensor
 //! mounted [`SIM_AS5047P_MOUNTING_OFFSET_RAD`] from the rotor's zero,
 //! `rotor=X` starts the rotor at `X` rad, `mission=NAME` names the test
-//! mission. Without options the board behaves as before: incremental
-//! encoder, rotor at 0, reading exactly what it read before the options
-//! existed.
+//! mission, `supply=nonsinking` and `brake=OHMS` configure the DC link
+//! (above). Without options the board behaves as before: incremental
+//! encoder, rotor at 0, no DC link, reading exactly what it read before
+//! the options existed.
 
 pub use crate::hw::serial::CommandSerial;
 use crate::hw::serial::SerialConfig;
@@ -62,12 +69,12 @@ use foc_core::hal::{AngleSensor, BrakeOutput, BusVoltage, CurrentSense, PhaseCur
 use foc_plant::plant::{
     AngleSensorKind, BenchConfig, Measurements, MotorParams, Plant, PwmMode, SensorConfig, Shunts,
 };
-use foc_plant::power::StageThermal;
+use foc_plant::power::{DcLinkConfig, StageThermal};
 use pac::interrupt;
 
 pub use super::qemu_store::{args, SimStoreError, StoreFlash, STORE_RANGE};
 pub use super::Led;
-pub use crate::logic::emu_args::EmuArgs;
+pub use crate::logic::emu_args::{EmuArgs, EmuSupply};
 
 /// Board name.
 pub const NAME: &str = "QEMU netduinoplus2 (STM32F405) + simulated motor";
@@ -99,9 +106,17 @@ pub const MAX_MEASURABLE_CURRENT_A: f32 = 40.0;
 pub const BUS_VOLTAGE_MIN_V: f32 = 10.0;
 /// Bus range [V].
 pub const BUS_VOLTAGE_MAX_V: f32 = 30.0;
-/// No brake resistor in the emulated plant (no DC link configured):
-/// [`SimBrake`] switches the plant's chopper command, which draws nothing.
+/// No brake resistor in the emulated plant by default (no DC link
+/// configured): [`SimBrake`] switches the plant's chopper command, which
+/// draws nothing. The option `brake=OHMS` fits one: see [`brake_output`].
 pub const BRAKE_OUTPUT: bool = false;
+
+/// True when the emulated plant has a brake resistor (`brake=OHMS`), so
+/// the firmware runs its brake chopper; [`BRAKE_OUTPUT`] (false) without.
+pub fn brake_output() -> bool {
+    args().brake_resistor_ohm.is_some()
+}
+
 /// The emulated plant models the power stage's temperature
 /// ([`SIM_STAGE_THERMAL`]); [`SimBus`] reads it.
 pub const STAGE_TEMPERATURE_SENSOR: bool = true;
@@ -158,6 +173,19 @@ pub fn sim_config() -> BenchConfig {
 /// ambient. At the simulated currents it warms by a few kelvin at most.
 pub const SIM_STAGE_THERMAL: StageThermal = StageThermal::odrive_v3();
 
+/// The emulated DC link of `supply=nonsinking`: the ODrive v3 preset's
+/// bulk capacitor (`DcLinkConfig::odrive_v3`: 4 x 470 uF, 15 mOhm ESR,
+/// assumed values, see `foc_plant::power`) fed by a 24 V bench supply that
+/// cannot sink current (20 mOhm), with a 20 A current limit: generous for
+/// a spin-up at the 10 A phase-current limit (at most about 8 A from the
+/// supply at 24 V); `brake_resistor_ohm` from `brake=` (none without).
+pub fn sim_dc_link(brake_resistor_ohm: Option<f32>) -> DcLinkConfig {
+    DcLinkConfig {
+        brake_resistor_ohm: brake_resistor_ohm.map(|r| r as _),
+        ..DcLinkConfig::odrive_v3().bench_supply(24.0, 20.0)
+    }
+}
+
 /// Mounting offset of the emulated absolute sensor (`sensor=absolute`):
 /// the rotor's mechanical angle at which it reads 0 [rad]. Non-zero so that
 /// a stored calibration is meaningfully non-trivial.
@@ -175,7 +203,7 @@ pub fn angle_kind() -> AngleKind {
     }
 }
 
-/// The plant as the options ask: sensor model and rotor start angle.
+/// The plant as the options ask: sensor model, rotor start angle, DC link.
 fn sim_plant(args: &EmuArgs) -> Plant {
     let mut plant = Plant::new(SIM_MOTOR, sim_config());
     if args.absolute_sensor {
@@ -186,12 +214,18 @@ fn sim_plant(args: &EmuArgs) -> Plant {
     }
     plant.start_rotor_at(args.rotor_start_rad);
     plant.set_stage_thermal(Some(SIM_STAGE_THERMAL));
+    match args.supply {
+        EmuSupply::Ideal => {}
+        EmuSupply::NonSinking => plant.set_dc_link(Some(sim_dc_link(args.brake_resistor_ohm))),
+    }
     plant
 }
 
 struct World {
     plant: Plant,
     load_nm: f32,
+    /// Stop watch of [`sim::start_stop_watch`] (`None`: not armed).
+    watch: Option<sim::StopWatch>,
 }
 
 static WORLD: Mutex<RefCell<Option<World>>> = Mutex::new(RefCell::new(None));
@@ -453,6 +487,7 @@ pub fn init(dp: pac::Peripherals) -> Board {
         WORLD.borrow(cs).replace(Some(World {
             plant,
             load_nm: 0.0,
+            watch: None,
         }));
         DUTIES.borrow(cs).set([0.5; 3]);
         let l = LATCH.borrow(cs);
@@ -538,6 +573,9 @@ fn step_physics() {
         if let Some(w) = WORLD.borrow(cs).borrow_mut().as_mut() {
             w.plant.set_brake(BRAKE_CMD.load(Ordering::SeqCst));
             let m: Measurements = w.plant.step_period(DUTIES.borrow(cs).get(), on, w.load_nm);
+            if let Some(watch) = w.watch.as_mut() {
+                watch.record(&w.plant);
+            }
             LATCH.borrow(cs).set(Latch {
                 currents: m.currents,
                 angle: m.angle,
@@ -566,7 +604,7 @@ pub mod sim {
     use super::{
         free, Ordering, BREAK_LATCH, BRIDGE_ON, EMERGENCY, ON_AFTER_BREAK, ON_PERIODS, WORLD,
     };
-    use foc_plant::plant::{EncoderFault, Phase, PhaseShort};
+    use foc_plant::plant::{EncoderFault, Phase, PhaseShort, Plant};
 
     /// A fault to inject into the plant.
     #[derive(Clone, Copy, Debug, PartialEq)]
@@ -607,6 +645,78 @@ pub mod sim {
         pub periods: u64,
         /// Simulated time [s].
         pub time_s: f32,
+        /// Bus voltage at the end of the last period [V] (the source's
+        /// voltage behind its resistance without a DC link).
+        pub v_bus_v: f32,
+        /// Energy dissipated in the brake resistor since reset [J] (0
+        /// without one).
+        pub brake_energy_j: f32,
+    }
+
+    /// What the physics records every period once armed by
+    /// [`start_stop_watch`]: a mission ticks every 400 periods (20 ms) and
+    /// would miss a bus-voltage peak, or time a stop only to its tick.
+    #[derive(Clone, Copy, Debug, Default, PartialEq)]
+    pub struct StopWatch {
+        /// Speed bound [rad/s] (mechanical, magnitude).
+        pub speed_bound_rad_s: f32,
+        /// Period at which the watch was armed.
+        pub armed_at_period: u64,
+        /// Highest bus voltage at the end of a period since armed [V].
+        pub peak_v_bus_v: f32,
+        /// Last period (since reset) at which the true speed was at or
+        /// above the bound; `None`: below it since armed.
+        pub last_above_period: Option<u64>,
+        /// Brake-resistor energy when armed [J].
+        pub brake_energy_at_arm_j: f32,
+        /// Kinetic energy of the rotor when armed [J].
+        pub kinetic_energy_at_arm_j: f32,
+    }
+
+    impl StopWatch {
+        fn new(plant: &Plant, speed_bound_rad_s: f32) -> Self {
+            let mut w = Self {
+                speed_bound_rad_s,
+                armed_at_period: plant.periods(),
+                peak_v_bus_v: plant.v_bus_v(),
+                last_above_period: None,
+                brake_energy_at_arm_j: plant.brake_energy_j(),
+                kinetic_energy_at_arm_j: plant.kinetic_energy_j(),
+            };
+            w.record(plant);
+            w
+        }
+
+        /// One period of the physics.
+        pub(super) fn record(&mut self, plant: &Plant) {
+            self.peak_v_bus_v = self.peak_v_bus_v.max(plant.v_bus_v());
+            if plant.omega_m_rad_s().abs() >= self.speed_bound_rad_s {
+                self.last_above_period = Some(plant.periods());
+            }
+        }
+
+        /// Periods from arming until the speed fell below the bound for
+        /// the last time so far (0: below it since armed).
+        pub fn settle_periods(&self) -> u64 {
+            self.last_above_period
+                .map_or(0, |p| p + 1 - self.armed_at_period)
+        }
+    }
+
+    /// Arm (or re-arm) the stop watch: from the next period on, the physics
+    /// records the peak bus voltage and the last period at which the true
+    /// speed's magnitude was at or above `speed_bound_rad_s`.
+    pub fn start_stop_watch(speed_bound_rad_s: f32) {
+        free(|cs| {
+            if let Some(w) = WORLD.borrow(cs).borrow_mut().as_mut() {
+                w.watch = Some(StopWatch::new(&w.plant, speed_bound_rad_s));
+            }
+        });
+    }
+
+    /// The stop watch's record (`None` before [`start_stop_watch`]).
+    pub fn stop_watch() -> Option<StopWatch> {
+        free(|cs| WORLD.borrow(cs).borrow().as_ref().and_then(|w| w.watch))
     }
 
     /// Load torque opposing positive rotation [N m].
@@ -658,6 +768,8 @@ pub mod sim {
                     bridge_enabled: w.plant.bridge_enabled(),
                     periods: w.plant.periods(),
                     time_s: w.plant.time_s() as f32,
+                    v_bus_v: w.plant.v_bus_v(),
+                    brake_energy_j: w.plant.brake_energy_j(),
                 })
                 .unwrap_or_default()
         })

@@ -1,7 +1,7 @@
 //! The emulated board's options, parsed from the semihosting command line.
 //!
 //! QEMU is started with
-//! `-semihosting-config enable=on,target=native,arg=firmware,arg=store=PATH,arg=sensor=absolute,arg=rotor=1.3,arg=mission=NAME`
+//! `-semihosting-config enable=on,target=native,arg=firmware,arg=store=PATH,arg=sensor=absolute,arg=rotor=1.3,arg=mission=NAME,arg=supply=nonsinking,arg=brake=2`
 //! and `SYS_GET_CMDLINE` hands the `arg=` values back joined by single
 //! spaces, the first one being the program name (without any `arg=`, QEMU
 //! falls back to the kernel file name followed by the `-append` string).
@@ -15,20 +15,43 @@
 //! | `sensor`  | `absolute` or `incremental`    | incremental               |
 //! | `rotor`   | start angle [rad], finite f32  | 0.0                       |
 //! | `mission` | name, <= 16 bytes UTF-8        | empty                     |
+//! | `supply`  | `nonsinking` or `ideal`        | ideal: no DC link         |
+//! | `brake`   | brake resistor [ohm], finite, > 0 | none                   |
+//!
+//! `supply=nonsinking` gives the emulated plant a DC link (bulk capacitor,
+//! a 24 V source that cannot take current back); `brake=OHMS` fits a brake
+//! resistor across it and tells the firmware the board has a brake output
+//! (see the emulated board's module docs for what each one builds).
 //!
 //! ```
-//! use board_support::logic::emu_args::EmuArgs;
+//! use board_support::logic::emu_args::{EmuArgs, EmuSupply};
 //! let a = EmuArgs::parse(b"firmware store=/tmp/s.bin sensor=absolute rotor=1.3 mission=calib");
 //! assert_eq!(a.store_path(), Some(&b"/tmp/s.bin"[..]));
 //! assert!(a.absolute_sensor);
 //! assert_eq!(a.rotor_start_rad, 1.3);
 //! assert_eq!(a.mission(), "calib");
+//! assert_eq!(a.supply, EmuSupply::Ideal);
+//!
+//! let b = EmuArgs::parse(b"firmware mission=brake supply=nonsinking brake=2");
+//! assert_eq!(b.supply, EmuSupply::NonSinking);
+//! assert_eq!(b.brake_resistor_ohm, Some(2.0));
 //! ```
 
 /// Capacity of the store path, terminating NUL included [bytes].
 pub const STORE_PATH_CAPACITY: usize = 128;
 /// Capacity of the mission name [bytes].
 pub const MISSION_CAPACITY: usize = 16;
+
+/// The emulated board's DC supply (`supply=`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum EmuSupply {
+    /// No DC link: an ideal source behind a small resistance, which takes
+    /// any regenerated current back (the default, `supply=ideal`).
+    Ideal,
+    /// A DC link with a bulk capacitor fed by a source that cannot sink
+    /// current (a diode-fed bench supply): `supply=nonsinking`.
+    NonSinking,
+}
 
 /// Options of the emulated board (see the module docs).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -47,6 +70,11 @@ pub struct EmuArgs {
     mission: [u8; MISSION_CAPACITY],
     /// Length of the mission name [bytes].
     mission_len: usize,
+    /// `supply=`: the DC supply the emulated plant runs from.
+    pub supply: EmuSupply,
+    /// `brake=R`: a brake resistor of `R` ohm across the DC link, switched
+    /// by the firmware's chopper; `None` without (no brake output).
+    pub brake_resistor_ohm: Option<f32>,
 }
 
 impl Default for EmuArgs {
@@ -56,7 +84,8 @@ impl Default for EmuArgs {
 }
 
 impl EmuArgs {
-    /// No store, incremental encoder, rotor at 0 rad, no mission.
+    /// No store, incremental encoder, rotor at 0 rad, no mission, ideal
+    /// supply, no brake resistor.
     pub const DEFAULT: EmuArgs = EmuArgs {
         store_path: None,
         store_path_len: 0,
@@ -64,6 +93,8 @@ impl EmuArgs {
         rotor_start_rad: 0.0,
         mission: [0; MISSION_CAPACITY],
         mission_len: 0,
+        supply: EmuSupply::Ideal,
+        brake_resistor_ohm: None,
     };
 
     /// Parse a command line (see the module docs); never fails.
@@ -97,6 +128,16 @@ impl EmuArgs {
                 }
             }
             b"mission" => self.set_mission(value),
+            b"supply" => match value {
+                b"nonsinking" => self.supply = EmuSupply::NonSinking,
+                b"ideal" => self.supply = EmuSupply::Ideal,
+                _ => {}
+            },
+            b"brake" => {
+                if let Some(r) = parse_f32(value).filter(|&r| r > 0.0) {
+                    self.brake_resistor_ohm = Some(r);
+                }
+            }
             _ => {}
         }
     }
@@ -165,6 +206,35 @@ mod tests {
         assert!(!a.absolute_sensor);
         assert_eq!(a.rotor_start_rad, 0.0);
         assert_eq!(a.mission(), "");
+        assert_eq!(a.supply, EmuSupply::Ideal);
+        assert_eq!(a.brake_resistor_ohm, None);
+    }
+
+    #[test]
+    fn supply_and_brake() {
+        let a = EmuArgs::parse(b"firmware mission=brake supply=nonsinking brake=2");
+        assert_eq!(a.mission(), "brake");
+        assert_eq!(a.supply, EmuSupply::NonSinking);
+        assert_eq!(a.brake_resistor_ohm, Some(2.0));
+        // Each option alone; the other keeps its default.
+        let a = EmuArgs::parse(b"fw supply=nonsinking");
+        assert_eq!(a.supply, EmuSupply::NonSinking);
+        assert_eq!(a.brake_resistor_ohm, None);
+        let a = EmuArgs::parse(b"fw brake=0.5");
+        assert_eq!(a.supply, EmuSupply::Ideal);
+        assert_eq!(a.brake_resistor_ohm, Some(0.5));
+        // A later valid value wins.
+        let a = EmuArgs::parse(b"fw supply=nonsinking supply=ideal brake=1 brake=bad brake=3.3");
+        assert_eq!(a.supply, EmuSupply::Ideal);
+        assert_eq!(a.brake_resistor_ohm, Some(3.3));
+    }
+
+    #[test]
+    fn malformed_supply_and_brake_keep_defaults() {
+        let a = EmuArgs::parse(
+            b"fw supply= supply=sinking supply=NonSinking brake= brake=0 brake=-2 brake=nan brake=inf brake=1e40 brake=2ohm",
+        );
+        assert_eq!(a, EmuArgs::DEFAULT);
     }
 
     #[test]
@@ -221,6 +291,9 @@ mod tests {
             let a = EmuArgs::parse(&line);
             let _ = a.mission();
             prop_assert!(a.rotor_start_rad.is_finite());
+            if let Some(r) = a.brake_resistor_ohm {
+                prop_assert!(r.is_finite() && r > 0.0);
+            }
             if let Some(p) = a.store_path_with_nul() {
                 prop_assert_eq!(p.last().copied(), Some(0));
             }
