@@ -255,6 +255,12 @@ impl Link<'_> {
         if self.snap.pending.calibration {
             return Err(ErrorCode::Busy);
         }
+        // A flash erase stalls the processor (and the current loop) for
+        // seconds: never with the brake resistor conducting, which would
+        // stay on for the whole stall.
+        if self.snap.feedback.power.brake_on {
+            return Err(ErrorCode::Busy);
+        }
         Ok(())
     }
 

@@ -137,7 +137,7 @@ pub fn admit(rec: &DriveRecord) -> Result<Settings, Invalid> {
         .supervisor
         .bus_over_voltage_v;
     if let Some(p) = &rec.power {
-        if p.regen_end_v > over_voltage_v {
+        if p.regen_end_v >= over_voltage_v {
             return invalid("power.regen_end_v");
         }
         if p.brake_on_v < f32::INFINITY && p.brake_on_v >= over_voltage_v {

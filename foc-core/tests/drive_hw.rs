@@ -383,3 +383,66 @@ fn the_brake_follows_the_power_limits_chopper_with_hysteresis_and_goes_off_with_
     assert!(d.stage().config().power.is_none());
     assert_eq!(d.brake.switchings, 6);
 }
+
+#[test]
+fn the_brake_works_during_the_start_up_calibrations_and_its_guard_locks_it_out() {
+    let motor = MotorParams {
+        pole_pairs: 7,
+        r_ohm: 0.1,
+        ld_h: 40e-6,
+        lq_h: 40e-6,
+        flux_linkage_wb: 0.004,
+    };
+    let mut cfg = CascadeConfig::for_motor(motor, 20_000.0, 10.0);
+    let p =
+        PowerLimitsConfig::for_board(&cfg.current.supervisor, motor, false).with_brake_resistor();
+    cfg.current.power = Some(p);
+    let life = LifecycleConfig {
+        offsets: Some(OffsetLimits {
+            samples: 64,
+            max_offset_a: 0.5,
+            max_noise_a: 0.1,
+        }),
+        sensor_check_reads: 4,
+        identification: None,
+        identify_at_start_up: false,
+        speed_divider: 10,
+        position_divider: 20,
+        angle_kind: AngleKind::Incremental,
+        stored: None,
+    };
+    let mut d = Drive::new(
+        Pwm::default(),
+        Cs::default(),
+        Enc,
+        SetBus(24.0),
+        cfg.current,
+        life,
+    )
+    .with_brake(Brake::default());
+    let inputs = Inputs::new(CommandSlot::INIT, 0.0);
+    d.step(&inputs);
+    assert_eq!(d.lifecycle().phase(), Phase::OffsetCalibration);
+    // A coasting motor pumps the bus during the offset calibration.
+    d.bus.0 = p.brake_on_v + 0.5;
+    d.step(&inputs);
+    assert_eq!(d.lifecycle().phase(), Phase::OffsetCalibration);
+    assert!(d.brake.on, "brake on while calibrating");
+    d.bus.0 = p.brake_off_v - 0.5;
+    d.step(&inputs);
+    assert!(!d.brake.on);
+    // A supply that holds the bus above the thresholds: the guard locks
+    // the brake out after brake_max_on_s (1 s = 20 000 periods).
+    d.bus.0 = p.brake_on_v + 0.5;
+    let mut on_periods = 0;
+    for _ in 0..25_000 {
+        d.step(&inputs);
+        on_periods += u32::from(d.brake.on);
+    }
+    assert!(!d.brake.on, "locked out");
+    assert!(
+        (19_990..=20_001).contains(&on_periods),
+        "{on_periods} periods on"
+    );
+    assert!(!d.pwm.on);
+}

@@ -316,8 +316,12 @@ proptest! {
             let w = iq_window(&c, &inp);
             check_shape(&w, i_lim)?;
             let s = c.regen_factor(v);
+            // Braking regenerates only above the speed where the back-EMF's
+            // power exceeds the q-current's copper loss.
+            let r_t = c.r_at_ohm(inp.winding_temperature_c.unwrap());
+            let regenerates = (w_e * m.flux_linkage_wb).abs() > r_t * 5.0;
             if w_e != 0.0 {
-                let want = -(1.0 - s) * cap.min(i_lim);
+                let want = if regenerates { -(1.0 - s) * cap.min(i_lim) } else { 0.0 };
                 prop_assert!((w.id_a - want).abs() <= 1e-5 * (1.0 + want.abs()), "{v}: {} vs {want}", w.id_a);
             }
             prop_assert!(w.id_a <= 0.0 && w.id_a <= last_id + 1e-6, "{v}: {} after {last_id}", w.id_a);
@@ -326,7 +330,7 @@ proptest! {
             for iq in [w.min_a, w.max_a] {
                 prop_assert!((iq * iq + w.id_a * w.id_a).sqrt() <= i_lim * (1.0 + 1e-5) + 1e-6);
             }
-            if v >= start + span && w_e != 0.0 {
+            if v >= start + span && w_e != 0.0 && regenerates {
                 let with_id = PowerInputs { i_d_a: w.id_a, ..inp };
                 for k in 0..=16 {
                     let iq = w.min_a + (w.max_a - w.min_a) * k as f32 / 16.0;
@@ -341,9 +345,14 @@ proptest! {
                 let free = (w_e as f64 * (m.flux_linkage_wb as f64 + (m.ld_h - m.lq_h) as f64 * w.id_a as f64)).abs();
                 let room = (i_lim * i_lim - w.id_a * w.id_a).max(0.0).sqrt() as f64;
                 if r > 0.0 && w.id_a < -0.1 && free > 0.0 {
-                    // The zero-power current r id^2 / |w psi| (first order).
-                    let expect = (r * (w.id_a as f64).powi(2) / free).min(room);
-                    prop_assert!(regen_end as f64 >= 0.5 * expect - 1e-4, "v {v}: {regen_end} vs {expect}");
+                    // The zero-power current: the smaller root of
+                    // 1.5 r m^2 - 1.5 |w psi_eff| m + 1.5 r id^2 = 0, or
+                    // the vertex where there is none.
+                    let (a, b, c) = (r, free, r * (w.id_a as f64).powi(2));
+                    let disc = b * b - 4.0 * a * c;
+                    let keep = if disc >= 0.0 { 2.0 * c / (b + disc.sqrt()) } else { b / (2.0 * a) };
+                    let expect = keep.min(room);
+                    prop_assert!(regen_end as f64 >= expect * (1.0 - 1e-3) - 1e-4, "v {v}: {regen_end} vs {expect}");
                 }
             }
         }
@@ -517,11 +526,24 @@ proptest! {
                 prop_assert!(x.is_finite() && x <= THERMAL_MAX_C);
             }
             let mut b = BrakeChopper::new();
-            prop_assert!(!b.step(&cfg, Some(f32::NAN)));
+            prop_assert!(!b.step(&cfg, Some(f32::NAN), 50e-6));
         }
         let s = j.sanitized();
         prop_assert_eq!(s, s.sanitized());
         prop_assert!(s.brake_off_v <= s.brake_on_v || s.brake_on_v.is_nan());
+        // The sanitized brake switches on only at a finite, positive
+        // voltage and off at a positive one: never on at every voltage.
+        prop_assert!(s.brake_on_v == INF || (s.brake_on_v.is_finite() && s.brake_on_v > 0.0));
+        prop_assert!(s.brake_off_v > 0.0);
+        let mut b = BrakeChopper::new();
+        prop_assert!(s.brake_on_v == INF || !b.step(&s, Some(0.5 * s.brake_off_v), 50e-6));
+        // And the board defaults with a resistor from such a supervisor.
+        let sup = SupervisorConfig {
+            bus_over_voltage_v: junk[0],
+            ..SupervisorConfig::default()
+        };
+        let d = PowerLimitsConfig::for_board(&sup, c.motor, false).with_brake_resistor();
+        prop_assert!(d.brake_on_v == INF || (d.brake_on_v.is_finite() && d.brake_on_v > 0.0 && d.brake_off_v > 0.0), "{d:?}");
     }
 
     /// An invalid motor model: no current.
@@ -554,14 +576,47 @@ proptest! {
         let c = c.sanitized();
         let mut b = BrakeChopper::new();
         let mut want = false;
+        // Periods of 1 ms against the 1 s guard: never reached here.
         for v in vs {
             want = match v {
                 Some(v) if v.is_finite() => if want { v > on - band } else { v >= on },
                 _ => false,
             };
-            prop_assert_eq!(b.step(&c, v), want, "{:?}", v);
+            prop_assert_eq!(b.step(&c, v, 1e-3), want, "{:?}", v);
             prop_assert_eq!(b.is_on(), want);
         }
+    }
+
+    /// The guard: on at most `brake_max_on_s` without a break, then locked
+    /// out until the bus falls below `brake_off_v`.
+    #[test]
+    fn chopper_guard(
+        on in 20.0f32..60.0,
+        band in 0.1f32..5.0,
+        max_on in 0.0f32..0.2,
+        above in 0.0f32..10.0,
+    ) {
+        let mut c = base(MotorParams { pole_pairs: 7, r_ohm: 0.1, ld_h: 4e-5, lq_h: 4e-5, flux_linkage_wb: 0.004 });
+        c.brake_on_v = on;
+        c.brake_off_v = on - band;
+        c.brake_max_on_s = max_on;
+        let c = c.sanitized();
+        let dt = 1e-3;
+        let mut b = BrakeChopper::new();
+        let mut on_run = 0usize;
+        for _ in 0..400 {
+            if b.step(&c, Some(on + above), dt) {
+                on_run += 1;
+            }
+        }
+        prop_assert!(on_run as f32 * dt <= max_on + 1e-6, "{on_run} periods");
+        prop_assert!(b.is_locked_out());
+        // Still above the off threshold: stays locked.
+        prop_assert!(!b.step(&c, Some(on - 0.5 * band), dt));
+        // Below it: released, and on again above `on`.
+        prop_assert!(!b.step(&c, Some(on - 2.0 * band), dt));
+        prop_assert!(!b.is_locked_out());
+        prop_assert_eq!(b.step(&c, Some(on), dt), max_on >= dt);
     }
 }
 

@@ -212,6 +212,9 @@ pub struct PowerRecord {
     pub brake_on_v: f32,
     /// Bus voltage where it switches off again [V] (<= on).
     pub brake_off_v: f32,
+    /// Longest the chopper stays on without a break [s] (>= 0, `inf`: no
+    /// guard).
+    pub brake_max_on_s: f32,
 }
 
 /// Everything the drive keeps across power-off: configuration and the
@@ -602,6 +605,7 @@ impl PowerRecord {
             window(self.brake_off_v, self.brake_on_v) && self.brake_off_v > 0.0,
             "power.brake_off_v",
         )?;
+        check(limit(self.brake_max_on_s), "power.brake_max_on_s")?;
         Ok(())
     }
 
@@ -624,6 +628,7 @@ impl PowerRecord {
             stage_derate_end_c: c.stage_derate_end_c,
             brake_on_v: c.brake_on_v,
             brake_off_v: c.brake_off_v,
+            brake_max_on_s: c.brake_max_on_s,
         }
     }
 
@@ -647,6 +652,7 @@ impl PowerRecord {
             stage_derate_end_c: self.stage_derate_end_c,
             brake_on_v: self.brake_on_v,
             brake_off_v: self.brake_off_v,
+            brake_max_on_s: self.brake_max_on_s,
         }
     }
 }
@@ -853,6 +859,7 @@ pub fn example() -> DriveRecord {
             stage_derate_end_c: 85.0,
             brake_on_v: f32::INFINITY,
             brake_off_v: f32::INFINITY,
+            brake_max_on_s: 1.0,
         }),
     }
 }

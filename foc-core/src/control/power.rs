@@ -195,8 +195,15 @@ pub struct PowerLimitsConfig {
     /// brake resistor.
     pub brake_on_v: f32,
     /// Bus voltage [V] at which the brake chopper switches off again
-    /// (`<= brake_on_v`: the hysteresis).
+    /// (`<= brake_on_v`: the hysteresis). Above the supply's highest
+    /// voltage, or the supply feeds the resistor (see
+    /// [`Self::brake_max_on_s`]).
     pub brake_off_v: f32,
+    /// Longest the chopper may stay on without a break [s]: then it
+    /// locks out until the bus falls below `brake_off_v` (a supply that
+    /// holds the bus above `brake_off_v`, a full battery above the
+    /// thresholds, an open resistor). `+inf`: no guard.
+    pub brake_max_on_s: f32,
 }
 
 /// `x` unless NaN or negative (then 0): a limit magnitude.
@@ -242,18 +249,29 @@ impl PowerLimitsConfig {
     ///   to `max_temperature_c - 5` (65 -> 85 deg C at the default 90), so
     ///   the current is at 0 before the over-temperature fault; without a
     ///   sensor it is off.
-    /// - brake chopper: off (see [`Self::with_brake_resistor`]).
+    /// - brake chopper: off (see [`Self::with_brake_resistor`]); its guard
+    ///   at 1 s on without a break.
+    ///
+    /// A non-finite over-voltage threshold gives no regen ramp (and no
+    /// brake from [`Self::with_brake_resistor`]).
     pub fn for_board(
         supervisor: &SupervisorConfig,
         motor: MotorParams,
         stage_sensor: bool,
     ) -> Self {
         let ov = supervisor.bus_over_voltage_v;
-        let regen_end_v = 0.95 * ov;
-        let mut regen_start_v = regen_end_v - 0.10 * ov;
-        if regen_start_v < supervisor.bus_under_voltage_v {
-            regen_start_v = supervisor.bus_under_voltage_v;
-        }
+        // No (finite) over-voltage threshold: no regen ramp either.
+        let (regen_start_v, regen_end_v) = if ov.is_finite() && ov > 0.0 {
+            let end = 0.95 * ov;
+            let start = end - 0.10 * ov;
+            if start < supervisor.bus_under_voltage_v {
+                (supervisor.bus_under_voltage_v, end)
+            } else {
+                (start, end)
+            }
+        } else {
+            (f32::INFINITY, f32::INFINITY)
+        };
         let t_max = supervisor.max_temperature_c;
         let (stage_derate_start_c, stage_derate_end_c) = if stage_sensor {
             (t_max - 25.0, t_max - 5.0)
@@ -278,6 +296,7 @@ impl PowerLimitsConfig {
             stage_derate_end_c,
             brake_on_v: f32::INFINITY,
             brake_off_v: f32::INFINITY,
+            brake_max_on_s: 1.0,
         }
         .sanitized()
     }
@@ -287,6 +306,10 @@ impl PowerLimitsConfig {
     /// least 0.5 V) lower.
     pub fn with_brake_resistor(self) -> Self {
         let on = self.regen_start_v;
+        // No finite, positive ramp start: no brake (never on blindly).
+        if !(on.is_finite() && on > 0.0) {
+            return self.sanitized();
+        }
         let band = 0.03 * on;
         let band = if band > 0.5 { band } else { 0.5 };
         Self {
@@ -313,9 +336,11 @@ impl PowerLimitsConfig {
     ///   an `ambient_c` at or above it reads the same); a NaN
     ///   or negative time constant -> 0 (the estimate follows the loss at
     ///   once).
-    /// - brake: a NaN `brake_on_v` -> `+inf` (never switches on: a resistor
-    ///   switched on blindly could burn); `brake_off_v` NaN or above
-    ///   `brake_on_v` -> `brake_on_v`.
+    /// - brake: a `brake_on_v` that is not finite and positive -> `+inf`
+    ///   (never switches on: a resistor switched on blindly could burn);
+    ///   `brake_off_v` NaN, not positive or above `brake_on_v` ->
+    ///   `brake_on_v`; `brake_max_on_s` NaN or negative -> 0 (the chopper
+    ///   locks out at once).
     ///
     /// The motor model is left as it is: [`iq_window`] answers
     /// [`ActiveLimit::InvalidModel`] (no current) while it is not finite or
@@ -326,12 +351,12 @@ impl PowerLimitsConfig {
             ordered_window(self.winding_derate_start_c, self.winding_derate_end_c);
         let (stage_derate_start_c, stage_derate_end_c) =
             ordered_window(self.stage_derate_start_c, self.stage_derate_end_c);
-        let brake_on_v = if self.brake_on_v.is_nan() {
-            f32::INFINITY
-        } else {
+        let brake_on_v = if self.brake_on_v.is_finite() && self.brake_on_v > 0.0 {
             self.brake_on_v
+        } else {
+            f32::INFINITY
         };
-        let brake_off_v = if self.brake_off_v <= brake_on_v {
+        let brake_off_v = if self.brake_off_v > 0.0 && self.brake_off_v <= brake_on_v {
             self.brake_off_v
         } else {
             brake_on_v
@@ -364,6 +389,7 @@ impl PowerLimitsConfig {
             stage_derate_end_c,
             brake_on_v,
             brake_off_v,
+            brake_max_on_s: limit_or_zero(self.brake_max_on_s),
         }
     }
 
@@ -733,6 +759,7 @@ pub fn iq_window(cfg: &PowerLimitsConfig, inp: &PowerInputs) -> IqWindow {
         && s >= 1.0
         && inp.i_d_a == 0.0
         && inp.omega_e_rad_s.is_finite()
+        && t_winding.is_finite()
         && cfg.bus_current_motoring_max_a == f32::INFINITY
         && cfg.bus_current_regen_max_a == f32::INFINITY
         && cfg.power_motoring_max_w == f32::INFINITY
@@ -749,7 +776,7 @@ pub fn iq_window(cfg: &PowerLimitsConfig, inp: &PowerInputs) -> IqWindow {
         };
     }
     // The d-axis braking current (bus in the regen ramp, braking asked).
-    let id_brake = braking_id_a(cfg, s, inp, k * i_lim);
+    let id_brake = braking_id_a(cfg, s, inp, k * i_lim, cfg.r_at_ohm(t_winding));
     let i_d = inp.i_d_a + id_brake;
     let Some((a, b, c)) = coefficients(cfg, inp, i_d) else {
         return missing;
@@ -851,11 +878,22 @@ pub fn iq_window(cfg: &PowerLimitsConfig, inp: &PowerInputs) -> IqWindow {
 }
 
 /// The d-axis braking current [A] (`<= 0`): `-(1 - s) min(regen_id_max_a,
-/// limit)` while `s < 1` and the requested q-current opposes the speed,
-/// else 0 (also for any non-finite input).
+/// limit)` while `s < 1` and the requested q-current regenerates (it
+/// opposes the speed, and the back-EMF's power exceeds its copper loss:
+/// `|w_e psi| > R |i_q|`; below that speed braking already draws from
+/// the bus), else 0 (also for any non-finite input).
 #[inline(always)]
-fn braking_id_a(cfg: &PowerLimitsConfig, s: f32, inp: &PowerInputs, limit_a: f32) -> f32 {
-    let braking = inp.iq_request_a * inp.omega_e_rad_s < 0.0;
+fn braking_id_a(
+    cfg: &PowerLimitsConfig,
+    s: f32,
+    inp: &PowerInputs,
+    limit_a: f32,
+    r_ohm: f32,
+) -> f32 {
+    let iq = inp.iq_request_a;
+    let w = inp.omega_e_rad_s;
+    let emf = w * cfg.motor.flux_linkage_wb;
+    let braking = iq * w < 0.0 && emf * emf > (r_ohm * iq) * (r_ohm * iq);
     if !(s < 1.0 && braking && cfg.regen_id_max_a > 0.0) {
         return 0.0;
     }
@@ -870,8 +908,11 @@ fn braking_id_a(cfg: &PowerLimitsConfig, s: f32, inp: &PowerInputs, limit_a: f32
 
 /// The regenerating q-current magnitude up to which `P >= 0` (the smaller
 /// root of `a m^2 - |b| m + c = 0`, `m` along the regenerating direction):
-/// 0 without a d-current (`c = 0`), `+inf` when `P > 0` everywhere on that
-/// side (`b^2 < 4 a c`).
+/// 0 without a d-current (`c = 0`). When `P > 0` everywhere on that side
+/// (`b^2 < 4 a c`) the vertex `|b| / (2 a)`, where that root ends up as
+/// `b^2` falls to `4 a c`: continuous in the speed and the d-current (a
+/// jump from the vertex to the whole range would make the window, and the
+/// current reference, flip between the two).
 #[inline(always)]
 fn zero_power_q_a(a: f32, b: f32, c: f32) -> f32 {
     // `c` is `>= 0` (a square); 0 (or NaN): no d-current to pay for any.
@@ -881,7 +922,8 @@ fn zero_power_q_a(a: f32, b: f32, c: f32) -> f32 {
     let bb = if b < 0.0 { -b } else { b };
     let disc = bb * bb - 4.0 * a * c;
     if disc < 0.0 {
-        return f32::INFINITY;
+        // a > 0 here (a = 0 gives disc = b^2 >= 0).
+        return bb / (2.0 * a);
     }
     let d = bb + sqrtf(disc);
     if d > 0.0 {
@@ -1057,26 +1099,43 @@ impl ThermalEstimate {
 /// let motor = MotorParams { pole_pairs: 7, r_ohm: 0.1, ld_h: 40e-6, lq_h: 40e-6, flux_linkage_wb: 0.004 };
 /// let cfg = PowerLimitsConfig::for_board(&SupervisorConfig::default(), motor, false).with_brake_resistor();
 /// let mut b = BrakeChopper::new();
-/// assert!(!b.step(&cfg, Some(24.0)));
-/// assert!(b.step(&cfg, Some(cfg.brake_on_v)));
-/// assert!(b.step(&cfg, Some(cfg.brake_on_v - 0.1))); // hysteresis
-/// assert!(!b.step(&cfg, Some(f32::NAN)));
+/// let dt = 50e-6;
+/// assert!(!b.step(&cfg, Some(24.0), dt));
+/// assert!(b.step(&cfg, Some(cfg.brake_on_v), dt));
+/// assert!(b.step(&cfg, Some(cfg.brake_on_v - 0.1), dt)); // hysteresis
+/// assert!(!b.step(&cfg, Some(f32::NAN), dt));
+/// // A supply that holds the bus above the thresholds: on for at most
+/// // `brake_max_on_s`, then locked out until the bus falls below
+/// // `brake_off_v`.
+/// let n = (cfg.brake_max_on_s / dt) as usize + 2;
+/// let on = (0..n).filter(|_| b.step(&cfg, Some(cfg.brake_on_v + 1.0), dt)).count();
+/// assert!(on < n && b.is_locked_out());
+/// assert!(!b.step(&cfg, Some(cfg.brake_off_v - 0.1), dt));
+/// assert!(b.step(&cfg, Some(cfg.brake_on_v), dt));
 /// ```
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct BrakeChopper {
     on: bool,
+    /// Time on without a break [s].
+    on_s: f32,
+    /// Locked out by the guard until the bus falls below `brake_off_v`.
+    locked: bool,
 }
 
 impl BrakeChopper {
     /// Off.
     pub const fn new() -> Self {
-        Self { on: false }
+        Self {
+            on: false,
+            on_s: 0.0,
+            locked: false,
+        }
     }
 
-    /// Off.
+    /// Off, guard released.
     pub fn reset(&mut self) {
-        self.on = false;
+        *self = Self::new();
     }
 
     /// Whether the chopper is on.
@@ -1084,19 +1143,43 @@ impl BrakeChopper {
         self.on
     }
 
-    /// One bus reading [V]; returns whether the chopper is on.
-    pub fn step(&mut self, cfg: &PowerLimitsConfig, v_bus_v: Option<f32>) -> bool {
-        self.on = match v_bus_v {
-            Some(v) if v.is_finite() => {
-                if self.on {
-                    // NaN threshold (unsanitized): off.
-                    v > cfg.brake_off_v
-                } else {
-                    v >= cfg.brake_on_v
-                }
+    /// Whether the guard has locked it out (on for `brake_max_on_s`
+    /// without a break; released when the bus falls below `brake_off_v`).
+    pub const fn is_locked_out(&self) -> bool {
+        self.locked
+    }
+
+    /// One bus reading [V] after `dt_s`; returns whether the chopper is on.
+    pub fn step(&mut self, cfg: &PowerLimitsConfig, v_bus_v: Option<f32>, dt_s: f32) -> bool {
+        let v = match v_bus_v {
+            Some(v) if v.is_finite() => v,
+            _ => {
+                self.on = false;
+                self.on_s = 0.0;
+                return false;
             }
-            _ => false,
         };
+        // NaN thresholds (unsanitized) compare false: off, never on.
+        if self.locked && v <= cfg.brake_off_v {
+            self.locked = false;
+        }
+        let want = if self.on {
+            v > cfg.brake_off_v
+        } else {
+            v >= cfg.brake_on_v
+        };
+        self.on = want && !self.locked;
+        if self.on {
+            self.on_s += dt_s;
+            // NaN or negative guard time (unsanitized): lock out at once.
+            if self.on_s.is_nan() || self.on_s > cfg.brake_max_on_s || cfg.brake_max_on_s.is_nan() {
+                self.on = false;
+                self.locked = true;
+            }
+        }
+        if !self.on {
+            self.on_s = 0.0;
+        }
         self.on
     }
 }
@@ -1200,8 +1283,15 @@ impl PowerStage {
         Self {
             cfg: cfg.sanitized(),
             thermal: self.thermal,
-            chopper: self.chopper,
+            // The chopper starts over (off) with its new thresholds.
+            chopper: BrakeChopper::new(),
         }
+    }
+
+    /// The chopper alone (periods where the current stage does not run,
+    /// e.g. the start-up calibrations): returns whether it is on.
+    pub fn step_chopper(&mut self, v_bus_v: Option<f32>, dt_s: f32) -> bool {
+        self.chopper.step(&self.cfg, v_bus_v, dt_s)
     }
 
     /// One period: the winding estimate from the measured currents over
@@ -1210,7 +1300,7 @@ impl PowerStage {
     /// temperature is replaced by the estimate's.
     pub fn step(&mut self, i_dq_measured_a: Dq, dt_s: f32, inputs: PowerInputs) -> PowerReport {
         self.thermal.step(&self.cfg, i_dq_measured_a, dt_s);
-        let brake_on = self.chopper.step(&self.cfg, inputs.v_bus_v);
+        let brake_on = self.chopper.step(&self.cfg, inputs.v_bus_v, dt_s);
         let w = iq_window(
             &self.cfg,
             &PowerInputs {

@@ -266,6 +266,15 @@ impl CurrentStage {
         };
     }
 
+    /// Step the brake chopper alone, for a period in which [`Self::step`]
+    /// does not run (the drive's start-up calibrations, bridge off);
+    /// nothing without power limits.
+    pub fn step_brake(&mut self, v_bus_v: Option<f32>) {
+        if let Some(p) = self.power.as_mut() {
+            self.power_report.brake_on = p.step_chopper(v_bus_v, self.config.current.ts_s);
+        }
+    }
+
     /// The power limits' brake chopper conducts (false without power
     /// limits).
     #[inline]

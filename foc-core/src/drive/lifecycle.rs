@@ -276,6 +276,12 @@ impl Lifecycle {
         if let Some(ch) = inp.change {
             out.change = Some(self.apply_change(stage, &ch, inp, &mut out));
         }
+        // The brake chopper every period: the phases without a stage step
+        // (bridge off) step it alone (a coasting motor still charges the
+        // bus through the body diodes).
+        if matches!(self.phase, Phase::OffsetCalibration | Phase::SensorCheck(_)) {
+            stage.step_brake(s.v_bus_v);
+        }
         match self.phase {
             Phase::OffsetCalibration => self.step_offsets(stage, s, &mut out),
             Phase::SensorCheck(n) => self.step_sensor_check(stage, inp, s, n, &mut out),

@@ -110,6 +110,7 @@ pub(crate) fn largest_record() -> DriveRecord {
             stage_derate_end_c: f32::MAX,
             brake_on_v: f32::MAX,
             brake_off_v: f32::MAX,
+            brake_max_on_s: f32::MAX,
         }),
     }
 }

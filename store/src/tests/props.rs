@@ -37,6 +37,7 @@ prop_compose! {
         regen in window(1.0, 100.0),
         limits in (limit(), limit(), limit(), limit()),
         id_max in limit(),
+        brake_max in limit(),
         thermal in (pos(), non_neg(), -40.0f32..60.0),
         winding in window(-40.0, 300.0),
         stage in window(-40.0, 300.0),
@@ -50,7 +51,7 @@ prop_compose! {
             ambient_c: thermal.2,
             winding_derate_start_c: winding.0, winding_derate_end_c: winding.1,
             stage_derate_start_c: stage.0, stage_derate_end_c: stage.1,
-            brake_off_v: brake.0, brake_on_v: brake.1,
+            brake_off_v: brake.0, brake_on_v: brake.1, brake_max_on_s: brake_max,
         }
     }
 }
