@@ -602,6 +602,9 @@ fn power_text(t: &foc_protocol::message::Telemetry) -> String {
     if t.brake_on {
         s += " brake";
     }
+    if t.brake_locked {
+        s += " brake-locked-out";
+    }
     s
 }
 

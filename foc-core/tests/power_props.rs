@@ -319,7 +319,9 @@ proptest! {
             // Braking regenerates only above the speed where the back-EMF's
             // power exceeds the q-current's copper loss.
             let r_t = c.r_at_ohm(inp.winding_temperature_c.unwrap());
-            let regenerates = (w_e * m.flux_linkage_wb).abs() > r_t * 5.0;
+            // (Against the q-current the ramp admits: s of the limit.)
+            let admitted = 5.0f32.min(s * i_lim);
+            let regenerates = (w_e * m.flux_linkage_wb).abs() > r_t * admitted;
             if w_e != 0.0 {
                 let want = if regenerates { -(1.0 - s) * cap.min(i_lim) } else { 0.0 };
                 prop_assert!((w.id_a - want).abs() <= 1e-5 * (1.0 + want.abs()), "{v}: {} vs {want}", w.id_a);
@@ -526,7 +528,7 @@ proptest! {
                 prop_assert!(x.is_finite() && x <= THERMAL_MAX_C);
             }
             let mut b = BrakeChopper::new();
-            prop_assert!(!b.step(&cfg, Some(f32::NAN), 50e-6));
+            prop_assert!(!b.step(&cfg, Some(f32::NAN), 50e-6, false));
         }
         let s = j.sanitized();
         prop_assert_eq!(s, s.sanitized());
@@ -536,7 +538,7 @@ proptest! {
         prop_assert!(s.brake_on_v == INF || (s.brake_on_v.is_finite() && s.brake_on_v > 0.0));
         prop_assert!(s.brake_off_v > 0.0);
         let mut b = BrakeChopper::new();
-        prop_assert!(s.brake_on_v == INF || !b.step(&s, Some(0.5 * s.brake_off_v), 50e-6));
+        prop_assert!(s.brake_on_v == INF || !b.step(&s, Some(0.5 * s.brake_off_v), 50e-6, false));
         // And the board defaults with a resistor from such a supervisor.
         let sup = SupervisorConfig {
             bus_over_voltage_v: junk[0],
@@ -582,19 +584,22 @@ proptest! {
                 Some(v) if v.is_finite() => if want { v > on - band } else { v >= on },
                 _ => false,
             };
-            prop_assert_eq!(b.step(&c, v, 1e-3), want, "{:?}", v);
+            prop_assert_eq!(b.step(&c, v, 1e-3, false), want, "{:?}", v);
             prop_assert_eq!(b.is_on(), want);
         }
     }
 
-    /// The guard: on at most `brake_max_on_s` without a break, then locked
-    /// out until the bus falls below `brake_off_v`.
+    /// The guard: on at most `brake_max_on_s` while nothing regenerates,
+    /// then locked out until the bus falls below `brake_off_v`; a supply
+    /// that sags under the resistor and recovers (the chopper cycling) is
+    /// caught too; regeneration is not counted.
     #[test]
     fn chopper_guard(
         on in 20.0f32..60.0,
         band in 0.1f32..5.0,
         max_on in 0.0f32..0.2,
         above in 0.0f32..10.0,
+        duty in 2usize..10,
     ) {
         let mut c = base(MotorParams { pole_pairs: 7, r_ohm: 0.1, ld_h: 4e-5, lq_h: 4e-5, flux_linkage_wb: 0.004 });
         c.brake_on_v = on;
@@ -605,18 +610,36 @@ proptest! {
         let mut b = BrakeChopper::new();
         let mut on_run = 0usize;
         for _ in 0..400 {
-            if b.step(&c, Some(on + above), dt) {
+            if b.step(&c, Some(on + above), dt, false) {
                 on_run += 1;
             }
         }
         prop_assert!(on_run as f32 * dt <= max_on + 1e-6, "{on_run} periods");
         prop_assert!(b.is_locked_out());
         // Still above the off threshold: stays locked.
-        prop_assert!(!b.step(&c, Some(on - 0.5 * band), dt));
+        prop_assert!(!b.step(&c, Some(on - 0.5 * band), dt, false));
         // Below it: released, and on again above `on`.
-        prop_assert!(!b.step(&c, Some(on - 2.0 * band), dt));
+        prop_assert!(!b.step(&c, Some(on - 2.0 * band), dt, false));
         prop_assert!(!b.is_locked_out());
-        prop_assert_eq!(b.step(&c, Some(on), dt), max_on >= dt);
+        prop_assert_eq!(b.step(&c, Some(on), dt, false), max_on >= dt);
+        // Cycling: on for `duty` periods, then the bus sags below the off
+        // threshold for one period, again and again: still caught.
+        let mut b = BrakeChopper::new();
+        let mut on_total = 0usize;
+        for k in 0..4000 {
+            let v = if k % (duty + 1) == duty { on - 2.0 * band } else { on + above };
+            on_total += usize::from(b.step(&c, Some(v), dt, false));
+            if b.is_locked_out() {
+                break;
+            }
+        }
+        prop_assert!(b.is_locked_out(), "cycling at {duty}/{} not caught", duty + 1);
+        prop_assert!(on_total as f32 * dt <= 2.0 * max_on + 10.0 * dt, "{on_total}");
+        // Regenerating: never counted, never locked.
+        let mut b = BrakeChopper::new();
+        for _ in 0..400 {
+            prop_assert!(b.step(&c, Some(on + above), dt, true));
+        }
     }
 }
 

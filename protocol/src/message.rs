@@ -37,7 +37,7 @@
 //! | 0x82 | `Hello` | `protocol_version:u8 fw_major:u8 fw_minor:u8 fw_patch:u8 max_payload:u8` |
 //! | 0x83 | `Faults` | `bits:u32` ([`FaultSet`], bit n = fault code n), `first:u8` (first fault code, 0 none) |
 //! | 0x84 | `Param` | `id:u8 value:f32` |
-//! | 0x85 | `Telemetry` | `period:u32 i_d_a i_q_a v_d_v v_q_v velocity_rad_s position_rad (f32) mode:u8 fault:u8 max_loop_cycles:u32 v_bus_v:f32 power_limit:u8 limit_left_pct:u8 flags:u8 winding_dC:i16 stage_dC:i16` (reply to `ReadTelemetry`; `power_limit` an [`ActiveLimit`] code, `flags` bit 0 brake on, temperatures in 0.1 deg C with -32768 for none) |
+//! | 0x85 | `Telemetry` | `period:u32 i_d_a i_q_a v_d_v v_q_v velocity_rad_s position_rad (f32) mode:u8 fault:u8 max_loop_cycles:u32 v_bus_v:f32 power_limit:u8 limit_left_pct:u8 flags:u8 winding_dC:i16 stage_dC:i16` (reply to `ReadTelemetry`; `power_limit` an [`ActiveLimit`] code, `flags` bit 0 brake on, bit 1 brake locked out by its guard, temperatures in 0.1 deg C with -32768 for none) |
 //! | 0x86 | `Stream` | as `Telemetry`; unsolicited, after `StartTelemetry`, `seq` = wrapping stream counter |
 //! | 0x87 | `ConfigChunk` | a chunk, as in `WriteConfig` (see [`crate::config`]) |
 //!
@@ -396,6 +396,8 @@ pub struct Telemetry {
     pub limit_left_pct: u8,
     /// The brake chopper conducts.
     pub brake_on: bool,
+    /// The brake chopper's guard has locked it out.
+    pub brake_locked: bool,
     /// Estimated winding temperature [deg C] (NaN: no power limits; 0.1
     /// deg C on the wire).
     pub winding_c: f32,
@@ -420,6 +422,7 @@ impl PartialEq for Telemetry {
             && self.power_limit == o.power_limit
             && self.limit_left_pct == o.limit_left_pct
             && self.brake_on == o.brake_on
+            && self.brake_locked == o.brake_locked
             && temperature_to_wire(self.winding_c) == temperature_to_wire(o.winding_c)
             && temperature_to_wire(self.stage_c) == temperature_to_wire(o.stage_c)
     }
@@ -442,6 +445,7 @@ impl Telemetry {
         power_limit: ActiveLimit::None,
         limit_left_pct: 100,
         brake_on: false,
+        brake_locked: false,
         winding_c: f32::NAN,
         stage_c: f32::NAN,
     };
@@ -463,6 +467,7 @@ impl Telemetry {
             power_limit: fb.power.active,
             limit_left_pct: percent(fb.power.factor),
             brake_on: fb.power.brake_on,
+            brake_locked: fb.power.brake_locked,
             winding_c: fb.power.winding_c,
             stage_c: fb.power.stage_c,
         }
@@ -626,30 +631,48 @@ impl Request {
 }
 
 fn get_telemetry(r: &mut Reader<'_>) -> Result<Telemetry, DecodeError> {
+    // Fields in wire order (struct literals evaluate in source order, but
+    // the flags byte feeds two fields).
+    let period = r.u32()?;
+    let i_d_a = r.f32()?;
+    let i_q_a = r.f32()?;
+    let v_d_v = r.f32()?;
+    let v_q_v = r.f32()?;
+    let velocity_rad_s = r.f32()?;
+    let position_rad = r.f32()?;
+    let mode = mode_from_code(r.u8()?).ok_or(DecodeError::BadField(7))?;
+    let fault_code = r.u8()?;
+    let max_loop_cycles = r.u32()?;
+    let v_bus_v = r.f32()?;
+    let power_limit = active_limit_from_code(r.u8()?).ok_or(DecodeError::BadField(11))?;
+    let limit_left_pct = match r.u8()? {
+        p @ 0..=100 => p,
+        _ => return Err(DecodeError::BadField(12)),
+    };
+    let flags = match r.u8()? {
+        f @ 0..=3 => f,
+        _ => return Err(DecodeError::BadField(13)),
+    };
+    let winding_c = temperature_from_wire(r.u16()? as i16);
+    let stage_c = temperature_from_wire(r.u16()? as i16);
     Ok(Telemetry {
-        period: r.u32()?,
-        i_d_a: r.f32()?,
-        i_q_a: r.f32()?,
-        v_d_v: r.f32()?,
-        v_q_v: r.f32()?,
-        velocity_rad_s: r.f32()?,
-        position_rad: r.f32()?,
-        mode: mode_from_code(r.u8()?).ok_or(DecodeError::BadField(7))?,
-        fault_code: r.u8()?,
-        max_loop_cycles: r.u32()?,
-        v_bus_v: r.f32()?,
-        power_limit: active_limit_from_code(r.u8()?).ok_or(DecodeError::BadField(11))?,
-        limit_left_pct: match r.u8()? {
-            p @ 0..=100 => p,
-            _ => return Err(DecodeError::BadField(12)),
-        },
-        brake_on: match r.u8()? {
-            0 => false,
-            1 => true,
-            _ => return Err(DecodeError::BadField(13)),
-        },
-        winding_c: temperature_from_wire(r.u16()? as i16),
-        stage_c: temperature_from_wire(r.u16()? as i16),
+        period,
+        i_d_a,
+        i_q_a,
+        v_d_v,
+        v_q_v,
+        velocity_rad_s,
+        position_rad,
+        mode,
+        fault_code,
+        max_loop_cycles,
+        v_bus_v,
+        power_limit,
+        limit_left_pct,
+        brake_on: flags & 1 != 0,
+        brake_locked: flags & 2 != 0,
+        winding_c,
+        stage_c,
     })
 }
 
@@ -966,7 +989,7 @@ impl Message for Response {
                 w.f32(t.v_bus_v);
                 w.u8(t.power_limit as u8);
                 w.u8(t.limit_left_pct.min(100));
-                w.u8(u8::from(t.brake_on));
+                w.u8(u8::from(t.brake_on) | (u8::from(t.brake_locked) << 1));
                 w.u16(temperature_to_wire(t.winding_c) as u16);
                 w.u16(temperature_to_wire(t.stage_c) as u16);
             }

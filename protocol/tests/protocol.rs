@@ -54,6 +54,7 @@ fn telemetry() -> Telemetry {
         power_limit: ActiveLimit::Regen,
         limit_left_pct: 37,
         brake_on: true,
+        brake_locked: false,
         winding_c: 81.3,
         stage_c: -12.5,
     }
@@ -315,28 +316,32 @@ fn tel() -> impl Strategy<Value = Telemetry> {
             0u8..10,
             0u8..=100,
             any::<bool>(),
+            any::<bool>(),
             -32767i16..=32767,
             -32767i16..=32767,
         ),
     )
-        .prop_map(|(p, v, m, f, c, b, (l, pct, brake, tw, ts))| Telemetry {
-            period: p,
-            i_d_a: v[0],
-            i_q_a: v[1],
-            v_d_v: v[2],
-            v_q_v: v[3],
-            velocity_rad_s: v[4],
-            position_rad: v[5],
-            mode: mode_from_code(m).unwrap(),
-            fault_code: f,
-            max_loop_cycles: c,
-            v_bus_v: b,
-            power_limit: active_limit_from_code(l).unwrap(),
-            limit_left_pct: pct,
-            brake_on: brake,
-            winding_c: f32::from(tw) / 10.0,
-            stage_c: f32::from(ts) / 10.0,
-        })
+        .prop_map(
+            |(p, v, m, f, c, b, (l, pct, brake, locked, tw, ts))| Telemetry {
+                period: p,
+                i_d_a: v[0],
+                i_q_a: v[1],
+                v_d_v: v[2],
+                v_q_v: v[3],
+                velocity_rad_s: v[4],
+                position_rad: v[5],
+                mode: mode_from_code(m).unwrap(),
+                fault_code: f,
+                max_loop_cycles: c,
+                v_bus_v: b,
+                power_limit: active_limit_from_code(l).unwrap(),
+                limit_left_pct: pct,
+                brake_on: brake,
+                brake_locked: locked,
+                winding_c: f32::from(tw) / 10.0,
+                stage_c: f32::from(ts) / 10.0,
+            },
+        )
 }
 
 fn response() -> impl Strategy<Value = Response> {

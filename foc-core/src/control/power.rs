@@ -199,10 +199,15 @@ pub struct PowerLimitsConfig {
     /// voltage, or the supply feeds the resistor (see
     /// [`Self::brake_max_on_s`]).
     pub brake_off_v: f32,
-    /// Longest the chopper may stay on without a break [s]: then it
-    /// locks out until the bus falls below `brake_off_v` (a supply that
-    /// holds the bus above `brake_off_v`, a full battery above the
-    /// thresholds, an open resistor). `+inf`: no guard.
+    /// Longest the chopper may conduct while the motor does not
+    /// regenerate [s] (a leaky count: it runs down at a tenth of the rate
+    /// while the chopper is off or the motor regenerates): then it locks
+    /// out until the bus falls below `brake_off_v`. What it catches: a
+    /// supply that feeds the resistor (held above `brake_off_v`, or
+    /// sagging and recovering under the resistor's load), a full battery
+    /// above the thresholds. Braking a load that regenerates for a long
+    /// time (lowering a weight) is not counted. `+inf`: no guard; values
+    /// above about 500 s act as `+inf` (f32 resolution at 20 kHz).
     pub brake_max_on_s: f32,
 }
 
@@ -879,9 +884,10 @@ pub fn iq_window(cfg: &PowerLimitsConfig, inp: &PowerInputs) -> IqWindow {
 
 /// The d-axis braking current [A] (`<= 0`): `-(1 - s) min(regen_id_max_a,
 /// limit)` while `s < 1` and the requested q-current regenerates (it
-/// opposes the speed, and the back-EMF's power exceeds its copper loss:
-/// `|w_e psi| > R |i_q|`; below that speed braking already draws from
-/// the bus), else 0 (also for any non-finite input).
+/// opposes the speed, and the back-EMF's power exceeds the copper loss of
+/// the q-current the ramp admits, `|w_e psi| > R min(|i_q|, s I)`; below
+/// that speed braking already draws from the bus), else 0 (also for any
+/// non-finite input).
 #[inline(always)]
 fn braking_id_a(
     cfg: &PowerLimitsConfig,
@@ -893,7 +899,12 @@ fn braking_id_a(
     let iq = inp.iq_request_a;
     let w = inp.omega_e_rad_s;
     let emf = w * cfg.motor.flux_linkage_wb;
-    let braking = iq * w < 0.0 && emf * emf > (r_ohm * iq) * (r_ohm * iq);
+    // Against the q-current the ramp admits (`s` of the limit), not the
+    // request alone: near `s = 0` any braking request qualifies, so the
+    // d-current does not switch on and off with the speed there.
+    let iq_mag = if iq < 0.0 { -iq } else { iq };
+    let admitted = min_of(iq_mag, s * limit_a);
+    let braking = iq * w < 0.0 && emf * emf > (r_ohm * admitted) * (r_ohm * admitted);
     if !(s < 1.0 && braking && cfg.regen_id_max_a > 0.0) {
         return 0.0;
     }
@@ -1100,24 +1111,27 @@ impl ThermalEstimate {
 /// let cfg = PowerLimitsConfig::for_board(&SupervisorConfig::default(), motor, false).with_brake_resistor();
 /// let mut b = BrakeChopper::new();
 /// let dt = 50e-6;
-/// assert!(!b.step(&cfg, Some(24.0), dt));
-/// assert!(b.step(&cfg, Some(cfg.brake_on_v), dt));
-/// assert!(b.step(&cfg, Some(cfg.brake_on_v - 0.1), dt)); // hysteresis
-/// assert!(!b.step(&cfg, Some(f32::NAN), dt));
+/// assert!(!b.step(&cfg, Some(24.0), dt, false));
+/// assert!(b.step(&cfg, Some(cfg.brake_on_v), dt, false));
+/// assert!(b.step(&cfg, Some(cfg.brake_on_v - 0.1), dt, false)); // hysteresis
+/// assert!(!b.step(&cfg, Some(f32::NAN), dt, false));
 /// // A supply that holds the bus above the thresholds: on for at most
 /// // `brake_max_on_s`, then locked out until the bus falls below
 /// // `brake_off_v`.
 /// let n = (cfg.brake_max_on_s / dt) as usize + 2;
-/// let on = (0..n).filter(|_| b.step(&cfg, Some(cfg.brake_on_v + 1.0), dt)).count();
+/// let on = (0..n).filter(|_| b.step(&cfg, Some(cfg.brake_on_v + 1.0), dt, false)).count();
 /// assert!(on < n && b.is_locked_out());
-/// assert!(!b.step(&cfg, Some(cfg.brake_off_v - 0.1), dt));
-/// assert!(b.step(&cfg, Some(cfg.brake_on_v), dt));
+/// assert!(!b.step(&cfg, Some(cfg.brake_off_v - 0.1), dt, false));
+/// assert!(b.step(&cfg, Some(cfg.brake_on_v), dt, false));
+/// // While the motor regenerates, the guard does not count.
+/// let on = (0..n).filter(|_| b.step(&cfg, Some(cfg.brake_on_v + 1.0), dt, true)).count();
+/// assert_eq!(on, n);
 /// ```
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct BrakeChopper {
     on: bool,
-    /// Time on without a break [s].
+    /// Leaky count of the time on while the motor did not regenerate [s].
     on_s: f32,
     /// Locked out by the guard until the bus falls below `brake_off_v`.
     locked: bool,
@@ -1143,25 +1157,35 @@ impl BrakeChopper {
         self.on
     }
 
-    /// Whether the guard has locked it out (on for `brake_max_on_s`
-    /// without a break; released when the bus falls below `brake_off_v`).
+    /// Whether the guard has locked it out (see
+    /// [`PowerLimitsConfig::brake_max_on_s`]; released when the bus falls
+    /// below `brake_off_v`).
     pub const fn is_locked_out(&self) -> bool {
         self.locked
     }
 
-    /// One bus reading [V] after `dt_s`; returns whether the chopper is on.
-    pub fn step(&mut self, cfg: &PowerLimitsConfig, v_bus_v: Option<f32>, dt_s: f32) -> bool {
+    /// One bus reading [V] after `dt_s`, and whether the motor
+    /// regenerates (its electrical power is negative: the chopper then
+    /// takes the motor's energy, not the supply's); returns whether the
+    /// chopper is on.
+    pub fn step(
+        &mut self,
+        cfg: &PowerLimitsConfig,
+        v_bus_v: Option<f32>,
+        dt_s: f32,
+        regenerating: bool,
+    ) -> bool {
         let v = match v_bus_v {
             Some(v) if v.is_finite() => v,
             _ => {
                 self.on = false;
-                self.on_s = 0.0;
                 return false;
             }
         };
         // NaN thresholds (unsanitized) compare false: off, never on.
         if self.locked && v <= cfg.brake_off_v {
             self.locked = false;
+            self.on_s = 0.0;
         }
         let want = if self.on {
             v > cfg.brake_off_v
@@ -1169,16 +1193,16 @@ impl BrakeChopper {
             v >= cfg.brake_on_v
         };
         self.on = want && !self.locked;
-        if self.on {
+        if self.on && !regenerating {
             self.on_s += dt_s;
             // NaN or negative guard time (unsanitized): lock out at once.
             if self.on_s.is_nan() || self.on_s > cfg.brake_max_on_s || cfg.brake_max_on_s.is_nan() {
                 self.on = false;
                 self.locked = true;
             }
-        }
-        if !self.on {
-            self.on_s = 0.0;
+        } else if self.on_s > 0.0 {
+            let left = self.on_s - 0.1 * dt_s;
+            self.on_s = if left > 0.0 { left } else { 0.0 };
         }
         self.on
     }
@@ -1210,6 +1234,9 @@ pub struct PowerReport {
     /// The brake chopper conducts (a board with a brake resistor switches
     /// it; the bench drives the plant's).
     pub brake_on: bool,
+    /// The chopper's guard has locked it out
+    /// ([`PowerLimitsConfig::brake_max_on_s`]).
+    pub brake_locked: bool,
 }
 
 impl PowerReport {
@@ -1227,6 +1254,7 @@ impl PowerReport {
             winding_c: f32::NAN,
             stage_c: f32::NAN,
             brake_on: false,
+            brake_locked: false,
         }
     }
 
@@ -1276,31 +1304,48 @@ impl PowerStage {
         self.cfg.motor = motor;
     }
 
-    /// A new configuration that keeps this stage's winding estimate and
-    /// chopper state (a reconfiguration must not cool the modelled
-    /// winding down to the ambient temperature).
+    /// A new configuration that keeps this stage's winding estimate (a
+    /// reconfiguration must not cool the modelled winding down to the
+    /// ambient temperature) and its chopper guard (count and lock-out);
+    /// the chopper itself restarts off, with the new thresholds.
     pub fn reconfigured(&self, cfg: PowerLimitsConfig) -> Self {
+        let mut chopper = self.chopper;
+        chopper.on = false;
         Self {
             cfg: cfg.sanitized(),
             thermal: self.thermal,
-            // The chopper starts over (off) with its new thresholds.
-            chopper: BrakeChopper::new(),
+            chopper,
         }
     }
 
     /// The chopper alone (periods where the current stage does not run,
-    /// e.g. the start-up calibrations): returns whether it is on.
+    /// e.g. the start-up calibrations, bridge off: nothing regenerates
+    /// through the drive): returns whether it is on.
     pub fn step_chopper(&mut self, v_bus_v: Option<f32>, dt_s: f32) -> bool {
-        self.chopper.step(&self.cfg, v_bus_v, dt_s)
+        self.chopper.step(&self.cfg, v_bus_v, dt_s, false)
+    }
+
+    /// The chopper's guard has locked it out.
+    pub fn brake_locked_out(&self) -> bool {
+        self.chopper.is_locked_out()
     }
 
     /// One period: the winding estimate from the measured currents over
-    /// `dt_s`, the chopper from the bus voltage, and the q-current window
+    /// `dt_s`, the chopper from the bus voltage (and whether the motor
+    /// regenerated: `1.5 (v_d i_d + v_q i_q) < 0` with the voltage applied
+    /// with those currents, `v_dq_applied_v`), and the q-current window
     /// (with the d-axis braking current) for `inputs`, whose winding
     /// temperature is replaced by the estimate's.
-    pub fn step(&mut self, i_dq_measured_a: Dq, dt_s: f32, inputs: PowerInputs) -> PowerReport {
+    pub fn step(
+        &mut self,
+        i_dq_measured_a: Dq,
+        v_dq_applied_v: Dq,
+        dt_s: f32,
+        inputs: PowerInputs,
+    ) -> PowerReport {
         self.thermal.step(&self.cfg, i_dq_measured_a, dt_s);
-        let brake_on = self.chopper.step(&self.cfg, inputs.v_bus_v, dt_s);
+        let p = v_dq_applied_v.d * i_dq_measured_a.d + v_dq_applied_v.q * i_dq_measured_a.q;
+        let brake_on = self.chopper.step(&self.cfg, inputs.v_bus_v, dt_s, p < 0.0);
         let w = iq_window(
             &self.cfg,
             &PowerInputs {
@@ -1317,6 +1362,7 @@ impl PowerStage {
             winding_c: self.thermal.temperature_c(),
             stage_c: inputs.stage_temperature_c.unwrap_or(f32::NAN),
             brake_on,
+            brake_locked: self.chopper.is_locked_out(),
         }
     }
 }

@@ -272,6 +272,7 @@ impl CurrentStage {
     pub fn step_brake(&mut self, v_bus_v: Option<f32>) {
         if let Some(p) = self.power.as_mut() {
             self.power_report.brake_on = p.step_chopper(v_bus_v, self.config.current.ts_s);
+            self.power_report.brake_locked = p.brake_locked_out();
         }
     }
 
@@ -736,6 +737,7 @@ impl CurrentStage {
         let p = self.power.as_mut()?;
         let r = p.step(
             self.state.last_i_dq,
+            self.state.last_out_v_dq,
             self.config.current.ts_s,
             PowerInputs {
                 v_bus_v: sensed.v_bus_read_v,
