@@ -301,8 +301,14 @@ impl BrakeOutput for Brake {
     }
 }
 
-#[test]
-fn the_brake_follows_the_power_limits_chopper_with_hysteresis_and_goes_off_with_them() {
+type BrakeDrive = Drive<Pwm, Cs, Enc, SetBus, Brake>;
+
+/// A drive with a settable bus and a brake switch, its stage made by
+/// `stage` from the 7-pole-pair test motor's cascade, with `offsets`.
+fn brake_drive(
+    offsets: Option<OffsetLimits>,
+    stage: impl Fn(&CascadeConfig) -> foc_core::control::stage::CurrentStageConfig,
+) -> (BrakeDrive, CascadeConfig) {
     let motor = MotorParams {
         pole_pairs: 7,
         r_ohm: 0.1,
@@ -312,7 +318,7 @@ fn the_brake_follows_the_power_limits_chopper_with_hysteresis_and_goes_off_with_
     };
     let cfg = CascadeConfig::for_motor(motor, 20_000.0, 10.0);
     let life = LifecycleConfig {
-        offsets: None,
+        offsets,
         sensor_check_reads: 4,
         identification: None,
         identify_at_start_up: false,
@@ -321,17 +327,24 @@ fn the_brake_follows_the_power_limits_chopper_with_hysteresis_and_goes_off_with_
         angle_kind: AngleKind::Incremental,
         stored: None,
     };
-    let mut d = Drive::new(
+    let d = Drive::new(
         Pwm::default(),
         Cs::default(),
         Enc,
         SetBus(24.0),
-        cfg.current,
+        stage(&cfg),
         life,
     )
     .with_brake(Brake::default());
+    (d, cfg)
+}
+
+#[test]
+fn the_brake_follows_the_power_limits_chopper_with_hysteresis_and_goes_off_with_them() {
+    let (mut d, cfg) = brake_drive(None, |c| c.current);
+    let motor = cfg.current.current.motor;
     let mut inputs = Inputs::new(CommandSlot::INIT, 0.0);
-    let steps = |d: &mut Drive<Pwm, Cs, Enc, SetBus, Brake>, inputs: &Inputs, v: f32| {
+    let steps = |d: &mut BrakeDrive, inputs: &Inputs, v: f32| {
         d.bus.0 = v;
         for _ in 0..3 {
             d.step(inputs);
@@ -386,40 +399,19 @@ fn the_brake_follows_the_power_limits_chopper_with_hysteresis_and_goes_off_with_
 
 #[test]
 fn the_brake_works_during_the_start_up_calibrations_and_its_guard_locks_it_out() {
-    let motor = MotorParams {
-        pole_pairs: 7,
-        r_ohm: 0.1,
-        ld_h: 40e-6,
-        lq_h: 40e-6,
-        flux_linkage_wb: 0.004,
+    let offsets = OffsetLimits {
+        samples: 64,
+        max_offset_a: 0.5,
+        max_noise_a: 0.1,
     };
-    let mut cfg = CascadeConfig::for_motor(motor, 20_000.0, 10.0);
-    let p =
-        PowerLimitsConfig::for_board(&cfg.current.supervisor, motor, false).with_brake_resistor();
-    cfg.current.power = Some(p);
-    let life = LifecycleConfig {
-        offsets: Some(OffsetLimits {
-            samples: 64,
-            max_offset_a: 0.5,
-            max_noise_a: 0.1,
-        }),
-        sensor_check_reads: 4,
-        identification: None,
-        identify_at_start_up: false,
-        speed_divider: 10,
-        position_divider: 20,
-        angle_kind: AngleKind::Incremental,
-        stored: None,
-    };
-    let mut d = Drive::new(
-        Pwm::default(),
-        Cs::default(),
-        Enc,
-        SetBus(24.0),
-        cfg.current,
-        life,
-    )
-    .with_brake(Brake::default());
+    let (mut d, _) = brake_drive(Some(offsets), |c| {
+        let p = PowerLimitsConfig::for_board(&c.current.supervisor, c.current.current.motor, false)
+            .with_brake_resistor();
+        let mut stage = c.current;
+        stage.power = Some(p);
+        stage
+    });
+    let p = d.stage().config().power.expect("configured");
     let inputs = Inputs::new(CommandSlot::INIT, 0.0);
     d.step(&inputs);
     assert_eq!(d.lifecycle().phase(), Phase::OffsetCalibration);
