@@ -113,6 +113,13 @@ fn power(c: &PowerLimitsConfig, inp: &PowerInputs, iq: f32) -> (f64, f64) {
     (p, scale)
 }
 
+/// `lo + (hi - lo) t` in f64 (f32 cancels: `-59.7 + 59.7` is off by an
+/// ulp of 59.7, which at a large back-EMF is a visible power), back to
+/// f32; exact at `t = 0` and `t = 1`.
+fn lerp(lo: f32, hi: f32, t: f64) -> f32 {
+    (lo as f64 + (hi as f64 - lo as f64) * t) as f32
+}
+
 fn tol(scale: f64) -> f64 {
     1e-4 * scale + 1e-3
 }
@@ -235,7 +242,7 @@ proptest! {
             let w = iq_window(&c, &inp);
             check_shape(&w, inp.current_limit_a)?;
             for k in 0..=16 {
-                let iq = w.min_a + (w.max_a - w.min_a) * k as f32 / 16.0;
+                let iq = lerp(w.min_a, w.max_a, k as f64 / 16.0);
                 let (p, scale) = power(&c, &inp, iq);
                 prop_assert!(p >= -tol(scale), "v {v}, iq {iq}: P {p}");
             }
@@ -335,7 +342,7 @@ proptest! {
             if v >= start + span && w_e != 0.0 && regenerates {
                 let with_id = PowerInputs { i_d_a: w.id_a, ..inp };
                 for k in 0..=16 {
-                    let iq = w.min_a + (w.max_a - w.min_a) * k as f32 / 16.0;
+                    let iq = lerp(w.min_a, w.max_a, k as f64 / 16.0);
                     let (p, scale) = power(&c, &with_id, iq);
                     prop_assert!(p >= -tol(scale), "v {v}, iq {iq}: P {p}");
                 }
