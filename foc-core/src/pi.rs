@@ -13,6 +13,10 @@
 //! saturates, anti-windup acts:
 //! - [`AntiWindup::Clamp`]: conditional integration. The integration step
 //!   of this sample is undone when it would push further into the limit.
+//!   The integrator freezes: after a saturated start it is still near its
+//!   old value when the output leaves the limit, and what it lacks is
+//!   integrated back slowly (with the integral time `kp / ki`, see
+//!   [`AntiWindup::MatchedBackCalculation`]).
 //! - [`AntiWindup::BackCalculation`]: `I += min(kb * ts, 1) * (u - u_raw)`, which
 //!   bleeds the integrator back towards the value that just reaches the
 //!   limit (`kb` in 1/s; `kb = ki / kp` is the usual choice). While the
@@ -21,6 +25,26 @@
 //!   `kb = ki / kp` that is the limit itself, so the *bound* on the
 //!   integrator is what ends windup there; a larger `kb` keeps it closer to
 //!   `hi - kp e` and recovers faster (see `tests/pi_props.rs`).
+//! - [`AntiWindup::MatchedBackCalculation`]: back-calculation with the
+//!   tracking gain matched to the controller's own zero,
+//!   `kb = ki / (kp + ki ts)`, written in the form it reduces to:
+//!
+//!   ```text
+//!   I[k] = I[k-1] + g (u[k] - I[k-1]),   g = ki ts / (kp + ki ts)   (saturated)
+//!   ```
+//!
+//!   Unsaturated, `u = kp e + I[k]` and `I[k] = I[k-1] + ki ts e` give
+//!   exactly the same relation (eliminate `e`), so the integrator is, in
+//!   every sample, the same first-order lag (time constant `kp / ki`) of
+//!   the output actually applied, saturated or not: after a saturation it
+//!   holds what it would hold had that output come from the unsaturated
+//!   controller. For a PI whose zero cancels a first-order plant's pole
+//!   (the current loop: `kp / ki = L / R`) that lag *is* the plant seen
+//!   through `R`, `I = R i`: the integrator leaves the limit holding the
+//!   voltage the plant needs, and the step settles as fast as an
+//!   unsaturated one. Under a persisting error the integrator settles at
+//!   the limit (the applied output). `g` is clamped to `[0, 1]` (0 for
+//!   gains that make it NaN: no tracking).
 //!
 //! # Unusable configurations
 //!
@@ -41,12 +65,16 @@
 //!   step's limits); [`Pi::set_config`] also sets the state to it, so a
 //!   controller that was running does not hold its last output;
 //! - a NaN back-calculation gain (or `kb_per_s * ts_s` NaN) becomes 0: no
-//!   tracking, the integrator's bound alone ends windup.
+//!   tracking, the integrator's bound alone ends windup. The matched
+//!   back-calculation has no gain of its own: it derives `g` from the
+//!   (sanitised) gains in `[0, 1]`, 0 where that is NaN.
 //!
 //! Finite negative gains are kept (a reverse-acting controller). The step
 //! itself keeps its two finiteness fix-ups (free: a selection each): a NaN
 //! integrator after back-calculation (`0 * inf`, when `kp e` overflows with
-//! a zero tracking gain) takes the output, which is then the active limit.
+//! a zero tracking gain, or for the matched one when `u - I` overflows
+//! between limits near `+-f32::MAX` with `g = 0`) takes the output, which
+//! is then the active limit.
 //! A configuration or state written directly into the public fields is
 //! not checked: steps still never return NaN (a NaN output falls back to 0,
 //! a NaN integrator to the output), but that 0 may lie outside the limits;
@@ -75,6 +103,12 @@ pub enum AntiWindup {
         /// Tracking gain [1/s].
         kb_per_s: f32,
     },
+    /// Back-calculation with the tracking gain taken from the gains,
+    /// `kb = ki / (kp + ki ts)`: the integrator follows the applied output
+    /// through the controller's own zero, saturated or not (module docs;
+    /// [`PiConfig::matched_tracking_gain`]). No gain to configure, and it
+    /// stays matched when the gains change.
+    MatchedBackCalculation,
 }
 
 /// PI configuration (gains, sample time, limits).
@@ -142,6 +176,25 @@ impl PiConfig {
             }
         }
         (c, gains_ok)
+    }
+
+    /// The tracking step per sample of [`AntiWindup::MatchedBackCalculation`],
+    /// `g = ki ts / (kp + ki ts)` (`ki ts` computed as [`Pi::step_error`]
+    /// does), clamped to `[0, 1]`; 0 when it is NaN (e.g. both gains 0).
+    /// `kp = 0` gives 1 (the integrator is the output), `ki = 0` gives 0.
+    #[inline]
+    pub const fn matched_tracking_gain(&self) -> f32 {
+        let ki_ts = self.ki_per_s * self.ts_s;
+        let g = ki_ts / (self.kp + ki_ts);
+        if g >= 0.0 {
+            if g <= 1.0 {
+                g
+            } else {
+                1.0
+            }
+        } else {
+            0.0
+        }
     }
 }
 
@@ -250,7 +303,7 @@ impl Pi {
         let u = clamp(u_raw, lo, hi);
         let saturated = u != u_raw;
         if saturated {
-            i = self.anti_windup(i, i_prev, u, u_raw, lo, hi);
+            i = self.anti_windup(i, i_prev, u, u_raw, lo, hi, || c.matched_tracking_gain());
         }
         // NaN output: only with non-finite gains or a NaN integrator, both
         // written directly into the public fields: 0.
@@ -293,7 +346,10 @@ impl Pi {
     /// loop, always inlined, for **finite** gains `kp` (`self.config.kp`)
     /// and `ki_ts` ([`Self::ki_ts`]), which the caller checks once when the
     /// configuration is set (with non-finite gains it calls
-    /// [`Self::step_error_cold`] instead).
+    /// [`Self::step_error_cold`] instead), and `track_g`, the
+    /// configuration's [`PiConfig::matched_tracking_gain`] (only used with
+    /// [`AntiWindup::MatchedBackCalculation`]), computed once there too so
+    /// that the step has no division.
     ///
     /// With finite gains, a finite error and finite ordered limits nothing
     /// on the unsaturated path can be NaN or infinite (products may be
@@ -313,6 +369,7 @@ impl Pi {
         hi: f32,
         kp: f32,
         ki_ts: f32,
+        track_g: f32,
     ) -> f32 {
         if !(crate::all_finite([error, lo, hi]) && lo <= hi) {
             return self.step_unusable(error, lo, hi);
@@ -324,7 +381,7 @@ impl Pi {
         let mut u = crate::clamp_ordered(u_raw, lo, hi);
         let saturated = u != u_raw;
         if saturated {
-            i = self.anti_windup(i, i_prev, u, u_raw, lo, hi);
+            i = self.anti_windup(i, i_prev, u, u_raw, lo, hi, || track_g);
             // NaN only from a NaN stored integrator (then `u` too: 0), or
             // back-calculation with `g (u - u_raw) = 0 * inf` (then `u` is
             // the active limit): the integrator takes the output.
@@ -354,8 +411,20 @@ impl Pi {
     }
 
     /// Anti-windup on a saturated sample: the corrected integrator.
+    /// `track_g` gives [`PiConfig::matched_tracking_gain`] (called only for
+    /// [`AntiWindup::MatchedBackCalculation`]).
     #[inline]
-    fn anti_windup(&self, i: f32, i_prev: f32, u: f32, u_raw: f32, lo: f32, hi: f32) -> f32 {
+    #[allow(clippy::too_many_arguments)]
+    fn anti_windup(
+        &self,
+        i: f32,
+        i_prev: f32,
+        u: f32,
+        u_raw: f32,
+        lo: f32,
+        hi: f32,
+        track_g: impl FnOnce() -> f32,
+    ) -> f32 {
         let c = &self.config;
         match c.anti_windup {
             AntiWindup::Clamp => {
@@ -374,6 +443,16 @@ impl Pi {
                 // positive error) and beyond 2 oscillate.
                 let g = clamp(kb_per_s * c.ts_s, 0.0, 1.0);
                 clamp(i + g * (u - u_raw), lo, hi)
+            }
+            AntiWindup::MatchedBackCalculation => {
+                // `i + g' (u - u_raw)` with `g' = ki ts / (kp + ki ts)` is
+                // `i_prev + g' (u - i_prev)` (as `ki ts = g' (kp + ki ts)`);
+                // this form does not depend on `e` (nor on `i`'s clamp)
+                // and costs a subtraction and a multiply-add. `i_prev` and
+                // `u` lie in `[lo, hi]` and `g'` in `[0, 1]`: the clamp
+                // only catches rounding (and passes a NaN from `0 * inf`
+                // to the caller's fix-up).
+                clamp(i_prev + track_g() * (u - i_prev), lo, hi)
             }
         }
     }
@@ -424,8 +503,16 @@ mod tests {
             AntiWindup::BackCalculation { kb_per_s: 500.0 },
             AntiWindup::BackCalculation { kb_per_s: f32::NAN },
             AntiWindup::BackCalculation { kb_per_s: 0.0 },
+            AntiWindup::MatchedBackCalculation,
         ] {
-            for (kp, ki_per_s) in [(2.0, 300.0), (0.0, 300.0), (1e30, 300.0), (2.0, 1e38)] {
+            for (kp, ki_per_s) in [
+                (2.0, 300.0),
+                (0.0, 300.0),
+                (1e30, 300.0),
+                (2.0, 1e38),
+                (0.0, 0.0),
+                (-0.3, 300.0),
+            ] {
                 let mut a = Pi::new(PiConfig {
                     kp,
                     ki_per_s,
@@ -443,7 +530,8 @@ mod tests {
                                 let ua = a.step_error(e, lo, hi);
                                 let (kp, ki_ts) = (b.config.kp, b.ki_ts());
                                 assert!(kp.is_finite() && ki_ts.is_finite());
-                                let ub = b.step_error_lean(e, lo, hi, kp, ki_ts);
+                                let g = b.config.matched_tracking_gain();
+                                let ub = b.step_error_lean(e, lo, hi, kp, ki_ts, g);
                                 assert!(same(ua, ub), "{aw:?} {kp} {ki_per_s} {e} {lo} {hi} {i0}");
                                 assert!(same(a.state.integral, b.state.integral));
                                 assert!(same(a.state.output, b.state.output));

@@ -4,12 +4,19 @@
 use foc_core::pi::{AntiWindup, Pi, PiConfig};
 use proptest::prelude::*;
 
-fn anti_windup(kind: bool, kb_per_s: f32) -> AntiWindup {
-    if kind {
-        AntiWindup::Clamp
-    } else {
-        AntiWindup::BackCalculation { kb_per_s }
+/// The anti-windup `kind`: 0 clamp, 1 back-calculation with `kb_per_s`,
+/// 2 (or more) the matched back-calculation.
+fn anti_windup(kind: u8, kb_per_s: f32) -> AntiWindup {
+    match kind {
+        0 => AntiWindup::Clamp,
+        1 => AntiWindup::BackCalculation { kb_per_s },
+        _ => AntiWindup::MatchedBackCalculation,
     }
+}
+
+/// Any anti-windup kind (see [`anti_windup`]).
+fn kind() -> impl Strategy<Value = u8> {
+    0u8..3
 }
 
 fn config() -> impl Strategy<Value = PiConfig> {
@@ -19,7 +26,7 @@ fn config() -> impl Strategy<Value = PiConfig> {
         1e-6f32..1e-2,
         -100.0f32..100.0,
         0.0f32..100.0,
-        any::<bool>(),
+        kind(),
         0.0f32..1e5,
     )
         .prop_map(|(kp, ki, ts, lo, width, kind, kb)| PiConfig {
@@ -96,7 +103,7 @@ proptest! {
     /// error never makes the output decrease.
     #[test]
     fn response_sign(kp in 0.0f32..100.0, ki in 0.0f32..1e5, ts in 1e-6f32..1e-2,
-                     limit in 0.1f32..100.0, e in 1e-3f32..100.0, kind in any::<bool>(), kb in 0.0f32..1e4) {
+                     limit in 0.1f32..100.0, e in 1e-3f32..100.0, kind in kind(), kb in 0.0f32..1e4) {
         prop_assume!(kp * e + ki * ts * e > 1e-6);
         let cfg = PiConfig { kp, ki_per_s: ki, ts_s: ts, out_min: -limit, out_max: limit,
                              anti_windup: anti_windup(kind, kb) };
@@ -114,14 +121,15 @@ proptest! {
 
     /// No windup: the time to reverse after a saturation does not grow
     /// with its duration (it is bounded by the integrator's range), with
-    /// either anti-windup method. With `Clamp` the integrator is frozen at
+    /// every anti-windup method. With `Clamp` the integrator is frozen at
     /// saturation, so a very long saturation recovers as fast as a short
     /// one; with back-calculation it settles at `hi - kp e + ki e / kb`
-    /// (clamped), so 100k and 400k steps of saturation recover alike.
+    /// (clamped), with the matched one at `hi`, so 100k and 400k steps of
+    /// saturation recover alike.
     #[test]
     fn no_windup_after_long_saturation(kp in 0.01f32..10.0, ki in 100.0f32..1e4, ts in 1e-4f32..1e-3,
                                        hi in 1.0f32..50.0, e in 1.0f32..100.0, x in 0.1f32..10.0,
-                                       kind in any::<bool>(), kb_rel in 1.0f32..10.0) {
+                                       kind in kind(), kb_rel in 1.0f32..10.0) {
         let cfg = PiConfig { kp, ki_per_s: ki, ts_s: ts, out_min: -hi, out_max: hi,
                              anti_windup: anti_windup(kind, kb_rel * ki / kp) };
         let bound = (2.0 * hi / (ki * ts * x)) as u32 + 2;
@@ -133,8 +141,44 @@ proptest! {
         let (n_short, n_long, n_longer) = (run(1), run(100_000), run(400_000));
         prop_assert!(n_longer <= bound, "{n_longer} > bound {bound}");
         prop_assert!(n_longer <= n_long + 1 + n_long / 100, "400k {n_longer} vs 100k {n_long}");
-        if kind {
+        if kind == 0 {
             prop_assert!(n_long <= n_short + 1, "clamp: long {n_long} vs short {n_short}");
+        }
+    }
+
+    /// The matched back-calculation: in every step, saturated or not (and
+    /// with limits that move), the integrator is the same first-order lag
+    /// of the output the step returned, `I = I' + g (u - I')` with
+    /// `g = ki ts / (kp + ki ts)` and `I'` the last integrator clamped
+    /// into this step's limits (for gains `>= 0`; up to rounding).
+    #[test]
+    fn matched_integrator_is_a_lag_of_the_output(
+        kp in 0.0f32..100.0, ki in 0.0f32..1e5, ts in 1e-6f32..1e-2,
+        lo in -100.0f32..100.0, width in 0.0f32..100.0,
+        steps in proptest::collection::vec((-1e3f32..1e3, any::<bool>(), 0.0f32..1.0), 1..300),
+    ) {
+        let cfg = PiConfig { kp, ki_per_s: ki, ts_s: ts, out_min: lo, out_max: lo + width,
+                             anti_windup: AntiWindup::MatchedBackCalculation };
+        let mut pi = Pi::new(cfg);
+        let g = cfg.matched_tracking_gain();
+        prop_assert!((0.0..=1.0).contains(&g));
+        let expected_g = (ki * ts) as f64 / (kp as f64 + (ki * ts) as f64);
+        if expected_g.is_finite() {
+            prop_assert!((g as f64 - expected_g).abs() <= 1e-6, "{g} vs {expected_g}");
+        }
+        for (e, moving, shrink) in steps {
+            let (mut l, mut h) = (cfg.out_min, cfg.out_max);
+            if moving {
+                let mid = 0.5 * (l + h);
+                (l, h) = (mid + (l - mid) * shrink, mid + (h - mid) * shrink);
+            }
+            let i_prev = pi.state.integral.clamp(l, h);
+            let u = pi.step_error(e, l, h);
+            let want = i_prev + g * (u - i_prev);
+            let tol = 1e-4 * (1.0 + l.abs() + h.abs());
+            prop_assert!((pi.state.integral - want).abs() <= tol,
+                "I {} vs {want} (I' {i_prev}, u {u}, saturated {})",
+                pi.state.integral, pi.state.saturated);
         }
     }
 }
@@ -163,6 +207,7 @@ fn windup_reference_is_slow_ours_are_fast() {
     for aw in [
         AntiWindup::Clamp,
         AntiWindup::BackCalculation { kb_per_s: ki / kp },
+        AntiWindup::MatchedBackCalculation,
     ] {
         let cfg = PiConfig {
             kp,
@@ -234,7 +279,7 @@ fn any_config() -> impl Strategy<Value = PiConfig> {
     (
         (any_field(), any_field(), any_field()),
         (any_field(), any_field()),
-        any::<bool>(),
+        kind(),
         any_field(),
     )
         .prop_map(|((kp, ki, ts), (lo, hi), kind, kb)| PiConfig {

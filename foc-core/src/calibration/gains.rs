@@ -13,14 +13,16 @@
 //! ```
 
 use super::common::CalError;
-use crate::control::current::{CurrentLoopConfig, DEFAULT_DELAY_COMPENSATION_PERIODS};
+use crate::control::current::{
+    CurrentLoopConfig, DEFAULT_ANTI_WINDUP, DEFAULT_DELAY_COMPENSATION_PERIODS,
+};
 use crate::control::MotorParams;
-use crate::pi::AntiWindup;
 use crate::tuning;
 
 /// A [`CurrentLoopConfig`] for `motor` at loop period `ts_s` [s]: technical
-/// optimum on both axes, decoupling on, 95 % of the linear range, clamping
-/// anti-windup (the same choices as [`CurrentLoopConfig::technical_optimum`]).
+/// optimum on both axes, decoupling on, 95 % of the linear range, matched
+/// back-calculation anti-windup (the same choices as
+/// [`CurrentLoopConfig::technical_optimum`]).
 ///
 /// [`CalError::ImplausibleResult`] unless R, Ld, Lq and `ts_s` are finite
 /// and positive, the flux linkage finite and not negative, and the pole
@@ -49,7 +51,7 @@ pub fn current_loop_config(motor: MotorParams, ts_s: f32) -> Result<CurrentLoopC
         motor,
         decoupling: true,
         max_modulation: 0.95,
-        anti_windup: AntiWindup::Clamp,
+        anti_windup: DEFAULT_ANTI_WINDUP,
         delay_compensation_periods: DEFAULT_DELAY_COMPENSATION_PERIODS,
     })
 }
