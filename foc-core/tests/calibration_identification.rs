@@ -568,7 +568,7 @@ fn alignment_failures_are_named() {
 /// Drive a cascade built from `permit` on the plant for a Velocity request.
 struct ClosedLoop {
     drive: Option<CalibratedCascade>,
-    last_w: f32,
+    last: Option<Command>,
     fb: Option<ClosedLoopFeedback>,
 }
 
@@ -576,7 +576,7 @@ impl ClosedLoop {
     fn new() -> Self {
         Self {
             drive: None,
-            last_w: f32::NAN,
+            last: None,
             fb: None,
         }
     }
@@ -587,6 +587,17 @@ impl ClosedLoop {
         plant: &mut Plant,
         permit: &Calibrated,
         rad_s: f32,
+        inp: &CalInput,
+    ) -> [f64; 3] {
+        self.closed(plant, permit, Command::Velocity { rad_s }, inp)
+    }
+
+    /// One period of a closed-loop request: returns the phase voltages.
+    fn closed(
+        &mut self,
+        plant: &mut Plant,
+        permit: &Calibrated,
+        cmd: Command,
         inp: &CalInput,
     ) -> [f64; 3] {
         let m = plant.m;
@@ -607,9 +618,9 @@ impl ClosedLoop {
             cfg.current.limits.max_velocity_rad_s = 1.0e5;
             CalibratedCascade::new(cfg, permit)
         });
-        if rad_s != self.last_w {
-            drive.command(Command::Velocity { rad_s }).unwrap();
-            self.last_w = rad_s;
+        if self.last != Some(cmd) {
+            drive.command(cmd).unwrap();
+            self.last = Some(cmd);
         }
         let sample = Sample {
             currents: Some(PhaseCurrents::ThreePhase(inp.i_abc_a)),
@@ -712,6 +723,11 @@ fn identify(
             CalStep::Velocity { rad_s } => {
                 let permit = id.permit().expect("permit before velocity");
                 let v = cl.velocity(plant, &permit, rad_s, &inp);
+                plant.advance(v);
+            }
+            CalStep::Torque { iq_a } => {
+                let permit = id.permit().expect("permit before torque");
+                let v = cl.closed(plant, &permit, Command::Torque { iq_a }, &inp);
                 plant.advance(v);
             }
             _ => return (step, id),

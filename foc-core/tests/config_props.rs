@@ -583,6 +583,17 @@ proptest! {
                             velocity_rad_s: *rad_s,
                         });
                     }
+                    CalStep::Torque { iq_a } => {
+                        prop_assert!(fin(*iq_a), "{name} period {k}: {out:?}");
+                        // A rotor accelerating with the current.
+                        let w = inp.closed_loop.map_or(0.0, |f| f.velocity_rad_s) + 0.05 * iq_a;
+                        inp.angle = inp.angle.wrapping_add(MechanicalAngle::from_bits((w * 1e3) as i32 as u32));
+                        inp.closed_loop = Some(ClosedLoopFeedback {
+                            v_dq_v: Dq::new(0.0, 0.01 * w),
+                            i_dq_a: Dq::new(0.0, *iq_a),
+                            velocity_rad_s: w,
+                        });
+                    }
                     CalStep::Done(_) => {
                         prop_assert!(debug_finite(&out), "{name} period {k}: {out:?}");
                         break;

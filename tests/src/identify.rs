@@ -12,9 +12,11 @@
 //! 2. **sensor check**: [`SENSOR_CHECK_READS`] good angle readings;
 //! 3. **identification** (foc-core `calibration::identification`, driven
 //!    by `drive::identify`): resistance, inductance, current-loop gains,
-//!    alignment (zero, direction, pole-pair check) and flux linkage (for
-//!    hall-class sensors with a wider speed band, see [`config`]), with the
-//!    current limited to 1.5 x the test current;
+//!    alignment (zero, direction, pole-pair check), flux linkage (for
+//!    hall-class sensors with a wider speed band, see [`config`]) and the
+//!    mechanical parameters (inertia, viscous and Coulomb friction, from
+//!    torque pulses up to [`mechanics_speed_rad_s`]), with the current
+//!    limited to 1.5 x the test current;
 //! 4. on success: bridge off, the configured limits back, the final permit
 //!    (measured gains and electrical zero, flux linkage included) installed.
 //!
@@ -67,7 +69,9 @@ pub const HALL_FLUX_SPEED_TOLERANCE: f32 = 0.25;
 /// edge rate: the flux step runs at a first speed of at least 400 edges per
 /// second, with a [`HALL_FLUX_SPEED_TOLERANCE`] band and a longer average.
 /// `alignment.sensor_counts_per_rev` is set so that the alignment removes
-/// the half-count bias of a counting sensor.
+/// the half-count bias of a counting sensor. The mechanical step's target
+/// speed is [`mechanics_speed_rad_s`] (its other settings are foc-core's
+/// defaults, the hub motor's 48-count sensor included).
 pub fn config(s: &Setup, pole_pairs: u8) -> IdentificationConfig {
     let mut c = IdentificationConfig::new(
         pole_pairs,
@@ -91,7 +95,16 @@ pub fn config(s: &Setup, pole_pairs: u8) -> IdentificationConfig {
         f.average_s = 0.4;
     }
     c.alignment.sensor_counts_per_rev = s.bench.sensors.encoder_counts_per_rev;
+    c.mechanics.speed_target_rad_s = Some(mechanics_speed_rad_s(s));
     c
+}
+
+/// The mechanical step's target speed [rad/s]: 30 % of the no-load speed,
+/// at most [`Setup::max_mission_speed_rad_s`] (without it the flux step's
+/// second speed is used, which its clamp to twice the first speed puts at
+/// 55 % of the no-load speed on the high-flux M153).
+pub fn mechanics_speed_rad_s(s: &Setup) -> f32 {
+    (0.3 * s.max_speed_rad_s()).min(s.max_mission_speed_rad_s())
 }
 
 /// How the identification ended (it ran to `Done` or to a named `Failed`).

@@ -5,8 +5,8 @@
 //! A routine is a state machine stepped once per PWM period from the current
 //! loop. Each call takes this period's measurements and returns either a
 //! command for this period ([`CalStep::Apply`]: an open-loop dq voltage at an
-//! electrical angle, or [`CalStep::Velocity`]: a closed-loop velocity
-//! request), the result ([`CalStep::Done`]) or the reason it stopped
+//! electrical angle, [`CalStep::Velocity`]: a closed-loop velocity request,
+//! or [`CalStep::Torque`]: a closed-loop q-current request), the result ([`CalStep::Done`]) or the reason it stopped
 //! ([`CalStep::Failed`]). After `Done` or `Failed` every further call
 //! returns the same value: the caller must then command something else
 //! (usually zero voltage or the safe state).
@@ -51,6 +51,13 @@ pub enum CalStep<T> {
         /// Mechanical velocity reference [rad/s].
         rad_s: f32,
     },
+    /// Run the closed-loop current (torque) mode at this q current [A]
+    /// with `id = 0` (as `Command::Torque`) and pass back
+    /// [`CalInput::closed_loop`] every period.
+    Torque {
+        /// q-axis current reference [A].
+        iq_a: f32,
+    },
     /// Finished with this result.
     Done(T),
     /// Stopped; the reason.
@@ -76,6 +83,7 @@ impl<T> CalStep<T> {
         match self {
             CalStep::Apply { v_dq, theta_e } => CalStep::Apply { v_dq, theta_e },
             CalStep::Velocity { rad_s } => CalStep::Velocity { rad_s },
+            CalStep::Torque { iq_a } => CalStep::Torque { iq_a },
             CalStep::Done(t) => CalStep::Done(f(t)),
             CalStep::Failed(e) => CalStep::Failed(e),
         }
@@ -140,15 +148,30 @@ pub enum CalError {
     /// The sensor reading did not change while the field turned (dead or
     /// frozen sensor, missing magnet; also a fully blocked rotor).
     SensorNoMotion,
-    /// The closed-loop speed did not settle at the requested value in time.
+    /// The closed-loop speed did not settle at the requested value in time
+    /// (flux step), or a torque pulse moved the rotor but did not reach the
+    /// target speed in time (mechanical step: friction or load too high for
+    /// the test current, or the target too high).
     SpeedNotReached,
     /// The measurement finished but the value is not physical (non-positive,
     /// non-finite, or scattered beyond use).
     ImplausibleResult,
+    /// The rotor did not accelerate under the mechanical step's test
+    /// torque (locked rotor, or friction above the test torque).
+    NoAcceleration,
+    /// The identified inertia is outside the configured plausible range
+    /// (or not positive).
+    InertiaOutOfRange,
+    /// The identified viscous or Coulomb friction is outside the configured
+    /// bounds, or above the torque that accelerated the rotor.
+    FrictionOutOfRange,
+    /// Too few usable windows for the mechanical fit, or windows that do
+    /// not separate inertia, viscous and Coulomb friction.
+    MechanicsIllConditioned,
 }
 
-/// Closed-loop measurements for [`CalStep::Velocity`] requests (from the
-/// current stage's `Feedback`).
+/// Closed-loop measurements for [`CalStep::Velocity`] and [`CalStep::Torque`]
+/// requests (from the current stage's `Feedback`).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct ClosedLoopFeedback {
@@ -170,8 +193,8 @@ pub struct CalInput {
     pub angle: MechanicalAngle,
     /// Measured bus voltage [V].
     pub v_bus_v: f32,
-    /// Closed-loop feedback while answering a [`CalStep::Velocity`]
-    /// request; `None` otherwise.
+    /// Closed-loop feedback while answering a [`CalStep::Velocity`] or
+    /// [`CalStep::Torque`] request; `None` otherwise.
     pub closed_loop: Option<ClosedLoopFeedback>,
 }
 

@@ -1,5 +1,6 @@
 //! The identification sequencer: resistance, inductance, current-loop
-//! gains, sensor alignment and flux linkage, in that order, stepped once per
+//! gains, sensor alignment, flux linkage and the mechanical parameters
+//! (inertia, viscous and Coulomb friction), in that order, stepped once per
 //! PWM period, ending in an [`IdentificationResult`] and a [`Calibrated`]
 //! permit.
 //!
@@ -10,6 +11,12 @@
 //! | (gains) | [`current_loop_config`] | nothing (same period) | R, Ld, Lq |
 //! | [`Stage::Alignment`] | [`Alignment`] | open-loop voltage | R and the dead-time drop, to size the voltage |
 //! | [`Stage::Flux`] | [`FluxLinkage`] | closed-loop velocity | the permit of R, L, gains and alignment |
+//! | [`Stage::Mechanics`] | [`MechanicalId`] | closed-loop torque, then velocity 0 | the same permit; `kt = 1.5 p psi` from the flux; the flux step's second speed as target |
+//!
+//! The flux step runs when [`IdentificationConfig::measure_flux`] is set
+//! (the rotor may spin), the mechanical step when
+//! [`IdentificationConfig::measure_mechanics`] is set as well (it needs the
+//! measured torque constant); otherwise their results are 0 / `None`.
 //!
 //! A stage that finishes hands over in the same period, so every call
 //! returns a command until `Done` or `Failed`. [`Identification::stage`]
@@ -19,10 +26,11 @@
 //! measurements and call [`Identification::step`]:
 //! - `Apply { v_dq, theta_e }`: apply the open-loop voltage (e.g.
 //!   `CurrentLoop::step_voltage`);
-//! - `Velocity { rad_s }`: on the first such request take
-//!   [`Identification::permit`] and install it (`Calibrated::apply_to` or
-//!   `CalibratedCascade::new`), then run velocity mode at `rad_s`
-//!   (mechanical) and fill [`CalInput::closed_loop`] from its feedback;
+//! - `Velocity { rad_s }` or `Torque { iq_a }`: on the first such request
+//!   take [`Identification::permit`] and install it (`Calibrated::apply_to`
+//!   or `CalibratedCascade::new`), then run velocity mode at `rad_s`
+//!   (mechanical) or torque mode at `iq_a` and fill
+//!   [`CalInput::closed_loop`] from its feedback;
 //! - `Done(Identified { result, permit })`: store `result`, build the
 //!   closed-loop drive from `permit`;
 //! - `Failed(reason)`: bridge off, report `reason` and [`Identification::stage`].
@@ -43,6 +51,7 @@ use super::common::{CalError, CalInput, CalStep};
 use super::flux::{FluxConfig, FluxLinkage};
 use super::gains::current_loop_config;
 use super::inductance::{Inductance, InductanceConfig};
+use super::mechanics::{MechanicalId, MechanicsConfig, MechanicsResult};
 use super::permit::Calibrated;
 use super::resistance::{PhaseResistance, ResistanceConfig, ResistanceResult};
 use crate::control::current::CurrentLoopConfig;
@@ -71,6 +80,13 @@ pub struct IdentificationConfig {
     /// Run the flux step (false: flux linkage 0 in the result, for a rotor
     /// that may not spin freely).
     pub measure_flux: bool,
+    /// Mechanical step; its `torque_constant_nm_per_a` is replaced by
+    /// `1.5 p psi` of the measured flux linkage, and a `speed_target_rad_s`
+    /// of `None` by the flux step's second speed.
+    pub mechanics: MechanicsConfig,
+    /// Run the mechanical step after the flux step (only when the flux is
+    /// measured; false: `mechanics` `None` in the result).
+    pub measure_mechanics: bool,
 }
 
 impl IdentificationConfig {
@@ -96,6 +112,16 @@ impl IdentificationConfig {
             alignment_current_a: test_current_a,
             flux: FluxConfig::new(pole_pairs, pwm_frequency_hz, 0.0, 2.0 * test_current_a),
             measure_flux: true,
+            // Probe current: the test current (the drive limits the
+            // current to 1.5 times it during the identification).
+            mechanics: MechanicsConfig::new(
+                pwm_frequency_hz,
+                0.0,
+                test_current_a,
+                2.0 * test_current_a,
+                None,
+            ),
+            measure_mechanics: true,
         }
     }
 }
@@ -112,6 +138,8 @@ pub struct IdentificationResult {
     pub lq_h: f32,
     /// Flux linkage [Wb] (0 when not measured).
     pub flux_linkage_wb: f32,
+    /// Inertia and friction (`None` when not measured).
+    pub mechanics: Option<MechanicsResult>,
     /// Sensor to electrical angle.
     pub angle: AngleCalibration,
     /// Pole pairs (configured and confirmed).
@@ -155,6 +183,8 @@ pub enum Stage {
     Alignment,
     /// Flux linkage (closed loop).
     Flux,
+    /// Inertia and friction (closed-loop torque pulses).
+    Mechanics,
     /// Finished successfully.
     Done,
 }
@@ -165,6 +195,7 @@ enum Running {
     Inductance(Inductance),
     Alignment(Alignment),
     Flux(FluxLinkage),
+    Mechanics(MechanicalId),
     Finished,
 }
 
@@ -178,6 +209,8 @@ pub struct Identification {
     current: Option<CurrentLoopConfig>,
     angle: Option<AngleCalibration>,
     permit: Option<Calibrated>,
+    /// Measured flux linkage [Wb] (0 until measured).
+    flux_linkage_wb: f32,
     finished: Option<CalStep<Identified>>,
 }
 
@@ -192,6 +225,7 @@ impl Identification {
             current: None,
             angle: None,
             permit: None,
+            flux_linkage_wb: 0.0,
             finished: None,
         }
     }
@@ -206,8 +240,9 @@ impl Identification {
         self.stage
     }
 
-    /// The permit once the alignment is done (before the flux step its
-    /// motor parameters have flux linkage 0); the final one after `Done`.
+    /// The permit once the alignment is done (its motor parameters have
+    /// flux linkage 0 during the flux and mechanical steps); the final one
+    /// after `Done`.
     pub fn permit(&self) -> Option<Calibrated> {
         self.permit
     }
@@ -231,7 +266,7 @@ impl Identification {
 
     fn run(&mut self, inp: &CalInput) -> CalStep<Identified> {
         // At most one hand-over per stage in one period.
-        for _ in 0..5 {
+        for _ in 0..6 {
             let next = match &mut self.running {
                 Running::Resistance(r) => match r.step(inp) {
                     CalStep::Done(res) => self.after_resistance(res),
@@ -246,7 +281,11 @@ impl Identification {
                     other => return pass(other),
                 },
                 Running::Flux(f) => match f.step(inp) {
-                    CalStep::Done(res) => self.finish(res.flux_linkage_wb),
+                    CalStep::Done(res) => self.after_flux(res.flux_linkage_wb, res.speeds_rad_s[1]),
+                    other => return pass(other),
+                },
+                Running::Mechanics(m) => match m.step(inp) {
+                    CalStep::Done(res) => self.finish(Some(res)),
                     other => return pass(other),
                 },
                 Running::Finished => Err(CalError::InvalidConfig),
@@ -304,7 +343,7 @@ impl Identification {
         self.angle = Some(angle);
         self.permit = Some(super::permit::identified(angle, current)?);
         if !self.cfg.measure_flux {
-            return self.finish(0.0);
+            return self.finish(None);
         }
         self.stage = Stage::Flux;
         let mut f = self.cfg.flux;
@@ -315,10 +354,31 @@ impl Identification {
         Ok(None)
     }
 
-    fn finish(&mut self, flux_linkage_wb: f32) -> Result<Option<Identified>, CalError> {
+    fn after_flux(
+        &mut self,
+        flux_linkage_wb: f32,
+        speed_rad_s: f32,
+    ) -> Result<Option<Identified>, CalError> {
+        self.flux_linkage_wb = flux_linkage_wb;
+        if !self.cfg.measure_mechanics {
+            return self.finish(None);
+        }
+        self.stage = Stage::Mechanics;
+        let mut m = self.cfg.mechanics;
+        m.torque_constant_nm_per_a = 1.5 * f32::from(self.cfg.pole_pairs) * flux_linkage_wb;
+        m.speed_target_rad_s = m.speed_target_rad_s.or(Some(speed_rad_s));
+        self.running = Running::Mechanics(MechanicalId::new(m));
+        Ok(None)
+    }
+
+    fn finish(
+        &mut self,
+        mechanics: Option<MechanicsResult>,
+    ) -> Result<Option<Identified>, CalError> {
         let (Some(mut current), Some(angle)) = (self.current, self.angle) else {
             return Err(CalError::InvalidConfig);
         };
+        let flux_linkage_wb = self.flux_linkage_wb;
         current.motor.flux_linkage_wb = flux_linkage_wb;
         let permit = super::permit::identified(angle, current)?;
         self.permit = Some(permit);
@@ -329,6 +389,7 @@ impl Identification {
                 ld_h: m.ld_h,
                 lq_h: m.lq_h,
                 flux_linkage_wb,
+                mechanics,
                 angle,
                 pole_pairs: m.pole_pairs,
             },
@@ -343,6 +404,7 @@ fn pass<T>(s: CalStep<T>) -> CalStep<Identified> {
     match s {
         CalStep::Apply { v_dq, theta_e } => CalStep::Apply { v_dq, theta_e },
         CalStep::Velocity { rad_s } => CalStep::Velocity { rad_s },
+        CalStep::Torque { iq_a } => CalStep::Torque { iq_a },
         CalStep::Failed(e) => CalStep::Failed(e),
         CalStep::Done(_) => CalStep::Failed(CalError::InvalidConfig),
     }

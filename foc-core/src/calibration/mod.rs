@@ -9,13 +9,14 @@
 //! - [`inductance`]: Ld and Lq from a square wave on a DC holding current.
 //! - [`alignment`]: sensor direction, electrical zero and pole-pair check.
 //! - [`flux`]: flux linkage from two closed-loop speeds.
+//! - [`mechanics`]: inertia, viscous and Coulomb friction from torque pulses.
 //! - [`gains`]: current-loop gains from the measured values (technical optimum).
 //! - [`permit`]: [`Calibrated`], the proof that closed-loop modes may start.
 //! - [`identification`]: the sequencer running all of them in order.
 //!
 //! Every routine is stepped the same way: build a [`CalInput`] from this
 //! period's measurements, call `step`, and do what the returned [`CalStep`]
-//! says (apply an open-loop voltage, run velocity mode, or stop).
+//! says (apply an open-loop voltage, run velocity or torque mode, or stop).
 //!
 //! ```
 //! use foc_core::calibration::{CalInput, CalStep};
@@ -27,6 +28,7 @@
 //! match id.step(&inp) {
 //!     CalStep::Apply { v_dq, theta_e } => { /* open-loop voltage v_dq at theta_e */ let _ = (v_dq, theta_e); }
 //!     CalStep::Velocity { rad_s } => { /* permit.apply_to(stage); velocity mode */ let _ = rad_s; }
+//!     CalStep::Torque { iq_a } => { /* permit.apply_to(stage); torque mode */ let _ = iq_a; }
 //!     CalStep::Done(identified) => { /* identified.permit.apply_to(...) */ let _ = identified; }
 //!     CalStep::Failed(reason) => { /* bridge off, report `reason` */ let _ = reason; }
 //! }
@@ -38,6 +40,7 @@ pub mod flux;
 pub mod gains;
 pub mod identification;
 pub mod inductance;
+pub mod mechanics;
 pub mod offsets;
 pub mod permit;
 pub mod resistance;

@@ -1,18 +1,19 @@
 //! The identification driven through the current stage: foc-core's
 //! [`Identification`] sequencer (resistance, inductance, gains, sensor
-//! alignment with the pole-pair check, flux linkage) stepped once per PWM
-//! period by the [`Lifecycle`](super::Lifecycle).
+//! alignment with the pole-pair check, flux linkage, inertia and friction)
+//! stepped once per PWM period by the [`Lifecycle`](super::Lifecycle).
 //!
 //! Every period goes through the [`CurrentStage`] like normal control does:
 //! open-loop voltage requests become `Command::OpenLoop` at the requested
 //! angle, the flux step's velocity requests become `Command::Velocity` (the
 //! speed stage runs as usual, held within the identification's current
-//! limit through [`Feedback::current_limit_a`]), so the fault supervisor
-//! watches the whole identification and the bridge goes to the safe state
-//! on any fault. The stage stays uncalibrated (closed-loop commands
-//! refused) until the sequencer's permit exists: the provisional one (after
-//! the alignment) for the flux step, the final one (measured gains and flux
-//! linkage) at the end.
+//! limit through [`Feedback::current_limit_a`]), the mechanical step's
+//! torque requests `Command::Torque`, so the fault supervisor watches the
+//! whole identification and the bridge goes to the safe state on any
+//! fault. The stage stays uncalibrated (closed-loop commands refused) until
+//! the sequencer's permit exists: the provisional one (after the alignment)
+//! for the flux and mechanical steps, the final one (measured gains and
+//! flux linkage) at the end.
 //!
 //! The sequencer drives the stage through a private [`CommandSlot`], so the
 //! operator's mailbox is never written; the lifecycle marks the operator's
@@ -53,7 +54,8 @@ pub struct Identifier {
     /// Current limit during the identification [A]: inside the routines'
     /// own over-current bound (twice the test current).
     current_limit_a: f32,
-    /// This identification's provisional permit is installed (flux step).
+    /// This identification's provisional permit is installed (flux and
+    /// mechanical steps).
     permit_installed: bool,
 }
 
@@ -112,12 +114,24 @@ impl Identifier {
     }
 
     /// Ended without a result: limits back, and the provisional permit
-    /// (flux step) taken away, so no closed loop runs on a calibration the
-    /// sequencer did not finish.
+    /// (flux and mechanical steps) taken away, so no closed loop runs on a
+    /// calibration the sequencer did not finish.
     fn give_up(&mut self, stage: &mut CurrentStage) {
         self.restore_limits(stage);
         if self.permit_installed {
             stage.revoke_calibration();
+        }
+    }
+
+    /// Before the first closed-loop request: the sequencer's provisional
+    /// permit, always this identification's own alignment (the previous
+    /// calibration was revoked when it started).
+    fn install_permit(&mut self, stage: &mut CurrentStage) {
+        if !self.permit_installed {
+            if let Some(p) = self.id.permit() {
+                stage.set_calibration(&p);
+                self.permit_installed = true;
+            }
         }
     }
 
@@ -135,14 +149,14 @@ impl Identifier {
             s.angle.unwrap_or(MechanicalAngle::ZERO),
             s.v_bus_v.unwrap_or(f32::NAN),
         );
-        inp.closed_loop =
-            self.last_fb
-                .filter(|f| f.mode == Mode::Velocity)
-                .map(|f| ClosedLoopFeedback {
-                    v_dq_v: f.v_dq_v,
-                    i_dq_a: f.i_dq_a,
-                    velocity_rad_s: f.velocity_rad_s,
-                });
+        inp.closed_loop = self
+            .last_fb
+            .filter(|f| matches!(f.mode, Mode::Velocity | Mode::Torque))
+            .map(|f| ClosedLoopFeedback {
+                v_dq_v: f.v_dq_v,
+                i_dq_a: f.i_dq_a,
+                velocity_rad_s: f.velocity_rad_s,
+            });
         inp
     }
 
@@ -171,15 +185,12 @@ impl Identifier {
                 omega_e_rad_s: 0.0,
             }),
             Some(CalStep::Velocity { rad_s }) => {
-                // Always this identification's own alignment (the previous
-                // calibration was revoked when it started).
-                if !self.permit_installed {
-                    if let Some(p) = self.id.permit() {
-                        stage.set_calibration(&p);
-                        self.permit_installed = true;
-                    }
-                }
+                self.install_permit(stage);
                 self.post_if_new(Command::Velocity { rad_s });
+            }
+            Some(CalStep::Torque { iq_a }) => {
+                self.install_permit(stage);
+                self.post_if_new(Command::Torque { iq_a });
             }
             Some(CalStep::Done(done)) => {
                 self.restore_limits(stage);
