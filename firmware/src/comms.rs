@@ -538,6 +538,9 @@ pub struct Comms {
     pub store: Option<BoardStore>,
     /// The identification last folded into `settings`.
     seen_identification: u32,
+    /// Speed and position configurations re-derived from an
+    /// identification's mechanics, for the next outbox.
+    pending: ConfigMailbox,
     /// Counters.
     pub counters: LinkCounters,
     tx: [u8; MAX_FRAME],
@@ -562,6 +565,7 @@ impl Comms {
             label: boot.label,
             store: boot.store,
             seen_identification: 0,
+            pending: ConfigMailbox::EMPTY,
             counters: LinkCounters::default(),
             tx: [0; MAX_FRAME],
         }
@@ -603,6 +607,26 @@ impl Comms {
         self.settings.angle = id.permit.angle();
         self.settings.current = id.permit.current_config();
         self.settings.calibrated = true;
+        // The measured mechanics (design §19): the speed and position
+        // loops re-derived from them, sent to their tasks with the next
+        // outbox (the current stage's observer took them already).
+        if let Some(m) = id.result.mechanics {
+            let mut c = persist::cascade(&self.settings);
+            let m = foc_core::control::Mechanics::from(m);
+            if c.set_mechanics(&m) {
+                self.settings.mechanics = Some(m);
+                self.settings.speed = c.speed;
+                self.settings.position = c.position;
+                self.pending.speed = Some(c.speed);
+                self.pending.position = Some(c.position);
+            }
+        }
+    }
+
+    /// The configurations an identification left for the tasks, once.
+    fn take_pending(&mut self, out: &mut Outbox) {
+        out.config
+            .merge(&core::mem::replace(&mut self.pending, ConfigMailbox::EMPTY));
     }
 
     /// Queue a whole frame, or nothing when it does not fit (a cut frame
@@ -655,7 +679,8 @@ impl Comms {
             out: Outbox::default(),
         };
         let sample = self.device.poll(&mut link, now_period);
-        let out = link.out;
+        let mut out = link.out;
+        self.take_pending(&mut out);
         if let Some((seq, msg)) = sample {
             if let Ok(n) = encode(seq, &msg, &mut self.tx) {
                 self.send(n);

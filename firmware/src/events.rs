@@ -30,6 +30,14 @@ pub fn log(e: &Event) -> Option<IdentificationResult> {
                 r.flux_linkage_wb,
                 r.angle
             );
+            if let Some(m) = r.mechanics {
+                defmt::info!(
+                    "identified mechanics: J {=f32} kg m^2, B {=f32} N m s/rad, Fc {=f32} N m",
+                    m.inertia_kg_m2,
+                    m.viscous_friction_nm_s_per_rad,
+                    m.coulomb_friction_nm
+                );
+            }
             return Some(r);
         }
         Event::IdentificationFailed(err, st) => {

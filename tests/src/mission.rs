@@ -163,7 +163,19 @@ impl Setup {
         // The sensor's resolution is known before any calibration (the
         // supervisor's angle-step limit never goes below a few counts).
         c.current.angle.sensor_counts_per_rev = self.bench.sensors.encoder_counts_per_rev;
+        // The plant's mechanics, as a user who knows them would give them
+        // (the mission installs the identified ones instead).
+        c.set_mechanics(&self.mechanics());
         c
+    }
+
+    /// The plant's mechanics (rotor frame).
+    pub fn mechanics(&self) -> foc_core::control::Mechanics {
+        foc_core::control::Mechanics {
+            inertia_kg_m2: self.motor.inertia_kg_m2 as f32,
+            viscous_friction_nm_s_per_rad: self.motor.viscous_friction_nm_s_per_rad as f32,
+            coulomb_friction_nm: self.motor.coulomb_friction_nm as f32,
+        }
     }
 }
 
@@ -219,7 +231,7 @@ pub fn remove_offsets(c: PhaseCurrents, o: Abc) -> PhaseCurrents {
 }
 
 /// Names of the trace columns written by [`Sim`].
-pub const TRACE_COLUMNS: [&str; 22] = [
+pub const TRACE_COLUMNS: [&str; 23] = [
     "id_a",
     "iq_a",
     "id_ref_a",
@@ -242,6 +254,7 @@ pub const TRACE_COLUMNS: [&str; 22] = [
     "iq_true_a",
     "id_true_a",
     "bridge_on",
+    "disturbance_rad_s2",
 ];
 
 /// Plant + controller, stepped one PWM period at a time.
@@ -431,6 +444,7 @@ impl Sim {
             self.plant.iq_a() as f64,
             self.plant.id_a() as f64,
             if on { 1.0 } else { 0.0 },
+            fb.disturbance_rad_s2 as f64,
         ];
         let t = self.last.time_s;
         if let Some(tr) = self.trace.as_mut() {
@@ -461,6 +475,10 @@ pub struct IdentificationSummary {
     pub lq_h: (f64, f64),
     /// Flux linkage [Wb] and its error [%] (None: not measured).
     pub flux_linkage_wb: Option<(f64, f64)>,
+    /// Mechanics (design §19): inertia [kg m^2] and its error [%], and the
+    /// friction torque `Fc + B |w|` at the identification's low and high
+    /// test speeds [N m] with its error [%] (None: not measured).
+    pub mechanics: Option<MechanicsFigures>,
     /// Pole pairs found and the plant's.
     pub pole_pairs: (u8, u8),
     /// Sensor reversed: found and the plant's.
@@ -473,6 +491,20 @@ pub struct IdentificationSummary {
     pub time_s: f64,
     /// Wall time of the segment [s].
     pub wall_time_s: f64,
+}
+
+/// The identified mechanics against the plant's (design §19).
+#[derive(Clone, Debug, PartialEq)]
+pub struct MechanicsFigures {
+    /// Inertia [kg m^2] and its error [%].
+    pub inertia_kg_m2: (f64, f64),
+    /// Viscous [N m s/rad] and Coulomb [N m] friction identified.
+    pub friction: (f64, f64),
+    /// The plant's viscous and Coulomb friction.
+    pub plant_friction: (f64, f64),
+    /// Friction torque at the low and the high test speed [rad/s]:
+    /// (speed, identified [N m], error [%]).
+    pub torque_at: [(f64, f64, f64); 2],
 }
 
 /// One stop of the braking segment.
@@ -534,6 +566,50 @@ pub struct BrakingSummary {
     pub resistor_ohm: f64,
 }
 
+/// The speed loop's figures beyond the first step (design §19): the
+/// speed estimate during the steps' acceleration, the load release and a
+/// step large enough to put the q current on its limit.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct SpeedFigures {
+    /// Largest |estimate - true speed| while the first step accelerates
+    /// [rad/s], and as a percentage of the step.
+    pub estimate_error: (f64, f64),
+    /// Largest rise above the speed after the load is released [rad/s].
+    pub release_rise_rad_s: f64,
+    /// Recovery into +-2 % after the load release [ms].
+    pub release_recovery_ms: Option<f64>,
+    /// The current-limited step: its target from rest [rad/s].
+    pub sat_step_rad_s: f64,
+    /// Its current limit [A].
+    pub sat_limit_a: f64,
+    /// Its overshoot [%].
+    pub sat_overshoot_percent: f64,
+    /// Its 2 % settling time [ms].
+    pub sat_settling_ms: Option<f64>,
+    /// How long the q-current reference was on the current limit [ms].
+    pub sat_limited_ms: f64,
+    /// Largest |estimate - true speed| while it accelerates [rad/s] and as
+    /// a percentage of the step.
+    pub sat_estimate_error: (f64, f64),
+    /// Largest acceleration of the true speed during that step [rad/s^2].
+    pub sat_peak_acceleration_rad_s2: f64,
+    /// Largest acceleration of the true speed during the first step
+    /// [rad/s^2].
+    pub step_peak_acceleration_rad_s2: f64,
+}
+
+impl SpeedFigures {
+    /// The speed-estimate error [% of the step] of the step with the
+    /// mission's fastest acceleration, and that acceleration [rad/s^2].
+    pub fn fastest_estimate_error(&self) -> (f64, f64) {
+        if self.sat_peak_acceleration_rad_s2 >= self.step_peak_acceleration_rad_s2 {
+            (self.sat_estimate_error.1, self.sat_peak_acceleration_rad_s2)
+        } else {
+            (self.estimate_error.1, self.step_peak_acceleration_rad_s2)
+        }
+    }
+}
+
 /// The figures measured on one mission.
 #[derive(Clone, Debug, PartialEq)]
 pub struct MissionSummary {
@@ -582,6 +658,8 @@ pub struct MissionSummary {
     pub load_steady_error_rad_s: f64,
     /// Recovery into +-2 % of the speed after the load step [ms].
     pub load_recovery_ms: Option<f64>,
+    /// The speed loop's further figures (design §19).
+    pub speed: SpeedFigures,
     /// Position move [rad].
     pub move_rad: f64,
     /// Position 2 % settling time from the move command [ms].
@@ -626,6 +704,25 @@ impl MissionSummary {
                 if !below(err.abs(), 10.0) {
                     f.push(format!("identified flux linkage off by {err:+.1} %"));
                 }
+            }
+            // Issue 18: inertia within 10 %, friction within 20 %.
+            match &id.mechanics {
+                Some(mf) => {
+                    if !below(mf.inertia_kg_m2.1.abs(), 10.0) {
+                        f.push(format!(
+                            "identified inertia off by {:+.1} %",
+                            mf.inertia_kg_m2.1
+                        ));
+                    }
+                    for (w, _, e) in mf.torque_at {
+                        if !below(e.abs(), 20.0) {
+                            f.push(format!(
+                                "identified friction at {w:.1} rad/s off by {e:+.1} %"
+                            ));
+                        }
+                    }
+                }
+                None => f.push("mechanics not identified".into()),
             }
             if id.pole_pairs.0 != id.pole_pairs.1 {
                 f.push(format!(
@@ -739,6 +836,29 @@ impl MissionSummary {
                         format!("{:.3} mWb / {e:+.2} %", v * 1e3)
                     }),
                 );
+                if let Some(mf) = &id.mechanics {
+                    row(
+                        "identified inertia / error",
+                        format!(
+                            "{:.4e} kg m^2 / {:+.2} %",
+                            mf.inertia_kg_m2.0, mf.inertia_kg_m2.1
+                        ),
+                    );
+                    row(
+                        "identified friction (plant)",
+                        format!(
+                            "B {:.3e} N m s/rad, Fc {:.4} N m ({:.3e}, {:.4}); at {:.1} rad/s {:+.2} %, at {:.1} rad/s {:+.2} %",
+                            mf.friction.0,
+                            mf.friction.1,
+                            mf.plant_friction.0,
+                            mf.plant_friction.1,
+                            mf.torque_at[0].0,
+                            mf.torque_at[0].2,
+                            mf.torque_at[1].0,
+                            mf.torque_at[1].2
+                        ),
+                    );
+                }
                 row(
                     "pole pairs found (plant)",
                     format!("{} ({})", id.pole_pairs.0, id.pole_pairs.1),
@@ -814,6 +934,49 @@ impl MissionSummary {
             format!("{:+.4} rad/s", self.load_steady_error_rad_s),
         );
         row("recovery into +-2 %", opt_ms(self.load_recovery_ms));
+        let sp = &self.speed;
+        row(
+            "speed rise after load release",
+            format!("{:.3} rad/s", sp.release_rise_rad_s),
+        );
+        row(
+            "recovery into +-2 % after release",
+            opt_ms(sp.release_recovery_ms),
+        );
+        row(
+            "speed-estimate error while the step accelerates",
+            format!(
+                "{:.3} rad/s ({:.2} % of the step; peak acceleration {:.0} rad/s^2)",
+                sp.estimate_error.0, sp.estimate_error.1, sp.step_peak_acceleration_rad_s2
+            ),
+        );
+        row(
+            "current-limited speed step",
+            format!(
+                "{:.1} rad/s, current limit {:.2} A (q current on it for {:.1} ms, peak acceleration {:.0} rad/s^2)",
+                sp.sat_step_rad_s, sp.sat_limit_a, sp.sat_limited_ms, sp.sat_peak_acceleration_rad_s2
+            ),
+        );
+        row(
+            "current-limited step overshoot",
+            format!("{:.2} %", sp.sat_overshoot_percent),
+        );
+        row(
+            "current-limited step 2 % settling",
+            opt_ms(sp.sat_settling_ms),
+        );
+        row(
+            "speed-estimate error while it accelerates",
+            format!(
+                "{:.3} rad/s ({:.2} % of the step)",
+                sp.sat_estimate_error.0, sp.sat_estimate_error.1
+            ),
+        );
+        let (e, a) = sp.fastest_estimate_error();
+        row(
+            "speed-estimate error at the mission's fastest acceleration",
+            format!("{e:.2} % of its step ({a:.0} rad/s^2)"),
+        );
         row("position move", format!("{:.4} rad", self.move_rad));
         row("position 2 % settling", opt_ms(self.position_settling_ms));
         row(
@@ -1246,6 +1409,24 @@ fn identification_summary(
         flux_linkage_wb: identify::config(setup, m.pole_pairs)
             .measure_flux
             .then(|| with_err(r.flux_linkage_wb, m.flux_linkage_wb as f64)),
+        mechanics: r.mechanics.map(|x| {
+            let (b, fc) = (
+                x.viscous_friction_nm_s_per_rad as f64,
+                x.coulomb_friction_nm as f64,
+            );
+            let (bp, fcp) = (m.viscous_friction_nm_s_per_rad, m.coulomb_friction_nm);
+            let at = |w: f32| {
+                let w = w.abs() as f64;
+                let id = fc + b * w;
+                (w, id, 100.0 * (id / (fcp + bp * w) - 1.0))
+            };
+            MechanicsFigures {
+                inertia_kg_m2: with_err(x.inertia_kg_m2, m.inertia_kg_m2),
+                friction: (b, fc),
+                plant_friction: (bp, fcp),
+                torque_at: [at(x.speeds_rad_s[0]), at(x.speeds_rad_s[1])],
+            }
+        }),
         pole_pairs: (r.pole_pairs, m.pole_pairs),
         reversed: (r.angle.reversed, sim.plant.faults().encoder_reversed),
         offsets_a: [o.offsets.a as f64, o.offsets.b as f64, o.offsets.c as f64],
@@ -1314,7 +1495,9 @@ pub fn run_mission_from(
     m.speed_step();
     m.ramp();
     let load = m.load_step();
+    m.load_release();
     m.stop();
+    m.saturated_step();
     let p0_true = m.position_move();
     let braking = m.braking();
     (m.progress.report)(1.0);
@@ -1357,6 +1540,10 @@ struct MissionPlan {
     w2: f32,
     /// Duration of the ramp (and of the stop) [s].
     t_ramp: f64,
+    /// Duration of the current-limited step [s].
+    t_sat: f64,
+    /// Its current limit [A].
+    i_sat: f32,
     /// Position move [rad].
     move_rad: f32,
     /// Duration of the position move [s].
@@ -1383,6 +1570,10 @@ impl MissionPlan {
         let w2 = w_cap.max(w1);
         let a_ramp = 0.3 * kt * i_max / j;
         let t_ramp = ((w2 - w1) / a_ramp).max(0.1) as f64;
+        // The current-limited step: at most the limit's acceleration, then
+        // time to settle.
+        let i_sat = i_max.min(0.5 * config.speed.kp_a_per_rad_s * w2);
+        let t_sat = (w2 * j / (kt * i_sat)) as f64 * 1.5 + 0.4;
         let move_rad = std::f32::consts::TAU;
         let v_traj = config.position.max_velocity_rad_s;
         let a_traj = config.position.max_acceleration_rad_s2;
@@ -1408,6 +1599,10 @@ impl MissionPlan {
             + 0.6
             + t_ramp
             + 0.4
+            + 0.4
+            + t_sat
+            + t_ramp
+            + 0.3
             + t_move
             + 2.0 * (BRAKE_SPIN_S + BRAKE_STOP_S);
         Self {
@@ -1415,6 +1610,8 @@ impl MissionPlan {
             w1,
             w2,
             t_ramp,
+            t_sat,
+            i_sat,
             move_rad,
             t_move,
             speed_div,
@@ -1620,6 +1817,9 @@ impl Mission<'_> {
         sim.cascade.command(Command::Torque { iq_a: 0.0 }).ok();
         sim.run(secs(setup, 0.005).max(50));
         sim.plant.set_mechanics(Mechanics::Free);
+        // At rest before the speed step: the speed observer's disturbance
+        // estimate unlearns the locked rotor (design §19).
+        sim.run(secs(setup, 0.05));
         i_step
     }
 
@@ -1675,7 +1875,15 @@ impl Mission<'_> {
         load
     }
 
-    /// Segment 5a, stop: load off, ramp down to rest.
+    /// Segment 4b, load release at `w2`.
+    fn load_release(&mut self) {
+        let start = self.sim.rows();
+        self.sim.load_nm = 0.0;
+        self.run_ticking(secs(self.setup, 0.4));
+        self.end_segment("load release", start);
+    }
+
+    /// Segment 5a, stop: ramp down to rest.
     fn stop(&mut self) {
         self.sim.load_nm = 0.0;
         let start = self.sim.rows();
@@ -1684,7 +1892,35 @@ impl Mission<'_> {
         self.end_segment("stop", start);
     }
 
-    /// Segment 5b, position move of one turn. Returns the true position at
+    /// Segment 5b, a speed step from rest to `w2` with the current limit
+    /// lowered to `i_sat` (half what the proportional gain asks for at
+    /// the step), so that the q current meets its limit, then a ramp back
+    /// to rest with the limit restored.
+    fn saturated_step(&mut self) {
+        let start = self.sim.rows();
+        let w = self.plan.w2;
+        let limits = self.sim.cascade.current.config().limits;
+        self.sim
+            .cascade
+            .current
+            .set_limits(foc_core::control::Limits {
+                max_current_a: self.plan.i_sat,
+                ..limits
+            });
+        self.sim
+            .cascade
+            .command(Command::Velocity { rad_s: w })
+            .ok();
+        self.run_ticking(secs(self.setup, self.plan.t_sat));
+        self.sim.cascade.current.set_limits(limits);
+        self.end_segment("current-limited step", start);
+        let start = self.sim.rows();
+        self.velocity_ramp(w, 0.0);
+        self.run_ticking(secs(self.setup, 0.3));
+        self.end_segment("stop 2", start);
+    }
+
+    /// Segment 5c, position move of one turn. Returns the true position at
     /// its start [rad].
     fn position_move(&mut self) -> f64 {
         let start = self.sim.rows();
@@ -1895,6 +2131,7 @@ impl Mission<'_> {
             load_dip_rad_s: load_figures.0,
             load_steady_error_rad_s: load_figures.1,
             load_recovery_ms: load_figures.2,
+            speed: self.speed_figures(trace, w1, w2d, ts),
             move_rad: move_d,
             position_settling_ms: position.0,
             position_final_error_rad: position.1,
@@ -1906,6 +2143,68 @@ impl Mission<'_> {
             wall_time_s: wall.elapsed().as_secs_f64(),
         }
     }
+}
+
+impl Mission<'_> {
+    /// The speed loop's further figures from `trace`.
+    fn speed_figures(&self, trace: &Trace, w1: f64, w2: f64, ts: f64) -> SpeedFigures {
+        let est_err = |seg: &Segment, step: f64| {
+            let e = estimate_error_accelerating(trace, seg, step);
+            (e, 100.0 * e / step.abs().max(1e-9))
+        };
+        let rel = self.segment("load release");
+        let w = &col(trace, "speed_rad_s")[rel.start..rel.end];
+        let release_rise_rad_s = w.iter().fold(0.0f64, |m, v| m.max(v - w2));
+        let tol = 0.02 * w2.abs();
+        let release_recovery_ms = match w.iter().rposition(|v| (v - w2).abs() > tol) {
+            None => Some(0.0),
+            Some(i) if i + 1 < w.len() => Some(ms(i + 1, ts)),
+            Some(_) => None,
+        };
+        let sat = self.segment("current-limited step");
+        let (sat_overshoot_percent, sat_settling_ms) = speed_step_figures(trace, &sat, w2, ts);
+        let iq_ref = &col(trace, "iq_ref_a")[sat.start..sat.end];
+        let lim = self.plan.i_sat as f64;
+        let on_limit = iq_ref.iter().filter(|i| i.abs() >= 0.98 * lim).count();
+        let peak_acc = |seg: &Segment| {
+            let ws = &col(trace, "speed_rad_s")[seg.start..seg.end];
+            // Over 1 ms (the speed's quantisation is smoothed out).
+            let n = ((1e-3 / ts).round() as usize).max(1);
+            ws.windows(n + 1)
+                .map(|p| ((p[n] - p[0]) / (n as f64 * ts)).abs())
+                .fold(0.0f64, f64::max)
+        };
+        let step = self.segment("speed step");
+        SpeedFigures {
+            estimate_error: est_err(&step, w1),
+            release_rise_rad_s,
+            release_recovery_ms,
+            sat_step_rad_s: w2,
+            sat_limit_a: lim,
+            sat_overshoot_percent,
+            sat_settling_ms,
+            sat_limited_ms: ms(on_limit, ts),
+            sat_estimate_error: est_err(&sat, w2),
+            sat_peak_acceleration_rad_s2: peak_acc(&sat),
+            step_peak_acceleration_rad_s2: peak_acc(&step),
+        }
+    }
+}
+
+/// Largest |speed estimate - true speed| [rad/s] in step `seg` to `step`
+/// [rad/s] from rest, while the true speed is below 90 % of the step (the
+/// acceleration).
+fn estimate_error_accelerating(trace: &Trace, seg: &Segment, step: f64) -> f64 {
+    let w = &col(trace, "speed_rad_s")[seg.start..seg.end];
+    let est = &col(trace, "speed_est_rad_s")[seg.start..seg.end];
+    let end = w
+        .iter()
+        .position(|v| v.abs() >= 0.9 * step.abs())
+        .unwrap_or(w.len());
+    w[..end]
+        .iter()
+        .zip(&est[..end])
+        .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()))
 }
 
 /// `n` PWM periods of `ts` seconds [ms].

@@ -76,6 +76,51 @@ use crate::angle::ElectricalAngle;
 use crate::frames::Dq;
 pub use supervisor::{Fault, FaultSet};
 
+/// Mechanical parameters of the rotor and what it drives (rotor frame,
+/// mechanical): measured by the identification (design §19) or given.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Mechanics {
+    /// Inertia [kg m^2].
+    pub inertia_kg_m2: f32,
+    /// Viscous friction [N m s/rad].
+    pub viscous_friction_nm_s_per_rad: f32,
+    /// Coulomb friction [N m].
+    pub coulomb_friction_nm: f32,
+}
+
+impl Mechanics {
+    /// An inertia alone (no friction known).
+    pub const fn inertia(inertia_kg_m2: f32) -> Self {
+        Self {
+            inertia_kg_m2,
+            viscous_friction_nm_s_per_rad: 0.0,
+            coulomb_friction_nm: 0.0,
+        }
+    }
+
+    /// True when the inertia is a positive finite value and the frictions
+    /// finite and non-negative.
+    pub fn is_usable(&self) -> bool {
+        let j = self.inertia_kg_m2;
+        let ok = |x: f32| x.is_finite() && x >= 0.0;
+        j.is_finite()
+            && j > 0.0
+            && ok(self.viscous_friction_nm_s_per_rad)
+            && ok(self.coulomb_friction_nm)
+    }
+}
+
+impl From<crate::calibration::mechanics::MechanicsResult> for Mechanics {
+    fn from(r: crate::calibration::mechanics::MechanicsResult) -> Self {
+        Self {
+            inertia_kg_m2: r.inertia_kg_m2,
+            viscous_friction_nm_s_per_rad: r.viscous_friction_nm_s_per_rad,
+            coulomb_friction_nm: r.coulomb_friction_nm,
+        }
+    }
+}
+
 /// Electrical parameters of a PMSM.
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -438,8 +483,13 @@ pub struct Feedback {
     pub active: Command,
     /// Multi-turn mechanical position [rad].
     pub position_rad: f32,
-    /// Estimated mechanical velocity [rad/s].
+    /// Estimated mechanical velocity [rad/s] (the speed observer's, design
+    /// §19).
     pub velocity_rad_s: f32,
+    /// The speed observer's disturbance: the acceleration its torque model
+    /// does not explain (a load torque `T_L` shows as `-T_L / J`)
+    /// [rad/s^2].
+    pub disturbance_rad_s2: f32,
     /// Electrical angle used this period.
     pub theta_e: ElectricalAngle,
     /// Measured dq currents [A].
@@ -477,6 +527,7 @@ impl Feedback {
         active: Command::Disable,
         position_rad: 0.0,
         velocity_rad_s: 0.0,
+        disturbance_rad_s2: 0.0,
         theta_e: ElectricalAngle::ZERO,
         i_dq_a: Dq::ZERO,
         i_dq_ref_a: Dq::ZERO,

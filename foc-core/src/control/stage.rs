@@ -1,13 +1,13 @@
 //! The three stages of the cascade: loops plus mode logic (see [`super`]).
 
 use super::current::{CurrentLoop, CurrentLoopConfig, CurrentLoopInput, CurrentLoopOutput};
-use super::estimator::{AngleTracker, AngleTrackerConfig};
+use super::estimator::{AngleTracker, AngleTrackerConfig, SpeedObserver, SpeedObserverConfig};
 use super::permit::Calibrated;
 use super::position::{PositionLoop, PositionLoopConfig};
 use super::power::{PowerInputs, PowerLimitsConfig, PowerReport, PowerStage};
 use super::speed::{SpeedLoop, SpeedLoopConfig};
 use super::supervisor::{Checks, Fault, Supervisor, SupervisorConfig};
-use super::{BridgeCommand, Command, CommandSlot, Feedback, Limits, Mode};
+use super::{BridgeCommand, Command, CommandSlot, Feedback, Limits, Mechanics, Mode};
 use crate::angle::{ElectricalAngle, MechanicalAngle};
 use crate::clamp;
 use crate::frames::Dq;
@@ -106,8 +106,13 @@ pub enum TimeoutReaction {
 pub struct CurrentStageConfig {
     /// Current loop.
     pub current: CurrentLoopConfig,
-    /// Speed/position tracker (runs every period).
+    /// Speed/position tracker (runs every period): the angle
+    /// interpolation, the decoupling's speed, the plausibility checks and
+    /// the position.
     pub tracker: AngleTrackerConfig,
+    /// The torque-fed speed observer (runs every period): the published
+    /// speed, which the speed loop uses (design §19).
+    pub observer: SpeedObserverConfig,
     /// Fault limits.
     pub supervisor: SupervisorConfig,
     /// Command limits.
@@ -171,6 +176,18 @@ pub struct CurrentStageState {
     pub last_innovation_rad: f32,
     /// Periods since the raw angle reading last changed.
     pub unchanged_periods: u32,
+    /// The speed stage's q-current reference as the current loop uses it,
+    /// interpolated over the speed-loop period [A] (design §19).
+    pub iq_interp_a: f32,
+    /// Its change per period towards `iq_target_a` [A].
+    pub iq_step_a: f32,
+    /// The speed stage's last output [A].
+    pub iq_target_a: f32,
+    /// `1 / N`, N the periods per speed-loop step
+    /// ([`CurrentStage::set_speed_periods`]).
+    pub speed_inv_periods: f32,
+    /// N itself.
+    pub speed_periods: u32,
 }
 
 impl CurrentStageState {
@@ -192,6 +209,11 @@ impl CurrentStageState {
             last_interp: MechanicalAngle::ZERO,
             last_innovation_rad: 0.0,
             unchanged_periods: 0,
+            iq_interp_a: 0.0,
+            iq_step_a: 0.0,
+            iq_target_a: 0.0,
+            speed_inv_periods: 1.0,
+            speed_periods: 1,
         }
     }
 
@@ -206,6 +228,8 @@ impl CurrentStageState {
             period: self.period,
             rejected: self.rejected,
             calibrated: self.calibrated,
+            speed_inv_periods: self.speed_inv_periods,
+            speed_periods: self.speed_periods,
             ..Self::new(self.interpolation)
         };
     }
@@ -217,6 +241,7 @@ pub struct CurrentStage {
     config: CurrentStageConfig,
     current: CurrentLoop,
     tracker: AngleTracker,
+    observer: SpeedObserver,
     supervisor: Supervisor,
     state: CurrentStageState,
     /// Power limits, when configured.
@@ -235,6 +260,7 @@ impl CurrentStage {
         Self {
             current: CurrentLoop::new(config.current),
             tracker: AngleTracker::new(config.tracker),
+            observer: SpeedObserver::new(config.observer),
             supervisor: {
                 let mut sup = Supervisor::new(config.supervisor);
                 sup.set_angle_resolution(
@@ -304,6 +330,7 @@ impl CurrentStage {
     pub fn reset(&mut self) {
         self.current.reset();
         self.tracker.reset();
+        self.observer.reset();
         self.state.reset();
         self.state.last_innovation_rad = 0.0;
     }
@@ -325,6 +352,7 @@ impl CurrentStage {
             self.config.angle.sensor_counts_per_rev,
         );
         self.tracker.reset();
+        self.observer.reset();
         let cur = c.current_config();
         self.config.current = cur;
         self.current.set_config(cur);
@@ -362,6 +390,7 @@ impl CurrentStage {
         self.supervisor
             .set_angle_resolution(a.pole_pairs, a.sensor_counts_per_rev);
         self.tracker.reset();
+        self.observer.reset();
         self.revoke_calibration();
     }
 
@@ -425,6 +454,60 @@ impl CurrentStage {
     /// without a calibration).
     pub fn rejected_commands(&self) -> u32 {
         self.state.rejected
+    }
+
+    /// The rotor's mechanics for the speed observer: its torque input
+    /// `kt / J` from the current loop's motor, and the friction (design
+    /// §19). Unusable
+    /// values ([`Mechanics::is_usable`]) change nothing and return false.
+    pub fn set_mechanics(&mut self, m: &Mechanics) -> bool {
+        let kt = self.config.current.motor.torque_constant_nm_per_a();
+        let k = SpeedObserverConfig::accel_per_amp(kt, m.inertia_kg_m2);
+        if !(m.is_usable() && k > 0.0) {
+            return false;
+        }
+        self.config.observer = SpeedObserverConfig {
+            accel_per_a_rad_s2: k,
+            ..self.config.observer
+        }
+        .with_friction(
+            m.coulomb_friction_nm,
+            m.viscous_friction_nm_s_per_rad,
+            m.inertia_kg_m2,
+        );
+        self.observer.set_config(self.config.observer);
+        true
+    }
+
+    /// The speed stage runs every `n` periods (0 counts as 1): its q-current
+    /// reference is interpolated over that many periods (design §19).
+    #[inline]
+    pub fn set_speed_periods(&mut self, n: u32) {
+        let n = n.max(1);
+        if n != self.state.speed_periods {
+            self.state.speed_periods = n;
+            self.state.speed_inv_periods = 1.0 / n as f32;
+        }
+    }
+
+    /// The speed stage's output `target_a` [A] as the current loop uses it
+    /// this period: a new value is reached in a straight line over the
+    /// speed-loop period instead of in one step.
+    #[inline(always)]
+    fn interpolate_speed_output(&mut self, target_a: f32) -> f32 {
+        let st = &mut self.state;
+        if target_a != st.iq_target_a {
+            st.iq_target_a = target_a;
+            st.iq_step_a = (target_a - st.iq_interp_a) * st.speed_inv_periods;
+        }
+        let next = st.iq_interp_a + st.iq_step_a;
+        let reached = if st.iq_step_a >= 0.0 {
+            next >= target_a
+        } else {
+            next <= target_a
+        };
+        st.iq_interp_a = if reached { target_a } else { next };
+        st.iq_interp_a
     }
 
     /// The active command.
@@ -533,6 +616,11 @@ impl CurrentStage {
                     self.state.unchanged_periods.saturating_add(1)
                 };
                 let used = self.angle_used(mech, changed);
+                // The torque-fed observer (design §19) takes the angle used
+                // (the reading itself for a fine sensor) and the q current
+                // measured at the last period's start: the torque that
+                // drove the rotor since.
+                self.observer.update(used, self.state.last_i_dq.q);
                 sensed.theta_e = self.config.angle.electrical(used);
                 sensed.i_abc = cur.to_abc();
                 // |i_ab|^2 against the squared limit: no square root (see
@@ -655,16 +743,27 @@ impl CurrentStage {
         let w_e = self.tracker.velocity_rad_s() * pp;
         let mut i_ref = Dq::ZERO;
         // The q-current each closed-loop mode asks for, before the window.
+        let lim = self.config.limits.max_current_a;
+        let from_speed = if iq_ref_from_speed_a.is_finite() {
+            clamp(iq_ref_from_speed_a, -lim, lim)
+        } else {
+            0.0
+        };
         let requested = match self.state.active {
-            Command::Disable | Command::OpenLoop { .. } => None,
-            Command::Torque { iq_a } => Some(iq_a),
+            Command::Disable | Command::OpenLoop { .. } => {
+                self.state.iq_interp_a = 0.0;
+                self.state.iq_target_a = from_speed;
+                None
+            }
+            Command::Torque { iq_a } => {
+                // The speed stage tracks this reference: entering velocity
+                // mode interpolates from it.
+                self.state.iq_interp_a = iq_a;
+                self.state.iq_target_a = from_speed;
+                Some(iq_a)
+            }
             Command::Velocity { .. } | Command::Position { .. } => {
-                let lim = self.config.limits.max_current_a;
-                Some(if iq_ref_from_speed_a.is_finite() {
-                    clamp(iq_ref_from_speed_a, -lim, lim)
-                } else {
-                    0.0
-                })
+                Some(self.interpolate_speed_output(from_speed))
             }
         };
         // Stepped every period (winding estimate, chopper), faulted or not.
@@ -850,7 +949,8 @@ impl CurrentStage {
             mode: self.state.active.mode(),
             active: self.state.active,
             position_rad: self.tracker.position().to_radians(),
-            velocity_rad_s: self.tracker.velocity_rad_s(),
+            velocity_rad_s: self.observer.velocity_rad_s(),
+            disturbance_rad_s2: self.observer.disturbance_rad_s2(),
             theta_e,
             i_dq_a: i_dq,
             i_dq_ref_a: i_ref,
@@ -939,11 +1039,16 @@ impl SpeedStage {
             _ => (None, 0.0),
         };
         let entering = !matches!(self.last_mode, Mode::Velocity | Mode::Position);
+        let model_starts = fb.mode == Mode::Velocity && self.last_mode != Mode::Velocity;
         self.last_mode = fb.mode;
         self.iq_ref_a = match w_ref {
             Some(w) => {
                 if entering {
                     self.speed.preload(fb.i_dq_ref_a.q);
+                }
+                if model_starts {
+                    // The reference model starts where the rotor is.
+                    self.speed.start_model(fb.velocity_rad_s);
                 }
                 // Within the current limit and the power limits' window.
                 // (Plain comparisons: `f32::max` is branchy on the M4F.)
@@ -951,7 +1056,22 @@ impl SpeedStage {
                 let (p_lo, p_hi) = (fb.power.iq_min_a, fb.power.iq_max_a);
                 let lo = if p_lo > -lim { p_lo } else { -lim };
                 let hi = if p_hi < lim { p_hi } else { lim };
-                self.speed.step_in(w, fb.velocity_rad_s, ff, lo, hi)
+                if fb.mode == Mode::Velocity {
+                    // A step of the operator's reference: through the
+                    // reference model (two degrees of freedom).
+                    self.speed
+                        .step_model(w, fb.velocity_rad_s, fb.disturbance_rad_s2, lim, lo, hi)
+                } else {
+                    // The trajectory is already smooth, with its own
+                    // acceleration feed-forward.
+                    self.speed.step_in(
+                        w,
+                        fb.velocity_rad_s,
+                        ff + self.speed.disturbance_ff_a(fb.disturbance_rad_s2),
+                        lo,
+                        hi,
+                    )
+                }
             }
             None => {
                 self.speed.preload(fb.i_dq_ref_a.q);

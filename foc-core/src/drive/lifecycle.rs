@@ -30,7 +30,7 @@ use crate::calibration::offsets::{OffsetCalibrator, OffsetError, OffsetLimits, O
 use crate::calibration::CalError;
 use crate::control::permit::Calibrated;
 use crate::control::stage::{CurrentStage, Sample};
-use crate::control::{BridgeCommand, Command, CommandSlot, Fault, Feedback};
+use crate::control::{BridgeCommand, Command, CommandSlot, Fault, Feedback, Mechanics};
 use crate::frames::Abc;
 
 /// Where the drive is in its life.
@@ -276,6 +276,8 @@ impl Lifecycle {
         if let Some(ch) = inp.change {
             out.change = Some(self.apply_change(stage, &ch, inp, &mut out));
         }
+        // The speed stage's output is interpolated over its period.
+        stage.set_speed_periods(self.dividers.0);
         // The brake chopper every period: the phases without a stage step
         // (bridge off) step it alone (a coasting motor still charges the
         // bus through the body diodes).
@@ -508,6 +510,11 @@ impl Lifecycle {
             Outcome::Running => return,
             Outcome::Done(r) => {
                 self.identified = Some(r);
+                // The measured inertia feeds the speed observer's torque
+                // model from now on (design §19).
+                if let Some(m) = r.mechanics {
+                    stage.set_mechanics(&Mechanics::from(m));
+                }
                 Some(Event::Identified(r))
             }
             Outcome::Failed(e, st) => Some(Event::IdentificationFailed(e, st)),
