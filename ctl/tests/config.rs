@@ -274,7 +274,7 @@ fn cli_export_edit_import_show() {
     let out = foc_ctl(server.addr(), &["config", "export", f]);
     assert!(out.status.success(), "{}", text(&out.stderr));
     let t = std::fs::read_to_string(&file).unwrap();
-    assert!(t.contains("schema_version = 2"), "{t}");
+    assert!(t.contains("schema_version = 3"), "{t}");
     let t = set_key(&t, "", "label", "\"from the cli\"");
     let t = set_key(&t, "current_gains", "ki_d_v_per_a_s", "1234.0");
     let t = set_key(&t, "motor", "ld_h", "5e-5");
@@ -327,7 +327,7 @@ fn cli_refuses_invalid_files_on_the_host() {
     let cases = [
         (set_key(&good, "motor", "r_ohm", "nan"), "motor.r_ohm"),
         (set_key(&good, "motor", "r_ohm", "-0.1"), "motor.r_ohm"),
-        (set_key(&good, "", "schema_version", "3"), "schema_version"),
+        (set_key(&good, "", "schema_version", "4"), "schema_version"),
         (
             set_key(&good, "", "pwm_frequency_hz", "16000"),
             "PWM frequency",
@@ -415,11 +415,11 @@ fn show_says_when_a_record_fails_its_crc_or_version() {
     let good = encoded(&foc_store::record::example());
     let mut bad_crc = good.clone();
     bad_crc[12] ^= 1;
-    let mut v3 = good.clone();
-    v3[0] = 3;
-    let n = v3.len();
-    let crc = crc32(&v3[..n - 4]);
-    v3[n - 4..].copy_from_slice(&crc.to_le_bytes());
+    let mut v4 = good.clone();
+    v4[0] = 4;
+    let n = v4.len();
+    let crc = crc32(&v4[..n - 4]);
+    v4[n - 4..].copy_from_slice(&crc.to_le_bytes());
 
     let out = foc_ctl(serving(good), &["config", "show", "--stored"]);
     assert!(out.status.success(), "{}", text(&out.stderr));
@@ -431,10 +431,10 @@ fn show_says_when_a_record_fails_its_crc_or_version() {
         err.contains("not readable") && err.contains("checksum"),
         "{err}"
     );
-    let out = foc_ctl(serving(v3), &["config", "show", "--stored"]);
+    let out = foc_ctl(serving(v4), &["config", "show", "--stored"]);
     assert!(!out.status.success());
     let err = text(&out.stderr);
-    assert!(err.contains("schema version 3"), "{err}");
+    assert!(err.contains("schema version 4"), "{err}");
 }
 
 #[test]

@@ -33,15 +33,14 @@ use foc_core::control::current::CurrentLoopConfig;
 use foc_core::control::permit::Calibrated;
 use foc_core::control::power::PowerLimitsConfig;
 use foc_core::control::stage::AngleCalibration;
-use foc_core::control::{Limits, LimitsError, MotorParams};
-use foc_core::pi::AntiWindup;
+use foc_core::control::{Limits, LimitsError, Mechanics, MotorParams};
 use foc_core::tuning::CurrentPiGains;
 use serde::{Deserialize, Serialize};
 
 /// Version of the schema written by this build ([`DriveRecord`]'s postcard
 /// layout). Bump it on any change of the layout and add a migration step in
 /// `migrate` for the old version.
-pub const SCHEMA_VERSION: u16 = 2;
+pub const SCHEMA_VERSION: u16 = 3;
 
 /// Largest envelope (header, payload and CRC) in bytes.
 pub const MAX_RECORD_BYTES: usize = 256;
@@ -217,6 +216,22 @@ pub struct PowerRecord {
     pub brake_max_on_s: f32,
 }
 
+/// The rotor's identified mechanics (design §19; foc-core's `Mechanics`),
+/// rotor frame, mechanical.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MechanicsRecord {
+    /// Inertia of the rotor and its load [kg m^2] (finite, in
+    /// [`Self::INERTIA_RANGE_KG_M2`]).
+    pub inertia_kg_m2: f32,
+    /// Viscous friction [N m s/rad] (finite, `>= 0`, at most
+    /// [`Self::MAX_VISCOUS_FRICTION_NM_S_PER_RAD`]).
+    pub viscous_friction_nm_s_per_rad: f32,
+    /// Coulomb friction [N m] (finite, `>= 0`, at most
+    /// [`Self::MAX_COULOMB_FRICTION_NM`]).
+    pub coulomb_friction_nm: f32,
+}
+
 /// Everything the drive keeps across power-off: configuration and the
 /// identified calibration (the on-flash schema, version [`SCHEMA_VERSION`]).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -245,6 +260,9 @@ pub struct DriveRecord {
     /// Power limits; `None`: the build's defaults for the board (what a
     /// version-1 record, from before the power limits, becomes).
     pub power: Option<PowerRecord>,
+    /// The rotor's mechanics; `None`: not identified, the build's (what a
+    /// version-1 or -2 record, from before they were stored, becomes).
+    pub mechanics: Option<MechanicsRecord>,
 }
 
 /// Why bytes are not a record (see [`DriveRecord::decode`]).
@@ -324,15 +342,21 @@ fn non_negative(x: f32) -> bool {
 
 /// Upgrade the payload of an older schema version to a record of this one.
 ///
-/// Version 1 (before the power limits) is read with its own struct
-/// ([`v1::DriveRecordV1`]) and gets `power: None` (the build's defaults).
-/// Each step converts one version to the next, so a later build chains
-/// `1 -> 2 -> 3`. A migrated record is validated by the caller like any
-/// other; version 0 and unknown versions are refused.
+/// Each older version is read with its own frozen struct and converted
+/// one step at a time: version 1 (before the power limits,
+/// [`v1::DriveRecordV1`]) gets `power: None` (the build's defaults),
+/// version 2 (before the mechanics, [`v2::DriveRecordV2`]) gets
+/// `mechanics: None`; a version-1 record goes `1 -> 2 -> 3`. A migrated
+/// record is validated by the caller like any other; version 0 and unknown
+/// versions are refused.
 fn migrate(found: u16, payload: &[u8]) -> Result<DriveRecord, RecordError> {
     match found {
         1 => match postcard::take_from_bytes::<v1::DriveRecordV1>(payload) {
-            Ok((r, [])) => Ok(r.into_v2()),
+            Ok((r, [])) => Ok(r.into_v2().into_v3()),
+            _ => Err(RecordError::Malformed),
+        },
+        2 => match postcard::take_from_bytes::<v2::DriveRecordV2>(payload) {
+            Ok((r, [])) => Ok(r.into_v3()),
             _ => Err(RecordError::Malformed),
         },
         _ => Err(RecordError::UnsupportedVersion {
@@ -347,7 +371,7 @@ pub mod v1 {
     use super::*;
 
     /// The version-1 layout (field for field [`DriveRecord`] up to
-    /// `watchdog`).
+    /// `watchdog`). Frozen: never change it.
     #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
     #[serde(deny_unknown_fields)]
     pub struct DriveRecordV1 {
@@ -376,8 +400,8 @@ pub mod v1 {
     impl DriveRecordV1 {
         /// Version 2: the same values, the power limits at the build's
         /// defaults.
-        pub fn into_v2(self) -> DriveRecord {
-            DriveRecord {
+        pub fn into_v2(self) -> super::v2::DriveRecordV2 {
+            super::v2::DriveRecordV2 {
                 label: self.label,
                 pwm_frequency_hz: self.pwm_frequency_hz,
                 motor: self.motor,
@@ -389,6 +413,61 @@ pub mod v1 {
                 dividers: self.dividers,
                 watchdog: self.watchdog,
                 power: None,
+            }
+        }
+    }
+}
+
+/// Schema version 2: [`DriveRecord`] without `mechanics`.
+pub mod v2 {
+    use super::*;
+
+    /// The version-2 layout (field for field [`DriveRecord`] up to
+    /// `power`). Frozen: never change it.
+    #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    pub struct DriveRecordV2 {
+        /// See [`DriveRecord::label`].
+        pub label: Label,
+        /// See [`DriveRecord::pwm_frequency_hz`].
+        pub pwm_frequency_hz: u32,
+        /// See [`DriveRecord::motor`].
+        pub motor: MotorRecord,
+        /// See [`DriveRecord::current_gains`].
+        pub current_gains: CurrentGainsRecord,
+        /// See [`DriveRecord::calibration`].
+        pub calibration: Option<AngleRecord>,
+        /// See [`DriveRecord::limits`].
+        pub limits: LimitsRecord,
+        /// See [`DriveRecord::speed`].
+        pub speed: SpeedRecord,
+        /// See [`DriveRecord::position`].
+        pub position: PositionRecord,
+        /// See [`DriveRecord::dividers`].
+        pub dividers: DividersRecord,
+        /// See [`DriveRecord::watchdog`].
+        pub watchdog: WatchdogRecord,
+        /// See [`DriveRecord::power`].
+        pub power: Option<PowerRecord>,
+    }
+
+    impl DriveRecordV2 {
+        /// Version 3: the same values, the mechanics not identified (the
+        /// build's).
+        pub fn into_v3(self) -> DriveRecord {
+            DriveRecord {
+                label: self.label,
+                pwm_frequency_hz: self.pwm_frequency_hz,
+                motor: self.motor,
+                current_gains: self.current_gains,
+                calibration: self.calibration,
+                limits: self.limits,
+                speed: self.speed,
+                position: self.position,
+                dividers: self.dividers,
+                watchdog: self.watchdog,
+                power: self.power,
+                mechanics: None,
             }
         }
     }
@@ -435,7 +514,8 @@ impl DriveRecord {
 
     /// Read an envelope: length, then CRC, then version ([`SCHEMA_VERSION`]
     /// decodes; a newer one is [`RecordError::UnsupportedVersion`]; an older
-    /// one goes through the migration steps, of which there are none yet).
+    /// one goes through the migration steps: version 1 and 2 records decode
+    /// with `power` and `mechanics` at `None` where they had none).
     /// `bytes` must be exactly one envelope. Does not validate.
     pub fn decode(bytes: &[u8]) -> Result<DriveRecord, RecordError> {
         if bytes.len() > MAX_RECORD_BYTES {
@@ -527,6 +607,13 @@ impl DriveRecord {
         if let Some(p) = &self.power {
             p.validate()?;
         }
+        if let Some(mech) = &self.mechanics {
+            mech.validate()?;
+            // What foc-core's `CascadeConfig::set_mechanics` needs to derive
+            // the loops from them: a torque constant.
+            let kt = m.to_params().torque_constant_nm_per_a();
+            check(kt.is_finite() && kt > 0.0, "mechanics")?;
+        }
 
         if let Some(c) = &self.calibration {
             check(c.pole_pairs == m.pole_pairs, "calibration.pole_pairs")?;
@@ -543,7 +630,7 @@ impl DriveRecord {
                 motor: m.to_params(),
                 decoupling: true,
                 max_modulation: 0.95,
-                anti_windup: AntiWindup::Clamp,
+                anti_windup: foc_core::control::current::DEFAULT_ANTI_WINDUP,
                 delay_compensation_periods: 1.5,
             };
             Calibrated::supplied(c.to_calibration(), current)
@@ -653,6 +740,56 @@ impl PowerRecord {
             brake_on_v: self.brake_on_v,
             brake_off_v: self.brake_off_v,
             brake_max_on_s: self.brake_max_on_s,
+        }
+    }
+}
+
+impl MechanicsRecord {
+    /// The plausible inertias [kg m^2]: from a small gimbal motor's rotor
+    /// alone to a large servo with its load.
+    pub const INERTIA_RANGE_KG_M2: core::ops::RangeInclusive<f32> = 1e-9..=10.0;
+    /// The largest plausible viscous friction [N m s/rad].
+    pub const MAX_VISCOUS_FRICTION_NM_S_PER_RAD: f32 = 100.0;
+    /// The largest plausible Coulomb friction [N m].
+    pub const MAX_COULOMB_FRICTION_NM: f32 = 1000.0;
+
+    /// Check every value (see the field docs); finite values in the
+    /// plausible ranges are also usable by foc-core
+    /// (`Mechanics::is_usable`).
+    pub fn validate(&self) -> Result<(), Invalid> {
+        check(
+            self.inertia_kg_m2.is_finite()
+                && Self::INERTIA_RANGE_KG_M2.contains(&self.inertia_kg_m2),
+            "mechanics.inertia_kg_m2",
+        )?;
+        check(
+            non_negative(self.viscous_friction_nm_s_per_rad)
+                && self.viscous_friction_nm_s_per_rad <= Self::MAX_VISCOUS_FRICTION_NM_S_PER_RAD,
+            "mechanics.viscous_friction_nm_s_per_rad",
+        )?;
+        check(
+            non_negative(self.coulomb_friction_nm)
+                && self.coulomb_friction_nm <= Self::MAX_COULOMB_FRICTION_NM,
+            "mechanics.coulomb_friction_nm",
+        )?;
+        Ok(())
+    }
+
+    /// The record of foc-core's mechanics.
+    pub fn from_mechanics(m: &Mechanics) -> Self {
+        Self {
+            inertia_kg_m2: m.inertia_kg_m2,
+            viscous_friction_nm_s_per_rad: m.viscous_friction_nm_s_per_rad,
+            coulomb_friction_nm: m.coulomb_friction_nm,
+        }
+    }
+
+    /// As foc-core's mechanics.
+    pub fn to_mechanics(&self) -> Mechanics {
+        Mechanics {
+            inertia_kg_m2: self.inertia_kg_m2,
+            viscous_friction_nm_s_per_rad: self.viscous_friction_nm_s_per_rad,
+            coulomb_friction_nm: self.coulomb_friction_nm,
         }
     }
 }
@@ -860,6 +997,11 @@ pub fn example() -> DriveRecord {
             brake_on_v: f32::INFINITY,
             brake_off_v: f32::INFINITY,
             brake_max_on_s: 1.0,
+        }),
+        mechanics: Some(MechanicsRecord {
+            inertia_kg_m2: 2.5e-5,
+            viscous_friction_nm_s_per_rad: 1.0e-5,
+            coulomb_friction_nm: 0.002,
         }),
     }
 }

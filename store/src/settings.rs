@@ -2,10 +2,13 @@
 //! [`DriveRecord`].
 //!
 //! The record keeps what is tuned or identified (motor, gains, calibration,
-//! limits, loop gains, dividers, watchdog); the rest (loop periods,
-//! modulation, decoupling, anti-windup, delay compensation, acceleration
-//! feed-forward) comes from the build-time settings the record is applied
-//! on ([`DriveRecord::apply`]).
+//! limits, loop gains, dividers, watchdog, power limits, the rotor's
+//! mechanics); the rest (loop periods, modulation, decoupling, anti-windup,
+//! delay compensation) comes from the build-time settings the record is
+//! applied on ([`DriveRecord::apply`]). The acceleration feed-forwards
+//! (`J / kt`) follow the mechanics in force: foc-core's
+//! `CascadeConfig::set_mechanics` derives them ([`Settings::set_mechanics`],
+//! [`Settings::apply_to`]); without mechanics they are the build's.
 //!
 //! ```
 //! use foc_core::control::{cascade::CascadeConfig, MotorParams};
@@ -25,11 +28,12 @@ use foc_core::control::position::PositionLoopConfig;
 use foc_core::control::power::PowerLimitsConfig;
 use foc_core::control::speed::SpeedLoopConfig;
 use foc_core::control::stage::{AngleCalibration, TimeoutReaction};
-use foc_core::control::Limits;
+use foc_core::control::{Limits, Mechanics};
 
 use crate::record::{
     AngleRecord, CurrentGainsRecord, DividersRecord, DriveRecord, Invalid, Label, LimitsRecord,
-    MotorRecord, PositionRecord, PowerRecord, SpeedRecord, WatchdogReaction, WatchdogRecord,
+    MechanicsRecord, MotorRecord, PositionRecord, PowerRecord, SpeedRecord, WatchdogReaction,
+    WatchdogRecord,
 };
 
 /// The configuration in force on the drive.
@@ -44,9 +48,11 @@ pub struct Settings {
     /// `angle` and the motor/gains in `current` come from an identification
     /// or a loaded record.
     pub calibrated: bool,
-    /// Speed loop.
+    /// Speed loop (its acceleration feed-forward `J / kt` from
+    /// `mechanics` when there are any).
     pub speed: SpeedLoopConfig,
-    /// Position loop.
+    /// Position loop (its acceleration feed-forward `J / kt` from
+    /// `mechanics` when there are any).
     pub position: PositionLoopConfig,
     /// Speed / position loop dividers [current-loop periods].
     pub dividers: (u16, u16),
@@ -55,6 +61,9 @@ pub struct Settings {
     /// Power limits (design §18); `None`: off. Their motor model is
     /// `current.motor`'s.
     pub power: Option<PowerLimitsConfig>,
+    /// The rotor's mechanics (identified or given); `None`: not known
+    /// (the configuration's, see [`Self::apply_to`]).
+    pub mechanics: Option<Mechanics>,
 }
 
 impl Settings {
@@ -73,12 +82,25 @@ impl Settings {
                 reaction: reaction_record(c.current.timeout_reaction),
             },
             power: c.current.power,
+            mechanics: c.mechanics,
         }
     }
 
     /// `base` with these settings in force (limits, current loop, angle
-    /// calibration, speed and position loops, dividers); the rest of
-    /// `base` (tracker, supervisor, rates, timeouts) is kept.
+    /// calibration, power limits, speed and position loops, dividers,
+    /// mechanics); the rest of `base` (tracker, supervisor, rates, timeouts)
+    /// is kept.
+    ///
+    /// With `mechanics` (these settings', else `base`'s), foc-core's
+    /// `CascadeConfig::set_mechanics` runs first, on this motor, speed-loop
+    /// period and current limit: it derives the speed observer's torque
+    /// input and the acceleration feed-forwards of the speed and position
+    /// loops from the inertia; the speed and position loops of these
+    /// settings then go on top (their gains, tuned by the user, win over
+    /// the ones derived from the inertia), all but those two
+    /// feed-forwards. Mechanics foc-core refuses (not usable, no torque
+    /// constant) change nothing: the loops are these settings' and the
+    /// mechanics `base`'s.
     pub fn apply_to(&self, base: &CascadeConfig) -> CascadeConfig {
         let mut c = *base;
         c.current.limits = self.limits;
@@ -92,7 +114,50 @@ impl Settings {
         c.position = self.position;
         c.rates.speed_divider = self.dividers.0;
         c.rates.position_divider = self.dividers.1;
+        if let Some(m) = self.mechanics.or(base.mechanics) {
+            if c.set_mechanics(&m) {
+                c.speed = SpeedLoopConfig {
+                    accel_ff_a_per_rad_s2: c.speed.accel_ff_a_per_rad_s2,
+                    ..self.speed
+                };
+                c.position = PositionLoopConfig {
+                    accel_ff_a_per_rad_s2: c.position.accel_ff_a_per_rad_s2,
+                    ..self.position
+                };
+            }
+        }
         c
+    }
+
+    /// Install the rotor's mechanics: `mechanics = Some(m)` and the
+    /// acceleration feed-forwards of the speed and position loops the ones
+    /// foc-core's `CascadeConfig::set_mechanics` derives for this motor
+    /// (the gains stay: see [`Self::apply_to`]). Mechanics foc-core
+    /// refuses (not usable, or this motor has no torque constant) change
+    /// nothing and return false.
+    pub fn set_mechanics(&mut self, m: &Mechanics) -> bool {
+        // `apply_to` on a scratch configuration: only this motor, the
+        // speed loop's period and current limit and `m` reach the
+        // feed-forwards, whatever the scratch's other values.
+        let scratch = CascadeConfig::for_motor(
+            self.current.motor,
+            1.0 / self.current.ts_s,
+            self.limits.max_current_a,
+        );
+        let with = Settings {
+            mechanics: Some(*m),
+            ..*self
+        };
+        let c = with.apply_to(&scratch);
+        if c.mechanics != Some(*m) {
+            return false;
+        }
+        *self = Settings {
+            speed: c.speed,
+            position: c.position,
+            ..with
+        };
+        true
     }
 
     /// The calibration permit these settings vouch for: `Some` only when
@@ -155,6 +220,7 @@ impl DriveRecord {
             },
             watchdog: s.watchdog,
             power: s.power.as_ref().map(PowerRecord::from_config),
+            mechanics: s.mechanics.as_ref().map(MechanicsRecord::from_mechanics),
         }
     }
 
@@ -164,9 +230,13 @@ impl DriveRecord {
     /// (`Invalid { field: "pwm_frequency_hz" }`); recomputes the speed and
     /// position loop periods from the dividers; sets the speed loop's
     /// current limit to `limits.max_current_a`; keeps base's current-loop
-    /// period, modulation, decoupling, anti-windup, delay compensation and
-    /// acceleration feed-forward, and base's angle calibration (with the
-    /// record's pole pairs) when the record has no calibration.
+    /// period, modulation, decoupling, anti-windup and delay compensation,
+    /// base's angle calibration (with the record's pole pairs) when the
+    /// record has no calibration, base's power limits when it has none and
+    /// base's mechanics when it has none. With mechanics (the record's or
+    /// base's), the acceleration feed-forwards are derived from them for
+    /// the record's motor ([`Settings::set_mechanics`]); without, they are
+    /// base's.
     pub fn apply(&self, base: &Settings, pwm_frequency_hz: u32) -> Result<Settings, Invalid> {
         self.validate()?;
         if self.pwm_frequency_hz != pwm_frequency_hz {
@@ -207,6 +277,14 @@ impl DriveRecord {
             motor: s.current.motor,
             ..p
         });
+        if let Some(m) = self.mechanics.as_ref().map(MechanicsRecord::to_mechanics) {
+            s.mechanics = Some(m);
+        }
+        // Base's feed-forwards were derived for base's motor and loop
+        // period; the validated record's mechanics are always accepted.
+        if let Some(m) = s.mechanics {
+            s.set_mechanics(&m);
+        }
         Ok(s)
     }
 }

@@ -7,7 +7,7 @@
 //! use foc_store::text::{from_toml, to_toml};
 //! # let r = foc_store::record::example();
 //! let text = to_toml(&r);
-//! assert!(text.contains("schema_version = 2"));
+//! assert!(text.contains("schema_version = 3"));
 //! assert!(text.contains("[motor]"));
 //! assert_eq!(from_toml(&text), Ok(r));
 //! let bad = text.replace("r_ohm = 0.2", "r_ohm = -0.2");
@@ -20,8 +20,9 @@ use std::string::{String, ToString};
 use serde::{Deserialize, Serialize};
 
 use crate::record::{
-    AngleRecord, CurrentGainsRecord, DividersRecord, DriveRecord, Label, LimitsRecord, MotorRecord,
-    PositionRecord, PowerRecord, SpeedRecord, WatchdogRecord, SCHEMA_VERSION,
+    AngleRecord, CurrentGainsRecord, DividersRecord, DriveRecord, Label, LimitsRecord,
+    MechanicsRecord, MotorRecord, PositionRecord, PowerRecord, SpeedRecord, WatchdogRecord,
+    SCHEMA_VERSION,
 };
 
 /// The file layout: the record's fields with the schema version first.
@@ -42,10 +43,12 @@ struct TomlFile {
     watchdog: WatchdogRecord,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     power: Option<PowerRecord>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    mechanics: Option<MechanicsRecord>,
 }
 
-/// The record as a TOML document (no `[calibration]` table when there is
-/// no calibration).
+/// The record as a TOML document (no `[calibration]`, `[power]` or
+/// `[mechanics]` table when the record has none).
 pub fn to_toml(r: &DriveRecord) -> String {
     let file = TomlFile {
         schema_version: SCHEMA_VERSION,
@@ -60,6 +63,7 @@ pub fn to_toml(r: &DriveRecord) -> String {
         dividers: r.dividers,
         watchdog: r.watchdog,
         power: r.power,
+        mechanics: r.mechanics,
     };
     match toml::to_string(&file) {
         Ok(s) => s,
@@ -75,7 +79,8 @@ pub fn from_toml(s: &str) -> Result<DriveRecord, String> {
     let table: toml::Table = toml::from_str(s).map_err(|e| e.to_string())?;
     match table.get("schema_version") {
         None => return Err("missing top-level key `schema_version`".to_string()),
-        // Version 1 is version 2 without the `[power]` table.
+        // Version 1 is version 3 without the `[power]` and `[mechanics]`
+        // tables, version 2 without `[mechanics]`.
         Some(toml::Value::Integer(v)) if (1..=i64::from(SCHEMA_VERSION)).contains(v) => {}
         Some(v) => {
             return Err(format!(
@@ -96,6 +101,7 @@ pub fn from_toml(s: &str) -> Result<DriveRecord, String> {
         dividers: f.dividers,
         watchdog: f.watchdog,
         power: f.power,
+        mechanics: f.mechanics,
     };
     r.validate().map_err(|e| e.to_string())?;
     Ok(r)

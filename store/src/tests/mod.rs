@@ -11,7 +11,8 @@ mod store_tests;
 
 use crate::record::{
     example, AngleRecord, CurrentGainsRecord, DividersRecord, DriveRecord, Label, LimitsRecord,
-    MotorRecord, PositionRecord, PowerRecord, SpeedRecord, WatchdogReaction, WatchdogRecord,
+    MechanicsRecord, MotorRecord, PositionRecord, PowerRecord, SpeedRecord, WatchdogReaction,
+    WatchdogRecord,
 };
 
 /// Record A of the tests.
@@ -40,6 +41,7 @@ pub(crate) fn record_b() -> DriveRecord {
     r.dividers.speed = 8;
     r.watchdog.reaction = WatchdogReaction::Hold;
     r.power = None;
+    r.mechanics = None;
     r
 }
 
@@ -111,6 +113,11 @@ pub(crate) fn largest_record() -> DriveRecord {
             brake_on_v: f32::MAX,
             brake_off_v: f32::MAX,
             brake_max_on_s: f32::MAX,
+        }),
+        mechanics: Some(MechanicsRecord {
+            inertia_kg_m2: f32::MAX,
+            viscous_friction_nm_s_per_rad: f32::MAX,
+            coulomb_friction_nm: f32::MAX,
         }),
     }
 }

@@ -3,8 +3,9 @@
 
 use crate::fake::FakeFlash;
 use crate::record::{
-    AngleRecord, CurrentGainsRecord, DividersRecord, DriveRecord, Label, LimitsRecord, MotorRecord,
-    PositionRecord, PowerRecord, SpeedRecord, WatchdogReaction, WatchdogRecord, MAX_RECORD_BYTES,
+    AngleRecord, CurrentGainsRecord, DividersRecord, DriveRecord, Label, LimitsRecord,
+    MechanicsRecord, MotorRecord, PositionRecord, PowerRecord, SpeedRecord, WatchdogReaction,
+    WatchdogRecord, MAX_RECORD_BYTES,
 };
 use crate::settings::Settings;
 use crate::store::Store;
@@ -56,6 +57,35 @@ prop_compose! {
     }
 }
 
+/// Plausible mechanics: inertias over the whole accepted range (bounds
+/// included), frictions from 0 to their bounds.
+fn mechanics() -> impl Strategy<Value = MechanicsRecord> {
+    (
+        prop_oneof![
+            Just(1e-9f32),
+            1e-9f32..1e-6,
+            1e-6f32..1e-3,
+            1e-3f32..10.0,
+            Just(10.0f32)
+        ],
+        prop_oneof![
+            Just(0.0f32),
+            0.0f32..1e-3,
+            0.0f32..=MechanicsRecord::MAX_VISCOUS_FRICTION_NM_S_PER_RAD
+        ],
+        prop_oneof![
+            Just(0.0f32),
+            0.0f32..0.1,
+            0.0f32..=MechanicsRecord::MAX_COULOMB_FRICTION_NM
+        ],
+    )
+        .prop_map(|(j, b, c)| MechanicsRecord {
+            inertia_kg_m2: j,
+            viscous_friction_nm_s_per_rad: b,
+            coulomb_friction_nm: c,
+        })
+}
+
 fn label() -> impl Strategy<Value = Label> {
     "[ -~]{0,32}".prop_map(|s| Label::try_from(s.as_str()).unwrap())
 }
@@ -82,6 +112,7 @@ prop_compose! {
         dividers in (1u16.., 1u16..),
         watchdog in (any::<u32>(), reaction()),
         power in proptest::option::of(power()),
+        mechanics in proptest::option::of(mechanics()),
     ) -> DriveRecord {
         DriveRecord {
             label,
@@ -108,6 +139,8 @@ prop_compose! {
             dividers: DividersRecord { speed: dividers.0, position: dividers.1 },
             watchdog: WatchdogRecord { timeout_periods: watchdog.0, reaction: watchdog.1 },
             power,
+            // Mechanics need a torque constant (flux > 0).
+            mechanics: mechanics.filter(|_| motor.3 > 0.0),
         }
     }
 }
@@ -170,11 +203,18 @@ proptest! {
         reversed in any::<bool>(),
         counts in any::<u32>(),
         watchdog in (any::<u32>(), reaction()),
+        mechanics in proptest::option::of(mechanics()),
     ) {
         let motor = MotorParams { pole_pairs, r_ohm, ld_h, lq_h: ld_h * lq_ratio, flux_linkage_wb: flux };
-        let mut s = Settings::from_cascade(&CascadeConfig::for_motor(motor, pwm as f32, max_current_a));
+        let build = CascadeConfig::for_motor(motor, pwm as f32, max_current_a);
+        let mut s = Settings::from_cascade(&build);
         s.watchdog = WatchdogRecord { timeout_periods: watchdog.0, reaction: watchdog.1 };
         let base = s;
+        // Identified mechanics, on a base without any.
+        let mechanics = mechanics.map(|m| m.to_mechanics());
+        if let Some(m) = &mechanics {
+            prop_assert!(s.set_mechanics(m));
+        }
         if calibrated {
             s.calibrated = true;
             s.angle.zero_offset = crate::record::e_rad_to_angle(zero_offset_e_rad);
@@ -186,9 +226,49 @@ proptest! {
         }
         let r = DriveRecord::from_settings(&Label::try_from("x").unwrap(), pwm, &s);
         prop_assert_eq!(r.calibration.is_some(), calibrated);
+        prop_assert_eq!(r.mechanics.map(|m| m.to_mechanics()), mechanics);
         prop_assert_eq!(r.apply(&base, pwm), Ok(s));
         // Applied on itself too (what a reload at start-up does).
         prop_assert_eq!(r.apply(&s, pwm), Ok(s));
         prop_assert_eq!(DriveRecord::from_settings(&r.label, pwm, &s), r);
+        // The configuration the drive runs: the settings in force, the
+        // mechanics installed by foc-core.
+        let c = s.apply_to(&build);
+        prop_assert_eq!(c.mechanics, mechanics);
+        let back = Settings::from_cascade(&c);
+        prop_assert_eq!((back.speed, back.position, back.mechanics), (s.speed, s.position, s.mechanics));
+        if let Some(m) = &mechanics {
+            let mut derived = build;
+            prop_assert!(derived.set_mechanics(m));
+            prop_assert_eq!(c.current.observer, derived.current.observer);
+            prop_assert_eq!(c.position.accel_ff_a_per_rad_s2, derived.position.accel_ff_a_per_rad_s2);
+        }
+    }
+
+    #[test]
+    fn mechanics_out_of_range_are_refused_whole(
+        r in valid_record(),
+        m in mechanics(),
+        which in 0usize..3,
+        bad in prop_oneof![
+            Just(f32::NAN), Just(f32::INFINITY), Just(f32::NEG_INFINITY),
+            -1e6f32..0.0, 1e4f32..1e30,
+        ],
+    ) {
+        let mut r = r;
+        r.motor.flux_linkage_wb = r.motor.flux_linkage_wb.max(1e-3);
+        let mut m = m;
+        let field = match which {
+            0 => { m.inertia_kg_m2 = bad; "mechanics.inertia_kg_m2" }
+            1 => { m.viscous_friction_nm_s_per_rad = bad; "mechanics.viscous_friction_nm_s_per_rad" }
+            _ => { m.coulomb_friction_nm = bad; "mechanics.coulomb_friction_nm" }
+        };
+        r.mechanics = Some(m);
+        prop_assert_eq!(r.validate(), Err(crate::Invalid { field }));
+        let base = Settings::from_cascade(&CascadeConfig::for_motor(
+            r.motor.to_params(), r.pwm_frequency_hz as f32, 5.0,
+        ));
+        prop_assert_eq!(r.apply(&base, r.pwm_frequency_hz), Err(crate::Invalid { field }));
+        prop_assert!(crate::text::from_toml(&crate::text::to_toml(&r)).unwrap_err().contains(field));
     }
 }

@@ -2,8 +2,8 @@
 
 use super::{largest_record, record_a, record_b};
 use crate::record::{
-    angle_to_e_rad, e_rad_to_angle, DriveRecord, Invalid, RecordError, MAX_RECORD_BYTES,
-    SCHEMA_VERSION,
+    angle_to_e_rad, e_rad_to_angle, DriveRecord, Invalid, MechanicsRecord, RecordError,
+    MAX_RECORD_BYTES, SCHEMA_VERSION,
 };
 use core::f32::consts::TAU;
 use foc_core::angle::ElectricalAngle;
@@ -35,11 +35,27 @@ fn largest_record_fits() {
         bytes.len()
     );
     assert_eq!(DriveRecord::decode(&bytes), Ok(r));
-    // It is valid apart from the calibration's pole pairs vs the motor's:
-    // make them agree and check validation accepts the extremes.
+    // It is valid apart from the calibration's pole pairs vs the motor's
+    // and the mechanics beyond their plausible ranges: make them agree and
+    // check validation accepts the extremes.
     let mut r = largest_record();
     r.calibration.as_mut().unwrap().pole_pairs = r.motor.pole_pairs;
+    assert_eq!(
+        r.validate(),
+        Err(Invalid {
+            field: "mechanics.inertia_kg_m2"
+        })
+    );
+    r.mechanics = Some(MechanicsRecord {
+        inertia_kg_m2: 10.0,
+        viscous_friction_nm_s_per_rad: MechanicsRecord::MAX_VISCOUS_FRICTION_NM_S_PER_RAD,
+        coulomb_friction_nm: MechanicsRecord::MAX_COULOMB_FRICTION_NM,
+    });
+    // 1.5 p psi overflows: no torque constant to derive the loops with.
+    assert_eq!(r.validate(), Err(Invalid { field: "mechanics" }));
+    r.motor.flux_linkage_wb = 1.0;
     assert_eq!(r.validate(), Ok(()));
+    assert_eq!(encoded(&r).len(), bytes.len());
 }
 
 #[test]
@@ -83,7 +99,10 @@ fn versions_other_than_ours_are_refused() {
         Ok(record_a())
     );
     for v in [0, SCHEMA_VERSION + 1, u16::MAX] {
-        assert_ne!(v, 1, "version 1 migrates");
+        assert!(
+            !(1..SCHEMA_VERSION).contains(&v),
+            "versions 1 and 2 migrate"
+        );
         assert_eq!(
             DriveRecord::decode(&envelope(v, payload)),
             Err(RecordError::UnsupportedVersion {
@@ -252,40 +271,184 @@ fn electrical_angle_round_trip_is_exact_to_f32_precision() {
     assert_eq!(angle_to_e_rad(ElectricalAngle::from_bits(u32::MAX)), 0.0);
 }
 
+/// `r` in the version-1 layout (what it loses: `power`, `mechanics`).
+fn as_v1(r: &DriveRecord) -> crate::record::v1::DriveRecordV1 {
+    crate::record::v1::DriveRecordV1 {
+        label: r.label.clone(),
+        pwm_frequency_hz: r.pwm_frequency_hz,
+        motor: r.motor,
+        current_gains: r.current_gains,
+        calibration: r.calibration,
+        limits: r.limits,
+        speed: r.speed,
+        position: r.position,
+        dividers: r.dividers,
+        watchdog: r.watchdog,
+    }
+}
+
+/// `r` in the version-2 layout (what it loses: `mechanics`).
+fn as_v2(r: &DriveRecord) -> crate::record::v2::DriveRecordV2 {
+    crate::record::v2::DriveRecordV2 {
+        label: r.label.clone(),
+        pwm_frequency_hz: r.pwm_frequency_hz,
+        motor: r.motor,
+        current_gains: r.current_gains,
+        calibration: r.calibration,
+        limits: r.limits,
+        speed: r.speed,
+        position: r.position,
+        dividers: r.dividers,
+        watchdog: r.watchdog,
+        power: r.power,
+    }
+}
+
+/// The payload of an envelope (without version, length and CRC).
+fn payload(envelope: &[u8]) -> &[u8] {
+    &envelope[4..envelope.len() - 4]
+}
+
 #[test]
 fn a_version_1_record_migrates_with_the_build_default_power_limits() {
-    let v2 = record_a();
-    let v1 = crate::record::v1::DriveRecordV1 {
-        label: v2.label.clone(),
-        pwm_frequency_hz: v2.pwm_frequency_hz,
-        motor: v2.motor,
-        current_gains: v2.current_gains,
-        calibration: v2.calibration,
-        limits: v2.limits,
-        speed: v2.speed,
-        position: v2.position,
-        dividers: v2.dividers,
-        watchdog: v2.watchdog,
-    };
+    let v3 = record_a();
+    assert!(v3.power.is_some() && v3.mechanics.is_some());
     let mut buf = [0u8; MAX_RECORD_BYTES];
-    let payload = postcard::to_slice(&v1, &mut buf).unwrap();
-    let migrated = DriveRecord::decode(&envelope(1, payload)).unwrap();
-    assert_eq!(migrated.power, None);
+    let p1 = postcard::to_slice(&as_v1(&v3), &mut buf).unwrap();
+    // 1 -> 2 -> 3.
+    let migrated = DriveRecord::decode(&envelope(1, p1)).unwrap();
+    assert_eq!((migrated.power, migrated.mechanics), (None, None));
     assert_eq!(
         DriveRecord {
-            power: v2.power,
+            power: v3.power,
+            mechanics: v3.mechanics,
             ..migrated.clone()
         },
-        v2
+        v3
     );
     assert_eq!(migrated.validate(), Ok(()));
-    // A version-2 payload under version 1 is not a version-1 record.
-    let p2 = &encoded(&v2)[4..];
-    let p2 = &p2[..p2.len() - 4];
-    assert_eq!(
-        DriveRecord::decode(&envelope(1, p2)),
-        Err(RecordError::Malformed)
-    );
+    // A version-2 or -3 payload under version 1 is not a version-1 record.
+    let mut buf = [0u8; MAX_RECORD_BYTES];
+    let p2 = postcard::to_slice(&as_v2(&v3), &mut buf).unwrap();
+    for p in [&p2[..], payload(&encoded(&v3))] {
+        assert_eq!(
+            DriveRecord::decode(&envelope(1, p)),
+            Err(RecordError::Malformed)
+        );
+    }
+}
+
+#[test]
+fn a_version_2_record_migrates_without_mechanics() {
+    for v3 in [record_a(), record_b()] {
+        let mut buf = [0u8; MAX_RECORD_BYTES];
+        let p2 = postcard::to_slice(&as_v2(&v3), &mut buf).unwrap();
+        let migrated = DriveRecord::decode(&envelope(2, p2)).unwrap();
+        assert_eq!(migrated.mechanics, None);
+        assert_eq!(migrated.power, v3.power);
+        assert_eq!(
+            DriveRecord {
+                mechanics: v3.mechanics,
+                ..migrated.clone()
+            },
+            v3
+        );
+        assert_eq!(migrated.validate(), Ok(()));
+        // The frozen struct's own step.
+        assert_eq!(as_v2(&v3).into_v3(), migrated);
+        // A version-3 payload (with or without mechanics) under version 2
+        // is not a version-2 record, nor a version-1 one under version 2.
+        let mut none = v3.clone();
+        none.mechanics = None;
+        let mut buf = [0u8; MAX_RECORD_BYTES];
+        let p1 = postcard::to_slice(&as_v1(&v3), &mut buf).unwrap();
+        for p in [payload(&encoded(&v3)), payload(&encoded(&none)), &p1[..]] {
+            assert_eq!(
+                DriveRecord::decode(&envelope(2, p)),
+                Err(RecordError::Malformed)
+            );
+        }
+    }
+}
+
+#[test]
+fn mechanics_are_checked_field_by_field() {
+    let ok = record_a();
+    assert_eq!(ok.validate(), Ok(()));
+    type Spoil = fn(&mut DriveRecord);
+    let cases: [(&str, Spoil); 17] = [
+        ("mechanics.inertia_kg_m2", |r| {
+            r.mechanics.as_mut().unwrap().inertia_kg_m2 = f32::NAN
+        }),
+        ("mechanics.inertia_kg_m2", |r| {
+            r.mechanics.as_mut().unwrap().inertia_kg_m2 = f32::INFINITY
+        }),
+        ("mechanics.inertia_kg_m2", |r| {
+            r.mechanics.as_mut().unwrap().inertia_kg_m2 = 0.0
+        }),
+        ("mechanics.inertia_kg_m2", |r| {
+            r.mechanics.as_mut().unwrap().inertia_kg_m2 = -1e-5
+        }),
+        ("mechanics.inertia_kg_m2", |r| {
+            r.mechanics.as_mut().unwrap().inertia_kg_m2 = 1e-10
+        }),
+        ("mechanics.inertia_kg_m2", |r| {
+            r.mechanics.as_mut().unwrap().inertia_kg_m2 = 10.5
+        }),
+        ("mechanics.viscous_friction_nm_s_per_rad", |r| {
+            r.mechanics.as_mut().unwrap().viscous_friction_nm_s_per_rad = f32::NAN
+        }),
+        ("mechanics.viscous_friction_nm_s_per_rad", |r| {
+            r.mechanics.as_mut().unwrap().viscous_friction_nm_s_per_rad = -1e-6
+        }),
+        ("mechanics.viscous_friction_nm_s_per_rad", |r| {
+            r.mechanics.as_mut().unwrap().viscous_friction_nm_s_per_rad = f32::INFINITY
+        }),
+        ("mechanics.viscous_friction_nm_s_per_rad", |r| {
+            r.mechanics.as_mut().unwrap().viscous_friction_nm_s_per_rad = 101.0
+        }),
+        ("mechanics.coulomb_friction_nm", |r| {
+            r.mechanics.as_mut().unwrap().coulomb_friction_nm = f32::NAN
+        }),
+        ("mechanics.coulomb_friction_nm", |r| {
+            r.mechanics.as_mut().unwrap().coulomb_friction_nm = -0.001
+        }),
+        ("mechanics.coulomb_friction_nm", |r| {
+            r.mechanics.as_mut().unwrap().coulomb_friction_nm = f32::NEG_INFINITY
+        }),
+        ("mechanics.coulomb_friction_nm", |r| {
+            r.mechanics.as_mut().unwrap().coulomb_friction_nm = 1001.0
+        }),
+        // No torque constant (a motor without flux): the mechanics cannot
+        // be installed.
+        ("mechanics", |r| r.motor.flux_linkage_wb = 0.0),
+        ("mechanics", |r| r.motor.flux_linkage_wb = 1e38),
+        // The motor's own checks come first.
+        ("motor.flux_linkage_wb", |r| {
+            r.motor.flux_linkage_wb = f32::NAN
+        }),
+    ];
+    for (field, spoil) in cases {
+        let mut r = ok.clone();
+        spoil(&mut r);
+        assert_eq!(r.validate(), Err(Invalid { field }), "{field}");
+    }
+    // The bounds themselves, and zero frictions, are accepted.
+    for (j, b, c) in [(1e-9, 0.0, 0.0), (10.0, 100.0, 1000.0)] {
+        let mut r = ok.clone();
+        r.mechanics = Some(MechanicsRecord {
+            inertia_kg_m2: j,
+            viscous_friction_nm_s_per_rad: b,
+            coulomb_friction_nm: c,
+        });
+        assert_eq!(r.validate(), Ok(()), "{j} {b} {c}");
+        assert!(r.mechanics.unwrap().to_mechanics().is_usable());
+    }
+    // Without mechanics a motor without flux is still a record.
+    let mut r = ok.clone();
+    r.mechanics = None;
+    r.motor.flux_linkage_wb = 0.0;
+    assert_eq!(r.validate(), Ok(()));
 }
 
 #[test]
@@ -351,6 +514,70 @@ fn power_limits_round_trip_through_settings_with_the_records_motor() {
     assert_eq!(n.apply(&base, 20_000).unwrap().power, None);
 }
 
+#[test]
+fn mechanics_round_trip_through_settings() {
+    use crate::Settings;
+    use foc_core::control::cascade::CascadeConfig;
+    let r = record_a();
+    let base = Settings::from_cascade(&CascadeConfig::for_motor(
+        r.motor.to_params(),
+        20_000.0,
+        5.0,
+    ));
+    assert_eq!(base.mechanics, None);
+    let s = r.apply(&base, 20_000).unwrap();
+    assert_eq!(s.mechanics, Some(r.mechanics.unwrap().to_mechanics()));
+    assert_eq!(
+        DriveRecord::from_settings(&r.label, 20_000, &s).mechanics,
+        r.mechanics
+    );
+    // None in the record keeps base's: none here, the loaded ones on a
+    // reload.
+    let mut n = r.clone();
+    n.mechanics = None;
+    assert_eq!(n.apply(&base, 20_000).unwrap().mechanics, None);
+    assert_eq!(n.apply(&s, 20_000).unwrap().mechanics, s.mechanics);
+    assert_eq!(
+        DriveRecord::from_settings(&r.label, 20_000, &base).mechanics,
+        None
+    );
+}
+
+/// The envelope of `example()` as the version-2 build wrote it (captured
+/// from commit 5b20272, the last version-2 build, with `power` and without
+/// `mechanics`): it must still decode, without mechanics.
+const V2_GOLDEN: [u8; 183] = [
+    0x02, 0x00, 0xaf, 0x00, 0x0b, 0x62, 0x65, 0x6e, 0x63, 0x68, 0x20, 0x6d, 0x6f, 0x74, 0x6f, 0x72,
+    0xa0, 0x9c, 0x01, 0x07, 0xcd, 0xcc, 0x4c, 0x3e, 0x82, 0xa8, 0x7b, 0x38, 0xf7, 0xcc, 0x92, 0x38,
+    0x6f, 0x12, 0x83, 0x3b, 0x9a, 0x99, 0x99, 0x3e, 0x00, 0x00, 0x7a, 0x44, 0x33, 0x33, 0xb3, 0x3e,
+    0x00, 0x00, 0x7a, 0x44, 0x01, 0x00, 0x00, 0xa0, 0x3f, 0x01, 0x07, 0x80, 0x20, 0x00, 0x00, 0xa0,
+    0x40, 0x00, 0x00, 0x96, 0x43, 0x00, 0x00, 0xc8, 0xc2, 0x00, 0x00, 0xc8, 0x42, 0x00, 0x00, 0x40,
+    0x40, 0x00, 0x00, 0xfa, 0x43, 0xcd, 0xcc, 0x4c, 0x3d, 0x00, 0x00, 0xc0, 0x3f, 0x00, 0x00, 0xf0,
+    0x41, 0x00, 0x00, 0xc8, 0x42, 0x00, 0x00, 0x7a, 0x44, 0x0a, 0x14, 0xd0, 0x0f, 0x01, 0x01, 0x00,
+    0x00, 0xcc, 0x41, 0x00, 0x00, 0xe4, 0x41, 0x00, 0x00, 0x80, 0x7f, 0x00, 0x00, 0x20, 0x41, 0x00,
+    0x00, 0x00, 0x40, 0x00, 0x00, 0x80, 0x7f, 0x00, 0x00, 0x80, 0x7f, 0x00, 0x00, 0x00, 0x40, 0x00,
+    0x00, 0x70, 0x42, 0x00, 0x00, 0x20, 0x42, 0x00, 0x00, 0xc8, 0x42, 0x00, 0x00, 0xf0, 0x42, 0x00,
+    0x00, 0x82, 0x42, 0x00, 0x00, 0xaa, 0x42, 0x00, 0x00, 0x80, 0x7f, 0x00, 0x00, 0x80, 0x7f, 0x00,
+    0x00, 0x80, 0x3f, 0x9a, 0x5e, 0xc7, 0xf1,
+];
+
+#[test]
+fn a_record_written_by_the_version_2_build_still_loads() {
+    let r = DriveRecord::decode(&V2_GOLDEN).expect("version 2 decodes");
+    assert_eq!(
+        r,
+        DriveRecord {
+            mechanics: None,
+            ..record_a()
+        }
+    );
+    assert_eq!(r.validate(), Ok(()));
+    // The frozen version-2 struct still writes exactly these bytes.
+    let mut buf = [0u8; MAX_RECORD_BYTES];
+    let p2 = postcard::to_slice(&as_v2(&record_a()), &mut buf).unwrap();
+    assert_eq!(envelope(2, p2), V2_GOLDEN);
+}
+
 /// The envelope of `example()` as the version-1 build wrote it (captured
 /// from commit efaada8, the last version-1 build): it must still decode,
 /// with the build's default power limits.
@@ -372,6 +599,7 @@ fn a_record_written_by_the_version_1_build_still_loads() {
         r,
         DriveRecord {
             power: None,
+            mechanics: None,
             ..record_a()
         }
     );

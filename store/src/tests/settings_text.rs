@@ -6,7 +6,7 @@ use crate::settings::Settings;
 use crate::text::{from_toml, to_toml};
 use crate::DriveRecord;
 use foc_core::control::cascade::CascadeConfig;
-use foc_core::control::MotorParams;
+use foc_core::control::{Mechanics, MotorParams};
 
 fn base(pwm: f32) -> Settings {
     let motor = MotorParams {
@@ -34,9 +34,18 @@ fn apply_takes_the_record_and_keeps_the_rest() {
     assert_eq!(s.current.anti_windup, b.current.anti_windup);
     assert_eq!(s.speed.anti_windup, b.speed.anti_windup);
     assert_eq!(
-        s.position.accel_ff_a_per_rad_s2,
-        b.position.accel_ff_a_per_rad_s2
+        s.speed.reference_bandwidth_rad_s,
+        b.speed.reference_bandwidth_rad_s
     );
+    // The record's mechanics, and the feed-forwards J / kt of its motor;
+    // the record's speed gains, not the ones derived from J.
+    let m = r.mechanics.unwrap();
+    let kt = r.motor.to_params().torque_constant_nm_per_a();
+    assert_eq!(s.mechanics, Some(m.to_mechanics()));
+    assert_eq!(s.position.accel_ff_a_per_rad_s2, m.inertia_kg_m2 / kt);
+    assert_eq!(s.speed.accel_ff_a_per_rad_s2, m.inertia_kg_m2 / kt);
+    assert_eq!(s.speed.kp_a_per_rad_s, r.speed.kp_a_per_rad_s);
+    assert_eq!(s.speed.ki_a_per_rad, r.speed.ki_a_per_rad);
     assert_eq!(s.speed.ts_s, 10.0 / 20_000.0);
     assert_eq!(s.position.ts_s, 20.0 / 20_000.0);
     assert_eq!(s.speed.current_limit_a, r.limits.max_current_a);
@@ -51,6 +60,21 @@ fn apply_takes_the_record_and_keeps_the_rest() {
     assert_eq!(s.permit(), None);
     assert_eq!(s.angle.sensor_counts_per_rev, 2048);
     assert_eq!(s.angle.zero_offset, b.angle.zero_offset);
+    // Without mechanics: base's (none), and base's feed-forwards.
+    let mut r = record_a();
+    r.mechanics = None;
+    let s = r.apply(&b, 20_000).unwrap();
+    assert_eq!(s.mechanics, None);
+    assert_eq!(
+        (
+            s.speed.accel_ff_a_per_rad_s2,
+            s.position.accel_ff_a_per_rad_s2
+        ),
+        (
+            b.speed.accel_ff_a_per_rad_s2,
+            b.position.accel_ff_a_per_rad_s2
+        )
+    );
 }
 
 #[test]
@@ -70,6 +94,15 @@ fn apply_refuses_other_pwm_and_invalid_records() {
             field: "dividers.speed"
         })
     );
+    // Bad mechanics refuse the whole record.
+    let mut r = record_a();
+    r.mechanics.as_mut().unwrap().inertia_kg_m2 = f32::NAN;
+    assert_eq!(
+        r.apply(&b, 20_000),
+        Err(Invalid {
+            field: "mechanics.inertia_kg_m2"
+        })
+    );
 }
 
 #[test]
@@ -78,7 +111,7 @@ fn toml_is_readable_and_checked() {
     let text = to_toml(&r);
     std::eprintln!("{text}");
     for key in [
-        "schema_version = 2",
+        "schema_version = 3",
         "label = \"bench motor\"",
         "[motor]",
         "r_ohm = ",
@@ -93,6 +126,10 @@ fn toml_is_readable_and_checked() {
         "reaction = \"Stop\"",
         "[power]",
         "power_regen_max_w = inf",
+        "[mechanics]",
+        "inertia_kg_m2 = 0.000025",
+        "viscous_friction_nm_s_per_rad = ",
+        "coulomb_friction_nm = 0.002",
     ] {
         assert!(text.contains(key), "{key} missing in\n{text}");
     }
@@ -103,25 +140,80 @@ fn toml_is_readable_and_checked() {
     let t = to_toml(&u);
     assert!(!t.contains("[calibration]"));
     assert_eq!(from_toml(&t), Ok(u));
-    // No power limits: no table, and back to None (the build's defaults).
+    // No mechanics: no table, and back to None (not identified).
     let mut n = r.clone();
+    n.mechanics = None;
+    let t = to_toml(&n);
+    assert!(!t.contains("[mechanics]"));
+    assert_eq!(from_toml(&t), Ok(n.clone()));
+    // A version-2 file (before the mechanics) reads as version 3 without
+    // them.
+    assert_eq!(
+        from_toml(&t.replace("schema_version = 3", "schema_version = 2")),
+        Ok(n.clone())
+    );
+    // No power limits: no table, and back to None (the build's defaults).
     n.power = None;
     let t = to_toml(&n);
     assert!(!t.contains("[power]"));
     assert_eq!(from_toml(&t), Ok(n.clone()));
-    // A version-1 file (before the power limits) reads as version 2
+    // A version-1 file (before the power limits) reads as version 3
     // without them.
     assert_eq!(
-        from_toml(&t.replace("schema_version = 2", "schema_version = 1")),
+        from_toml(&t.replace("schema_version = 3", "schema_version = 1")),
         Ok(n)
     );
     // Another schema version.
-    for v in ["0", "3"] {
+    for v in ["0", "4"] {
         let e =
-            from_toml(&text.replace("schema_version = 2", &std::format!("schema_version = {v}")))
+            from_toml(&text.replace("schema_version = 3", &std::format!("schema_version = {v}")))
                 .unwrap_err();
         assert!(e.contains("schema_version") && e.contains(v), "{e}");
     }
+    // Mechanics out of range name their field.
+    for (from, to, field) in [
+        (
+            "inertia_kg_m2 = 0.000025",
+            "inertia_kg_m2 = nan",
+            "mechanics.inertia_kg_m2",
+        ),
+        (
+            "inertia_kg_m2 = 0.000025",
+            "inertia_kg_m2 = 0.0",
+            "mechanics.inertia_kg_m2",
+        ),
+        (
+            "inertia_kg_m2 = 0.000025",
+            "inertia_kg_m2 = 20.0",
+            "mechanics.inertia_kg_m2",
+        ),
+        (
+            "coulomb_friction_nm = 0.002",
+            "coulomb_friction_nm = -0.002",
+            "mechanics.coulomb_friction_nm",
+        ),
+        (
+            "coulomb_friction_nm = 0.002",
+            "coulomb_friction_nm = inf",
+            "mechanics.coulomb_friction_nm",
+        ),
+    ] {
+        assert!(text.contains(from), "{from}");
+        let e = from_toml(&text.replace(from, to)).unwrap_err();
+        assert_eq!(e, std::format!("record value `{field}` is out of range"));
+    }
+    let viscous = text
+        .lines()
+        .find(|l| l.starts_with("viscous_friction_nm_s_per_rad = "))
+        .unwrap();
+    let e = from_toml(&text.replace(viscous, "viscous_friction_nm_s_per_rad = -1.0")).unwrap_err();
+    assert_eq!(
+        e,
+        "record value `mechanics.viscous_friction_nm_s_per_rad` is out of range"
+    );
+    // A missing mechanics key is an error naming it.
+    let e = from_toml(&text.replace("coulomb_friction_nm", "# coulomb_friction_nm")).unwrap_err();
+    assert!(e.contains("coulomb_friction_nm"), "{e}");
     // A NaN power limit names its field.
     let e = from_toml(&text.replace(
         "bus_current_regen_max_a = 2.0",
@@ -132,7 +224,7 @@ fn toml_is_readable_and_checked() {
         e,
         "record value `power.bus_current_regen_max_a` is out of range"
     );
-    let e = from_toml(&text.replace("schema_version = 2\n", "")).unwrap_err();
+    let e = from_toml(&text.replace("schema_version = 3\n", "")).unwrap_err();
     assert!(e.contains("schema_version"), "{e}");
     // A bad value names the field.
     let e = from_toml(&text.replace("max_current_a = 5.0", "max_current_a = -5.0")).unwrap_err();
@@ -142,7 +234,7 @@ fn toml_is_readable_and_checked() {
     assert!(e.contains("r_ohm"), "{e}");
     let e = from_toml(&text.replace("lq_h", "# lq_h")).unwrap_err();
     assert!(e.contains("lq_h"), "{e}");
-    assert_eq!(SCHEMA_VERSION, 2);
+    assert_eq!(SCHEMA_VERSION, 3);
 }
 
 #[test]
@@ -177,4 +269,131 @@ fn settings_go_back_into_the_cascade_configuration() {
         s.dividers
     );
     assert_eq!(d.current.supervisor, c.current.supervisor);
+}
+
+fn motor() -> MotorParams {
+    MotorParams {
+        pole_pairs: 7,
+        r_ohm: 0.2,
+        ld_h: 60e-6,
+        lq_h: 60e-6,
+        flux_linkage_wb: 0.005,
+    }
+}
+
+#[test]
+fn a_configuration_with_mechanics_comes_back_unchanged() {
+    let mut c = CascadeConfig::for_motor_with_inertia(motor(), 20_000.0, 5.0, 3e-5);
+    assert!(c.mechanics.is_some());
+    assert_eq!(Settings::from_cascade(&c).apply_to(&c), c);
+    // With friction and a tuned speed gain too.
+    assert!(c.set_mechanics(&Mechanics {
+        inertia_kg_m2: 4e-5,
+        viscous_friction_nm_s_per_rad: 2e-5,
+        coulomb_friction_nm: 0.003,
+    }));
+    c.speed.kp_a_per_rad_s *= 0.5;
+    let s = Settings::from_cascade(&c);
+    assert_eq!(s.mechanics, c.mechanics);
+    assert_eq!(s.apply_to(&c), c);
+    // ... and applied on the build's configuration, without mechanics.
+    let build = CascadeConfig::for_motor(motor(), 20_000.0, 5.0);
+    assert_eq!(s.apply_to(&build), c);
+}
+
+#[test]
+fn stored_mechanics_derive_the_loops_and_the_users_gains_win() {
+    let build = CascadeConfig::for_motor(motor(), 20_000.0, 5.0);
+    assert_eq!(build.mechanics, None);
+    let m = Mechanics {
+        inertia_kg_m2: 2e-4,
+        viscous_friction_nm_s_per_rad: 1e-4,
+        coulomb_friction_nm: 0.01,
+    };
+    // What the drive has after an identification: J installed, then the
+    // user tunes the speed and position gains.
+    let mut identified = build;
+    assert!(identified.set_mechanics(&m));
+    identified.speed.kp_a_per_rad_s = 0.123;
+    identified.speed.ki_a_per_rad = 4.56;
+    identified.position.kp_per_s = 17.0;
+    identified.position.max_acceleration_rad_s2 = 321.0;
+    let record =
+        DriveRecord::from_settings(&Label::new(), 20_000, &Settings::from_cascade(&identified));
+    assert_eq!(record.mechanics.map(|r| r.to_mechanics()), Some(m));
+    // After a power cycle: the build's configuration with the record.
+    let s = record
+        .apply(&Settings::from_cascade(&build), 20_000)
+        .unwrap();
+    let c = s.apply_to(&build);
+    assert_eq!(c.mechanics, Some(m));
+    assert_eq!(c, identified);
+    let kt = motor().torque_constant_nm_per_a();
+    // Derived from J: the speed observer's torque input and the
+    // feed-forwards.
+    assert_ne!(c.current.observer, build.current.observer);
+    assert_eq!(
+        c.current.observer.accel_per_a_rad_s2,
+        identified.current.observer.accel_per_a_rad_s2
+    );
+    assert_eq!(c.speed.accel_ff_a_per_rad_s2, m.inertia_kg_m2 / kt);
+    assert_eq!(c.position.accel_ff_a_per_rad_s2, m.inertia_kg_m2 / kt);
+    // Stored: the user's gains, not the ones J gives.
+    let mut derived = build;
+    assert!(derived.set_mechanics(&m));
+    assert_ne!(derived.speed.kp_a_per_rad_s, 0.123);
+    assert_eq!(
+        (c.speed.kp_a_per_rad_s, c.speed.ki_a_per_rad),
+        (0.123, 4.56)
+    );
+    assert_eq!(
+        (c.position.kp_per_s, c.position.max_acceleration_rad_s2),
+        (17.0, 321.0)
+    );
+    // The settings show what is in force.
+    assert_eq!(Settings::from_cascade(&c).speed, s.speed);
+    assert_eq!(Settings::from_cascade(&c).position, s.position);
+}
+
+#[test]
+fn settings_without_mechanics_keep_the_configurations() {
+    let m = Mechanics::inertia(5e-5);
+    let with = CascadeConfig::for_motor_with_inertia(motor(), 20_000.0, 5.0, 5e-5);
+    let s = Settings::from_cascade(&CascadeConfig::for_motor(motor(), 20_000.0, 5.0));
+    assert_eq!(s.mechanics, None);
+    let c = s.apply_to(&with);
+    assert_eq!(c.mechanics, Some(m));
+    assert_eq!(c.current.observer, with.current.observer);
+    assert_eq!(
+        c.position.accel_ff_a_per_rad_s2,
+        with.position.accel_ff_a_per_rad_s2
+    );
+    // Its gains are the settings'.
+    assert_eq!(c.speed.kp_a_per_rad_s, s.speed.kp_a_per_rad_s);
+    // On a configuration without mechanics: none, and nothing derived.
+    let build = CascadeConfig::for_motor(motor(), 20_000.0, 5.0);
+    assert_eq!(s.apply_to(&build), build);
+}
+
+#[test]
+fn settings_refuse_unusable_mechanics() {
+    let mut s = Settings::from_cascade(&CascadeConfig::for_motor(motor(), 20_000.0, 5.0));
+    let before = s;
+    for j in [0.0, -1.0, f32::NAN, f32::INFINITY] {
+        assert!(!s.set_mechanics(&Mechanics::inertia(j)), "{j}");
+        assert_eq!(s, before);
+    }
+    assert!(!s.set_mechanics(&Mechanics {
+        coulomb_friction_nm: -1.0,
+        ..Mechanics::inertia(1e-5)
+    }));
+    assert_eq!(s, before);
+    // A motor without a torque constant.
+    let mut z = s;
+    z.current.motor.flux_linkage_wb = 0.0;
+    assert!(!z.set_mechanics(&Mechanics::inertia(1e-5)));
+    assert_eq!(z.mechanics, None);
+    assert!(s.set_mechanics(&Mechanics::inertia(1e-5)));
+    assert_eq!(s.mechanics, Some(Mechanics::inertia(1e-5)));
+    assert_eq!(s.speed.kp_a_per_rad_s, before.speed.kp_a_per_rad_s);
 }
