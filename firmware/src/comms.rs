@@ -225,6 +225,7 @@ impl Link<'_> {
             dividers: Some(s.dividers),
             power: Some(s.power),
             permit,
+            mechanics: s.mechanics,
             ..ConfigChange::default()
         });
         self.out.config.speed = Some(s.speed);

@@ -169,6 +169,16 @@ impl Setup {
         c
     }
 
+    /// [`Self::cascade_config`] as a drive starts before its first
+    /// identification: the rotor's mechanics not known (the speed
+    /// observer without a model, no speed feed-forward). The
+    /// identification measures them and the drive installs them.
+    pub fn unidentified_config(&self) -> CascadeConfig {
+        let mut c = self.cascade_config();
+        c.clear_mechanics();
+        c
+    }
+
     /// The plant's mechanics (rotor frame).
     pub fn mechanics(&self) -> foc_core::control::Mechanics {
         foc_core::control::Mechanics {
@@ -1460,7 +1470,12 @@ pub fn run_mission_from(
     progress: &mut dyn FnMut(f64),
 ) -> Result<MissionResult, String> {
     let wall = Instant::now();
-    let base = setup.cascade_config();
+    // Without a stored record the drive knows nothing of the rotor's
+    // mechanics until its identification has measured them.
+    let base = match stored {
+        Some(_) => setup.cascade_config(),
+        None => setup.unidentified_config(),
+    };
     let settings = match stored {
         Some(r) => Some(
             r.apply(&foc_store::Settings::from_cascade(&base), pwm_hz_u32(setup))

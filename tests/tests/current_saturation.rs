@@ -24,7 +24,6 @@ use foc_bench::motor_file::MotorFile;
 use foc_bench::plant::{Mechanics, SensorConfig};
 use foc_core::control::cascade::CascadeConfig;
 use foc_core::control::current::DEFAULT_ANTI_WINDUP;
-use foc_core::control::estimator::AngleTrackerConfig;
 use foc_core::control::{BridgeCommand, Command};
 use foc_core::pi::AntiWindup;
 use std::path::PathBuf;
@@ -54,20 +53,15 @@ fn setup(path: &PathBuf, bus_v: f64) -> Setup {
 }
 
 /// The bench configuration (supervisor limits follow the bus) with the
-/// anti-windup `aw` (`None`: the default), and the plain phase-locked loop
-/// as the speed estimate: on a locked rotor a speed observer fed with the
-/// motor's torque would see an acceleration that does not happen, and its
-/// speed would reach the current loop as a decoupling feed-forward, a
-/// disturbance that is not the anti-windup's.
+/// anti-windup `aw` (`None`: the default). The decoupling takes its speed
+/// from the angle tracker, which sees only the sensor (on a locked rotor
+/// the torque-fed speed observer's model is wrong for a moment; it does not
+/// reach the current loop).
 fn config(s: &Setup, aw: Option<AntiWindup>) -> CascadeConfig {
     let mut c = s.cascade_config();
     if let Some(aw) = aw {
         c.current.current.anti_windup = aw;
     }
-    c.current.tracker = AngleTrackerConfig::with_bandwidth(
-        2.0 * std::f32::consts::PI * 80.0,
-        c.current.tracker.ts_s,
-    );
     c
 }
 

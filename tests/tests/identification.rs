@@ -36,7 +36,7 @@ fn motor_files() -> Vec<PathBuf> {
 /// simulation of `plant`, panicking where the drive itself stops it (a
 /// latched fault, a refused command, the time limit).
 fn identify(s: &Setup, plant: Plant, cfg: IdentificationConfig) -> Outcome {
-    let mut sim = Sim::with_plant(s, plant, s.cascade_config(), false);
+    let mut sim = Sim::with_plant(s, plant, s.unidentified_config(), false);
     identify::run(&mut sim, s, cfg, &mut |_| {}).unwrap_or_else(|e| panic!("{}: {e}", s.name))
 }
 

@@ -39,7 +39,7 @@ fn identifies_inertia_and_friction_of_every_motor_file() {
     for path in motor_files() {
         let s = Setup::load(&path).unwrap();
         let plant = Plant::new(s.motor, s.bench);
-        let mut sim = Sim::with_plant(&s, plant, s.cascade_config(), false);
+        let mut sim = Sim::with_plant(&s, plant, s.unidentified_config(), false);
         let cfg = id_config(&s, s.motor.pole_pairs);
         assert!(cfg.measure_mechanics, "{}", s.name);
         let mut stage_periods = 0usize;

@@ -25,6 +25,9 @@ use crate::angle::ElectricalAngle;
 use crate::drive::{ConfigChange, Inputs, Lifecycle, LifecycleConfig, Output};
 use crate::frames::Abc;
 
+/// The angle tracker's bandwidth [rad/s] (80 Hz).
+pub const TRACKER_BANDWIDTH_RAD_S: f32 = 2.0 * core::f32::consts::PI * 80.0;
+
 /// The speed observer's angle and speed poles [rad/s] (design §19).
 pub const OBSERVER_POLE_RAD_S: f32 = 2.0 * core::f32::consts::PI * 50.0;
 /// The speed observer's disturbance pole [rad/s] (design §19). With the
@@ -59,13 +62,12 @@ impl CascadeConfig {
     /// reading still for 20 ms with half the current limit demanded). `angle` is a placeholder (zero
     /// offset, not reversed): a cascade refuses closed-loop commands until
     /// a [`Calibrated`] permit is installed ([`Cascade::set_calibration`]).
-    /// With the inertia unknown, the speed estimate gets no torque input
-    /// (a guessed inertia would make the observer's model wrong by orders
-    /// of magnitude).
+    /// With the inertia unknown ([`Self::clear_mechanics`]) the speed
+    /// estimate has no model and the speed loop no feed-forward (a guessed
+    /// inertia would make both wrong by orders of magnitude).
     pub fn for_motor(motor: MotorParams, pwm_frequency_hz: f32, max_current_a: f32) -> Self {
         let mut c = Self::for_motor_with_inertia(motor, pwm_frequency_hz, max_current_a, 1e-5);
-        c.current.observer.accel_per_a_rad_s2 = 0.0;
-        c.mechanics = None;
+        c.clear_mechanics();
         c
     }
 
@@ -88,7 +90,7 @@ impl CascadeConfig {
             current: CurrentStageConfig {
                 current: CurrentLoopConfig::technical_optimum(motor, pwm_frequency_hz),
                 tracker: AngleTrackerConfig::with_bandwidth(
-                    2.0 * core::f32::consts::PI * 80.0,
+                    TRACKER_BANDWIDTH_RAD_S,
                     rates.current_ts_s(),
                 ),
                 observer: SpeedObserverConfig::new(
@@ -152,6 +154,16 @@ impl CascadeConfig {
         c
     }
 
+    /// Forget the rotor's mechanics: the speed observer without a model
+    /// (the 80 Hz tracker's loop), and no acceleration or disturbance
+    /// feed-forward in the speed loop (the gains stay).
+    pub fn clear_mechanics(&mut self) {
+        let ts = self.current.observer.ts_s;
+        self.current.observer = SpeedObserverConfig::tracker_like(TRACKER_BANDWIDTH_RAD_S, ts);
+        self.speed.accel_ff_a_per_rad_s2 = 0.0;
+        self.mechanics = None;
+    }
+
     /// Install the rotor's mechanics (design §19): the speed loop's gains
     /// for its bandwidth ([`SPEED_BANDWIDTH_RAD_S`]) on this inertia, its
     /// reference model's feed-forward, the position loop's acceleration
@@ -166,6 +178,7 @@ impl CascadeConfig {
         if !(m.is_usable() && kt > 0.0 && kt.is_finite()) {
             return false;
         }
+        let ts = self.current.observer.ts_s;
         let j = m.inertia_kg_m2;
         self.speed = SpeedLoopConfig::from_bandwidth(
             j,
@@ -175,19 +188,13 @@ impl CascadeConfig {
             self.speed.current_limit_a,
         );
         self.position.accel_ff_a_per_rad_s2 = j / kt;
-        self.current.observer = SpeedObserverConfig {
-            accel_per_a_rad_s2: SpeedObserverConfig::accel_per_amp(kt, j),
-            ..self.current.observer
-        }
-        .with_friction(m.coulomb_friction_nm, m.viscous_friction_nm_s_per_rad, j);
+        self.current.observer = SpeedObserverConfig::for_mechanics(m, kt, ts);
         self.mechanics = Some(*m);
         true
     }
 }
 
-/// The position loop's gain over the speed loop's bandwidth (design §19):
-/// a third (it was a quarter before the speed loop followed its reference
-/// without overshoot).
+/// The position loop's gain over the speed loop's bandwidth (design §19).
 pub const POSITION_GAIN_RATIO: f32 = 0.25;
 
 /// The speed loop's bandwidth [rad/s] (design §19): 20 Hz, at most a

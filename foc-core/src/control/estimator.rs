@@ -28,7 +28,7 @@
 //! d         += k3 * Ts * e                                 [rad/s^2]
 //! w_obs     += (k2 * e + kt/J * iq + d) * Ts               [rad/s]
 //! theta_obs += (w_obs + k1 * e) * Ts
-//! k1 = 3p, k2 = 3p^2, k3 = p^3                             (three poles at -p)
+//! (s + pd)(s + p)^2: k1 = 2p + pd, k2 = p^2 + 2 p pd, k3 = p^2 pd
 //! ```
 //!
 //! It follows acceleration with no steady lag (type 3) and a torque step
@@ -242,8 +242,47 @@ impl SpeedObserverConfig {
             }
         };
         self.coulomb_rad_s2 = per_j(coulomb_nm);
-        self.viscous_per_s = per_j(viscous_nm_s_per_rad);
+        // The viscous term is integrated explicitly: a rate beyond a tenth
+        // of the update rate (a friction no rotor has) is left out rather
+        // than made unstable.
+        let v = per_j(viscous_nm_s_per_rad);
+        self.viscous_per_s = if v * self.ts_s <= 0.1 { v } else { 0.0 };
         self
+    }
+
+    /// The observer of the cascade's poles
+    /// ([`crate::control::cascade::OBSERVER_POLE_RAD_S`] and
+    /// `OBSERVER_DISTURBANCE_POLE_RAD_S`) with the model of `m` for the
+    /// torque constant `kt` [N m / A]: `kt / J` and the friction.
+    pub fn for_mechanics(m: &crate::control::Mechanics, kt: f32, ts_s: f32) -> Self {
+        use crate::control::cascade::{OBSERVER_DISTURBANCE_POLE_RAD_S, OBSERVER_POLE_RAD_S};
+        Self::new(
+            OBSERVER_POLE_RAD_S,
+            OBSERVER_DISTURBANCE_POLE_RAD_S,
+            ts_s,
+            Self::accel_per_amp(kt, m.inertia_kg_m2),
+        )
+        .with_friction(
+            m.coulomb_friction_nm,
+            m.viscous_friction_nm_s_per_rad,
+            m.inertia_kg_m2,
+        )
+    }
+
+    /// The observer without a model: exactly the angle tracker's
+    /// critically damped loop at `bandwidth_rad_s` (`k1 = 2 wn`,
+    /// `k2 = wn^2`, no disturbance integrator, no torque input), for a
+    /// rotor whose inertia is not known.
+    pub fn tracker_like(bandwidth_rad_s: f32, ts_s: f32) -> Self {
+        Self {
+            ts_s,
+            k1_per_s: 2.0 * bandwidth_rad_s,
+            k2_per_s2: bandwidth_rad_s * bandwidth_rad_s,
+            k3_per_s3: 0.0,
+            accel_per_a_rad_s2: 0.0,
+            coulomb_rad_s2: 0.0,
+            viscous_per_s: 0.0,
+        }
     }
 
     /// `kt / J` [rad/s^2 per A] for a torque constant [N m / A] and an

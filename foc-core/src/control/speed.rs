@@ -2,8 +2,8 @@
 //! speed estimate, producing the q-current reference within a current limit.
 //!
 //! Two degrees of freedom (design §19). A step of the reference does not
-//! reach the PI: a reference model, first order at twice the loop's
-//! bandwidth ([`REFERENCE_BANDWIDTH_RATIO`]) and no faster than the current
+//! reach the PI: a reference model, first order at the loop's bandwidth
+//! ([`REFERENCE_BANDWIDTH_RATIO`]) and no faster than the current
 //! limit `I` can accelerate, turns it into a speed `w_m` and an
 //! acceleration `a_m`, and the current that acceleration needs is fed
 //! forward. So is the current that cancels the speed observer's
@@ -75,7 +75,7 @@ impl SpeedLoopConfig {
     /// `Ki = Kp wc / 8` (the PI's zero an eighth of the bandwidth: the
     /// disturbance feed-forward already cancels a load at the observer's
     /// rate, so the integrator only trims, and a larger one overshoots a
-    /// step on friction); the reference model at twice `wc` with the
+    /// step on friction); the reference model at `wc` with the
     /// feed-forward `J / kt`; conditional integration.
     pub fn from_bandwidth(
         inertia_kg_m2: f32,

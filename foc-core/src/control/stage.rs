@@ -242,6 +242,9 @@ pub struct CurrentStage {
     current: CurrentLoop,
     tracker: AngleTracker,
     observer: SpeedObserver,
+    /// The mechanics behind the observer's model (re-derived when the
+    /// current loop's motor changes).
+    mechanics: Option<Mechanics>,
     supervisor: Supervisor,
     state: CurrentStageState,
     /// Power limits, when configured.
@@ -261,6 +264,7 @@ impl CurrentStage {
             current: CurrentLoop::new(config.current),
             tracker: AngleTracker::new(config.tracker),
             observer: SpeedObserver::new(config.observer),
+            mechanics: None,
             supervisor: {
                 let mut sup = Supervisor::new(config.supervisor);
                 sup.set_angle_resolution(
@@ -360,6 +364,14 @@ impl CurrentStage {
             p.set_motor(cur.motor);
         }
         self.state.calibrated = true;
+        self.rederive_mechanics();
+    }
+
+    /// The observer's `kt / J` after the motor changed.
+    fn rederive_mechanics(&mut self) {
+        if let Some(m) = self.mechanics {
+            self.set_mechanics(&m);
+        }
     }
 
     /// True once a [`Calibrated`] permit is installed (and not revoked by
@@ -378,6 +390,7 @@ impl CurrentStage {
             p.set_motor(c.motor);
         }
         self.revoke_calibration();
+        self.rederive_mechanics();
     }
 
     /// Replace the angle calibration with values no permit vouches for.
@@ -466,16 +479,9 @@ impl CurrentStage {
         if !(m.is_usable() && k > 0.0) {
             return false;
         }
-        self.config.observer = SpeedObserverConfig {
-            accel_per_a_rad_s2: k,
-            ..self.config.observer
-        }
-        .with_friction(
-            m.coulomb_friction_nm,
-            m.viscous_friction_nm_s_per_rad,
-            m.inertia_kg_m2,
-        );
+        self.config.observer = SpeedObserverConfig::for_mechanics(m, kt, self.config.observer.ts_s);
         self.observer.set_config(self.config.observer);
+        self.mechanics = Some(*m);
         true
     }
 
@@ -507,7 +513,10 @@ impl CurrentStage {
             next <= target_a
         };
         st.iq_interp_a = if reached { target_a } else { next };
-        st.iq_interp_a
+        // Within the current limit in force now (it may have been lowered
+        // while a ramp from a larger value was running).
+        let lim = self.config.limits.max_current_a;
+        clamp(st.iq_interp_a, -lim, lim)
     }
 
     /// The active command.
@@ -753,6 +762,7 @@ impl CurrentStage {
             Command::Disable | Command::OpenLoop { .. } => {
                 self.state.iq_interp_a = 0.0;
                 self.state.iq_target_a = from_speed;
+                self.state.iq_step_a = 0.0;
                 None
             }
             Command::Torque { iq_a } => {
@@ -760,6 +770,7 @@ impl CurrentStage {
                 // mode interpolates from it.
                 self.state.iq_interp_a = iq_a;
                 self.state.iq_target_a = from_speed;
+                self.state.iq_step_a = 0.0;
                 Some(iq_a)
             }
             Command::Velocity { .. } | Command::Position { .. } => {
@@ -1044,7 +1055,10 @@ impl SpeedStage {
         self.iq_ref_a = match w_ref {
             Some(w) => {
                 if entering {
-                    self.speed.preload(fb.i_dq_ref_a.q);
+                    // Bumpless: the current in force, less what the
+                    // disturbance feed-forward already adds.
+                    let dob = self.speed.disturbance_ff_a(fb.disturbance_rad_s2);
+                    self.speed.preload(fb.i_dq_ref_a.q - dob);
                 }
                 if model_starts {
                     // The reference model starts where the rotor is.

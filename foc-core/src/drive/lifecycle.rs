@@ -384,6 +384,9 @@ impl Lifecycle {
         if let Some(p) = ch.power {
             stage.set_power_limits(p);
         }
+        if let Some(m) = ch.mechanics {
+            stage.set_mechanics(&m);
+        }
     }
 
     fn restart_offsets(&mut self, out: &mut Output) {

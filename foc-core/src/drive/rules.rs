@@ -22,7 +22,7 @@
 use crate::control::current::CurrentLoopConfig;
 use crate::control::permit::Calibrated;
 use crate::control::power::PowerLimitsConfig;
-use crate::control::{admit, Command, CommandError, Fault, Limits, Mode};
+use crate::control::{admit, Command, CommandError, Fault, Limits, Mechanics, Mode};
 
 /// Why a configuration change or a calibration request was refused
 /// (nothing changed).
@@ -125,6 +125,10 @@ pub struct ConfigChange {
     /// Latch this fault (e.g. a link watchdog's `Disable` reaction); taken
     /// in any phase, never refused.
     pub fault: Option<Fault>,
+    /// The rotor's mechanics for the speed observer's model (design §19),
+    /// e.g. from a stored record; applied after `current` (its torque
+    /// constant). Unusable values change nothing.
+    pub mechanics: Option<Mechanics>,
 }
 
 impl ConfigChange {
@@ -138,6 +142,7 @@ impl ConfigChange {
         self.calibrate_offsets |= newer.calibrate_offsets;
         self.identify |= newer.identify;
         self.fault = self.fault.or(newer.fault);
+        self.mechanics = newer.mechanics.or(self.mechanics);
     }
 
     /// True when it carries settings (limits, current loop, dividers,
@@ -148,5 +153,6 @@ impl ConfigChange {
             || self.dividers.is_some()
             || self.power.is_some()
             || self.permit.is_some()
+            || self.mechanics.is_some()
     }
 }
