@@ -1279,6 +1279,9 @@ pub struct PowerStage {
     cfg: PowerLimitsConfig,
     thermal: ThermalEstimate,
     chopper: BrakeChopper,
+    /// The bus voltage the regen ramp (and its d-axis braking) follows,
+    /// filtered [V] (NaN: none yet).
+    v_ramp_v: f32,
 }
 
 impl PowerStage {
@@ -1290,6 +1293,7 @@ impl PowerStage {
             cfg,
             thermal: ThermalEstimate::new(cfg.ambient_c),
             chopper: BrakeChopper::new(),
+            v_ramp_v: f32::NAN,
         }
     }
 
@@ -1315,6 +1319,7 @@ impl PowerStage {
             cfg: cfg.sanitized(),
             thermal: self.thermal,
             chopper,
+            v_ramp_v: self.v_ramp_v,
         }
     }
 
@@ -1346,9 +1351,25 @@ impl PowerStage {
         self.thermal.step(&self.cfg, i_dq_measured_a, dt_s);
         let p = v_dq_applied_v.d * i_dq_measured_a.d + v_dq_applied_v.q * i_dq_measured_a.q;
         let brake_on = self.chopper.step(&self.cfg, inputs.v_bus_v, dt_s, p < 0.0);
+        // The ramp follows a rising bus at once and a falling one through a
+        // first-order filter of four periods (design §19): the d-axis
+        // braking current the ramp sets moves the bus itself within a
+        // period, and on the raw reading the two chattered from one period
+        // to the next on a large inductance (M153: 6 <-> 44 A, the q
+        // current lost, a current-sense fault). Held high, the ramp only
+        // errs on the safe side. A missing or non-finite reading passes
+        // through (the window is then [0, 0]).
+        let v = match inputs.v_bus_v {
+            Some(v) if v.is_finite() && self.v_ramp_v.is_finite() && v < self.v_ramp_v => {
+                self.v_ramp_v + 0.25 * (v - self.v_ramp_v)
+            }
+            other => other.unwrap_or(f32::NAN),
+        };
+        self.v_ramp_v = v;
         let w = iq_window(
             &self.cfg,
             &PowerInputs {
+                v_bus_v: inputs.v_bus_v.map(|_| v),
                 winding_temperature_c: self.thermal.checked_temperature_c(),
                 ..inputs
             },
