@@ -40,6 +40,7 @@ mod config;
 mod events;
 #[cfg(feature = "qemu")]
 mod mission;
+mod period;
 mod persist;
 #[cfg(feature = "qemu")]
 mod store_mission;
@@ -58,7 +59,7 @@ static CURRENT_LOOP_RUNS: AtomicU32 = AtomicU32::new(0);
 
 #[rtic::app(device = board_support::pac, peripherals = true)]
 mod app {
-    use super::{comms, config, events, persist, timing, watchdog, CURRENT_LOOP_RUNS};
+    use super::{comms, config, events, period, persist, timing, watchdog, CURRENT_LOOP_RUNS};
     use board_support::board;
     use board_support::pac::Interrupt;
     use core::sync::atomic::Ordering;
@@ -128,6 +129,9 @@ mod app {
     struct Local {
         /// `current_loop` only: the drive (hardware, current stage, lifecycle).
         drive: BoardDrive,
+        /// `current_loop` only: the drive's inputs, kept across periods
+        /// (see `period`).
+        inputs: Inputs,
         /// `current_loop` only: periods since reset (housekeeping rate).
         tick: u32,
         /// `speed_loop` only.
@@ -211,6 +215,7 @@ mod app {
             },
             Local {
                 drive,
+                inputs: Inputs::new(CommandSlot::INIT, 0.0),
                 tick: 0,
                 speed: SpeedStage::new(cfg.speed),
                 position: PositionStage::new(cfg.position),
@@ -247,21 +252,30 @@ mod app {
         binds = ADC,
         priority = 4,
         shared = [command, feedback, iq_ref_a, timing, break_fired, status, identified, config_request],
-        local = [drive, tick]
+        local = [drive, inputs, tick]
     )]
     fn current_loop(mut cx: current_loop::Context) {
         let t0 = timing::now_cycles();
-        let mut inputs = Inputs::new(
-            cx.shared.command.lock(|c| *c),
-            cx.shared.iq_ref_a.lock(|x| *x),
-        );
-        inputs.change = cx.shared.config_request.lock(|m| m.current.take());
-        inputs.gate_fault =
-            cx.shared.break_fired.lock(core::mem::take) || board::gate_driver_fault();
-        let out = cx.local.drive.step(&inputs);
-        cx.shared.feedback.lock(|f| *f = out.feedback);
-        let status = cx.local.drive.status();
-        cx.shared.status.lock(|s| *s = status);
+        let command = cx.shared.command.lock(|c| *c);
+        let iq_ref_a = cx.shared.iq_ref_a.lock(|x| *x);
+        let gate_fault = cx.shared.break_fired.lock(core::mem::take) || board::gate_driver_fault();
+        let (drive, inputs) = (&mut *cx.local.drive, &mut *cx.local.inputs);
+        // Every lock below is free: this task has the top priority of
+        // every resource it shares (their ceiling).
+        let out = (
+            cx.shared.config_request,
+            cx.shared.feedback,
+            cx.shared.status,
+        )
+            .lock(|request, feedback, status| {
+                let mail = period::Mail {
+                    command,
+                    iq_ref_a,
+                    change: &mut request.current,
+                    gate_fault,
+                };
+                period::run(drive, inputs, mail, feedback, status)
+            });
         if let Some(e) = out.event {
             #[cfg(feature = "qemu")]
             if e == foc_core::drive::Event::CalibrationRestored {

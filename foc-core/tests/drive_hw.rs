@@ -8,8 +8,10 @@ use foc_core::calibration::offsets::OffsetLimits;
 use foc_core::calibration::Calibrated;
 use foc_core::control::cascade::CascadeConfig;
 use foc_core::control::power::PowerLimitsConfig;
-use foc_core::control::{Command, CommandSlot, Fault, MotorParams};
-use foc_core::drive::{AngleKind, ConfigChange, Drive, Event, Inputs, LifecycleConfig, Phase};
+use foc_core::control::{Command, CommandSlot, Fault, Feedback, MotorParams};
+use foc_core::drive::{
+    AngleKind, ConfigChange, Drive, Event, Inputs, LifecycleConfig, Output, Phase,
+};
 use foc_core::frames::Abc;
 use foc_core::hal::{AngleSensor, BrakeOutput, BusVoltage, CurrentSense, PhaseCurrents, PwmDriver};
 
@@ -84,6 +86,15 @@ impl BusVoltage for Bus {
     }
 }
 
+/// One period, the feedback written into a scratch copy.
+fn step<B: BusVoltage, K: BrakeOutput>(
+    d: &mut Drive<Pwm, Cs, Enc, B, K>,
+    inputs: &Inputs,
+) -> Output {
+    let mut fb = Feedback::INIT;
+    d.step(inputs, &mut fb)
+}
+
 fn drive() -> (Drive<Pwm, Cs, Enc, Bus>, CascadeConfig) {
     drive_with(AngleKind::Incremental, false, |_| None)
 }
@@ -128,7 +139,7 @@ fn start_up_then_supplied_permit_then_break_latch_until_clear() {
     let mut slot = CommandSlot::INIT;
     let mut inputs = Inputs::new(slot, 0.0);
     for _ in 0..20 {
-        d.step(&inputs);
+        step(&mut d, &inputs);
         assert!(!d.pwm.on, "bridge on during start-up");
     }
     assert_eq!(d.lifecycle().phase(), Phase::Run);
@@ -143,19 +154,19 @@ fn start_up_then_supplied_permit_then_break_latch_until_clear() {
         permit: Some(permit),
         ..ConfigChange::default()
     });
-    assert_eq!(d.step(&inputs).change, Some(Ok(())));
+    assert_eq!(step(&mut d, &inputs).change, Some(Ok(())));
     inputs.change = None;
     assert!(d.status().calibrated);
     slot.post(Command::Torque { iq_a: 1.0 });
     inputs.command = slot;
-    d.step(&inputs);
+    step(&mut d, &inputs);
     assert!(d.pwm.on);
 
     // The break fires: the board turned the outputs off and latched.
     d.pwm.on = false;
     d.pwm.latched = true;
     inputs.gate_fault = true;
-    d.step(&inputs);
+    step(&mut d, &inputs);
     inputs.gate_fault = false;
     assert_eq!(
         d.stage().supervisor().first_fault(),
@@ -165,18 +176,18 @@ fn start_up_then_supplied_permit_then_break_latch_until_clear() {
     slot.post(Command::Torque { iq_a: 1.0 });
     inputs.command = slot;
     for _ in 0..5 {
-        d.step(&inputs);
+        step(&mut d, &inputs);
         assert!(!d.pwm.on);
     }
     assert!(d.pwm.latched, "latch released without a clear");
     // The explicit clear releases the latch; the next command runs.
     slot.request_clear();
     inputs.command = slot;
-    d.step(&inputs);
+    step(&mut d, &inputs);
     assert!(!d.pwm.latched);
     slot.post(Command::Torque { iq_a: 1.0 });
     inputs.command = slot;
-    d.step(&inputs);
+    step(&mut d, &inputs);
     assert!(d.pwm.on);
     assert_eq!(d.pwm.enables_refused, 0);
 }
@@ -189,23 +200,23 @@ fn break_between_reading_the_inputs_and_driving_the_bridge() {
     let mut slot = CommandSlot::INIT;
     let mut inputs = Inputs::new(slot, 0.0);
     for _ in 0..20 {
-        d.step(&inputs);
+        step(&mut d, &inputs);
     }
     let permit = Calibrated::supplied(cfg.current.angle, cfg.current.current).unwrap();
     inputs.change = Some(ConfigChange {
         permit: Some(permit),
         ..ConfigChange::default()
     });
-    d.step(&inputs);
+    step(&mut d, &inputs);
     inputs.change = None;
     slot.post(Command::Torque { iq_a: 1.0 });
     inputs.command = slot;
     d.pwm.latched = true; // the break fired, the flag not seen yet
-    d.step(&inputs);
+    step(&mut d, &inputs);
     assert!(!d.pwm.on);
     assert_eq!(d.pwm.enables_refused, 1);
     assert_eq!(d.stage().supervisor().first_fault(), Some(Fault::PwmError));
-    d.step(&inputs);
+    step(&mut d, &inputs);
     assert!(!d.pwm.on);
 }
 
@@ -215,7 +226,7 @@ fn start_up(d: &mut Drive<Pwm, Cs, Enc, Bus>, periods: u32) -> (Vec<Event>, bool
     let mut events = Vec::new();
     let mut bridge_on = false;
     for _ in 0..periods {
-        let out = d.step(&inputs);
+        let out = step(d, &inputs);
         bridge_on |= d.pwm.on;
         events.extend(out.event);
     }
@@ -241,7 +252,7 @@ fn a_stored_permit_calibrates_absolute_and_hall_sensors_at_boot_without_motion()
         // And it unlocks closed loop.
         let mut slot = CommandSlot::INIT;
         slot.post(Command::Torque { iq_a: 1.0 });
-        d.step(&Inputs::new(slot, 0.0));
+        step(&mut d, &Inputs::new(slot, 0.0));
         assert!(d.pwm.on, "{kind:?}: torque accepted");
     }
 }
@@ -347,12 +358,12 @@ fn the_brake_follows_the_power_limits_chopper_with_hysteresis_and_goes_off_with_
     let steps = |d: &mut BrakeDrive, inputs: &Inputs, v: f32| {
         d.bus.0 = v;
         for _ in 0..3 {
-            d.step(inputs);
+            step(d, inputs);
         }
         d.brake.on
     };
     for _ in 0..10 {
-        d.step(&inputs);
+        step(&mut d, &inputs);
     }
     assert_eq!(d.lifecycle().phase(), Phase::Run);
     // No power limits: the brake never conducts (below the over-voltage
@@ -369,7 +380,7 @@ fn the_brake_follows_the_power_limits_chopper_with_hysteresis_and_goes_off_with_
         power: Some(Some(p)),
         ..ConfigChange::default()
     });
-    d.step(&inputs);
+    step(&mut d, &inputs);
     inputs.change = None;
     let installed = d.stage().config().power.expect("installed");
     assert_eq!(installed.motor, cfg.current.current.motor);
@@ -391,7 +402,7 @@ fn the_brake_follows_the_power_limits_chopper_with_hysteresis_and_goes_off_with_
         power: Some(None),
         ..ConfigChange::default()
     });
-    d.step(&inputs);
+    step(&mut d, &inputs);
     assert!(!d.brake.on);
     assert!(d.stage().config().power.is_none());
     assert_eq!(d.brake.switchings, 6);
@@ -413,22 +424,22 @@ fn the_brake_works_during_the_start_up_calibrations_and_its_guard_locks_it_out()
     });
     let p = d.stage().config().power.expect("configured");
     let inputs = Inputs::new(CommandSlot::INIT, 0.0);
-    d.step(&inputs);
+    step(&mut d, &inputs);
     assert_eq!(d.lifecycle().phase(), Phase::OffsetCalibration);
     // A coasting motor pumps the bus during the offset calibration.
     d.bus.0 = p.brake_on_v + 0.5;
-    d.step(&inputs);
+    step(&mut d, &inputs);
     assert_eq!(d.lifecycle().phase(), Phase::OffsetCalibration);
     assert!(d.brake.on, "brake on while calibrating");
     d.bus.0 = p.brake_off_v - 0.5;
-    d.step(&inputs);
+    step(&mut d, &inputs);
     assert!(!d.brake.on);
     // A supply that holds the bus above the thresholds: the guard locks
     // the brake out after brake_max_on_s (1 s = 20 000 periods).
     d.bus.0 = p.brake_on_v + 0.5;
     let mut on_periods = 0;
     for _ in 0..25_000 {
-        d.step(&inputs);
+        step(&mut d, &inputs);
         on_periods += u32::from(d.brake.on);
     }
     assert!(!d.brake.on, "locked out");

@@ -5,19 +5,39 @@
 //! ticks per executed instruction (checked with a 100-nop self-check, see the README), and
 //! prints a table of instructions per item with the loop rate each would
 //! allow at 168 MHz if one instruction took one cycle (a lower bound on
-//! time: loads, branches and FP divides take more). Figures are reported
-//! against the goals, never enforced.
+//! time: loads, branches and FP divides take more). The worst case of
+//! every item is checked against the committed budget (`budget`); the
+//! goals are reported.
 
 use std::time::Duration;
 
-use crate::qemu;
-use crate::util::{Error, Result};
+use clap::Args;
 
-/// Goals to report against: (item prefix, instructions).
-const GOALS: [(&str, u32); 2] = [
-    ("current-loop math step", 250),
-    ("current-loop task body", 400),
+use crate::util::{Error, Result};
+use crate::{budget, qemu};
+
+/// Goals to report against: (item prefix, statistic, instructions).
+const GOALS: [(&str, Stat, u32); 2] = [
+    ("current-loop math step", Stat::Median, 250),
+    ("drive per-period call", Stat::Max, 450),
 ];
+
+/// Which statistic a goal is on.
+#[derive(Debug, Clone, Copy)]
+enum Stat {
+    Median,
+    Max,
+}
+
+/// Arguments of `cargo xtask bench`.
+#[derive(Debug, Args, Default)]
+pub struct BenchArgs {
+    /// Rewrite `xtask/bench-budget.txt` from this run (every item at its
+    /// worst case) instead of checking it; review the diff before
+    /// committing.
+    #[arg(long)]
+    pub write_budget: bool,
+}
 
 /// One measured item.
 #[derive(Debug, Clone, PartialEq)]
@@ -30,26 +50,30 @@ pub struct Row {
     pub max: u32,
     /// Mean.
     pub mean: f32,
+    /// Median.
+    pub median: u32,
 }
 
-/// Parse a `BENCH <name> <min> <max> <mean>` line.
+/// Parse a `BENCH <name> <min> <max> <mean> <median>` line.
 pub fn parse_line(line: &str) -> Option<Row> {
     let rest = line.trim().strip_prefix("BENCH ")?;
-    let mut parts = rest.rsplitn(4, ' ');
+    let mut parts = rest.rsplitn(5, ' ');
+    let median = parts.next()?.parse().ok()?;
     let mean = parts.next()?.parse().ok()?;
     let max = parts.next()?.parse().ok()?;
     let min = parts.next()?.parse().ok()?;
-    let name = parts.next()?.to_string();
+    let name = parts.next()?.trim().to_string();
     Some(Row {
         name,
         min,
         max,
         mean,
+        median,
     })
 }
 
-/// `cargo xtask bench`.
-pub fn run_cmd() -> Result {
+/// Runs the bench binary under QEMU; its rows and INFO lines.
+fn run_bench() -> Result<(Vec<Row>, Vec<String>)> {
     let (_, bench) = qemu::build_emulated()?;
     let r = qemu::run(
         &bench,
@@ -67,42 +91,81 @@ pub fn run_cmd() -> Result {
             r.code
         )));
     }
-    let rows: Vec<Row> = r.lines.iter().filter_map(|l| parse_line(l)).collect();
+    let rows = r.lines.iter().filter_map(|l| parse_line(l)).collect();
+    let info = r
+        .lines
+        .into_iter()
+        .filter(|l| l.starts_with("INFO"))
+        .collect();
+    Ok((rows, info))
+}
+
+fn print_rows(rows: &[Row]) {
     println!(
-        "{:<72} {:>6} {:>6} {:>8} {:>12}",
+        "{:<76} {:>6} {:>6} {:>8} {:>6} {:>10}",
         "item (exact instruction counts, Cortex-M4F under QEMU)",
         "min",
         "max",
         "mean",
+        "median",
         "rate@168MHz"
     );
-    for row in &rows {
+    for row in rows {
         let rate = if row.max > 0 {
             format!("{:.0} kHz", 168_000.0 / row.max as f64)
         } else {
             "-".into()
         };
         println!(
-            "{:<72} {:>6} {:>6} {:>8.1} {:>12}",
-            row.name, row.min, row.max, row.mean, rate
+            "{:<76} {:>6} {:>6} {:>8.1} {:>6} {:>10}",
+            row.name, row.min, row.max, row.mean, row.median, rate
         );
     }
     println!(
         "(rate: 168 MHz / max instructions, i.e. one instruction per cycle; real cycles are more)"
     );
-    for (prefix, goal) in GOALS {
+}
+
+fn print_goals(rows: &[Row]) {
+    for (prefix, stat, goal) in GOALS {
         if let Some(row) = rows.iter().find(|r| r.name.starts_with(prefix)) {
-            let verdict = if row.max <= goal { "met" } else { "NOT met" };
-            println!(
-                "goal: {prefix} <= {goal} instructions: {verdict} (max {})",
-                row.max
-            );
+            let (what, v) = match stat {
+                Stat::Median => ("median", row.median),
+                Stat::Max => ("worst case", row.max),
+            };
+            let verdict = if v <= goal { "met" } else { "NOT met" };
+            println!("goal: {prefix}, {what} <= {goal} instructions: {verdict} ({v})");
         }
     }
-    for l in r.lines.iter().filter(|l| l.starts_with("INFO")) {
+}
+
+/// `cargo xtask bench`.
+pub fn run_cmd(args: &BenchArgs) -> Result {
+    let (rows, info) = run_bench()?;
+    print_rows(&rows);
+    print_goals(&rows);
+    for l in &info {
         println!("{l}");
     }
-    Ok(())
+    if args.write_budget {
+        let p = budget::path();
+        std::fs::write(&p, budget::render(&rows))
+            .map_err(|e| Error(format!("cannot write {}: {e}", p.display())))?;
+        println!("wrote {} (review the diff before committing)", p.display());
+        return Ok(());
+    }
+    let (lines, ok) = budget::check(&rows, &budget::load()?);
+    println!("instruction budget ({}):", budget::path().display());
+    for l in &lines {
+        println!("  {l}");
+    }
+    if ok {
+        Ok(())
+    } else {
+        Err(Error(
+            "instruction budget exceeded or out of date (see above; a raise is a reviewed change of xtask/bench-budget.txt)".into(),
+        ))
+    }
 }
 
 #[cfg(test)]
@@ -111,11 +174,13 @@ mod tests {
 
     #[test]
     fn parses_bench_lines() {
-        let r = parse_line("BENCH current-loop math step (Clarke..SVPWM) 588 611 593.98").unwrap();
+        let r =
+            parse_line("BENCH current-loop math step (Clarke..SVPWM) 588 611 593.98 590").unwrap();
         assert_eq!(r.name, "current-loop math step (Clarke..SVPWM)");
-        assert_eq!((r.min, r.max), (588, 611));
+        assert_eq!((r.min, r.max, r.median), (588, 611, 590));
         assert!((r.mean - 593.98).abs() < 1e-3);
         assert_eq!(parse_line("INFO something"), None);
-        assert_eq!(parse_line("BENCH name x 2 3"), None);
+        assert_eq!(parse_line("BENCH name x 2 3 4"), None);
+        assert_eq!(parse_line("BENCH name 1 2 3"), None);
     }
 }

@@ -6,6 +6,7 @@
 
 mod bench;
 mod boards;
+mod budget;
 mod build;
 mod check;
 mod dyno;
@@ -57,8 +58,9 @@ enum Command {
     Dyno(dyno::DynoArgs),
     /// Firmware in the loop under QEMU: scripted mission + forced-panic run.
     Qemu(qemu::QemuArgs),
-    /// Exact instruction counts of the control code under QEMU.
-    Bench,
+    /// Exact instruction counts of the control code under QEMU, checked
+    /// against the committed budget (xtask/bench-budget.txt).
+    Bench(bench::BenchArgs),
     /// The command channel end to end: the emulated board driven through
     /// foc-ctl's client over QEMU's USART2 (loopback TCP).
     E2e(e2e::E2eArgs),
@@ -79,7 +81,7 @@ fn main() -> ExitCode {
         Command::Sim(args) => sim::run_cmd(args),
         Command::Dyno(args) => dyno::run_cmd(args),
         Command::Qemu(args) => qemu::run_cmd(args),
-        Command::Bench => bench::run_cmd(),
+        Command::Bench(args) => bench::run_cmd(args),
         Command::E2e(args) => e2e::run_cmd(args),
         Command::Fuzz(args) => fuzz::run_cmd(args),
         Command::Boards => {

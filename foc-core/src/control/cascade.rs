@@ -223,6 +223,8 @@ pub struct Cascade {
     iq_ref_a: f32,
     w_ref: VelocityRef,
     output: Option<Output>,
+    /// The feedback published (written in place by the lifecycle).
+    feedback: Feedback,
 }
 
 impl Cascade {
@@ -262,6 +264,7 @@ impl Cascade {
             iq_ref_a: 0.0,
             w_ref: VelocityRef::default(),
             output: None,
+            feedback: Feedback::INIT,
         }
     }
 
@@ -339,7 +342,7 @@ impl Cascade {
 
     /// The feedback of the last step.
     pub fn feedback(&self) -> &Feedback {
-        self.life.feedback()
+        &self.feedback
     }
 
     /// The q-current reference from the speed stage [A].
@@ -357,8 +360,10 @@ impl Cascade {
     pub fn step(&mut self, sample: &Sample) -> BridgeCommand {
         let mut inputs = Inputs::new(self.slot, self.iq_ref_a);
         inputs.change = self.change.take();
-        let out = self.life.step(&mut self.current, &inputs, sample);
-        let fb = out.feedback;
+        let out = self
+            .life
+            .step(&mut self.current, &inputs, sample, &mut self.feedback);
+        let fb = self.feedback;
         if out.run_speed {
             self.iq_ref_a = self.speed.step(&fb, self.w_ref);
         }

@@ -727,8 +727,38 @@ impl End {
 /// model. Expects a [`sanitized`](PowerLimitsConfig::sanitized) `cfg`; an
 /// unsanitized NaN limit still gives no current in its direction.
 pub fn iq_window(cfg: &PowerLimitsConfig, inp: &PowerInputs) -> IqWindow {
-    let m = &cfg.motor;
-    if !(all_finite([m.r_ohm, m.ld_h, m.lq_h, m.flux_linkage_wb]) && m.r_ohm >= 0.0) {
+    iq_window_planned(cfg, &WindowPlan::of(cfg), inp)
+}
+
+/// What [`iq_window`] decides from the configuration alone, worked out
+/// once per configuration instead of every period (design §20).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct WindowPlan {
+    /// The motor model is finite with `R >= 0`.
+    model_ok: bool,
+    /// No bus-current or power limit is configured (each is `+inf`).
+    no_bus_or_power_limit: bool,
+}
+
+impl WindowPlan {
+    /// The plan of `cfg`.
+    pub fn of(cfg: &PowerLimitsConfig) -> Self {
+        let m = &cfg.motor;
+        Self {
+            model_ok: all_finite([m.r_ohm, m.ld_h, m.lq_h, m.flux_linkage_wb]) && m.r_ohm >= 0.0,
+            no_bus_or_power_limit: cfg.bus_current_motoring_max_a == f32::INFINITY
+                && cfg.bus_current_regen_max_a == f32::INFINITY
+                && cfg.power_motoring_max_w == f32::INFINITY
+                && cfg.power_regen_max_w == f32::INFINITY,
+        }
+    }
+}
+
+/// [`iq_window`] with the configuration's plan (`plan` must be
+/// `WindowPlan::of(cfg)`).
+#[inline(always)]
+fn iq_window_planned(cfg: &PowerLimitsConfig, plan: &WindowPlan, inp: &PowerInputs) -> IqWindow {
+    if !plan.model_ok {
         return IqWindow::zero(ActiveLimit::InvalidModel);
     }
     let missing = IqWindow::zero(ActiveLimit::MissingSensor);
@@ -765,10 +795,7 @@ pub fn iq_window(cfg: &PowerLimitsConfig, inp: &PowerInputs) -> IqWindow {
         && inp.i_d_a == 0.0
         && inp.omega_e_rad_s.is_finite()
         && t_winding.is_finite()
-        && cfg.bus_current_motoring_max_a == f32::INFINITY
-        && cfg.bus_current_regen_max_a == f32::INFINITY
-        && cfg.power_motoring_max_w == f32::INFINITY
-        && cfg.power_regen_max_w == f32::INFINITY
+        && plan.no_bus_or_power_limit
     {
         return IqWindow {
             min_a: 0.0 - i_lim,
@@ -1282,6 +1309,8 @@ pub struct PowerStage {
     /// The bus voltage the regen ramp (and its d-axis braking) follows,
     /// filtered [V] (NaN: none yet).
     v_ramp_v: f32,
+    /// `WindowPlan::of(&cfg)`, kept with `cfg`.
+    plan: WindowPlan,
 }
 
 impl PowerStage {
@@ -1294,6 +1323,7 @@ impl PowerStage {
             thermal: ThermalEstimate::new(cfg.ambient_c),
             chopper: BrakeChopper::new(),
             v_ramp_v: f32::NAN,
+            plan: WindowPlan::of(&cfg),
         }
     }
 
@@ -1306,6 +1336,7 @@ impl PowerStage {
     /// change): the power model's resistance, inductances and flux linkage.
     pub fn set_motor(&mut self, motor: MotorParams) {
         self.cfg.motor = motor;
+        self.plan = WindowPlan::of(&self.cfg);
     }
 
     /// A new configuration that keeps this stage's winding estimate (a
@@ -1315,11 +1346,13 @@ impl PowerStage {
     pub fn reconfigured(&self, cfg: PowerLimitsConfig) -> Self {
         let mut chopper = self.chopper;
         chopper.on = false;
+        let cfg = cfg.sanitized();
         Self {
-            cfg: cfg.sanitized(),
+            cfg,
             thermal: self.thermal,
             chopper,
             v_ramp_v: self.v_ramp_v,
+            plan: WindowPlan::of(&cfg),
         }
     }
 
@@ -1366,8 +1399,9 @@ impl PowerStage {
             other => other.unwrap_or(f32::NAN),
         };
         self.v_ramp_v = v;
-        let w = iq_window(
+        let w = iq_window_planned(
             &self.cfg,
+            &self.plan,
             &PowerInputs {
                 v_bus_v: inputs.v_bus_v.map(|_| v),
                 winding_temperature_c: self.thermal.checked_temperature_c(),

@@ -574,12 +574,27 @@ impl CurrentStage {
         iq_ref_from_speed_a: f32,
         s: &Sample,
     ) -> (BridgeCommand, Feedback) {
+        let mut fb = Feedback::INIT;
+        let bridge = self.step_into(slot, iq_ref_from_speed_a, s, &mut fb);
+        (bridge, fb)
+    }
+
+    /// [`Self::step`] with the feedback written in place into `fb` (every
+    /// field): the firmware passes the feedback its other tasks read, so
+    /// nothing is copied (design §20).
+    pub fn step_into(
+        &mut self,
+        slot: &CommandSlot,
+        iq_ref_from_speed_a: f32,
+        s: &Sample,
+        fb: &mut Feedback,
+    ) -> BridgeCommand {
         self.state.period = self.state.period.wrapping_add(1);
         self.take_operator_actions(slot);
         let sensed = self.sense(s, iq_ref_from_speed_a);
         self.apply_command_timeout();
         let (out, i_ref, theta_e) = self.control(&sensed, iq_ref_from_speed_a);
-        self.publish(out, i_ref, theta_e, sensed.v_bus_v)
+        self.publish(out, i_ref, theta_e, sensed.v_bus_v, fb)
     }
 
     /// Step 1: operator actions: clear first, then a new command.
@@ -926,7 +941,8 @@ impl CurrentStage {
         i_ref: Dq,
         theta_e: ElectricalAngle,
         v_bus: f32,
-    ) -> (BridgeCommand, Feedback) {
+        fb: &mut Feedback,
+    ) -> BridgeCommand {
         let out = match out {
             Some(o) if o.invalid => {
                 self.supervisor.trip(Fault::NonFinite);
@@ -956,7 +972,7 @@ impl CurrentStage {
         };
         self.state.last_out_v_dq = v_dq;
         self.state.last_i_dq = i_dq;
-        let fb = Feedback {
+        *fb = Feedback {
             mode: self.state.active.mode(),
             active: self.state.active,
             position_rad: self.tracker.position().to_radians(),
@@ -979,7 +995,7 @@ impl CurrentStage {
             },
             period: self.state.period,
         };
-        (bridge, fb)
+        bridge
     }
 }
 

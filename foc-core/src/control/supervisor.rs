@@ -516,11 +516,7 @@ impl Supervisor {
     /// that overflows to infinity trips [`Fault::NonFinite`], exactly as the
     /// overflowing magnitude did.
     #[inline]
-    pub(crate) fn check_vector_sq(
-        &mut self,
-        m: &Checks,
-        vector_current_sq_a2: f32,
-    ) -> Option<Fault> {
+    pub fn check_vector_sq(&mut self, m: &Checks, vector_current_sq_a2: f32) -> Option<Fault> {
         let l = self.config.max_vector_current_a;
         // A negative limit always tripped (`|i| >= 0 > l`) and a NaN one
         // never did: keep both so (NaN squared is NaN).

@@ -1,6 +1,6 @@
 //! The drive's life from reset on, one PWM period at a time, without
 //! hardware: [`Lifecycle::step`] takes this period's [`Sample`] and
-//! [`Inputs`] and returns what the bridge must do, the feedback and what
+//! [`Inputs`], writes the feedback in place and returns what the bridge must do and what
 //! the caller must do to the sensors (install offsets) or the slower loops
 //! (run them). [`super::Drive`] wraps it with the hardware traits; the
 //! bench's `Cascade` and the SIL process call it directly.
@@ -130,8 +130,6 @@ pub enum Event {
 pub struct Output {
     /// What the bridge must do.
     pub bridge: BridgeCommand,
-    /// The feedback to publish (unchanged during start-up).
-    pub feedback: Feedback,
     /// Install these current-sense offsets [A] now.
     pub offsets_a: Option<Abc>,
     /// Run the speed stage after this period.
@@ -166,7 +164,6 @@ pub struct Lifecycle {
     identified: Option<IdentificationResult>,
     dividers: (u32, u32),
     tick: u32,
-    feedback: Feedback,
 }
 
 fn divider(n: u16) -> u32 {
@@ -196,7 +193,6 @@ impl Lifecycle {
                 divider(config.position_divider),
             ),
             tick: 0,
-            feedback: Feedback::INIT,
         }
     }
 
@@ -226,11 +222,6 @@ impl Lifecycle {
         self.dividers
     }
 
-    /// The last feedback published.
-    pub fn feedback(&self) -> &Feedback {
-        &self.feedback
-    }
-
     /// The last successful identification, if any.
     pub fn identified(&self) -> Option<IdentificationResult> {
         self.identified
@@ -253,11 +244,17 @@ impl Lifecycle {
     }
 
     /// One PWM period. `stage` is the drive's current stage (the same one
-    /// every period).
-    pub fn step(&mut self, stage: &mut CurrentStage, inp: &Inputs, s: &Sample) -> Output {
+    /// every period); `fb` is the feedback published, written in place when
+    /// the stage runs (left as it was during start-up).
+    pub fn step(
+        &mut self,
+        stage: &mut CurrentStage,
+        inp: &Inputs,
+        s: &Sample,
+        fb: &mut Feedback,
+    ) -> Output {
         let mut out = Output {
             bridge: BridgeCommand::SafeState,
-            feedback: self.feedback,
             offsets_a: None,
             run_speed: false,
             run_position: false,
@@ -287,14 +284,11 @@ impl Lifecycle {
         match self.phase {
             Phase::OffsetCalibration => self.step_offsets(stage, s, &mut out),
             Phase::SensorCheck(n) => self.step_sensor_check(stage, inp, s, n, &mut out),
-            Phase::Identify => self.step_identify(stage, inp, s, &mut out),
+            Phase::Identify => self.step_identify(stage, inp, s, &mut out, fb),
             Phase::Run => {
-                let (b, fb) = stage.step(&inp.command, inp.iq_ref_a, s);
-                out.bridge = b;
-                out.feedback = fb;
+                out.bridge = stage.step_into(&inp.command, inp.iq_ref_a, s, fb);
             }
         }
-        self.feedback = out.feedback;
         self.tick = self.tick.wrapping_add(1);
         out.run_speed = self.tick.is_multiple_of(self.dividers.0);
         out.run_position = self.tick.is_multiple_of(self.dividers.1);
@@ -494,6 +488,7 @@ impl Lifecycle {
         inp: &Inputs,
         s: &Sample,
         out: &mut Output,
+        fb_out: &mut Feedback,
     ) {
         let Some(id) = self.identifier.as_mut() else {
             self.phase = Phase::Run;
@@ -508,7 +503,7 @@ impl Lifecycle {
             id.step(stage, inp.iq_ref_a, s)
         };
         out.bridge = b;
-        out.feedback = fb;
+        *fb_out = fb;
         out.event = match outcome {
             Outcome::Running => return,
             Outcome::Done(r) => {

@@ -6,8 +6,9 @@
 //! [`Lifecycle`] decide (offset calibration with the bridge off, the
 //! angle-sensor check, identification on request or at start-up, the
 //! calibration permit, configuration changes at the period boundary, then
-//! run mode through the [`CurrentStage`]), drives the bridge and returns
-//! the [`Output`]: the feedback to publish and which slower loops to run.
+//! run mode through the [`CurrentStage`]), writes the feedback in place,
+//! drives the bridge and returns the [`Output`]: which slower loops to run
+//! and what happened.
 //!
 //! | module | what |
 //! |---|---|
@@ -21,7 +22,7 @@
 //! ```
 //! use foc_core::drive::{Drive, Inputs, LifecycleConfig, Phase};
 //! use foc_core::calibration::offsets::OffsetLimits;
-//! use foc_core::control::{cascade::CascadeConfig, CommandSlot, MotorParams};
+//! use foc_core::control::{cascade::CascadeConfig, CommandSlot, Feedback, MotorParams};
 //! # use foc_core::{hal::*, angle::MechanicalAngle, frames::Abc};
 //! # struct Pwm(bool); struct Cs; struct Enc; struct Bus;
 //! # impl PwmDriver for Pwm { type Error = (); fn period_counts(&self) -> u16 { 4200 }
@@ -46,8 +47,9 @@
 //! };
 //! let mut drive = Drive::new(Pwm(false), Cs, Enc, Bus, cascade.current, life);
 //! let inputs = Inputs::new(CommandSlot::INIT, 0.0);
+//! let mut feedback = Feedback::INIT; // what the other tasks read
 //! for _ in 0..16 + 4 {
-//!     drive.step(&inputs);
+//!     drive.step(&inputs, &mut feedback);
 //!     assert!(!drive.pwm.is_enabled()); // bridge off during start-up
 //! }
 //! assert_eq!(drive.lifecycle().phase(), Phase::Run);
@@ -91,7 +93,7 @@ pub use rules::{ConfigChange, Refusal, Status};
 
 use crate::control::drive::{apply, read_sample};
 use crate::control::stage::{CurrentStage, CurrentStageConfig};
-use crate::control::Fault;
+use crate::control::{Fault, Feedback};
 use crate::frames::Abc;
 use crate::hal::{AngleSensor, BrakeOutput, BusVoltage, CurrentSense, NoBrake, PwmDriver};
 
@@ -178,9 +180,13 @@ where
     /// the bridge off), switch the brake resistor as the power limits'
     /// chopper decided (also with the bridge off: a coasting motor's
     /// back-EMF still charges the bus through the body diodes).
-    pub fn step(&mut self, inputs: &Inputs) -> Output {
+    ///
+    /// The feedback is written in place into `feedback` (left unchanged
+    /// during start-up): the firmware passes the copy its other tasks read,
+    /// so publishing it costs no copy (design §20).
+    pub fn step(&mut self, inputs: &Inputs, feedback: &mut Feedback) -> Output {
         let sample = read_sample(&mut self.currents, &mut self.angle, &mut self.bus);
-        let out = self.life.step(&mut self.stage, inputs, &sample);
+        let out = self.life.step(&mut self.stage, inputs, &sample, feedback);
         if let Some(o) = out.offsets_a {
             self.currents.set_offsets_a(o);
         }

@@ -23,12 +23,61 @@ use defmt_semihosting as _;
 use foc_core::angle::ElectricalAngle;
 use foc_core::control::cascade::CascadeConfig;
 use foc_core::control::current::{CurrentLoop, CurrentLoopInput};
-use foc_core::control::stage::{CurrentStage, PositionStage, SpeedStage, VelocityRef};
-use foc_core::control::{drive, Command, CommandSlot, Feedback, Mode, MotorParams};
+use foc_core::control::stage::{PositionStage, SpeedStage, VelocityRef};
+use foc_core::control::{Command, Feedback, Mode, MotorParams};
 use foc_core::frames::{Abc, Dq};
 use foc_core::{svpwm, transforms, trig};
 
+mod breakdown;
+mod drive;
+#[path = "../../period.rs"]
+mod period;
+
 const TICKS_PER_INSTRUCTION: f32 = 172.032;
+
+/// Instructions of one item over its inputs.
+#[derive(Clone, Copy)]
+struct Stats {
+    min: u32,
+    max: u32,
+    mean: f32,
+    median: u32,
+}
+
+/// Up to 64 counts, summarised.
+struct Samples {
+    counts: [u32; 64],
+    n: usize,
+}
+
+impl Samples {
+    const fn new() -> Self {
+        Self {
+            counts: [0; 64],
+            n: 0,
+        }
+    }
+
+    /// Adds a count in SysTick ticks.
+    fn push_ticks(&mut self, t: u32) {
+        if self.n < self.counts.len() {
+            self.counts[self.n] = (t as f32 / TICKS_PER_INSTRUCTION + 0.5) as u32;
+            self.n += 1;
+        }
+    }
+
+    fn stats(&mut self) -> Stats {
+        let c = &mut self.counts[..self.n.max(1)];
+        c.sort_unstable();
+        let sum: u32 = c.iter().sum();
+        Stats {
+            min: c[0],
+            max: c[c.len() - 1],
+            mean: sum as f32 / c.len() as f32,
+            median: c[c.len() / 2],
+        }
+    }
+}
 
 fn ticks(f: &mut dyn FnMut()) -> u32 {
     let t0 = SYST::get_current();
@@ -37,27 +86,45 @@ fn ticks(f: &mut dyn FnMut()) -> u32 {
     t0.wrapping_sub(t1) & 0x00FF_FFFF
 }
 
-/// (min, max, mean) instructions of `f` over `n` runs, `prep(k)` untimed.
-fn measure(
-    baseline: u32,
-    n: u32,
-    prep: &mut dyn FnMut(u32),
-    f: &mut dyn FnMut(u32),
-) -> (u32, u32, f32) {
-    let (mut lo, mut hi, mut sum) = (u32::MAX, 0u32, 0f32);
+/// Instructions of `f` over `n` (at most 64) runs, `prep(k)` untimed.
+fn measure(baseline: u32, n: u32, prep: &mut dyn FnMut(u32), f: &mut dyn FnMut(u32)) -> Stats {
+    let mut s = Samples::new();
     for k in 0..n {
         prep(k);
-        let t = ticks(&mut || f(k)).saturating_sub(baseline);
-        let i = (t as f32 / TICKS_PER_INSTRUCTION + 0.5) as u32;
-        lo = lo.min(i);
-        hi = hi.max(i);
-        sum += i as f32;
+        s.push_ticks(ticks(&mut || f(k)).saturating_sub(baseline));
     }
-    (lo, hi, sum / n as f32)
+    s.stats()
 }
 
-fn report(name: &str, r: (u32, u32, f32)) {
-    defmt::println!("BENCH {=str} {=u32} {=u32} {=f32}", name, r.0, r.1, r.2);
+/// Like [`measure`] for the drive's period: physics and `prep` untimed
+/// before it, `after` and the slower loops untimed after it.
+fn measure_rig(
+    rig: &mut drive::Rig,
+    baseline: u32,
+    n: u32,
+    prep: fn(&mut drive::Rig, u32),
+    after: &mut dyn FnMut(&drive::Rig),
+) -> Stats {
+    let mut s = Samples::new();
+    for k in 0..n {
+        board::sim::step_physics();
+        prep(rig, k);
+        s.push_ticks(ticks(&mut || rig.period()).saturating_sub(baseline));
+        after(rig);
+        rig.slower();
+    }
+    s.stats()
+}
+
+fn report(name: &str, r: Stats) {
+    defmt::println!(
+        "BENCH {=str} {=u32} {=u32} {=f32} {=u32}",
+        name,
+        r.min,
+        r.max,
+        r.mean,
+        r.median
+    );
 }
 
 fn motor() -> MotorParams {
@@ -75,7 +142,7 @@ fn motor() -> MotorParams {
 fn main() -> ! {
     let mut cp = cortex_m::Peripherals::take().unwrap_or_else(|| mission_exit(1));
     let dp = board_support::pac::Peripherals::take().unwrap_or_else(|| mission_exit(1));
-    let mut b = board::init(dp);
+    let b = board::init(dp);
     board::sim::stop_period_source();
     cp.SYST.set_clock_source(SystClkSource::Core);
     cp.SYST.set_reload(0x00FF_FFFF);
@@ -89,7 +156,12 @@ fn main() -> ! {
     report("self-check raw: call with none", without);
     report(
         "self-check: 100 nops (difference of two calls, expect 100)",
-        (with.0 - without.0, with.1 - without.1, with.2 - without.2),
+        Stats {
+            min: with.min - without.min,
+            max: with.max - without.max,
+            mean: with.mean - without.mean,
+            median: with.median - without.median,
+        },
     );
     defmt::println!(
         "BASELINE {=u32}",
@@ -164,100 +236,15 @@ fn main() -> ! {
         }),
     );
 
-    // 3. The whole current-loop task body, trait I/O included: read the
-    //    emulated board's sensors, CurrentStage::step (commands, tracker,
-    //    supervisor, current loop), write the PWM.
-    let mut stage = CurrentStage::new(cfg.current);
-    // Closed loop needs a calibration permit (the simulated encoder's zero
-    // is on the d axis, so the configured calibration is the true one).
-    match foc_core::calibration::Calibrated::supplied(cfg.current.angle, cfg.current.current) {
-        Ok(p) => stage.set_calibration(&p),
-        Err(_) => mission_exit(1),
-    }
-    let mut slot = CommandSlot::INIT;
-    slot.post(Command::Torque { iq_a: 1.0 });
-    use foc_core::hal::{CurrentSense, PwmDriver};
-    b.currents.set_offsets_a(Abc::default());
-    // Warm up: start-up periods in torque mode.
-    for _ in 0..50 {
-        board::sim::step_physics();
-        let s = drive::read_sample(&mut b.currents, &mut b.angle, &mut b.bus);
-        let (br, _) = stage.step(&slot, 0.0, &s);
-        let _ = drive::apply(&mut b.pwm, br);
-    }
-    let mut fb_out = Feedback::INIT;
-    report(
-        "sensor reads of the emulated board (drive::read_sample)",
-        measure(
-            baseline,
-            n,
-            &mut |_| board::sim::step_physics(),
-            &mut |_| {
-                let s = drive::read_sample(&mut b.currents, &mut b.angle, &mut b.bus);
-                black_box(s);
-            },
-        ),
-    );
-    report(
-        "current-loop task body (sensor reads, CurrentStage::step, PWM write)",
-        measure(
-            baseline,
-            n,
-            &mut |_| board::sim::step_physics(),
-            &mut |_| {
-                let s = drive::read_sample(&mut b.currents, &mut b.angle, &mut b.bus);
-                let (br, fb) = stage.step(black_box(&slot), 0.0, &s);
-                let _ = drive::apply(&mut b.pwm, br);
-                fb_out = fb;
-            },
-        ),
-    );
+    // 3. The drive's per-period call as the firmware makes it, in every
+    //    scenario, then its parts one by one.
+    let mut rig = drive::Rig::start(b);
+    let worst = drive::measure_all(&mut rig, baseline);
+    let parts = breakdown::measure_pieces(&mut rig, baseline, &currents);
     defmt::println!(
-        "INFO task body ran in mode {} with bridge on: {}",
-        fb_out.mode,
-        b.pwm.is_enabled()
-    );
-
-    // 3b. The same with the power limits the firmware configures on this
-    //     board (`config::power_limits`: regen ramp, d-axis braking,
-    //     winding and stage derating; issue 17).
-    let mut cfg_p = cfg.current;
-    cfg_p.power = Some(foc_core::control::power::PowerLimitsConfig::for_board(
-        &cfg.current.supervisor,
-        cfg.current.current.motor,
-        board::STAGE_TEMPERATURE_SENSOR,
-    ));
-    let mut stage_p = CurrentStage::new(cfg_p);
-    match foc_core::calibration::Calibrated::supplied(cfg.current.angle, cfg.current.current) {
-        Ok(p) => stage_p.set_calibration(&p),
-        Err(_) => mission_exit(1),
-    }
-    for _ in 0..50 {
-        board::sim::step_physics();
-        let s = drive::read_sample(&mut b.currents, &mut b.angle, &mut b.bus);
-        let (br, _) = stage_p.step(&slot, 0.0, &s);
-        let _ = drive::apply(&mut b.pwm, br);
-    }
-    report(
-        "current-loop task body with the board's power limits",
-        measure(
-            baseline,
-            n,
-            &mut |_| board::sim::step_physics(),
-            &mut |_| {
-                let s = drive::read_sample(&mut b.currents, &mut b.angle, &mut b.bus);
-                let (br, fb) = stage_p.step(black_box(&slot), 0.0, &s);
-                let _ = drive::apply(&mut b.pwm, br);
-                fb_out = fb;
-            },
-        ),
-    );
-    defmt::println!(
-        "INFO power-limited task body: mode {}, active limit {}, winding {=f32} C, stage {=f32} C",
-        fb_out.mode,
-        fb_out.power.active,
-        fb_out.power.winding_c,
-        fb_out.power.stage_c
+        "INFO the parts' worst cases, each measured alone (with its own call overhead), add up to {=u32}; the whole call's worst case is {=u32}",
+        parts,
+        worst.max
     );
 
     // 4. Speed and position stages with a live feedback (precomputed, so

@@ -1,0 +1,348 @@
+//! The drive's per-period call, as the firmware's current-loop task makes
+//! it: inputs from the mailboxes, `Drive::step` on the emulated board's
+//! hardware (sensor reads and PWM write included), the feedback and status
+//! published to memory the other tasks read: the firmware's own
+//! `period::run`. Measured in every mode, at
+//! the voltage limit, on command arrival and on faults; the speed and
+//! position stages run between periods (untimed), as the firmware's lower
+//! priority tasks do.
+
+use super::{measure_rig, period, report, Stats};
+use board_support::board;
+use foc_core::calibration::offsets::OffsetLimits;
+use foc_core::calibration::Calibrated;
+use foc_core::control::cascade::CascadeConfig;
+use foc_core::control::power::PowerLimitsConfig;
+use foc_core::control::stage::{PositionStage, SpeedStage, VelocityRef};
+use foc_core::control::{Command, CommandSlot, Feedback, Mode};
+use foc_core::drive::{AngleKind, ConfigChange, Drive, Inputs, LifecycleConfig, Status};
+
+/// The emulated board's drive, as in the firmware.
+pub type BoardDrive = Drive<board::Pwm, board::Currents, board::Angle, board::Bus, board::Brake>;
+
+/// The firmware's state around the drive: mailboxes and published values.
+pub struct Rig {
+    drive: BoardDrive,
+    /// The operator's command mailbox (`Shared::command`).
+    pub slot: CommandSlot,
+    /// The current stage's part of the configuration mailbox.
+    mailbox: Option<ConfigChange>,
+    /// The timer break's flag (`Shared::break_fired`).
+    pub break_fired: bool,
+    iq_ref_a: f32,
+    /// Published feedback (`Shared::feedback`).
+    pub published: Feedback,
+    status: Status,
+    speed: SpeedStage,
+    position: PositionStage,
+    vref: VelocityRef,
+    /// The drive's inputs, kept across periods as in the firmware.
+    inputs: Inputs,
+    run_slower: (bool, bool),
+}
+
+/// The firmware's configuration of the emulated board (`config::cascade`
+/// with its power limits, no brake resistor).
+pub fn cascade() -> CascadeConfig {
+    let m = board::SIM_MOTOR;
+    let motor = super::motor();
+    let mut c = CascadeConfig::for_motor_with_inertia(
+        motor,
+        board::PWM_FREQUENCY_HZ as f32,
+        10.0,
+        m.inertia_kg_m2,
+    );
+    c.current.power = Some(PowerLimitsConfig::for_board(
+        &c.current.supervisor,
+        motor,
+        board::STAGE_TEMPERATURE_SENSOR,
+    ));
+    c
+}
+
+impl Rig {
+    /// The drive from reset through its start-up (offsets, sensor check,
+    /// the configured calibration installed as if restored from the store:
+    /// the simulated encoder's zero is on the d axis), disabled.
+    pub fn start(b: board::Board) -> Self {
+        let cfg = cascade();
+        let stored = Calibrated::supplied(cfg.current.angle, cfg.current.current).ok();
+        let life = LifecycleConfig {
+            offsets: Some(OffsetLimits {
+                samples: 64,
+                max_offset_a: 0.5,
+                max_noise_a: 0.2,
+            }),
+            sensor_check_reads: 8,
+            identification: None,
+            identify_at_start_up: false,
+            speed_divider: cfg.rates.speed_divider,
+            position_divider: cfg.rates.position_divider,
+            angle_kind: AngleKind::Absolute,
+            stored,
+        };
+        let drive =
+            Drive::new(b.pwm, b.currents, b.angle, b.bus, cfg.current, life).with_brake(b.brake);
+        let mut rig = Self {
+            drive,
+            slot: CommandSlot::INIT,
+            mailbox: None,
+            break_fired: false,
+            iq_ref_a: 0.0,
+            published: Feedback::INIT,
+            status: Status {
+                running: false,
+                mode: Mode::Disabled,
+                faulted: false,
+                calibrated: false,
+            },
+            speed: SpeedStage::new(cfg.speed),
+            position: PositionStage::new(cfg.position),
+            vref: VelocityRef::default(),
+            inputs: Inputs::new(CommandSlot::INIT, 0.0),
+            run_slower: (false, false),
+        };
+        rig.run(200);
+        rig
+    }
+
+    /// The firmware's per-period work: `period::run`, as `current_loop`
+    /// calls it (without its timing and event logging).
+    #[inline(never)]
+    pub fn period(&mut self) {
+        let mail = period::Mail {
+            command: self.slot,
+            iq_ref_a: self.iq_ref_a,
+            change: &mut self.mailbox,
+            gate_fault: core::mem::take(&mut self.break_fired) || board::gate_driver_fault(),
+        };
+        let out = period::run(
+            &mut self.drive,
+            &mut self.inputs,
+            mail,
+            &mut self.published,
+            &mut self.status,
+        );
+        self.run_slower = (out.run_speed, out.run_position);
+    }
+
+    /// The lower-priority tasks the period pended (untimed).
+    pub fn slower(&mut self) {
+        let (speed, position) = core::mem::take(&mut self.run_slower);
+        if speed {
+            self.iq_ref_a = self.speed.step(&self.published, self.vref);
+        }
+        if position {
+            self.vref = self.position.step(&self.published);
+        }
+    }
+
+    /// `n` periods with physics and the slower loops, untimed.
+    pub fn run(&mut self, n: u32) {
+        for _ in 0..n {
+            board::sim::step_physics();
+            self.period();
+            self.slower();
+        }
+    }
+
+    /// The drive (its hardware, for the breakdown's parts).
+    pub fn drive_mut(&mut self) -> &mut BoardDrive {
+        &mut self.drive
+    }
+
+    /// The status published last.
+    pub fn status(&self) -> Status {
+        self.status
+    }
+}
+
+/// What a scenario must have shown, checked after it (a bench whose
+/// inputs missed their case fails).
+struct Expect {
+    mode: Mode,
+    bridge_on: bool,
+    min_voltage_limited: u32,
+}
+
+/// One scenario: `setup` once, `prep` before each timed period.
+fn scenario(
+    rig: &mut Rig,
+    baseline: u32,
+    name: &str,
+    setup: fn(&mut Rig),
+    prep: fn(&mut Rig, u32),
+    expect: Expect,
+) -> Stats {
+    setup(rig);
+    let mut limited = 0u32;
+    let stats = measure_rig(rig, baseline, 64, prep, &mut |r: &Rig| {
+        limited += u32::from(r.published.voltage_limited);
+    });
+    report(name, stats);
+    let fb = &rig.published;
+    let ok = fb.mode == expect.mode
+        && rig.drive.pwm_is_on() == expect.bridge_on
+        && limited >= expect.min_voltage_limited;
+    defmt::println!(
+        "INFO {=str}: mode {}, faulted {}, bridge on {}, voltage-limited periods {=u32}/64, faults {=u32:#x}",
+        name,
+        fb.mode,
+        rig.status().faulted,
+        rig.drive.pwm_is_on(),
+        limited,
+        fb.faults.0
+    );
+    if !ok {
+        defmt::println!("BENCH-FAILED scenario {=str} missed its case", name);
+        super::mission_exit(1);
+    }
+    stats
+}
+
+trait BridgeState {
+    fn pwm_is_on(&self) -> bool;
+}
+
+impl BridgeState for BoardDrive {
+    fn pwm_is_on(&self) -> bool {
+        use foc_core::hal::PwmDriver;
+        self.pwm.is_enabled()
+    }
+}
+
+fn nothing(_: &mut Rig, _: u32) {}
+
+/// Every scenario; returns the worst case over all.
+pub fn measure_all(rig: &mut Rig, baseline: u32) -> Stats {
+    let runs = [
+        scenario(
+            rig,
+            baseline,
+            "drive period: disabled (bridge off)",
+            |r| r.slot.post(Command::Disable),
+            nothing,
+            Expect {
+                mode: Mode::Disabled,
+                bridge_on: false,
+                min_voltage_limited: 0,
+            },
+        ),
+        scenario(
+            rig,
+            baseline,
+            "drive period: torque 1 A",
+            |r| {
+                r.slot.post(Command::Torque { iq_a: 1.0 });
+                r.run(100);
+            },
+            nothing,
+            Expect {
+                mode: Mode::Torque,
+                bridge_on: true,
+                min_voltage_limited: 0,
+            },
+        ),
+        scenario(
+            rig,
+            baseline,
+            "drive period: torque steps +-5 A, a new command every period",
+            |_| {},
+            |r, k| {
+                let iq_a = if (k / 8) % 2 == 0 { 5.0 } else { -5.0 };
+                r.slot.post(Command::Torque { iq_a });
+            },
+            Expect {
+                mode: Mode::Torque,
+                bridge_on: true,
+                min_voltage_limited: 0,
+            },
+        ),
+        scenario(
+            rig,
+            baseline,
+            "drive period: velocity 150 rad/s (speed stage between periods)",
+            |r| {
+                r.slot.post(Command::Velocity { rad_s: 150.0 });
+                r.run(400);
+            },
+            nothing,
+            Expect {
+                mode: Mode::Velocity,
+                bridge_on: true,
+                min_voltage_limited: 0,
+            },
+        ),
+        scenario(
+            rig,
+            baseline,
+            "drive period: velocity 420 rad/s (voltage limit, back-EMF)",
+            |r| {
+                r.slot.post(Command::Velocity { rad_s: 420.0 });
+                r.run(2000);
+            },
+            nothing,
+            Expect {
+                mode: Mode::Velocity,
+                bridge_on: true,
+                min_voltage_limited: 32,
+            },
+        ),
+        scenario(
+            rig,
+            baseline,
+            "drive period: position move (trajectory, speed and position stages)",
+            |r| {
+                let target = r.published.position_rad + 20.0;
+                r.slot.post(Command::Position { rad: target });
+                r.run(50);
+            },
+            nothing,
+            Expect {
+                mode: Mode::Position,
+                bridge_on: true,
+                min_voltage_limited: 0,
+            },
+        ),
+        scenario(
+            rig,
+            baseline,
+            "drive period: fault found (break input, after a clear)",
+            |r| r.slot.post(Command::Torque { iq_a: 1.0 }),
+            |r, _| {
+                r.slot.request_clear();
+                r.slot.post(Command::Torque { iq_a: 1.0 });
+                r.break_fired = true;
+            },
+            Expect {
+                mode: Mode::Disabled,
+                bridge_on: false,
+                min_voltage_limited: 0,
+            },
+        ),
+        scenario(
+            rig,
+            baseline,
+            "drive period: fault latched (safe state)",
+            |r| r.break_fired = true,
+            nothing,
+            Expect {
+                mode: Mode::Disabled,
+                bridge_on: false,
+                min_voltage_limited: 0,
+            },
+        ),
+    ];
+    let mut worst = runs[0];
+    for s in &runs[1..] {
+        worst.min = worst.min.min(s.min);
+        worst.max = worst.max.max(s.max);
+        worst.median = worst.median.max(s.median);
+    }
+    worst.mean = runs.iter().map(|s| s.mean).sum::<f32>() / runs.len() as f32;
+    report(
+        "drive per-period call, every scenario above (worst case; median: the largest scenario median)",
+        worst,
+    );
+    worst
+}
