@@ -68,7 +68,7 @@ pub const BOARDS: [Board; 5] = [
 pub const DEFAULT_BOARD: &Board = &BOARDS[0];
 
 /// Memory-use goals of the default board, in bytes: (flash, static RAM).
-pub const DEFAULT_BOARD_GOALS: (u64, u64) = (48 * 1024, 8 * 1024);
+pub const DEFAULT_BOARD_GOALS: (u64, u64) = (96 * 1024, 8 * 1024);
 
 impl Board {
     /// The size goals (flash, RAM) in bytes, if this board has any.

@@ -3,6 +3,13 @@
 //! Read from the ELF with `llvm-size` (Berkeley format) of the toolchain's
 //! llvm-tools component: flash = text + data (the initial values of `.data`
 //! live in flash), static RAM = data + bss (stack and heap not included).
+//!
+//! After the table, `cargo xtask size` splits each board's flash into
+//! feature groups (control, calibration, protocol, storage, HAL, ...) from
+//! the ELF's symbols with `llvm-nm`: see [`groups`] for the rules and how
+//! the bytes no symbol names are reported.
+
+mod groups;
 
 use std::path::{Path, PathBuf};
 
@@ -122,6 +129,16 @@ pub fn run_cmd(args: &SizeArgs) -> Result {
     }
     let rows = measure_all(&built)?;
     print_table(&rows, profile);
+    print_all_groups(&built, &rows)
+}
+
+/// Prints the flash per feature group of each measured board.
+fn print_all_groups(built: &[(&Board, PathBuf)], rows: &[(&Board, Size)]) -> Result {
+    let llvm_nm = toolchain::llvm_tool("llvm-nm")?;
+    for ((board, elf), (_, size)) in built.iter().zip(rows) {
+        let symbols = groups::read_symbols(&llvm_nm, elf)?;
+        groups::print_groups(board.name, &symbols, size.flash());
+    }
     Ok(())
 }
 

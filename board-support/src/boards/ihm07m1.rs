@@ -52,7 +52,6 @@
 use super::Led;
 use crate::hw::adc::{
     set_regular_sample_time, setup_adc1, InjectedCurrents, RegularBus, SampleTime, Shunts,
-    Thermistor,
 };
 use crate::hw::angle::{AngleInput, AngleSource, HallSensor, QuadEncoder};
 use crate::hw::flash::StoreFlash;
@@ -60,7 +59,6 @@ use crate::hw::pwm::{PwmConfig, Tim1Pwm, Topology};
 use crate::hw::serial::CommandSerial;
 use crate::hw::{enable_cycle_counter, PinId, Port};
 use crate::logic::hall::HallConfig;
-use crate::logic::scaling::{CurrentScale, VoltageScale};
 use crate::pac;
 use foc_core::hal::NoBrake;
 use stm32f4xx_hal::gpio::{GpioExt, PinState};
@@ -140,33 +138,7 @@ pub const HALL_PINS: [PinId; 3] = [
     PinId::new(Port::B, 10),
 ];
 
-/// ADC channels of the three shunts (U, V, W).
-pub const CURRENT_CHANNELS: [u8; 3] = [0, 11, 10];
-/// ADC channel of the bus voltage.
-pub const BUS_CHANNEL: u8 = 1;
-/// ADC channel of the power-stage NTC (PC2).
-pub const THERMISTOR_CHANNEL: u8 = 12;
-/// The power-stage NTC as the bus reader converts it.
-pub const THERMISTOR: Thermistor = Thermistor {
-    channel: THERMISTOR_CHANNEL,
-    divider: crate::logic::thermistor::IHM07M1,
-};
-
-/// Shunt resistance [ohm].
-pub const SHUNT_OHM: f32 = 0.33;
-/// Current amplifier gain magnitude [V/V] (the amplifier inverts).
-pub const CURRENT_GAIN: f32 = 1.53;
-/// Bus divider ratio `(169k + 9.31k) / 9.31k`.
-pub const BUS_DIVIDER_RATIO: f32 = (169_000.0 + 9_310.0) / 9_310.0;
-/// ADC reference [V] (VDDA = 3.3 V on the NUCLEO-64).
-pub const VREF_V: f32 = 3.3;
-
-/// Current conversion: nominal mid-scale bias; the residual offset is the
-/// firmware's calibration (`CurrentSense::set_offsets_a`).
-pub const CURRENT_SCALE: CurrentScale =
-    CurrentScale::new(SHUNT_OHM, CURRENT_GAIN, VREF_V, 12, 2048.0, -1.0);
-/// Bus-voltage conversion.
-pub const BUS_SCALE: VoltageScale = VoltageScale::ratio(BUS_DIVIDER_RATIO, VREF_V, 12);
+pub use super::ihm07m1_analog::*;
 
 /// The PWM stage.
 pub type Pwm = Tim1Pwm;

@@ -6,6 +6,13 @@ use crate::hw::PinId;
 #[cfg(any(feature = "nucleo-f446re-ihm07m1", feature = "nucleo-f401re-ihm07m1"))]
 mod ihm07m1;
 
+#[cfg(any(
+    feature = "nucleo-f446re-ihm07m1",
+    feature = "nucleo-f401re-ihm07m1",
+    feature = "qemu"
+))]
+pub mod ihm07m1_analog;
+
 #[cfg(feature = "nucleo-f446re-ihm07m1")]
 pub mod nucleo_f446re_ihm07m1;
 

@@ -81,6 +81,30 @@ pub struct InjectedCurrents {
     shunts: Shunts,
     scale: CurrentScale,
     offsets: Abc,
+    regs: Adc1Regs,
+}
+
+/// Where a driver finds ADC1's registers: the peripheral (RM0090 13.13),
+/// or, for the instruction counts under QEMU (which models no injected
+/// group), a block of RAM laid out like it (`with_registers`). Reaching
+/// them through this pointer costs the same instructions as through the
+/// PAC's constant address (one load of the base either way).
+#[derive(Clone, Copy)]
+struct Adc1Regs(*const pac::adc1::RegisterBlock);
+
+// SAFETY: the pointer is ADC1's fixed address (or a `'static` block the
+// bench owns); the drivers holding it are the only users of the registers
+// they touch, as with the PAC's `ADC1` token, which is `Send`.
+unsafe impl Send for Adc1Regs {}
+
+impl Adc1Regs {
+    const PERIPHERAL: Self = Self(pac::ADC1::ptr());
+
+    #[inline(always)]
+    fn get(&self) -> &pac::adc1::RegisterBlock {
+        // SAFETY: see the type's docs: a valid register block for 'static.
+        unsafe { &*self.0 }
+    }
 }
 
 fn set_sample_time(adc: &pac::adc1::RegisterBlock, ch: u8, smp: SampleTime) {
@@ -162,13 +186,26 @@ impl InjectedCurrents {
             shunts,
             scale,
             offsets: Abc::new(0.0, 0.0, 0.0),
+            regs: Adc1Regs::PERIPHERAL,
         }
+    }
+
+    /// The same driver on a RAM copy of ADC1's registers (the emulated
+    /// board's instruction counts of a real board's register path).
+    ///
+    /// # Safety
+    /// `regs` must stay valid, and be used by nothing else, for as long
+    /// as the driver is used.
+    #[cfg(feature = "qemu")]
+    pub unsafe fn with_registers(mut self, regs: *const pac::adc1::RegisterBlock) -> Self {
+        self.regs = Adc1Regs(regs);
+        self
     }
 
     /// Raw `JDR1..3` values (for diagnostics / calibration).
     pub fn raw(&self) -> [u16; 3] {
-        // SAFETY: read-only access to ADC1 JDRx (RM0090 13.13.10).
-        let adc = unsafe { &*pac::ADC1::ptr() };
+        // Read-only access to ADC1 JDRx (RM0090 13.13.10).
+        let adc = self.regs.get();
         [
             adc.jdr(0).read().jdata().bits(),
             adc.jdr(1).read().jdata().bits(),
@@ -189,7 +226,7 @@ impl CurrentSense for InjectedCurrents {
         // SAFETY: ADC1 SR / JDRx (RM0090 13.13.1, 13.13.10). SR bits are
         // rc_w0 and the PAC's write() puts 1 in the untouched ones, so only
         // JEOC (and JSTRT) are cleared, never the regular group's EOC.
-        let adc = unsafe { &*pac::ADC1::ptr() };
+        let adc = self.regs.get();
         if adc.sr().read().jeoc().bit_is_clear() {
             return Err(AdcError::NotReady);
         }
@@ -260,6 +297,7 @@ pub struct RegularBus {
     converting_thermistor: bool,
     last_v: Option<f32>,
     last_thermistor_counts: Option<u16>,
+    regs: Adc1Regs,
 }
 
 impl RegularBus {
@@ -273,7 +311,19 @@ impl RegularBus {
             converting_thermistor: false,
             last_v: None,
             last_thermistor_counts: None,
+            regs: Adc1Regs::PERIPHERAL,
         }
+    }
+
+    /// The same reader on a RAM copy of ADC1's registers (see
+    /// [`InjectedCurrents::with_registers`]).
+    ///
+    /// # Safety
+    /// As [`InjectedCurrents::with_registers`].
+    #[cfg(feature = "qemu")]
+    pub unsafe fn with_registers(mut self, regs: *const pac::adc1::RegisterBlock) -> Self {
+        self.regs = Adc1Regs(regs);
+        self
     }
 
     /// Also read `thermistor`, alternating with the bus channel (set its
@@ -298,7 +348,7 @@ impl BusVoltage for RegularBus {
         // written here (after init); CR2 is not written by the current-sense
         // ISR; SQR3 is written while the regular group is idle (after EOC,
         // before SWSTART); every channel written is < 19.
-        let adc = unsafe { &*pac::ADC1::ptr() };
+        let adc = self.regs.get();
         if adc.sr().read().eoc().bit_is_set() {
             let counts = adc.dr().read().data().bits();
             if self.converting_thermistor {

@@ -87,6 +87,28 @@ pub struct Tim1Pwm {
     cfg: PwmConfig,
     dead_time: Option<DeadTime>,
     _tim: pac::TIM1,
+    /// TIM1's registers for the per-period accesses (`CCRx`, `BDTR`
+    /// read): the peripheral, or the bench's RAM copy (`for_bench`).
+    regs: Tim1Regs,
+}
+
+/// TIM1's register block (RM0090 17.4), or a RAM block laid out like it
+/// for the instruction counts under QEMU (which does not model TIM1).
+/// Reaching it through this pointer costs the same instructions as the
+/// PAC's constant address (one load of the base either way).
+#[derive(Clone, Copy)]
+struct Tim1Regs(*const pac::tim1::RegisterBlock);
+
+// SAFETY: TIM1's fixed address (or a `'static` block the bench owns), used
+// only by the driver that owns the `TIM1` token.
+unsafe impl Send for Tim1Regs {}
+
+impl Tim1Regs {
+    #[inline(always)]
+    fn get(&self) -> &pac::tim1::RegisterBlock {
+        // SAFETY: see the type's docs: a valid register block for 'static.
+        unsafe { &*self.0 }
+    }
 }
 
 /// Timings worked out for a configuration.
@@ -180,7 +202,32 @@ impl Tim1Pwm {
             cfg,
             dead_time,
             _tim: tim,
+            regs: Tim1Regs(pac::TIM1::ptr()),
         })
+    }
+
+    /// A driver whose per-period accesses (`set_compare`, `is_enabled`)
+    /// go to a RAM copy of TIM1's registers, nothing configured: the
+    /// emulated board's instruction counts of a real board's PWM write.
+    ///
+    /// # Safety
+    /// `regs` must stay valid, and be used by nothing else, while the
+    /// driver is used; `tim` is stolen by the caller, so nothing else may
+    /// use the real TIM1 meanwhile.
+    #[cfg(feature = "qemu")]
+    pub unsafe fn for_bench(
+        tim: pac::TIM1,
+        regs: *const pac::tim1::RegisterBlock,
+        arr: u16,
+        cfg: PwmConfig,
+    ) -> Self {
+        Self {
+            arr,
+            cfg,
+            dead_time: None,
+            _tim: tim,
+            regs: Tim1Regs(regs),
+        }
     }
 
     /// The dead time in use (`None` for 3-PWM).
@@ -198,9 +245,9 @@ impl PwmDriver for Tim1Pwm {
 
     fn set_compare(&mut self, compare: [u16; 3]) -> Result<(), PwmError> {
         let mut out = Ok(());
-        // SAFETY: CCR1..3 of the owned TIM1 (RM0090 17.4.14-16); preloaded,
-        // so the new values apply at the next update event.
-        let tim = unsafe { &*pac::TIM1::ptr() };
+        // CCR1..3 of the owned TIM1 (RM0090 17.4.14-16); preloaded, so the
+        // new values apply at the next update event.
+        let tim = self.regs.get();
         for (i, c) in compare.iter().enumerate() {
             let c = if *c > self.arr {
                 out = Err(PwmError::CompareOutOfRange);
@@ -251,9 +298,8 @@ impl PwmDriver for Tim1Pwm {
     }
 
     fn is_enabled(&self) -> bool {
-        // SAFETY: read of TIM1 BDTR.
-        let tim = unsafe { &*pac::TIM1::ptr() };
-        tim.bdtr().read().moe().bit_is_set()
+        // Read of TIM1 BDTR (RM0090 17.4.18).
+        self.regs.get().bdtr().read().moe().bit_is_set()
     }
 }
 

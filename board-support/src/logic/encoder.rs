@@ -54,9 +54,38 @@ impl EncoderTracker {
     pub fn update(&mut self, count: u16) -> i16 {
         let delta = count.wrapping_sub(self.last_count) as i16;
         self.last_count = count;
-        let p = self.pos as i64 + delta as i64;
-        self.pos = p.rem_euclid(self.cpr as i64) as u32;
+        self.pos = Self::advance(self.pos, delta, self.cpr);
         delta
+    }
+
+    /// `(pos + delta) mod cpr` for `pos < cpr`, without 64-bit division
+    /// (a software routine of about 100 instructions on the M4, every
+    /// period): one correction when `|delta| < cpr`, else a 32-bit
+    /// remainder (hardware `udiv`) of values below 2^16 (design §20).
+    #[inline]
+    fn advance(pos: u32, delta: i16, cpr: u32) -> u32 {
+        let d = u32::from(delta.unsigned_abs());
+        if delta >= 0 {
+            if d < cpr {
+                // pos + d < 2 cpr; in u64 so that no cpr can overflow it.
+                let s = u64::from(pos) + u64::from(d);
+                let c = u64::from(cpr);
+                (if s >= c { s - c } else { s }) as u32
+            } else {
+                // cpr <= d < 2^15, so pos + d < 2^16.
+                (pos + d) % cpr
+            }
+        } else if d <= pos {
+            pos - d
+        } else {
+            // (pos - d) mod cpr = -(d - pos) mod cpr.
+            let m = (d - pos) % cpr;
+            if m == 0 {
+                0
+            } else {
+                cpr - m
+            }
+        }
     }
 
     /// The index pulse was seen when the counter read `captured`: make that
@@ -79,8 +108,23 @@ impl EncoderTracker {
 
     /// Position as a mechanical angle.
     pub fn angle(&self) -> MechanicalAngle {
-        let bits = ((self.pos as u64) << 32) / self.cpr as u64;
-        MechanicalAngle::from_bits(bits as u32)
+        MechanicalAngle::from_bits(Self::turn_fraction_bits(self.pos, self.cpr))
+    }
+
+    /// `floor(pos 2^32 / cpr)` for `pos < cpr`: for `cpr <= 2^16` as two
+    /// steps of long division in base 2^16 with 32-bit hardware division
+    /// (exact, the same bits as the 64-bit division, which is a software
+    /// routine on the M4); beyond, the 64-bit division.
+    #[inline]
+    fn turn_fraction_bits(pos: u32, cpr: u32) -> u32 {
+        if cpr <= 1 << 16 {
+            let hi = pos << 16; // pos < 2^16
+            let (q1, r1) = (hi / cpr, hi % cpr);
+            let q2 = (r1 << 16) / cpr; // r1 < cpr <= 2^16
+            (q1 << 16) | q2
+        } else {
+            ((u64::from(pos) << 32) / u64::from(cpr)) as u32
+        }
     }
 }
 
@@ -101,7 +145,65 @@ mod tests {
         assert!((e.angle().to_turns() - 0.5).abs() < 1e-6);
     }
 
+    /// The reference the 32-bit arithmetic replaces (64-bit, exact).
+    fn advance_i64(pos: u32, delta: i16, cpr: u32) -> u32 {
+        (pos as i64 + delta as i64).rem_euclid(cpr as i64) as u32
+    }
+
+    #[test]
+    fn angle_and_advance_match_the_64_bit_arithmetic_at_the_edges() {
+        for cpr in [
+            1u32,
+            2,
+            3,
+            48,
+            4095,
+            4096,
+            32_767,
+            32_768,
+            32_769,
+            65_535,
+            65_536,
+            65_537,
+            1 << 24,
+            u32::MAX,
+        ] {
+            for pos in [0, 1, cpr / 2, cpr.saturating_sub(2), cpr - 1] {
+                let pos = pos.min(cpr - 1);
+                let bits = ((pos as u64) << 32) / cpr as u64;
+                assert_eq!(
+                    EncoderTracker::turn_fraction_bits(pos, cpr),
+                    bits as u32,
+                    "{pos}/{cpr}"
+                );
+                for delta in [i16::MIN, -32_767, -1, 0, 1, 32_767, i16::MAX] {
+                    assert_eq!(
+                        EncoderTracker::advance(pos, delta, cpr),
+                        advance_i64(pos, delta, cpr),
+                        "{pos} {delta} {cpr}"
+                    );
+                }
+            }
+        }
+    }
+
     proptest! {
+        #[test]
+        fn angle_and_advance_match_the_64_bit_arithmetic(cpr in 1u32..=u32::MAX, pos in any::<u32>(), delta in any::<i16>()) {
+            let pos = pos % cpr;
+            let bits = ((pos as u64) << 32) / cpr as u64;
+            prop_assert_eq!(EncoderTracker::turn_fraction_bits(pos, cpr), bits as u32);
+            prop_assert_eq!(EncoderTracker::advance(pos, delta, cpr), advance_i64(pos, delta, cpr));
+        }
+
+        #[test]
+        fn angle_and_advance_match_for_encoder_resolutions(cpr in 1u32..=70_000, pos in any::<u32>(), delta in any::<i16>()) {
+            let pos = pos % cpr;
+            let bits = ((pos as u64) << 32) / cpr as u64;
+            prop_assert_eq!(EncoderTracker::turn_fraction_bits(pos, cpr), bits as u32);
+            prop_assert_eq!(EncoderTracker::advance(pos, delta, cpr), advance_i64(pos, delta, cpr));
+        }
+
         #[test]
         fn matches_true_position(steps in prop::collection::vec(-20_000i32..20_000, 1..50), cpr in 1u32..100_000) {
             let mut e = EncoderTracker::new(cpr);
