@@ -40,7 +40,6 @@ mod config;
 mod events;
 #[cfg(feature = "qemu")]
 mod mission;
-mod period;
 mod persist;
 #[cfg(feature = "qemu")]
 mod store_mission;
@@ -59,7 +58,7 @@ static CURRENT_LOOP_RUNS: AtomicU32 = AtomicU32::new(0);
 
 #[rtic::app(device = board_support::pac, peripherals = true)]
 mod app {
-    use super::{comms, config, events, period, persist, timing, watchdog, CURRENT_LOOP_RUNS};
+    use super::{comms, config, events, persist, timing, watchdog, CURRENT_LOOP_RUNS};
     use board_support::board;
     use board_support::pac::Interrupt;
     use core::sync::atomic::Ordering;
@@ -68,7 +67,7 @@ mod app {
     use foc_core::control::power::ActiveLimit;
     use foc_core::control::stage::{PositionStage, SpeedStage, VelocityRef};
     use foc_core::control::{CommandSlot, Fault, Feedback, Mode};
-    use foc_core::drive::{Drive, Inputs, LifecycleConfig, Status};
+    use foc_core::drive::{Drive, Inputs, LifecycleConfig, Mail, Status};
 
     /// The board's drive: its hardware (and brake resistor switch), current
     /// stage and lifecycle.
@@ -130,7 +129,7 @@ mod app {
         /// `current_loop` only: the drive (hardware, current stage, lifecycle).
         drive: BoardDrive,
         /// `current_loop` only: the drive's inputs, kept across periods
-        /// (see `period`).
+        /// (see `Drive::run_period`).
         inputs: Inputs,
         /// `current_loop` only: periods since reset (housekeeping rate).
         tick: u32,
@@ -268,13 +267,13 @@ mod app {
             cx.shared.status,
         )
             .lock(|request, feedback, status| {
-                let mail = period::Mail {
+                let mail = Mail {
                     command,
                     iq_ref_a,
                     change: &mut request.current,
                     gate_fault,
                 };
-                period::run(drive, inputs, mail, feedback, status)
+                drive.run_period(inputs, mail, feedback, status)
             });
         if let Some(e) = out.event {
             #[cfg(feature = "qemu")]

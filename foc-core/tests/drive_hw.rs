@@ -8,9 +8,9 @@ use foc_core::calibration::offsets::OffsetLimits;
 use foc_core::calibration::Calibrated;
 use foc_core::control::cascade::CascadeConfig;
 use foc_core::control::power::PowerLimitsConfig;
-use foc_core::control::{Command, CommandSlot, Fault, Feedback, MotorParams};
+use foc_core::control::{Command, CommandSlot, Fault, Feedback, Mode, MotorParams};
 use foc_core::drive::{
-    AngleKind, ConfigChange, Drive, Event, Inputs, LifecycleConfig, Output, Phase,
+    AngleKind, ConfigChange, Drive, Event, Inputs, LifecycleConfig, Mail, Output, Phase, Status,
 };
 use foc_core::frames::Abc;
 use foc_core::hal::{AngleSensor, BrakeOutput, BusVoltage, CurrentSense, PhaseCurrents, PwmDriver};
@@ -190,6 +190,112 @@ fn start_up_then_supplied_permit_then_break_latch_until_clear() {
     step(&mut d, &inputs);
     assert!(d.pwm.on);
     assert_eq!(d.pwm.enables_refused, 0);
+}
+
+/// `Drive::run_period`, as the firmware calls it: a change waiting in the
+/// mailbox is taken once (the mailbox and the kept inputs are empty after
+/// the period, its verdict is in the output), the feedback is written into
+/// the caller's copy in `Run` and left alone during start-up, the status
+/// is published every period, and the command and gate flag come from the
+/// mail each period.
+#[test]
+fn run_period_takes_a_change_once_and_publishes_in_place() {
+    let (mut d, cfg) = drive();
+    let mut inputs = Inputs::new(CommandSlot::INIT, 0.0);
+    let mut mailbox: Option<ConfigChange> = None;
+    let mut feedback = Feedback::INIT;
+    feedback.period = 12_345; // a marker: start-up must not touch it
+    let mut status = d.status();
+    let mut slot = CommandSlot::INIT;
+    let period = |d: &mut Drive<Pwm, Cs, Enc, Bus>,
+                  inputs: &mut Inputs,
+                  mailbox: &mut Option<ConfigChange>,
+                  feedback: &mut Feedback,
+                  status: &mut Status,
+                  slot: CommandSlot,
+                  gate_fault: bool| {
+        let mail = Mail {
+            command: slot,
+            iq_ref_a: 0.0,
+            change: mailbox,
+            gate_fault,
+        };
+        d.run_period(inputs, mail, feedback, status)
+    };
+    for _ in 0..20 {
+        period(
+            &mut d,
+            &mut inputs,
+            &mut mailbox,
+            &mut feedback,
+            &mut status,
+            slot,
+            false,
+        );
+    }
+    assert_eq!(d.lifecycle().phase(), Phase::Run);
+    assert_eq!(feedback.period, 12_345, "start-up wrote the feedback");
+    assert!(status.running && !status.calibrated);
+
+    // A permit in the mailbox: applied this period, once.
+    let permit = Calibrated::supplied(cfg.current.angle, cfg.current.current).unwrap();
+    mailbox = Some(ConfigChange {
+        permit: Some(permit),
+        ..ConfigChange::default()
+    });
+    let out = period(
+        &mut d,
+        &mut inputs,
+        &mut mailbox,
+        &mut feedback,
+        &mut status,
+        slot,
+        false,
+    );
+    assert_eq!(out.change, Some(Ok(())));
+    assert!(mailbox.is_none() && inputs.change.is_none());
+    assert!(status.calibrated, "status not published");
+    assert_ne!(feedback.period, 12_345, "feedback not written in Run");
+    let out = period(
+        &mut d,
+        &mut inputs,
+        &mut mailbox,
+        &mut feedback,
+        &mut status,
+        slot,
+        false,
+    );
+    assert_eq!(out.change, None, "a change applied twice");
+
+    // The command from the mail: torque, bridge on, published.
+    slot.post(Command::Torque { iq_a: 1.0 });
+    let before = feedback.period;
+    period(
+        &mut d,
+        &mut inputs,
+        &mut mailbox,
+        &mut feedback,
+        &mut status,
+        slot,
+        false,
+    );
+    assert!(d.pwm.on);
+    assert_eq!(feedback.period, before.wrapping_add(1));
+    assert_eq!(feedback.mode, Mode::Torque);
+    assert_eq!(status.mode, Mode::Torque);
+    // The gate flag from the mail: latched, bridge off, published.
+    period(
+        &mut d,
+        &mut inputs,
+        &mut mailbox,
+        &mut feedback,
+        &mut status,
+        slot,
+        true,
+    );
+    assert!(!d.pwm.on);
+    assert!(status.faulted);
+    assert_eq!(feedback.first_fault, Some(Fault::GateDriverFault));
 }
 
 /// The break fires while the period's inputs were already read (no fault

@@ -482,6 +482,10 @@ impl Lifecycle {
         self.phase = Phase::Run;
     }
 
+    /// Inlined into [`Self::step`] with the identification routines (about
+    /// 21 KiB, which `cargo xtask size` therefore counts as control): kept
+    /// out of line it made every period 57 instructions longer, in `Run`
+    /// too (`cargo xtask bench`).
     fn step_identify(
         &mut self,
         stage: &mut CurrentStage,

@@ -15,6 +15,7 @@
 //! | [`lifecycle`] | [`Lifecycle`], hardware-free: phases, events, dividers |
 //! | [`identify`] | the identification sequencer driven through the stage |
 //! | [`rules`] | the one check of each rule: [`Status`], [`Refusal`], [`ConfigChange`] |
+//! | [`period`] | [`Drive::run_period`]: one period as the firmware's interrupt runs it |
 //!
 //! The bench's `Cascade` runs the same [`Lifecycle`] on simulated samples,
 //! so the start-up path the firmware runs is the one the host tests run.
@@ -58,9 +59,11 @@
 
 pub mod identify;
 pub mod lifecycle;
+pub mod period;
 pub mod rules;
 
 pub use lifecycle::{Event, Inputs, Lifecycle, LifecycleConfig, Output, Phase};
+pub use period::Mail;
 
 /// What the angle sensor knows at power-up. It decides what a stored
 /// calibration is worth at boot (design §17): the stored electrical zero

@@ -69,6 +69,11 @@ pub const RULES: &[(&str, &str)] = &[
     ("firmware::app::main::__rtic_init_resources", TASKS),
     // Calibration before control: `drive::identify` is under `drive`.
     ("foc_core::drive::identify", "calibration"),
+    // The lifecycle's identification phase (the routines inlined into it).
+    (
+        "foc_core::drive::lifecycle::Lifecycle::step_identify",
+        "calibration",
+    ),
     ("foc_core::calibration", "calibration"),
     ("foc_core::tuning", "calibration"),
     ("foc_core::control", "control"),

@@ -2,12 +2,12 @@
 //! it: inputs from the mailboxes, `Drive::step` on the emulated board's
 //! hardware (sensor reads and PWM write included), the feedback and status
 //! published to memory the other tasks read: the firmware's own
-//! `period::run`. Measured in every mode, at
+//! `Drive::run_period`. Measured in every mode, at
 //! the voltage limit, on command arrival and on faults; the speed and
 //! position stages run between periods (untimed), as the firmware's lower
 //! priority tasks do.
 
-use super::{measure_rig, period, report, Stats};
+use super::{measure_rig, report, Stats};
 use board_support::board;
 use foc_core::calibration::offsets::OffsetLimits;
 use foc_core::calibration::Calibrated;
@@ -15,7 +15,7 @@ use foc_core::control::cascade::CascadeConfig;
 use foc_core::control::power::PowerLimitsConfig;
 use foc_core::control::stage::{PositionStage, SpeedStage, VelocityRef};
 use foc_core::control::{Command, CommandSlot, Feedback, Mode};
-use foc_core::drive::{AngleKind, ConfigChange, Drive, Inputs, LifecycleConfig, Status};
+use foc_core::drive::{AngleKind, ConfigChange, Drive, Inputs, LifecycleConfig, Mail, Status};
 
 /// The emulated board's drive, as in the firmware.
 pub type BoardDrive = Drive<board::Pwm, board::Currents, board::Angle, board::Bus, board::Brake>;
@@ -106,18 +106,17 @@ impl Rig {
         rig
     }
 
-    /// The firmware's per-period work: `period::run`, as `current_loop`
+    /// The firmware's per-period work: `Drive::run_period`, as `current_loop`
     /// calls it (without its timing and event logging).
     #[inline(never)]
     pub fn period(&mut self) {
-        let mail = period::Mail {
+        let mail = Mail {
             command: self.slot,
             iq_ref_a: self.iq_ref_a,
             change: &mut self.mailbox,
             gate_fault: core::mem::take(&mut self.break_fired) || board::gate_driver_fault(),
         };
-        let out = period::run(
-            &mut self.drive,
+        let out = self.drive.run_period(
             &mut self.inputs,
             mail,
             &mut self.published,

@@ -30,8 +30,6 @@ use foc_core::{svpwm, transforms, trig};
 
 mod breakdown;
 mod drive;
-#[path = "../../period.rs"]
-mod period;
 mod registers;
 
 const TICKS_PER_INSTRUCTION: f32 = 172.032;
