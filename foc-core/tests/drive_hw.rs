@@ -150,10 +150,11 @@ fn start_up_then_supplied_permit_then_break_latch_until_clear() {
 
     // A supplied permit, applied at the period boundary.
     let permit = Calibrated::supplied(cfg.current.angle, cfg.current.current).unwrap();
-    inputs.change = Some(ConfigChange {
+    let change = ConfigChange {
         permit: Some(permit),
         ..ConfigChange::default()
-    });
+    };
+    inputs.change = Some(&change);
     assert_eq!(step(&mut d, &inputs).change, Some(Ok(())));
     inputs.change = None;
     assert!(d.status().calibrated);
@@ -193,22 +194,20 @@ fn start_up_then_supplied_permit_then_break_latch_until_clear() {
 }
 
 /// `Drive::run_period`, as the firmware calls it: a change waiting in the
-/// mailbox is taken once (the mailbox and the kept inputs are empty after
-/// the period, its verdict is in the output), the feedback is written into
+/// mailbox is applied once (the mailbox is empty after the period, its
+/// verdict is in the output), the feedback is written into
 /// the caller's copy in `Run` and left alone during start-up, the status
 /// is published every period, and the command and gate flag come from the
 /// mail each period.
 #[test]
 fn run_period_takes_a_change_once_and_publishes_in_place() {
     let (mut d, cfg) = drive();
-    let mut inputs = Inputs::new(CommandSlot::INIT, 0.0);
     let mut mailbox: Option<ConfigChange> = None;
     let mut feedback = Feedback::INIT;
     feedback.period = 12_345; // a marker: start-up must not touch it
     let mut status = d.status();
     let mut slot = CommandSlot::INIT;
     let period = |d: &mut Drive<Pwm, Cs, Enc, Bus>,
-                  inputs: &mut Inputs,
                   mailbox: &mut Option<ConfigChange>,
                   feedback: &mut Feedback,
                   status: &mut Status,
@@ -220,12 +219,11 @@ fn run_period_takes_a_change_once_and_publishes_in_place() {
             change: mailbox,
             gate_fault,
         };
-        d.run_period(inputs, mail, feedback, status)
+        d.run_period(mail, feedback, status)
     };
     for _ in 0..20 {
         period(
             &mut d,
-            &mut inputs,
             &mut mailbox,
             &mut feedback,
             &mut status,
@@ -245,7 +243,6 @@ fn run_period_takes_a_change_once_and_publishes_in_place() {
     });
     let out = period(
         &mut d,
-        &mut inputs,
         &mut mailbox,
         &mut feedback,
         &mut status,
@@ -253,12 +250,11 @@ fn run_period_takes_a_change_once_and_publishes_in_place() {
         false,
     );
     assert_eq!(out.change, Some(Ok(())));
-    assert!(mailbox.is_none() && inputs.change.is_none());
+    assert!(mailbox.is_none());
     assert!(status.calibrated, "status not published");
     assert_ne!(feedback.period, 12_345, "feedback not written in Run");
     let out = period(
         &mut d,
-        &mut inputs,
         &mut mailbox,
         &mut feedback,
         &mut status,
@@ -272,7 +268,6 @@ fn run_period_takes_a_change_once_and_publishes_in_place() {
     let before = feedback.period;
     period(
         &mut d,
-        &mut inputs,
         &mut mailbox,
         &mut feedback,
         &mut status,
@@ -284,15 +279,7 @@ fn run_period_takes_a_change_once_and_publishes_in_place() {
     assert_eq!(feedback.mode, Mode::Torque);
     assert_eq!(status.mode, Mode::Torque);
     // The gate flag from the mail: latched, bridge off, published.
-    period(
-        &mut d,
-        &mut inputs,
-        &mut mailbox,
-        &mut feedback,
-        &mut status,
-        slot,
-        true,
-    );
+    period(&mut d, &mut mailbox, &mut feedback, &mut status, slot, true);
     assert!(!d.pwm.on);
     assert!(status.faulted);
     assert_eq!(feedback.first_fault, Some(Fault::GateDriverFault));
@@ -309,10 +296,11 @@ fn break_between_reading_the_inputs_and_driving_the_bridge() {
         step(&mut d, &inputs);
     }
     let permit = Calibrated::supplied(cfg.current.angle, cfg.current.current).unwrap();
-    inputs.change = Some(ConfigChange {
+    let change = ConfigChange {
         permit: Some(permit),
         ..ConfigChange::default()
-    });
+    };
+    inputs.change = Some(&change);
     step(&mut d, &inputs);
     inputs.change = None;
     slot.post(Command::Torque { iq_a: 1.0 });
@@ -482,10 +470,11 @@ fn the_brake_follows_the_power_limits_chopper_with_hysteresis_and_goes_off_with_
     let p =
         PowerLimitsConfig::for_board(&cfg.current.supervisor, other, false).with_brake_resistor();
     d.bus.0 = 24.0;
-    inputs.change = Some(ConfigChange {
+    let change = ConfigChange {
         power: Some(Some(p)),
         ..ConfigChange::default()
-    });
+    };
+    inputs.change = Some(&change);
     step(&mut d, &inputs);
     inputs.change = None;
     let installed = d.stage().config().power.expect("installed");
@@ -504,10 +493,11 @@ fn the_brake_follows_the_power_limits_chopper_with_hysteresis_and_goes_off_with_
     assert!(!steps(&mut d, &inputs, f32::NAN));
     assert!(steps(&mut d, &inputs, on_v + 0.1));
     // Power limits switched off: the brake goes off with them.
-    inputs.change = Some(ConfigChange {
+    let change = ConfigChange {
         power: Some(None),
         ..ConfigChange::default()
-    });
+    };
+    inputs.change = Some(&change);
     step(&mut d, &inputs);
     assert!(!d.brake.on);
     assert!(d.stage().config().power.is_none());

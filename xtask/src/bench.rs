@@ -139,9 +139,28 @@ fn print_goals(rows: &[Row]) {
     }
 }
 
+/// The counting method's self-check: 100 `nop`s must read 100 (one
+/// instruction either way for the pairing of two calls), else the counts
+/// mean nothing (a wrong SysTick scale or icount shift).
+fn check_self_check(rows: &[Row]) -> Result {
+    let ok = |v: u32| (99..=101).contains(&v);
+    match rows
+        .iter()
+        .find(|r| r.name.starts_with("self-check: 100 nops"))
+    {
+        Some(r) if ok(r.min) && ok(r.max) && ok(r.median) => Ok(()),
+        Some(r) => Err(Error(format!(
+            "the bench's self-check read {}-{} instructions for 100 nops: the counts are not exact",
+            r.min, r.max
+        ))),
+        None => Err(Error("the bench printed no self-check".into())),
+    }
+}
+
 /// `cargo xtask bench`.
 pub fn run_cmd(args: &BenchArgs) -> Result {
     let (rows, info) = run_bench()?;
+    check_self_check(&rows)?;
     print_rows(&rows);
     print_goals(&rows);
     for l in &info {
@@ -182,5 +201,20 @@ mod tests {
         assert_eq!(parse_line("INFO something"), None);
         assert_eq!(parse_line("BENCH name x 2 3 4"), None);
         assert_eq!(parse_line("BENCH name 1 2 3"), None);
+    }
+
+    #[test]
+    fn self_check_must_read_one_hundred() {
+        let row = |min, max| Row {
+            name: "self-check: 100 nops (difference of two calls, expect 100)".into(),
+            min,
+            max,
+            mean: 100.0,
+            median: 100,
+        };
+        assert!(check_self_check(&[row(100, 99)]).is_ok());
+        assert!(check_self_check(&[row(50, 50)]).is_err());
+        assert!(check_self_check(&[row(100, 120)]).is_err());
+        assert!(check_self_check(&[]).is_err());
     }
 }

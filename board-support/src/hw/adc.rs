@@ -194,8 +194,9 @@ impl InjectedCurrents {
     /// board's instruction counts of a real board's register path).
     ///
     /// # Safety
-    /// `regs` must stay valid, and be used by nothing else, for as long
-    /// as the driver is used.
+    /// `regs` must stay valid for as long as the driver is used, and be
+    /// used only by ADC1 drivers (as ADC1 itself is shared by
+    /// [`InjectedCurrents`] and [`RegularBus`]).
     #[cfg(feature = "qemu")]
     pub unsafe fn with_registers(mut self, regs: *const pac::adc1::RegisterBlock) -> Self {
         self.regs = Adc1Regs(regs);

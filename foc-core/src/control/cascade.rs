@@ -358,8 +358,9 @@ impl Cascade {
     /// One PWM period: the lifecycle (and through it the current stage),
     /// then the slower stages it schedules, in the firmware's order.
     pub fn step(&mut self, sample: &Sample) -> BridgeCommand {
+        let change = self.change.take();
         let mut inputs = Inputs::new(self.slot, self.iq_ref_a);
-        inputs.change = self.change.take();
+        inputs.change = change.as_ref();
         let out = self
             .life
             .step(&mut self.current, &inputs, sample, &mut self.feedback);

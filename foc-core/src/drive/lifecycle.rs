@@ -73,20 +73,21 @@ pub struct LifecycleConfig {
     pub stored: Option<Calibrated>,
 }
 
-/// What the owner hands the drive each period.
+/// What the owner hands the drive each period (small: a configuration
+/// change is lent, not copied).
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Inputs {
+pub struct Inputs<'a> {
     /// The operator's command mailbox.
     pub command: CommandSlot,
     /// q-current reference from the speed stage [A].
     pub iq_ref_a: f32,
     /// A configuration change to apply at this period's start.
-    pub change: Option<ConfigChange>,
+    pub change: Option<&'a ConfigChange>,
     /// The power stage reported a fault (timer break, gate driver).
     pub gate_fault: bool,
 }
 
-impl Inputs {
+impl Inputs<'_> {
     /// A mailbox and a q-current reference, nothing else.
     pub const fn new(command: CommandSlot, iq_ref_a: f32) -> Self {
         Self {
@@ -271,7 +272,7 @@ impl Lifecycle {
             stage.report_fault(Fault::GateDriverFault);
         }
         if let Some(ch) = inp.change {
-            out.change = Some(self.apply_change(stage, &ch, inp, &mut out));
+            out.change = Some(self.apply_change(stage, ch, inp, &mut out));
         }
         // The speed stage's output is interpolated over its period.
         stage.set_speed_periods(self.dividers.0);

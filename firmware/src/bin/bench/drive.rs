@@ -15,7 +15,7 @@ use foc_core::control::cascade::CascadeConfig;
 use foc_core::control::power::PowerLimitsConfig;
 use foc_core::control::stage::{PositionStage, SpeedStage, VelocityRef};
 use foc_core::control::{Command, CommandSlot, Feedback, Mode};
-use foc_core::drive::{AngleKind, ConfigChange, Drive, Inputs, LifecycleConfig, Mail, Status};
+use foc_core::drive::{AngleKind, ConfigChange, Drive, LifecycleConfig, Mail, Refusal, Status};
 
 /// The emulated board's drive, as in the firmware.
 pub type BoardDrive = Drive<board::Pwm, board::Currents, board::Angle, board::Bus, board::Brake>;
@@ -36,13 +36,17 @@ pub struct Rig {
     speed: SpeedStage,
     position: PositionStage,
     vref: VelocityRef,
-    /// The drive's inputs, kept across periods as in the firmware.
-    inputs: Inputs,
     run_slower: (bool, bool),
+    /// The verdict on the last period's configuration change.
+    last_change: Option<Result<(), Refusal>>,
 }
 
-/// The firmware's configuration of the emulated board (`config::cascade`
-/// with its power limits, no brake resistor).
+/// The emulated board's configuration as the firmware builds it
+/// (`config::cascade`: the simulated motor with its inertia, 10 A, the
+/// board's power limits from `PowerLimitsConfig::for_board`, no brake
+/// resistor), rebuilt here: the bench cannot reach the firmware's private
+/// `config` module. Not set here: the sensor's counts per turn for the
+/// supervisor's angle-step floor (the default floor applies).
 pub fn cascade() -> CascadeConfig {
     let m = board::SIM_MOTOR;
     let motor = super::motor();
@@ -99,15 +103,20 @@ impl Rig {
             speed: SpeedStage::new(cfg.speed),
             position: PositionStage::new(cfg.position),
             vref: VelocityRef::default(),
-            inputs: Inputs::new(CommandSlot::INIT, 0.0),
             run_slower: (false, false),
+            last_change: None,
         };
         rig.run(200);
         rig
     }
 
     /// The firmware's per-period work: `Drive::run_period`, as `current_loop`
-    /// calls it (without its timing and event logging).
+    /// calls it. Not included (firmware/src/main.rs `current_loop`): the
+    /// interrupt's entry and exit, the RTIC lock of each shared resource
+    /// (a BASEPRI raise and restore with two `isb`, about 6 instructions
+    /// each, six per period), the DWT timing and its record, the run
+    /// counter, the pends of the slower loops, the refusal and event
+    /// logging (design §20).
     #[inline(never)]
     pub fn period(&mut self) {
         let mail = Mail {
@@ -116,13 +125,11 @@ impl Rig {
             change: &mut self.mailbox,
             gate_fault: core::mem::take(&mut self.break_fired) || board::gate_driver_fault(),
         };
-        let out = self.drive.run_period(
-            &mut self.inputs,
-            mail,
-            &mut self.published,
-            &mut self.status,
-        );
+        let out = self
+            .drive
+            .run_period(mail, &mut self.published, &mut self.status);
         self.run_slower = (out.run_speed, out.run_position);
+        self.last_change = out.change;
     }
 
     /// The lower-priority tasks the period pended (untimed).
@@ -161,7 +168,34 @@ impl Rig {
 struct Expect {
     mode: Mode,
     bridge_on: bool,
+    faulted: bool,
     min_voltage_limited: u32,
+    /// Every timed period applied a configuration change.
+    changes_applied: bool,
+}
+
+impl Expect {
+    /// Closed loop in `mode`, bridge on, no fault, nothing else asked.
+    const fn running(mode: Mode) -> Self {
+        Self {
+            mode,
+            bridge_on: true,
+            faulted: false,
+            min_voltage_limited: 0,
+            changes_applied: false,
+        }
+    }
+
+    /// Bridge off, disabled, `faulted` or not.
+    const fn off(faulted: bool) -> Self {
+        Self {
+            mode: Mode::Disabled,
+            bridge_on: false,
+            faulted,
+            min_voltage_limited: 0,
+            changes_applied: false,
+        }
+    }
 }
 
 /// One scenario: `setup` once, `prep` before each timed period.
@@ -174,22 +208,26 @@ fn scenario(
     expect: Expect,
 ) -> Stats {
     setup(rig);
-    let mut limited = 0u32;
+    let (mut limited, mut applied) = (0u32, 0u32);
     let stats = measure_rig(rig, baseline, 64, prep, &mut |r: &Rig| {
         limited += u32::from(r.published.voltage_limited);
+        applied += u32::from(r.last_change == Some(Ok(())));
     });
     report(name, stats);
     let fb = &rig.published;
     let ok = fb.mode == expect.mode
         && rig.drive.pwm_is_on() == expect.bridge_on
-        && limited >= expect.min_voltage_limited;
+        && rig.status().faulted == expect.faulted
+        && limited >= expect.min_voltage_limited
+        && (applied == 64) == expect.changes_applied;
     defmt::println!(
-        "INFO {=str}: mode {}, faulted {}, bridge on {}, voltage-limited periods {=u32}/64, faults {=u32:#x}",
+        "INFO {=str}: mode {}, faulted {}, bridge on {}, voltage-limited periods {=u32}/64, changes applied {=u32}/64, faults {=u32:#x}",
         name,
         fb.mode,
         rig.status().faulted,
         rig.drive.pwm_is_on(),
         limited,
+        applied,
         fb.faults.0
     );
     if !ok {
@@ -212,6 +250,20 @@ impl BridgeState for BoardDrive {
 
 fn nothing(_: &mut Rig, _: u32) {}
 
+/// A change of the current loop, the limits and the power limits to the
+/// values in force: applied whole while disabled (the stage stays
+/// calibrated), the most a period does with the command channel's
+/// configuration.
+fn same_configuration() -> ConfigChange {
+    let c = cascade();
+    ConfigChange {
+        limits: Some(c.current.limits),
+        current: Some(c.current.current),
+        power: Some(c.current.power),
+        ..ConfigChange::default()
+    }
+}
+
 /// Every scenario; returns the worst case over all.
 pub fn measure_all(rig: &mut Rig, baseline: u32) -> Stats {
     let runs = [
@@ -221,10 +273,17 @@ pub fn measure_all(rig: &mut Rig, baseline: u32) -> Stats {
             "drive period: disabled (bridge off)",
             |r| r.slot.post(Command::Disable),
             nothing,
+            Expect::off(false),
+        ),
+        scenario(
+            rig,
+            baseline,
+            "drive period: disabled, a configuration change applied (gains, limits, power limits)",
+            |_| {},
+            |r, _| r.mailbox = Some(same_configuration()),
             Expect {
-                mode: Mode::Disabled,
-                bridge_on: false,
-                min_voltage_limited: 0,
+                changes_applied: true,
+                ..Expect::off(false)
             },
         ),
         scenario(
@@ -236,11 +295,7 @@ pub fn measure_all(rig: &mut Rig, baseline: u32) -> Stats {
                 r.run(100);
             },
             nothing,
-            Expect {
-                mode: Mode::Torque,
-                bridge_on: true,
-                min_voltage_limited: 0,
-            },
+            Expect::running(Mode::Torque),
         ),
         scenario(
             rig,
@@ -251,11 +306,7 @@ pub fn measure_all(rig: &mut Rig, baseline: u32) -> Stats {
                 let iq_a = if (k / 8) % 2 == 0 { 5.0 } else { -5.0 };
                 r.slot.post(Command::Torque { iq_a });
             },
-            Expect {
-                mode: Mode::Torque,
-                bridge_on: true,
-                min_voltage_limited: 0,
-            },
+            Expect::running(Mode::Torque),
         ),
         scenario(
             rig,
@@ -266,11 +317,7 @@ pub fn measure_all(rig: &mut Rig, baseline: u32) -> Stats {
                 r.run(400);
             },
             nothing,
-            Expect {
-                mode: Mode::Velocity,
-                bridge_on: true,
-                min_voltage_limited: 0,
-            },
+            Expect::running(Mode::Velocity),
         ),
         scenario(
             rig,
@@ -282,9 +329,8 @@ pub fn measure_all(rig: &mut Rig, baseline: u32) -> Stats {
             },
             nothing,
             Expect {
-                mode: Mode::Velocity,
-                bridge_on: true,
                 min_voltage_limited: 32,
+                ..Expect::running(Mode::Velocity)
             },
         ),
         scenario(
@@ -297,11 +343,7 @@ pub fn measure_all(rig: &mut Rig, baseline: u32) -> Stats {
                 r.run(50);
             },
             nothing,
-            Expect {
-                mode: Mode::Position,
-                bridge_on: true,
-                min_voltage_limited: 0,
-            },
+            Expect::running(Mode::Position),
         ),
         scenario(
             rig,
@@ -313,11 +355,7 @@ pub fn measure_all(rig: &mut Rig, baseline: u32) -> Stats {
                 r.slot.post(Command::Torque { iq_a: 1.0 });
                 r.break_fired = true;
             },
-            Expect {
-                mode: Mode::Disabled,
-                bridge_on: false,
-                min_voltage_limited: 0,
-            },
+            Expect::off(true),
         ),
         scenario(
             rig,
@@ -325,11 +363,7 @@ pub fn measure_all(rig: &mut Rig, baseline: u32) -> Stats {
             "drive period: fault latched (safe state)",
             |r| r.break_fired = true,
             nothing,
-            Expect {
-                mode: Mode::Disabled,
-                bridge_on: false,
-                min_voltage_limited: 0,
-            },
+            Expect::off(true),
         ),
     ];
     let mut worst = runs[0];
