@@ -1381,6 +1381,21 @@ impl PowerStage {
         dt_s: f32,
         inputs: PowerInputs,
     ) -> PowerReport {
+        let mut report = PowerReport::unlimited(0.0);
+        self.step_into(i_dq_measured_a, v_dq_applied_v, dt_s, inputs, &mut report);
+        report
+    }
+
+    /// [`Self::step`] with the report written into `report` (the current
+    /// stage's own copy, not returned by value: design §20).
+    pub fn step_into(
+        &mut self,
+        i_dq_measured_a: Dq,
+        v_dq_applied_v: Dq,
+        dt_s: f32,
+        inputs: PowerInputs,
+        report: &mut PowerReport,
+    ) {
         self.thermal.step(&self.cfg, i_dq_measured_a, dt_s);
         let p = v_dq_applied_v.d * i_dq_measured_a.d + v_dq_applied_v.q * i_dq_measured_a.q;
         let brake_on = self.chopper.step(&self.cfg, inputs.v_bus_v, dt_s, p < 0.0);
@@ -1408,7 +1423,7 @@ impl PowerStage {
                 ..inputs
             },
         );
-        PowerReport {
+        *report = PowerReport {
             iq_min_a: w.min_a,
             iq_max_a: w.max_a,
             id_ref_a: w.id_a,
@@ -1418,6 +1433,6 @@ impl PowerStage {
             stage_c: inputs.stage_temperature_c.unwrap_or(f32::NAN),
             brake_on,
             brake_locked: self.chopper.is_locked_out(),
-        }
+        };
     }
 }

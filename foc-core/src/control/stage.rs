@@ -793,15 +793,19 @@ impl CurrentStage {
             }
         };
         // Stepped every period (winding estimate, chopper), faulted or not.
-        let window = self.power_window(sensed, w_e, requested.unwrap_or(0.0));
+        let windowed = self.power_window(sensed, w_e, requested.unwrap_or(0.0));
         if self.supervisor.is_faulted() {
             self.state.active = Command::Disable;
             return (None, i_ref, theta_e);
         }
         // The closed-loop modes share one (inlined) current-loop call.
-        let closed = requested.map(|iq| match &window {
-            Some(w) => Dq::new(w.id_ref_a, w.clamp(iq)),
-            None => Dq::new(0.0, iq),
+        let w = &self.power_report;
+        let closed = requested.map(|iq| {
+            if windowed {
+                Dq::new(w.id_ref_a, w.clamp(iq))
+            } else {
+                Dq::new(0.0, iq)
+            }
         });
         let closed_iq = closed.map(|i| i.q);
         let out = match (closed, self.state.active) {
@@ -849,18 +853,16 @@ impl CurrentStage {
     }
 
     /// The power limits' q-current window of this period, when they are
-    /// configured: steps the winding estimate (from the last measured
-    /// currents) and the brake chopper. Without them nothing is computed
-    /// (the published report is the current limit's window).
+    /// configured (true): steps the winding estimate (from the last
+    /// measured currents) and the brake chopper, the report written into
+    /// `power_report`. Without them nothing is computed (false; the
+    /// published report is the current limit's window).
     #[inline(always)]
-    fn power_window(
-        &mut self,
-        sensed: &Sensed,
-        w_e: f32,
-        iq_request_a: f32,
-    ) -> Option<PowerReport> {
-        let p = self.power.as_mut()?;
-        let r = p.step(
+    fn power_window(&mut self, sensed: &Sensed, w_e: f32, iq_request_a: f32) -> bool {
+        let Some(p) = self.power.as_mut() else {
+            return false;
+        };
+        p.step_into(
             self.state.last_i_dq,
             self.state.last_out_v_dq,
             self.config.current.ts_s,
@@ -873,9 +875,9 @@ impl CurrentStage {
                 winding_temperature_c: None,
                 stage_temperature_c: sensed.temperature_c,
             },
+            &mut self.power_report,
         );
-        self.power_report = r;
-        Some(r)
+        true
     }
 
     /// Current-sense plausibility (closed loop): the loop's tracking error

@@ -247,6 +247,7 @@ impl Lifecycle {
     /// One PWM period. `stage` is the drive's current stage (the same one
     /// every period); `fb` is the feedback published, written in place when
     /// the stage runs (left as it was during start-up).
+    #[inline]
     pub fn step(
         &mut self,
         stage: &mut CurrentStage,
@@ -263,6 +264,21 @@ impl Lifecycle {
             change: None,
             faults_cleared: false,
         };
+        self.step_out(stage, inp, s, fb, &mut out);
+        out
+    }
+
+    /// [`Self::step`] writing into the caller's `out` (initialised by
+    /// it): the output is built where the caller keeps it, not copied on
+    /// return (design §20).
+    fn step_out(
+        &mut self,
+        stage: &mut CurrentStage,
+        inp: &Inputs,
+        s: &Sample,
+        fb: &mut Feedback,
+        out: &mut Output,
+    ) {
         // The operator's clear first: a fault found this period (power
         // stage, link watchdog) is latched after it and stays latched.
         if self.phase == Phase::Run {
@@ -272,7 +288,7 @@ impl Lifecycle {
             stage.report_fault(Fault::GateDriverFault);
         }
         if let Some(ch) = inp.change {
-            out.change = Some(self.apply_change(stage, ch, inp, &mut out));
+            out.change = Some(self.apply_change(stage, ch, inp, out));
         }
         // The speed stage's output is interpolated over its period.
         stage.set_speed_periods(self.dividers.0);
@@ -283,9 +299,9 @@ impl Lifecycle {
             stage.step_brake(s.v_bus_v);
         }
         match self.phase {
-            Phase::OffsetCalibration => self.step_offsets(stage, s, &mut out),
-            Phase::SensorCheck(n) => self.step_sensor_check(stage, inp, s, n, &mut out),
-            Phase::Identify => self.step_identify(stage, inp, s, &mut out, fb),
+            Phase::OffsetCalibration => self.step_offsets(stage, s, out),
+            Phase::SensorCheck(n) => self.step_sensor_check(stage, inp, s, n, out),
+            Phase::Identify => self.step_identify(stage, inp, s, out, fb),
             Phase::Run => {
                 out.bridge = stage.step_into(&inp.command, inp.iq_ref_a, s, fb);
             }
@@ -293,7 +309,6 @@ impl Lifecycle {
         self.tick = self.tick.wrapping_add(1);
         out.run_speed = self.tick.is_multiple_of(self.dividers.0);
         out.run_position = self.tick.is_multiple_of(self.dividers.1);
-        out
     }
 
     /// A configuration change: its settings whole or not at all, its
