@@ -10,7 +10,8 @@ use foc_core::control::cascade::CascadeConfig;
 use foc_core::control::power::PowerLimitsConfig;
 use foc_core::control::{Command, CommandSlot, Fault, Feedback, Mode, MotorParams};
 use foc_core::drive::{
-    AngleKind, ConfigChange, Drive, Event, Inputs, LifecycleConfig, Mail, Output, Phase, Status,
+    AngleKind, ConfigChange, Drive, Event, Inputs, LifecycleConfig, Mail, Output, Phase, Refusal,
+    Status,
 };
 use foc_core::frames::Abc;
 use foc_core::hal::{AngleSensor, BrakeOutput, BusVoltage, CurrentSense, PhaseCurrents, PwmDriver};
@@ -278,6 +279,25 @@ fn run_period_takes_a_change_once_and_publishes_in_place() {
     assert_eq!(feedback.period, before.wrapping_add(1));
     assert_eq!(feedback.mode, Mode::Torque);
     assert_eq!(status.mode, Mode::Torque);
+    // A change while running: refused whole, the mailbox emptied anyway
+    // (the verdict goes back to the operator), nothing changed.
+    let limits_before = *d.stage().config();
+    mailbox = Some(ConfigChange {
+        limits: Some(cfg.current.limits),
+        ..ConfigChange::default()
+    });
+    let out = period(
+        &mut d,
+        &mut mailbox,
+        &mut feedback,
+        &mut status,
+        slot,
+        false,
+    );
+    assert_eq!(out.change, Some(Err(Refusal::NotDisabled)));
+    assert!(mailbox.is_none());
+    assert_eq!(*d.stage().config(), limits_before);
+    assert!(d.pwm.on);
     // The gate flag from the mail: latched, bridge off, published.
     period(&mut d, &mut mailbox, &mut feedback, &mut status, slot, true);
     assert!(!d.pwm.on);

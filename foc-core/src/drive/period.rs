@@ -1,10 +1,10 @@
 //! One PWM period as the firmware's current-loop interrupt runs it:
 //! [`Drive::run_period`] makes the inputs from the other tasks' mailboxes,
 //! steps the drive with the feedback written in place and publishes the
-//! status. The firmware calls it with its RTIC resources
-//! (whose locks cost nothing at the interrupt's top priority) and the
-//! instruction bench (`cargo xtask bench`) with the same kinds of values,
-//! so the counts are those of the code the interrupt runs.
+//! status. The firmware calls it with its RTIC resources (inside their
+//! locks, which the bench does not count) and the instruction bench
+//! (`cargo xtask bench`) with the same kinds of values, so the counts are
+//! those of the code the interrupt runs.
 //!
 //! Nothing large is copied (design §20): a configuration change waiting in
 //! its mailbox is lent to the drive (then the mailbox is emptied: applied

@@ -91,10 +91,11 @@ pub fn measure_pieces(rig: &mut Rig, baseline: u32, currents: &dyn Fn(u32) -> Ab
     );
     if let Some(p) = cfg.power {
         let mut power = PowerStage::new(p);
+        let mut report = PowerReport::unlimited(0.0);
         add(
-            "  part: power limits (PowerStage::step)",
+            "  part: power limits (PowerStage::step_into)",
             measure(baseline, n, &mut |_| {}, &mut |k| {
-                black_box(power_part(
+                power_part(
                     &mut power,
                     black_box(Dq::new(0.0, 2.0 + k as f32 * 0.01)),
                     black_box(Dq::new(-0.5, 6.0)),
@@ -108,7 +109,8 @@ pub fn measure_pieces(rig: &mut Rig, baseline: u32, currents: &dyn Fn(u32) -> Ab
                         winding_temperature_c: None,
                         stage_temperature_c: black_box(Some(40.0)),
                     },
-                ));
+                    black_box(&mut report),
+                );
             }),
         );
     }
@@ -176,8 +178,8 @@ fn supervision_part(sup: &mut Supervisor, checks: &Checks, sq: f32) -> Option<Fa
 }
 
 #[inline(never)]
-fn power_part(p: &mut PowerStage, i: Dq, v: Dq, ts: f32, inputs: PowerInputs) -> PowerReport {
-    p.step(i, v, ts, inputs)
+fn power_part(p: &mut PowerStage, i: Dq, v: Dq, ts: f32, inputs: PowerInputs, r: &mut PowerReport) {
+    p.step_into(i, v, ts, inputs, r)
 }
 
 #[inline(never)]

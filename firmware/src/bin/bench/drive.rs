@@ -113,10 +113,10 @@ impl Rig {
     /// The firmware's per-period work: `Drive::run_period`, as `current_loop`
     /// calls it. Not included (firmware/src/main.rs `current_loop`): the
     /// interrupt's entry and exit, the RTIC lock of each shared resource
-    /// (a BASEPRI raise and restore with two `isb`, about 6 instructions
-    /// each, six per period), the DWT timing and its record, the run
-    /// counter, the pends of the slower loops, the refusal and event
-    /// logging (design §20).
+    /// (a BASEPRI raise and restore with `isb`s, about 6-8 instructions
+    /// each, seven per period, eight when an event is logged), the DWT
+    /// timing and its record, the run counter, the pends of the slower
+    /// loops, the refusal and event logging (design §20).
     #[inline(never)]
     pub fn period(&mut self) {
         let mail = Mail {
@@ -215,15 +215,19 @@ fn scenario(
     });
     report(name, stats);
     let fb = &rig.published;
+    // Every scenario keeps the calibration (a change that revoked it would
+    // fail here, not in the next scenario).
     let ok = fb.mode == expect.mode
         && rig.drive.pwm_is_on() == expect.bridge_on
+        && rig.status().calibrated
         && rig.status().faulted == expect.faulted
         && limited >= expect.min_voltage_limited
         && (applied == 64) == expect.changes_applied;
     defmt::println!(
-        "INFO {=str}: mode {}, faulted {}, bridge on {}, voltage-limited periods {=u32}/64, changes applied {=u32}/64, faults {=u32:#x}",
+        "INFO {=str}: mode {}, calibrated {}, faulted {}, bridge on {}, voltage-limited periods {=u32}/64, changes applied {=u32}/64, faults {=u32:#x}",
         name,
         fb.mode,
+        rig.status().calibrated,
         rig.status().faulted,
         rig.drive.pwm_is_on(),
         limited,
@@ -250,16 +254,20 @@ impl BridgeState for BoardDrive {
 
 fn nothing(_: &mut Rig, _: u32) {}
 
-/// A change of the current loop, the limits and the power limits to the
-/// values in force: applied whole while disabled (the stage stays
-/// calibrated), the most a period does with the command channel's
-/// configuration.
+/// The change the firmware makes when it adopts a stored record
+/// (`comms::adopt`: limits, current loop, dividers, power limits, the
+/// calibration permit and the mechanics), with the values in force:
+/// applied whole while disabled, the stage stays calibrated. (A calibration
+/// request merged into it would start a routine instead.)
 fn same_configuration() -> ConfigChange {
     let c = cascade();
     ConfigChange {
         limits: Some(c.current.limits),
         current: Some(c.current.current),
+        dividers: Some((c.rates.speed_divider, c.rates.position_divider)),
         power: Some(c.current.power),
+        permit: Calibrated::supplied(c.current.angle, c.current.current).ok(),
+        mechanics: c.mechanics,
         ..ConfigChange::default()
     }
 }
@@ -278,7 +286,7 @@ pub fn measure_all(rig: &mut Rig, baseline: u32) -> Stats {
         scenario(
             rig,
             baseline,
-            "drive period: disabled, a configuration change applied (gains, limits, power limits)",
+            "drive period: disabled, a stored record's configuration applied",
             |_| {},
             |r, _| r.mailbox = Some(same_configuration()),
             Expect {
