@@ -194,6 +194,37 @@ fn start_up_then_supplied_permit_then_break_latch_until_clear() {
     assert_eq!(d.pwm.enables_refused, 0);
 }
 
+/// The firmware's side of `Drive::run_period`: its mailboxes and the
+/// copies the other tasks read.
+struct Firmware {
+    mailbox: Option<ConfigChange>,
+    feedback: Feedback,
+    status: Status,
+    slot: CommandSlot,
+}
+
+impl Firmware {
+    fn new(status: Status) -> Self {
+        Self {
+            mailbox: None,
+            feedback: Feedback::INIT,
+            status,
+            slot: CommandSlot::INIT,
+        }
+    }
+
+    /// One period, as `current_loop` makes it.
+    fn period(&mut self, d: &mut Drive<Pwm, Cs, Enc, Bus>, gate_fault: bool) -> Output {
+        let mail = Mail {
+            command: self.slot,
+            iq_ref_a: 0.0,
+            change: &mut self.mailbox,
+            gate_fault,
+        };
+        d.run_period(mail, &mut self.feedback, &mut self.status)
+    }
+}
+
 /// `Drive::run_period`, as the firmware calls it: a change waiting in the
 /// mailbox is applied once (the mailbox is empty after the period, its
 /// verdict is in the output), the feedback is written into
@@ -203,106 +234,54 @@ fn start_up_then_supplied_permit_then_break_latch_until_clear() {
 #[test]
 fn run_period_takes_a_change_once_and_publishes_in_place() {
     let (mut d, cfg) = drive();
-    let mut mailbox: Option<ConfigChange> = None;
-    let mut feedback = Feedback::INIT;
-    feedback.period = 12_345; // a marker: start-up must not touch it
-    let mut status = d.status();
-    let mut slot = CommandSlot::INIT;
-    let period = |d: &mut Drive<Pwm, Cs, Enc, Bus>,
-                  mailbox: &mut Option<ConfigChange>,
-                  feedback: &mut Feedback,
-                  status: &mut Status,
-                  slot: CommandSlot,
-                  gate_fault: bool| {
-        let mail = Mail {
-            command: slot,
-            iq_ref_a: 0.0,
-            change: mailbox,
-            gate_fault,
-        };
-        d.run_period(mail, feedback, status)
-    };
+    let mut fw = Firmware::new(d.status());
+    fw.feedback.period = 12_345; // a marker: start-up must not touch it
     for _ in 0..20 {
-        period(
-            &mut d,
-            &mut mailbox,
-            &mut feedback,
-            &mut status,
-            slot,
-            false,
-        );
+        fw.period(&mut d, false);
     }
     assert_eq!(d.lifecycle().phase(), Phase::Run);
-    assert_eq!(feedback.period, 12_345, "start-up wrote the feedback");
-    assert!(status.running && !status.calibrated);
+    assert_eq!(fw.feedback.period, 12_345, "start-up wrote the feedback");
+    assert!(fw.status.running && !fw.status.calibrated);
 
     // A permit in the mailbox: applied this period, once.
     let permit = Calibrated::supplied(cfg.current.angle, cfg.current.current).unwrap();
-    mailbox = Some(ConfigChange {
+    fw.mailbox = Some(ConfigChange {
         permit: Some(permit),
         ..ConfigChange::default()
     });
-    let out = period(
-        &mut d,
-        &mut mailbox,
-        &mut feedback,
-        &mut status,
-        slot,
-        false,
-    );
+    let out = fw.period(&mut d, false);
     assert_eq!(out.change, Some(Ok(())));
-    assert!(mailbox.is_none());
-    assert!(status.calibrated, "status not published");
-    assert_ne!(feedback.period, 12_345, "feedback not written in Run");
-    let out = period(
-        &mut d,
-        &mut mailbox,
-        &mut feedback,
-        &mut status,
-        slot,
-        false,
-    );
+    assert!(fw.mailbox.is_none());
+    assert!(fw.status.calibrated, "status not published");
+    assert_ne!(fw.feedback.period, 12_345, "feedback not written in Run");
+    let out = fw.period(&mut d, false);
     assert_eq!(out.change, None, "a change applied twice");
 
     // The command from the mail: torque, bridge on, published.
-    slot.post(Command::Torque { iq_a: 1.0 });
-    let before = feedback.period;
-    period(
-        &mut d,
-        &mut mailbox,
-        &mut feedback,
-        &mut status,
-        slot,
-        false,
-    );
+    fw.slot.post(Command::Torque { iq_a: 1.0 });
+    let before = fw.feedback.period;
+    fw.period(&mut d, false);
     assert!(d.pwm.on);
-    assert_eq!(feedback.period, before.wrapping_add(1));
-    assert_eq!(feedback.mode, Mode::Torque);
-    assert_eq!(status.mode, Mode::Torque);
+    assert_eq!(fw.feedback.period, before.wrapping_add(1));
+    assert_eq!(fw.feedback.mode, Mode::Torque);
+    assert_eq!(fw.status.mode, Mode::Torque);
     // A change while running: refused whole, the mailbox emptied anyway
     // (the verdict goes back to the operator), nothing changed.
     let limits_before = *d.stage().config();
-    mailbox = Some(ConfigChange {
+    fw.mailbox = Some(ConfigChange {
         limits: Some(cfg.current.limits),
         ..ConfigChange::default()
     });
-    let out = period(
-        &mut d,
-        &mut mailbox,
-        &mut feedback,
-        &mut status,
-        slot,
-        false,
-    );
+    let out = fw.period(&mut d, false);
     assert_eq!(out.change, Some(Err(Refusal::NotDisabled)));
-    assert!(mailbox.is_none());
+    assert!(fw.mailbox.is_none());
     assert_eq!(*d.stage().config(), limits_before);
     assert!(d.pwm.on);
     // The gate flag from the mail: latched, bridge off, published.
-    period(&mut d, &mut mailbox, &mut feedback, &mut status, slot, true);
+    fw.period(&mut d, true);
     assert!(!d.pwm.on);
-    assert!(status.faulted);
-    assert_eq!(feedback.first_fault, Some(Fault::GateDriverFault));
+    assert!(fw.status.faulted);
+    assert_eq!(fw.feedback.first_fault, Some(Fault::GateDriverFault));
 }
 
 /// The break fires while the period's inputs were already read (no fault
