@@ -1062,6 +1062,19 @@ impl ThermalEstimate {
     /// Advance by `dt_s` [s] with the dq current `i_dq_a` [A] (measured);
     /// returns the new estimate [deg C].
     pub fn step(&mut self, cfg: &PowerLimitsConfig, i_dq_a: Dq, dt_s: f32) -> f32 {
+        self.step_planned(cfg, &mut ThermalPlan::of(cfg), i_dq_a, dt_s)
+    }
+
+    /// [`Self::step`] with the configuration's plan (`plan` must be
+    /// `ThermalPlan::of(cfg)`, possibly since used with other `dt_s`).
+    #[inline(always)]
+    fn step_planned(
+        &mut self,
+        cfg: &PowerLimitsConfig,
+        plan: &mut ThermalPlan,
+        i_dq_a: Dq,
+        dt_s: f32,
+    ) -> f32 {
         if !(all_finite([i_dq_a.d, i_dq_a.q, dt_s]) && dt_s >= 0.0) {
             self.valid = false;
             self.invalid_steps = self.invalid_steps.saturating_add(1);
@@ -1073,7 +1086,7 @@ impl ThermalEstimate {
         // hot at once, not one time constant later: a drive reconfigured
         // with it keeps its estimate and would otherwise run at the full
         // current for seconds (tau ln(...) ~ 11 s at the default 60 s).
-        if !(cfg.thermal_resistance_k_per_w < f32::INFINITY && cfg.ambient_c < THERMAL_MAX_C) {
+        if !plan.model_ok {
             self.temperature_c = THERMAL_MAX_C;
             return self.temperature_c;
         }
@@ -1085,8 +1098,7 @@ impl ThermalEstimate {
         let next = if tau > 0.0 {
             // Backward Euler, T + (target - T) h / (1 + h): exactly
             // still at the target.
-            let h = dt_s / tau;
-            t + (target - t) * (h / (1.0 + h))
+            t + (target - t) * plan.gain(tau, dt_s)
         } else if tau.is_nan() || tau < 0.0 || dt_s > 0.0 {
             target
         } else {
@@ -1299,6 +1311,46 @@ impl PowerReport {
     }
 }
 
+/// What [`ThermalEstimate::step`] decides from the configuration alone,
+/// worked out once (design §20): whether the model is usable, and the
+/// backward-Euler gain `h / (1 + h)`, `h = dt / tau`, for the last step
+/// length (two divisions every period otherwise).
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct ThermalPlan {
+    /// `R_th` finite and the ambient below [`THERMAL_MAX_C`] (sanitized:
+    /// a NaN, zero or negative `R_th` is `+inf`, a NaN ambient the
+    /// maximum).
+    model_ok: bool,
+    /// The step length the gain is for [s] (NaN: none yet).
+    dt_s: f32,
+    /// `h / (1 + h)` for `dt_s` (only used when `tau > 0`).
+    gain: f32,
+}
+
+impl ThermalPlan {
+    fn of(cfg: &PowerLimitsConfig) -> Self {
+        Self {
+            model_ok: cfg.thermal_resistance_k_per_w < f32::INFINITY
+                && cfg.ambient_c < THERMAL_MAX_C,
+            dt_s: f32::NAN,
+            gain: f32::NAN,
+        }
+    }
+
+    /// `h / (1 + h)` with `h = dt_s / tau` (`tau > 0`, the configuration's,
+    /// which the plan is remade with), computed again only when `dt_s`
+    /// changes: the same bits as computing it every step.
+    #[inline(always)]
+    fn gain(&mut self, tau: f32, dt_s: f32) -> f32 {
+        if dt_s != self.dt_s {
+            let h = dt_s / tau;
+            self.gain = h / (1.0 + h);
+            self.dt_s = dt_s;
+        }
+        self.gain
+    }
+}
+
 /// The current stage's power limits: the configuration, the winding
 /// temperature estimate and the brake chopper, stepped once per period.
 #[derive(Clone, Copy, Debug)]
@@ -1311,6 +1363,8 @@ pub struct PowerStage {
     v_ramp_v: f32,
     /// `WindowPlan::of(&cfg)`, kept with `cfg`.
     plan: WindowPlan,
+    /// `ThermalPlan::of(&cfg)`, kept with `cfg`.
+    thermal_plan: ThermalPlan,
 }
 
 impl PowerStage {
@@ -1324,6 +1378,7 @@ impl PowerStage {
             chopper: BrakeChopper::new(),
             v_ramp_v: f32::NAN,
             plan: WindowPlan::of(&cfg),
+            thermal_plan: ThermalPlan::of(&cfg),
         }
     }
 
@@ -1353,6 +1408,7 @@ impl PowerStage {
             chopper,
             v_ramp_v: self.v_ramp_v,
             plan: WindowPlan::of(&cfg),
+            thermal_plan: ThermalPlan::of(&cfg),
         }
     }
 
@@ -1396,7 +1452,8 @@ impl PowerStage {
         inputs: PowerInputs,
         report: &mut PowerReport,
     ) {
-        self.thermal.step(&self.cfg, i_dq_measured_a, dt_s);
+        self.thermal
+            .step_planned(&self.cfg, &mut self.thermal_plan, i_dq_measured_a, dt_s);
         let p = v_dq_applied_v.d * i_dq_measured_a.d + v_dq_applied_v.q * i_dq_measured_a.q;
         let brake_on = self.chopper.step(&self.cfg, inputs.v_bus_v, dt_s, p < 0.0);
         // The ramp follows a rising bus at once and a falling one through a

@@ -163,8 +163,50 @@ pub struct Lifecycle {
     /// The operator's command number when the identification started.
     identify_seq: u32,
     identified: Option<IdentificationResult>,
-    dividers: (u32, u32),
+    /// When the speed and the position stages run.
+    speed: Countdown,
+    position: Countdown,
+    /// Periods stepped so far.
     tick: u32,
+}
+
+/// When a slower loop runs: every `divider` periods, counted down (no
+/// division in the period): the periods where `tick % divider == 0`, with
+/// `tick` the periods stepped so far.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct Countdown {
+    divider: u32,
+    /// Periods to the next run, `divider - tick % divider`.
+    left: u32,
+}
+
+impl Countdown {
+    /// At `tick` 0: the next run after `divider` periods.
+    const fn new(divider: u32) -> Self {
+        Self {
+            divider,
+            left: divider,
+        }
+    }
+
+    /// A new divider (at least 1) after `tick` periods: the next run at the
+    /// next multiple of it.
+    fn set(&mut self, divider: u32, tick: u32) {
+        self.divider = divider;
+        self.left = divider - tick % divider;
+    }
+
+    /// One period; true when the loop runs after it.
+    #[inline]
+    fn step(&mut self) -> bool {
+        self.left -= 1;
+        if self.left == 0 {
+            self.left = self.divider;
+            true
+        } else {
+            false
+        }
+    }
 }
 
 fn divider(n: u16) -> u32 {
@@ -189,10 +231,8 @@ impl Lifecycle {
             identifier: None,
             identify_seq: 0,
             identified: None,
-            dividers: (
-                divider(config.speed_divider),
-                divider(config.position_divider),
-            ),
+            speed: Countdown::new(divider(config.speed_divider)),
+            position: Countdown::new(divider(config.position_divider)),
             tick: 0,
         }
     }
@@ -220,7 +260,7 @@ impl Lifecycle {
 
     /// The speed and position dividers in force [periods].
     pub fn dividers(&self) -> (u32, u32) {
-        self.dividers
+        (self.speed.divider, self.position.divider)
     }
 
     /// The last successful identification, if any.
@@ -291,7 +331,7 @@ impl Lifecycle {
             out.change = Some(self.apply_change(stage, ch, inp, out));
         }
         // The speed stage's output is interpolated over its period.
-        stage.set_speed_periods(self.dividers.0);
+        stage.set_speed_periods(self.speed.divider);
         // The brake chopper every period: the phases without a stage step
         // (bridge off) step it alone (a coasting motor still charges the
         // bus through the body diodes).
@@ -307,8 +347,8 @@ impl Lifecycle {
             }
         }
         self.tick = self.tick.wrapping_add(1);
-        out.run_speed = self.tick.is_multiple_of(self.dividers.0);
-        out.run_position = self.tick.is_multiple_of(self.dividers.1);
+        out.run_speed = self.speed.step();
+        out.run_position = self.position.step();
     }
 
     /// A configuration change: its settings whole or not at all, its
@@ -385,7 +425,8 @@ impl Lifecycle {
             }
         }
         if let Some((n, m)) = ch.dividers {
-            self.dividers = (divider(n), divider(m));
+            self.speed.set(divider(n), self.tick);
+            self.position.set(divider(m), self.tick);
         }
         if let Some(p) = ch.permit {
             stage.set_calibration(&p);
@@ -543,5 +584,36 @@ impl Lifecycle {
         // the motor now.
         stage.sync_mailbox(cmd);
         self.phase = Phase::Run;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::Countdown;
+
+    /// The countdown runs in exactly the periods where `tick % divider ==
+    /// 0` (the rule it replaces), also across divider changes.
+    #[test]
+    fn countdown_runs_where_the_tick_is_a_multiple_of_the_divider() {
+        let changes = [
+            (0u32, 10u32),
+            (37, 3),
+            (38, 1),
+            (50, 7),
+            (51, 20),
+            (200, 20),
+            (333, 4),
+        ];
+        let mut c = Countdown::new(changes[0].1);
+        let mut d = changes[0].1;
+        let mut tick = 0u32;
+        for _ in 0..1000 {
+            if let Some(&(_, n)) = changes[1..].iter().find(|(at, _)| *at == tick) {
+                c.set(n, tick);
+                d = n;
+            }
+            tick += 1;
+            assert_eq!(c.step(), tick.is_multiple_of(d), "tick {tick}, divider {d}");
+        }
     }
 }
