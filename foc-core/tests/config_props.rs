@@ -30,6 +30,7 @@ use foc_core::calibration::{CalInput, CalStep, Calibrated, ClosedLoopFeedback};
 use foc_core::control::cascade::{Cascade, CascadeConfig};
 use foc_core::control::current::{CurrentLoop, CurrentLoopConfig, CurrentLoopInput};
 use foc_core::control::estimator::{AngleTracker, AngleTrackerConfig};
+use foc_core::control::joint::Impedance;
 use foc_core::control::position::{PositionLoop, PositionLoopConfig};
 use foc_core::control::speed::{SpeedLoop, SpeedLoopConfig};
 use foc_core::control::stage::Sample;
@@ -504,7 +505,7 @@ proptest! {
         min_pos in field(-1e5, -1.0), max_pos in field(1.0, 1e5),
         ol_v in field(1.0, 60.0), ol_w in field(10.0, 1e4),
         m in motor(), pwm in field(1e3, 1e5), change_current in any::<bool>(),
-        cmd in 0u8..4, target in -1e3f32..1e3,
+        cmd in 0u8..5, target in -1e3f32..1e3,
     ) {
         let cfg = CascadeConfig::for_motor(good_motor(), 20e3, 10.0);
         let mut c = Cascade::new(cfg);
@@ -527,6 +528,8 @@ proptest! {
             max_position_rad: max_pos,
             max_open_loop_voltage_v: ol_v,
             max_open_loop_omega_e_rad_s: ol_w,
+            max_kp_nm_per_rad: ol_w,
+            max_kd_nm_s_per_rad: ol_v,
         };
         c.current.set_limits(limits);
         if change_current {
@@ -536,6 +539,11 @@ proptest! {
             0 => Command::Torque { iq_a: target },
             1 => Command::Velocity { rad_s: target },
             2 => Command::Position { rad: target },
+            3 => Command::Impedance(Impedance {
+                position_rad: target, velocity_rad_s: target * 0.1,
+                kp_nm_per_rad: target.abs(), kd_nm_s_per_rad: target.abs() * 0.01,
+                torque_ff_nm: target * 0.001, torque_limit_nm: target.abs(),
+            }),
             _ => Command::OpenLoop { v_d_v: target * 0.01, v_q_v: 0.0,
                                      theta_e: ElectricalAngle::ZERO, omega_e_rad_s: target },
         };

@@ -581,6 +581,8 @@ impl DriveRecord {
                 LimitsError::MaxPosition => "limits.max_position_rad",
                 LimitsError::OpenLoopVoltage => "limits.max_open_loop_voltage_v",
                 LimitsError::OpenLoopOmega => "limits.max_open_loop_omega_e_rad_s",
+                // Not in this record: `to_limits` fills them valid.
+                LimitsError::MaxStiffness | LimitsError::MaxDamping => "limits",
             })
         })?;
 
@@ -916,7 +918,9 @@ impl LimitsRecord {
         }
     }
 
-    /// As foc-core's limits.
+    /// As foc-core's limits; the impedance maxima, which this record does
+    /// not hold, unbounded (`f32::MAX`: see [`Settings`](crate::Settings)
+    /// for the ones in force).
     pub fn to_limits(&self) -> Limits {
         Limits {
             max_current_a: self.max_current_a,
@@ -925,6 +929,8 @@ impl LimitsRecord {
             max_position_rad: self.max_position_rad,
             max_open_loop_voltage_v: self.max_open_loop_voltage_v,
             max_open_loop_omega_e_rad_s: self.max_open_loop_omega_e_rad_s,
+            max_kp_nm_per_rad: f32::MAX,
+            max_kd_nm_s_per_rad: f32::MAX,
         }
     }
 }

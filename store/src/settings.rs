@@ -23,6 +23,7 @@
 
 use foc_core::control::cascade::CascadeConfig;
 use foc_core::control::current::CurrentLoopConfig;
+use foc_core::control::joint::{JointSetup, OutputFrame, TravelConfig};
 use foc_core::control::permit::Calibrated;
 use foc_core::control::position::PositionLoopConfig;
 use foc_core::control::power::PowerLimitsConfig;
@@ -64,6 +65,11 @@ pub struct Settings {
     /// The rotor's mechanics (identified or given); `None`: not known
     /// (the configuration's, see [`Self::apply_to`]).
     pub mechanics: Option<Mechanics>,
+    /// The joint (design §21): output frame (gear ratio, home offset),
+    /// travel range at the output and its soft stop, impedance entry and
+    /// timeout. With a travel range, the position range in force is that
+    /// range in the rotor frame (`limits`' own range without one).
+    pub joint: JointSetup,
 }
 
 impl Settings {
@@ -83,6 +89,12 @@ impl Settings {
             },
             power: c.current.power,
             mechanics: c.mechanics,
+            joint: JointSetup {
+                frame: OutputFrame::IDENTITY,
+                travel_out_rad: None,
+                travel: TravelConfig::for_cascade(c),
+                joint: c.current.joint,
+            },
         }
     }
 
@@ -104,6 +116,12 @@ impl Settings {
     pub fn apply_to(&self, base: &CascadeConfig) -> CascadeConfig {
         let mut c = *base;
         c.current.limits = self.limits;
+        let j = self
+            .joint
+            .rotor_change((self.limits.min_position_rad, self.limits.max_position_rad));
+        c.current.limits.min_position_rad = j.min_position_rad;
+        c.current.limits.max_position_rad = j.max_position_rad;
+        c.current.joint = j.joint;
         c.current.current = self.current;
         c.current.angle = self.angle;
         c.current.power = self.power.map(|p| PowerLimitsConfig {
@@ -246,7 +264,11 @@ impl DriveRecord {
         }
         let pwm = pwm_frequency_hz as f32;
         let mut s = *base;
-        s.limits = self.limits.to_limits();
+        s.limits = Limits {
+            max_kp_nm_per_rad: s.limits.max_kp_nm_per_rad,
+            max_kd_nm_s_per_rad: s.limits.max_kd_nm_s_per_rad,
+            ..self.limits.to_limits()
+        };
         s.current.motor = self.motor.to_params();
         s.current.d_gains = self.current_gains.d();
         s.current.q_gains = self.current_gains.q();

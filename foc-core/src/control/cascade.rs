@@ -9,6 +9,8 @@
 
 use super::current::CurrentLoopConfig;
 use super::estimator::{AngleTrackerConfig, SpeedObserverConfig};
+use super::homing::{Homing, HomingError, HomingMethod, HomingStep};
+use super::joint::{JointConfig, JointError, JointSetup, OutputFrame, TravelConfig};
 use super::permit::Calibrated;
 use super::position::PositionLoopConfig;
 use super::speed::SpeedLoopConfig;
@@ -123,6 +125,9 @@ impl CascadeConfig {
                     max_position_rad: 1.0e5,
                     max_open_loop_voltage_v: 60.0,
                     max_open_loop_omega_e_rad_s: 1.0e4,
+                    // Full current for 0.01 rad or 1 rad/s of error.
+                    max_kp_nm_per_rad: kt * max_current_a / 0.01,
+                    max_kd_nm_s_per_rad: kt * max_current_a,
                 },
                 angle: AngleCalibration {
                     pole_pairs: motor.pole_pairs,
@@ -133,6 +138,7 @@ impl CascadeConfig {
                 command_timeout_periods: 0,
                 timeout_reaction: TimeoutReaction::Disable,
                 power: None,
+                joint: JointConfig::for_pwm(pwm_frequency_hz),
             },
             speed: SpeedLoopConfig::from_bandwidth(
                 inertia_kg_m2,
@@ -225,6 +231,14 @@ pub struct Cascade {
     output: Option<Output>,
     /// The feedback published (written in place by the lifecycle).
     feedback: Feedback,
+    /// The joint's output frame and travel range (design §21).
+    joint: JointSetup,
+    /// The position range without travel limits (the build's).
+    unbounded_rad: (f32, f32),
+    /// A homing running, with the output position of its home point.
+    homing: Option<(Homing, f32)>,
+    /// How the last homing ended.
+    homing_result: Option<Result<(), HomingError>>,
 }
 
 impl Cascade {
@@ -265,6 +279,108 @@ impl Cascade {
             w_ref: VelocityRef::default(),
             output: None,
             feedback: Feedback::INIT,
+            joint: JointSetup {
+                frame: OutputFrame::IDENTITY,
+                travel_out_rad: None,
+                travel: TravelConfig::for_cascade(&config),
+                joint: config.current.joint,
+            },
+            unbounded_rad: (
+                config.current.limits.min_position_rad,
+                config.current.limits.max_position_rad,
+            ),
+            homing: None,
+            homing_result: None,
+        }
+    }
+
+    /// The joint's setup (output frame, travel range).
+    pub fn joint(&self) -> &JointSetup {
+        &self.joint
+    }
+
+    /// Set the joint up (output frame, travel range at the output): the
+    /// rotor-frame range and travel limits are requested from the stage
+    /// (taken at the next step in any mode, see
+    /// [`crate::drive::JointChange`]).
+    pub fn set_joint(&mut self, setup: JointSetup) -> Result<(), JointError> {
+        setup.validate()?;
+        self.joint = setup;
+        self.request(ConfigChange {
+            joint: Some(setup.rotor_change(self.unbounded_rad)),
+            ..ConfigChange::default()
+        });
+        Ok(())
+    }
+
+    /// Start homing (design §21); `home_output_rad` is the output position
+    /// of the home point. Runs at the position loop's rate; see
+    /// [`Self::homing_result`].
+    pub fn start_homing(
+        &mut self,
+        method: HomingMethod,
+        home_output_rad: f32,
+    ) -> Result<(), HomingError> {
+        if !home_output_rad.is_finite() {
+            return Err(HomingError::Invalid(CommandError::NonFinite));
+        }
+        let l = self.current.config().limits;
+        let kt = self
+            .current
+            .config()
+            .current
+            .motor
+            .torque_constant_nm_per_a();
+        let h = Homing::new(method, &l, kt, self.config.rates.position_ts_s())?;
+        self.homing = Some((h, home_output_rad));
+        self.homing_result = None;
+        Ok(())
+    }
+
+    /// How the last homing ended (`None` while one runs or before any).
+    pub fn homing_result(&self) -> Option<Result<(), HomingError>> {
+        self.homing_result
+    }
+
+    /// True while homing runs.
+    pub fn is_homing(&self) -> bool {
+        self.homing.is_some()
+    }
+
+    fn step_homing(&mut self) {
+        let Some((mut h, home_out)) = self.homing else {
+            return;
+        };
+        let l = self.current.config().limits;
+        let end = match h.step(&self.feedback, &l) {
+            HomingStep::Post(cmd) => self
+                .command(cmd)
+                .err()
+                .map(|e| Err(HomingError::Invalid(e))),
+            HomingStep::Running => None,
+            HomingStep::Done { home_rotor_rad } => {
+                Some(match self.joint.frame.homed_at(home_rotor_rad, home_out) {
+                    Some(frame) => {
+                        let setup = JointSetup {
+                            frame,
+                            ..self.joint
+                        };
+                        self.set_joint(setup)
+                            .map_err(|_| HomingError::Invalid(CommandError::NonFinite))
+                    }
+                    None => Err(HomingError::Invalid(CommandError::NonFinite)),
+                })
+            }
+            HomingStep::Failed(e) => Some(Err(e)),
+        };
+        if let Some(r) = end {
+            if r.is_err() {
+                self.slot.post(Command::Disable);
+            }
+            self.homing = None;
+            self.homing_result = Some(r);
+        } else {
+            self.homing = Some((h, home_out));
         }
     }
 
@@ -370,6 +486,7 @@ impl Cascade {
         }
         if out.run_position {
             self.w_ref = self.position.step(&fb);
+            self.step_homing();
         }
         if let Some(crate::drive::Event::Identified(r)) = out.event {
             // The measured mechanics (design §19): the speed and position

@@ -64,6 +64,8 @@ pub mod cascade;
 pub mod current;
 pub mod drive;
 pub mod estimator;
+pub mod homing;
+pub mod joint;
 pub mod permit;
 pub mod position;
 pub mod power;
@@ -203,6 +205,8 @@ pub enum Mode {
     Position = 3,
     /// Open-loop voltage at a given (optionally rotating) electrical angle.
     OpenLoop = 4,
+    /// Impedance (spring-damper with a feed-forward torque), design §21.
+    Impedance = 5,
 }
 
 /// What the drive is asked to do. Speeds and positions are mechanical.
@@ -237,13 +241,22 @@ pub enum Command {
         /// Electrical angular velocity [rad/s] (0 holds the angle).
         omega_e_rad_s: f32,
     },
+    /// Impedance control (design §21), rotor frame:
+    /// `T = kp (p_ref - p) + kd (v_ref - v) + T_ff`, worked out every
+    /// current-loop period and given to the current loop as
+    /// `iq = T / kt`, clamped to the current limit (and the travel and
+    /// power limits' window).
+    Impedance(joint::Impedance),
 }
 
 impl Mode {
     /// True for the modes that close a loop on the angle sensor (torque,
     /// velocity, position): they need a calibrated current stage.
     pub const fn is_closed_loop(self) -> bool {
-        matches!(self, Mode::Torque | Mode::Velocity | Mode::Position)
+        matches!(
+            self,
+            Mode::Torque | Mode::Velocity | Mode::Position | Mode::Impedance
+        )
     }
 }
 
@@ -256,6 +269,7 @@ impl Command {
             Command::Velocity { .. } => Mode::Velocity,
             Command::Position { .. } => Mode::Position,
             Command::OpenLoop { .. } => Mode::OpenLoop,
+            Command::Impedance(_) => Mode::Impedance,
         }
     }
 
@@ -308,6 +322,7 @@ impl Command {
                 }
                 Ok(())
             }
+            Command::Impedance(i) => i.validate(l),
         }
     }
 }
@@ -365,6 +380,10 @@ pub enum CommandError {
     /// [`Calibrated`](permit::Calibrated) permit first
     /// (`set_calibration`). `Disable` and `OpenLoop` need none.
     NotCalibrated,
+    /// Impedance stiffness negative or above `Limits::max_kp_nm_per_rad`.
+    StiffnessOutOfRange,
+    /// Impedance damping negative or above `Limits::max_kd_nm_s_per_rad`.
+    DampingOutOfRange,
 }
 
 /// Limits that commands are checked against.
@@ -383,6 +402,10 @@ pub struct Limits {
     pub max_open_loop_voltage_v: f32,
     /// Largest open-loop electrical speed [rad/s].
     pub max_open_loop_omega_e_rad_s: f32,
+    /// Largest impedance stiffness [N m/rad, rotor frame].
+    pub max_kp_nm_per_rad: f32,
+    /// Largest impedance damping [N m s/rad, rotor frame].
+    pub max_kd_nm_s_per_rad: f32,
 }
 
 /// Which field of a [`Limits`] is invalid.
@@ -401,6 +424,10 @@ pub enum LimitsError {
     OpenLoopVoltage,
     /// `max_open_loop_omega_e_rad_s` not finite and non-negative.
     OpenLoopOmega,
+    /// `max_kp_nm_per_rad` not finite and non-negative.
+    MaxStiffness,
+    /// `max_kd_nm_s_per_rad` not finite and non-negative.
+    MaxDamping,
 }
 
 impl Limits {
@@ -426,6 +453,12 @@ impl Limits {
         }
         if !non_neg(self.max_open_loop_omega_e_rad_s) {
             return Err(LimitsError::OpenLoopOmega);
+        }
+        if !non_neg(self.max_kp_nm_per_rad) {
+            return Err(LimitsError::MaxStiffness);
+        }
+        if !non_neg(self.max_kd_nm_s_per_rad) {
+            return Err(LimitsError::MaxDamping);
         }
         Ok(())
     }

@@ -2,6 +2,7 @@
 
 use super::current::{CurrentLoop, CurrentLoopConfig, CurrentLoopInput, CurrentLoopOutput};
 use super::estimator::{AngleTracker, AngleTrackerConfig, SpeedObserver, SpeedObserverConfig};
+use super::joint::{Impedance, ImpedanceLaw, JointConfig};
 use super::permit::Calibrated;
 use super::position::{PositionLoop, PositionLoopConfig};
 use super::power::{PowerInputs, PowerLimitsConfig, PowerReport, PowerStage};
@@ -10,6 +11,7 @@ use super::supervisor::{Checks, Fault, Supervisor, SupervisorConfig};
 use super::{BridgeCommand, Command, CommandSlot, Feedback, Limits, Mechanics, Mode};
 use crate::angle::{ElectricalAngle, MechanicalAngle};
 use crate::clamp;
+use crate::drive::{JointChange, Refusal};
 use crate::frames::Dq;
 use crate::hal::PhaseCurrents;
 use crate::transforms;
@@ -126,6 +128,9 @@ pub struct CurrentStageConfig {
     /// Power limits (regen, bus current, power, thermal derating, brake
     /// chopper; design §18); `None`: only the current limit.
     pub power: Option<PowerLimitsConfig>,
+    /// Robot-joint settings: travel limits, impedance entry and timeout
+    /// (design §21).
+    pub joint: JointConfig,
 }
 
 /// One period's measurements; `None` where the read failed.
@@ -188,6 +193,21 @@ pub struct CurrentStageState {
     pub speed_inv_periods: f32,
     /// N itself.
     pub speed_periods: u32,
+    /// The impedance law of the active impedance command (design §21).
+    pub impedance: ImpedanceLaw,
+    /// Bumpless entry into impedance mode: the current the blend starts
+    /// from [A] ...
+    pub blend_from_a: f32,
+    /// ... its weight now (1 -> 0) ...
+    pub blend_weight: f32,
+    /// ... and the weight's decrease per period.
+    pub blend_step: f32,
+    /// A command timeout in impedance mode switched to damping only; the
+    /// next one disables.
+    pub timeout_damping: bool,
+    /// The travel limits' q-current window of this period [A], when they
+    /// are configured and a closed-loop mode is active.
+    pub travel_window_a: Option<(f32, f32)>,
 }
 
 impl CurrentStageState {
@@ -214,6 +234,22 @@ impl CurrentStageState {
             iq_target_a: 0.0,
             speed_inv_periods: 1.0,
             speed_periods: 1,
+            impedance: ImpedanceLaw {
+                p_ref_rad: 0.0,
+                p_step_rad: 0.0,
+                v_ref_rad_s: 0.0,
+                kp_a_per_rad: 0.0,
+                kd_a_s_per_rad: 0.0,
+                iq_ff_a: 0.0,
+                iq_max_a: 0.0,
+                p_min_rad: 0.0,
+                p_max_rad: 0.0,
+            },
+            blend_from_a: 0.0,
+            blend_weight: 0.0,
+            blend_step: 0.0,
+            timeout_damping: false,
+            travel_window_a: None,
         }
     }
 
@@ -416,6 +452,37 @@ impl CurrentStage {
         }
     }
 
+    /// Replace the travel range (the limits' position range) and the
+    /// joint settings (design §21), in any mode: refused whole when a
+    /// value is invalid ([`Refusal::Unsupported`]) or an active position
+    /// command's target is outside the new range
+    /// ([`Refusal::NotDisabled`]). An active impedance law's reference is
+    /// moved into the new range.
+    pub fn set_joint(&mut self, j: &JointChange) -> Result<(), Refusal> {
+        let l = Limits {
+            min_position_rad: j.min_position_rad,
+            max_position_rad: j.max_position_rad,
+            ..self.config.limits
+        };
+        if l.validate().is_err() || !j.joint.is_valid() {
+            return Err(Refusal::Unsupported);
+        }
+        let target = match self.state.active {
+            Command::Position { rad } => Some(rad),
+            _ => None,
+        };
+        if target.is_some_and(|p| !(l.min_position_rad <= p && p <= l.max_position_rad)) {
+            return Err(Refusal::NotDisabled);
+        }
+        self.config.limits = l;
+        self.config.joint = j.joint;
+        let law = &mut self.state.impedance;
+        law.p_min_rad = l.min_position_rad;
+        law.p_max_rad = l.max_position_rad;
+        law.p_ref_rad = clamp(law.p_ref_rad, l.min_position_rad, l.max_position_rad);
+        Ok(())
+    }
+
     /// Replace the command limits.
     /// A current limit that is not a finite, non-negative number becomes 0
     /// (closed-loop current refused and clamped to nothing).
@@ -551,7 +618,7 @@ impl CurrentStage {
                     }
                 }
             }
-            (Mode::OpenLoop, Mode::Torque | Mode::Velocity | Mode::Position) => {
+            (Mode::OpenLoop, Mode::Torque | Mode::Velocity | Mode::Position | Mode::Impedance) => {
                 // Bumpless: the PIs continue from the open-loop voltage.
                 let w_e = self.tracker.velocity_rad_s() * self.config.angle.pole_pairs as f32;
                 self.current
@@ -563,7 +630,72 @@ impl CurrentStage {
         if let Command::Velocity { .. } = cmd {
             self.supervisor.restart_runaway();
         }
+        if let Command::Impedance(i) = cmd {
+            self.start_impedance(&i, old);
+        }
+        self.state.timeout_damping = false;
         self.state.active = cmd;
+    }
+
+    /// Take an impedance command (validated): its law, and when the mode
+    /// is entered, a blend from the current in force (bumpless entry).
+    fn start_impedance(&mut self, i: &Impedance, old: Mode) {
+        let kt = self.config.current.motor.torque_constant_nm_per_a();
+        let st = &mut self.state;
+        st.impedance = ImpedanceLaw::new(i, kt, self.config.current.ts_s, &self.config.limits);
+        if old != Mode::Impedance {
+            let n = self.config.joint.entry_blend_periods;
+            st.blend_from_a = match old {
+                Mode::Torque | Mode::Velocity | Mode::Position => st.iq_interp_a,
+                Mode::OpenLoop => st.last_i_dq.q,
+                _ => 0.0,
+            };
+            st.blend_weight = if n > 0 { 1.0 } else { 0.0 };
+            st.blend_step = if n > 0 { 1.0 / n as f32 } else { 1.0 };
+        }
+    }
+
+    /// The impedance law's q current this period [A] (before the limits),
+    /// blended from the current in force while the mode is being entered.
+    #[inline(always)]
+    fn impedance_iq(&mut self) -> f32 {
+        let p = self.tracker.position().to_radians();
+        let v = self.observer.velocity_rad_s();
+        let st = &mut self.state;
+        let law = st.impedance.step(p, v);
+        if st.blend_weight > 0.0 {
+            let iq = law + st.blend_weight * (st.blend_from_a - law);
+            st.blend_weight -= st.blend_step;
+            iq
+        } else {
+            law
+        }
+    }
+
+    /// The travel limits (design §21): a position beyond the range by more
+    /// than the margin trips [`Fault::TravelLimit`]; otherwise the soft
+    /// stop's window clamps `iq_a`. Nothing without travel limits.
+    #[inline(always)]
+    fn travel(&mut self, iq_a: f32) -> f32 {
+        let Some(t) = self.config.joint.travel else {
+            return iq_a;
+        };
+        let p = self.tracker.position().to_radians();
+        let (lo_p, hi_p) = (
+            self.config.limits.min_position_rad,
+            self.config.limits.max_position_rad,
+        );
+        if t.exceeded(p, lo_p, hi_p) {
+            self.supervisor.trip(Fault::TravelLimit);
+        }
+        let (lo, hi) = t.window_a(p, self.observer.velocity_rad_s(), lo_p, hi_p);
+        self.state.travel_window_a = Some((lo, hi));
+        let x = if iq_a > hi { hi } else { iq_a };
+        if x < lo {
+            lo
+        } else {
+            x
+        }
     }
 
     /// One PWM period: commands, sensors, supervision, control. Returns what
@@ -740,6 +872,30 @@ impl CurrentStage {
             return;
         }
         self.state.age_periods = 0;
+        if let Command::Impedance(i) = self.state.active {
+            // Impedance (design §21): damping only, then disable.
+            if self.state.timeout_damping || !self.state.calibrated {
+                self.supervisor.trip(Fault::CommandTimeout);
+            } else {
+                let kd_min = self.config.joint.timeout_kd_nm_s_per_rad;
+                let damping = Impedance {
+                    position_rad: self.tracker.position().to_radians(),
+                    velocity_rad_s: 0.0,
+                    kp_nm_per_rad: 0.0,
+                    kd_nm_s_per_rad: if i.kd_nm_s_per_rad > kd_min {
+                        i.kd_nm_s_per_rad
+                    } else {
+                        kd_min
+                    },
+                    torque_ff_nm: 0.0,
+                    torque_limit_nm: i.torque_limit_nm,
+                };
+                self.start_impedance(&damping, Mode::Impedance);
+                self.state.active = Command::Impedance(damping);
+                self.state.timeout_damping = true;
+            }
+            return;
+        }
         match self.config.timeout_reaction {
             // Stop and Hold are closed-loop: without a calibration
             // (open loop) the timeout disables.
@@ -791,7 +947,17 @@ impl CurrentStage {
             Command::Velocity { .. } | Command::Position { .. } => {
                 Some(self.interpolate_speed_output(from_speed))
             }
+            Command::Impedance(_) => {
+                let iq = clamp(self.impedance_iq(), -lim, lim);
+                // As in torque mode: the speed stage tracks it.
+                self.state.iq_interp_a = iq;
+                self.state.iq_target_a = from_speed;
+                self.state.iq_step_a = 0.0;
+                Some(iq)
+            }
         };
+        self.state.travel_window_a = None;
+        let requested = requested.map(|iq| self.travel(iq));
         // Stepped every period (winding estimate, chopper), faulted or not.
         let windowed = self.power_window(sensed, w_e, requested.unwrap_or(0.0));
         if self.supervisor.is_faulted() {
@@ -990,14 +1156,32 @@ impl CurrentStage {
             first_fault: self.supervisor.first_fault(),
             voltage_limited: limited,
             current_limit_a: self.config.limits.max_current_a,
-            power: if self.power.is_some() {
-                self.power_report
-            } else {
-                PowerReport::unlimited(self.config.limits.max_current_a)
-            },
+            power: self.published_window(),
             period: self.state.period,
         };
         bridge
+    }
+}
+
+impl CurrentStage {
+    /// The power report published: the power limits' (or the current
+    /// limit's) window, narrowed by the travel limits' soft stop.
+    #[inline(always)]
+    fn published_window(&self) -> PowerReport {
+        let mut r = if self.power.is_some() {
+            self.power_report
+        } else {
+            PowerReport::unlimited(self.config.limits.max_current_a)
+        };
+        if let Some((lo, hi)) = self.state.travel_window_a {
+            if lo > r.iq_min_a {
+                r.iq_min_a = lo;
+            }
+            if hi < r.iq_max_a {
+                r.iq_max_a = hi;
+            }
+        }
+        r
     }
 }
 

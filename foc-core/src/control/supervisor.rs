@@ -68,11 +68,14 @@ pub enum Fault {
     /// current saturated, and did not shrink over a whole window (a
     /// runaway, e.g. a slipped sensor, or a speed the drive cannot reach).
     SpeedRunaway = 20,
+    /// The position went beyond the travel limits by more than their
+    /// margin (design §21) while the bridge was on.
+    TravelLimit = 21,
 }
 
 impl Fault {
     /// Every fault, in code order.
-    pub const ALL: [Fault; 20] = [
+    pub const ALL: [Fault; 21] = [
         Fault::OverCurrentPhase,
         Fault::OverCurrentVector,
         Fault::BusOverVoltage,
@@ -93,6 +96,7 @@ impl Fault {
         Fault::AngleSensorStuck,
         Fault::OverSpeed,
         Fault::SpeedRunaway,
+        Fault::TravelLimit,
     ];
 
     /// Stable numeric code (1..).
@@ -128,6 +132,7 @@ impl Fault {
             Fault::AngleSensorStuck => "angle sensor stuck or rotor stalled",
             Fault::OverSpeed => "over-speed",
             Fault::SpeedRunaway => "speed runaway / persistent speed error",
+            Fault::TravelLimit => "travel limit exceeded",
         }
     }
 

@@ -369,6 +369,11 @@ impl Lifecycle {
         if settings.is_ok() {
             self.apply_settings(stage, ch);
         }
+        let joint = match ch.joint {
+            Some(j) if self.phase == Phase::Run => stage.set_joint(&j),
+            Some(_) => Err(Refusal::Busy),
+            None => Ok(()),
+        };
         if calibration.is_ok() {
             if ch.calibrate_offsets {
                 self.restart_offsets(out);
@@ -377,7 +382,7 @@ impl Lifecycle {
                 self.start_identification(stage, &inp.command, out);
             }
         }
-        settings.and(calibration)
+        settings.and(calibration).and(joint)
     }
 
     fn check_settings(&self, stage: &CurrentStage, ch: &ConfigChange) -> Result<(), Refusal> {

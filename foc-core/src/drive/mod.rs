@@ -92,7 +92,7 @@ impl AngleKind {
         matches!(self, AngleKind::Absolute | AngleKind::Hall)
     }
 }
-pub use rules::{ConfigChange, Refusal, Status};
+pub use rules::{ConfigChange, JointChange, Refusal, Status};
 
 use crate::control::drive::{apply, read_sample};
 use crate::control::stage::{CurrentStage, CurrentStageConfig};

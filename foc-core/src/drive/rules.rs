@@ -20,6 +20,7 @@
 //! ```
 
 use crate::control::current::CurrentLoopConfig;
+use crate::control::joint::JointConfig;
 use crate::control::permit::Calibrated;
 use crate::control::power::PowerLimitsConfig;
 use crate::control::{admit, Command, CommandError, Fault, Limits, Mechanics, Mode};
@@ -129,6 +130,24 @@ pub struct ConfigChange {
     /// e.g. from a stored record; applied after `current` (its torque
     /// constant). Unusable values change nothing.
     pub mechanics: Option<Mechanics>,
+    /// New travel range and joint settings (design §21): taken while
+    /// running as well (homing moves the range), judged on its own.
+    pub joint: Option<JointChange>,
+}
+
+/// The travel range (the limits' position range) and the joint settings,
+/// rotor frame. Taken in any mode once started; refused
+/// ([`Refusal::Unsupported`]) when a value is invalid, and
+/// ([`Refusal::NotDisabled`]) when the active command's position target
+/// lies outside the new range.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct JointChange {
+    /// Lower end of the range [rad, rotor].
+    pub min_position_rad: f32,
+    /// Upper end of the range [rad, rotor].
+    pub max_position_rad: f32,
+    /// Travel limits, impedance entry and timeout.
+    pub joint: JointConfig,
 }
 
 impl ConfigChange {
@@ -143,6 +162,7 @@ impl ConfigChange {
         self.identify |= newer.identify;
         self.fault = self.fault.or(newer.fault);
         self.mechanics = newer.mechanics.or(self.mechanics);
+        self.joint = newer.joint.or(self.joint);
     }
 
     /// True when it carries settings (limits, current loop, dividers,
