@@ -331,7 +331,7 @@ impl Cascade {
             .current
             .motor
             .torque_constant_nm_per_a();
-        let h = Homing::new(method, &l, kt, self.config.rates.position_ts_s())?;
+        let h = Homing::new(method, &l, kt, self.config.rates.current_ts_s())?;
         self.homing = Some((h, home_output_rad));
         self.homing_result = None;
         Ok(())

@@ -102,13 +102,19 @@ enum Phase {
     Finished,
 }
 
-/// The homing sequencer, stepped at a fixed period.
+/// The homing sequencer, stepped at any rate (its time is counted from
+/// the feedback's period counter).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Homing {
     method: HomingMethod,
-    ts_s: f32,
+    /// Current-loop period [s].
+    period_s: f32,
     kt_nm_per_a: f32,
     phase: Phase,
+    /// `Feedback::period` of the last step.
+    last_period: Option<u32>,
+    /// Time since the last step [s].
+    dt_s: f32,
 }
 
 impl EndStop {
@@ -165,26 +171,29 @@ impl EndStop {
 }
 
 impl Homing {
-    /// A sequencer stepped every `ts_s` [s] for a motor of torque constant
-    /// `kt` [N m/A], its settings checked against `limits`.
+    /// A sequencer for a motor of torque constant `kt` [N m/A] and a
+    /// current-loop period `period_s` [s] (the unit of
+    /// [`Feedback::period`]), its settings checked against `limits`.
     pub fn new(
         method: HomingMethod,
         limits: &Limits,
         kt_nm_per_a: f32,
-        ts_s: f32,
+        period_s: f32,
     ) -> Result<Self, HomingError> {
         if let HomingMethod::EndStop(e) = method {
             e.validate(limits, kt_nm_per_a)
                 .map_err(HomingError::Invalid)?;
         }
-        if ts_s <= 0.0 || !ts_s.is_finite() {
+        if period_s <= 0.0 || !period_s.is_finite() {
             return Err(HomingError::Invalid(CommandError::NonFinite));
         }
         Ok(Self {
             method,
-            ts_s,
+            period_s,
             kt_nm_per_a,
             phase: Phase::Start,
+            last_period: None,
+            dt_s: 0.0,
         })
     }
 
@@ -195,6 +204,11 @@ impl Homing {
 
     /// One step on the latest feedback.
     pub fn step(&mut self, fb: &Feedback, limits: &Limits) -> HomingStep {
+        self.dt_s = match self.last_period {
+            Some(last) => fb.period.wrapping_sub(last) as f32 * self.period_s,
+            None => 0.0,
+        };
+        self.last_period = Some(fb.period);
         let p = fb.position_rad;
         let e = match self.method {
             HomingMethod::Present => {
@@ -241,7 +255,7 @@ impl Homing {
                     self.phase = Phase::BackOff {
                         stop_rad,
                         target_rad,
-                        t_s: t_s + self.ts_s,
+                        t_s: t_s + self.dt_s,
                     };
                     HomingStep::Running
                 }
@@ -265,7 +279,7 @@ impl Homing {
         let pushing = fb.i_dq_ref_a.q * e.velocity_rad_s.signum()
             >= e.detect_fraction * e.current_a
             && fb.velocity_rad_s.abs() <= 0.25 * e.velocity_rad_s.abs();
-        let held_s = if pushing { held_s + self.ts_s } else { 0.0 };
+        let held_s = if pushing { held_s + self.dt_s } else { 0.0 };
         if pushing && held_s >= e.confirm_s {
             let back = -e.velocity_rad_s.signum() * e.backoff_rad;
             let target_rad = clamp_range(p + back, limits);
@@ -331,7 +345,7 @@ mod tests {
     fn run(e: EndStop, stop_rad: f32) -> (HomingStep, f32) {
         let l = limits();
         let kt = 0.1;
-        let mut h = Homing::new(HomingMethod::EndStop(e), &l, kt, 1e-3).unwrap();
+        let mut h = Homing::new(HomingMethod::EndStop(e), &l, kt, 5e-5).unwrap();
         let mut fb = Feedback::INIT;
         let (mut p, mut v) = (0.0f32, 0.0f32);
         let mut cmd: Option<Impedance> = None;
@@ -364,6 +378,7 @@ mod tests {
                 p += v * 5e-5;
             }
             fb.mode = Mode::Impedance;
+            fb.period += 20;
             fb.position_rad = p;
             fb.velocity_rad_s = v;
             fb.i_dq_ref_a.q = iq;
