@@ -23,7 +23,10 @@
 //! - `cmd` (optional): `mode` one of `disable`, `torque` (`target` = iq [A]),
 //!   `velocity` (`target` = mechanical rad/s), `position` (`target` =
 //!   mechanical rad, multi-turn), `open_loop` (`v_d`, `v_q` [V], `theta_e`
-//!   [rad], `omega_e` [rad/s], each default 0).
+//!   [rad], `omega_e` [rad/s], each default 0), `impedance` (`target` =
+//!   position [rad, rotor, mechanical], `velocity` [rad/s], `kp` [N m/rad],
+//!   `kd` [N m s/rad], `torque_ff` [N m], each default 0, `torque_limit`
+//!   [N m], default none; design §21).
 //! - `clear_faults` (optional): clear latched faults in this period; a
 //!   command on the same line is taken right after the clear and acts in
 //!   this same period (if the fault condition persists it trips again).
@@ -37,7 +40,8 @@
 //!
 //! - `duties`: high-side on-time fractions of phases A, B, C in `[0, 1]`
 //!   (centred `0.5` and `bridge: false` in the safe state).
-//! - `mode`: `disabled`, `torque`, `velocity`, `position`, `open_loop`.
+//! - `mode`: `disabled`, `torque`, `velocity`, `position`, `open_loop`,
+//!   `impedance`.
 //! - `fault`: `null` or the first latched fault (`OverCurrentPhase`, ...).
 //! - `id`, `iq` [A], `theta_e` [rad, `[0, 2 pi)`], `speed` [rad/s,
 //!   mechanical, estimated], `position` [rad, multi-turn].
@@ -82,6 +86,7 @@
 use foc_core::angle::{ElectricalAngle, MechanicalAngle};
 use foc_core::calibration::Calibrated;
 use foc_core::control::cascade::{Cascade, CascadeConfig};
+use foc_core::control::joint::Impedance;
 use foc_core::control::stage::Sample;
 use foc_core::control::{BridgeCommand, Command, Mode};
 use foc_core::frames::Abc;
@@ -189,6 +194,16 @@ struct InCmd {
     theta_e: Option<f32>,
     #[serde(default)]
     omega_e: Option<f32>,
+    #[serde(default)]
+    velocity: Option<f32>,
+    #[serde(default)]
+    kp: Option<f32>,
+    #[serde(default)]
+    kd: Option<f32>,
+    #[serde(default)]
+    torque_ff: Option<f32>,
+    #[serde(default)]
+    torque_limit: Option<f32>,
 }
 
 /// Name of a mode in the protocol.
@@ -199,6 +214,7 @@ pub fn mode_name(m: Mode) -> &'static str {
         Mode::Velocity => "velocity",
         Mode::Position => "position",
         Mode::OpenLoop => "open_loop",
+        Mode::Impedance => "impedance",
     }
 }
 
@@ -218,9 +234,17 @@ fn command_of(c: &InCmd) -> Result<Command, String> {
             theta_e: ElectricalAngle::from_radians(c.theta_e.unwrap_or(0.0)),
             omega_e_rad_s: c.omega_e.unwrap_or(0.0),
         },
+        "impedance" => Command::Impedance(Impedance {
+            position_rad: target()?,
+            velocity_rad_s: c.velocity.unwrap_or(0.0),
+            kp_nm_per_rad: c.kp.unwrap_or(0.0),
+            kd_nm_s_per_rad: c.kd.unwrap_or(0.0),
+            torque_ff_nm: c.torque_ff.unwrap_or(0.0),
+            torque_limit_nm: c.torque_limit.unwrap_or(f32::INFINITY),
+        }),
         other => {
             return Err(format!(
-                "unknown mode `{other}` (disable, torque, velocity, position, open_loop)"
+                "unknown mode `{other}` (disable, torque, velocity, position, open_loop, impedance)"
             ))
         }
     })

@@ -315,7 +315,8 @@ impl Cascade {
 
     /// Start homing (design §21); `home_output_rad` is the output position
     /// of the home point. Runs at the position loop's rate; see
-    /// [`Self::homing_result`].
+    /// [`Self::homing_result`]. The travel limits are off while it runs
+    /// (they are in a frame homing is about to move) and back when it ends.
     pub fn start_homing(
         &mut self,
         method: HomingMethod,
@@ -334,6 +335,14 @@ impl Cascade {
         let h = Homing::new(method, &l, kt, self.config.rates.current_ts_s())?;
         self.homing = Some((h, home_output_rad));
         self.homing_result = None;
+        let free = JointSetup {
+            travel_out_rad: None,
+            ..self.joint
+        };
+        self.request(ConfigChange {
+            joint: Some(free.rotor_change(self.unbounded_rad)),
+            ..ConfigChange::default()
+        });
         Ok(())
     }
 
@@ -376,6 +385,8 @@ impl Cascade {
         if let Some(r) = end {
             if r.is_err() {
                 self.slot.post(Command::Disable);
+                // The travel limits back, in the frame they were set in.
+                let _ = self.set_joint(self.joint);
             }
             self.homing = None;
             self.homing_result = Some(r);

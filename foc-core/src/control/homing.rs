@@ -5,15 +5,21 @@
 //! - [`HomingMethod::EndStop`]: drive slowly towards a mechanical end stop
 //!   and find it by the current it takes to push, then back off.
 //!
-//! The search runs in impedance mode as a pure damper moving at the search
-//! speed: `T = kd (v_search - v)` with `kd = kt I_home / v_search`. In free
-//! motion the rotor moves at nearly the search speed; against the stop the
-//! velocity falls to zero and the current rises to `I_home`; the
-//! commands' torque limit (`kt I_home`) keeps it there when the rotor
-//! rebounds, so the stop is pressed with the homing current at most. The stop is found when the q-current reference has
+//! The search runs in impedance mode as a spring dragged at the search
+//! speed (the law's position reference advances with its velocity):
+//! `kp = kt I_home / backoff_rad`, damped with `kp` over 50 ms, its torque
+//! limited to `kt I_home`. In free motion the rotor follows the moving
+//! reference a little behind (friction / kp); against the stop the
+//! reference runs on, the spring stretches and the law sits on its torque
+//! limit: the stop is pressed with the homing current, never more, and
+//! the current is steady there (a damper alone would chatter on the
+//! sensor's counts). The stop is found when the q-current reference has
 //! stayed above `detect_fraction * I_home` with the rotor nearly still for
-//! `confirm_s`. The back-off is a spring to a point `backoff_rad` from the
-//! stop, stiff enough to give `I_home` at the start and no more.
+//! `confirm_s`. The back-off is the same spring, still, at a point
+//! `backoff_rad` from the stop: `I_home` at its start.
+//!
+//! A search gives up after `max_travel_rad`, or after twice the time the
+//! travel takes at the search speed plus 2 s.
 //!
 //! The sequencer only reads [`Feedback`] and returns the commands to post;
 //! whoever runs it (the simulated cascade, the firmware's position task)
@@ -93,6 +99,7 @@ enum Phase {
     Search {
         start_rad: f32,
         held_s: f32,
+        t_s: f32,
     },
     BackOff {
         stop_rad: f32,
@@ -118,9 +125,9 @@ pub struct Homing {
 }
 
 impl EndStop {
-    /// The search's damping [N m s/rad] for a torque constant.
-    pub fn search_kd(&self, kt_nm_per_a: f32) -> f32 {
-        kt_nm_per_a * self.current_a / self.velocity_rad_s.abs()
+    /// Longest search [s].
+    fn max_search_s(&self) -> f32 {
+        2.0 * self.max_travel_rad / self.velocity_rad_s.abs() + 2.0
     }
 
     /// Check the settings against the limits and a torque constant.
@@ -154,19 +161,25 @@ impl EndStop {
         if kt_nm_per_a <= 0.0 || !kt_nm_per_a.is_finite() {
             return Err(CommandError::NotCalibrated);
         }
-        let kd = self.search_kd(kt_nm_per_a);
-        if !super::within(kd, l.max_kd_nm_s_per_rad) {
-            return Err(CommandError::DampingOutOfRange);
-        }
         if !super::within(self.backoff_kp(kt_nm_per_a), l.max_kp_nm_per_rad) {
             return Err(CommandError::StiffnessOutOfRange);
+        }
+        if !super::within(self.backoff_kd(kt_nm_per_a), l.max_kd_nm_s_per_rad) {
+            return Err(CommandError::DampingOutOfRange);
         }
         Ok(())
     }
 
-    /// The back-off spring [N m/rad]: the homing current at the stop.
+    /// The search's and back-off's spring [N m/rad]: the homing current at
+    /// `backoff_rad`.
     fn backoff_kp(&self, kt_nm_per_a: f32) -> f32 {
         kt_nm_per_a * self.current_a / self.backoff_rad
+    }
+
+    /// Their damping [N m s/rad]: the spring's over 50 ms (heavily damped
+    /// on any rotor whose spring period is shorter).
+    fn backoff_kd(&self, kt_nm_per_a: f32) -> f32 {
+        0.05 * self.backoff_kp(kt_nm_per_a)
     }
 }
 
@@ -223,13 +236,14 @@ impl Homing {
                 self.phase = Phase::Search {
                     start_rad: p,
                     held_s: 0.0,
+                    t_s: 0.0,
                 };
                 let hold = clamp_range(p, limits);
                 return HomingStep::Post(Command::Impedance(Impedance {
                     position_rad: hold,
                     velocity_rad_s: e.velocity_rad_s,
-                    kp_nm_per_rad: 0.0,
-                    kd_nm_s_per_rad: e.search_kd(self.kt_nm_per_a),
+                    kp_nm_per_rad: e.backoff_kp(self.kt_nm_per_a),
+                    kd_nm_s_per_rad: e.backoff_kd(self.kt_nm_per_a),
                     torque_ff_nm: 0.0,
                     torque_limit_nm: self.kt_nm_per_a * e.current_a,
                 }));
@@ -237,7 +251,11 @@ impl Homing {
             _ if fb.mode != Mode::Impedance || fb.first_fault.is_some() => {
                 HomingStep::Failed(HomingError::Interrupted)
             }
-            Phase::Search { start_rad, held_s } => self.search(fb, &e, start_rad, held_s, limits),
+            Phase::Search {
+                start_rad,
+                held_s,
+                t_s,
+            } => self.search(fb, &e, (start_rad, held_s, t_s), limits),
             Phase::BackOff {
                 stop_rad,
                 target_rad,
@@ -267,12 +285,13 @@ impl Homing {
         step
     }
 
+    /// One step of the search: `(start_rad, held_s, t_s)` its start, how
+    /// long the stop has been pressed, how long it has run.
     fn search(
         &mut self,
         fb: &Feedback,
         e: &EndStop,
-        start_rad: f32,
-        held_s: f32,
+        (start_rad, held_s, t_s): (f32, f32, f32),
         limits: &Limits,
     ) -> HomingStep {
         let p = fb.position_rad;
@@ -292,15 +311,20 @@ impl Homing {
                 position_rad: target_rad,
                 velocity_rad_s: 0.0,
                 kp_nm_per_rad: e.backoff_kp(self.kt_nm_per_a),
-                kd_nm_s_per_rad: e.search_kd(self.kt_nm_per_a),
+                kd_nm_s_per_rad: e.backoff_kd(self.kt_nm_per_a),
                 torque_ff_nm: 0.0,
                 torque_limit_nm: self.kt_nm_per_a * e.current_a,
             }));
         }
-        if (p - start_rad).abs() > e.max_travel_rad {
+        let t_s = t_s + self.dt_s;
+        if (p - start_rad).abs() > e.max_travel_rad || t_s > e.max_search_s() {
             return HomingStep::Failed(HomingError::NoStop);
         }
-        self.phase = Phase::Search { start_rad, held_s };
+        self.phase = Phase::Search {
+            start_rad,
+            held_s,
+            t_s,
+        };
         HomingStep::Running
     }
 }
@@ -341,7 +365,9 @@ mod tests {
     }
 
     /// A point rotor on an ideal torque source with a stiff stop at
-    /// `stop_rad`, driven by the sequencer's impedance law every 1 ms.
+    /// `stop_rad`, driven by the sequencer's impedance law (its reference
+    /// advancing with its velocity, as the current stage's), the sequencer
+    /// stepped every 1 ms.
     fn run(e: EndStop, stop_rad: f32) -> (HomingStep, f32) {
         let l = limits();
         let kt = 0.1;
@@ -349,10 +375,14 @@ mod tests {
         let mut fb = Feedback::INIT;
         let (mut p, mut v) = (0.0f32, 0.0f32);
         let mut cmd: Option<Impedance> = None;
+        let mut p_ref = 0.0f32;
         let mut peak_a = 0.0f32;
         for _ in 0..20_000 {
             match h.step(&fb, &l) {
-                HomingStep::Post(Command::Impedance(i)) => cmd = Some(i),
+                HomingStep::Post(Command::Impedance(i)) => {
+                    cmd = Some(i);
+                    p_ref = i.position_rad;
+                }
                 HomingStep::Post(c) => panic!("{c:?}"),
                 HomingStep::Running => {}
                 done => return (done, peak_a),
@@ -362,7 +392,8 @@ mod tests {
             // The drive's law every 50 us (its current loop), the rotor
             // integrated in the same steps.
             for _ in 0..20 {
-                let t = (c.kp_nm_per_rad * (c.position_rad - p)
+                p_ref += c.velocity_rad_s * 5e-5;
+                let t = (c.kp_nm_per_rad * (p_ref - p)
                     + c.kd_nm_s_per_rad * (c.velocity_rad_s - v)
                     + c.torque_ff_nm)
                     .clamp(-c.torque_limit_nm, c.torque_limit_nm);
@@ -418,8 +449,8 @@ mod tests {
                 |e| e.detect_fraction = 1.0,
                 CommandError::PositionOutOfRange,
             ),
-            // kd = 0.1 * 2 / 0.05 = 4 > 2
-            (|e| e.velocity_rad_s = 0.05, CommandError::DampingOutOfRange),
+            // kp = 0.1 * 2 / 0.001 = 200 > 50
+            (|e| e.backoff_rad = 0.001, CommandError::StiffnessOutOfRange),
         ];
         for (f, err) in bad {
             let mut e = stop();

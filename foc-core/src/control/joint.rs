@@ -314,12 +314,19 @@ pub struct TravelConfig {
 
 impl TravelConfig {
     /// Defaults for a cascade: a fault 0.1 rad (rotor) beyond the range,
-    /// braking at the position loop's acceleration limit, the speed
+    /// braking with half the current limit when the rotor's inertia is
+    /// known (else at the position loop's acceleration limit), the speed
     /// loop's proportional gain as the soft stop's.
     pub fn for_cascade(c: &super::cascade::CascadeConfig) -> Self {
+        let kt = c.current.current.motor.torque_constant_nm_per_a();
+        let lim = c.current.limits.max_current_a;
+        let brake = match c.mechanics {
+            Some(m) if m.is_usable() && kt > 0.0 => 0.5 * kt * lim / m.inertia_kg_m2,
+            _ => c.position.max_acceleration_rad_s2,
+        };
         Self {
             fault_margin_rad: 0.1,
-            brake_accel_rad_s2: c.position.max_acceleration_rad_s2,
+            brake_accel_rad_s2: brake,
             kv_a_per_rad_s: c.speed.kp_a_per_rad_s,
         }
     }
@@ -336,10 +343,19 @@ impl TravelConfig {
     /// The q-current window [A] that brakes the rotor to the range's ends:
     /// towards an end at distance `d` the velocity allowed is
     /// `sqrt(2 a d)` (negative beyond it: back inside), and the current
-    /// may not push harder than `kv (v_allowed - v)` asks. Far from both
-    /// ends the window is wider than any current limit.
+    /// may not push harder than `kv (v_allowed - v)` asks, less the
+    /// current of the braking deceleration itself (`brake_a`, `J a / kt`;
+    /// phased in as `10 kv v` up to it) while the rotor moves towards the
+    /// end at or above the allowed velocity. Far from both ends the window is wider than any current
+    /// limit.
     #[inline(always)]
-    pub fn window_a(&self, p_rad: f32, v_rad_s: f32, min_rad: f32, max_rad: f32) -> (f32, f32) {
+    pub fn window_a(
+        &self,
+        p_rad: f32,
+        v_rad_s: f32,
+        (min_rad, max_rad): (f32, f32),
+        brake_a: f32,
+    ) -> (f32, f32) {
         let allowed = |d: f32| {
             let s = crate::sqrtf(2.0 * self.brake_accel_rad_s2 * d.abs());
             if d >= 0.0 {
@@ -348,8 +364,27 @@ impl TravelConfig {
                 -s
             }
         };
-        let hi = self.kv_a_per_rad_s * (allowed(max_rad - p_rad) - v_rad_s);
-        let lo = -self.kv_a_per_rad_s * (allowed(p_rad - min_rad) + v_rad_s);
+        let kv = self.kv_a_per_rad_s;
+        // The braking current phases in with the speed (`10 kv v`, fully
+        // from a tenth of the speed whose error alone would ask for it):
+        // no step at rest, where the speed is only the sensor's noise.
+        let ff = |speed: f32| {
+            let x = 10.0 * speed * kv;
+            if x < brake_a {
+                x
+            } else {
+                brake_a
+            }
+        };
+        let (up, down) = (allowed(max_rad - p_rad), allowed(p_rad - min_rad));
+        let mut hi = kv * (up - v_rad_s);
+        if v_rad_s > 0.0 && v_rad_s >= up {
+            hi -= ff(v_rad_s);
+        }
+        let mut lo = -kv * (down + v_rad_s);
+        if v_rad_s < 0.0 && -v_rad_s >= down {
+            lo += ff(-v_rad_s);
+        }
         (lo, hi)
     }
 
@@ -562,15 +597,21 @@ mod tests {
             kv_a_per_rad_s: 1.0,
         };
         // Far inside, at rest: wide open.
-        let (lo, hi) = t.window_a(0.0, 0.0, -10.0, 10.0);
+        let (lo, hi) = t.window_a(0.0, 0.0, (-10.0, 10.0), 0.5);
         assert!(lo < -40.0 && hi > 40.0);
         // 0.5 rad before the upper end at 20 rad/s (allowed 10): must brake.
-        let (_, hi) = t.window_a(9.5, 20.0, -10.0, 10.0);
-        assert!((hi + 10.0).abs() < 1e-4, "{hi}");
+        let (_, hi) = t.window_a(9.5, 20.0, (-10.0, 10.0), 0.5);
+        assert!((hi + 10.5).abs() < 1e-4, "{hi}");
+        // At 0.02 rad/s the braking current is phased in to 0.2 A.
+        let (_, hi) = t.window_a(10.0, 0.02, (-10.0, 10.0), 0.5);
+        assert!((hi + 0.02 + 0.2).abs() < 1e-5, "{hi}");
+        // At rest right at the end: nothing pushes it away.
+        let (_, hi) = t.window_a(10.0, 0.0, (-10.0, 10.0), 0.5);
+        assert_eq!(hi, 0.0);
         // Beyond the end at rest: pushed back inside.
-        let (lo, hi) = t.window_a(10.02, 0.0, -10.0, 10.0);
+        let (lo, hi) = t.window_a(10.02, 0.0, (-10.0, 10.0), 0.5);
         assert!(hi < 0.0 && lo < hi);
-        let (lo, _) = t.window_a(-10.02, 0.0, -10.0, 10.0);
+        let (lo, _) = t.window_a(-10.02, 0.0, (-10.0, 10.0), 0.5);
         assert!(lo > 0.0);
         assert!(!t.exceeded(10.4, -10.0, 10.0));
         assert!(t.exceeded(10.6, -10.0, 10.0) && t.exceeded(-10.6, -10.0, 10.0));

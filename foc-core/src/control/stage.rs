@@ -660,7 +660,7 @@ impl CurrentStage {
     #[inline(always)]
     fn impedance_iq(&mut self) -> f32 {
         let p = self.tracker.position().to_radians();
-        let v = self.observer.velocity_rad_s();
+        let v = self.joint_velocity_rad_s();
         let st = &mut self.state;
         let law = st.impedance.step(p, v);
         if st.blend_weight > 0.0 {
@@ -669,6 +669,25 @@ impl CurrentStage {
             iq
         } else {
             law
+        }
+    }
+
+    /// The velocity the joint features use [rad/s]: the angle tracker's
+    /// (model-free). A joint's external torques are large against the
+    /// rotor's inertia and mostly balanced by the law, so the speed
+    /// observer, which sees them only as an unmodelled disturbance learnt
+    /// with its 25 Hz pole, lags where the tracker follows the motion
+    /// itself. With a fine sensor it is the rate of the tracked angle
+    /// (`omega + kp e`: no phase lag well inside the tracker's 80 Hz);
+    /// with a coarse one, whose innovation jumps at every edge, the
+    /// tracker's integrator (design §21).
+    #[inline(always)]
+    fn joint_velocity_rad_s(&self) -> f32 {
+        let w = self.tracker.velocity_rad_s();
+        if self.state.interpolation.is_some() {
+            w
+        } else {
+            w + self.config.tracker.kp_per_s * self.state.last_innovation_rad
         }
     }
 
@@ -688,14 +707,22 @@ impl CurrentStage {
         if t.exceeded(p, lo_p, hi_p) {
             self.supervisor.trip(Fault::TravelLimit);
         }
-        let (lo, hi) = t.window_a(p, self.observer.velocity_rad_s(), lo_p, hi_p);
+        // The braking deceleration's current, `a J / kt`, when the
+        // observer knows `kt / J`.
+        let per_a = self.config.observer.accel_per_a_rad_s2;
+        let brake_a = if per_a > 0.0 {
+            t.brake_accel_rad_s2 / per_a
+        } else {
+            0.0
+        };
+        let v = self.joint_velocity_rad_s();
+        let (lo, hi) = t.window_a(p, v, (lo_p, hi_p), brake_a);
         self.state.travel_window_a = Some((lo, hi));
         let x = if iq_a > hi { hi } else { iq_a };
-        if x < lo {
-            lo
-        } else {
-            x
-        }
+        let x = if x < lo { lo } else { x };
+        // Pushing back is within the current limit too.
+        let lim = self.config.limits.max_current_a;
+        clamp(x, -lim, lim)
     }
 
     /// One PWM period: commands, sensors, supervision, control. Returns what
@@ -849,6 +876,12 @@ impl CurrentStage {
             iq_ref_from_speed_a
         } else {
             0.0
+        };
+        // What the travel limits' soft stop let through last period: a
+        // rotor held at the end of its travel is not a stuck sensor.
+        let demand = match self.state.travel_window_a {
+            Some((lo, hi)) => clamp(demand, lo, hi),
+            None => demand,
         };
         self.supervisor.check_stuck(changed, demand, moving);
         // Runaway: velocity mode pushing at the current limit without the
@@ -1272,6 +1305,11 @@ impl SpeedStage {
                 let (p_lo, p_hi) = (fb.power.iq_min_a, fb.power.iq_max_a);
                 let lo = if p_lo > -lim { p_lo } else { -lim };
                 let hi = if p_hi < lim { p_hi } else { lim };
+                // The travel limits' soft stop may push back (a window
+                // without 0); the speed loop's stays at 0 there and the
+                // current stage pushes.
+                let lo = if lo > 0.0 { 0.0 } else { lo };
+                let hi = if hi < 0.0 { 0.0 } else { hi };
                 if fb.mode == Mode::Velocity {
                     // A step of the operator's reference: through the
                     // reference model (two degrees of freedom).
