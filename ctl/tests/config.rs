@@ -11,7 +11,7 @@ use foc_protocol::config::{Chunk, ConfigSource, StoreOp, CHUNK_BYTES};
 use foc_protocol::frame::{encode, FrameDecoder, MAX_FRAME};
 use foc_protocol::message::{ErrorCode, ParamId, Request, Response, WatchdogConfig};
 use foc_store::text::{from_toml, to_toml};
-use foc_store::{DriveRecord, MAX_RECORD_BYTES};
+use foc_store::{DriveRecord, MAX_RECORD_BYTES, SCHEMA_VERSION};
 use std::io::{Read, Write};
 use std::net::{SocketAddr, TcpListener};
 use std::path::PathBuf;
@@ -105,6 +105,9 @@ fn export_edit_import_takes_effect_and_is_saved() {
     t = set_key(&t, "limits", "max_current_a", "4.0");
     t = set_key(&t, "dividers", "speed", "5");
     t = set_key(&t, "watchdog", "timeout_periods", "6000");
+    // The joint: a 6:1 reversing gearbox, homed at 0.75 rad.
+    t = set_key(&t, "joint", "gear_ratio", "-6.0");
+    t = set_key(&t, "joint", "rotor_at_zero_rad", "0.75");
     let edited = from_toml(&t).unwrap();
     c.write_config(&encoded(&edited)).unwrap();
     c.store(StoreOp::ApplyAndSave).unwrap();
@@ -274,7 +277,11 @@ fn cli_export_edit_import_show() {
     let out = foc_ctl(server.addr(), &["config", "export", f]);
     assert!(out.status.success(), "{}", text(&out.stderr));
     let t = std::fs::read_to_string(&file).unwrap();
-    assert!(t.contains("schema_version = 3"), "{t}");
+    assert!(
+        t.contains(&format!("schema_version = {SCHEMA_VERSION}")),
+        "{t}"
+    );
+    assert!(t.contains("[joint]"), "{t}");
     let t = set_key(&t, "", "label", "\"from the cli\"");
     let t = set_key(&t, "current_gains", "ki_d_v_per_a_s", "1234.0");
     let t = set_key(&t, "motor", "ld_h", "5e-5");
@@ -327,7 +334,19 @@ fn cli_refuses_invalid_files_on_the_host() {
     let cases = [
         (set_key(&good, "motor", "r_ohm", "nan"), "motor.r_ohm"),
         (set_key(&good, "motor", "r_ohm", "-0.1"), "motor.r_ohm"),
-        (set_key(&good, "", "schema_version", "4"), "schema_version"),
+        (
+            set_key(
+                &good,
+                "",
+                "schema_version",
+                &(SCHEMA_VERSION + 1).to_string(),
+            ),
+            "schema_version",
+        ),
+        (
+            set_key(&good, "joint", "gear_ratio", "0.0"),
+            "joint.gear_ratio",
+        ),
         (
             set_key(&good, "", "pwm_frequency_hz", "16000"),
             "PWM frequency",
@@ -351,6 +370,18 @@ fn cli_refuses_invalid_files_on_the_host() {
     assert_eq!(
         nack(c.read_config(ConfigSource::Stored)),
         ErrorCode::NothingStored
+    );
+}
+
+#[test]
+fn the_link_moves_the_largest_record() {
+    // The device encodes its live record into a `MAX_RECORD` buffer and
+    // the host stages at most that much: every record the store can write
+    // must fit.
+    assert!(
+        MAX_RECORD_BYTES <= foc_protocol::config::MAX_RECORD,
+        "foc-store writes records of up to {MAX_RECORD_BYTES} bytes, the link moves {}",
+        foc_protocol::config::MAX_RECORD
     );
 }
 
@@ -415,11 +446,12 @@ fn show_says_when_a_record_fails_its_crc_or_version() {
     let good = encoded(&foc_store::record::example());
     let mut bad_crc = good.clone();
     bad_crc[12] ^= 1;
-    let mut v4 = good.clone();
-    v4[0] = 4;
-    let n = v4.len();
-    let crc = crc32(&v4[..n - 4]);
-    v4[n - 4..].copy_from_slice(&crc.to_le_bytes());
+    let newer = SCHEMA_VERSION + 1;
+    let mut v_newer = good.clone();
+    v_newer[..2].copy_from_slice(&newer.to_le_bytes());
+    let n = v_newer.len();
+    let crc = crc32(&v_newer[..n - 4]);
+    v_newer[n - 4..].copy_from_slice(&crc.to_le_bytes());
 
     let out = foc_ctl(serving(good), &["config", "show", "--stored"]);
     assert!(out.status.success(), "{}", text(&out.stderr));
@@ -431,10 +463,10 @@ fn show_says_when_a_record_fails_its_crc_or_version() {
         err.contains("not readable") && err.contains("checksum"),
         "{err}"
     );
-    let out = foc_ctl(serving(v4), &["config", "show", "--stored"]);
+    let out = foc_ctl(serving(v_newer), &["config", "show", "--stored"]);
     assert!(!out.status.success());
     let err = text(&out.stderr);
-    assert!(err.contains("schema version 4"), "{err}");
+    assert!(err.contains(&format!("schema version {newer}")), "{err}");
 }
 
 #[test]

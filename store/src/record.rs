@@ -30,6 +30,7 @@ use core::fmt;
 
 use foc_core::angle::ElectricalAngle;
 use foc_core::control::current::CurrentLoopConfig;
+use foc_core::control::joint::{JointConfig, JointError, JointSetup, OutputFrame, TravelConfig};
 use foc_core::control::permit::Calibrated;
 use foc_core::control::power::PowerLimitsConfig;
 use foc_core::control::stage::AngleCalibration;
@@ -40,10 +41,13 @@ use serde::{Deserialize, Serialize};
 /// Version of the schema written by this build ([`DriveRecord`]'s postcard
 /// layout). Bump it on any change of the layout and add a migration step in
 /// `migrate` for the old version.
-pub const SCHEMA_VERSION: u16 = 3;
+pub const SCHEMA_VERSION: u16 = 4;
 
-/// Largest envelope (header, payload and CRC) in bytes.
-pub const MAX_RECORD_BYTES: usize = 256;
+/// Largest envelope (header, payload and CRC) in bytes. The largest record
+/// of schema 4 (32-character label, every option `Some`, every varint at
+/// its widest) takes 276; the rest is room for a later schema. The link
+/// must move records this long (`foc_protocol::config::MAX_RECORD`).
+pub const MAX_RECORD_BYTES: usize = 320;
 
 /// Bytes of the envelope around the payload: version, length, CRC.
 const HEADER_BYTES: usize = 4;
@@ -232,6 +236,50 @@ pub struct MechanicsRecord {
     pub coulomb_friction_nm: f32,
 }
 
+/// The robot joint (design §21; foc-core's `JointSetup`) and the impedance
+/// maxima of the command limits.
+///
+/// Two frames: the **output frame** (the shaft after the gearbox, zero at
+/// the home position) and the **rotor frame** (the motor shaft, mechanical
+/// radians, N m at the motor shaft), related by
+/// `p_rotor = rotor_at_zero_rad + gear_ratio * p_output`.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct JointRecord {
+    /// Rotor turns per output turn, signed (negative: the output turns the
+    /// other way); magnitude in [`OutputFrame::MIN_RATIO`]..=
+    /// [`OutputFrame::MAX_RATIO`], 1 without a gearbox.
+    pub gear_ratio: f32,
+    /// The home offset: the rotor position where the output reads 0
+    /// [rad, rotor, mechanical] (finite; set by homing).
+    pub rotor_at_zero_rad: f32,
+    /// Travel range `(min, max)` [rad, output] (finite, `min < max`, and
+    /// finite in the rotor frame too); `None`: no travel limits, the
+    /// record's `limits` position range (rotor frame) only checks commands.
+    pub travel_out_rad: Option<(f32, f32)>,
+    /// With a travel range: beyond it by more than this the drive faults
+    /// (`Fault::TravelLimit`) [rad, rotor] (finite, `>= 0`).
+    pub fault_margin_rad: f32,
+    /// With a travel range: the deceleration its soft stop brakes with
+    /// [rad/s^2, rotor] (finite, `> 0`).
+    pub brake_accel_rad_s2: f32,
+    /// With a travel range: the soft stop's velocity gain [A/(rad/s),
+    /// rotor] (finite, `> 0`).
+    pub kv_a_per_rad_s: f32,
+    /// Current-loop periods over which the current moves to the impedance
+    /// law's when impedance mode is entered (bumpless entry).
+    pub entry_blend_periods: u32,
+    /// Damping after a command timeout in impedance mode, when the
+    /// command's own is smaller [N m s/rad, rotor] (finite, `>= 0`).
+    pub timeout_kd_nm_s_per_rad: f32,
+    /// Largest impedance stiffness a command may ask [N m/rad, rotor]
+    /// (finite, `>= 0`; at the output: `* gear_ratio^2`).
+    pub max_kp_nm_per_rad: f32,
+    /// Largest impedance damping a command may ask [N m s/rad, rotor]
+    /// (finite, `>= 0`; at the output: `* gear_ratio^2`).
+    pub max_kd_nm_s_per_rad: f32,
+}
+
 /// Everything the drive keeps across power-off: configuration and the
 /// identified calibration (the on-flash schema, version [`SCHEMA_VERSION`]).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -263,6 +311,10 @@ pub struct DriveRecord {
     /// The rotor's mechanics; `None`: not identified, the build's (what a
     /// version-1 or -2 record, from before they were stored, becomes).
     pub mechanics: Option<MechanicsRecord>,
+    /// The joint (output frame, home offset, travel limits, impedance
+    /// settings and maxima); `None`: the build's (what a version-1, -2 or
+    /// -3 record, from before it was stored, becomes).
+    pub joint: Option<JointRecord>,
 }
 
 /// Why bytes are not a record (see [`DriveRecord::decode`]).
@@ -346,17 +398,22 @@ fn non_negative(x: f32) -> bool {
 /// one step at a time: version 1 (before the power limits,
 /// [`v1::DriveRecordV1`]) gets `power: None` (the build's defaults),
 /// version 2 (before the mechanics, [`v2::DriveRecordV2`]) gets
-/// `mechanics: None`; a version-1 record goes `1 -> 2 -> 3`. A migrated
-/// record is validated by the caller like any other; version 0 and unknown
-/// versions are refused.
+/// `mechanics: None`, version 3 (before the joint, [`v3::DriveRecordV3`])
+/// gets `joint: None`; a version-1 record goes `1 -> 2 -> 3 -> 4`. A
+/// migrated record is validated by the caller like any other; version 0
+/// and unknown versions are refused.
 fn migrate(found: u16, payload: &[u8]) -> Result<DriveRecord, RecordError> {
     match found {
         1 => match postcard::take_from_bytes::<v1::DriveRecordV1>(payload) {
-            Ok((r, [])) => Ok(r.into_v2().into_v3()),
+            Ok((r, [])) => Ok(r.into_v2().into_v3().into_v4()),
             _ => Err(RecordError::Malformed),
         },
         2 => match postcard::take_from_bytes::<v2::DriveRecordV2>(payload) {
-            Ok((r, [])) => Ok(r.into_v3()),
+            Ok((r, [])) => Ok(r.into_v3().into_v4()),
+            _ => Err(RecordError::Malformed),
+        },
+        3 => match postcard::take_from_bytes::<v3::DriveRecordV3>(payload) {
+            Ok((r, [])) => Ok(r.into_v4()),
             _ => Err(RecordError::Malformed),
         },
         _ => Err(RecordError::UnsupportedVersion {
@@ -454,8 +511,8 @@ pub mod v2 {
     impl DriveRecordV2 {
         /// Version 3: the same values, the mechanics not identified (the
         /// build's).
-        pub fn into_v3(self) -> DriveRecord {
-            DriveRecord {
+        pub fn into_v3(self) -> super::v3::DriveRecordV3 {
+            super::v3::DriveRecordV3 {
                 label: self.label,
                 pwm_frequency_hz: self.pwm_frequency_hz,
                 motor: self.motor,
@@ -468,6 +525,63 @@ pub mod v2 {
                 watchdog: self.watchdog,
                 power: self.power,
                 mechanics: None,
+            }
+        }
+    }
+}
+
+/// Schema version 3: [`DriveRecord`] without `joint`.
+pub mod v3 {
+    use super::*;
+
+    /// The version-3 layout (field for field [`DriveRecord`] up to
+    /// `mechanics`). Frozen: never change it.
+    #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    pub struct DriveRecordV3 {
+        /// See [`DriveRecord::label`].
+        pub label: Label,
+        /// See [`DriveRecord::pwm_frequency_hz`].
+        pub pwm_frequency_hz: u32,
+        /// See [`DriveRecord::motor`].
+        pub motor: MotorRecord,
+        /// See [`DriveRecord::current_gains`].
+        pub current_gains: CurrentGainsRecord,
+        /// See [`DriveRecord::calibration`].
+        pub calibration: Option<AngleRecord>,
+        /// See [`DriveRecord::limits`].
+        pub limits: LimitsRecord,
+        /// See [`DriveRecord::speed`].
+        pub speed: SpeedRecord,
+        /// See [`DriveRecord::position`].
+        pub position: PositionRecord,
+        /// See [`DriveRecord::dividers`].
+        pub dividers: DividersRecord,
+        /// See [`DriveRecord::watchdog`].
+        pub watchdog: WatchdogRecord,
+        /// See [`DriveRecord::power`].
+        pub power: Option<PowerRecord>,
+        /// See [`DriveRecord::mechanics`].
+        pub mechanics: Option<MechanicsRecord>,
+    }
+
+    impl DriveRecordV3 {
+        /// Version 4: the same values, the joint the build's.
+        pub fn into_v4(self) -> DriveRecord {
+            DriveRecord {
+                label: self.label,
+                pwm_frequency_hz: self.pwm_frequency_hz,
+                motor: self.motor,
+                current_gains: self.current_gains,
+                calibration: self.calibration,
+                limits: self.limits,
+                speed: self.speed,
+                position: self.position,
+                dividers: self.dividers,
+                watchdog: self.watchdog,
+                power: self.power,
+                mechanics: self.mechanics,
+                joint: None,
             }
         }
     }
@@ -514,8 +628,9 @@ impl DriveRecord {
 
     /// Read an envelope: length, then CRC, then version ([`SCHEMA_VERSION`]
     /// decodes; a newer one is [`RecordError::UnsupportedVersion`]; an older
-    /// one goes through the migration steps: version 1 and 2 records decode
-    /// with `power` and `mechanics` at `None` where they had none).
+    /// one goes through the migration steps: version 1, 2 and 3 records
+    /// decode with `power`, `mechanics` and `joint` at `None` where they had
+    /// none).
     /// `bytes` must be exactly one envelope. Does not validate.
     pub fn decode(bytes: &[u8]) -> Result<DriveRecord, RecordError> {
         if bytes.len() > MAX_RECORD_BYTES {
@@ -581,7 +696,8 @@ impl DriveRecord {
                 LimitsError::MaxPosition => "limits.max_position_rad",
                 LimitsError::OpenLoopVoltage => "limits.max_open_loop_voltage_v",
                 LimitsError::OpenLoopOmega => "limits.max_open_loop_omega_e_rad_s",
-                // Not in this record: `to_limits` fills them valid.
+                // Not in this part: `to_limits` fills them valid (the
+                // joint's are checked with it, below).
                 LimitsError::MaxStiffness | LimitsError::MaxDamping => "limits",
             })
         })?;
@@ -615,6 +731,9 @@ impl DriveRecord {
             // the loops from them: a torque constant.
             let kt = m.to_params().torque_constant_nm_per_a();
             check(kt.is_finite() && kt > 0.0, "mechanics")?;
+        }
+        if let Some(j) = &self.joint {
+            j.validate(&self.limits)?;
         }
 
         if let Some(c) = &self.calibration {
@@ -796,6 +915,160 @@ impl MechanicsRecord {
     }
 }
 
+/// A soft stop foc-core accepts (`TravelConfig::is_valid`): each stored
+/// value is checked alone in it (and the travel range with it), so a
+/// refusal names its field.
+const SOFT_STOP_OK: TravelConfig = TravelConfig {
+    fault_margin_rad: 0.0,
+    brake_accel_rad_s2: 1.0,
+    kv_a_per_rad_s: 1.0,
+};
+
+/// Joint settings foc-core accepts (`JointConfig::is_valid`), for the
+/// same purpose.
+const JOINT_OK: JointConfig = JointConfig {
+    travel: None,
+    entry_blend_periods: 0,
+    timeout_kd_nm_s_per_rad: 0.0,
+};
+
+impl JointRecord {
+    /// The record of a joint setup and the impedance maxima of `l`.
+    pub fn from_setup(j: &JointSetup, l: &Limits) -> Self {
+        Self {
+            gear_ratio: j.frame.gear_ratio(),
+            rotor_at_zero_rad: j.frame.rotor_at_zero_rad(),
+            travel_out_rad: j.travel_out_rad,
+            fault_margin_rad: j.travel.fault_margin_rad,
+            brake_accel_rad_s2: j.travel.brake_accel_rad_s2,
+            kv_a_per_rad_s: j.travel.kv_a_per_rad_s,
+            entry_blend_periods: j.joint.entry_blend_periods,
+            timeout_kd_nm_s_per_rad: j.joint.timeout_kd_nm_s_per_rad,
+            max_kp_nm_per_rad: l.max_kp_nm_per_rad,
+            max_kd_nm_s_per_rad: l.max_kd_nm_s_per_rad,
+        }
+    }
+
+    /// As foc-core's joint setup; its `joint.travel` is the soft stop with
+    /// a travel range, `None` without (what `JointSetup::rotor_change`
+    /// installs). An output frame foc-core refuses (`OutputFrame::check`)
+    /// names its field.
+    pub fn to_setup(&self) -> Result<JointSetup, Invalid> {
+        let frame = OutputFrame::check(self.gear_ratio, self.rotor_at_zero_rad).map_err(|e| {
+            invalid(match e {
+                JointError::GearRatio => "joint.gear_ratio",
+                JointError::Offset => "joint.rotor_at_zero_rad",
+                // Not a frame error.
+                JointError::Travel => "joint",
+            })
+        })?;
+        let travel = self.soft_stop();
+        Ok(JointSetup {
+            frame,
+            travel_out_rad: self.travel_out_rad,
+            travel,
+            joint: JointConfig {
+                travel: self.travel_out_rad.map(|_| travel),
+                entry_blend_periods: self.entry_blend_periods,
+                timeout_kd_nm_s_per_rad: self.timeout_kd_nm_s_per_rad,
+            },
+        })
+    }
+
+    /// The soft stop's settings (rotor frame).
+    pub fn soft_stop(&self) -> TravelConfig {
+        TravelConfig {
+            fault_margin_rad: self.fault_margin_rad,
+            brake_accel_rad_s2: self.brake_accel_rad_s2,
+            kv_a_per_rad_s: self.kv_a_per_rad_s,
+        }
+    }
+
+    /// `l` as foc-core's limits with these impedance maxima (the position
+    /// range `l`'s: the travel range replaces it in the stage, see
+    /// `Settings::apply_to`).
+    pub fn limits(&self, l: &LimitsRecord) -> Limits {
+        Limits {
+            max_kp_nm_per_rad: self.max_kp_nm_per_rad,
+            max_kd_nm_s_per_rad: self.max_kd_nm_s_per_rad,
+            ..l.to_limits()
+        }
+    }
+
+    /// Check every value with foc-core's checks, the first bad one named
+    /// by its TOML path (`joint.<field>`): the frame (`OutputFrame::check`);
+    /// with a travel range, the range (`JointSetup::validate`) and each
+    /// soft-stop value (`TravelConfig::is_valid`); the timeout damping
+    /// (`JointConfig::is_valid`); the maxima, and the travel range in the
+    /// rotor frame, as the limits in force (`Limits::validate`, on `l`,
+    /// checked before); then the whole setup (`JointSetup::validate`).
+    pub fn validate(&self, l: &LimitsRecord) -> Result<(), Invalid> {
+        let s = self.to_setup()?;
+        if s.travel_out_rad.is_some() {
+            let range_alone = JointSetup {
+                travel: SOFT_STOP_OK,
+                joint: JOINT_OK,
+                ..s
+            };
+            check(range_alone.validate().is_ok(), "joint.travel_out_rad")?;
+            let t = s.travel;
+            let fields = [
+                (
+                    TravelConfig {
+                        fault_margin_rad: t.fault_margin_rad,
+                        ..SOFT_STOP_OK
+                    },
+                    "joint.fault_margin_rad",
+                ),
+                (
+                    TravelConfig {
+                        brake_accel_rad_s2: t.brake_accel_rad_s2,
+                        ..SOFT_STOP_OK
+                    },
+                    "joint.brake_accel_rad_s2",
+                ),
+                (
+                    TravelConfig {
+                        kv_a_per_rad_s: t.kv_a_per_rad_s,
+                        ..SOFT_STOP_OK
+                    },
+                    "joint.kv_a_per_rad_s",
+                ),
+            ];
+            for (one, field) in fields {
+                check(one.is_valid(), field)?;
+            }
+        }
+        check(
+            JointConfig {
+                travel: None,
+                ..s.joint
+            }
+            .is_valid(),
+            "joint.timeout_kd_nm_s_per_rad",
+        )?;
+        let range = s.rotor_change((l.min_position_rad, l.max_position_rad));
+        let in_force = Limits {
+            min_position_rad: range.min_position_rad,
+            max_position_rad: range.max_position_rad,
+            ..self.limits(l)
+        };
+        in_force.validate().map_err(|e| {
+            invalid(match e {
+                LimitsError::MaxStiffness => "joint.max_kp_nm_per_rad",
+                LimitsError::MaxDamping => "joint.max_kd_nm_s_per_rad",
+                LimitsError::MinPosition | LimitsError::MaxPosition => "joint.travel_out_rad",
+                // `l`'s own values, checked before.
+                LimitsError::MaxCurrent
+                | LimitsError::MaxVelocity
+                | LimitsError::OpenLoopVoltage
+                | LimitsError::OpenLoopOmega => "limits",
+            })
+        })?;
+        s.validate().map_err(|_| invalid("joint"))
+    }
+}
+
 impl MotorRecord {
     /// The record of foc-core's motor parameters.
     pub fn from_params(m: &MotorParams) -> Self {
@@ -918,9 +1191,11 @@ impl LimitsRecord {
         }
     }
 
-    /// As foc-core's limits; the impedance maxima, which this record does
-    /// not hold, unbounded (`f32::MAX`: see [`Settings`](crate::Settings)
-    /// for the ones in force).
+    /// As foc-core's limits, with the impedance maxima, which this part of
+    /// the record does not hold, at `f32::MAX` (unbounded, but valid for
+    /// `Limits::validate`). A record's maxima are its [`JointRecord`]'s
+    /// ([`JointRecord::limits`]); a record without one keeps those of the
+    /// settings it is applied on ([`DriveRecord::apply`]).
     pub fn to_limits(&self) -> Limits {
         Limits {
             max_current_a: self.max_current_a,
@@ -1008,6 +1283,18 @@ pub fn example() -> DriveRecord {
             inertia_kg_m2: 2.5e-5,
             viscous_friction_nm_s_per_rad: 1.0e-5,
             coulomb_friction_nm: 0.002,
+        }),
+        joint: Some(JointRecord {
+            gear_ratio: -9.0,
+            rotor_at_zero_rad: 1.5,
+            travel_out_rad: Some((-1.5, 2.0)),
+            fault_margin_rad: 0.25,
+            brake_accel_rad_s2: 2000.0,
+            kv_a_per_rad_s: 0.05,
+            entry_blend_periods: 200,
+            timeout_kd_nm_s_per_rad: 0.001,
+            max_kp_nm_per_rad: 20.0,
+            max_kd_nm_s_per_rad: 0.5,
         }),
     }
 }

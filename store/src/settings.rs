@@ -3,10 +3,11 @@
 //!
 //! The record keeps what is tuned or identified (motor, gains, calibration,
 //! limits, loop gains, dividers, watchdog, power limits, the rotor's
-//! mechanics); the rest (loop periods, modulation, decoupling, anti-windup,
-//! delay compensation) comes from the build-time settings the record is
-//! applied on ([`DriveRecord::apply`]). The acceleration feed-forwards
-//! (`J / kt`) follow the mechanics in force: foc-core's
+//! mechanics, the joint with the impedance maxima); the rest (loop
+//! periods, modulation, decoupling, anti-windup, delay compensation) comes
+//! from the build-time settings the record is applied on
+//! ([`DriveRecord::apply`]). The acceleration feed-forwards (`J / kt`)
+//! follow the mechanics in force: foc-core's
 //! `CascadeConfig::set_mechanics` derives them ([`Settings::set_mechanics`],
 //! [`Settings::apply_to`]); without mechanics they are the build's.
 //!
@@ -32,9 +33,9 @@ use foc_core::control::stage::{AngleCalibration, TimeoutReaction};
 use foc_core::control::{Limits, Mechanics};
 
 use crate::record::{
-    AngleRecord, CurrentGainsRecord, DividersRecord, DriveRecord, Invalid, Label, LimitsRecord,
-    MechanicsRecord, MotorRecord, PositionRecord, PowerRecord, SpeedRecord, WatchdogReaction,
-    WatchdogRecord,
+    AngleRecord, CurrentGainsRecord, DividersRecord, DriveRecord, Invalid, JointRecord, Label,
+    LimitsRecord, MechanicsRecord, MotorRecord, PositionRecord, PowerRecord, SpeedRecord,
+    WatchdogReaction, WatchdogRecord,
 };
 
 /// The configuration in force on the drive.
@@ -210,7 +211,8 @@ pub fn timeout_reaction(r: WatchdogReaction) -> TimeoutReaction {
 
 impl DriveRecord {
     /// The record of these live settings (calibration = `Some(angle)` iff
-    /// `s.calibrated`).
+    /// `s.calibrated`; the joint always, with the limits' impedance
+    /// maxima).
     pub fn from_settings(label: &Label, pwm_frequency_hz: u32, s: &Settings) -> Self {
         Self {
             label: label.clone(),
@@ -239,6 +241,7 @@ impl DriveRecord {
             watchdog: s.watchdog,
             power: s.power.as_ref().map(PowerRecord::from_config),
             mechanics: s.mechanics.as_ref().map(MechanicsRecord::from_mechanics),
+            joint: Some(JointRecord::from_setup(&s.joint, &s.limits)),
         }
     }
 
@@ -250,11 +253,13 @@ impl DriveRecord {
     /// current limit to `limits.max_current_a`; keeps base's current-loop
     /// period, modulation, decoupling, anti-windup and delay compensation,
     /// base's angle calibration (with the record's pole pairs) when the
-    /// record has no calibration, base's power limits when it has none and
-    /// base's mechanics when it has none. With mechanics (the record's or
-    /// base's), the acceleration feed-forwards are derived from them for
-    /// the record's motor ([`Settings::set_mechanics`]); without, they are
-    /// base's.
+    /// record has no calibration, base's power limits when it has none,
+    /// base's mechanics when it has none, and base's joint and impedance
+    /// maxima when it has no joint (else the record's:
+    /// [`JointRecord::to_setup`], [`JointRecord::limits`]). With mechanics
+    /// (the record's or base's), the acceleration feed-forwards are derived
+    /// from them for the record's motor ([`Settings::set_mechanics`]);
+    /// without, they are base's.
     pub fn apply(&self, base: &Settings, pwm_frequency_hz: u32) -> Result<Settings, Invalid> {
         self.validate()?;
         if self.pwm_frequency_hz != pwm_frequency_hz {
@@ -264,11 +269,19 @@ impl DriveRecord {
         }
         let pwm = pwm_frequency_hz as f32;
         let mut s = *base;
-        s.limits = Limits {
-            max_kp_nm_per_rad: s.limits.max_kp_nm_per_rad,
-            max_kd_nm_s_per_rad: s.limits.max_kd_nm_s_per_rad,
-            ..self.limits.to_limits()
-        };
+        match &self.joint {
+            Some(j) => {
+                s.limits = j.limits(&self.limits);
+                s.joint = j.to_setup()?;
+            }
+            None => {
+                s.limits = Limits {
+                    max_kp_nm_per_rad: base.limits.max_kp_nm_per_rad,
+                    max_kd_nm_s_per_rad: base.limits.max_kd_nm_s_per_rad,
+                    ..self.limits.to_limits()
+                }
+            }
+        }
         s.current.motor = self.motor.to_params();
         s.current.d_gains = self.current_gains.d();
         s.current.q_gains = self.current_gains.q();

@@ -7,7 +7,8 @@
 //! use foc_store::text::{from_toml, to_toml};
 //! # let r = foc_store::record::example();
 //! let text = to_toml(&r);
-//! assert!(text.contains("schema_version = 3"));
+//! assert!(text.contains("schema_version = 4"));
+//! assert!(text.contains("[joint]"));
 //! assert!(text.contains("[motor]"));
 //! assert_eq!(from_toml(&text), Ok(r));
 //! let bad = text.replace("r_ohm = 0.2", "r_ohm = -0.2");
@@ -20,7 +21,7 @@ use std::string::{String, ToString};
 use serde::{Deserialize, Serialize};
 
 use crate::record::{
-    AngleRecord, CurrentGainsRecord, DividersRecord, DriveRecord, Label, LimitsRecord,
+    AngleRecord, CurrentGainsRecord, DividersRecord, DriveRecord, JointRecord, Label, LimitsRecord,
     MechanicsRecord, MotorRecord, PositionRecord, PowerRecord, SpeedRecord, WatchdogRecord,
     SCHEMA_VERSION,
 };
@@ -45,10 +46,13 @@ struct TomlFile {
     power: Option<PowerRecord>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     mechanics: Option<MechanicsRecord>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    joint: Option<JointRecord>,
 }
 
-/// The record as a TOML document (no `[calibration]`, `[power]` or
-/// `[mechanics]` table when the record has none).
+/// The record as a TOML document (no `[calibration]`, `[power]`,
+/// `[mechanics]` or `[joint]` table when the record has none; no
+/// `travel_out_rad` key in `[joint]` without a travel range).
 pub fn to_toml(r: &DriveRecord) -> String {
     let file = TomlFile {
         schema_version: SCHEMA_VERSION,
@@ -64,6 +68,7 @@ pub fn to_toml(r: &DriveRecord) -> String {
         watchdog: r.watchdog,
         power: r.power,
         mechanics: r.mechanics,
+        joint: r.joint,
     };
     match toml::to_string(&file) {
         Ok(s) => s,
@@ -79,8 +84,9 @@ pub fn from_toml(s: &str) -> Result<DriveRecord, String> {
     let table: toml::Table = toml::from_str(s).map_err(|e| e.to_string())?;
     match table.get("schema_version") {
         None => return Err("missing top-level key `schema_version`".to_string()),
-        // Version 1 is version 3 without the `[power]` and `[mechanics]`
-        // tables, version 2 without `[mechanics]`.
+        // Version 1 is version 4 without the `[power]`, `[mechanics]` and
+        // `[joint]` tables, version 2 without `[mechanics]` and `[joint]`,
+        // version 3 without `[joint]`.
         Some(toml::Value::Integer(v)) if (1..=i64::from(SCHEMA_VERSION)).contains(v) => {}
         Some(v) => {
             return Err(format!(
@@ -102,6 +108,7 @@ pub fn from_toml(s: &str) -> Result<DriveRecord, String> {
         watchdog: f.watchdog,
         power: f.power,
         mechanics: f.mechanics,
+        joint: f.joint,
     };
     r.validate().map_err(|e| e.to_string())?;
     Ok(r)

@@ -10,9 +10,9 @@ mod settings_text;
 mod store_tests;
 
 use crate::record::{
-    example, AngleRecord, CurrentGainsRecord, DividersRecord, DriveRecord, Label, LimitsRecord,
-    MechanicsRecord, MotorRecord, PositionRecord, PowerRecord, SpeedRecord, WatchdogReaction,
-    WatchdogRecord,
+    example, AngleRecord, CurrentGainsRecord, DividersRecord, DriveRecord, JointRecord, Label,
+    LimitsRecord, MechanicsRecord, MotorRecord, PositionRecord, PowerRecord, SpeedRecord,
+    WatchdogReaction, WatchdogRecord,
 };
 
 /// Record A of the tests.
@@ -42,6 +42,7 @@ pub(crate) fn record_b() -> DriveRecord {
     r.watchdog.reaction = WatchdogReaction::Hold;
     r.power = None;
     r.mechanics = None;
+    r.joint = None;
     r
 }
 
@@ -118,6 +119,18 @@ pub(crate) fn largest_record() -> DriveRecord {
             inertia_kg_m2: f32::MAX,
             viscous_friction_nm_s_per_rad: f32::MAX,
             coulomb_friction_nm: f32::MAX,
+        }),
+        joint: Some(JointRecord {
+            gear_ratio: f32::MAX,
+            rotor_at_zero_rad: f32::MAX,
+            travel_out_rad: Some((f32::MIN, f32::MAX)),
+            fault_margin_rad: f32::MAX,
+            brake_accel_rad_s2: f32::MAX,
+            kv_a_per_rad_s: f32::MAX,
+            entry_blend_periods: u32::MAX,
+            timeout_kd_nm_s_per_rad: f32::MAX,
+            max_kp_nm_per_rad: f32::MAX,
+            max_kd_nm_s_per_rad: f32::MAX,
         }),
     }
 }

@@ -35,11 +35,12 @@ fn flash_with_a<const P: usize, const PB: usize, const W: usize>(
         if trial.erases() > 0 {
             return f;
         }
-        // Every other round a save of B before the one of A: where a page
-        // ends then varies, whatever the two records' sizes (with A's
-        // alone it can end where B always fits).
+        // Zero, one or two saves of B before the one of A, in turn: where
+        // a page ends then varies, whatever the two records' sizes (with
+        // A's alone, or one B every other round, it can end where B
+        // always fits).
         let mut s = Store::new(&mut f, range.clone()).unwrap();
-        if i % 2 == 1 {
+        for _ in 0..i % 3 {
             s.save(&b).unwrap();
         }
         s.save(&a).unwrap();

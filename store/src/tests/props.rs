@@ -3,7 +3,7 @@
 
 use crate::fake::FakeFlash;
 use crate::record::{
-    AngleRecord, CurrentGainsRecord, DividersRecord, DriveRecord, Label, LimitsRecord,
+    AngleRecord, CurrentGainsRecord, DividersRecord, DriveRecord, JointRecord, Label, LimitsRecord,
     MechanicsRecord, MotorRecord, PositionRecord, PowerRecord, SpeedRecord, WatchdogReaction,
     WatchdogRecord, MAX_RECORD_BYTES,
 };
@@ -86,6 +86,37 @@ fn mechanics() -> impl Strategy<Value = MechanicsRecord> {
         })
 }
 
+prop_compose! {
+    /// A plausible joint: gear ratios of either sign over the whole
+    /// accepted range (bounds included), a home offset, a travel range or
+    /// none, the soft stop, the entry blend, the timeout damping and the
+    /// impedance maxima.
+    fn joint()(
+        gear_ratio in prop_oneof![
+            Just(0.01f32), Just(-10_000.0f32), 0.01f32..=10_000.0, -10_000.0f32..=-0.01, Just(1.0f32)
+        ],
+        rotor_at_zero_rad in prop_oneof![Just(0.0f32), -100.0f32..100.0],
+        range in proptest::option::of((-100.0f32..100.0, 0.1f32..200.0)),
+        soft_stop in (non_neg(), pos(), pos()),
+        entry_blend_periods in any::<u32>(),
+        timeout_kd_nm_s_per_rad in non_neg(),
+        maxima in (non_neg(), non_neg()),
+    ) -> JointRecord {
+        JointRecord {
+            gear_ratio,
+            rotor_at_zero_rad,
+            travel_out_rad: range.map(|(lo, width)| (lo, lo + width)),
+            fault_margin_rad: soft_stop.0,
+            brake_accel_rad_s2: soft_stop.1,
+            kv_a_per_rad_s: soft_stop.2,
+            entry_blend_periods,
+            timeout_kd_nm_s_per_rad,
+            max_kp_nm_per_rad: maxima.0,
+            max_kd_nm_s_per_rad: maxima.1,
+        }
+    }
+}
+
 fn label() -> impl Strategy<Value = Label> {
     "[ -~]{0,32}".prop_map(|s| Label::try_from(s.as_str()).unwrap())
 }
@@ -113,6 +144,7 @@ prop_compose! {
         watchdog in (any::<u32>(), reaction()),
         power in proptest::option::of(power()),
         mechanics in proptest::option::of(mechanics()),
+        joint in proptest::option::of(joint()),
     ) -> DriveRecord {
         DriveRecord {
             label,
@@ -141,6 +173,7 @@ prop_compose! {
             power,
             // Mechanics need a torque constant (flux > 0).
             mechanics: mechanics.filter(|_| motor.3 > 0.0),
+            joint,
         }
     }
 }
@@ -204,6 +237,7 @@ proptest! {
         counts in any::<u32>(),
         watchdog in (any::<u32>(), reaction()),
         mechanics in proptest::option::of(mechanics()),
+        joint in proptest::option::of(joint()),
     ) {
         let motor = MotorParams { pole_pairs, r_ohm, ld_h, lq_h: ld_h * lq_ratio, flux_linkage_wb: flux };
         let build = CascadeConfig::for_motor(motor, pwm as f32, max_current_a);
@@ -214,6 +248,11 @@ proptest! {
         let mechanics = mechanics.map(|m| m.to_mechanics());
         if let Some(m) = &mechanics {
             prop_assert!(s.set_mechanics(m));
+        }
+        // A joint set up by the user (else the build's).
+        if let Some(j) = &joint {
+            s.joint = j.to_setup().unwrap();
+            s.limits = j.limits(&crate::record::LimitsRecord::from_limits(&s.limits));
         }
         if calibrated {
             s.calibrated = true;
@@ -227,6 +266,9 @@ proptest! {
         let r = DriveRecord::from_settings(&Label::try_from("x").unwrap(), pwm, &s);
         prop_assert_eq!(r.calibration.is_some(), calibrated);
         prop_assert_eq!(r.mechanics.map(|m| m.to_mechanics()), mechanics);
+        if let Some(j) = joint {
+            prop_assert_eq!(r.joint, Some(j));
+        }
         prop_assert_eq!(r.apply(&base, pwm), Ok(s));
         // Applied on itself too (what a reload at start-up does).
         prop_assert_eq!(r.apply(&s, pwm), Ok(s));
@@ -235,6 +277,15 @@ proptest! {
         // mechanics installed by foc-core.
         let c = s.apply_to(&build);
         prop_assert_eq!(c.mechanics, mechanics);
+        // The stage's position range: the travel range in the rotor frame
+        // (the limits' own without one), and the joint settings.
+        let j = s.joint.rotor_change((s.limits.min_position_rad, s.limits.max_position_rad));
+        prop_assert_eq!(
+            (c.current.limits.min_position_rad, c.current.limits.max_position_rad),
+            (j.min_position_rad, j.max_position_rad)
+        );
+        prop_assert_eq!(c.current.joint, j.joint);
+        prop_assert_eq!(c.current.limits.max_kp_nm_per_rad, s.limits.max_kp_nm_per_rad);
         let back = Settings::from_cascade(&c);
         prop_assert_eq!((back.speed, back.position, back.mechanics), (s.speed, s.position, s.mechanics));
         if let Some(m) = &mechanics {
@@ -243,6 +294,37 @@ proptest! {
             prop_assert_eq!(c.current.observer, derived.current.observer);
             prop_assert_eq!(c.position.accel_ff_a_per_rad_s2, derived.position.accel_ff_a_per_rad_s2);
         }
+    }
+
+    #[test]
+    fn joint_values_out_of_range_are_refused_whole(
+        r in valid_record(),
+        j in joint(),
+        range in (-100.0f32..100.0, 0.1f32..200.0),
+        which in 0usize..8,
+        bad in prop_oneof![Just(f32::NAN), Just(f32::INFINITY), Just(f32::NEG_INFINITY)],
+    ) {
+        let mut r = r;
+        let mut j = j;
+        // With a travel range, so the soft stop is checked too.
+        j.travel_out_rad = Some((range.0, range.0 + range.1));
+        let field = match which {
+            0 => { j.gear_ratio = bad; "joint.gear_ratio" }
+            1 => { j.rotor_at_zero_rad = bad; "joint.rotor_at_zero_rad" }
+            2 => { j.fault_margin_rad = bad; "joint.fault_margin_rad" }
+            3 => { j.brake_accel_rad_s2 = bad; "joint.brake_accel_rad_s2" }
+            4 => { j.kv_a_per_rad_s = bad; "joint.kv_a_per_rad_s" }
+            5 => { j.timeout_kd_nm_s_per_rad = bad; "joint.timeout_kd_nm_s_per_rad" }
+            6 => { j.max_kp_nm_per_rad = bad; "joint.max_kp_nm_per_rad" }
+            _ => { j.max_kd_nm_s_per_rad = bad; "joint.max_kd_nm_s_per_rad" }
+        };
+        r.joint = Some(j);
+        prop_assert_eq!(r.validate(), Err(crate::Invalid { field }));
+        let base = Settings::from_cascade(&CascadeConfig::for_motor(
+            r.motor.to_params(), r.pwm_frequency_hz as f32, 5.0,
+        ));
+        prop_assert_eq!(r.apply(&base, r.pwm_frequency_hz), Err(crate::Invalid { field }));
+        prop_assert!(crate::text::from_toml(&crate::text::to_toml(&r)).unwrap_err().contains(field));
     }
 
     #[test]

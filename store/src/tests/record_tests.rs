@@ -2,8 +2,8 @@
 
 use super::{largest_record, record_a, record_b};
 use crate::record::{
-    angle_to_e_rad, e_rad_to_angle, DriveRecord, Invalid, MechanicsRecord, RecordError,
-    MAX_RECORD_BYTES, SCHEMA_VERSION,
+    angle_to_e_rad, e_rad_to_angle, DriveRecord, Invalid, JointRecord, MechanicsRecord,
+    RecordError, MAX_RECORD_BYTES, SCHEMA_VERSION,
 };
 use core::f32::consts::TAU;
 use foc_core::angle::ElectricalAngle;
@@ -35,9 +35,10 @@ fn largest_record_fits() {
         bytes.len()
     );
     assert_eq!(DriveRecord::decode(&bytes), Ok(r));
-    // It is valid apart from the calibration's pole pairs vs the motor's
-    // and the mechanics beyond their plausible ranges: make them agree and
-    // check validation accepts the extremes.
+    // It is valid apart from the calibration's pole pairs vs the motor's,
+    // the mechanics beyond their plausible ranges and the joint's frame and
+    // travel range: make them agree and check validation accepts the
+    // extremes.
     let mut r = largest_record();
     r.calibration.as_mut().unwrap().pole_pairs = r.motor.pole_pairs;
     assert_eq!(
@@ -54,8 +55,41 @@ fn largest_record_fits() {
     // 1.5 p psi overflows: no torque constant to derive the loops with.
     assert_eq!(r.validate(), Err(Invalid { field: "mechanics" }));
     r.motor.flux_linkage_wb = 1.0;
+    assert_eq!(
+        r.validate(),
+        Err(Invalid {
+            field: "joint.gear_ratio"
+        })
+    );
+    let j = r.joint.as_mut().unwrap();
+    j.gear_ratio = -10_000.0;
+    assert_eq!(
+        r.validate(),
+        Err(Invalid {
+            field: "joint.travel_out_rad"
+        })
+    );
+    let j = r.joint.as_mut().unwrap();
+    j.rotor_at_zero_rad = -1e30;
+    j.travel_out_rad = Some((-1e30, 1e30));
     assert_eq!(r.validate(), Ok(()));
     assert_eq!(encoded(&r).len(), bytes.len());
+}
+
+#[test]
+fn the_joint_costs_its_size_and_no_more() {
+    // Schema 4 adds at most 47 bytes (tag, 9 f32, range tag, u32 varint)
+    // to the largest version-3 record (229 bytes).
+    let mut r = largest_record();
+    let with = encoded(&r).len();
+    r.joint = None;
+    // Without a joint: its `None` tag only.
+    assert_eq!(encoded(&r).len(), 229 + 1);
+    assert_eq!(with, 229 + 47);
+    assert!(with <= MAX_RECORD_BYTES);
+    let mut buf = [0u8; MAX_RECORD_BYTES];
+    let v3 = postcard::to_slice(&as_v3(&largest_record()), &mut buf).unwrap();
+    assert_eq!(v3.len() + 8, 229);
 }
 
 #[test]
@@ -99,10 +133,7 @@ fn versions_other_than_ours_are_refused() {
         Ok(record_a())
     );
     for v in [0, SCHEMA_VERSION + 1, u16::MAX] {
-        assert!(
-            !(1..SCHEMA_VERSION).contains(&v),
-            "versions 1 and 2 migrate"
-        );
+        assert!(!(1..SCHEMA_VERSION).contains(&v), "versions 1 to 3 migrate");
         assert_eq!(
             DriveRecord::decode(&envelope(v, payload)),
             Err(RecordError::UnsupportedVersion {
@@ -271,7 +302,8 @@ fn electrical_angle_round_trip_is_exact_to_f32_precision() {
     assert_eq!(angle_to_e_rad(ElectricalAngle::from_bits(u32::MAX)), 0.0);
 }
 
-/// `r` in the version-1 layout (what it loses: `power`, `mechanics`).
+/// `r` in the version-1 layout (what it loses: `power`, `mechanics`,
+/// `joint`).
 fn as_v1(r: &DriveRecord) -> crate::record::v1::DriveRecordV1 {
     crate::record::v1::DriveRecordV1 {
         label: r.label.clone(),
@@ -287,7 +319,7 @@ fn as_v1(r: &DriveRecord) -> crate::record::v1::DriveRecordV1 {
     }
 }
 
-/// `r` in the version-2 layout (what it loses: `mechanics`).
+/// `r` in the version-2 layout (what it loses: `mechanics`, `joint`).
 fn as_v2(r: &DriveRecord) -> crate::record::v2::DriveRecordV2 {
     crate::record::v2::DriveRecordV2 {
         label: r.label.clone(),
@@ -304,33 +336,62 @@ fn as_v2(r: &DriveRecord) -> crate::record::v2::DriveRecordV2 {
     }
 }
 
+/// `r` in the version-3 layout (what it loses: `joint`).
+fn as_v3(r: &DriveRecord) -> crate::record::v3::DriveRecordV3 {
+    crate::record::v3::DriveRecordV3 {
+        label: r.label.clone(),
+        pwm_frequency_hz: r.pwm_frequency_hz,
+        motor: r.motor,
+        current_gains: r.current_gains,
+        calibration: r.calibration,
+        limits: r.limits,
+        speed: r.speed,
+        position: r.position,
+        dividers: r.dividers,
+        watchdog: r.watchdog,
+        power: r.power,
+        mechanics: r.mechanics,
+    }
+}
+
 /// The payload of an envelope (without version, length and CRC).
 fn payload(envelope: &[u8]) -> &[u8] {
     &envelope[4..envelope.len() - 4]
 }
 
+/// `layout` postcard-encoded.
+fn postcard_of<T: serde::Serialize>(layout: &T) -> std::vec::Vec<u8> {
+    let mut buf = [0u8; MAX_RECORD_BYTES];
+    postcard::to_slice(layout, &mut buf).unwrap().to_vec()
+}
+
 #[test]
 fn a_version_1_record_migrates_with_the_build_default_power_limits() {
-    let v3 = record_a();
-    assert!(v3.power.is_some() && v3.mechanics.is_some());
-    let mut buf = [0u8; MAX_RECORD_BYTES];
-    let p1 = postcard::to_slice(&as_v1(&v3), &mut buf).unwrap();
-    // 1 -> 2 -> 3.
-    let migrated = DriveRecord::decode(&envelope(1, p1)).unwrap();
-    assert_eq!((migrated.power, migrated.mechanics), (None, None));
+    let now = record_a();
+    assert!(now.power.is_some() && now.mechanics.is_some() && now.joint.is_some());
+    let p1 = postcard_of(&as_v1(&now));
+    // 1 -> 2 -> 3 -> 4.
+    let migrated = DriveRecord::decode(&envelope(1, &p1)).unwrap();
+    assert_eq!(
+        (migrated.power, migrated.mechanics, migrated.joint),
+        (None, None, None)
+    );
     assert_eq!(
         DriveRecord {
-            power: v3.power,
-            mechanics: v3.mechanics,
+            power: now.power,
+            mechanics: now.mechanics,
+            joint: now.joint,
             ..migrated.clone()
         },
-        v3
+        now
     );
     assert_eq!(migrated.validate(), Ok(()));
-    // A version-2 or -3 payload under version 1 is not a version-1 record.
-    let mut buf = [0u8; MAX_RECORD_BYTES];
-    let p2 = postcard::to_slice(&as_v2(&v3), &mut buf).unwrap();
-    for p in [&p2[..], payload(&encoded(&v3))] {
+    assert_eq!(as_v1(&now).into_v2().into_v3().into_v4(), migrated);
+    // A version-2, -3 or -4 payload under version 1 is not a version-1
+    // record.
+    let p2 = postcard_of(&as_v2(&now));
+    let p3 = postcard_of(&as_v3(&now));
+    for p in [&p2[..], &p3[..], payload(&encoded(&now))] {
         assert_eq!(
             DriveRecord::decode(&envelope(1, p)),
             Err(RecordError::Malformed)
@@ -340,35 +401,113 @@ fn a_version_1_record_migrates_with_the_build_default_power_limits() {
 
 #[test]
 fn a_version_2_record_migrates_without_mechanics() {
-    for v3 in [record_a(), record_b()] {
-        let mut buf = [0u8; MAX_RECORD_BYTES];
-        let p2 = postcard::to_slice(&as_v2(&v3), &mut buf).unwrap();
-        let migrated = DriveRecord::decode(&envelope(2, p2)).unwrap();
-        assert_eq!(migrated.mechanics, None);
-        assert_eq!(migrated.power, v3.power);
+    for now in [record_a(), record_b()] {
+        let p2 = postcard_of(&as_v2(&now));
+        // 2 -> 3 -> 4.
+        let migrated = DriveRecord::decode(&envelope(2, &p2)).unwrap();
+        assert_eq!((migrated.mechanics, migrated.joint), (None, None));
+        assert_eq!(migrated.power, now.power);
         assert_eq!(
             DriveRecord {
-                mechanics: v3.mechanics,
+                mechanics: now.mechanics,
+                joint: now.joint,
                 ..migrated.clone()
             },
-            v3
+            now
         );
         assert_eq!(migrated.validate(), Ok(()));
-        // The frozen struct's own step.
-        assert_eq!(as_v2(&v3).into_v3(), migrated);
-        // A version-3 payload (with or without mechanics) under version 2
-        // is not a version-2 record, nor a version-1 one under version 2.
-        let mut none = v3.clone();
+        // The frozen structs' own steps.
+        assert_eq!(as_v2(&now).into_v3().into_v4(), migrated);
+        // A version-3 or -4 payload (with or without mechanics) under
+        // version 2 is not a version-2 record, nor a version-1 one under
+        // version 2.
+        let mut none = now.clone();
         none.mechanics = None;
-        let mut buf = [0u8; MAX_RECORD_BYTES];
-        let p1 = postcard::to_slice(&as_v1(&v3), &mut buf).unwrap();
-        for p in [payload(&encoded(&v3)), payload(&encoded(&none)), &p1[..]] {
+        let p1 = postcard_of(&as_v1(&now));
+        let p3 = postcard_of(&as_v3(&now));
+        let p3_none = postcard_of(&as_v3(&none));
+        for p in [
+            payload(&encoded(&now)),
+            payload(&encoded(&none)),
+            &p3[..],
+            &p3_none[..],
+            &p1[..],
+        ] {
             assert_eq!(
                 DriveRecord::decode(&envelope(2, p)),
                 Err(RecordError::Malformed)
             );
         }
     }
+}
+
+#[test]
+fn a_version_3_record_migrates_without_the_joint() {
+    let mut no_mechanics = record_a();
+    no_mechanics.mechanics = None;
+    for now in [record_a(), record_b(), no_mechanics] {
+        let p3 = postcard_of(&as_v3(&now));
+        let migrated = DriveRecord::decode(&envelope(3, &p3)).unwrap();
+        assert_eq!(migrated.joint, None);
+        assert_eq!(
+            (migrated.power, migrated.mechanics),
+            (now.power, now.mechanics)
+        );
+        assert_eq!(
+            DriveRecord {
+                joint: now.joint,
+                ..migrated.clone()
+            },
+            now
+        );
+        assert_eq!(migrated.validate(), Ok(()));
+        assert_eq!(as_v3(&now).into_v4(), migrated);
+        // A version-4 payload (with or without the joint) under version 3
+        // is not a version-3 record, nor a version-2 one.
+        let mut none = now.clone();
+        none.joint = None;
+        let p2 = postcard_of(&as_v2(&now));
+        for p in [payload(&encoded(&now)), payload(&encoded(&none)), &p2[..]] {
+            assert_eq!(
+                DriveRecord::decode(&envelope(3, p)),
+                Err(RecordError::Malformed)
+            );
+        }
+        // Nor is a version-3 payload one of version 4.
+        assert_eq!(
+            DriveRecord::decode(&envelope(SCHEMA_VERSION, &p3)),
+            Err(RecordError::Malformed)
+        );
+    }
+}
+
+#[test]
+fn a_migrated_record_applies_with_the_builds_joint() {
+    use crate::Settings;
+    use foc_core::control::cascade::CascadeConfig;
+    use foc_core::control::joint::OutputFrame;
+    let now = record_a();
+    let migrated = DriveRecord::decode(&envelope(3, &postcard_of(&as_v3(&now)))).unwrap();
+    let mut base = Settings::from_cascade(&CascadeConfig::for_motor(
+        now.motor.to_params(),
+        20_000.0,
+        5.0,
+    ));
+    base.joint.frame = OutputFrame::new(3.0, 0.5).unwrap();
+    base.limits.max_kp_nm_per_rad = 7.0;
+    let s = migrated.apply(&base, 20_000).unwrap();
+    assert_eq!(s.joint, base.joint);
+    assert_eq!(
+        (s.limits.max_kp_nm_per_rad, s.limits.max_kd_nm_s_per_rad),
+        (7.0, base.limits.max_kd_nm_s_per_rad)
+    );
+    // Saved again: with the joint, schema 4.
+    let again = DriveRecord::from_settings(&migrated.label, 20_000, &s);
+    assert_eq!(
+        again.joint,
+        Some(JointRecord::from_setup(&base.joint, &base.limits))
+    );
+    assert_eq!(encoded(&again)[0], 4);
 }
 
 #[test]
@@ -449,6 +588,208 @@ fn mechanics_are_checked_field_by_field() {
     r.mechanics = None;
     r.motor.flux_linkage_wb = 0.0;
     assert_eq!(r.validate(), Ok(()));
+}
+
+#[test]
+fn joint_is_checked_field_by_field() {
+    let ok = record_a();
+    assert_eq!(ok.validate(), Ok(()));
+    type Spoil = fn(&mut JointRecord);
+    let cases: [(&str, Spoil); 27] = [
+        ("joint.gear_ratio", |j| j.gear_ratio = 0.0),
+        ("joint.gear_ratio", |j| j.gear_ratio = f32::NAN),
+        ("joint.gear_ratio", |j| j.gear_ratio = f32::NEG_INFINITY),
+        ("joint.gear_ratio", |j| j.gear_ratio = 1e-3),
+        ("joint.gear_ratio", |j| j.gear_ratio = -2e4),
+        ("joint.rotor_at_zero_rad", |j| {
+            j.rotor_at_zero_rad = f32::NAN
+        }),
+        ("joint.rotor_at_zero_rad", |j| {
+            j.rotor_at_zero_rad = f32::INFINITY
+        }),
+        ("joint.travel_out_rad", |j| {
+            j.travel_out_rad = Some((1.0, 1.0))
+        }),
+        ("joint.travel_out_rad", |j| {
+            j.travel_out_rad = Some((2.0, -1.0))
+        }),
+        ("joint.travel_out_rad", |j| {
+            j.travel_out_rad = Some((f32::NAN, 1.0))
+        }),
+        ("joint.travel_out_rad", |j| {
+            j.travel_out_rad = Some((-1.0, f32::INFINITY))
+        }),
+        // Finite at the output, not in the rotor frame.
+        ("joint.travel_out_rad", |j| {
+            j.travel_out_rad = Some((-1e38, 1e38))
+        }),
+        ("joint.fault_margin_rad", |j| j.fault_margin_rad = -0.1),
+        ("joint.fault_margin_rad", |j| j.fault_margin_rad = f32::NAN),
+        ("joint.fault_margin_rad", |j| {
+            j.fault_margin_rad = f32::INFINITY
+        }),
+        ("joint.brake_accel_rad_s2", |j| j.brake_accel_rad_s2 = 0.0),
+        ("joint.brake_accel_rad_s2", |j| j.brake_accel_rad_s2 = -1.0),
+        ("joint.brake_accel_rad_s2", |j| {
+            j.brake_accel_rad_s2 = f32::NAN
+        }),
+        ("joint.kv_a_per_rad_s", |j| j.kv_a_per_rad_s = 0.0),
+        ("joint.kv_a_per_rad_s", |j| j.kv_a_per_rad_s = f32::INFINITY),
+        ("joint.timeout_kd_nm_s_per_rad", |j| {
+            j.timeout_kd_nm_s_per_rad = -1e-3
+        }),
+        ("joint.timeout_kd_nm_s_per_rad", |j| {
+            j.timeout_kd_nm_s_per_rad = f32::NAN
+        }),
+        ("joint.max_kp_nm_per_rad", |j| j.max_kp_nm_per_rad = -1.0),
+        ("joint.max_kp_nm_per_rad", |j| {
+            j.max_kp_nm_per_rad = f32::INFINITY
+        }),
+        ("joint.max_kp_nm_per_rad", |j| {
+            j.max_kp_nm_per_rad = f32::NAN
+        }),
+        ("joint.max_kd_nm_s_per_rad", |j| {
+            j.max_kd_nm_s_per_rad = -0.5
+        }),
+        ("joint.max_kd_nm_s_per_rad", |j| {
+            j.max_kd_nm_s_per_rad = f32::INFINITY
+        }),
+    ];
+    for (field, spoil) in cases {
+        let mut r = ok.clone();
+        spoil(r.joint.as_mut().unwrap());
+        assert_eq!(r.validate(), Err(Invalid { field }), "{field}");
+    }
+    // Without a travel range the soft stop is not used: not checked (a
+    // build with a zero speed gain has a zero soft-stop gain).
+    let mut r = ok.clone();
+    let j = r.joint.as_mut().unwrap();
+    j.travel_out_rad = None;
+    j.kv_a_per_rad_s = 0.0;
+    j.brake_accel_rad_s2 = f32::NAN;
+    assert_eq!(r.validate(), Ok(()));
+    // The bounds, zeros and any entry blend are accepted.
+    for (g, kp, kd, blend) in [
+        (0.01, 0.0, 0.0, 0),
+        (-10_000.0, f32::MAX, f32::MAX, u32::MAX),
+        (1.0, 1e-9, 1e-9, 1),
+    ] {
+        let mut r = ok.clone();
+        let j = r.joint.as_mut().unwrap();
+        j.gear_ratio = g;
+        j.max_kp_nm_per_rad = kp;
+        j.max_kd_nm_s_per_rad = kd;
+        j.entry_blend_periods = blend;
+        j.fault_margin_rad = 0.0;
+        assert_eq!(r.validate(), Ok(()), "{g} {kp} {kd} {blend}");
+    }
+    // The record's own limits come first.
+    let mut r = ok.clone();
+    r.limits.max_position_rad = f32::NAN;
+    r.joint.as_mut().unwrap().gear_ratio = f32::NAN;
+    assert_eq!(
+        r.validate(),
+        Err(Invalid {
+            field: "limits.max_position_rad"
+        })
+    );
+}
+
+#[test]
+fn joint_round_trips_through_settings() {
+    use crate::Settings;
+    use foc_core::control::cascade::CascadeConfig;
+    let r = record_a();
+    let build = CascadeConfig::for_motor(r.motor.to_params(), 20_000.0, 5.0);
+    let base = Settings::from_cascade(&build);
+    let j = r.joint.unwrap();
+    let s = r.apply(&base, 20_000).unwrap();
+    assert_eq!(s.joint.frame.gear_ratio(), -9.0);
+    assert_eq!(s.joint.frame.rotor_at_zero_rad(), 1.5);
+    assert_eq!(s.joint.travel_out_rad, Some((-1.5, 2.0)));
+    assert_eq!(s.joint.travel, j.soft_stop());
+    assert_eq!(s.joint.joint.travel, Some(j.soft_stop()));
+    assert_eq!(s.joint.joint.entry_blend_periods, 200);
+    assert_eq!(s.joint.joint.timeout_kd_nm_s_per_rad, 0.001);
+    assert_eq!(
+        (s.limits.max_kp_nm_per_rad, s.limits.max_kd_nm_s_per_rad),
+        (20.0, 0.5)
+    );
+    // The record's own position range stays the limits' (the build's
+    // without a travel range).
+    assert_eq!(
+        (s.limits.min_position_rad, s.limits.max_position_rad),
+        (-100.0, 100.0)
+    );
+    assert_eq!(DriveRecord::from_settings(&r.label, 20_000, &s), r);
+    assert_eq!(r.apply(&s, 20_000), Ok(s));
+    // In the stage: the travel range in the rotor frame, reversed by the
+    // negative ratio: 1.5 - 9 * 2 ..= 1.5 + 9 * 1.5.
+    let c = s.apply_to(&build);
+    assert_eq!(
+        (
+            c.current.limits.min_position_rad,
+            c.current.limits.max_position_rad
+        ),
+        (-16.5, 15.0)
+    );
+    assert_eq!(c.current.joint.travel, Some(j.soft_stop()));
+    assert_eq!(c.current.limits.max_kp_nm_per_rad, 20.0);
+    // Without a travel range: the record's range, no travel limits.
+    let mut free = r.clone();
+    free.joint.as_mut().unwrap().travel_out_rad = None;
+    let s = free.apply(&base, 20_000).unwrap();
+    assert_eq!(s.joint.joint.travel, None);
+    let c = s.apply_to(&build);
+    assert_eq!(
+        (
+            c.current.limits.min_position_rad,
+            c.current.limits.max_position_rad
+        ),
+        (-100.0, 100.0)
+    );
+    assert_eq!(c.current.joint.travel, None);
+    assert_eq!(DriveRecord::from_settings(&r.label, 20_000, &s), free);
+    // None keeps base's joint and maxima (a reload keeps the ones in
+    // force).
+    let mut none = r.clone();
+    none.joint = None;
+    let kept = none.apply(&base, 20_000).unwrap();
+    assert_eq!(kept.joint, base.joint);
+    assert_eq!(
+        (
+            kept.limits.max_kp_nm_per_rad,
+            kept.limits.max_kd_nm_s_per_rad
+        ),
+        (
+            base.limits.max_kp_nm_per_rad,
+            base.limits.max_kd_nm_s_per_rad
+        )
+    );
+    let on_loaded = none
+        .apply(&r.apply(&base, 20_000).unwrap(), 20_000)
+        .unwrap();
+    assert_eq!(on_loaded.joint.frame.gear_ratio(), -9.0);
+    assert_eq!(on_loaded.limits.max_kp_nm_per_rad, 20.0);
+    // A bad joint refuses the whole record.
+    let mut bad = r.clone();
+    bad.joint.as_mut().unwrap().gear_ratio = 0.0;
+    assert_eq!(
+        bad.apply(&base, 20_000),
+        Err(Invalid {
+            field: "joint.gear_ratio"
+        })
+    );
+    // The build's settings are a valid record with the identity frame.
+    let b = DriveRecord::from_settings(&r.label, 20_000, &base);
+    assert_eq!(b.validate(), Ok(()));
+    let bj = b.joint.unwrap();
+    assert_eq!(
+        (bj.gear_ratio, bj.rotor_at_zero_rad, bj.travel_out_rad),
+        (1.0, 0.0, None)
+    );
+    assert_eq!(bj.max_kp_nm_per_rad, base.limits.max_kp_nm_per_rad);
+    assert_eq!(b.apply(&base, 20_000), Ok(base));
 }
 
 #[test]
@@ -568,14 +909,48 @@ fn a_record_written_by_the_version_2_build_still_loads() {
         r,
         DriveRecord {
             mechanics: None,
+            joint: None,
             ..record_a()
         }
     );
     assert_eq!(r.validate(), Ok(()));
     // The frozen version-2 struct still writes exactly these bytes.
-    let mut buf = [0u8; MAX_RECORD_BYTES];
-    let p2 = postcard::to_slice(&as_v2(&record_a()), &mut buf).unwrap();
-    assert_eq!(envelope(2, p2), V2_GOLDEN);
+    assert_eq!(envelope(2, &postcard_of(&as_v2(&record_a()))), V2_GOLDEN);
+}
+
+/// The envelope of `example()` as the version-3 build wrote it (captured
+/// from commit 9f19a91, the last version-3 build, with `power` and
+/// `mechanics`, without the joint): it must still decode, without the
+/// joint.
+const V3_GOLDEN: [u8; 196] = [
+    0x03, 0x00, 0xbc, 0x00, 0x0b, 0x62, 0x65, 0x6e, 0x63, 0x68, 0x20, 0x6d, 0x6f, 0x74, 0x6f, 0x72,
+    0xa0, 0x9c, 0x01, 0x07, 0xcd, 0xcc, 0x4c, 0x3e, 0x82, 0xa8, 0x7b, 0x38, 0xf7, 0xcc, 0x92, 0x38,
+    0x6f, 0x12, 0x83, 0x3b, 0x9a, 0x99, 0x99, 0x3e, 0x00, 0x00, 0x7a, 0x44, 0x33, 0x33, 0xb3, 0x3e,
+    0x00, 0x00, 0x7a, 0x44, 0x01, 0x00, 0x00, 0xa0, 0x3f, 0x01, 0x07, 0x80, 0x20, 0x00, 0x00, 0xa0,
+    0x40, 0x00, 0x00, 0x96, 0x43, 0x00, 0x00, 0xc8, 0xc2, 0x00, 0x00, 0xc8, 0x42, 0x00, 0x00, 0x40,
+    0x40, 0x00, 0x00, 0xfa, 0x43, 0xcd, 0xcc, 0x4c, 0x3d, 0x00, 0x00, 0xc0, 0x3f, 0x00, 0x00, 0xf0,
+    0x41, 0x00, 0x00, 0xc8, 0x42, 0x00, 0x00, 0x7a, 0x44, 0x0a, 0x14, 0xd0, 0x0f, 0x01, 0x01, 0x00,
+    0x00, 0xcc, 0x41, 0x00, 0x00, 0xe4, 0x41, 0x00, 0x00, 0x80, 0x7f, 0x00, 0x00, 0x20, 0x41, 0x00,
+    0x00, 0x00, 0x40, 0x00, 0x00, 0x80, 0x7f, 0x00, 0x00, 0x80, 0x7f, 0x00, 0x00, 0x00, 0x40, 0x00,
+    0x00, 0x70, 0x42, 0x00, 0x00, 0x20, 0x42, 0x00, 0x00, 0xc8, 0x42, 0x00, 0x00, 0xf0, 0x42, 0x00,
+    0x00, 0x82, 0x42, 0x00, 0x00, 0xaa, 0x42, 0x00, 0x00, 0x80, 0x7f, 0x00, 0x00, 0x80, 0x7f, 0x00,
+    0x00, 0x80, 0x3f, 0x01, 0x17, 0xb7, 0xd1, 0x37, 0xac, 0xc5, 0x27, 0x37, 0x6f, 0x12, 0x03, 0x3b,
+    0x90, 0xbd, 0xfd, 0xbe,
+];
+
+#[test]
+fn a_record_written_by_the_version_3_build_still_loads() {
+    let r = DriveRecord::decode(&V3_GOLDEN).expect("version 3 decodes");
+    assert_eq!(
+        r,
+        DriveRecord {
+            joint: None,
+            ..record_a()
+        }
+    );
+    assert_eq!(r.validate(), Ok(()));
+    // The frozen version-3 struct still writes exactly these bytes.
+    assert_eq!(envelope(3, &postcard_of(&as_v3(&record_a()))), V3_GOLDEN);
 }
 
 /// The envelope of `example()` as the version-1 build wrote it (captured
@@ -600,6 +975,7 @@ fn a_record_written_by_the_version_1_build_still_loads() {
         DriveRecord {
             power: None,
             mechanics: None,
+            joint: None,
             ..record_a()
         }
     );

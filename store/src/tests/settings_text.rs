@@ -6,7 +6,7 @@ use crate::settings::Settings;
 use crate::text::{from_toml, to_toml};
 use crate::DriveRecord;
 use foc_core::control::cascade::CascadeConfig;
-use foc_core::control::{Mechanics, MotorParams};
+use foc_core::control::{Limits, Mechanics, MotorParams};
 
 fn base(pwm: f32) -> Settings {
     let motor = MotorParams {
@@ -111,7 +111,7 @@ fn toml_is_readable_and_checked() {
     let text = to_toml(&r);
     std::eprintln!("{text}");
     for key in [
-        "schema_version = 3",
+        "schema_version = 4",
         "label = \"bench motor\"",
         "[motor]",
         "r_ohm = ",
@@ -130,6 +130,17 @@ fn toml_is_readable_and_checked() {
         "inertia_kg_m2 = 0.000025",
         "viscous_friction_nm_s_per_rad = ",
         "coulomb_friction_nm = 0.002",
+        "[joint]",
+        "gear_ratio = -9.0",
+        "rotor_at_zero_rad = 1.5",
+        "travel_out_rad = [-1.5, 2.0]",
+        "fault_margin_rad = 0.25",
+        "brake_accel_rad_s2 = 2000.0",
+        "kv_a_per_rad_s = 0.05",
+        "entry_blend_periods = 200",
+        "timeout_kd_nm_s_per_rad = 0.001",
+        "max_kp_nm_per_rad = 20.0",
+        "max_kd_nm_s_per_rad = 0.5",
     ] {
         assert!(text.contains(key), "{key} missing in\n{text}");
     }
@@ -140,16 +151,35 @@ fn toml_is_readable_and_checked() {
     let t = to_toml(&u);
     assert!(!t.contains("[calibration]"));
     assert_eq!(from_toml(&t), Ok(u));
-    // No mechanics: no table, and back to None (not identified).
+    // No travel range: no key, and back to None.
+    let mut free = r.clone();
+    free.joint.as_mut().unwrap().travel_out_rad = None;
+    let t = to_toml(&free);
+    assert!(
+        t.contains("[joint]") && !t.contains("travel_out_rad"),
+        "{t}"
+    );
+    assert_eq!(from_toml(&t), Ok(free));
+    // No joint: no table, and back to None (the build's).
     let mut n = r.clone();
+    n.joint = None;
+    let t = to_toml(&n);
+    assert!(!t.contains("[joint]"));
+    assert_eq!(from_toml(&t), Ok(n.clone()));
+    // A version-3 file (before the joint) reads as version 4 without it.
+    assert_eq!(
+        from_toml(&t.replace("schema_version = 4", "schema_version = 3")),
+        Ok(n.clone())
+    );
+    // No mechanics: no table, and back to None (not identified).
     n.mechanics = None;
     let t = to_toml(&n);
     assert!(!t.contains("[mechanics]"));
     assert_eq!(from_toml(&t), Ok(n.clone()));
-    // A version-2 file (before the mechanics) reads as version 3 without
+    // A version-2 file (before the mechanics) reads as version 4 without
     // them.
     assert_eq!(
-        from_toml(&t.replace("schema_version = 3", "schema_version = 2")),
+        from_toml(&t.replace("schema_version = 4", "schema_version = 2")),
         Ok(n.clone())
     );
     // No power limits: no table, and back to None (the build's defaults).
@@ -157,18 +187,89 @@ fn toml_is_readable_and_checked() {
     let t = to_toml(&n);
     assert!(!t.contains("[power]"));
     assert_eq!(from_toml(&t), Ok(n.clone()));
-    // A version-1 file (before the power limits) reads as version 3
+    // A version-1 file (before the power limits) reads as version 4
     // without them.
     assert_eq!(
-        from_toml(&t.replace("schema_version = 3", "schema_version = 1")),
+        from_toml(&t.replace("schema_version = 4", "schema_version = 1")),
         Ok(n)
     );
     // Another schema version.
-    for v in ["0", "4"] {
+    for v in ["0", "5"] {
         let e =
-            from_toml(&text.replace("schema_version = 3", &std::format!("schema_version = {v}")))
+            from_toml(&text.replace("schema_version = 4", &std::format!("schema_version = {v}")))
                 .unwrap_err();
         assert!(e.contains("schema_version") && e.contains(v), "{e}");
+    }
+    // Joint values out of range name their field.
+    for (from, to, field) in [
+        ("gear_ratio = -9.0", "gear_ratio = 0.0", "joint.gear_ratio"),
+        (
+            "rotor_at_zero_rad = 1.5",
+            "rotor_at_zero_rad = nan",
+            "joint.rotor_at_zero_rad",
+        ),
+        (
+            "travel_out_rad = [-1.5, 2.0]",
+            "travel_out_rad = [2.0, -1.5]",
+            "joint.travel_out_rad",
+        ),
+        (
+            "fault_margin_rad = 0.25",
+            "fault_margin_rad = -0.25",
+            "joint.fault_margin_rad",
+        ),
+        (
+            "brake_accel_rad_s2 = 2000.0",
+            "brake_accel_rad_s2 = 0.0",
+            "joint.brake_accel_rad_s2",
+        ),
+        (
+            "kv_a_per_rad_s = 0.05",
+            "kv_a_per_rad_s = inf",
+            "joint.kv_a_per_rad_s",
+        ),
+        (
+            "timeout_kd_nm_s_per_rad = 0.001",
+            "timeout_kd_nm_s_per_rad = -1.0",
+            "joint.timeout_kd_nm_s_per_rad",
+        ),
+        (
+            "max_kp_nm_per_rad = 20.0",
+            "max_kp_nm_per_rad = inf",
+            "joint.max_kp_nm_per_rad",
+        ),
+        (
+            "max_kd_nm_s_per_rad = 0.5",
+            "max_kd_nm_s_per_rad = -0.5",
+            "joint.max_kd_nm_s_per_rad",
+        ),
+    ] {
+        assert!(text.contains(from), "{from}");
+        let e = from_toml(&text.replace(from, to)).unwrap_err();
+        assert_eq!(e, std::format!("record value `{field}` is out of range"));
+    }
+    // A missing joint key, a typo, or a travel range that is not a pair
+    // are errors naming the key.
+    for (from, to, key) in [
+        ("gear_ratio = -9.0\n", "", "gear_ratio"),
+        (
+            "entry_blend_periods",
+            "entry_blend_period",
+            "entry_blend_period",
+        ),
+        (
+            "travel_out_rad = [-1.5, 2.0]",
+            "travel_out_rad = [-1.5]",
+            "travel_out_rad",
+        ),
+        (
+            "entry_blend_periods = 200",
+            "entry_blend_periods = -1",
+            "entry_blend_periods",
+        ),
+    ] {
+        let e = from_toml(&text.replace(from, to)).unwrap_err();
+        assert!(e.contains(key), "{key}: {e}");
     }
     // Mechanics out of range name their field.
     for (from, to, field) in [
@@ -224,7 +325,7 @@ fn toml_is_readable_and_checked() {
         e,
         "record value `power.bus_current_regen_max_a` is out of range"
     );
-    let e = from_toml(&text.replace("schema_version = 3\n", "")).unwrap_err();
+    let e = from_toml(&text.replace("schema_version = 4\n", "")).unwrap_err();
     assert!(e.contains("schema_version"), "{e}");
     // A bad value names the field.
     let e = from_toml(&text.replace("max_current_a = 5.0", "max_current_a = -5.0")).unwrap_err();
@@ -234,7 +335,7 @@ fn toml_is_readable_and_checked() {
     assert!(e.contains("r_ohm"), "{e}");
     let e = from_toml(&text.replace("lq_h", "# lq_h")).unwrap_err();
     assert!(e.contains("lq_h"), "{e}");
-    assert_eq!(SCHEMA_VERSION, 3);
+    assert_eq!(SCHEMA_VERSION, 4);
 }
 
 #[test]
@@ -260,7 +361,20 @@ fn settings_go_back_into_the_cascade_configuration() {
     // A record's settings land where the drive reads them.
     let s = record_a().apply(&base(20_000.0), 20_000).unwrap();
     let d = s.apply_to(&c);
-    assert_eq!(d.current.limits, s.limits);
+    // The limits, with the joint's travel range in the rotor frame as the
+    // position range.
+    let j = s
+        .joint
+        .rotor_change((s.limits.min_position_rad, s.limits.max_position_rad));
+    assert_eq!(
+        d.current.limits,
+        Limits {
+            min_position_rad: j.min_position_rad,
+            max_position_rad: j.max_position_rad,
+            ..s.limits
+        }
+    );
+    assert_eq!(d.current.joint, j.joint);
     assert_eq!(d.current.current, s.current);
     assert_eq!(d.current.angle, s.angle);
     assert_eq!((d.speed, d.position), (s.speed, s.position));
