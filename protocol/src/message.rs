@@ -21,7 +21,7 @@
 //! | 0x14 | `SetPositionGains` | `kp_per_s max_velocity_rad_s max_acceleration_rad_s2` (f32, rot) | `Ack` |
 //! | 0x15 | `SetDividers` | `speed:u16 position:u16` (current-loop periods per run) | `Ack` |
 //! | 0x16 | `SetWatchdog` | `timeout_periods:u32` (0 = off), `reaction:u8` (0 disable, 1 stop, 2 hold; in impedance mode always damping, then disable) | `Ack` |
-//! | 0x17 | `SetJoint` | `gear_ratio:f32` (rotor turns per output turn, signed) `rotor_at_zero_rad:f32` (rot) `travel:u8` (0 none, 1 the range below) `travel_min_rad travel_max_rad` (f32, out; ignored without travel) `fault_margin_rad` (rot) `brake_accel_rad_s2` (rot) `kv_a_per_rad_s` (A/(rad/s), rot) (f32) `entry_blend_periods:u32` `timeout_kd_nm_s_per_rad:f32` (rot) | `Ack` |
+//! | 0x17 | `SetJoint` | `gear_ratio:f32` (rotor turns per output turn, signed) `rotor_at_zero_rad:f32` (rot) `travel:u8` (0 none, 1 the range below) `travel_min_rad travel_max_rad` (f32, out; both +0.0 without travel) `fault_margin_rad` (rot) `brake_accel_rad_s2` (rot) `kv_a_per_rad_s` (A/(rad/s), rot) (f32) `entry_blend_periods:u32` `timeout_kd_nm_s_per_rad:f32` (rot) | `Ack` |
 //! | 0x20 | `RunCalibration` | `routine:u8` (0 offsets, 1 identification, 2 alignment) | `Ack` (started) |
 //! | 0x21 | `ReadFaults` | - | `Faults` |
 //! | 0x22 | `ClearFaults` | - | `Ack` |
@@ -864,8 +864,10 @@ fn get_joint(r: &mut Reader<'_>) -> Result<JointSettings, DecodeError> {
     let rotor_at_zero_rad = r.f32()?;
     let flag = r.u8()?;
     let range = (r.f32()?, r.f32()?);
+    // Without a travel range its two fields are 0 (one layout per value).
     let travel_out_rad = match flag {
-        0 => None,
+        0 if range.0.to_bits() == 0 && range.1.to_bits() == 0 => None,
+        0 => return Err(DecodeError::BadField(3)),
         1 => Some(range),
         _ => return Err(DecodeError::BadField(2)),
     };

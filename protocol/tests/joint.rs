@@ -595,3 +595,40 @@ fn field_names_for_people() {
     );
     assert_eq!(Request::Ping.field_name(0), None);
 }
+
+#[test]
+fn a_joint_without_travel_has_one_layout() {
+    use foc_protocol::frame::{decode_payload, FrameErrorKind, CRC};
+    let body = |flag: u8, lo: f32| {
+        let mut p = vec![0x17u8, 1, 0];
+        for x in [-20.0f32, 3.0] {
+            p.extend(x.to_le_bytes());
+        }
+        p.push(flag);
+        for x in [lo, 0.0, 0.5, 200.0, 0.05] {
+            p.extend(x.to_le_bytes());
+        }
+        p.extend(200u32.to_le_bytes());
+        p.extend(0.01f32.to_le_bytes());
+        let crc = CRC.checksum(&p);
+        p.extend(crc.to_le_bytes());
+        p
+    };
+    let p = decode_payload::<Request>(&body(0, 0.0)).unwrap();
+    assert_eq!(
+        p.msg,
+        Request::SetJoint(JointSettings {
+            travel_out_rad: None,
+            timeout_kd_nm_s_per_rad: 0.01,
+            ..geared()
+        })
+    );
+    assert_eq!(
+        decode_payload::<Request>(&body(0, -1.0)).unwrap_err().kind,
+        FrameErrorKind::BadField(3)
+    );
+    assert_eq!(
+        decode_payload::<Request>(&body(2, 0.0)).unwrap_err().kind,
+        FrameErrorKind::BadField(2)
+    );
+}
