@@ -199,6 +199,7 @@ pub fn mode_name(m: Mode) -> &'static str {
         Mode::Velocity => "velocity",
         Mode::Position => "position",
         Mode::OpenLoop => "open_loop",
+        Mode::Impedance => "impedance",
     }
 }
 
