@@ -5,6 +5,8 @@
 //!   `-serial tcp:127.0.0.1:PORT,server,nowait`; or a serial port).
 //! - [`config`]: configuration records over the link (read, write, store
 //!   operations with a longer timeout for flash stalls).
+//! - [`joint`]: robot joints: the joint's settings, homing, and texts that
+//!   say which frame (output or rotor) a value is in.
 //! - [`sim`]: a simulated device (the real [`foc_protocol::DeviceState`]
 //!   over a kinematic drive model) served on a TCP socket, for tests and for
 //!   trying `foc-ctl` without hardware.
@@ -28,6 +30,7 @@
 #![warn(missing_docs)]
 
 pub mod config;
+pub mod joint;
 pub mod sim;
 pub mod transport;
 

@@ -1,15 +1,24 @@
 //! `foc-ctl`: command-line host tool for the drive's command channel.
+//!
+//! Frames (design §21): positions, velocities, torques and stiffnesses of
+//! commands (`mode position|velocity|impedance`, `home`) and telemetry are
+//! the joint's **output** frame (after the gearbox; the same numbers as the
+//! rotor's until `joint` sets a gear or homing an offset); the motor's
+//! limits (`limits`) and the joint's rotor-side settings are the **rotor**'s.
 
 use clap::{Parser, Subcommand, ValueEnum};
 use foc_core::angle::ElectricalAngle;
+use foc_core::control::homing::{EndStop, HomingMethod};
+use foc_core::control::joint::Impedance;
 use foc_core::control::power::ActiveLimit;
 use foc_core::control::stage::TimeoutReaction;
 use foc_core::control::{Command, Fault, Limits};
+use foc_ctl::joint::{error_text, homing_text, joint_text, JointEdit};
 use foc_ctl::{describe_error, sim::SimServer, Client, ClientError, StreamSample};
 use foc_protocol::config::{ConfigSource, StoreOp};
 use foc_protocol::message::{
-    Calibration, CurrentGains, ErrorCode, ParamId, PositionGains, SpeedGains, TelemetryRate,
-    WatchdogConfig,
+    Calibration, CurrentGains, ErrorCode, HomingStart, HomingState, ParamId, PositionGains,
+    Request, SpeedGains, TelemetryRate, WatchdogConfig,
 };
 use foc_store::text::{from_toml, to_toml};
 use foc_store::{DriveRecord, MAX_RECORD_BYTES};
@@ -103,7 +112,7 @@ enum Cmd {
         #[arg(long, value_name = "FILE")]
         svg: Option<PathBuf>,
     },
-    /// Set the command limits (all six).
+    /// Set the motor's command limits (all eight; rotor frame).
     Limits {
         /// Current limit [A].
         #[arg(long)]
@@ -123,7 +132,23 @@ enum Cmd {
         /// Open-loop electrical speed limit [rad/s].
         #[arg(long)]
         max_ol_omega_e: f32,
+        /// Largest impedance stiffness [N m/rad, rotor].
+        #[arg(long, allow_hyphen_values = true)]
+        max_kp: f32,
+        /// Largest impedance damping [N m s/rad, rotor].
+        #[arg(long, allow_hyphen_values = true)]
+        max_kd: f32,
     },
+    /// The joint: output frame (gear, home offset), travel range, soft stop;
+    /// shown after a change, or alone without options.
+    Joint(JointArgs),
+    /// Home the joint (sets the output frame's zero) and wait for the result.
+    Home {
+        #[command(subcommand)]
+        method: HomeCmd,
+    },
+    /// One telemetry sample, the joint and homing, each value with its frame.
+    Status,
     /// Set loop gains.
     Gains {
         #[command(subcommand)]
@@ -160,7 +185,121 @@ enum Cmd {
         /// Address to listen on.
         #[arg(long, default_value = "127.0.0.1:4444")]
         listen: String,
+        /// Mechanical end stops of the simulated rotor [rad, rotor] (to try
+        /// `home end-stop`).
+        #[arg(long, num_args = 2, value_names = ["LOW", "HIGH"], allow_hyphen_values = true)]
+        end_stops: Option<Vec<f32>>,
     },
+}
+
+#[derive(clap::Args)]
+struct JointArgs {
+    /// Rotor turns per output turn; negative when the output turns the other way.
+    #[arg(long, allow_hyphen_values = true)]
+    gear_ratio: Option<f32>,
+    /// Home offset: the rotor position where the output reads 0 [rad, rotor].
+    #[arg(long, allow_hyphen_values = true)]
+    offset: Option<f32>,
+    /// Travel range at the output [rad, output] (soft stop at its ends).
+    #[arg(long, num_args = 2, value_names = ["MIN", "MAX"], allow_hyphen_values = true, conflicts_with = "no_travel")]
+    travel: Option<Vec<f32>>,
+    /// Remove the travel range (the motor's position range applies).
+    #[arg(long)]
+    no_travel: bool,
+    /// Fault (TravelLimit) beyond the travel range by more than this [rad, rotor].
+    #[arg(long, allow_hyphen_values = true)]
+    fault_margin: Option<f32>,
+    /// Soft stop's deceleration [rad/s^2, rotor].
+    #[arg(long, allow_hyphen_values = true)]
+    brake_accel: Option<f32>,
+    /// Soft stop's velocity gain [A/(rad/s), rotor].
+    #[arg(long, allow_hyphen_values = true)]
+    kv: Option<f32>,
+    /// Impedance entry blend [current-loop periods].
+    #[arg(long)]
+    entry_blend: Option<u32>,
+    /// Least damping after an impedance command times out [N m s/rad, rotor].
+    #[arg(long, allow_hyphen_values = true)]
+    timeout_kd: Option<f32>,
+}
+
+#[derive(Subcommand)]
+enum HomeCmd {
+    /// The present position is home.
+    Present {
+        /// The output position home reads [rad, output].
+        #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+        at: f32,
+    },
+    /// Search an end stop at a slow speed, found by the current it takes
+    /// (at most the homing current), then back off. After it the joint
+    /// holds the back-off point until the next command (or the link
+    /// watchdog: damping, then disable).
+    EndStop {
+        /// Search velocity [rad/s, output]; its sign is the direction.
+        #[arg(long, allow_hyphen_values = true)]
+        velocity: f32,
+        /// Homing current [A]: the most the stop is pressed with.
+        #[arg(long, allow_hyphen_values = true)]
+        current: f32,
+        /// Share of the homing current, held with the joint still, that
+        /// means the stop is reached.
+        #[arg(long, allow_hyphen_values = true, default_value_t = 0.7)]
+        detect: f32,
+        /// How long the stop must be held [s].
+        #[arg(long, allow_hyphen_values = true, default_value_t = 0.05)]
+        confirm: f32,
+        /// Distance to back off from the stop [rad, output].
+        #[arg(long, allow_hyphen_values = true)]
+        backoff: f32,
+        /// Longest search before giving up [rad, output].
+        #[arg(long, allow_hyphen_values = true)]
+        max_travel: f32,
+        /// The output position the stop reads [rad, output].
+        #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+        at: f32,
+        /// Longest wait for the result [s].
+        #[arg(long, default_value_t = 60.0)]
+        timeout: f64,
+    },
+}
+
+impl HomeCmd {
+    /// The request (output frame) and the longest wait for its result [s].
+    fn request(self) -> (HomingStart, f64) {
+        match self {
+            HomeCmd::Present { at } => (
+                HomingStart {
+                    method: HomingMethod::Present,
+                    home_output_rad: at,
+                },
+                0.0,
+            ),
+            HomeCmd::EndStop {
+                velocity,
+                current,
+                detect,
+                confirm,
+                backoff,
+                max_travel,
+                at,
+                timeout,
+            } => (
+                HomingStart {
+                    method: HomingMethod::EndStop(EndStop {
+                        velocity_rad_s: velocity,
+                        current_a: current,
+                        detect_fraction: detect,
+                        confirm_s: confirm,
+                        backoff_rad: backoff,
+                        max_travel_rad: max_travel,
+                    }),
+                    home_output_rad: at,
+                },
+                timeout,
+            ),
+        }
+    }
 }
 
 #[derive(Subcommand)]
@@ -172,15 +311,37 @@ enum ModeCmd {
         #[arg(allow_hyphen_values = true)]
         iq_a: f32,
     },
-    /// Velocity [rad/s, mechanical].
+    /// Velocity [rad/s, output].
     Velocity {
         #[arg(allow_hyphen_values = true)]
         rad_s: f32,
     },
-    /// Position [rad, mechanical].
+    /// Position [rad, output].
     Position {
         #[arg(allow_hyphen_values = true)]
         rad: f32,
+    },
+    /// Impedance: torque = kp (position - p) + kd (velocity - v) + torque-ff
+    /// (output frame), clamped to the torque limit and the current limit.
+    Impedance {
+        /// Position reference [rad, output].
+        #[arg(long, allow_hyphen_values = true)]
+        position: f32,
+        /// Velocity reference [rad/s, output] (the reference advances with it).
+        #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+        velocity: f32,
+        /// Stiffness [N m/rad, output].
+        #[arg(long, allow_hyphen_values = true)]
+        kp: f32,
+        /// Damping [N m s/rad, output].
+        #[arg(long, allow_hyphen_values = true)]
+        kd: f32,
+        /// Feed-forward torque [N m, output].
+        #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+        torque_ff: f32,
+        /// Largest torque [N m, output] (default: the current limit's).
+        #[arg(long, allow_hyphen_values = true, default_value_t = f32::INFINITY)]
+        torque_limit: f32,
     },
     /// Open-loop dq voltage [V] at an electrical angle, rotating at omega_e.
     OpenLoop {
@@ -325,7 +486,7 @@ fn write_csv(path: &Path, samples: &[StreamSample]) -> std::io::Result<()> {
     let mut f = std::io::BufWriter::new(std::fs::File::create(path)?);
     writeln!(
         f,
-        "host_time_s,seq,period,i_d_a,i_q_a,v_d_v,v_q_v,velocity_rad_s,position_rad,mode,fault_code,max_loop_cycles,v_bus_v,bus_power_w,bus_current_a,power_limit,limit_left_pct,brake_on,winding_c,stage_c"
+        "host_time_s,seq,period,i_d_a,i_q_a,v_d_v,v_q_v,velocity_out_rad_s,position_out_rad,mode,fault_code,max_loop_cycles,v_bus_v,bus_power_w,bus_current_a,power_limit,limit_left_pct,brake_on,winding_c,stage_c"
     )?;
     for s in samples {
         let t = &s.sample;
@@ -365,8 +526,8 @@ fn write_svg(path: &Path, samples: &[StreamSample]) -> Result<(), Box<dyn std::e
     let t0 = samples.first().map_or(0.0, |s| s.host_time.as_secs_f64());
     type Series = (&'static str, &'static str, fn(&StreamSample) -> f32);
     let series: [Series; 3] = [
-        ("velocity", "rad/s", |s| s.sample.velocity_rad_s),
-        ("position", "rad", |s| s.sample.position_rad),
+        ("velocity", "rad/s, output", |s| s.sample.velocity_rad_s),
+        ("position", "rad, output", |s| s.sample.position_rad),
         ("i_q", "A", |s| s.sample.i_q_a),
     ];
     for (area, (name, unit, get)) in panels.iter().zip(series) {
@@ -402,8 +563,8 @@ fn write_svg(path: &Path, samples: &[StreamSample]) -> Result<(), Box<dyn std::e
 type CliResult = Result<(), Box<dyn std::error::Error>>;
 
 fn run(cli: Cli) -> CliResult {
-    if let Cmd::Simulate { listen } = &cli.cmd {
-        return simulate(listen);
+    if let Cmd::Simulate { listen, end_stops } = &cli.cmd {
+        return simulate(listen, end_stops.as_deref());
     }
     let mut c = connect(&cli)?;
     match cli.cmd {
@@ -431,13 +592,20 @@ fn run(cli: Cli) -> CliResult {
         }
         Cmd::Calibrate { routine } => calibrate(&mut c, routine),
         Cmd::Config { op } => config(&mut c, op),
+        Cmd::Joint(args) => joint(&mut c, &args),
+        Cmd::Home { method } => home(&mut c, method),
+        Cmd::Status => status(&mut c),
         setting => configure(&mut c, setting),
     }
 }
 
 /// `simulate`: serve the simulated device until killed.
-fn simulate(listen: &str) -> CliResult {
-    let server = SimServer::spawn(std::net::TcpListener::bind(listen)?)?;
+fn simulate(listen: &str, end_stops: Option<&[f32]>) -> CliResult {
+    let mut dev = foc_ctl::sim::SimDevice::default();
+    if let Some(&[lo, hi]) = end_stops {
+        dev.drive.stops_rad = (lo, hi);
+    }
+    let server = SimServer::spawn_with(std::net::TcpListener::bind(listen)?, dev)?;
     eprintln!("simulated device on {} (Ctrl-C to stop)", server.addr());
     server.wait();
     Ok(())
@@ -477,9 +645,93 @@ fn set_mode(c: &mut Client, mode: ModeCmd) -> CliResult {
             theta_e: ElectricalAngle::from_degrees(theta_deg),
             omega_e_rad_s: omega_e,
         },
+        ModeCmd::Impedance {
+            position,
+            velocity,
+            kp,
+            kd,
+            torque_ff,
+            torque_limit,
+        } => Command::Impedance(Impedance {
+            position_rad: position,
+            velocity_rad_s: velocity,
+            kp_nm_per_rad: kp,
+            kd_nm_s_per_rad: kd,
+            torque_ff_nm: torque_ff,
+            torque_limit_nm: torque_limit,
+        }),
     };
-    c.set_command(cmd)?;
-    println!("ok: {cmd:?}");
+    c.set_command(cmd)
+        .map_err(|e| error_text(&Request::SetCommand(cmd), &e))?;
+    println!("ok: {cmd:?} (positions, velocities, torques: output frame)");
+    Ok(())
+}
+
+/// `joint [...]`: change what is given (read, edit, send), then show the
+/// joint in force.
+fn joint(c: &mut Client, a: &JointArgs) -> CliResult {
+    let edit = JointEdit {
+        gear_ratio: a.gear_ratio,
+        rotor_at_zero_rad: a.offset,
+        travel_out_rad: match (&a.travel, a.no_travel) {
+            (Some(v), _) => Some(v.first().copied().zip(v.get(1).copied())),
+            (None, true) => Some(None),
+            (None, false) => None,
+        },
+        fault_margin_rad: a.fault_margin,
+        brake_accel_rad_s2: a.brake_accel,
+        kv_a_per_rad_s: a.kv,
+        entry_blend_periods: a.entry_blend,
+        timeout_kd_nm_s_per_rad: a.timeout_kd,
+    };
+    if !edit.is_empty() {
+        let j = edit.apply(c.joint()?);
+        c.set_joint(j)
+            .map_err(|e| error_text(&Request::SetJoint(j), &e))?;
+    }
+    println!("{}", joint_text(&c.joint()?));
+    Ok(())
+}
+
+/// `home present|end-stop`: start homing, show its progress (output
+/// frame) until it ends, then the frame it set.
+fn home(c: &mut Client, method: HomeCmd) -> CliResult {
+    let (h, timeout) = method.request();
+    let state = c
+        .home(h, Duration::from_secs_f64(timeout.max(0.0)), |t| {
+            println!(
+                "homing: p={:.4} rad w={:.3} rad/s (output) iq={:.3} A",
+                t.position_rad, t.velocity_rad_s, t.i_q_a
+            )
+        })
+        .map_err(|e| error_text(&Request::StartHoming(h), &e))?;
+    match state {
+        HomingState::Done => {
+            println!("homed: {}", homing_text(state));
+            println!("{}", joint_text(&c.joint()?));
+            Ok(())
+        }
+        HomingState::Running => Err("homing: no result within the timeout (still running)".into()),
+        other => Err(format!("homing {}", homing_text(other)).into()),
+    }
+}
+
+/// `status`: one sample (frames stated), the joint and homing.
+fn status(c: &mut Client) -> CliResult {
+    let t = c.read_telemetry()?;
+    println!("mode           {:?}", t.mode);
+    println!("position       {} rad (output)", t.position_rad);
+    println!("velocity       {} rad/s (output)", t.velocity_rad_s);
+    println!("currents       id {} A, iq {} A", t.i_d_a, t.i_q_a);
+    println!("bus            {} V", t.v_bus_v);
+    let fault = match (t.fault_code, Fault::from_code(t.fault_code)) {
+        (0, _) => "none".to_string(),
+        (_, Some(f)) => format!("{} ({})", f.name(), f.code()),
+        (code, None) => format!("code {code}"),
+    };
+    println!("first fault    {fault}");
+    println!("homing         {}", homing_text(c.homing_state()?));
+    println!("{}", joint_text(&c.joint()?));
     Ok(())
 }
 
@@ -577,7 +829,7 @@ fn plot_tail(out: &mut impl Write, samples: &[StreamSample], s: &StreamSample) {
     let i: Vec<f32> = tail.iter().map(|s| s.sample.i_q_a).collect();
     let _ = write!(
         out,
-        "\rw {:>9.2} rad/s {}  iq {:>7.3} A {}",
+        "\rw {:>9.2} rad/s (output) {}  iq {:>7.3} A {}",
         s.sample.velocity_rad_s,
         sparkline(&w),
         s.sample.i_q_a,
@@ -612,7 +864,7 @@ fn power_text(t: &foc_protocol::message::Telemetry) -> String {
 fn print_sample(s: &StreamSample) {
     let t = &s.sample;
     println!(
-        "{:>10} {:?} w={:.3} p={:.4} id={:.3} iq={:.3} vd={:.3} vq={:.3} vbus={:.2} pbus={:.1} twind={:.1} tstage={:.1} fault={} cyc={}{}",
+        "{:>10} {:?} w_out={:.3} p_out={:.4} id={:.3} iq={:.3} vd={:.3} vq={:.3} vbus={:.2} pbus={:.1} twind={:.1} tstage={:.1} fault={} cyc={}{}",
         t.period, t.mode, t.velocity_rad_s, t.position_rad, t.i_d_a, t.i_q_a,
         t.v_d_v, t.v_q_v, t.v_bus_v, bus_power_w(t), t.winding_c, t.stage_c,
         t.fault_code, t.max_loop_cycles, power_text(t)
@@ -631,14 +883,22 @@ fn configure(c: &mut Client, setting: Cmd) -> CliResult {
             max_position,
             max_ol_voltage,
             max_ol_omega_e,
-        } => c.set_limits(Limits {
-            max_current_a: max_current,
-            max_velocity_rad_s: max_velocity,
-            min_position_rad: min_position,
-            max_position_rad: max_position,
-            max_open_loop_voltage_v: max_ol_voltage,
-            max_open_loop_omega_e_rad_s: max_ol_omega_e,
-        })?,
+            max_kp,
+            max_kd,
+        } => {
+            let l = Limits {
+                max_current_a: max_current,
+                max_velocity_rad_s: max_velocity,
+                min_position_rad: min_position,
+                max_position_rad: max_position,
+                max_open_loop_voltage_v: max_ol_voltage,
+                max_open_loop_omega_e_rad_s: max_ol_omega_e,
+                max_kp_nm_per_rad: max_kp,
+                max_kd_nm_s_per_rad: max_kd,
+            };
+            c.set_limits(l)
+                .map_err(|e| error_text(&Request::SetLimits(l), &e))?
+        }
         Cmd::Gains { which } => set_gains(c, which)?,
         Cmd::Dividers { speed, position } => c.set_dividers(speed, position)?,
         Cmd::Watchdog {
@@ -660,7 +920,10 @@ fn configure(c: &mut Client, setting: Cmd) -> CliResult {
         | Cmd::Param { .. }
         | Cmd::Telemetry { .. }
         | Cmd::Calibrate { .. }
-        | Cmd::Config { .. } => return Err("not a setting (handled by `run`)".into()),
+        | Cmd::Config { .. }
+        | Cmd::Joint(_)
+        | Cmd::Home { .. }
+        | Cmd::Status => return Err("not a setting (handled by `run`)".into()),
     }
     println!("ok");
     Ok(())

@@ -4,6 +4,15 @@
 //! torque mode). It exercises the protocol, not the control: the motor and
 //! inverter physics live in the `foc-bench` crate.
 //!
+//! Robot joints (design §21): the joint in force is the settings' `joint`
+//! (`SetJoint` replaces it; the travel range narrows the position range
+//! commands are checked against); impedance mode is a spring-damper on a
+//! rigid rotor integrated every current-loop period; leaving the travel
+//! range by more than its margin trips `TravelLimit` (there is no soft stop
+//! in this model); [`SimDrive::stops_rad`] are mechanical end stops to home
+//! against (none by default). Homing itself is the protocol's
+//! ([`foc_protocol::DeviceState`] runs it in `poll`), as on a board.
+//!
 //! Its configuration is a [`foc_store::Settings`] (limits, motor, gains,
 //! dividers, calibrated flag: what the drive reports and checks commands
 //! against), kept in a [`foc_store::Store`] over a RAM flash
@@ -19,11 +28,13 @@
 //! ```
 
 use foc_core::control::cascade::CascadeConfig;
+use foc_core::control::joint::{Impedance, JointSetup};
 use foc_core::control::{Command, CommandError, Fault, FaultSet, Limits, Mode, MotorParams};
 use foc_core::tuning::CurrentPiGains;
 use foc_protocol::config::{ConfigSource, StoreOp, MAX_RECORD};
 use foc_protocol::device::{DeviceContext, DeviceState, Refusal, WatchdogConfig};
 use foc_protocol::frame::{encode, FrameDecoder, MAX_FRAME};
+use foc_protocol::joint::limits_in_force;
 use foc_protocol::message::{
     Calibration, CurrentGains, ErrorCode, ParamId, PositionGains, SpeedGains, Telemetry,
 };
@@ -89,6 +100,8 @@ pub fn default_settings() -> Settings {
         max_position_rad: 1000.0,
         max_open_loop_voltage_v: 12.0,
         max_open_loop_omega_e_rad_s: 5000.0,
+        // The cascade's: full current for 0.01 rad or 1 rad/s of error.
+        ..s.limits
     };
     s.calibrated = false;
     s
@@ -127,6 +140,12 @@ pub struct SimDrive {
     pub period: u32,
     /// Bus voltage [V].
     pub v_bus_v: f32,
+    /// The impedance law's position reference [rad, rotor] (advanced with
+    /// the command's velocity).
+    pub impedance_ref_rad: f32,
+    /// Mechanical end stops `(low, high)` [rad, rotor]: the rotor stops
+    /// dead there (infinite: none).
+    pub stops_rad: (f32, f32),
 }
 
 impl Default for SimDrive {
@@ -146,6 +165,8 @@ impl Default for SimDrive {
             iq_a: 0.0,
             period: 0,
             v_bus_v: 24.0,
+            impedance_ref_rad: 0.0,
+            stops_rad: (f32::NEG_INFINITY, f32::INFINITY),
         }
     }
 }
@@ -166,6 +187,8 @@ impl fmt::Debug for SimDrive {
             .field("iq_a", &self.iq_a)
             .field("period", &self.period)
             .field("v_bus_v", &self.v_bus_v)
+            .field("impedance_ref_rad", &self.impedance_ref_rad)
+            .field("stops_rad", &self.stops_rad)
             .finish()
     }
 }
@@ -233,14 +256,71 @@ impl SimDrive {
         f32::from(self.settings.current.motor.pole_pairs.max(1))
     }
 
+    /// The limits commands are checked against: the motor's, with the
+    /// joint's travel range (rotor frame).
+    pub fn limits_in_force(&self) -> Limits {
+        limits_in_force(&self.settings.limits, &self.settings.joint)
+    }
+
     /// Advance by `periods` current-loop periods.
     pub fn advance(&mut self, periods: u32) {
         let mut left = periods;
         while left > 0 {
-            let n = left.min(20); // sub-step of 1 ms at 20 kHz
+            // Sub-steps of 1 ms at 20 kHz; impedance (a stiff spring on a
+            // light rotor) every period.
+            let n = match self.command {
+                Command::Impedance(_) => 1,
+                _ => left.min(20),
+            };
             left -= n;
             self.step(n as f32 / PWM_HZ);
             self.period = self.period.wrapping_add(n);
+        }
+    }
+
+    /// The impedance law's torque [N m] (within its torque limit and the
+    /// current limit), its reference advanced by `dt`.
+    fn impedance_torque(&mut self, c: &Impedance, dt: f32) -> f32 {
+        let t_max = c
+            .torque_limit_nm
+            .min(self.kt() * self.settings.limits.max_current_a);
+        let t = c.kp_nm_per_rad * (self.impedance_ref_rad - self.position_rad)
+            + c.kd_nm_s_per_rad * (c.velocity_rad_s - self.velocity_rad_s)
+            + c.torque_ff_nm;
+        let l = self.limits_in_force();
+        self.impedance_ref_rad = foc_core::clamp(
+            self.impedance_ref_rad + c.velocity_rad_s * dt,
+            l.min_position_rad,
+            l.max_position_rad,
+        );
+        foc_core::clamp(t, -t_max, t_max)
+    }
+
+    /// The end stops: the rotor stops dead at either.
+    fn apply_stops(&mut self) {
+        let (lo, hi) = self.stops_rad;
+        if self.position_rad < lo {
+            self.position_rad = lo;
+            self.velocity_rad_s = self.velocity_rad_s.max(0.0);
+        }
+        if self.position_rad > hi {
+            self.position_rad = hi;
+            self.velocity_rad_s = self.velocity_rad_s.min(0.0);
+        }
+    }
+
+    /// Beyond the travel range by more than its margin with the bridge on:
+    /// `TravelLimit`.
+    fn check_travel(&mut self) {
+        let j = &self.settings.joint;
+        if j.travel_out_rad.is_none() || self.command == Command::Disable {
+            return;
+        }
+        let l = self.limits_in_force();
+        let m = j.travel.fault_margin_rad;
+        let p = self.position_rad;
+        if p > l.max_position_rad + m || p < l.min_position_rad - m {
+            self.trip(Fault::TravelLimit);
         }
     }
 
@@ -257,6 +337,15 @@ impl SimDrive {
             }
         }
         let w0 = self.velocity_rad_s;
+        if let Command::Impedance(c) = self.command {
+            let t = self.impedance_torque(&c, dt);
+            self.iq_a = t / self.kt();
+            self.velocity_rad_s = w0 + (t - B_NM_S * w0) / J_KG_M2 * dt;
+            self.position_rad += self.velocity_rad_s * dt;
+            self.apply_stops();
+            self.check_travel();
+            return;
+        }
         let follow = |w: f32, target: f32| w + (target - w) * (dt / TAU_S).min(1.0);
         let w = match self.command {
             Command::Disable => follow(w0, 0.0),
@@ -269,6 +358,8 @@ impl SimDrive {
                 follow(w0, w_ref)
             }
             Command::OpenLoop { omega_e_rad_s, .. } => omega_e_rad_s / self.pole_pairs(),
+            // Stepped above.
+            Command::Impedance(_) => w0,
         };
         self.iq_a = match self.command {
             Command::Disable | Command::OpenLoop { .. } => 0.0,
@@ -277,6 +368,8 @@ impl SimDrive {
         };
         self.position_rad += 0.5 * (w0 + w) * dt;
         self.velocity_rad_s = w;
+        self.apply_stops();
+        self.check_travel();
     }
 }
 
@@ -285,7 +378,10 @@ impl DeviceContext for SimDrive {
         if !self.faults.is_empty() && cmd != Command::Disable {
             return Err(CommandError::Faulted);
         }
-        cmd.validate(&self.settings.limits)?;
+        cmd.validate(&self.limits_in_force())?;
+        if let Command::Impedance(i) = cmd {
+            self.impedance_ref_rad = i.position_rad;
+        }
         self.command = cmd;
         Ok(())
     }
@@ -312,6 +408,20 @@ impl DeviceContext for SimDrive {
         self.settings.limits = limits;
         // As `DriveRecord::apply` does: the speed loop's output limit.
         self.settings.speed.current_limit_a = limits.max_current_a;
+        Ok(())
+    }
+    fn joint(&self) -> JointSetup {
+        self.settings.joint
+    }
+    fn set_joint(&mut self, setup: JointSetup) -> Result<(), Refusal> {
+        let l = limits_in_force(&self.settings.limits, &setup);
+        // As the drive: a position target outside the new range refuses.
+        if let Command::Position { rad } = self.command {
+            if !(l.min_position_rad..=l.max_position_rad).contains(&rad) {
+                return Err(Refusal::NotDisabled);
+            }
+        }
+        self.settings.joint = setup;
         Ok(())
     }
     fn set_current_gains(&mut self, g: CurrentGains) -> Result<(), Refusal> {

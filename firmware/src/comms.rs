@@ -34,18 +34,29 @@
 //! | limits | `max_current_a` above the build-time limit (`config::MOTOR`) | `Unsupported` |
 //! | current gains | not positive (a calibration permit cannot vouch for them) | `Unsupported` |
 //! | calibration `alignment` alone | always: it is part of `identification` | `Unsupported` |
+//! | joint | the pending position command's target outside the new travel range | `NotDisabled` |
+//!
+//! The joint (design §21): `Settings::joint` is the joint in force; the
+//! protocol converts between the host's output frame and the drive's rotor
+//! frame with it, and runs homing in `poll` (housekeeping, 50 Hz; its
+//! commands go to the `command` mailbox like the host's). A `SetJoint`
+//! (or a homing's result) goes to the current loop as
+//! `ConfigChange::joint`, the travel range in the rotor frame, taken while
+//! running too; a change of the limits or an adopted record sends it again
+//! (the limits' position range would replace the travel range).
 
 use crate::config;
 use crate::persist::{self, BoardStore};
 use board_support::board;
 use foc_core::calibration::identification::IdentificationResult;
 use foc_core::calibration::Calibrated;
+use foc_core::control::joint::JointSetup;
 use foc_core::control::position::PositionLoopConfig;
 use foc_core::control::speed::SpeedLoopConfig;
 use foc_core::control::{
     Command, CommandError, CommandSlot, Fault, FaultSet, Feedback, Limits, Mode,
 };
-use foc_core::drive::{ConfigChange, Status};
+use foc_core::drive::{ConfigChange, JointChange, Status};
 use foc_protocol::config::{ConfigSource, StoreOp, MAX_RECORD};
 use foc_protocol::frame::{encode, FrameDecoder, MAX_FRAME};
 use foc_protocol::message::ErrorCode;
@@ -207,6 +218,12 @@ impl Link<'_> {
         self.settings.current.motor
     }
 
+    /// The drive's change for `joint` on the motor's limits `limits`: the
+    /// travel range in the rotor frame (or the limits' own range).
+    fn joint_change(joint: &JointSetup, limits: &Limits) -> JointChange {
+        joint.rotor_change((limits.min_position_rad, limits.max_position_rad))
+    }
+
     /// Make `s` (a whole, validated record's settings) the configuration in
     /// force: every owning task gets its part. The record's calibration
     /// becomes the drive's permit only where the sensor's angle survives a
@@ -226,6 +243,7 @@ impl Link<'_> {
             power: Some(s.power),
             permit,
             mechanics: s.mechanics,
+            joint: Some(Self::joint_change(&s.joint, &s.limits)),
             ..ConfigChange::default()
         });
         self.out.config.speed = Some(s.speed);
@@ -349,8 +367,33 @@ impl DeviceContext for Link<'_> {
         self.settings.speed = speed;
         let c = self.out.config.current.get_or_insert_with(Default::default);
         c.limits = Some(limits);
+        // Applied after the limits: the travel range stays in force.
+        c.joint = Some(Self::joint_change(&self.settings.joint, &limits));
         self.out.config.speed = Some(speed);
         Ok(())
+    }
+    fn joint(&self) -> JointSetup {
+        self.settings.joint
+    }
+    fn set_joint(&mut self, setup: JointSetup) -> Result<(), Refusal> {
+        let change = Self::joint_change(&setup, &self.settings.limits);
+        // The drive refuses a range that leaves the active position
+        // target outside; the pending command is the one it will have.
+        if let Command::Position { rad } = self.snap.pending.command {
+            if !(change.min_position_rad..=change.max_position_rad).contains(&rad) {
+                return Err(Refusal::NotDisabled);
+            }
+        }
+        self.settings.joint = setup;
+        let c = self.out.config.current.get_or_insert_with(Default::default);
+        c.joint = Some(change);
+        Ok(())
+    }
+    fn torque_constant_nm_per_a(&self) -> f32 {
+        self.motor().torque_constant_nm_per_a()
+    }
+    fn feedback(&self) -> Feedback {
+        self.snap.feedback
     }
     fn set_current_gains(&mut self, gains: CurrentGains) -> Result<(), Refusal> {
         // After an identification `settings.current` holds the measured

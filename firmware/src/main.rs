@@ -9,7 +9,7 @@
 //! | `current_loop` | `ADC` (injected end of conversion, triggered by TIM1 at the PWM centre) | 4 | every PWM period, 20 kHz | glue: read the shared inputs, `Drive::run_period` once (sensors, lifecycle, bridge; feedback and status written in place), pend the slower loops, time itself |
 //! | `speed_loop` | `EXTI1` (pended by `current_loop`) | 3 | every `SPEED_DIVIDER` = 10 periods, 2 kHz | `SpeedStage::step`: velocity PI -> `iq_ref` |
 //! | `position_loop` | `EXTI2` (pended by `current_loop`) | 2 | every `POSITION_DIVIDER` = 20 periods, 1 kHz | `PositionStage::step`: trajectory + P -> velocity reference |
-//! | `housekeeping` | `EXTI3` (pended by `current_loop`) | 1 | every 400 periods, 50 Hz | start-up command, telemetry log, command-channel poll (link watchdog, streamed telemetry: at most one sample per run, so up to 50 Hz) |
+//! | `housekeeping` | `EXTI3` (pended by `current_loop`) | 1 | every 400 periods, 50 Hz | start-up command, telemetry log, command-channel poll (link watchdog, homing steps, streamed telemetry: at most one sample per run, so up to 50 Hz) |
 //! | `serial` | `USART2` (`board::SERIAL_IRQ`, the command UART) | 1 | per received / sent byte | command channel: bytes to `DeviceState::on_byte`, replies queued (see `comms`) |
 //! | `idle` | - | 0 | background | feeds the watchdog only while the current loop runs |
 //!

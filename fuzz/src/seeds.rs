@@ -8,12 +8,15 @@
 use std::path::Path;
 
 use foc_core::angle::ElectricalAngle;
+use foc_core::control::homing::{EndStop, HomingMethod};
+use foc_core::control::joint::Impedance;
 use foc_core::control::{Command, Limits, Mode};
 use foc_protocol::config::{Chunk, ConfigSource, StoreOp};
 use foc_protocol::frame::{encode, FrameDecoder, MAX_FRAME};
 use foc_protocol::message::{
-    Calibration, CurrentGains, ErrorCode, FaultReport, Hello, Message, ParamId, PositionGains,
-    Request, Response, SpeedGains, Telemetry, TelemetryRate, WatchdogConfig,
+    Calibration, CurrentGains, ErrorCode, FaultReport, Hello, HomingFailure, HomingStart,
+    HomingState, JointSettings, Message, ParamId, PositionGains, Request, Response, SpeedGains,
+    Telemetry, TelemetryRate, WatchdogConfig,
 };
 
 use foc_core::control::stage::TimeoutReaction;
@@ -72,6 +75,8 @@ fn requests() -> Vec<(&'static str, Request)> {
                 max_position_rad: 50.0,
                 max_open_loop_voltage_v: 6.0,
                 max_open_loop_omega_e_rad_s: 500.0,
+                max_kp_nm_per_rad: 20.0,
+                max_kd_nm_s_per_rad: 0.5,
             }),
         ),
         (
@@ -141,7 +146,76 @@ fn requests() -> Vec<(&'static str, Request)> {
             "store-apply-and-save",
             Request::Store(StoreOp::ApplyAndSave),
         ),
+        (
+            "set-command-impedance",
+            Request::SetCommand(Command::Impedance(impedance())),
+        ),
+        ("set-joint", Request::SetJoint(joint())),
+        (
+            "set-joint-no-travel",
+            Request::SetJoint(JointSettings {
+                travel_out_rad: None,
+                ..joint()
+            }),
+        ),
+        ("read-joint", Request::ReadJoint),
+        (
+            "start-homing-present",
+            Request::StartHoming(homing_present()),
+        ),
+        (
+            "start-homing-end-stop",
+            Request::StartHoming(homing_end_stop()),
+        ),
+        ("read-homing", Request::ReadHoming),
     ]
+}
+
+/// An impedance command (output frame).
+fn impedance() -> Impedance {
+    Impedance {
+        position_rad: 0.5,
+        velocity_rad_s: 0.1,
+        kp_nm_per_rad: 5.0,
+        kd_nm_s_per_rad: 0.2,
+        torque_ff_nm: 0.05,
+        torque_limit_nm: f32::INFINITY,
+    }
+}
+
+/// A 20:1 reversed joint with a travel range.
+fn joint() -> JointSettings {
+    JointSettings {
+        gear_ratio: -20.0,
+        rotor_at_zero_rad: 3.0,
+        travel_out_rad: Some((-1.0, 2.0)),
+        fault_margin_rad: 0.5,
+        brake_accel_rad_s2: 200.0,
+        kv_a_per_rad_s: 0.05,
+        entry_blend_periods: 200,
+        timeout_kd_nm_s_per_rad: 0.01,
+    }
+}
+
+fn homing_present() -> HomingStart {
+    HomingStart {
+        method: HomingMethod::Present,
+        home_output_rad: 0.25,
+    }
+}
+
+fn homing_end_stop() -> HomingStart {
+    HomingStart {
+        method: HomingMethod::EndStop(EndStop {
+            velocity_rad_s: -0.1,
+            current_a: 2.0,
+            detect_fraction: 0.7,
+            confirm_s: 0.02,
+            backoff_rad: 0.05,
+            max_travel_rad: 1.0,
+        }),
+        home_output_rad: -0.5,
+    }
 }
 
 /// A chunk of a configuration record.
@@ -163,6 +237,7 @@ fn sample() -> Telemetry {
         fault_code: 0,
         max_loop_cycles: 4200,
         v_bus_v: 24.0,
+        ..Telemetry::ZERO
     }
 }
 
@@ -200,6 +275,12 @@ fn responses() -> Vec<(&'static str, Response)> {
         ("stream", Response::Stream(sample())),
         ("config-chunk", Response::ConfigChunk(config_chunk())),
         ("nack-bad-record", Response::Nack(ErrorCode::BadRecord)),
+        ("joint", Response::Joint(joint())),
+        ("homing-running", Response::Homing(HomingState::Running)),
+        (
+            "homing-failed",
+            Response::Homing(HomingState::Failed(HomingFailure::NoStop)),
+        ),
     ]
 }
 
@@ -328,6 +409,28 @@ pub fn all() -> Vec<(&'static str, String, Vec<u8>)> {
         dc,
         "auto-watchdog-timeout".into(),
         with_header(0x41, 200, idle),
+    ));
+    // The joint (issue 20): frame, impedance, homing (a present-position
+    // homing, an end-stop search aborted by a command, then one left to
+    // the polls and the watchdog).
+    let mut joint_session = frames(&[
+        Request::SetJoint(joint()),
+        Request::ReadJoint,
+        Request::StartHoming(homing_present()),
+        Request::ReadHoming,
+        Request::SetCommand(Command::Impedance(impedance())),
+        Request::StartHoming(homing_end_stop()),
+        Request::ReadHoming,
+        Request::SetCommand(Command::Disable),
+        Request::ReadHoming,
+        Request::StartHoming(homing_end_stop()),
+    ]);
+    joint_session.extend([0u8; 40]);
+    joint_session.extend(frames(&[Request::ReadHoming, Request::ReadTelemetry]));
+    out.push((
+        dc,
+        "joint-session".into(),
+        with_header(0x43, 500, joint_session),
     ));
     out
 }

@@ -8,6 +8,17 @@
 //! current-loop periods (the [`foc_core::control::Feedback::period`] counter
 //! handed to [`DeviceState::poll`]).
 //!
+//! It also owns the joint's side of the link (design §21, [`crate::joint`]):
+//! values of commands and telemetry are converted between the host's
+//! output frame and the drive's rotor frame with the context's
+//! [`DeviceContext::joint`], commands are checked against the limits in
+//! force ([`crate::joint::limits_in_force`]: the motor's, with the joint's
+//! travel range), and homing ([`Request::StartHoming`]) is sequenced here:
+//! the [`foc_core::control::homing::Homing`] sequencer is stepped at every
+//! [`DeviceState::poll`] on [`DeviceContext::feedback`], its commands
+//! posted through [`DeviceContext::post`], the frame it finds set with
+//! [`DeviceContext::set_joint`].
+//!
 //! Retransmissions: a host that got no reply sends the very same frame
 //! again (same `seq`, same CRC). For requests that change something the
 //! state remembers the last one and answers a repeat with the cached reply
@@ -39,8 +50,14 @@ use crate::message::{
     Calibration, CurrentGains, ErrorCode, FaultReport, Hello, ParamId, PositionGains, Request,
     Response, SpeedGains, Telemetry, TelemetryRate,
 };
+use foc_core::control::joint::{Impedance, JointSetup};
 use foc_core::control::stage::TimeoutReaction;
-use foc_core::control::{Command, CommandError, Fault, FaultSet, Limits, LimitsError, Mode};
+use foc_core::control::{
+    Command, CommandError, Fault, FaultSet, Feedback, Limits, LimitsError, Mode,
+};
+
+mod joint;
+use joint::HomingRun;
 
 /// Why an operation was refused: the drive's own type
 /// ([`foc_core::drive::Refusal`]); a refusing context must not have
@@ -70,9 +87,11 @@ impl From<Refusal> for ErrorCode {
 /// [`foc_core::control::Feedback`], the setters onto the loop configs
 /// (applied by the task that owns each loop).
 pub trait DeviceContext {
-    /// Hand a validated command to the current stage (e.g.
+    /// Hand a validated command (rotor frame) to the current stage (e.g.
     /// `CommandSlot::post`). Called only with commands that passed
-    /// [`Command::validate`] against [`Self::limits`].
+    /// [`Command::validate`] against the limits in force
+    /// ([`crate::joint::limits_in_force`] of [`Self::limits`] and
+    /// [`Self::joint`]).
     fn post(&mut self, cmd: Command) -> Result<(), CommandError>;
     /// Refresh the active command so the current stage's own command
     /// timeout restarts (e.g. `slot.post(slot.command)`, which bumps
@@ -87,10 +106,46 @@ pub trait DeviceContext {
     /// Latch a fault (the watchdog's `Disable` reaction reports
     /// [`Fault::CommandTimeout`]).
     fn report_fault(&mut self, fault: Fault);
-    /// The command limits in force.
+    /// The motor's command limits (rotor frame; the position range is the
+    /// motor's own: a joint's travel range narrows it, see
+    /// [`crate::joint::limits_in_force`]).
     fn limits(&self) -> Limits;
-    /// Replace the limits (already checked: finite, positive, min < max).
+    /// Replace the motor's limits (already checked: finite, positive,
+    /// min < max). With a travel range the range in force stays the
+    /// travel range.
     fn set_limits(&mut self, limits: Limits) -> Result<(), Refusal>;
+    /// The joint in force: output frame, travel range, soft stop,
+    /// impedance entry and timeout. Default: none ([`crate::joint::NO_JOINT`]).
+    fn joint(&self) -> JointSetup {
+        crate::joint::NO_JOINT
+    }
+    /// Replace the joint (already checked whole, the drive started): the
+    /// drive takes its rotor-frame change in any mode
+    /// ([`foc_core::drive::JointChange`]); refuse with
+    /// [`Refusal::NotDisabled`] when the active position command's target
+    /// would leave the new range. Default: [`Refusal::Unsupported`].
+    fn set_joint(&mut self, setup: JointSetup) -> Result<(), Refusal> {
+        let _ = setup;
+        Err(Refusal::Unsupported)
+    }
+    /// The motor's torque constant [N m/A] (0 when unknown: homing to an
+    /// end stop is then refused). Default: from the pole pairs and the
+    /// flux linkage ([`Self::param`]).
+    fn torque_constant_nm_per_a(&self) -> f32 {
+        match (
+            self.param(ParamId::PolePairs),
+            self.param(ParamId::FluxLinkageWb),
+        ) {
+            (Some(pp), Some(psi)) => 1.5 * pp * psi,
+            _ => 0.0,
+        }
+    }
+    /// The drive's latest feedback (rotor frame), for homing and the
+    /// link watchdog's impedance reaction. Default: built from
+    /// [`Self::telemetry`] ([`crate::joint::feedback_of`]).
+    fn feedback(&self) -> Feedback {
+        crate::joint::feedback_of(&self.telemetry())
+    }
     /// Replace the current-loop gains (finite, >= 0).
     fn set_current_gains(&mut self, gains: CurrentGains) -> Result<(), Refusal>;
     /// Replace the speed-loop gains (finite, >= 0).
@@ -119,7 +174,8 @@ pub trait DeviceContext {
     }
     /// A parameter value, `None` if this device does not have it.
     fn param(&self, id: ParamId) -> Option<f32>;
-    /// The latest telemetry sample (e.g. [`Telemetry::from_feedback`]).
+    /// The latest telemetry sample, rotor frame (e.g.
+    /// [`Telemetry::from_feedback`]; the protocol converts it).
     fn telemetry(&self) -> Telemetry;
     /// Firmware version `[major, minor, patch]`.
     fn firmware_version(&self) -> [u8; 3];
@@ -165,6 +221,11 @@ pub trait DeviceContext {
 /// A `Stop` or `Hold` leaves the bridge on: when the link stays silent for
 /// a second timeout after it, the watchdog escalates to `Disable`.
 ///
+/// In impedance mode the reaction is always the one design §21 asks for,
+/// whatever is configured: damping only ([`LinkReaction::Damp`]: `kp = 0`,
+/// no feed-forward, the command's damping), then `Disable` after a second
+/// timeout ([`Self::react`]).
+///
 /// This watches the *link* from the communication task; the current stage's
 /// `command_timeout_periods` stays as the backstop for a dead communication
 /// task. Keep-alives refresh both (see [`DeviceContext::keep_alive`]).
@@ -188,6 +249,33 @@ pub struct CommandWatchdog {
     age_periods: u32,
     /// Reactions given since the last feed (0, 1, or 2 after escalating).
     reactions: u8,
+    /// The first reaction left the bridge on: a second timeout disables.
+    escalates: bool,
+}
+
+/// What the link watchdog asks for.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum LinkReaction {
+    /// Latch [`Fault::CommandTimeout`] (bridge off).
+    Disable,
+    /// Velocity 0.
+    Stop,
+    /// Hold the measured position.
+    Hold,
+    /// Impedance mode: damping only (`kp = 0`, `v_ref = 0`, no
+    /// feed-forward, the active damping), bridge on.
+    Damp,
+}
+
+impl From<TimeoutReaction> for LinkReaction {
+    fn from(r: TimeoutReaction) -> Self {
+        match r {
+            TimeoutReaction::Disable => Self::Disable,
+            TimeoutReaction::Stop => Self::Stop,
+            TimeoutReaction::Hold => Self::Hold,
+        }
+    }
 }
 
 impl CommandWatchdog {
@@ -197,6 +285,7 @@ impl CommandWatchdog {
             config,
             age_periods: 0,
             reactions: 0,
+            escalates: false,
         }
     }
     /// The configuration.
@@ -226,6 +315,26 @@ impl CommandWatchdog {
     /// timeout passes, and `Disable` once when a `Stop` or `Hold` was
     /// followed by a second timeout of silence.
     pub fn tick(&mut self, periods: u32, enabled: bool) -> Option<TimeoutReaction> {
+        self.react(periods, enabled, false).map(|r| match r {
+            LinkReaction::Stop => TimeoutReaction::Stop,
+            LinkReaction::Hold => TimeoutReaction::Hold,
+            LinkReaction::Disable | LinkReaction::Damp => TimeoutReaction::Disable,
+        })
+    }
+
+    /// As [`Self::tick`], for a drive in impedance mode or not: in
+    /// impedance mode the first reaction is [`LinkReaction::Damp`] (then
+    /// `Disable` after a second timeout), whatever is configured.
+    ///
+    /// ```
+    /// use foc_protocol::device::{CommandWatchdog, LinkReaction, WatchdogConfig};
+    /// use foc_core::control::stage::TimeoutReaction;
+    /// let mut wd = CommandWatchdog::new(WatchdogConfig { timeout_periods: 100, reaction: TimeoutReaction::Disable });
+    /// assert_eq!(wd.react(120, true, true), Some(LinkReaction::Damp));
+    /// assert_eq!(wd.react(70, true, true), None); // 190
+    /// assert_eq!(wd.react(20, true, true), Some(LinkReaction::Disable)); // 210 > 200
+    /// ```
+    pub fn react(&mut self, periods: u32, enabled: bool, impedance: bool) -> Option<LinkReaction> {
         let t = self.config.timeout_periods;
         if t == 0 || !enabled {
             self.age_periods = 0;
@@ -235,13 +344,17 @@ impl CommandWatchdog {
         match self.reactions {
             0 if self.age_periods > t => {
                 self.reactions = 1;
-                Some(self.config.reaction)
+                let r = if impedance {
+                    LinkReaction::Damp
+                } else {
+                    LinkReaction::from(self.config.reaction)
+                };
+                self.escalates = r != LinkReaction::Disable;
+                Some(r)
             }
-            1 if self.config.reaction != TimeoutReaction::Disable
-                && self.age_periods > t.saturating_mul(2) =>
-            {
+            1 if self.escalates && self.age_periods > t.saturating_mul(2) => {
                 self.reactions = 2;
-                Some(TimeoutReaction::Disable)
+                Some(LinkReaction::Disable)
             }
             _ => None,
         }
@@ -264,6 +377,13 @@ pub struct DeviceState {
     host_configured: bool,
     /// A configuration record being written by the host.
     staging: Staging,
+    /// The homing running (design §21).
+    homing: Option<HomingRun>,
+    /// Where homing stands.
+    homing_state: crate::joint::HomingState,
+    /// The last impedance command posted (rotor frame): the link
+    /// watchdog's damping-only reaction keeps its damping.
+    last_impedance: Option<Impedance>,
 }
 
 impl Default for DeviceState {
@@ -294,6 +414,9 @@ fn command_field(cmd: &Command, e: CommandError) -> ErrorCode {
         (_, CommandError::Faulted) => ErrorCode::Faulted,
         (_, CommandError::Busy) => ErrorCode::Busy,
         (_, CommandError::NotCalibrated) => ErrorCode::NotCalibrated,
+        (Command::Impedance(i), e) => ErrorCode::OutOfRange {
+            field: crate::joint::impedance_field(i, e),
+        },
         (
             Command::OpenLoop {
                 v_d_v,
@@ -332,6 +455,8 @@ fn validate_limits(l: &Limits) -> Result<(), Response> {
             LimitsError::MaxPosition => 3,
             LimitsError::OpenLoopVoltage => 4,
             LimitsError::OpenLoopOmega => 5,
+            LimitsError::MaxStiffness => 6,
+            LimitsError::MaxDamping => 7,
         })
     })
 }
@@ -349,6 +474,9 @@ impl DeviceState {
             auto_watchdog: WatchdogConfig::OFF,
             host_configured: false,
             staging: Staging::new(),
+            homing: None,
+            homing_state: crate::joint::HomingState::Idle,
+            last_impedance: None,
         }
     }
 
@@ -476,8 +604,9 @@ impl DeviceState {
     }
 
     /// Call regularly (any rate) with the current-loop period counter
-    /// (wrapping): runs the watchdog and returns a telemetry sample (with
-    /// its stream counter for `seq`) when one is due.
+    /// (wrapping): steps a homing, runs the watchdog and returns a
+    /// telemetry sample (output frame, with its stream counter for `seq`)
+    /// when one is due.
     pub fn poll<C: DeviceContext>(
         &mut self,
         ctx: &mut C,
@@ -488,28 +617,68 @@ impl DeviceState {
             None => 0,
         };
         self.last_poll = Some(now_period);
+        self.step_homing(ctx);
+        self.run_watchdog(ctx, elapsed);
+        self.stream(ctx, now_period)
+    }
+
+    /// The link watchdog over `elapsed` periods, and its reaction.
+    fn run_watchdog<C: DeviceContext>(&mut self, ctx: &mut C, elapsed: u32) {
         // Held while the drive does not take commands (start-up, a
         // calibration): nothing the link could send would be taken.
         let st = ctx.status();
         let enabled = st.running && st.mode != Mode::Disabled;
-        if let Some(reaction) = self.watchdog.tick(elapsed, enabled) {
-            let cmd = match reaction {
-                TimeoutReaction::Disable => None,
-                TimeoutReaction::Stop => Some(Command::Velocity { rad_s: 0.0 }),
-                TimeoutReaction::Hold => Some(Command::Position {
-                    rad: ctx.telemetry().position_rad,
-                }),
-            };
-            let ok = match cmd {
-                Some(c) if ctx.status().check_command(&c, &ctx.limits()).is_ok() => {
-                    ctx.post(c).is_ok()
-                }
-                _ => false,
-            };
-            if !ok {
-                ctx.report_fault(Fault::CommandTimeout);
-            }
+        let impedance = st.mode == Mode::Impedance;
+        let Some(reaction) = self.watchdog.react(elapsed, enabled, impedance) else {
+            return;
+        };
+        // Rotor frame: the context's own position, posted as is.
+        let position_rad = ctx.telemetry().position_rad;
+        let cmd = match reaction {
+            LinkReaction::Disable => None,
+            LinkReaction::Stop => Some(Command::Velocity { rad_s: 0.0 }),
+            LinkReaction::Hold => Some(Command::Position { rad: position_rad }),
+            LinkReaction::Damp => Some(self.damping_only(ctx, position_rad)),
+        };
+        let limits = self.limits_in_force(ctx);
+        let ok = match cmd {
+            Some(c) if ctx.status().check_command(&c, &limits).is_ok() => ctx.post(c).is_ok(),
+            _ => false,
+        };
+        if !ok {
+            ctx.report_fault(Fault::CommandTimeout);
         }
+    }
+
+    /// The damping-only command of an impedance timeout: the active
+    /// impedance command's damping (the drive's, else the last one posted
+    /// here), at least the joint's timeout damping.
+    fn damping_only<C: DeviceContext>(&self, ctx: &C, position_rad: f32) -> Command {
+        let active = match ctx.feedback().active {
+            Command::Impedance(i) => Some(i),
+            _ => self.last_impedance,
+        };
+        let limits = self.limits_in_force(ctx);
+        let p = foc_core::clamp(
+            position_rad,
+            limits.min_position_rad,
+            limits.max_position_rad,
+        );
+        let min_kd = ctx.joint().joint.timeout_kd_nm_s_per_rad;
+        crate::joint::damping_only(active, min_kd, p)
+    }
+
+    /// The limits commands are checked against (rotor frame).
+    fn limits_in_force<C: DeviceContext>(&self, ctx: &C) -> Limits {
+        crate::joint::limits_in_force(&ctx.limits(), &ctx.joint())
+    }
+
+    /// A telemetry sample (output frame) when one is due.
+    fn stream<C: DeviceContext>(
+        &mut self,
+        ctx: &mut C,
+        now_period: u32,
+    ) -> Option<(u16, Response)> {
         if self.telemetry_every == 0 {
             return None;
         }
@@ -523,7 +692,7 @@ impl DeviceState {
             };
             let seq = self.telemetry_seq;
             self.telemetry_seq = self.telemetry_seq.wrapping_add(1);
-            return Some((seq, Response::Stream(ctx.telemetry())));
+            return Some((seq, Response::Stream(output_telemetry(ctx))));
         }
         None
     }
@@ -546,34 +715,7 @@ impl DeviceState {
                 self.watchdog.feed();
                 Ok(Response::Ack)
             }
-            Request::SetCommand(cmd) => {
-                if let Command::OpenLoop {
-                    v_d_v,
-                    v_q_v,
-                    omega_e_rad_s,
-                    ..
-                } = cmd
-                {
-                    // Field-exact reporting of non-finite values.
-                    for (x, f) in [(v_d_v, 1), (v_q_v, 2), (omega_e_rad_s, 4)] {
-                        if !x.is_finite() {
-                            return Err(out_of_range(f));
-                        }
-                    }
-                }
-                ctx.status()
-                    .check_command(&cmd, &ctx.limits())
-                    .map_err(|e| nack(command_field(&cmd, e)))?;
-                ctx.post(cmd).map_err(|e| nack(command_field(&cmd, e)))?;
-                if cmd != Command::Disable
-                    && !self.host_configured
-                    && self.watchdog.config().timeout_periods == 0
-                {
-                    self.watchdog.configure(self.auto_watchdog);
-                }
-                self.watchdog.feed();
-                Ok(Response::Ack)
-            }
+            Request::SetCommand(cmd) => self.set_command(ctx, cmd),
             Request::SetLimits(l) => {
                 validate_limits(&l)?;
                 ctx.status().check_config().map_err(refused)?;
@@ -643,7 +785,13 @@ impl DeviceState {
                     .map(|value| Response::Param { id, value })
                     .ok_or(nack(ErrorCode::Unsupported))
             }
-            Request::ReadTelemetry => Ok(Response::Telemetry(ctx.telemetry())),
+            Request::ReadTelemetry => Ok(Response::Telemetry(output_telemetry(ctx))),
+            Request::SetJoint(j) => self.set_joint(ctx, &j),
+            Request::ReadJoint => Ok(Response::Joint(crate::joint::JointSettings::from_setup(
+                &ctx.joint(),
+            ))),
+            Request::StartHoming(h) => self.start_homing(ctx, &h),
+            Request::ReadHoming => Ok(Response::Homing(self.homing_state)),
             Request::StartTelemetry(rate) => {
                 let every = match rate {
                     TelemetryRate::EveryPeriods(0) => return Err(out_of_range(1)),
@@ -677,6 +825,41 @@ impl DeviceState {
                 Ok(Response::Ack)
             }
             Request::Store(op) => self.store(ctx, op),
+        }
+    }
+
+    /// `SetCommand`: values checked field by field (output frame), the
+    /// command converted to the rotor frame and checked against the limits
+    /// in force and the drive's status, then posted; it aborts a homing.
+    fn set_command<C: DeviceContext>(
+        &mut self,
+        ctx: &mut C,
+        cmd: Command,
+    ) -> Result<Response, Response> {
+        precheck_command(&cmd)?;
+        let rotor = crate::joint::command_to_rotor(&cmd, &ctx.joint().frame);
+        let limits = self.limits_in_force(ctx);
+        let nack = |e| Response::Nack(command_field(&rotor, e));
+        ctx.status().check_command(&rotor, &limits).map_err(nack)?;
+        ctx.post(rotor).map_err(nack)?;
+        self.abort_homing();
+        self.posted(rotor);
+        Ok(Response::Ack)
+    }
+
+    /// A command of the host or of homing was posted: the watchdog is
+    /// armed (automatic setting) and fed, an impedance command kept for
+    /// its damping.
+    fn posted(&mut self, rotor: Command) {
+        if rotor != Command::Disable
+            && !self.host_configured
+            && self.watchdog.config().timeout_periods == 0
+        {
+            self.watchdog.configure(self.auto_watchdog);
+        }
+        self.watchdog.feed();
+        if let Command::Impedance(i) = rotor {
+            self.last_impedance = Some(i);
         }
     }
 
@@ -734,6 +917,34 @@ impl DeviceState {
     }
 }
 
+/// Field-exact reporting of what a conversion or the drive's check would
+/// not name: non-finite open-loop values, an impedance command's
+/// non-finite values and negative torque limit.
+fn precheck_command(cmd: &Command) -> Result<(), Response> {
+    match *cmd {
+        Command::OpenLoop {
+            v_d_v,
+            v_q_v,
+            omega_e_rad_s,
+            ..
+        } => {
+            for (x, f) in [(v_d_v, 1), (v_q_v, 2), (omega_e_rad_s, 4)] {
+                if !x.is_finite() {
+                    return Err(out_of_range(f));
+                }
+            }
+            Ok(())
+        }
+        Command::Impedance(i) => crate::joint::impedance_precheck(&i).map_err(out_of_range),
+        _ => Ok(()),
+    }
+}
+
+/// The context's telemetry in the output frame.
+fn output_telemetry<C: DeviceContext>(ctx: &C) -> Telemetry {
+    crate::joint::telemetry_to_output(&ctx.telemetry(), &ctx.joint().frame)
+}
+
 /// A recording [`DeviceContext`] for tests and examples: stores everything
 /// it is given and counts mutating calls, so a test can check that a
 /// Nack'd request touched nothing.
@@ -743,7 +954,8 @@ pub mod tests_support {
     /// Records every call; sensible defaults (calibrated, disabled).
     #[derive(Clone, Copy, Debug, PartialEq)]
     pub struct RecordingContext {
-        /// Number of mutating calls (post, keep_alive, clear, report, set_*, start_*).
+        /// Number of mutating calls (post, keep_alive, clear, report,
+        /// set_* (joint included), start_*).
         pub calls: u32,
         /// Last posted command.
         pub posted: Option<Command>,
@@ -790,6 +1002,10 @@ pub mod tests_support {
         pub link: Option<WatchdogConfig>,
         /// The link-watchdog setting an applied record carries.
         pub applied_link: Option<WatchdogConfig>,
+        /// The joint in force (identity frame by default).
+        pub joint: JointSetup,
+        /// Torque constant [N m/A].
+        pub kt_nm_per_a: f32,
     }
 
     /// Byte `i` of [`RecordingContext`]'s configuration record.
@@ -814,6 +1030,8 @@ pub mod tests_support {
                     max_position_rad: 100.0,
                     max_open_loop_voltage_v: 12.0,
                     max_open_loop_omega_e_rad_s: 1000.0,
+                    max_kp_nm_per_rad: 50.0,
+                    max_kd_nm_s_per_rad: 2.0,
                 },
                 current_gains: None,
                 speed_gains: None,
@@ -830,6 +1048,8 @@ pub mod tests_support {
                 staged_len: 0,
                 link: None,
                 applied_link: None,
+                joint: crate::joint::NO_JOINT,
+                kt_nm_per_a: 0.1,
             }
         }
     }
@@ -880,6 +1100,17 @@ pub mod tests_support {
             self.mutate()?;
             self.limits = limits;
             Ok(())
+        }
+        fn joint(&self) -> JointSetup {
+            self.joint
+        }
+        fn set_joint(&mut self, setup: JointSetup) -> Result<(), Refusal> {
+            self.mutate()?;
+            self.joint = setup;
+            Ok(())
+        }
+        fn torque_constant_nm_per_a(&self) -> f32 {
+            self.kt_nm_per_a
         }
         fn set_current_gains(&mut self, gains: CurrentGains) -> Result<(), Refusal> {
             self.mutate()?;

@@ -14,6 +14,10 @@
 //!    [`message::Response`] (device to host), each with a fixed
 //!    little-endian layout per tag (see the tables there). Every reply echoes
 //!    the request's sequence number.
+//!    Positions, velocities, torques and stiffnesses of commands and
+//!    telemetry are in the joint's **output frame**, the motor's limits in
+//!    the **rotor frame** (the rule and every field's frame: [`joint`],
+//!    the message tables).
 //! 3. **Device side** ([`device`]): [`device::DeviceState`] turns a decoded
 //!    request into a reply through a [`device::DeviceContext`] the firmware
 //!    implements; it validates everything before touching the context, owns
@@ -59,6 +63,7 @@
 pub mod config;
 pub mod device;
 pub mod frame;
+pub mod joint;
 pub mod message;
 mod wire;
 
@@ -68,4 +73,4 @@ pub use message::{ErrorCode, Message, Request, Response};
 
 /// Version of this protocol, reported in [`message::Hello`]. Bumped on any
 /// incompatible change of the frame or of a message layout.
-pub const PROTOCOL_VERSION: u8 = 2;
+pub const PROTOCOL_VERSION: u8 = 3;

@@ -4,24 +4,32 @@
 //! bits). Field numbers (0-based, in body order) are what a
 //! [`ErrorCode::OutOfRange`] Nack points at.
 //!
-//! Host to device ([`Request`]); every one is answered with the same `seq`:
+//! Host to device ([`Request`]); every one is answered with the same `seq`.
+//! Frames (see [`crate::joint`]): **out** = output frame (after the
+//! gearbox, converted by the device with the joint's frame), **rot** =
+//! rotor frame (the motor shaft), no mark = no frame (currents, voltages,
+//! electrical quantities, times, counts).
 //!
 //! | tag | request | body | reply |
 //! |---|---|---|---|
 //! | 0x01 | `Ping` | - | `Hello` |
 //! | 0x02 | `KeepAlive` | - | `Ack` (feeds the watchdog, refreshes the command) |
-//! | 0x10 | `SetCommand` | `mode:u8`, then per mode: disable -; torque `iq_a:f32`; velocity `rad_s:f32`; position `rad:f32`; open loop `v_d_v:f32 v_q_v:f32 theta_e:u32 (turn/2^32) omega_e_rad_s:f32` | `Ack` |
-//! | 0x11 | `SetLimits` | `max_current_a max_velocity_rad_s min_position_rad max_position_rad max_open_loop_voltage_v max_open_loop_omega_e_rad_s` (6 x f32) | `Ack` |
+//! | 0x10 | `SetCommand` | `mode:u8`, then per mode: disable -; torque `iq_a:f32`; velocity `rad_s:f32` (out); position `rad:f32` (out); open loop `v_d_v:f32 v_q_v:f32 theta_e:u32 (turn/2^32) omega_e_rad_s:f32`; impedance `position_rad velocity_rad_s kp_nm_per_rad kd_nm_s_per_rad torque_ff_nm torque_limit_nm` (6 x f32, out; `torque_limit_nm` >= 0, `inf` for the current limit's) | `Ack` |
+//! | 0x11 | `SetLimits` | `max_current_a max_velocity_rad_s min_position_rad max_position_rad max_open_loop_voltage_v max_open_loop_omega_e_rad_s max_kp_nm_per_rad max_kd_nm_s_per_rad` (8 x f32; rot) | `Ack` |
 //! | 0x12 | `SetCurrentGains` | `kp_d ki_d kp_q ki_q` (f32, V/A and V/(A s)) | `Ack` |
-//! | 0x13 | `SetSpeedGains` | `kp_a_per_rad_s ki_a_per_rad` (f32) | `Ack` |
-//! | 0x14 | `SetPositionGains` | `kp_per_s max_velocity_rad_s max_acceleration_rad_s2` (f32) | `Ack` |
+//! | 0x13 | `SetSpeedGains` | `kp_a_per_rad_s ki_a_per_rad` (f32, rot) | `Ack` |
+//! | 0x14 | `SetPositionGains` | `kp_per_s max_velocity_rad_s max_acceleration_rad_s2` (f32, rot) | `Ack` |
 //! | 0x15 | `SetDividers` | `speed:u16 position:u16` (current-loop periods per run) | `Ack` |
-//! | 0x16 | `SetWatchdog` | `timeout_periods:u32` (0 = off), `reaction:u8` (0 disable, 1 stop, 2 hold) | `Ack` |
+//! | 0x16 | `SetWatchdog` | `timeout_periods:u32` (0 = off), `reaction:u8` (0 disable, 1 stop, 2 hold; in impedance mode always damping, then disable) | `Ack` |
+//! | 0x17 | `SetJoint` | `gear_ratio:f32` (rotor turns per output turn, signed) `rotor_at_zero_rad:f32` (rot) `travel:u8` (0 none, 1 the range below) `travel_min_rad travel_max_rad` (f32, out; both +0.0 without travel) `fault_margin_rad` (rot) `brake_accel_rad_s2` (rot) `kv_a_per_rad_s` (A/(rad/s), rot) (f32) `entry_blend_periods:u32` `timeout_kd_nm_s_per_rad:f32` (rot) | `Ack` |
 //! | 0x20 | `RunCalibration` | `routine:u8` (0 offsets, 1 identification, 2 alignment) | `Ack` (started) |
 //! | 0x21 | `ReadFaults` | - | `Faults` |
 //! | 0x22 | `ClearFaults` | - | `Ack` |
 //! | 0x23 | `ReadParam` | `id:u8` ([`ParamId`]) | `Param` |
 //! | 0x24 | `ReadTelemetry` | - | `Telemetry` (one sample, `seq` echoed) |
+//! | 0x25 | `ReadJoint` | - | `Joint` |
+//! | 0x26 | `StartHoming` | `method:u8` (0 present position, 1 end stop) `home_output_rad:f32` (out), then for an end stop `velocity_rad_s` (out, its sign the direction) `current_a` `detect_fraction` `confirm_s` `backoff_rad` (out) `max_travel_rad` (out) (f32) | `Ack` (started; present position: done) |
+//! | 0x27 | `ReadHoming` | - | `Homing` |
 //! | 0x30 | `StartTelemetry` | `kind:u8` (0 every K periods, 1 rate in Hz), `value:u32 K` or `f32 Hz` | `Ack` |
 //! | 0x31 | `StopTelemetry` | - | `Ack` |
 //! | 0x40 | `ReadConfig` | `source:u8` (0 live, 1 stored) `offset:u16` | `ConfigChunk` |
@@ -37,9 +45,11 @@
 //! | 0x82 | `Hello` | `protocol_version:u8 fw_major:u8 fw_minor:u8 fw_patch:u8 max_payload:u8` |
 //! | 0x83 | `Faults` | `bits:u32` ([`FaultSet`], bit n = fault code n), `first:u8` (first fault code, 0 none) |
 //! | 0x84 | `Param` | `id:u8 value:f32` |
-//! | 0x85 | `Telemetry` | `period:u32 i_d_a i_q_a v_d_v v_q_v velocity_rad_s position_rad (f32) mode:u8 fault:u8 max_loop_cycles:u32 v_bus_v:f32 power_limit:u8 limit_left_pct:u8 flags:u8 winding_dC:i16 stage_dC:i16` (reply to `ReadTelemetry`; `power_limit` an [`ActiveLimit`] code, `flags` bit 0 brake on, bit 1 brake locked out by its guard, temperatures in 0.1 deg C with -32768 for none) |
+//! | 0x85 | `Telemetry` | `period:u32 i_d_a i_q_a v_d_v v_q_v velocity_rad_s position_rad (f32; velocity and position out) mode:u8 fault:u8 max_loop_cycles:u32 v_bus_v:f32 power_limit:u8 limit_left_pct:u8 flags:u8 winding_dC:i16 stage_dC:i16` (reply to `ReadTelemetry`; `power_limit` an [`ActiveLimit`] code, `flags` bit 0 brake on, bit 1 brake locked out by its guard, temperatures in 0.1 deg C with -32768 for none) |
 //! | 0x86 | `Stream` | as `Telemetry`; unsolicited, after `StartTelemetry`, `seq` = wrapping stream counter |
 //! | 0x87 | `ConfigChunk` | a chunk, as in `WriteConfig` (see [`crate::config`]) |
+//! | 0x88 | `Joint` | as `SetJoint` (the joint in force) |
+//! | 0x89 | `Homing` | `state:u8` (0 idle, 1 running, 2 done, 3 failed) `reason:u8` (failed: [`HomingFailure`] code, else 0) |
 //!
 //! A frame-level error (bad CRC, bad COBS, too long, too short) cannot be
 //! trusted to carry a sequence number: its Nack goes out with `seq = 0`, and
@@ -51,9 +61,13 @@ pub use crate::config::{Chunk, ConfigSource, StoreOp};
 pub use crate::wire::DecodeError;
 use crate::wire::{Reader, Writer};
 use foc_core::angle::ElectricalAngle;
+use foc_core::control::homing::{EndStop, HomingMethod};
+use foc_core::control::joint::Impedance;
 use foc_core::control::power::ActiveLimit;
 use foc_core::control::stage::TimeoutReaction;
 use foc_core::control::{Command, Fault, FaultSet, Feedback, Limits, Mode};
+
+pub use crate::joint::{HomingFailure, HomingStart, HomingState, JointSettings};
 
 /// A message type of one direction.
 pub trait Message: Sized {
@@ -376,9 +390,12 @@ pub struct Telemetry {
     pub v_d_v: f32,
     /// Commanded q voltage [V].
     pub v_q_v: f32,
-    /// Mechanical velocity [rad/s].
+    /// Mechanical velocity [rad/s]: the drive's (rotor frame) from
+    /// [`Self::from_feedback`]; on the wire the output frame's (the
+    /// device converts, see [`crate::joint`]).
     pub velocity_rad_s: f32,
-    /// Multi-turn mechanical position [rad].
+    /// Multi-turn mechanical position [rad]: rotor frame from
+    /// [`Self::from_feedback`], output frame on the wire.
     pub position_rad: f32,
     /// Active mode.
     pub mode: Mode,
@@ -538,6 +555,7 @@ pub const fn mode_from_code(c: u8) -> Option<Mode> {
         2 => Some(Mode::Velocity),
         3 => Some(Mode::Position),
         4 => Some(Mode::OpenLoop),
+        5 => Some(Mode::Impedance),
         _ => None,
     }
 }
@@ -588,6 +606,16 @@ pub enum Request {
     },
     /// Link watchdog.
     SetWatchdog(WatchdogConfig),
+    /// Set the joint up: output frame, travel range, soft stop, impedance
+    /// entry and timeout (see [`crate::joint`] for the frames).
+    SetJoint(JointSettings),
+    /// The joint in force (`Joint`).
+    ReadJoint,
+    /// Start homing (the output frame's zero): a command from the host
+    /// aborts it.
+    StartHoming(HomingStart),
+    /// Where homing stands (`Homing`).
+    ReadHoming,
     /// Start a calibration routine (only while disabled and not faulted).
     RunCalibration(Calibration),
     /// Read the latched faults.
@@ -626,7 +654,92 @@ impl Request {
                 | Request::ReadParam(_)
                 | Request::ReadTelemetry
                 | Request::ReadConfig { .. }
+                | Request::ReadJoint
+                | Request::ReadHoming
         )
+    }
+
+    /// The name of field `field` (0-based, body order: what an
+    /// [`ErrorCode::OutOfRange`] Nack of this request points at), for
+    /// people; `None` past the body.
+    pub fn field_name(&self, field: u8) -> Option<&'static str> {
+        let names: &[&str] = match self {
+            Request::SetCommand(c) => command_fields(c),
+            Request::SetLimits(_) => &[
+                "max_current_a",
+                "max_velocity_rad_s",
+                "min_position_rad",
+                "max_position_rad",
+                "max_open_loop_voltage_v",
+                "max_open_loop_omega_e_rad_s",
+                "max_kp_nm_per_rad",
+                "max_kd_nm_s_per_rad",
+            ],
+            Request::SetCurrentGains(_) => &["kp_d", "ki_d", "kp_q", "ki_q"],
+            Request::SetSpeedGains(_) => &["kp_a_per_rad_s", "ki_a_per_rad"],
+            Request::SetPositionGains(_) => {
+                &["kp_per_s", "max_velocity_rad_s", "max_acceleration_rad_s2"]
+            }
+            Request::SetDividers { .. } => &["speed", "position"],
+            Request::SetWatchdog(_) => &["timeout_periods", "reaction"],
+            Request::SetJoint(_) => &[
+                "gear_ratio",
+                "rotor_at_zero_rad",
+                "travel",
+                "travel_min_rad",
+                "travel_max_rad",
+                "fault_margin_rad",
+                "brake_accel_rad_s2",
+                "kv_a_per_rad_s",
+                "entry_blend_periods",
+                "timeout_kd_nm_s_per_rad",
+            ],
+            Request::StartHoming(_) => &[
+                "method",
+                "home_output_rad",
+                "velocity_rad_s",
+                "current_a",
+                "detect_fraction",
+                "confirm_s",
+                "backoff_rad",
+                "max_travel_rad",
+            ],
+            Request::RunCalibration(_) => &["routine"],
+            Request::ReadParam(_) => &["id"],
+            Request::StartTelemetry(_) => &["kind", "value"],
+            Request::ReadConfig { .. } => &["source", "offset"],
+            Request::WriteConfig(_) => &["offset", "total", "len"],
+            Request::Store(_) => &["op"],
+            Request::Ping
+            | Request::KeepAlive
+            | Request::ReadFaults
+            | Request::ClearFaults
+            | Request::ReadTelemetry
+            | Request::StopTelemetry
+            | Request::ReadJoint
+            | Request::ReadHoming => &[],
+        };
+        names.get(usize::from(field)).copied()
+    }
+}
+
+/// Field names of a `SetCommand` body.
+fn command_fields(c: &Command) -> &'static [&'static str] {
+    match c {
+        Command::Disable => &["mode"],
+        Command::Torque { .. } => &["mode", "iq_a"],
+        Command::Velocity { .. } => &["mode", "rad_s"],
+        Command::Position { .. } => &["mode", "rad"],
+        Command::OpenLoop { .. } => &["mode", "v_d_v", "v_q_v", "theta_e", "omega_e_rad_s"],
+        Command::Impedance(_) => &[
+            "mode",
+            "position_rad",
+            "velocity_rad_s",
+            "kp_nm_per_rad",
+            "kd_nm_s_per_rad",
+            "torque_ff_nm",
+            "torque_limit_nm",
+        ],
     }
 }
 
@@ -694,6 +807,14 @@ fn put_command(w: &mut Writer<'_>, c: &Command) {
             w.u32(theta_e.to_bits());
             w.f32(omega_e_rad_s);
         }
+        Command::Impedance(i) => {
+            w.f32(i.position_rad);
+            w.f32(i.velocity_rad_s);
+            w.f32(i.kp_nm_per_rad);
+            w.f32(i.kd_nm_s_per_rad);
+            w.f32(i.torque_ff_nm);
+            w.f32(i.torque_limit_nm);
+        }
     }
 }
 
@@ -710,6 +831,95 @@ fn get_command(r: &mut Reader<'_>) -> Result<Command, DecodeError> {
             theta_e: ElectricalAngle::from_bits(r.u32()?),
             omega_e_rad_s: r.f32()?,
         },
+        Mode::Impedance => Command::Impedance(Impedance {
+            position_rad: r.f32()?,
+            velocity_rad_s: r.f32()?,
+            kp_nm_per_rad: r.f32()?,
+            kd_nm_s_per_rad: r.f32()?,
+            torque_ff_nm: r.f32()?,
+            torque_limit_nm: r.f32()?,
+        }),
+    })
+}
+
+fn put_joint(w: &mut Writer<'_>, j: &JointSettings) {
+    w.f32(j.gear_ratio);
+    w.f32(j.rotor_at_zero_rad);
+    let (flag, (lo, hi)) = match j.travel_out_rad {
+        Some(range) => (1, range),
+        None => (0, (0.0, 0.0)),
+    };
+    w.u8(flag);
+    w.f32(lo);
+    w.f32(hi);
+    w.f32(j.fault_margin_rad);
+    w.f32(j.brake_accel_rad_s2);
+    w.f32(j.kv_a_per_rad_s);
+    w.u32(j.entry_blend_periods);
+    w.f32(j.timeout_kd_nm_s_per_rad);
+}
+
+fn get_joint(r: &mut Reader<'_>) -> Result<JointSettings, DecodeError> {
+    let gear_ratio = r.f32()?;
+    let rotor_at_zero_rad = r.f32()?;
+    let flag = r.u8()?;
+    let range = (r.f32()?, r.f32()?);
+    // Without a travel range its two fields are 0 (one layout per value).
+    let travel_out_rad = match flag {
+        0 if range.0.to_bits() == 0 && range.1.to_bits() == 0 => None,
+        0 => return Err(DecodeError::BadField(3)),
+        1 => Some(range),
+        _ => return Err(DecodeError::BadField(2)),
+    };
+    Ok(JointSettings {
+        gear_ratio,
+        rotor_at_zero_rad,
+        travel_out_rad,
+        fault_margin_rad: r.f32()?,
+        brake_accel_rad_s2: r.f32()?,
+        kv_a_per_rad_s: r.f32()?,
+        entry_blend_periods: r.u32()?,
+        timeout_kd_nm_s_per_rad: r.f32()?,
+    })
+}
+
+fn put_homing(w: &mut Writer<'_>, h: &HomingStart) {
+    match h.method {
+        HomingMethod::Present => {
+            w.u8(0);
+            w.f32(h.home_output_rad);
+        }
+        HomingMethod::EndStop(e) => {
+            w.u8(1);
+            w.f32(h.home_output_rad);
+            w.f32(e.velocity_rad_s);
+            w.f32(e.current_a);
+            w.f32(e.detect_fraction);
+            w.f32(e.confirm_s);
+            w.f32(e.backoff_rad);
+            w.f32(e.max_travel_rad);
+        }
+    }
+}
+
+fn get_homing(r: &mut Reader<'_>) -> Result<HomingStart, DecodeError> {
+    let method = r.u8()?;
+    let home_output_rad = r.f32()?;
+    let method = match method {
+        0 => HomingMethod::Present,
+        1 => HomingMethod::EndStop(EndStop {
+            velocity_rad_s: r.f32()?,
+            current_a: r.f32()?,
+            detect_fraction: r.f32()?,
+            confirm_s: r.f32()?,
+            backoff_rad: r.f32()?,
+            max_travel_rad: r.f32()?,
+        }),
+        _ => return Err(DecodeError::BadField(0)),
+    };
+    Ok(HomingStart {
+        method,
+        home_output_rad,
     })
 }
 
@@ -737,11 +947,15 @@ mod tags {
     pub const SET_POSITION_GAINS: u8 = 0x14;
     pub const SET_DIVIDERS: u8 = 0x15;
     pub const SET_WATCHDOG: u8 = 0x16;
+    pub const SET_JOINT: u8 = 0x17;
     pub const RUN_CALIBRATION: u8 = 0x20;
     pub const READ_FAULTS: u8 = 0x21;
     pub const CLEAR_FAULTS: u8 = 0x22;
     pub const READ_PARAM: u8 = 0x23;
     pub const READ_TELEMETRY: u8 = 0x24;
+    pub const READ_JOINT: u8 = 0x25;
+    pub const START_HOMING: u8 = 0x26;
+    pub const READ_HOMING: u8 = 0x27;
     pub const START_TELEMETRY: u8 = 0x30;
     pub const STOP_TELEMETRY: u8 = 0x31;
     pub const READ_CONFIG: u8 = 0x40;
@@ -756,6 +970,8 @@ mod tags {
     pub const TELEMETRY: u8 = 0x85;
     pub const STREAM: u8 = 0x86;
     pub const CONFIG_CHUNK: u8 = 0x87;
+    pub const JOINT: u8 = 0x88;
+    pub const HOMING: u8 = 0x89;
 }
 
 impl Message for Request {
@@ -771,6 +987,10 @@ impl Message for Request {
             Request::SetPositionGains(_) => SET_POSITION_GAINS,
             Request::SetDividers { .. } => SET_DIVIDERS,
             Request::SetWatchdog(_) => SET_WATCHDOG,
+            Request::SetJoint(_) => SET_JOINT,
+            Request::ReadJoint => READ_JOINT,
+            Request::StartHoming(_) => START_HOMING,
+            Request::ReadHoming => READ_HOMING,
             Request::RunCalibration(_) => RUN_CALIBRATION,
             Request::ReadFaults => READ_FAULTS,
             Request::ClearFaults => CLEAR_FAULTS,
@@ -791,7 +1011,9 @@ impl Message for Request {
             | Request::ReadFaults
             | Request::ClearFaults
             | Request::ReadTelemetry
-            | Request::StopTelemetry => {}
+            | Request::StopTelemetry
+            | Request::ReadJoint
+            | Request::ReadHoming => {}
             Request::SetCommand(c) => put_command(w, c),
             Request::SetLimits(l) => {
                 w.f32(l.max_current_a);
@@ -800,6 +1022,8 @@ impl Message for Request {
                 w.f32(l.max_position_rad);
                 w.f32(l.max_open_loop_voltage_v);
                 w.f32(l.max_open_loop_omega_e_rad_s);
+                w.f32(l.max_kp_nm_per_rad);
+                w.f32(l.max_kd_nm_s_per_rad);
             }
             Request::SetCurrentGains(g) => {
                 w.f32(g.kp_d);
@@ -824,6 +1048,8 @@ impl Message for Request {
                 w.u32(c.timeout_periods);
                 w.u8(reaction_code(c.reaction));
             }
+            Request::SetJoint(j) => put_joint(w, j),
+            Request::StartHoming(h) => put_homing(w, h),
             Request::RunCalibration(c) => w.u8(*c as u8),
             Request::ReadParam(p) => w.u8(*p as u8),
             Request::StartTelemetry(rate) => match *rate {
@@ -858,6 +1084,8 @@ impl Message for Request {
                 max_position_rad: r.f32()?,
                 max_open_loop_voltage_v: r.f32()?,
                 max_open_loop_omega_e_rad_s: r.f32()?,
+                max_kp_nm_per_rad: r.f32()?,
+                max_kd_nm_s_per_rad: r.f32()?,
             }),
             SET_CURRENT_GAINS => Request::SetCurrentGains(CurrentGains {
                 kp_d: r.f32()?,
@@ -886,6 +1114,10 @@ impl Message for Request {
                     reaction,
                 })
             }
+            SET_JOINT => Request::SetJoint(get_joint(r)?),
+            READ_JOINT => Request::ReadJoint,
+            START_HOMING => Request::StartHoming(get_homing(r)?),
+            READ_HOMING => Request::ReadHoming,
             RUN_CALIBRATION => Request::RunCalibration(
                 Calibration::from_code(r.u8()?).ok_or(DecodeError::BadField(0))?,
             ),
@@ -937,6 +1169,10 @@ pub enum Response {
     Stream(Telemetry),
     /// A chunk of a configuration record (reply to `ReadConfig`).
     ConfigChunk(Chunk),
+    /// The joint in force (reply to `ReadJoint`).
+    Joint(JointSettings),
+    /// Where homing stands (reply to `ReadHoming`).
+    Homing(HomingState),
 }
 
 impl Message for Response {
@@ -951,6 +1187,8 @@ impl Message for Response {
             Response::Telemetry(_) => TELEMETRY,
             Response::Stream(_) => STREAM,
             Response::ConfigChunk(_) => CONFIG_CHUNK,
+            Response::Joint(_) => JOINT,
+            Response::Homing(_) => HOMING,
         }
     }
 
@@ -994,6 +1232,12 @@ impl Message for Response {
                 w.u16(temperature_to_wire(t.stage_c) as u16);
             }
             Response::ConfigChunk(c) => put_chunk(w, c),
+            Response::Joint(j) => put_joint(w, j),
+            Response::Homing(h) => {
+                let (state, reason) = h.to_wire();
+                w.u8(state);
+                w.u8(reason);
+            }
         }
     }
 
@@ -1022,6 +1266,14 @@ impl Message for Response {
             TELEMETRY => Response::Telemetry(get_telemetry(r)?),
             STREAM => Response::Stream(get_telemetry(r)?),
             CONFIG_CHUNK => Response::ConfigChunk(get_chunk(r)?),
+            JOINT => Response::Joint(get_joint(r)?),
+            HOMING => {
+                let state = r.u8()?;
+                let reason = r.u8()?;
+                Response::Homing(
+                    HomingState::from_wire(state, reason).ok_or(DecodeError::BadField(0))?,
+                )
+            }
             _ => return Err(DecodeError::UnknownTag),
         })
     }

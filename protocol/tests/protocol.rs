@@ -1,6 +1,8 @@
 //! Round trips, decoder robustness (property tests) and device-side validation.
 
 use foc_core::angle::ElectricalAngle;
+use foc_core::control::homing::{EndStop, HomingMethod};
+use foc_core::control::joint::Impedance;
 use foc_core::control::power::ActiveLimit;
 use foc_core::control::stage::TimeoutReaction;
 use foc_core::control::{Command, Fault, FaultSet, Limits, Mode};
@@ -35,6 +37,43 @@ fn limits() -> Limits {
         max_position_rad: 10.0,
         max_open_loop_voltage_v: 6.0,
         max_open_loop_omega_e_rad_s: 2000.0,
+        max_kp_nm_per_rad: 40.0,
+        max_kd_nm_s_per_rad: 1.5,
+    }
+}
+
+fn impedance() -> Impedance {
+    Impedance {
+        position_rad: 1.5,
+        velocity_rad_s: -0.25,
+        kp_nm_per_rad: 20.0,
+        kd_nm_s_per_rad: 0.5,
+        torque_ff_nm: 0.125,
+        torque_limit_nm: f32::INFINITY,
+    }
+}
+
+fn joint_settings() -> JointSettings {
+    JointSettings {
+        gear_ratio: -20.0,
+        rotor_at_zero_rad: 3.0,
+        travel_out_rad: Some((-1.0, 2.0)),
+        fault_margin_rad: 0.5,
+        brake_accel_rad_s2: 200.0,
+        kv_a_per_rad_s: 0.05,
+        entry_blend_periods: 200,
+        timeout_kd_nm_s_per_rad: 0.01,
+    }
+}
+
+fn end_stop() -> EndStop {
+    EndStop {
+        velocity_rad_s: -0.1,
+        current_a: 2.0,
+        detect_fraction: 0.7,
+        confirm_s: 0.02,
+        backoff_rad: 0.05,
+        max_travel_rad: 1.0,
     }
 }
 
@@ -68,6 +107,7 @@ fn all_requests() -> Vec<Request> {
         Request::SetCommand(Command::Torque { iq_a: -2.5 }),
         Request::SetCommand(Command::Velocity { rad_s: 120.0 }),
         Request::SetCommand(Command::Position { rad: -3.25 }),
+        Request::SetCommand(Command::Impedance(impedance())),
         Request::SetCommand(Command::OpenLoop {
             v_d_v: 1.0,
             v_q_v: -0.5,
@@ -98,6 +138,21 @@ fn all_requests() -> Vec<Request> {
             timeout_periods: 2000,
             reaction: TimeoutReaction::Hold,
         }),
+        Request::SetJoint(joint_settings()),
+        Request::SetJoint(JointSettings {
+            travel_out_rad: None,
+            ..joint_settings()
+        }),
+        Request::ReadJoint,
+        Request::StartHoming(HomingStart {
+            method: HomingMethod::Present,
+            home_output_rad: 0.5,
+        }),
+        Request::StartHoming(HomingStart {
+            method: HomingMethod::EndStop(end_stop()),
+            home_output_rad: -1.0,
+        }),
+        Request::ReadHoming,
         Request::RunCalibration(Calibration::Offsets),
         Request::RunCalibration(Calibration::Identification),
         Request::RunCalibration(Calibration::Alignment),
@@ -155,6 +210,12 @@ fn all_responses() -> Vec<Response> {
         },
         Response::Telemetry(telemetry()),
         Response::Stream(telemetry()),
+        Response::Joint(joint_settings()),
+        Response::Homing(HomingState::Idle),
+        Response::Homing(HomingState::Running),
+        Response::Homing(HomingState::Done),
+        Response::Homing(HomingState::Failed(HomingFailure::NoStop)),
+        Response::Homing(HomingState::Failed(HomingFailure::Aborted)),
     ]
 }
 
@@ -180,7 +241,7 @@ fn every_message_round_trips() {
     tags.extend(all_responses().iter().map(Message::tag));
     tags.sort();
     tags.dedup();
-    assert_eq!(tags.len(), 19 + 8);
+    assert_eq!(tags.len(), 23 + 10);
 }
 
 #[test]
@@ -236,7 +297,7 @@ fn truncated_frames_are_rejected() {
 
 // ---------------------------------------------------------------- properties
 
-fn finite() -> impl Strategy<Value = f32> {
+fn finite() -> impl Strategy<Value = f32> + Clone {
     -1.0e6f32..1.0e6
 }
 
@@ -254,6 +315,63 @@ fn command() -> impl Strategy<Value = Command> {
                 omega_e_rad_s: w,
             }
         }),
+        proptest::array::uniform6(any::<f32>()).prop_map(|v| Command::Impedance(Impedance {
+            position_rad: v[0],
+            velocity_rad_s: v[1],
+            kp_nm_per_rad: v[2],
+            kd_nm_s_per_rad: v[3],
+            torque_ff_nm: v[4],
+            torque_limit_nm: v[5],
+        })),
+    ]
+}
+
+fn joint() -> impl Strategy<Value = JointSettings> {
+    joint_of(any::<f32>())
+}
+
+fn joint_of(x: impl Strategy<Value = f32> + Clone) -> impl Strategy<Value = JointSettings> {
+    (proptest::array::uniform8(x), any::<bool>(), any::<u32>()).prop_map(|(v, travel, blend)| {
+        JointSettings {
+            gear_ratio: v[0],
+            rotor_at_zero_rad: v[1],
+            travel_out_rad: travel.then_some((v[2], v[3])),
+            fault_margin_rad: v[4],
+            brake_accel_rad_s2: v[5],
+            kv_a_per_rad_s: v[6],
+            entry_blend_periods: blend,
+            timeout_kd_nm_s_per_rad: v[7],
+        }
+    })
+}
+
+fn homing() -> impl Strategy<Value = HomingStart> {
+    (
+        any::<f32>(),
+        proptest::option::of(proptest::array::uniform6(any::<f32>())),
+    )
+        .prop_map(|(home, stop)| HomingStart {
+            method: match stop {
+                None => HomingMethod::Present,
+                Some(v) => HomingMethod::EndStop(EndStop {
+                    velocity_rad_s: v[0],
+                    current_a: v[1],
+                    detect_fraction: v[2],
+                    confirm_s: v[3],
+                    backoff_rad: v[4],
+                    max_travel_rad: v[5],
+                }),
+            },
+            home_output_rad: home,
+        })
+}
+
+fn homing_state() -> impl Strategy<Value = HomingState> {
+    prop_oneof![
+        Just(HomingState::Idle),
+        Just(HomingState::Running),
+        Just(HomingState::Done),
+        (1u8..=4).prop_map(|c| HomingState::Failed(HomingFailure::from_code(c).unwrap())),
     ]
 }
 
@@ -262,14 +380,20 @@ fn request() -> impl Strategy<Value = Request> {
         Just(Request::Ping),
         Just(Request::KeepAlive),
         command().prop_map(Request::SetCommand),
-        proptest::array::uniform6(any::<f32>()).prop_map(|v| Request::SetLimits(Limits {
+        proptest::array::uniform8(any::<f32>()).prop_map(|v| Request::SetLimits(Limits {
             max_current_a: v[0],
             max_velocity_rad_s: v[1],
             min_position_rad: v[2],
             max_position_rad: v[3],
             max_open_loop_voltage_v: v[4],
             max_open_loop_omega_e_rad_s: v[5],
+            max_kp_nm_per_rad: v[6],
+            max_kd_nm_s_per_rad: v[7],
         })),
+        joint().prop_map(Request::SetJoint),
+        Just(Request::ReadJoint),
+        homing().prop_map(Request::StartHoming),
+        Just(Request::ReadHoming),
         proptest::array::uniform4(finite()).prop_map(|v| Request::SetCurrentGains(CurrentGains {
             kp_d: v[0],
             ki_d: v[1],
@@ -308,7 +432,7 @@ fn tel() -> impl Strategy<Value = Telemetry> {
     (
         any::<u32>(),
         proptest::array::uniform6(finite()),
-        0u8..5,
+        0u8..6,
         any::<u8>(),
         any::<u32>(),
         finite(),
@@ -366,6 +490,9 @@ fn response() -> impl Strategy<Value = Response> {
             .prop_map(|(id, value)| Response::Param { id, value }),
         tel().prop_map(Response::Telemetry),
         tel().prop_map(Response::Stream),
+        // Finite values: compared with `==` after the round trip.
+        joint_of(finite()).prop_map(Response::Joint),
+        homing_state().prop_map(Response::Homing),
     ]
 }
 
