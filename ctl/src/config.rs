@@ -242,10 +242,11 @@ mod tests {
             check_chunk(&past, 96, Some(100)),
             Err(TransferError::BadLength { .. })
         ));
-        let huge = Chunk::new(0, 300, &[0; 8]).unwrap();
+        let too_long = MAX_RECORD as u16 + 1;
+        let huge = Chunk::new(0, too_long, &[0; 8]).unwrap();
         assert_eq!(
             check_chunk(&huge, 0, None),
-            Err(TransferError::TooLong { total: 300 })
+            Err(TransferError::TooLong { total: too_long })
         );
         // An empty record is a complete (empty) read.
         let none = Chunk::new(0, 0, &[]).unwrap();

@@ -378,11 +378,13 @@ fn the_link_moves_the_largest_record() {
     // The device encodes its live record into a `MAX_RECORD` buffer and
     // the host stages at most that much: every record the store can write
     // must fit.
-    assert!(
-        MAX_RECORD_BYTES <= foc_protocol::config::MAX_RECORD,
-        "foc-store writes records of up to {MAX_RECORD_BYTES} bytes, the link moves {}",
-        foc_protocol::config::MAX_RECORD
-    );
+    // (Checked when this test compiles; the firmware checks it too.)
+    const {
+        assert!(
+            MAX_RECORD_BYTES <= foc_protocol::config::MAX_RECORD,
+            "foc-store writes records larger than the link moves"
+        )
+    };
 }
 
 /// CRC-32/ISO-HDLC (the envelope's CRC).
@@ -512,8 +514,9 @@ fn reads_that_do_not_add_up_are_errors() {
         r => panic!("{r:?}"),
     }
     // A record too long to send is refused on the host.
-    match c.write_config(&[0u8; 300]) {
-        Err(ClientError::Transfer(TransferError::RecordSize { len: 300 })) => {}
+    let too_long = foc_protocol::config::MAX_RECORD + 1;
+    match c.write_config(&vec![0u8; too_long]) {
+        Err(ClientError::Transfer(TransferError::RecordSize { len })) if len == too_long => {}
         r => panic!("{r:?}"),
     }
 }

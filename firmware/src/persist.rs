@@ -19,6 +19,9 @@ pub type BoardStore = Store<board::StoreFlash>;
 /// The board's PWM frequency, which a record's gains must have been made for.
 const PWM_HZ: u32 = board::PWM_FREQUENCY_HZ;
 
+// The link must move the largest record the store writes.
+const _: () = assert!(foc_store::MAX_RECORD_BYTES <= foc_protocol::config::MAX_RECORD);
+
 /// The build-time settings (`config::cascade`), uncalibrated.
 pub fn build_time_settings() -> Settings {
     Settings::from_cascade(&config::cascade(PWM_HZ as f32))

@@ -24,8 +24,9 @@ use crate::message::ErrorCode;
 /// and the bytes: 53 of the 57 a frame carries after tag, seq and CRC).
 pub const CHUNK_BYTES: usize = 48;
 
-/// Largest record the link moves [bytes].
-pub const MAX_RECORD: usize = 256;
+/// Largest record the link moves [bytes] (`foc_store::MAX_RECORD_BYTES`,
+/// which the firmware checks at build time).
+pub const MAX_RECORD: usize = 320;
 
 /// A piece of a configuration record.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
