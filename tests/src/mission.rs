@@ -24,7 +24,14 @@
 //! 3. **speed step** 0 -> `w1`, then a **ramp** `w1` -> `w2` (velocity mode).
 //! 4. **load step** at `w2` (about 40 % of the rated torque).
 //! 5. stop (load removed), then a **position move** of one turn.
-//! 6. **braking** (design §18): a DC link with the ODrive v3's bus capacitor
+//! 6. **impedance** (design §21): the rotor held by the impedance law
+//!    (stiffness for 0.25 rad or 40 counts at 30 % of the torque limit,
+//!    damping ratio 0.7 on the identified inertia), load steps of +-30 %
+//!    of the torque limit and a sinusoidal load at a fifth of the spring's
+//!    natural frequency: the stiffness and damping measured as the motor's
+//!    torque against the true position and velocity. It fails beyond 5 %
+//!    (stiffness) or 10 % (damping).
+//! 7. **braking** (design §18): a DC link with the ODrive v3's bus capacitor
 //!    on a battery, a spin-up to the ramp's speed, then the supply made
 //!    non-sinking (a diode-fed bench supply) and a hard stop (0 rad/s at
 //!    once) with the board's power limits
@@ -517,6 +524,79 @@ pub struct MechanicsFigures {
     pub torque_at: [(f64, f64, f64); 2],
 }
 
+/// The impedance segment's figures (design §21), rotor frame.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ImpedanceFigures {
+    /// Stiffness commanded [N m/rad].
+    pub kp_nm_per_rad: f64,
+    /// Damping commanded [N m s/rad].
+    pub kd_nm_s_per_rad: f64,
+    /// Stiffness from the two load steps [N m/rad].
+    pub kp_steps: f64,
+    /// Stiffness from the sinusoidal load [N m/rad].
+    pub kp_sine: f64,
+    /// Damping from the sinusoidal load [N m s/rad].
+    pub kd_sine: f64,
+    /// The sinusoidal load's frequency [Hz].
+    pub sine_hz: f64,
+}
+
+impl ImpedanceFigures {
+    fn err(m: f64, set: f64) -> f64 {
+        100.0 * (m / set - 1.0)
+    }
+
+    /// What fails: stiffness beyond 5 %, damping beyond 10 %.
+    pub fn failures(&self) -> Vec<String> {
+        let mut f = Vec::new();
+        for (what, m, set, tol) in [
+            ("stiffness (steps)", self.kp_steps, self.kp_nm_per_rad, 5.0),
+            ("stiffness (sine)", self.kp_sine, self.kp_nm_per_rad, 5.0),
+            ("damping (sine)", self.kd_sine, self.kd_nm_s_per_rad, 10.0),
+        ] {
+            let e = Self::err(m, set);
+            if !below(e.abs(), tol) {
+                f.push(format!("impedance {what} off by {e:+.1} %"));
+            }
+        }
+        f
+    }
+
+    /// One line for the report.
+    pub fn describe(&self) -> String {
+        format!(
+            "kp {:.4} N m/rad: load steps {:.4} ({:+.1} %), sine {:.4} ({:+.1} %); kd {:.3e} N m s/rad: sine at {:.1} Hz {:.3e} ({:+.1} %)",
+            self.kp_nm_per_rad,
+            self.kp_steps,
+            Self::err(self.kp_steps, self.kp_nm_per_rad),
+            self.kp_sine,
+            Self::err(self.kp_sine, self.kp_nm_per_rad),
+            self.kd_nm_s_per_rad,
+            self.sine_hz,
+            self.kd_sine,
+            Self::err(self.kd_sine, self.kd_nm_s_per_rad),
+        )
+    }
+}
+
+/// Least squares `y = a + b x1 + c x2` -> `(b, c)`.
+fn fit_two(x1: &[f64], x2: &[f64], y: &[f64]) -> (f64, f64) {
+    let n = y.len() as f64;
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / n;
+    let (m1, m2, my) = (mean(x1), mean(x2), mean(y));
+    let (mut s11, mut s22, mut s12, mut s1y, mut s2y) = (0.0, 0.0, 0.0, 0.0, 0.0);
+    for ((a, b), c) in x1.iter().zip(x2).zip(y) {
+        let (a, b, c) = (a - m1, b - m2, c - my);
+        s11 += a * a;
+        s22 += b * b;
+        s12 += a * b;
+        s1y += a * c;
+        s2y += b * c;
+    }
+    let det = s11 * s22 - s12 * s12;
+    ((s1y * s22 - s2y * s12) / det, (s2y * s11 - s1y * s12) / det)
+}
+
 /// One stop of the braking segment.
 #[derive(Clone, Debug, PartialEq)]
 pub struct StopFigures {
@@ -680,6 +760,8 @@ pub struct MissionSummary {
     pub encoder_count_rad: f64,
     /// The braking segment (None: not run).
     pub braking: Option<BrakingSummary>,
+    /// The impedance segment (None: not run).
+    pub impedance: Option<ImpedanceFigures>,
     /// Faults latched during the mission (names).
     pub faults: Vec<String>,
     /// PWM periods simulated.
@@ -778,6 +860,9 @@ impl MissionSummary {
         }
         if self.position_settling_ms.is_none() {
             f.push("position did not settle".into());
+        }
+        if let Some(z) = &self.impedance {
+            f.extend(z.failures());
         }
         if let Some(b) = &self.braking {
             for (name, stop) in [("capacitor", &b.capacitor), ("resistor", &b.resistor)] {
@@ -997,6 +1082,9 @@ impl MissionSummary {
                 self.position_final_error_rad / self.encoder_count_rad
             ),
         );
+        if let Some(z) = &self.impedance {
+            row("impedance (design §21)", z.describe());
+        }
         if let Some(b) = &self.braking {
             row(
                 "braking: DC link",
@@ -1514,6 +1602,7 @@ pub fn run_mission_from(
     m.stop();
     m.saturated_step();
     let p0_true = m.position_move();
+    let impedance = m.impedance();
     let braking = m.braking();
     (m.progress.report)(1.0);
 
@@ -1522,6 +1611,7 @@ pub fn run_mission_from(
     let mut summary = m.summary(&trace, identified, i_step, load, p0_true, wall);
     summary.restored = stored.is_some();
     summary.braking = Some(braking);
+    summary.impedance = Some(impedance);
     Ok(MissionResult {
         trace,
         segments: m.segments,
@@ -1951,7 +2041,78 @@ impl Mission<'_> {
         p0_true
     }
 
-    /// Segment 6, braking (design §18): two stops from the ramp's speed
+    /// Segment 6, impedance (design §21): see the module docs.
+    fn impedance(&mut self) -> ImpedanceFigures {
+        let setup = self.setup;
+        let t_max = setup.kt() * setup.max_current_a;
+        let count = std::f32::consts::TAU / setup.bench.sensors.encoder_counts_per_rev as f32;
+        let kp = 0.3 * t_max / (0.25f32).max(40.0 * count);
+        let j = self
+            .sim
+            .cascade
+            .config()
+            .mechanics
+            .map_or(setup.motor.inertia_kg_m2 as f32, |m| m.inertia_kg_m2);
+        let kd = 1.4 * (kp * j).sqrt();
+        let start = self.sim.rows();
+        let p = self.sim.cascade.feedback().position_rad;
+        let cmd = Command::Impedance(foc_core::control::joint::Impedance {
+            position_rad: p,
+            velocity_rad_s: 0.0,
+            kp_nm_per_rad: kp,
+            kd_nm_s_per_rad: kd,
+            torque_ff_nm: 0.0,
+            torque_limit_nm: f32::INFINITY,
+        });
+        self.sim.cascade.command(cmd).ok();
+        self.run_ticking(secs(setup, 0.2));
+        let load = 0.3 * t_max;
+        let hold = |m: &mut Self, l: f32| {
+            m.sim.load_nm = l;
+            m.run_ticking(secs(setup, 0.5));
+            let n = secs(setup, 0.1);
+            let (mut t, mut x) = (0.0, 0.0);
+            for _ in 0..n {
+                m.run_ticking(1);
+                t += m.sim.plant.torque_nm() as f64;
+                x += m.sim.true_position_rad();
+            }
+            (t / n as f64, x / n as f64)
+        };
+        let (t1, x1) = hold(self, load);
+        let (t2, x2) = hold(self, -load);
+        let wn = (kp as f64 / j as f64).sqrt() / 5.0;
+        let cycle = secs(setup, std::f64::consts::TAU / wn);
+        let ts = 1.0 / setup.bench.pwm_frequency_hz as f64;
+        let (mut xs, mut vs, mut tq) = (vec![], vec![], vec![]);
+        for k in 0..8 * cycle {
+            self.sim.load_nm = load * (wn * k as f64 * ts).sin() as f32;
+            self.run_ticking(1);
+            if k >= 4 * cycle {
+                xs.push(self.sim.true_position_rad());
+                vs.push(self.sim.plant.omega_m_rad_s() as f64);
+                tq.push(self.sim.plant.torque_nm() as f64);
+            }
+        }
+        self.sim.load_nm = 0.0;
+        self.sim
+            .cascade
+            .command(Command::Velocity { rad_s: 0.0 })
+            .ok();
+        self.run_ticking(secs(setup, 0.1));
+        self.end_segment("impedance", start);
+        let (b, c) = fit_two(&xs, &vs, &tq);
+        ImpedanceFigures {
+            kp_nm_per_rad: kp as f64,
+            kd_nm_s_per_rad: kd as f64,
+            kp_steps: (t1 - t2) / (x2 - x1),
+            kp_sine: -b,
+            kd_sine: -c,
+            sine_hz: wn / std::f64::consts::TAU,
+        }
+    }
+
+    /// Segment 7, braking (design §18): two stops from the ramp's speed
     /// into a supply that cannot sink current with the ODrive v3's bus
     /// capacitor, the board's regen limit on; the first into the capacitor
     /// alone, the second with the ODrive's brake resistor. Each: the DC link
@@ -2152,6 +2313,7 @@ impl Mission<'_> {
             position_final_error_rad: position.1,
             encoder_count_rad: std::f64::consts::TAU / cpr as f64,
             braking: None,
+            impedance: None,
             faults: mission_faults(trace),
             periods,
             sim_time_s: periods as f64 * ts,
