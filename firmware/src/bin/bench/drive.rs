@@ -12,10 +12,13 @@ use board_support::board;
 use foc_core::calibration::offsets::OffsetLimits;
 use foc_core::calibration::Calibrated;
 use foc_core::control::cascade::CascadeConfig;
+use foc_core::control::joint::{Impedance, JointConfig, TravelConfig};
 use foc_core::control::power::PowerLimitsConfig;
 use foc_core::control::stage::{PositionStage, SpeedStage, VelocityRef};
 use foc_core::control::{Command, CommandSlot, Feedback, Mode};
-use foc_core::drive::{AngleKind, ConfigChange, Drive, LifecycleConfig, Mail, Refusal, Status};
+use foc_core::drive::{
+    AngleKind, ConfigChange, Drive, JointChange, LifecycleConfig, Mail, Refusal, Status,
+};
 
 /// The emulated board's drive, as in the firmware.
 pub type BoardDrive = Drive<board::Pwm, board::Currents, board::Angle, board::Bus, board::Brake>;
@@ -254,6 +257,37 @@ impl BridgeState for BoardDrive {
 
 fn nothing(_: &mut Rig, _: u32) {}
 
+/// An impedance hold at `p` [rad, rotor] with a tenth of the stiffness and
+/// damping limits (design §21).
+fn impedance_at(p: f32) -> Command {
+    let l = cascade().current.limits;
+    Command::Impedance(Impedance {
+        position_rad: p,
+        velocity_rad_s: 1.0,
+        kp_nm_per_rad: 0.001 * l.max_kp_nm_per_rad,
+        kd_nm_s_per_rad: 0.01 * l.max_kd_nm_s_per_rad,
+        torque_ff_nm: 0.0,
+        torque_limit_nm: f32::INFINITY,
+    })
+}
+
+/// Travel limits 50 rad either side of `p` [rad, rotor], the soft stop
+/// computed every period (design §21).
+fn travel_around(p: f32) -> ConfigChange {
+    let c = cascade();
+    ConfigChange {
+        joint: Some(JointChange {
+            min_position_rad: p - 50.0,
+            max_position_rad: p + 50.0,
+            joint: JointConfig {
+                travel: Some(TravelConfig::for_cascade(&c)),
+                ..c.current.joint
+            },
+        }),
+        ..ConfigChange::default()
+    }
+}
+
 /// The change the firmware makes when it adopts a stored record
 /// (`comms::adopt`: limits, current loop, dividers, power limits, the
 /// calibration permit and the mechanics), with the values in force:
@@ -352,6 +386,23 @@ pub fn measure_all(rig: &mut Rig, baseline: u32) -> Stats {
             },
             nothing,
             Expect::running(Mode::Position),
+        ),
+        scenario(
+            rig,
+            baseline,
+            "drive period: impedance, travel limits, a new command every 20 periods (1 kHz)",
+            |r| {
+                let p = r.published.position_rad;
+                r.mailbox = Some(travel_around(p));
+                r.slot.post(impedance_at(p));
+                r.run(100);
+            },
+            |r, k| {
+                if k % 20 == 0 {
+                    r.slot.post(impedance_at(r.published.position_rad));
+                }
+            },
+            Expect::running(Mode::Impedance),
         ),
         scenario(
             rig,
