@@ -254,13 +254,13 @@ mod tests {
         st.write(&Chunk::new(0, 20, &r[..8]).unwrap()).unwrap();
         let c = Chunk::new(8, 30, &r[8..12]).unwrap();
         assert_eq!(st.write(&c), Err(ErrorCode::OutOfRange { field: 1 }));
-        let c = Chunk::new(0, 300, &r[..8]).unwrap();
+        let c = Chunk::new(0, MAX_RECORD as u16 + 1, &r[..8]).unwrap();
         assert_eq!(st.write(&c), Err(ErrorCode::OutOfRange { field: 1 }));
         assert_eq!(st.complete(), None);
         // An incomplete record is not complete.
         st.write(&Chunk::new(0, 20, &r[..8]).unwrap()).unwrap();
         assert_eq!(st.complete(), None);
         assert!(Chunk::new(0, 60, &[0u8; 49]).is_none());
-        assert!(Chunk::of(&[0u8; 300], 0).is_none());
+        assert!(Chunk::of(&[0u8; MAX_RECORD + 1], 0).is_none());
     }
 }

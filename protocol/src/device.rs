@@ -837,12 +837,13 @@ impl DeviceState {
         cmd: Command,
     ) -> Result<Response, Response> {
         precheck_command(&cmd)?;
-        let rotor = crate::joint::command_to_rotor(&cmd, &ctx.joint().frame);
-        let limits = self.limits_in_force(ctx);
+        let joint = self.host_joint(ctx);
+        let rotor = crate::joint::command_to_rotor(&cmd, &joint.frame);
+        let limits = crate::joint::limits_in_force(&ctx.limits(), &joint);
         let nack = |e| Response::Nack(command_field(&rotor, e));
         ctx.status().check_command(&rotor, &limits).map_err(nack)?;
         ctx.post(rotor).map_err(nack)?;
-        self.abort_homing();
+        self.abort_homing(ctx);
         self.posted(rotor);
         Ok(Response::Ack)
     }

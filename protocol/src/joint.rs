@@ -337,11 +337,13 @@ pub fn end_stop_field(e: &EndStop, err: CommandError) -> u8 {
     match err {
         CommandError::NonFinite => first_non_finite(&end_stop_values(e), homing_field::VELOCITY)
             .unwrap_or(homing_field::VELOCITY),
-        CommandError::VelocityOutOfRange | CommandError::DampingOutOfRange => {
-            homing_field::VELOCITY
-        }
+        CommandError::VelocityOutOfRange => homing_field::VELOCITY,
         CommandError::CurrentOutOfRange => homing_field::CURRENT,
-        CommandError::StiffnessOutOfRange => homing_field::BACKOFF,
+        // The search's and back-off's spring is `kt I / backoff`, damped
+        // with it over 50 ms: a longer back-off softens both.
+        CommandError::StiffnessOutOfRange | CommandError::DampingOutOfRange => {
+            homing_field::BACKOFF
+        }
         _ if !(e.detect_fraction > 0.0 && e.detect_fraction < 1.0) => homing_field::DETECT,
         _ if e.confirm_s < 0.0 => homing_field::CONFIRM,
         _ if e.backoff_rad <= 0.0 => homing_field::BACKOFF,

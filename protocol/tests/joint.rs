@@ -374,16 +374,28 @@ fn start_end_stop(dev: &mut DeviceState, ctx: &mut RecordingContext, home_out: f
 fn run_plant(dev: &mut DeviceState, ctx: &mut RecordingContext, stop_rad: f32, ms: u32) -> f32 {
     let kt = ctx.kt_nm_per_a;
     let (mut p, mut v, mut peak) = (ctx.sample.position_rad, 0.0f32, 0.0f32);
+    // The law's reference advances with its velocity, as the current
+    // stage's does; a new command starts it again.
+    let (mut last, mut p_ref) = (None, 0.0f32);
     for _ in 0..ms {
         let mut iq = 0.0;
         for _ in 0..20 {
+            if ctx.posted != last {
+                last = ctx.posted;
+                if let Some(Command::Impedance(c)) = last {
+                    p_ref = c.position_rad;
+                }
+            }
             let t = match ctx.posted {
-                Some(Command::Impedance(c)) => (c.kp_nm_per_rad * (c.position_rad - p)
+                Some(Command::Impedance(c)) => (c.kp_nm_per_rad * (p_ref - p)
                     + c.kd_nm_s_per_rad * (c.velocity_rad_s - v)
                     + c.torque_ff_nm)
                     .clamp(-c.torque_limit_nm, c.torque_limit_nm),
                 _ => 0.0,
             };
+            if let Some(Command::Impedance(c)) = ctx.posted {
+                p_ref += c.velocity_rad_s * 5e-5;
+            }
             iq = t / kt;
             peak = peak.max(iq.abs());
             let wall = if p > stop_rad {
@@ -421,8 +433,8 @@ fn homing_to_an_end_stop_in_the_output_frame() {
     let Some(Command::Impedance(first)) = ctx.posted else {
         panic!()
     };
-    // A pure damper at +2 rad/s (rotor), at most 2 A.
-    assert!(close(first.velocity_rad_s, 2.0) && first.kp_nm_per_rad == 0.0);
+    // A spring dragged at +2 rad/s (rotor), at most 2 A.
+    assert!(close(first.velocity_rad_s, 2.0) && first.kp_nm_per_rad > 0.0);
     assert!(close(first.torque_limit_nm, 0.2));
     let peak = run_plant(&mut dev, &mut ctx, 5.0, 10_000);
     assert_eq!(dev.homing_state(), HomingState::Done);
@@ -511,8 +523,8 @@ fn bad_homing_requests_name_their_field_and_change_nothing() {
         (req(|e| e.confirm_s = -1.0, 0.0), oor(5)),
         (req(|e| e.backoff_rad = 0.0, 0.0), oor(6)),
         (req(|e| e.max_travel_rad = -1.0, 0.0), oor(7)),
-        // Too slow for the current: its damping 0.2 / 0.02 = 10 > 2.
-        (req(|e| e.velocity_rad_s = 0.001, 0.0), oor(2)),
+        // A back-off so short that its spring is above the stiffness limit.
+        (req(|e| e.backoff_rad = 1e-6, 0.0), oor(6)),
     ];
     refused(geared_ctx(), cases);
     refused(
@@ -631,4 +643,34 @@ fn a_joint_without_travel_has_one_layout() {
         decode_payload::<Request>(&body(2, 0.0)).unwrap_err().kind,
         FrameErrorKind::BadField(2)
     );
+}
+
+/// An end-stop search runs without the travel range (the stop is usually
+/// beyond it, and the range is in the frame homing moves): it is off from
+/// the start, back in the new frame when done, back as it was when the
+/// homing fails.
+#[test]
+fn homing_suspends_the_travel_range_and_puts_it_back() {
+    let mut with_travel = geared_ctx();
+    with_travel.joint.travel_out_rad = Some((-0.1, 0.1));
+    let travel = with_travel.joint.travel_out_rad;
+    let mut ctx = with_travel;
+    let mut dev = DeviceState::new();
+    assert_eq!(start_end_stop(&mut dev, &mut ctx, -0.5), Response::Ack);
+    assert_eq!(ctx.joint.travel_out_rad, None);
+    run_plant(&mut dev, &mut ctx, 5.0, 10_000);
+    assert_eq!(dev.homing_state(), HomingState::Done);
+    assert_eq!(ctx.joint.travel_out_rad, travel);
+    assert!((ctx.joint.frame.position_to_output(5.0) + 0.5).abs() < 1e-3);
+    // No stop: failed, disabled, the joint as it was.
+    let mut ctx = with_travel;
+    let mut dev = DeviceState::new();
+    assert_eq!(start_end_stop(&mut dev, &mut ctx, 0.0), Response::Ack);
+    run_plant(&mut dev, &mut ctx, 1e6, 30_000);
+    assert_eq!(
+        dev.homing_state(),
+        HomingState::Failed(HomingFailure::NoStop)
+    );
+    assert_eq!(ctx.posted, Some(Command::Disable));
+    assert_eq!(ctx.joint, with_travel.joint);
 }

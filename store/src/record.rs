@@ -1040,6 +1040,10 @@ impl JointRecord {
             }
         }
         check(
+            s.joint.entry_blend_periods <= JointConfig::MAX_ENTRY_BLEND_PERIODS,
+            "joint.entry_blend_periods",
+        )?;
+        check(
             JointConfig {
                 travel: None,
                 ..s.joint

@@ -68,7 +68,8 @@ pub struct EndStop {
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum HomingError {
     /// A setting is out of range, or the search's command would be refused
-    /// (its damping above the limit: a faster search or a smaller current).
+    /// (its spring or damping above the limits: a longer back-off or a
+    /// smaller current).
     Invalid(CommandError),
     /// No stop within `max_travel_rad`.
     NoStop,

@@ -420,9 +420,15 @@ impl JointConfig {
         }
     }
 
+    /// Longest entry blend [periods] (about a minute at 20 kHz): beyond
+    /// 2^24 the f32 weight's step would round to nothing and the blend
+    /// would never end.
+    pub const MAX_ENTRY_BLEND_PERIODS: u32 = 1 << 20;
+
     /// True when every value is valid.
     pub fn is_valid(&self) -> bool {
-        self.travel.is_none_or(|t| t.is_valid())
+        self.entry_blend_periods <= Self::MAX_ENTRY_BLEND_PERIODS
+            && self.travel.is_none_or(|t| t.is_valid())
             && self.timeout_kd_nm_s_per_rad.is_finite()
             && self.timeout_kd_nm_s_per_rad >= 0.0
     }
@@ -446,7 +452,8 @@ pub struct JointSetup {
 
 impl JointSetup {
     /// The stage's change for this setup: the travel range in the rotor
-    /// frame (or `unbounded_rad`, the build's range, without one).
+    /// frame (it replaces the motor's position range, it does not narrow
+    /// it), or `unbounded_rad`, the motor's own range, without one.
     pub fn rotor_change(&self, unbounded_rad: (f32, f32)) -> crate::drive::JointChange {
         let (range, travel) = match self.travel_out_rad {
             Some((lo, hi)) => (self.frame.range_to_rotor(lo, hi), Some(self.travel)),

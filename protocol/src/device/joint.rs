@@ -11,7 +11,10 @@
 //! with [`DeviceContext::set_joint`]; when it fails the bridge is disabled.
 //! While it runs it feeds the link watchdog (it is the command source; its
 //! search ends by itself within its longest travel); a command from the
-//! host aborts it.
+//! host aborts it. An end-stop search runs without the travel limits
+//! (they are in the frame it is about to move, and the stop is usually
+//! beyond them): the joint without its travel range is set at the start,
+//! the joint as it was (or, when done, in its new frame) at the end.
 
 use super::{out_of_range, DeviceContext, DeviceState};
 use crate::joint::{end_stop_field, taken, HomingFailure, HomingStart, HomingState, JointSettings};
@@ -33,6 +36,8 @@ pub(super) struct HomingRun {
     posted_at: Option<u32>,
     /// Periods a post may take to show (then the sequencer judges).
     grace_periods: u32,
+    /// The joint before the homing (travel range included).
+    saved: JointSetup,
 }
 
 impl HomingRun {
@@ -89,8 +94,13 @@ impl DeviceState {
             .param(ParamId::PwmFrequencyHz)
             .filter(|f| f.is_finite() && *f > 0.0)
             .ok_or(Response::Nack(ErrorCode::Unsupported))?;
-        let limits = self.limits_in_force(ctx);
-        let method = h.method_in_rotor(&ctx.joint().frame);
+        let saved = ctx.joint();
+        let method = h.method_in_rotor(&saved.frame);
+        // The search runs without travel limits: the motor's range.
+        let limits = match method {
+            HomingMethod::EndStop(_) => ctx.limits(),
+            HomingMethod::Present => self.limits_in_force(ctx),
+        };
         let kt = ctx.torque_constant_nm_per_a();
         let mut homing = Homing::new(method, &limits, kt, 1.0 / pwm_hz)
             .map_err(|e| Response::Nack(homing_refusal(h, e)))?;
@@ -99,18 +109,27 @@ impl DeviceState {
             HomingStep::Post(cmd) => {
                 let refuse = |e| Response::Nack(command_refusal(h, e));
                 ctx.status().check_command(&cmd, &limits).map_err(refuse)?;
-                ctx.post(cmd).map_err(refuse)?;
+                let free = JointSetup {
+                    travel_out_rad: None,
+                    ..saved
+                };
+                ctx.set_joint(free).map_err(|r| Response::Nack(r.into()))?;
+                if let Err(e) = ctx.post(cmd) {
+                    let _ = ctx.set_joint(saved);
+                    return Err(refuse(e));
+                }
                 self.posted(cmd);
                 self.homing = Some(HomingRun {
                     homing,
                     home_output_rad: h.home_output_rad,
                     posted_at: Some(fb.period),
                     grace_periods: (TAKE_GRACE_S * pwm_hz) as u32,
+                    saved,
                 });
                 self.homing_state = HomingState::Running;
             }
             HomingStep::Done { home_rotor_rad } => {
-                self.set_home(ctx, home_rotor_rad, h.home_output_rad)
+                self.set_home(ctx, &saved, home_rotor_rad, h.home_output_rad)
                     .map_err(Response::Nack)?;
                 self.homing_state = HomingState::Done;
             }
@@ -122,16 +141,18 @@ impl DeviceState {
         Ok(Response::Ack)
     }
 
-    /// The joint's frame moved so that the rotor position `home_rotor_rad`
-    /// reads `home_output_rad`, checked whole and handed to the context.
+    /// The joint `joint` (its travel range back) with its frame moved so
+    /// that the rotor position `home_rotor_rad` reads `home_output_rad`,
+    /// checked whole and handed to the context.
     fn set_home<C: DeviceContext>(
         &mut self,
         ctx: &mut C,
+        joint: &JointSetup,
         home_rotor_rad: f32,
         home_output_rad: f32,
     ) -> Result<(), ErrorCode> {
         let home = ErrorCode::OutOfRange { field: 1 };
-        let joint = ctx.joint();
+        let joint = *joint;
         let frame = joint
             .frame
             .homed_at(home_rotor_rad, home_output_rad)
@@ -143,11 +164,18 @@ impl DeviceState {
     }
 
     /// A host command took over: the homing ends (its last command is
-    /// replaced by the host's).
-    pub(super) fn abort_homing(&mut self) {
-        if self.homing.take().is_some() {
+    /// replaced by the host's), the joint as it was before it.
+    pub(super) fn abort_homing<C: DeviceContext>(&mut self, ctx: &mut C) {
+        if let Some(run) = self.homing.take() {
             self.homing_state = HomingState::Failed(HomingFailure::Aborted);
+            let _ = ctx.set_joint(run.saved);
         }
+    }
+
+    /// The joint the host's commands are judged in: the one before a
+    /// homing while it runs (its search has the travel range off).
+    pub(super) fn host_joint<C: DeviceContext>(&self, ctx: &C) -> JointSetup {
+        self.homing.map_or_else(|| ctx.joint(), |r| r.saved)
     }
 
     /// One step of a running homing (from [`Self::poll`]).
@@ -174,7 +202,7 @@ impl DeviceState {
             }
             HomingStep::Running => None,
             HomingStep::Done { home_rotor_rad } => Some(
-                match self.set_home(ctx, home_rotor_rad, run.home_output_rad) {
+                match self.set_home(ctx, &run.saved, home_rotor_rad, run.home_output_rad) {
                     Ok(()) => HomingState::Done,
                     Err(_) => HomingState::Failed(HomingFailure::Refused),
                 },
@@ -183,7 +211,7 @@ impl DeviceState {
         };
         match end {
             None => self.homing = Some(run),
-            Some(state) => self.end_homing(ctx, state),
+            Some(state) => self.end_homing(ctx, state, &run.saved),
         }
     }
 
@@ -196,13 +224,20 @@ impl DeviceState {
         ok
     }
 
-    /// The homing ended: a failure disables the bridge.
-    fn end_homing<C: DeviceContext>(&mut self, ctx: &mut C, state: HomingState) {
+    /// The homing ended: a failure disables the bridge and puts the joint
+    /// (`saved`) back as it was.
+    fn end_homing<C: DeviceContext>(
+        &mut self,
+        ctx: &mut C,
+        state: HomingState,
+        saved: &JointSetup,
+    ) {
         self.homing = None;
         self.homing_state = state;
         if matches!(state, HomingState::Failed(_)) {
             // Disable is always taken.
             let _ = ctx.post(Command::Disable);
+            let _ = ctx.set_joint(*saved);
         }
     }
 }

@@ -98,7 +98,7 @@ prop_compose! {
         rotor_at_zero_rad in prop_oneof![Just(0.0f32), -100.0f32..100.0],
         range in proptest::option::of((-100.0f32..100.0, 0.1f32..200.0)),
         soft_stop in (non_neg(), pos(), pos()),
-        entry_blend_periods in any::<u32>(),
+        entry_blend_periods in 0..=foc_core::control::joint::JointConfig::MAX_ENTRY_BLEND_PERIODS,
         timeout_kd_nm_s_per_rad in non_neg(),
         maxima in (non_neg(), non_neg()),
     ) -> JointRecord {

@@ -7,6 +7,7 @@ use crate::record::{
 };
 use core::f32::consts::TAU;
 use foc_core::angle::ElectricalAngle;
+use foc_core::control::joint::JointConfig;
 
 /// A hand-built envelope with a valid CRC around any payload and version.
 pub(crate) fn envelope(version: u16, payload: &[u8]) -> std::vec::Vec<u8> {
@@ -66,14 +67,16 @@ fn largest_record_fits() {
     assert_eq!(
         r.validate(),
         Err(Invalid {
-            field: "joint.travel_out_rad"
+            field: "joint.entry_blend_periods"
         })
     );
+    // (The longest valid blend is a shorter varint.)
     let j = r.joint.as_mut().unwrap();
+    j.entry_blend_periods = JointConfig::MAX_ENTRY_BLEND_PERIODS;
     j.rotor_at_zero_rad = -1e30;
     j.travel_out_rad = Some((-1e30, 1e30));
     assert_eq!(r.validate(), Ok(()));
-    assert_eq!(encoded(&r).len(), bytes.len());
+    assert!(encoded(&r).len() <= bytes.len());
 }
 
 #[test]
@@ -668,10 +671,15 @@ fn joint_is_checked_field_by_field() {
     j.kv_a_per_rad_s = 0.0;
     j.brake_accel_rad_s2 = f32::NAN;
     assert_eq!(r.validate(), Ok(()));
-    // The bounds, zeros and any entry blend are accepted.
+    // The bounds, zeros and the longest entry blend are accepted.
     for (g, kp, kd, blend) in [
         (0.01, 0.0, 0.0, 0),
-        (-10_000.0, f32::MAX, f32::MAX, u32::MAX),
+        (
+            -10_000.0,
+            f32::MAX,
+            f32::MAX,
+            JointConfig::MAX_ENTRY_BLEND_PERIODS,
+        ),
         (1.0, 1e-9, 1e-9, 1),
     ] {
         let mut r = ok.clone();
@@ -683,6 +691,15 @@ fn joint_is_checked_field_by_field() {
         j.fault_margin_rad = 0.0;
         assert_eq!(r.validate(), Ok(()), "{g} {kp} {kd} {blend}");
     }
+    // An entry blend so long its f32 weight would never reach 0: refused.
+    let mut r = ok.clone();
+    r.joint.as_mut().unwrap().entry_blend_periods = JointConfig::MAX_ENTRY_BLEND_PERIODS + 1;
+    assert_eq!(
+        r.validate(),
+        Err(Invalid {
+            field: "joint.entry_blend_periods"
+        })
+    );
     // The record's own limits come first.
     let mut r = ok.clone();
     r.limits.max_position_rad = f32::NAN;
