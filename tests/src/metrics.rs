@@ -84,6 +84,24 @@ pub fn rms_error(reference: &[f64], y: &[f64]) -> f64 {
     (s / n as f64).sqrt()
 }
 
+/// Least squares `y = a + b x1 + c x2` -> `(b, c)`.
+pub fn fit_two(x1: &[f64], x2: &[f64], y: &[f64]) -> (f64, f64) {
+    let n = y.len() as f64;
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / n;
+    let (m1, m2, my) = (mean(x1), mean(x2), mean(y));
+    let (mut s11, mut s22, mut s12, mut s1y, mut s2y) = (0.0, 0.0, 0.0, 0.0, 0.0);
+    for ((a, b), c) in x1.iter().zip(x2).zip(y) {
+        let (a, b, c) = (a - m1, b - m2, c - my);
+        s11 += a * a;
+        s22 += b * b;
+        s12 += a * b;
+        s1y += a * c;
+        s2y += b * c;
+    }
+    let det = s11 * s22 - s12 * s12;
+    ((s1y * s22 - s2y * s12) / det, (s2y * s11 - s1y * s12) / det)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -143,5 +161,18 @@ mod tests {
         assert!((steady_state_error(&y, 1.0, 3) - 0.1).abs() < 1e-12);
         assert!((rms_error(&[1.0, 1.0], &[0.0, 2.0]) - 1.0).abs() < 1e-12);
         assert!(rms_error(&[], &[]).is_nan());
+    }
+
+    #[test]
+    fn fit_two_recovers_a_plane() {
+        let x1: Vec<f64> = (0..50).map(|k| (k as f64 * 0.3).sin()).collect();
+        let x2: Vec<f64> = (0..50).map(|k| (k as f64 * 0.3).cos()).collect();
+        let y: Vec<f64> = x1
+            .iter()
+            .zip(&x2)
+            .map(|(a, b)| 2.0 - 3.0 * a + 0.5 * b)
+            .collect();
+        let (b, c) = fit_two(&x1, &x2, &y);
+        assert!((b + 3.0).abs() < 1e-9 && (c - 0.5).abs() < 1e-9, "{b} {c}");
     }
 }

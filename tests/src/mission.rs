@@ -579,24 +579,6 @@ impl ImpedanceFigures {
     }
 }
 
-/// Least squares `y = a + b x1 + c x2` -> `(b, c)`.
-fn fit_two(x1: &[f64], x2: &[f64], y: &[f64]) -> (f64, f64) {
-    let n = y.len() as f64;
-    let mean = |v: &[f64]| v.iter().sum::<f64>() / n;
-    let (m1, m2, my) = (mean(x1), mean(x2), mean(y));
-    let (mut s11, mut s22, mut s12, mut s1y, mut s2y) = (0.0, 0.0, 0.0, 0.0, 0.0);
-    for ((a, b), c) in x1.iter().zip(x2).zip(y) {
-        let (a, b, c) = (a - m1, b - m2, c - my);
-        s11 += a * a;
-        s22 += b * b;
-        s12 += a * b;
-        s1y += a * c;
-        s2y += b * c;
-    }
-    let det = s11 * s22 - s12 * s12;
-    ((s1y * s22 - s2y * s12) / det, (s2y * s11 - s1y * s12) / det)
-}
-
 /// One stop of the braking segment.
 #[derive(Clone, Debug, PartialEq)]
 pub struct StopFigures {
@@ -2101,7 +2083,7 @@ impl Mission<'_> {
             .ok();
         self.run_ticking(secs(setup, 0.1));
         self.end_segment("impedance", start);
-        let (b, c) = fit_two(&xs, &vs, &tq);
+        let (b, c) = crate::metrics::fit_two(&xs, &vs, &tq);
         ImpedanceFigures {
             kp_nm_per_rad: kp as f64,
             kd_nm_s_per_rad: kd as f64,

@@ -13,6 +13,7 @@
 // one of the two.
 #![allow(clippy::unnecessary_cast)]
 
+use foc_bench::metrics;
 use foc_bench::mission::{Setup, Sim};
 use foc_core::control::homing::{EndStop, HomingError, HomingMethod};
 use foc_core::control::joint::{Impedance, JointError, OutputFrame};
@@ -103,24 +104,6 @@ fn mean_torque_and_position(sim: &mut Sim, n: usize) -> (f64, f64) {
     (t / n as f64, p / n as f64)
 }
 
-/// Least squares `y = a + b x1 + c x2` -> `(b, c)`.
-fn fit_two(x1: &[f64], x2: &[f64], y: &[f64]) -> (f64, f64) {
-    let n = y.len() as f64;
-    let mean = |v: &[f64]| v.iter().sum::<f64>() / n;
-    let (m1, m2, my) = (mean(x1), mean(x2), mean(y));
-    let (mut s11, mut s22, mut s12, mut s1y, mut s2y) = (0.0, 0.0, 0.0, 0.0, 0.0);
-    for i in 0..y.len() {
-        let (a, b, c) = (x1[i] - m1, x2[i] - m2, y[i] - my);
-        s11 += a * a;
-        s22 += b * b;
-        s12 += a * b;
-        s1y += a * c;
-        s2y += b * c;
-    }
-    let det = s11 * s22 - s12 * s12;
-    ((s1y * s22 - s2y * s12) / det, (s2y * s11 - s1y * s12) / det)
-}
-
 /// Stiffness from two load steps, and stiffness and damping from a
 /// sinusoidal load at the spring's natural frequency, both as the motor's
 /// torque against the true position and velocity.
@@ -161,7 +144,7 @@ fn stiffness_within_5_percent_and_damping_within_10_percent_on_every_motor() {
                 ts_nm.push(sim.plant.torque_nm() as f64);
             }
         }
-        let (b, c) = fit_two(&xs, &vs, &ts_nm);
+        let (b, c) = metrics::fit_two(&xs, &vs, &ts_nm);
         let (kp_sine, kd_sine) = (-b, -c);
         println!(
             "{} | {kp:.4} | {kp_steps:.4} | {kp_sine:.4} | {kd:.3e} | {kd_sine:.3e}",
