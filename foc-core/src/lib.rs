@@ -22,6 +22,7 @@
 //! - [`control`]: the cascade's loops and stages, the fault supervisor.
 //! - [`calibration`]: offsets and the motor identification routines.
 //! - [`drive`]: the drive's life each PWM period, from reset on.
+//! - [`scope`]: scope capture of the feedback (design §22).
 //! - [`hal`]: hardware traits implemented by boards.
 //! - [`math`]: square root, clamps and constants without library calls.
 #![no_std]
@@ -47,6 +48,7 @@ pub mod frames;
 pub mod hal;
 pub mod math;
 pub mod pi;
+pub mod scope;
 pub mod svpwm;
 pub mod transforms;
 pub mod trig;

@@ -179,6 +179,12 @@ pub trait DeviceContext {
     fn telemetry(&self) -> Telemetry;
     /// Firmware version `[major, minor, patch]`.
     fn firmware_version(&self) -> [u8; 3];
+
+    /// The scope (design §22), if the device has one (default: none, the
+    /// scope requests are Nack'd `Unsupported`).
+    fn scope(&mut self) -> Option<&mut dyn crate::scope::ScopePort> {
+        None
+    }
     /// The live or the stored configuration record, encoded into `out`:
     /// its length. `link` is the link-watchdog setting in force (part of
     /// the live record). Default: no store, [`ErrorCode::Unsupported`].
@@ -825,6 +831,11 @@ impl DeviceState {
                 Ok(Response::Ack)
             }
             Request::Store(op) => self.store(ctx, op),
+            Request::SetScope(_)
+            | Request::ArmScope
+            | Request::TriggerScope
+            | Request::ReadScope
+            | Request::ReadScopeData { .. } => scope_request(ctx, req),
         }
     }
 
@@ -941,6 +952,47 @@ fn precheck_command(cmd: &Command) -> Result<(), Response> {
     }
 }
 
+/// The scope's requests.
+fn scope_request<C: DeviceContext>(ctx: &mut C, req: &Request) -> Result<Response, Response> {
+    use crate::scope::{scope_nack, ScopeData, ScopeReport, DATA_PER_FRAME};
+    let pwm_hz = ctx.param(ParamId::PwmFrequencyHz).unwrap_or(f32::NAN);
+    let now = ctx.feedback();
+    let unsupported = Response::Nack(ErrorCode::Unsupported);
+    let scope = ctx.scope().ok_or(unsupported)?;
+    let refused = |e| Response::Nack(scope_nack(e));
+    match *req {
+        Request::SetScope(c) => scope.configure(&c).map_err(refused)?,
+        Request::ArmScope => scope.arm(&now),
+        Request::TriggerScope => scope.force().map_err(refused)?,
+        Request::ReadScope => {
+            let status = scope.status();
+            return Ok(Response::Scope(ScopeReport {
+                status,
+                sample_period_s: f32::from(status.config.divider) / pwm_hz,
+            }));
+        }
+        Request::ReadScopeData { offset } => {
+            let st = scope.status();
+            if st.state != foc_core::scope::State::Done {
+                return Err(Response::Nack(ErrorCode::ScopeState));
+            }
+            let total = usize::from(st.captured) * usize::from(st.config.channels);
+            if usize::from(offset) > total {
+                return Err(out_of_range(0));
+            }
+            let mut values = [0.0; DATA_PER_FRAME];
+            let n = scope.read(usize::from(offset), &mut values);
+            return Ok(Response::ScopeData(ScopeData {
+                offset,
+                count: n.min(DATA_PER_FRAME) as u8,
+                values,
+            }));
+        }
+        _ => return Err(Response::Nack(ErrorCode::UnknownMessage)),
+    }
+    Ok(Response::Ack)
+}
+
 /// The context's telemetry in the output frame.
 fn output_telemetry<C: DeviceContext>(ctx: &C) -> Telemetry {
     crate::joint::telemetry_to_output(&ctx.telemetry(), &ctx.joint().frame)
@@ -1007,6 +1059,8 @@ pub mod tests_support {
         pub joint: JointSetup,
         /// Torque constant [N m/A].
         pub kt_nm_per_a: f32,
+        /// The scope (64 values; `None`: the device has none).
+        pub scope: Option<foc_core::scope::Scope<[f32; 64]>>,
     }
 
     /// Byte `i` of [`RecordingContext`]'s configuration record.
@@ -1047,6 +1101,7 @@ pub mod tests_support {
                 last_store: None,
                 staged: [0; MAX_RECORD],
                 staged_len: 0,
+                scope: Some(foc_core::scope::Scope::new([0.0; 64])),
                 link: None,
                 applied_link: None,
                 joint: crate::joint::NO_JOINT,
@@ -1109,6 +1164,11 @@ pub mod tests_support {
             self.mutate()?;
             self.joint = setup;
             Ok(())
+        }
+        fn scope(&mut self) -> Option<&mut dyn crate::scope::ScopePort> {
+            self.scope
+                .as_mut()
+                .map(|s| s as &mut dyn crate::scope::ScopePort)
         }
         fn torque_constant_nm_per_a(&self) -> f32 {
             self.kt_nm_per_a

@@ -65,6 +65,7 @@ pub mod device;
 pub mod frame;
 pub mod joint;
 pub mod message;
+pub mod scope;
 mod wire;
 
 pub use device::{CommandWatchdog, DeviceContext, DeviceState, Refusal, WatchdogConfig};
@@ -73,4 +74,4 @@ pub use message::{ErrorCode, Message, Request, Response};
 
 /// Version of this protocol, reported in [`message::Hello`]. Bumped on any
 /// incompatible change of the frame or of a message layout.
-pub const PROTOCOL_VERSION: u8 = 3;
+pub const PROTOCOL_VERSION: u8 = 4;

@@ -35,6 +35,7 @@
 //! | 0x40 | `ReadConfig` | `source:u8` (0 live, 1 stored) `offset:u16` | `ConfigChunk` |
 //! | 0x41 | `WriteConfig` | a chunk: `offset:u16 total:u16 len:u8` then `len` (<= 48) record bytes | `Ack` (staged) |
 //! | 0x42 | `Store` | `op:u8` (0 save, 1 load, 2 erase, 3 apply staged, 4 apply staged and save) | `Ack` (done) |
+//! | 0x50..0x54 | `SetScope`, `ArmScope`, `TriggerScope`, `ReadScope`, `ReadScopeData` | see [`crate::scope`] | `Ack`, `Scope`, `ScopeData` |
 //!
 //! Device to host ([`Response`]):
 //!
@@ -50,6 +51,7 @@
 //! | 0x87 | `ConfigChunk` | a chunk, as in `WriteConfig` (see [`crate::config`]) |
 //! | 0x88 | `Joint` | as `SetJoint` (the joint in force) |
 //! | 0x89 | `Homing` | `state:u8` (0 idle, 1 running, 2 done, 3 failed) `reason:u8` (failed: [`HomingFailure`] code, else 0) |
+//! | 0x8A / 0x8B | `Scope` / `ScopeData` | see [`crate::scope`] |
 //!
 //! A frame-level error (bad CRC, bad COBS, too long, too short) cannot be
 //! trusted to carry a sequence number: its Nack goes out with `seq = 0`, and
@@ -68,6 +70,8 @@ use foc_core::control::stage::TimeoutReaction;
 use foc_core::control::{Command, Fault, FaultSet, Feedback, Limits, Mode};
 
 pub use crate::joint::{HomingFailure, HomingStart, HomingState, JointSettings};
+pub use crate::scope::{ScopeData, ScopeReport};
+use foc_core::scope::ScopeConfig;
 
 /// A message type of one direction.
 pub trait Message: Sized {
@@ -262,6 +266,18 @@ param_ids! {
     TelemetryDivider = 13, "telemetry-divider";
     /// Watchdog timeout [periods] (0 = off; answered by the protocol layer).
     WatchdogTimeout = 14, "watchdog-timeout";
+    /// Current-loop proportional gain, q axis [V/A].
+    CurrentKp = 15, "current-kp";
+    /// Current-loop integral gain, q axis [V/(A s)].
+    CurrentKi = 16, "current-ki";
+    /// Speed-loop proportional gain [A/(rad/s)] (rotor).
+    SpeedKp = 17, "speed-kp";
+    /// Speed-loop integral gain [A/rad] (rotor).
+    SpeedKi = 18, "speed-ki";
+    /// Position-loop gain [(rad/s)/rad].
+    PositionKp = 19, "position-kp";
+    /// Values the scope buffer holds (0: no scope).
+    ScopeCapacity = 20, "scope-capacity";
 }
 
 /// A Nack's reason.
@@ -296,6 +312,9 @@ pub enum ErrorCode {
     BadRecord,
     /// Nothing is stored.
     NothingStored,
+    /// The scope is not in the state the request needs (trigger: armed;
+    /// data: done).
+    ScopeState,
     /// A code this version does not know (decoding only).
     Other(u8),
 }
@@ -316,6 +335,7 @@ impl ErrorCode {
             Self::StoreFailed => (10, 0),
             Self::BadRecord => (11, 0),
             Self::NothingStored => (12, 0),
+            Self::ScopeState => (13, 0),
             Self::Other(c) => (c, 0),
         }
     }
@@ -334,6 +354,7 @@ impl ErrorCode {
             10 => Self::StoreFailed,
             11 => Self::BadRecord,
             12 => Self::NothingStored,
+            13 => Self::ScopeState,
             c => Self::Other(c),
         }
     }
@@ -641,6 +662,19 @@ pub enum Request {
     WriteConfig(Chunk),
     /// A store operation (only while started and disabled).
     Store(StoreOp),
+    /// Configure the scope (it goes idle, a capture is dropped).
+    SetScope(ScopeConfig),
+    /// Start recording, waiting for the trigger.
+    ArmScope,
+    /// Trigger the armed scope now.
+    TriggerScope,
+    /// The scope's state (`Scope`).
+    ReadScope,
+    /// Values of a finished capture from `offset` on (`ScopeData`).
+    ReadScopeData {
+        /// Value index.
+        offset: u16,
+    },
 }
 
 impl Request {
@@ -656,6 +690,8 @@ impl Request {
                 | Request::ReadConfig { .. }
                 | Request::ReadJoint
                 | Request::ReadHoming
+                | Request::ReadScope
+                | Request::ReadScopeData { .. }
         )
     }
 
@@ -710,6 +746,23 @@ impl Request {
             Request::ReadConfig { .. } => &["source", "offset"],
             Request::WriteConfig(_) => &["offset", "total", "len"],
             Request::Store(_) => &["op"],
+            Request::SetScope(_) => &[
+                "signal0",
+                "signal1",
+                "signal2",
+                "signal3",
+                "signal4",
+                "signal5",
+                "signal6",
+                "signal7",
+                "divider",
+                "samples",
+                "pre_trigger",
+                "trigger",
+                "trigger_signal",
+                "level",
+            ],
+            Request::ReadScopeData { .. } => &["offset"],
             Request::Ping
             | Request::KeepAlive
             | Request::ReadFaults
@@ -717,7 +770,10 @@ impl Request {
             | Request::ReadTelemetry
             | Request::StopTelemetry
             | Request::ReadJoint
-            | Request::ReadHoming => &[],
+            | Request::ReadHoming
+            | Request::ArmScope
+            | Request::TriggerScope
+            | Request::ReadScope => &[],
         };
         names.get(usize::from(field)).copied()
     }
@@ -961,6 +1017,11 @@ mod tags {
     pub const READ_CONFIG: u8 = 0x40;
     pub const WRITE_CONFIG: u8 = 0x41;
     pub const STORE: u8 = 0x42;
+    pub const SET_SCOPE: u8 = 0x50;
+    pub const ARM_SCOPE: u8 = 0x51;
+    pub const TRIGGER_SCOPE: u8 = 0x52;
+    pub const READ_SCOPE: u8 = 0x53;
+    pub const READ_SCOPE_DATA: u8 = 0x54;
 
     pub const ACK: u8 = 0x80;
     pub const NACK: u8 = 0x81;
@@ -972,6 +1033,8 @@ mod tags {
     pub const CONFIG_CHUNK: u8 = 0x87;
     pub const JOINT: u8 = 0x88;
     pub const HOMING: u8 = 0x89;
+    pub const SCOPE: u8 = 0x8A;
+    pub const SCOPE_DATA: u8 = 0x8B;
 }
 
 impl Message for Request {
@@ -1001,6 +1064,11 @@ impl Message for Request {
             Request::ReadConfig { .. } => READ_CONFIG,
             Request::WriteConfig(_) => WRITE_CONFIG,
             Request::Store(_) => STORE,
+            Request::SetScope(_) => SET_SCOPE,
+            Request::ArmScope => ARM_SCOPE,
+            Request::TriggerScope => TRIGGER_SCOPE,
+            Request::ReadScope => READ_SCOPE,
+            Request::ReadScopeData { .. } => READ_SCOPE_DATA,
         }
     }
 
@@ -1013,7 +1081,12 @@ impl Message for Request {
             | Request::ReadTelemetry
             | Request::StopTelemetry
             | Request::ReadJoint
-            | Request::ReadHoming => {}
+            | Request::ReadHoming
+            | Request::ArmScope
+            | Request::TriggerScope
+            | Request::ReadScope => {}
+            Request::SetScope(c) => crate::scope::put_config(w, c),
+            Request::ReadScopeData { offset } => w.u16(*offset),
             Request::SetCommand(c) => put_command(w, c),
             Request::SetLimits(l) => {
                 w.f32(l.max_current_a);
@@ -1118,6 +1191,11 @@ impl Message for Request {
             READ_JOINT => Request::ReadJoint,
             START_HOMING => Request::StartHoming(get_homing(r)?),
             READ_HOMING => Request::ReadHoming,
+            SET_SCOPE => Request::SetScope(crate::scope::get_config(r)?),
+            ARM_SCOPE => Request::ArmScope,
+            TRIGGER_SCOPE => Request::TriggerScope,
+            READ_SCOPE => Request::ReadScope,
+            READ_SCOPE_DATA => Request::ReadScopeData { offset: r.u16()? },
             RUN_CALIBRATION => Request::RunCalibration(
                 Calibration::from_code(r.u8()?).ok_or(DecodeError::BadField(0))?,
             ),
@@ -1173,6 +1251,10 @@ pub enum Response {
     Joint(JointSettings),
     /// Where homing stands (reply to `ReadHoming`).
     Homing(HomingState),
+    /// The scope's state (reply to `ReadScope`).
+    Scope(ScopeReport),
+    /// Captured values (reply to `ReadScopeData`).
+    ScopeData(ScopeData),
 }
 
 impl Message for Response {
@@ -1189,6 +1271,8 @@ impl Message for Response {
             Response::ConfigChunk(_) => CONFIG_CHUNK,
             Response::Joint(_) => JOINT,
             Response::Homing(_) => HOMING,
+            Response::Scope(_) => SCOPE,
+            Response::ScopeData(_) => SCOPE_DATA,
         }
     }
 
@@ -1238,6 +1322,8 @@ impl Message for Response {
                 w.u8(state);
                 w.u8(reason);
             }
+            Response::Scope(r) => crate::scope::put_report(w, r),
+            Response::ScopeData(d) => crate::scope::put_data(w, d),
         }
     }
 
@@ -1274,6 +1360,8 @@ impl Message for Response {
                     HomingState::from_wire(state, reason).ok_or(DecodeError::BadField(0))?,
                 )
             }
+            SCOPE => Response::Scope(crate::scope::get_report(r)?),
+            SCOPE_DATA => Response::ScopeData(crate::scope::get_data(r)?),
             _ => return Err(DecodeError::UnknownTag),
         })
     }

@@ -6,6 +6,7 @@ use foc_core::control::joint::Impedance;
 use foc_core::control::power::ActiveLimit;
 use foc_core::control::stage::TimeoutReaction;
 use foc_core::control::{Command, Fault, FaultSet, Limits, Mode};
+use foc_core::scope::{ScopeConfig, ScopeStatus, Signal, State, TriggerKind};
 use foc_protocol::config::{Chunk, ConfigSource, StoreOp};
 use foc_protocol::device::tests_support::RecordingContext;
 use foc_protocol::device::{CommandWatchdog, DeviceState, WatchdogConfig};
@@ -174,7 +175,37 @@ fn all_requests() -> Vec<Request> {
         Request::Store(StoreOp::Erase),
         Request::Store(StoreOp::Apply),
         Request::Store(StoreOp::ApplyAndSave),
+        Request::SetScope(scope_config()),
+        Request::ArmScope,
+        Request::TriggerScope,
+        Request::ReadScope,
+        Request::ReadScopeData { offset: 4095 },
     ]
+}
+
+fn scope_config() -> ScopeConfig {
+    let mut c = ScopeConfig::new(&Signal::ALL[..8]);
+    c.divider = 3;
+    c.samples = 500;
+    c.pre_trigger = 50;
+    c.trigger = TriggerKind::Either;
+    c.trigger_signal = Signal::VelocityRadS;
+    c.level = -12.5;
+    c
+}
+
+fn scope_report() -> ScopeReport {
+    ScopeReport {
+        status: ScopeStatus {
+            state: State::Done,
+            config: scope_config(),
+            captured: 480,
+            trigger_index: 30,
+            trigger_period: 0xDEAD_BEEF,
+            capacity: 4096,
+        },
+        sample_period_s: 150e-6,
+    }
 }
 
 fn all_responses() -> Vec<Response> {
@@ -216,6 +247,18 @@ fn all_responses() -> Vec<Response> {
         Response::Homing(HomingState::Done),
         Response::Homing(HomingState::Failed(HomingFailure::NoStop)),
         Response::Homing(HomingState::Failed(HomingFailure::Aborted)),
+        Response::Nack(ErrorCode::ScopeState),
+        Response::Scope(scope_report()),
+        Response::ScopeData(ScopeData {
+            offset: 4084,
+            count: 12,
+            values: core::array::from_fn(|i| i as f32 * -0.25),
+        }),
+        Response::ScopeData(ScopeData {
+            offset: 7,
+            count: 0,
+            values: [0.0; 12],
+        }),
     ]
 }
 
@@ -241,7 +284,7 @@ fn every_message_round_trips() {
     tags.extend(all_responses().iter().map(Message::tag));
     tags.sort();
     tags.dedup();
-    assert_eq!(tags.len(), 23 + 10);
+    assert_eq!(tags.len(), 28 + 12);
 }
 
 #[test]
@@ -425,7 +468,34 @@ fn request() -> impl Strategy<Value = Request> {
         any::<u32>().prop_map(|k| Request::StartTelemetry(TelemetryRate::EveryPeriods(k))),
         finite().prop_map(|h| Request::StartTelemetry(TelemetryRate::Hz(h))),
         Just(Request::StopTelemetry),
+        scope_cfg().prop_map(Request::SetScope),
+        Just(Request::ArmScope),
+        Just(Request::TriggerScope),
+        Just(Request::ReadScope),
+        any::<u16>().prop_map(|offset| Request::ReadScopeData { offset }),
     ]
+}
+
+fn signal() -> impl Strategy<Value = Signal> {
+    proptest::sample::select(Signal::ALL.to_vec())
+}
+
+fn scope_cfg() -> impl Strategy<Value = ScopeConfig> {
+    (
+        proptest::collection::vec(signal(), 1..=8),
+        (any::<u16>(), any::<u16>(), any::<u16>()),
+        (0u8..6, signal(), finite()),
+    )
+        .prop_map(|(sig, (divider, samples, pre_trigger), (t, ts, level))| {
+            let mut c = ScopeConfig::new(&sig);
+            c.divider = divider;
+            c.samples = samples;
+            c.pre_trigger = pre_trigger;
+            c.trigger = TriggerKind::from_code(t).unwrap();
+            c.trigger_signal = ts;
+            c.level = level;
+            c
+        })
 }
 
 fn tel() -> impl Strategy<Value = Telemetry> {
@@ -493,6 +563,30 @@ fn response() -> impl Strategy<Value = Response> {
         // Finite values: compared with `==` after the round trip.
         joint_of(finite()).prop_map(Response::Joint),
         homing_state().prop_map(Response::Homing),
+        (scope_cfg(), 0u8..4, any::<(u16, u16, u32, u16)>(), finite()).prop_map(
+            |(config, st, (captured, trigger_index, trigger_period, capacity), dt)| {
+                Response::Scope(ScopeReport {
+                    status: ScopeStatus {
+                        state: State::from_code(st).unwrap(),
+                        config,
+                        captured,
+                        trigger_index,
+                        trigger_period,
+                        capacity,
+                    },
+                    sample_period_s: dt,
+                })
+            }
+        ),
+        (any::<u16>(), proptest::collection::vec(finite(), 0..=12)).prop_map(|(offset, v)| {
+            let mut values = [0.0; 12];
+            values[..v.len()].copy_from_slice(&v);
+            Response::ScopeData(ScopeData {
+                offset,
+                count: v.len() as u8,
+                values,
+            })
+        }),
     ]
 }
 
