@@ -31,8 +31,10 @@
 
 pub mod config;
 pub mod joint;
+pub mod scope;
 pub mod sim;
 pub mod transport;
+pub mod tune;
 
 use foc_core::control::{Command, Limits};
 use foc_protocol::frame::{encode, FrameDecoder, MAX_FRAME};
@@ -104,6 +106,9 @@ pub fn describe_error(e: ErrorCode) -> String {
             "configuration record refused (incomplete, corrupt, other version or out of range; nothing applied)".into()
         }
         ErrorCode::NothingStored => "nothing is stored".into(),
+        ErrorCode::ScopeState => {
+            "the scope is not in the state this needs (trigger: armed; data: capture done)".into()
+        }
         ErrorCode::Other(c) => format!("error code {c}"),
     }
 }
@@ -289,7 +294,7 @@ impl Client {
         Err(ClientError::Timeout { attempts })
     }
 
-    fn expect_ack(&mut self, req: &Request) -> Result<(), ClientError> {
+    pub(crate) fn expect_ack(&mut self, req: &Request) -> Result<(), ClientError> {
         match self.request(req)? {
             Response::Ack => Ok(()),
             r => Err(ClientError::Unexpected(r)),

@@ -29,7 +29,9 @@
 
 use foc_core::control::cascade::CascadeConfig;
 use foc_core::control::joint::{Impedance, JointSetup};
+use foc_core::control::Feedback;
 use foc_core::control::{Command, CommandError, Fault, FaultSet, Limits, Mode, MotorParams};
+use foc_core::scope::{Scope, State};
 use foc_core::tuning::CurrentPiGains;
 use foc_protocol::config::{ConfigSource, StoreOp, MAX_RECORD};
 use foc_protocol::device::{DeviceContext, DeviceState, Refusal, WatchdogConfig};
@@ -146,7 +148,13 @@ pub struct SimDrive {
     /// Mechanical end stops `(low, high)` [rad, rotor]: the rotor stops
     /// dead there (infinite: none).
     pub stops_rad: (f32, f32),
+    /// The scope (design §22), [`SCOPE_VALUES`] values, recorded every
+    /// period while armed (the model then steps period by period).
+    pub scope: Scope<Vec<f32>>,
 }
+
+/// Values the simulated scope holds (as the firmware's).
+pub const SCOPE_VALUES: usize = 4096;
 
 impl Default for SimDrive {
     fn default() -> Self {
@@ -167,6 +175,7 @@ impl Default for SimDrive {
             v_bus_v: 24.0,
             impedance_ref_rad: 0.0,
             stops_rad: (f32::NEG_INFINITY, f32::INFINITY),
+            scope: Scope::new(vec![0.0; SCOPE_VALUES]),
         }
     }
 }
@@ -267,12 +276,20 @@ impl SimDrive {
         let mut left = periods;
         while left > 0 {
             // Sub-steps of 1 ms at 20 kHz; impedance (a stiff spring on a
-            // light rotor) every period.
+            // light rotor) and an armed scope every period.
+            let recording = matches!(self.scope.status().state, State::Armed | State::Triggered);
             let n = match self.command {
                 Command::Impedance(_) => 1,
+                _ if recording => 1,
                 _ => left.min(20),
             };
             left -= n;
+            if recording {
+                // As the firmware's: the period's command with what was
+                // measured at its start.
+                let fb = self.sim_feedback();
+                self.scope.record(&fb);
+            }
             self.step(n as f32 / PWM_HZ);
             self.period = self.period.wrapping_add(n);
         }
@@ -324,6 +341,34 @@ impl SimDrive {
         }
     }
 
+    /// The model's feedback (rotor frame): telemetry, the active command,
+    /// the faults and the q-current reference.
+    pub fn sim_feedback(&self) -> Feedback {
+        let mut fb = foc_protocol::joint::feedback_of(&self.telemetry());
+        let t = self.telemetry();
+        fb.active = self.command;
+        fb.faults = self.faults;
+        fb.i_dq_ref_a.q = match self.command {
+            Command::Torque { iq_a } => iq_a,
+            _ => self.iq_a,
+        };
+        fb.v_dq_v = foc_core::frames::Dq::new(t.v_d_v, t.v_q_v);
+        fb
+    }
+
+    /// The q current after `dt` towards `iq_ref` [A]: the current loop as
+    /// a first-order lag of time constant `L / kp` (a PI whose zero
+    /// cancels the winding's pole, design §11).
+    fn current_lag(&self, iq_ref: f32, dt: f32) -> f32 {
+        let kp = self.settings.current.q_gains.kp_v_per_a;
+        let l = self.settings.current.motor.lq_h;
+        if !(kp > 0.0 && l > 0.0) {
+            return iq_ref;
+        }
+        let a = 1.0 - (-dt * kp / l).exp();
+        self.iq_a + (iq_ref - self.iq_a) * a
+    }
+
     fn step(&mut self, dt: f32) {
         if let Some((t, routine)) = self.calibrating {
             let t = t - dt;
@@ -349,7 +394,10 @@ impl SimDrive {
         let follow = |w: f32, target: f32| w + (target - w) * (dt / TAU_S).min(1.0);
         let w = match self.command {
             Command::Disable => follow(w0, 0.0),
-            Command::Torque { iq_a } => w0 + (self.kt() * iq_a - B_NM_S * w0) / J_KG_M2 * dt,
+            Command::Torque { iq_a } => {
+                let iq = self.current_lag(iq_a, dt);
+                w0 + (self.kt() * iq - B_NM_S * w0) / J_KG_M2 * dt
+            }
             Command::Velocity { rad_s } => follow(w0, rad_s),
             Command::Position { rad } => {
                 let g = self.settings.position;
@@ -363,7 +411,7 @@ impl SimDrive {
         };
         self.iq_a = match self.command {
             Command::Disable | Command::OpenLoop { .. } => 0.0,
-            Command::Torque { iq_a } => iq_a,
+            Command::Torque { iq_a } => self.current_lag(iq_a, dt),
             _ => (J_KG_M2 * (w - w0) / dt + B_NM_S * w) / self.kt(),
         };
         self.position_rad += 0.5 * (w0 + w) * dt;
@@ -476,6 +524,12 @@ impl DeviceContext for SimDrive {
             ParamId::FirmwareVersion => 100.0,
             ParamId::BusVoltageV => self.v_bus_v,
             ParamId::Calibrated => f32::from(u8::from(self.settings.calibrated)),
+            ParamId::CurrentKp => self.settings.current.q_gains.kp_v_per_a,
+            ParamId::CurrentKi => self.settings.current.q_gains.ki_v_per_a_s,
+            ParamId::SpeedKp => self.settings.speed.kp_a_per_rad_s,
+            ParamId::SpeedKi => self.settings.speed.ki_a_per_rad,
+            ParamId::PositionKp => self.settings.position.kp_per_s,
+            ParamId::ScopeCapacity => self.scope.capacity() as f32,
             // Not simulated; protocol-layer parameters are answered before.
             ParamId::MaxLoopCycles
             | ParamId::ProtocolVersion
@@ -512,6 +566,12 @@ impl DeviceContext for SimDrive {
     }
     fn firmware_version(&self) -> [u8; 3] {
         [0, 1, 0]
+    }
+    fn feedback(&self) -> Feedback {
+        self.sim_feedback()
+    }
+    fn scope(&mut self) -> Option<&mut dyn foc_protocol::scope::ScopePort> {
+        Some(&mut self.scope)
     }
     fn config_record(
         &mut self,

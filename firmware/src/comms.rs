@@ -9,7 +9,8 @@
 //!
 //! The protocol validates every request before it touches the
 //! [`DeviceContext`]. [`Link`] is that context: a *snapshot* of the shared
-//! state (feedback, timing, phase) taken before a frame is handled, plus
+//! state (feedback, timing, phase) taken before a frame is handled, the
+//! scope (one lock per call), plus
 //! an outbox of what the frame asked for, committed into the RTIC shared
 //! resources right after (`Link::commit` in `main.rs`):
 //!
@@ -57,12 +58,14 @@ use foc_core::control::{
     Command, CommandError, CommandSlot, Fault, FaultSet, Feedback, Limits, Mode,
 };
 use foc_core::drive::{ConfigChange, JointChange, Status};
+use foc_core::scope::{Scope, ScopeConfig, ScopeError, ScopeStatus};
 use foc_protocol::config::{ConfigSource, StoreOp, MAX_RECORD};
 use foc_protocol::frame::{encode, FrameDecoder, MAX_FRAME};
 use foc_protocol::message::ErrorCode;
 use foc_protocol::message::{
     Calibration, CurrentGains, ParamId, PositionGains, SpeedGains, Telemetry,
 };
+use foc_protocol::scope::ScopePort;
 use foc_protocol::{DeviceContext, DeviceState, Refusal, WatchdogConfig};
 use foc_store::{DriveRecord, Label, StoreError};
 
@@ -75,6 +78,34 @@ pub const AUTO_WATCHDOG: WatchdogConfig = WatchdogConfig {
     timeout_periods: board::PWM_FREQUENCY_HZ,
     reaction: foc_core::control::stage::TimeoutReaction::Stop,
 };
+
+/// The scope (design §22) over its static buffer (`config::SCOPE_VALUES`
+/// values); recorded by `current_loop`, reached by the channel through
+/// [`ScopeLock`].
+pub type BoardScope = Scope<&'static mut [f32]>;
+
+/// The shared scope resource as the protocol's [`ScopePort`]: each call
+/// one critical section at the current loop's priority (a status, a
+/// configuration, or a copy of at most 12 values).
+pub struct ScopeLock<M>(pub M);
+
+impl<M: rtic::Mutex<T = BoardScope>> ScopePort for ScopeLock<M> {
+    fn configure(&mut self, c: &ScopeConfig) -> Result<(), ScopeError> {
+        self.0.lock(|s| s.configure(*c))
+    }
+    fn arm(&mut self, now: &Feedback) {
+        self.0.lock(|s| s.arm(now));
+    }
+    fn force(&mut self) -> Result<(), ScopeError> {
+        self.0.lock(|s| s.force())
+    }
+    fn status(&mut self) -> ScopeStatus {
+        self.0.lock(|s| s.status())
+    }
+    fn read(&mut self, offset: usize, out: &mut [f32]) -> usize {
+        self.0.lock(|s| s.read(offset, out))
+    }
+}
 
 /// Pending configuration changes, one part per owning task.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -209,6 +240,8 @@ pub struct Link<'a> {
     pub store: &'a mut Option<BoardStore>,
     /// What to commit.
     pub out: Outbox,
+    /// The scope (frames only; `None` in a poll).
+    pub scope: Option<&'a mut dyn ScopePort>,
 }
 
 impl Link<'_> {
@@ -486,6 +519,12 @@ impl DeviceContext for Link<'_> {
                 }
             }
             ParamId::MaxLoopCycles => self.snap.max_loop_cycles as f32,
+            ParamId::CurrentKp => self.settings.current.q_gains.kp_v_per_a,
+            ParamId::CurrentKi => self.settings.current.q_gains.ki_v_per_a_s,
+            ParamId::SpeedKp => self.settings.speed.kp_a_per_rad_s,
+            ParamId::SpeedKi => self.settings.speed.ki_a_per_rad,
+            ParamId::PositionKp => self.settings.position.kp_per_s,
+            ParamId::ScopeCapacity => config::SCOPE_VALUES as f32,
             // Answered by the protocol layer itself.
             ParamId::ProtocolVersion | ParamId::TelemetryDivider | ParamId::WatchdogTimeout => {
                 return None
@@ -497,6 +536,12 @@ impl DeviceContext for Link<'_> {
     }
     fn firmware_version(&self) -> [u8; 3] {
         FIRMWARE_VERSION
+    }
+    fn scope(&mut self) -> Option<&mut dyn ScopePort> {
+        match self.scope.as_mut() {
+            Some(s) => Some(&mut **s),
+            None => None,
+        }
     }
     fn config_record(
         &mut self,
@@ -688,7 +733,7 @@ impl Comms {
     /// UART is drained. `snap` is the shared state now; returns the outbox
     /// of the completed frame (commit it, then call again), or `None` when
     /// no more bytes are waiting.
-    pub fn receive(&mut self, snap: Snapshot) -> Option<Outbox> {
+    pub fn receive(&mut self, snap: Snapshot, scope: &mut dyn ScopePort) -> Option<Outbox> {
         self.fold_identification(snap.identified);
         while let Some(b) = self.serial.read_byte() {
             let mut link = Link {
@@ -697,6 +742,7 @@ impl Comms {
                 label: &mut self.label,
                 store: &mut self.store,
                 out: Outbox::default(),
+                scope: Some(&mut *scope),
             };
             if let Some(n) = self
                 .device
@@ -721,6 +767,7 @@ impl Comms {
             label: &mut self.label,
             store: &mut self.store,
             out: Outbox::default(),
+            scope: None,
         };
         let sample = self.device.poll(&mut link, now_period);
         let mut out = link.out;

@@ -15,6 +15,10 @@ pub const SPEED_DIVIDER: u16 = 10;
 pub const POSITION_DIVIDER: u16 = 20;
 /// Housekeeping (telemetry, start-up sequencing) every K periods (50 Hz at 20 kHz).
 pub const HOUSEKEEPING_DIVIDER: u32 = 400;
+
+/// Values the scope buffer holds (design §22): 16 KiB of RAM, 1024
+/// samples of 4 signals (or 512 of 8, 4096 of 1).
+pub const SCOPE_VALUES: usize = 4096;
 /// Current-loop budget as a fraction of the PWM period; a longer run raises
 /// the overrun fault (moteus fails builds beyond about 66 %).
 pub const CURRENT_LOOP_BUDGET_FRACTION: f32 = 0.6;

@@ -118,6 +118,10 @@ mod app {
         /// drive), `speed` by `speed_loop` (3), `position` by
         /// `position_loop` (2), at their next run.
         config_request: comms::ConfigMailbox,
+        /// The scope (design §22). Recorded by `current_loop` (4) every
+        /// period; configured, armed and read by `serial` (1), one short
+        /// lock per request.
+        scope: comms::BoardScope,
         /// The command channel (UART, decoder, protocol state, settings).
         /// Used by `serial` and `housekeeping`, both priority 1, so never
         /// contended.
@@ -142,7 +146,7 @@ mod app {
         seen_runs: u32,
     }
 
-    #[init]
+    #[init(local = [scope_buf: [f32; config::SCOPE_VALUES] = [0.0; config::SCOPE_VALUES]])]
     fn init(cx: init::Context) -> (Shared, Local) {
         let mut cp = cx.core;
         cp.DCB.enable_trace();
@@ -208,6 +212,7 @@ mod app {
                 identified: None,
                 config_request: comms::ConfigMailbox::EMPTY,
                 comms: comms::Comms::new(b.serial, boot),
+                scope: foc_core::scope::Scope::new(&mut cx.local.scope_buf[..]),
             },
             Local {
                 drive,
@@ -246,7 +251,7 @@ mod app {
     #[task(
         binds = ADC,
         priority = 4,
-        shared = [command, feedback, iq_ref_a, timing, break_fired, status, identified, config_request],
+        shared = [command, feedback, iq_ref_a, timing, break_fired, status, identified, config_request, scope],
         local = [drive, tick]
     )]
     fn current_loop(mut cx: current_loop::Context) {
@@ -257,20 +262,24 @@ mod app {
         let drive = &mut *cx.local.drive;
         // Each lock raises and restores BASEPRI (RTIC 2 does so even at the
         // ceiling: about 6 instructions each, not counted by the bench);
-        // the drive writes the feedback and status in place.
+        // the drive writes the feedback and status in place; the scope
+        // records the period's feedback (one comparison while idle).
         let out = (
             cx.shared.config_request,
             cx.shared.feedback,
             cx.shared.status,
+            cx.shared.scope,
         )
-            .lock(|request, feedback, status| {
+            .lock(|request, feedback, status, scope| {
                 let mail = Mail {
                     command,
                     iq_ref_a,
                     change: &mut request.current,
                     gate_fault,
                 };
-                drive.run_period(mail, feedback, status)
+                let out = drive.run_period(mail, feedback, status);
+                scope.record(feedback);
+                out
             });
         if let Some(e) = out.event {
             #[cfg(feature = "qemu")]
@@ -367,9 +376,10 @@ mod app {
     #[task(
         binds = USART2,
         priority = 1,
-        shared = [command, feedback, timing, status, identified, config_request, comms]
+        shared = [command, feedback, timing, status, identified, config_request, comms, scope]
     )]
     fn serial(mut cx: serial::Context) {
+        let mut scope = comms::ScopeLock(cx.shared.scope);
         cx.shared.comms.lock(|c| c.serial.on_interrupt());
         // Bounded: every frame takes at least one byte of the RX ring.
         for _ in 0..board_support::hw::serial::RX_CAPACITY {
@@ -382,7 +392,7 @@ mod app {
                 calibration: cx.shared.config_request.lock(|m| m.calibration_pending()),
             };
             let snap = link_snapshot(&fb, &tm, status, identified, pending);
-            let Some(out) = cx.shared.comms.lock(|c| c.receive(snap)) else {
+            let Some(out) = cx.shared.comms.lock(|c| c.receive(snap, &mut scope)) else {
                 break;
             };
             if out.touches_config() {

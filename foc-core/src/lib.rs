@@ -22,6 +22,7 @@
 //! - [`control`]: the cascade's loops and stages, the fault supervisor.
 //! - [`calibration`]: offsets and the motor identification routines.
 //! - [`drive`]: the drive's life each PWM period, from reset on.
+//! - [`response`]: step-response figures (design §22).
 //! - [`scope`]: scope capture of the feedback (design §22).
 //! - [`hal`]: hardware traits implemented by boards.
 //! - [`math`]: square root, clamps and constants without library calls.
@@ -48,6 +49,7 @@ pub mod frames;
 pub mod hal;
 pub mod math;
 pub mod pi;
+pub mod response;
 pub mod scope;
 pub mod svpwm;
 pub mod transforms;

@@ -38,6 +38,7 @@
 #![allow(clippy::unnecessary_cast)]
 
 pub mod adapters;
+pub mod emulated;
 pub mod plant;
 pub mod power;
 pub mod real;

@@ -976,7 +976,7 @@ fn scope_request<C: DeviceContext>(ctx: &mut C, req: &Request) -> Result<Respons
             if st.state != foc_core::scope::State::Done {
                 return Err(Response::Nack(ErrorCode::ScopeState));
             }
-            let total = usize::from(st.captured) * usize::from(st.config.channels);
+            let total = usize::from(st.captured).saturating_mul(usize::from(st.config.channels));
             if usize::from(offset) > total {
                 return Err(out_of_range(0));
             }

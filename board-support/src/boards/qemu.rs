@@ -66,9 +66,7 @@ use foc_core::angle::MechanicalAngle;
 use foc_core::drive::AngleKind;
 use foc_core::frames::Abc;
 use foc_core::hal::{AngleSensor, BrakeOutput, BusVoltage, CurrentSense, PhaseCurrents, PwmDriver};
-use foc_plant::plant::{
-    AngleSensorKind, BenchConfig, Measurements, MotorParams, Plant, PwmMode, SensorConfig, Shunts,
-};
+use foc_plant::plant::{AngleSensorKind, BenchConfig, Measurements, MotorParams, Plant};
 use foc_plant::power::{DcLinkConfig, StageThermal};
 use pac::interrupt;
 
@@ -128,43 +126,23 @@ pub const QEMU_TIMER_CLOCK_HZ: u32 = 1_000_000_000;
 /// Compare-value range of the emulated PWM (as a 168 MHz TIM1 at 20 kHz).
 pub const PERIOD_COUNTS: u16 = 4200;
 
-/// The simulated motor (a small 7-pole-pair outrunner).
-pub const SIM_MOTOR: MotorParams = MotorParams {
-    pole_pairs: 7,
-    r_ohm: 0.2,
-    ld_h: 60e-6,
-    lq_h: 60e-6,
-    flux_linkage_wb: 0.005,
-    inertia_kg_m2: 5e-5,
-    viscous_friction_nm_s_per_rad: 1e-5,
-    coulomb_friction_nm: 0.002,
-};
+/// The simulated motor (a small 7-pole-pair outrunner):
+/// [`foc_plant::emulated::MOTOR`], shared with the host bench so that
+/// both simulate the same motor.
+pub const SIM_MOTOR: MotorParams = foc_plant::emulated::MOTOR;
 
-/// The simulated inverter and sensors: 24 V bus, 200 ns dead time,
-/// 12-bit current ADC with noise and an offset, 3 shunts, 4096-count encoder.
+/// The simulated inverter and sensors ([`foc_plant::emulated::bench_config`]):
+/// 24 V bus, 200 ns dead time, 12-bit current ADC with noise and an offset,
+/// 3 shunts, 4096-count encoder.
 pub fn sim_config() -> BenchConfig {
-    BenchConfig {
-        pwm_frequency_hz: PWM_FREQUENCY_HZ as _,
-        substeps: 4,
-        bus_voltage_v: 24.0,
-        source_resistance_ohm: 0.05,
-        dead_time_s: DEAD_TIME_NS as f32 * 1e-9,
-        pwm_mode: PwmMode::Averaged,
-        compute_delay_periods: 0,
-        sensors: SensorConfig {
-            adc_bits: 12,
-            current_full_scale_a: MAX_MEASURABLE_CURRENT_A as _,
-            current_noise_lsb_rms: 1.0,
-            current_offset_a: [0.12, -0.08, 0.05],
-            shunts: Shunts::Three,
-            encoder_counts_per_rev: 4096,
-            encoder_offset_rad: 0.0,
-            bus_full_scale_v: 72.0,
-            bus_noise_lsb_rms: 0.5,
-            seed: 7,
-        },
-    }
+    foc_plant::emulated::bench_config()
 }
+
+const _: () = assert!(
+    foc_plant::emulated::PWM_FREQUENCY_HZ == PWM_FREQUENCY_HZ
+        && foc_plant::emulated::DEAD_TIME_NS == DEAD_TIME_NS
+        && foc_plant::emulated::MAX_MEASURABLE_CURRENT_A == MAX_MEASURABLE_CURRENT_A
+);
 
 /// The emulated power stage's thermal model: the plant's ODrive v3 preset
 /// (`StageThermal::odrive_v3`: a MOSFET bridge of the simulated inverter's

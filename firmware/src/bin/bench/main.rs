@@ -291,8 +291,49 @@ fn main() -> ! {
         }),
     );
     black_box(sink);
+
+    // 5. The scope's per-period record (design §22), on the feedback the
+    //    current loop publishes: idle, and armed with 4 and 8 signals,
+    //    triggered on a command (never fires here: the whole ring is
+    //    written every run).
+    measure_scope(baseline, n, &fbs);
     defmt::println!("BENCH-DONE");
     mission_exit(0)
+}
+
+/// The scope's record in the states the current loop sees.
+fn measure_scope(baseline: u32, n: u32, fbs: &[Feedback; 64]) {
+    use foc_core::scope::{Scope, ScopeConfig, Signal};
+    let mut scope = Scope::new([0.0f32; 1024]);
+    report(
+        "scope record, idle",
+        measure(baseline, n, &mut |_| {}, &mut |k| {
+            scope_part(&mut scope, black_box(&fbs[(k % 64) as usize]));
+        }),
+    );
+    for signals in [&Signal::ALL[..4], &Signal::ALL[..8]] {
+        let mut c = ScopeConfig::new(signals);
+        c.samples = 100;
+        c.pre_trigger = 10;
+        let _ = scope.configure(c);
+        scope.arm(&fbs[0]);
+        let name = if signals.len() == 4 {
+            "scope record, armed, 4 signals, command trigger"
+        } else {
+            "scope record, armed, 8 signals, command trigger"
+        };
+        report(
+            name,
+            measure(baseline, n, &mut |_| {}, &mut |k| {
+                scope_part(&mut scope, black_box(&fbs[(k % 64) as usize]));
+            }),
+        );
+    }
+}
+
+#[inline(never)]
+fn scope_part(s: &mut foc_core::scope::Scope<[f32; 1024]>, fb: &Feedback) {
+    s.record(fb);
 }
 
 // The items are called through functions of their own, never inlined into
