@@ -62,10 +62,21 @@ struct Cli {
     cmd: Cmd,
 }
 
+mod scope_cmd;
+
 #[derive(Subcommand)]
 enum Cmd {
     /// Protocol and firmware version.
     Ping,
+    /// The drive's scope: PWM-rate capture of selected signals (set, arm,
+    /// trigger, status, read to CSV / SVG).
+    Scope {
+        #[command(subcommand)]
+        op: scope_cmd::ScopeCmd,
+    },
+    /// Step a loop, capture it with the scope, report overshoot, rise,
+    /// settling and bandwidth, suggest gains (leaves the drive disabled).
+    Tune(scope_cmd::TuneArgs),
     /// Set mode and target.
     Mode {
         #[command(subcommand)]
@@ -569,6 +580,8 @@ fn run(cli: Cli) -> CliResult {
     let mut c = connect(&cli)?;
     match cli.cmd {
         Cmd::Ping => ping(&mut c),
+        Cmd::Scope { op } => scope_cmd::scope(&mut c, op),
+        Cmd::Tune(args) => scope_cmd::tune(&mut c, args),
         Cmd::Mode { mode } => set_mode(&mut c, mode),
         Cmd::KeepAlive {
             interval_ms,

@@ -92,7 +92,7 @@ fn current_tuning_measures_the_models_lag() {
     assert!((rise - want).abs() < 50e-6, "rise {rise} want {want}");
     let settle = f.settling_s.unwrap();
     assert!(
-        (settle - tau * 50f64.ln()).abs() < 60e-6,
+        (settle - tau * 20f64.ln()).abs() < 60e-6,
         "settling {settle}"
     );
     assert_eq!(f.settling_periods, Some((settle / 50e-6).round() as u32));

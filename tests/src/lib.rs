@@ -60,5 +60,8 @@ pub mod mission;
 pub mod motor_file;
 #[cfg(feature = "std")]
 pub mod report;
+/// The bench's side of the scope's current step (design §22).
+#[cfg(feature = "std")]
+pub mod scope_step;
 #[cfg(feature = "std")]
 pub mod sil;
