@@ -20,7 +20,7 @@ import os
 import struct
 import time
 from dataclasses import dataclass
-from typing import Callable, Deque, Dict, List, Optional, Sequence, Tuple, Union
+from typing import Any, Callable, Deque, Dict, List, Optional, Sequence, Union
 
 import numpy as np
 
@@ -98,7 +98,7 @@ class StreamData(dict):
 
 
 # Telemetry field -> numpy dtype of its array.
-_STREAM_DTYPES: Dict[str, object] = {
+_STREAM_DTYPES: Dict[str, Any] = {
     "period": np.uint32,
     "mode": np.uint8,
     "fault_code": np.uint8,
@@ -767,7 +767,7 @@ class Drive:
         """The joint in force."""
         return m.decode_joint(self._expect(Tag.READ_JOINT, b"", Tag.JOINT))
 
-    def set_joint(self, settings: Optional[JointSettings] = None, **changes: object) -> JointSettings:
+    def set_joint(self, settings: Optional[JointSettings] = None, **changes: Any) -> JointSettings:
         """Set the joint: ``settings``, or the joint in force with
         ``changes`` (field names of :class:`JointSettings`). Returns what
         was sent."""
@@ -904,12 +904,17 @@ class Drive:
         trigger: TriggerSpec = "command",
         wait_s: float = 1.0,
     ) -> ScopeCapture:
-        """Configure, arm, call ``action(drive)`` (the step to record, e.g.
-        ``lambda d: d.torque(1.0)``), force the trigger when it is
-        ``"manual"``, wait until the capture is done (at most ``wait_s``)
+        """Configure, arm, wait until the pre-trigger part is recorded,
+        call ``action(drive)`` (the step to record, e.g. ``lambda d:
+        d.torque(1.0)``), force the trigger when it is ``"manual"``, wait
+        until the capture is done (at most ``wait_s`` after the action)
         and read it."""
         self.scope_configure(signals, divider, samples, pre_trigger, trigger)
         self.scope_arm()
+        if pre_trigger > 0:
+            st = self.scope_status()
+            # The pre-trigger samples take this long to record (plus margin).
+            time.sleep(st.pre_trigger * st.sample_period_s * 1.2 + 0.002)
         if action is not None:
             action(self)
         if parse_trigger(trigger)[0] == m.ScopeTrigger.manual:

@@ -169,6 +169,17 @@ class Link(unittest.TestCase):
         d.open_loop(0.0, 0.0, -math.pi / 2)
         self.assertEqual(struct.unpack("<I", dev.received[-1].body[9:13])[0], 3 << 30)
 
+    def test_serial_without_pyserial_says_how_to_install_it(self):
+        try:
+            import serial  # noqa: F401
+
+            self.skipTest("pyserial is installed")
+        except ImportError:
+            pass
+        with self.assertRaises(ImportError) as cm:
+            Drive.open_serial("/dev/null")
+        self.assertIn("pip install", str(cm.exception))
+
     def test_context_manager_closes(self):
         dev = FakeDevice()
         with Drive(dev) as d:
@@ -253,8 +264,6 @@ class Scope(unittest.TestCase):
     def test_short_data_is_a_transfer_error(self):
         d, dev = drive()
         d.scope_capture(["iq_a"], trigger="manual", samples=30)
-        orig = dev.handle
-
         def hook(f):
             if f.tag == T.READ_SCOPE_DATA:
                 (off,) = struct.unpack("<H", f.body)
