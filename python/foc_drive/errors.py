@@ -1,0 +1,53 @@
+"""Exceptions raised by :mod:`foc_drive`."""
+
+from __future__ import annotations
+
+import builtins
+from typing import Optional
+
+__all__ = ["DriveError", "NackError", "TimeoutError", "ProtocolError", "TransferError"]
+
+
+class DriveError(Exception):
+    """Base class of every error of this package."""
+
+
+class NackError(DriveError):
+    """The device refused a request (``Nack``); nothing changed on the device.
+
+    Attributes:
+        code: the :class:`~foc_drive.ErrorCode` (a plain ``int`` when this
+            package does not know the code).
+        field: the offending field (0-based, in body order) for
+            ``OutOfRange``, else 0.
+        field_name: the name of that field when known (``OutOfRange`` only).
+        message: a human-readable description.
+    """
+
+    def __init__(self, code: int, field: int, message: str, field_name: Optional[str] = None):
+        super().__init__(message)
+        self.code = code
+        self.field = field
+        self.field_name = field_name
+        self.message = message
+
+    @property
+    def code_name(self) -> str:
+        """The code's name as in ``message.rs`` (``"OutOfRange"``...)."""
+        return getattr(self.code, "name", f"Other({int(self.code)})")
+
+
+class TimeoutError(DriveError, builtins.TimeoutError):
+    """No reply (or the awaited state) in time.
+
+    Also a builtin :class:`TimeoutError`, so either name catches it.
+    """
+
+
+class ProtocolError(DriveError):
+    """A reply that does not follow the protocol (wrong kind, bad layout,
+    unsupported protocol version)."""
+
+
+class TransferError(ProtocolError):
+    """A chunked transfer (configuration record, scope data) that does not add up."""
