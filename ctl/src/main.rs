@@ -936,6 +936,8 @@ fn configure(c: &mut Client, setting: Cmd) -> CliResult {
         | Cmd::Config { .. }
         | Cmd::Joint(_)
         | Cmd::Home { .. }
+        | Cmd::Scope { .. }
+        | Cmd::Tune(_)
         | Cmd::Status => return Err("not a setting (handled by `run`)".into()),
     }
     println!("ok");

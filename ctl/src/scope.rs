@@ -22,6 +22,7 @@ use foc_core::scope::{ScopeConfig, Signal, State};
 use foc_protocol::message::{Request, Response};
 use foc_protocol::scope::ScopeReport;
 use std::io::{self, Write};
+use std::path::Path;
 use std::time::{Duration, Instant};
 
 /// A finished capture.
@@ -176,5 +177,60 @@ impl Client {
             }
             std::thread::sleep(Duration::from_millis(5));
         }
+    }
+}
+
+/// One panel per unit (currents, voltages, velocity, position, the rest
+/// each alone), against time from the trigger.
+pub fn plot(cap: &ScopeCapture, path: &Path, title: &str) -> std::io::Result<()> {
+    let t: Vec<f64> = cap.time_s().iter().map(|x| x * 1e3).collect();
+    let chans: Vec<(Signal, Vec<f64>)> = cap
+        .signals()
+        .iter()
+        .filter_map(|s| cap.channel(*s).map(|v| (*s, v)))
+        .collect();
+    let mut units: Vec<&str> = vec![];
+    for (s, _) in &chans {
+        if !units.contains(&s.unit()) {
+            units.push(s.unit());
+        }
+    }
+    let labels: Vec<String> = units.iter().map(|u| unit_label(u)).collect();
+    let panels = units
+        .iter()
+        .zip(&labels)
+        .map(|(u, label)| foc_plot::Panel {
+            y_label: label,
+            series: chans
+                .iter()
+                .filter(|(s, _)| s.unit() == *u)
+                .map(|(s, v)| foc_plot::Series {
+                    name: s.name(),
+                    x: &t,
+                    y: v,
+                })
+                .collect(),
+        })
+        .collect();
+    foc_plot::write_svg(
+        path,
+        &foc_plot::Figure {
+            title,
+            x_label: "time from the trigger [ms]",
+            panels,
+            x_marker: Some((0.0, "trigger")),
+        },
+    )
+}
+
+fn unit_label(unit: &str) -> String {
+    match unit {
+        "A" => "current [A]".into(),
+        "V" => "voltage [V]".into(),
+        "rad/s" => "velocity [rad/s] (rotor)".into(),
+        "rad" => "angle / position [rad] (rotor)".into(),
+        "1" => "duty [0..1]".into(),
+        "code" => "mode [code]".into(),
+        u => format!("set-point [{u}]"),
     }
 }

@@ -148,7 +148,11 @@ pub fn scope(c: &mut Client, cmd: ScopeCmd) -> CliResult {
             };
             cfg.pre_trigger = a.pre.unwrap_or((samples / 10) as u16);
             c.set_scope(&cfg)?;
-            println!("scope set: {samples} samples of {} signal(s) every {} period(s)", sigs.len(), a.every);
+            println!(
+                "scope set: {samples} samples of {} signal(s) every {} period(s)",
+                sigs.len(),
+                a.every
+            );
             Ok(())
         }
         ScopeCmd::Arm => Ok(c.arm_scope()?),
@@ -191,75 +195,30 @@ pub fn tune(c: &mut Client, a: TuneArgs) -> CliResult {
         LoopArg::Speed => (Loop::Speed, 20.0),
         LoopArg::Position => (Loop::Position, 1.0),
     };
-    let r = tune::run(c, which, a.step.unwrap_or(default_step), Duration::from_secs(10))?;
+    let r = tune::run(
+        c,
+        which,
+        a.step.unwrap_or(default_step),
+        Duration::from_secs(10),
+    )?;
     print!("{r}");
     let title = format!("{:?} step", r.which);
     write_outputs(&r.capture, a.csv.as_deref(), a.svg.as_deref(), &title)
 }
 
-fn write_outputs(cap: &ScopeCapture, csv: Option<&Path>, svg: Option<&Path>, title: &str) -> CliResult {
+fn write_outputs(
+    cap: &ScopeCapture,
+    csv: Option<&Path>,
+    svg: Option<&Path>,
+    title: &str,
+) -> CliResult {
     if let Some(p) = csv {
         cap.write_csv(std::io::BufWriter::new(std::fs::File::create(p)?))?;
         println!("wrote {}", p.display());
     }
     if let Some(p) = svg {
-        plot(cap, p, title)?;
+        foc_ctl::scope::plot(cap, p, title)?;
         println!("wrote {}", p.display());
     }
     Ok(())
-}
-
-/// One panel per unit (currents, voltages, velocity, position, the rest
-/// each alone), against time from the trigger.
-pub fn plot(cap: &ScopeCapture, path: &Path, title: &str) -> std::io::Result<()> {
-    let t: Vec<f64> = cap.time_s().iter().map(|x| x * 1e3).collect();
-    let chans: Vec<(Signal, Vec<f64>)> = cap
-        .signals()
-        .iter()
-        .filter_map(|s| cap.channel(*s).map(|v| (*s, v)))
-        .collect();
-    let mut units: Vec<&str> = vec![];
-    for (s, _) in &chans {
-        if !units.contains(&s.unit()) {
-            units.push(s.unit());
-        }
-    }
-    let labels: Vec<String> = units.iter().map(|u| unit_label(u)).collect();
-    let panels = units
-        .iter()
-        .zip(&labels)
-        .map(|(u, label)| foc_plot::Panel {
-            y_label: label,
-            series: chans
-                .iter()
-                .filter(|(s, _)| s.unit() == *u)
-                .map(|(s, v)| foc_plot::Series {
-                    name: s.name(),
-                    x: &t,
-                    y: v,
-                })
-                .collect(),
-        })
-        .collect();
-    foc_plot::write_svg(
-        path,
-        &foc_plot::Figure {
-            title,
-            x_label: "time from the trigger [ms]",
-            panels,
-            x_marker: Some((0.0, "trigger")),
-        },
-    )
-}
-
-fn unit_label(unit: &str) -> String {
-    match unit {
-        "A" => "current [A]".into(),
-        "V" => "voltage [V]".into(),
-        "rad/s" => "velocity [rad/s] (rotor)".into(),
-        "rad" => "angle / position [rad] (rotor)".into(),
-        "1" => "duty [0..1]".into(),
-        "code" => "mode [code]".into(),
-        u => format!("set-point [{u}]"),
-    }
 }

@@ -537,6 +537,9 @@ impl DeviceContext for Link<'_> {
     fn firmware_version(&self) -> [u8; 3] {
         FIRMWARE_VERSION
     }
+    fn max_stream_hz(&self) -> Option<f32> {
+        Some(foc_protocol::device::max_stream_hz(board::SERIAL_BAUD))
+    }
     fn scope(&mut self) -> Option<&mut dyn ScopePort> {
         match self.scope.as_mut() {
             Some(s) => Some(&mut **s),
@@ -755,6 +758,24 @@ impl Comms {
             }
         }
         None
+    }
+
+    /// The telemetry stream alone, at `now_period` (the `stream` task,
+    /// more often than [`Comms::poll`]).
+    pub fn stream(&mut self, snap: Snapshot, now_period: u32) {
+        let mut link = Link {
+            snap,
+            settings: &mut self.settings,
+            label: &mut self.label,
+            store: &mut self.store,
+            out: Outbox::default(),
+            scope: None,
+        };
+        if let Some((seq, msg)) = self.device.poll_stream(&mut link, now_period) {
+            if let Ok(n) = encode(seq, &msg, &mut self.tx) {
+                self.send(n);
+            }
+        }
     }
 
     /// Link watchdog and telemetry stream, at `now_period` (current-loop

@@ -16,6 +16,12 @@ pub const POSITION_DIVIDER: u16 = 20;
 /// Housekeeping (telemetry, start-up sequencing) every K periods (50 Hz at 20 kHz).
 pub const HOUSEKEEPING_DIVIDER: u32 = 400;
 
+/// The telemetry stream task runs every this many periods (1 kHz at 20
+/// kHz): the stream's finest spacing. The rate is capped by what the
+/// command UART carries (`foc_protocol::device::max_stream_hz`): about
+/// 190 Hz at 115200 baud.
+pub const STREAM_DIVIDER: u32 = 20;
+
 /// Values the scope buffer holds (design §22): 16 KiB of RAM, 1024
 /// samples of 4 signals (or 512 of 8, 4096 of 1).
 pub const SCOPE_VALUES: usize = 4096;

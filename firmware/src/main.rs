@@ -9,11 +9,12 @@
 //! | `current_loop` | `ADC` (injected end of conversion, triggered by TIM1 at the PWM centre) | 4 | every PWM period, 20 kHz | glue: read the shared inputs, `Drive::run_period` once (sensors, lifecycle, bridge; feedback and status written in place), pend the slower loops, time itself |
 //! | `speed_loop` | `EXTI1` (pended by `current_loop`) | 3 | every `SPEED_DIVIDER` = 10 periods, 2 kHz | `SpeedStage::step`: velocity PI -> `iq_ref` |
 //! | `position_loop` | `EXTI2` (pended by `current_loop`) | 2 | every `POSITION_DIVIDER` = 20 periods, 1 kHz | `PositionStage::step`: trajectory + P -> velocity reference |
-//! | `housekeeping` | `EXTI3` (pended by `current_loop`) | 1 | every 400 periods, 50 Hz | start-up command, telemetry log, command-channel poll (link watchdog, homing steps, streamed telemetry: at most one sample per run, so up to 50 Hz) |
+//! | `housekeeping` | `EXTI3` (pended by `current_loop`) | 1 | every 400 periods, 50 Hz | start-up command, telemetry log, command-channel poll (link watchdog, homing steps, streamed telemetry too, as `stream` does) |
+//! | `stream` | `EXTI4` (pended by `current_loop`) | 1 | every `STREAM_DIVIDER` = 20 periods, 1 kHz | the telemetry stream (`DeviceState::poll_stream`): a sample when one is due, up to what the UART carries (about 190 Hz at 115200 baud) |
 //! | `serial` | `USART2` (`board::SERIAL_IRQ`, the command UART) | 1 | per received / sent byte | command channel: bytes to `DeviceState::on_byte`, replies queued (see `comms`) |
 //! | `idle` | - | 0 | background | feeds the watchdog only while the current loop runs |
 //!
-//! `EXTI1..3` are used only as software-pended vectors: no EXTI line is
+//! `EXTI1..4` are used only as software-pended vectors: no EXTI line is
 //! configured, so nothing else can trigger them.
 //!
 //! Start-up is decided by `foc_core::drive` (host-tested there, and run by
@@ -317,7 +318,8 @@ mod app {
         }
     }
 
-    /// Pend the speed and position loops when the drive says so, and
+    /// Pend the speed and position loops when the drive says so, the
+    /// stream every `STREAM_DIVIDER` periods, and
     /// housekeeping every `HOUSEKEEPING_DIVIDER` periods.
     fn pend_slower_loops(speed: bool, position: bool, tick: u32) {
         if speed {
@@ -328,6 +330,9 @@ mod app {
         }
         if tick.is_multiple_of(config::HOUSEKEEPING_DIVIDER) {
             rtic::pend(Interrupt::EXTI3);
+        }
+        if tick.is_multiple_of(config::STREAM_DIVIDER) {
+            rtic::pend(Interrupt::EXTI4);
         }
     }
 
@@ -402,6 +407,22 @@ mod app {
                 cx.shared.command.lock(|c| out.apply_command(c));
             }
         }
+    }
+
+    /// The telemetry stream: a sample when one is due (its rate is the
+    /// host's, up to the UART's capacity), at 1 kHz.
+    #[task(binds = EXTI4, priority = 1, shared = [feedback, timing, status, identified, config_request, command, comms])]
+    fn stream(mut cx: stream::Context) {
+        let fb = cx.shared.feedback.lock(|f| *f);
+        let tm = cx.shared.timing.lock(|t| *t);
+        let status = cx.shared.status.lock(|s| *s);
+        let identified = cx.shared.identified.lock(|x| *x);
+        let pending = comms::Pending {
+            command: cx.shared.command.lock(|c| c.command),
+            calibration: cx.shared.config_request.lock(|m| m.calibration_pending()),
+        };
+        let snap = link_snapshot(&fb, &tm, status, identified, pending);
+        cx.shared.comms.lock(|c| c.stream(snap, fb.period));
     }
 
     /// Housekeeping: start-up command, command-channel poll and telemetry, at 50 Hz.

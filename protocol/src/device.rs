@@ -180,6 +180,13 @@ pub trait DeviceContext {
     /// Firmware version `[major, minor, patch]`.
     fn firmware_version(&self) -> [u8; 3];
 
+    /// The highest telemetry stream rate the link carries [Hz] (`None`: no
+    /// limit, e.g. a socket): `StartTelemetry` above it is refused
+    /// (out of range, field 1). A UART's: [`max_stream_hz`].
+    fn max_stream_hz(&self) -> Option<f32> {
+        None
+    }
+
     /// The scope (design §22), if the device has one (default: none, the
     /// scope requests are Nack'd `Unsupported`).
     fn scope(&mut self) -> Option<&mut dyn crate::scope::ScopePort> {
@@ -375,6 +382,10 @@ pub struct DeviceState {
     last_telemetry: u32,
     telemetry_seq: u16,
     last_poll: Option<u32>,
+    /// The latest period counter seen by a poll or a stream poll.
+    last_seen: Option<u32>,
+    /// The next streamed sample is the first of a `StartTelemetry`.
+    stream_first: bool,
     last_command: Option<(u16, u32, Response)>,
     /// Armed on the first closed-loop command when the host has not
     /// configured the watchdog itself (`OFF`: never).
@@ -476,6 +487,8 @@ impl DeviceState {
             last_telemetry: 0,
             telemetry_seq: 0,
             last_poll: None,
+            last_seen: None,
+            stream_first: false,
             last_command: None,
             auto_watchdog: WatchdogConfig::OFF,
             host_configured: false,
@@ -623,6 +636,7 @@ impl DeviceState {
             None => 0,
         };
         self.last_poll = Some(now_period);
+        self.last_seen = Some(now_period);
         self.step_homing(ctx);
         self.run_watchdog(ctx, elapsed);
         self.stream(ctx, now_period)
@@ -679,6 +693,18 @@ impl DeviceState {
         crate::joint::limits_in_force(&ctx.limits(), &ctx.joint())
     }
 
+    /// Only the telemetry stream of [`Self::poll`] (no homing step, no
+    /// watchdog): for a task that runs more often than the poll, so that
+    /// the stream's rate is not bounded by the poll's.
+    pub fn poll_stream<C: DeviceContext>(
+        &mut self,
+        ctx: &mut C,
+        now_period: u32,
+    ) -> Option<(u16, Response)> {
+        self.last_seen = Some(now_period);
+        self.stream(ctx, now_period)
+    }
+
     /// A telemetry sample (output frame) when one is due.
     fn stream<C: DeviceContext>(
         &mut self,
@@ -690,8 +716,10 @@ impl DeviceState {
         }
         let since = now_period.wrapping_sub(self.last_telemetry);
         if since >= self.telemetry_every {
-            // Keep the average rate when polled late; resynchronise when far behind.
-            self.last_telemetry = if since >= self.telemetry_every.saturating_mul(2) {
+            // Keep the average rate when polled late; resynchronise when far
+            // behind, and on the stream's first sample (its slots start now).
+            let first = core::mem::take(&mut self.stream_first);
+            self.last_telemetry = if first || since >= self.telemetry_every.saturating_mul(2) {
                 now_period
             } else {
                 self.last_telemetry.wrapping_add(self.telemetry_every)
@@ -816,9 +844,18 @@ impl DeviceState {
                         (k as u32).max(1)
                     }
                 };
+                if let Some(max_hz) = ctx.max_stream_hz() {
+                    let pwm = ctx.param(ParamId::PwmFrequencyHz).unwrap_or(f32::NAN);
+                    // Also refused when the PWM frequency is unknown (NaN).
+                    let rate = pwm / every as f32;
+                    if rate.is_nan() || rate > max_hz {
+                        return Err(out_of_range(1));
+                    }
+                }
                 self.telemetry_every = every;
                 // First sample at the next poll.
-                self.last_telemetry = self.last_poll.unwrap_or(0).wrapping_sub(every);
+                self.last_telemetry = self.last_seen.unwrap_or(0).wrapping_sub(every);
+                self.stream_first = true;
                 Ok(Response::Ack)
             }
             Request::StopTelemetry => {
@@ -952,6 +989,20 @@ fn precheck_command(cmd: &Command) -> Result<(), Response> {
     }
 }
 
+/// Bytes of one streamed telemetry frame on the wire (COBS and the
+/// delimiter included; the same for every sample: its payload is shorter
+/// than COBS's 254-byte block).
+pub fn stream_frame_bytes() -> usize {
+    let mut buf = [0u8; MAX_FRAME];
+    encode(1, &Response::Stream(Telemetry::ZERO), &mut buf).unwrap_or(MAX_FRAME)
+}
+
+/// The highest sustained stream rate [Hz] a UART at `baud` (8N1: 10 bits
+/// a byte) carries, leaving a tenth of the link for replies.
+pub fn max_stream_hz(baud: u32) -> f32 {
+    0.9 * baud as f32 / (10.0 * stream_frame_bytes() as f32)
+}
+
 /// The scope's requests.
 fn scope_request<C: DeviceContext>(ctx: &mut C, req: &Request) -> Result<Response, Response> {
     use crate::scope::{scope_nack, ScopeData, ScopeReport, DATA_PER_FRAME};
@@ -1059,6 +1110,8 @@ pub mod tests_support {
         pub joint: JointSetup,
         /// Torque constant [N m/A].
         pub kt_nm_per_a: f32,
+        /// The link's stream-rate limit it reports [Hz].
+        pub max_stream_hz: Option<f32>,
         /// The scope (64 values; `None`: the device has none).
         pub scope: Option<foc_core::scope::Scope<[f32; 64]>>,
     }
@@ -1101,6 +1154,7 @@ pub mod tests_support {
                 last_store: None,
                 staged: [0; MAX_RECORD],
                 staged_len: 0,
+                max_stream_hz: None,
                 scope: Some(foc_core::scope::Scope::new([0.0; 64])),
                 link: None,
                 applied_link: None,
@@ -1164,6 +1218,9 @@ pub mod tests_support {
             self.mutate()?;
             self.joint = setup;
             Ok(())
+        }
+        fn max_stream_hz(&self) -> Option<f32> {
+            self.max_stream_hz
         }
         fn scope(&mut self) -> Option<&mut dyn crate::scope::ScopePort> {
             self.scope

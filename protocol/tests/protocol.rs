@@ -1455,3 +1455,76 @@ fn telemetry_power_fields_on_the_wire() {
     fb.power.factor = f32::NAN;
     assert_eq!(Telemetry::from_feedback(&fb, 0).limit_left_pct, 0);
 }
+
+#[test]
+fn the_stream_rate_is_capped_at_what_the_link_carries() {
+    use foc_protocol::device::{max_stream_hz, stream_frame_bytes};
+    // 52-byte payload: COBS adds one byte, the delimiter another.
+    assert_eq!(stream_frame_bytes(), 54);
+    let at_115200 = max_stream_hz(115_200);
+    assert!(
+        (at_115200 - 0.9 * 11_520.0 / 54.0).abs() < 1e-3,
+        "{at_115200}"
+    );
+    assert!(max_stream_hz(2_000_000) > 3000.0);
+    // A device on such a link refuses faster streams, field 1, and keeps
+    // its divider.
+    let mut dev = DeviceState::new();
+    let mut ctx = RecordingContext {
+        max_stream_hz: Some(at_115200),
+        ..Default::default()
+    };
+    let start = |dev: &mut DeviceState, ctx: &mut RecordingContext, seq, r| {
+        dev.handle(ctx, seq, seq as u32, &Request::StartTelemetry(r))
+    };
+    assert_eq!(
+        start(&mut dev, &mut ctx, 1, TelemetryRate::Hz(150.0)),
+        Response::Ack
+    );
+    let every = dev.telemetry_every();
+    assert_eq!(every, 133);
+    for (seq, r) in [
+        (2, TelemetryRate::Hz(250.0)),
+        (3, TelemetryRate::EveryPeriods(20)),
+    ] {
+        assert_eq!(
+            start(&mut dev, &mut ctx, seq, r),
+            Response::Nack(ErrorCode::OutOfRange { field: 1 })
+        );
+        assert_eq!(dev.telemetry_every(), every);
+    }
+}
+
+#[test]
+fn a_stream_polled_every_20_periods_is_evenly_spaced_from_its_first_sample() {
+    let mut dev = DeviceState::new();
+    let mut ctx = RecordingContext::default();
+    let mut periods = vec![];
+    for k in 0..200u32 {
+        let now = 7 + 20 * k;
+        if k == 13 {
+            let r = dev.handle(
+                &mut ctx,
+                1,
+                1,
+                &Request::StartTelemetry(TelemetryRate::EveryPeriods(160)),
+            );
+            assert_eq!(r, Response::Ack);
+        }
+        // Housekeeping's poll every 400 periods, the stream task every 20.
+        let sample = if now % 400 == 7 {
+            dev.poll(&mut ctx, now)
+        } else {
+            dev.poll_stream(&mut ctx, now)
+        };
+        if sample.is_some() {
+            periods.push(now);
+        }
+    }
+    assert!(periods.len() > 20);
+    assert_eq!(periods[0], 7 + 20 * 13);
+    assert!(
+        periods.windows(2).all(|w| w[1] - w[0] == 160),
+        "{periods:?}"
+    );
+}

@@ -46,7 +46,10 @@ pub fn emulated_current_step(step_a: f32, gains: Option<(f32, f32)>) -> (ScopeSt
     let pwm = setup.bench.pwm_frequency_hz as f32;
     let mut config = CascadeConfig::for_motor(control_motor(&setup.motor), pwm, MAX_CURRENT_A);
     if let Some((kp, ki)) = gains {
-        for g in [&mut config.current.current.d_gains, &mut config.current.current.q_gains] {
+        for g in [
+            &mut config.current.current.d_gains,
+            &mut config.current.current.q_gains,
+        ] {
             g.kp_v_per_a = kp;
             g.ki_v_per_a_s = ki;
         }
@@ -54,7 +57,11 @@ pub fn emulated_current_step(step_a: f32, gains: Option<(f32, f32)>) -> (ScopeSt
     let mut sim = Sim::new_calibrated(&setup, config, false);
     // The firmware calibrates its current offsets at start-up.
     let o = setup.bench.sensors.current_offset_a;
-    sim.set_current_offsets(foc_core::frames::Abc::new(o[0] as f32, o[1] as f32, o[2] as f32));
+    sim.set_current_offsets(foc_core::frames::Abc::new(
+        o[0] as f32,
+        o[1] as f32,
+        o[2] as f32,
+    ));
     let mut scope = Scope::new(vec![0.0f32; 4096]);
     let _ = scope.configure(current_step_scope());
     sim.cascade.command(Command::Torque { iq_a: 0.0 }).ok();

@@ -80,6 +80,13 @@ pub fn steps() -> Vec<Step> {
         strings(&["test"]),
     ));
 
+    // The Python package (python/): installed into a virtual environment,
+    // its tests against `foc-ctl simulate`.
+    steps.push(Step::new(
+        "Python package foc-drive: install, tests against foc-ctl simulate",
+        crate::python::run_tests,
+    ));
+
     // Smoke run of the closed-loop simulation (the default motor's mission,
     // a few seconds): it must pass its criteria and write its reports.
     // Then the same mission started from the configuration the first one

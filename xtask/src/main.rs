@@ -11,7 +11,9 @@ mod build;
 mod check;
 mod dyno;
 mod e2e;
+mod e2e_scope;
 mod fuzz;
+mod python;
 mod qemu;
 mod sim;
 mod size;
@@ -64,6 +66,10 @@ enum Command {
     /// The command channel end to end: the emulated board driven through
     /// foc-ctl's client over QEMU's USART2 (loopback TCP).
     E2e(e2e::E2eArgs),
+    /// The Python package (python/, foc-drive): install it into a virtual
+    /// environment under the target directory and run its tests against
+    /// `foc-ctl simulate`.
+    Python,
     /// Fuzz foc-protocol (cargo-fuzz targets in fuzz/; nightly + cargo-fuzz),
     /// or `--replay` the corpus through the same checks on stable.
     Fuzz(fuzz::FuzzArgs),
@@ -84,6 +90,7 @@ fn main() -> ExitCode {
         Command::Bench(args) => bench::run_cmd(args),
         Command::E2e(args) => e2e::run_cmd(args),
         Command::Fuzz(args) => fuzz::run_cmd(args),
+        Command::Python => python::run_tests(),
         Command::Boards => {
             list_boards();
             Ok(())

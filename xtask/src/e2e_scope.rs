@@ -1,0 +1,92 @@
+//! `cargo xtask e2e`, the scope step: a current step on the emulated
+//! firmware through `foc-ctl tune current` (the client library's
+//! [`foc_ctl::tune::run`]: the drive's scope, triggered by the step's
+//! command), and the same step on the bench ([`foc_bench::scope_step`]:
+//! the emulated board's motor and inverter, the drive's current gains, the
+//! same scope). The figures must agree: overshoot within
+//! [`OVERSHOOT_TOL_PP`] percentage points, settling within
+//! [`SETTLING_TOL_PERIODS`] PWM period.
+
+use foc_core::scope::{Signal, State};
+use foc_ctl::scope::ScopeCapture;
+use foc_ctl::tune::{self, Loop, StepFigures};
+use foc_ctl::Client;
+use foc_protocol::message::ParamId;
+use foc_protocol::scope::ScopeReport;
+use std::path::Path;
+use std::time::Duration;
+
+use crate::util::{Error, Result};
+
+/// The step [A] (5 % of it is well above the ADC's noise).
+pub const STEP_A: f32 = 5.0;
+/// Overshoot agreement [percentage points].
+pub const OVERSHOOT_TOL_PP: f64 = 1.0;
+/// Settling agreement [PWM periods].
+pub const SETTLING_TOL_PERIODS: i64 = 1;
+
+/// Run the step on the drive and on the bench, write both captures to
+/// `out` (CSV, SVG), compare.
+pub fn current_step(client: &mut Client, backstop: Duration, out: &Path) -> Result {
+    let report = tune::run(client, Loop::Current, STEP_A, backstop)
+        .map_err(|e| Error(format!("FAIL scope: tune current: {e}")))?;
+    let param = |c: &mut Client, id| {
+        c.param(id)
+            .map_err(|e| Error(format!("FAIL scope: read {id:?}: {e}")))
+    };
+    let kp = param(client, ParamId::CurrentKp)?;
+    let ki = param(client, ParamId::CurrentKi)?;
+    let pwm_hz = param(client, ParamId::PwmFrequencyHz)?;
+    let (status, values) = foc_bench::scope_step::emulated_current_step(STEP_A, Some((kp, ki)));
+    if status.state != State::Done {
+        return Err(Error(
+            "FAIL scope: the bench's capture did not finish".into(),
+        ));
+    }
+    let bench = ScopeCapture {
+        report: ScopeReport {
+            status,
+            sample_period_s: 1.0 / pwm_hz,
+        },
+        values,
+    };
+    let b = StepFigures::of(&bench, Signal::IqA, f64::from(STEP_A))
+        .ok_or_else(|| Error("FAIL scope: no iq in the bench's capture".into()))?;
+    let f = report.figures;
+    std::fs::create_dir_all(out)?;
+    for (name, cap) in [("firmware", &report.capture), ("bench", &bench)] {
+        let csv = out.join(format!("current_step_{name}.csv"));
+        cap.write_csv(std::io::BufWriter::new(std::fs::File::create(&csv)?))?;
+        let svg = out.join(format!("current_step_{name}.svg"));
+        foc_ctl::scope::plot(cap, &svg, &format!("q-current step of {STEP_A} A, {name}"))?;
+    }
+    print!("{report}");
+    let settle = |x: &StepFigures| x.settling_periods.map_or(i64::MAX, i64::from);
+    let d_os = (f.overshoot_pct - b.overshoot_pct).abs();
+    let d_settle = (settle(&f) - settle(&b)).abs();
+    let ok = d_os <= OVERSHOOT_TOL_PP && d_settle <= SETTLING_TOL_PERIODS;
+    let line = format!(
+        "scope current step {STEP_A} A (kp {kp:.4} V/A, ki {ki:.1} V/(A s)): firmware overshoot {:.2} %, 5 % settling {} periods, rise {}; bench {:.2} %, {} periods, rise {} (tolerances {OVERSHOOT_TOL_PP} pp, {SETTLING_TOL_PERIODS} period); captures in {}",
+        f.overshoot_pct,
+        fmt_periods(f.settling_periods),
+        fmt_ms(f.rise_s),
+        b.overshoot_pct,
+        fmt_periods(b.settling_periods),
+        fmt_ms(b.rise_s),
+        out.display()
+    );
+    if ok {
+        println!("PASS {line}");
+        Ok(())
+    } else {
+        Err(Error(format!("FAIL {line}")))
+    }
+}
+
+fn fmt_periods(p: Option<u32>) -> String {
+    p.map_or("-".into(), |p| p.to_string())
+}
+
+fn fmt_ms(x: Option<f64>) -> String {
+    x.map_or("-".into(), |v| format!("{:.3} ms", v * 1e3))
+}
