@@ -209,9 +209,8 @@ fn tick_text(v: f64, lo: f64, hi: f64) -> String {
     if v == 0.0 || v.abs() < 1e-9 * span {
         return "0".into();
     }
-    if scale >= 1e6 || scale < 1e-4 || !span.is_finite() {
-        let s = format!("{v:.3e}");
-        return s;
+    if !(1e-4..1e6).contains(&scale) || !span.is_finite() {
+        return format!("{v:.3e}");
     }
     // Ticks are about span/10 apart; one more decimal than that needs.
     let step = span / 10.0;
