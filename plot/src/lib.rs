@@ -366,6 +366,13 @@ fn draw_panel(
     Ok(())
 }
 
+/// Font size of the title: 24, smaller for a title that would not fit on
+/// the figure's width (about 0.5 em a character), 12 at least.
+fn title_size(title: &str) -> f64 {
+    let chars = title.chars().count().max(1) as f64;
+    (f64::from(WIDTH - 24) / (0.5 * chars)).clamp(12.0, 24.0)
+}
+
 /// The figure as SVG text (see [`write_svg`]).
 pub fn render_svg(fig: &Figure<'_>) -> io::Result<String> {
     validate(fig)?;
@@ -380,7 +387,7 @@ pub fn render_svg(fig: &Figure<'_>) -> io::Result<String> {
         title
             .draw_text(
                 fig.title,
-                &TextStyle::from((FONT, 24).into_font()).color(&BLACK),
+                &TextStyle::from((FONT, title_size(fig.title)).into_font()).color(&BLACK),
                 (12, 10),
             )
             .map_err(other)?;
