@@ -366,31 +366,46 @@ fn draw_panel(
     Ok(())
 }
 
-/// Font size of the title: 24, smaller for a title that would not fit on
-/// the figure's width (about 0.5 em a character), 12 at least.
-fn title_size(title: &str) -> f64 {
-    let chars = title.chars().count().max(1) as f64;
-    (f64::from(WIDTH - 24) / (0.5 * chars)).clamp(12.0, 24.0)
+/// The title as lines that fit the figure's width at [`TITLE_SIZE`]
+/// (about 0.5 em a character): split at spaces, one line per chunk.
+fn title_lines(title: &str) -> Vec<String> {
+    let max_chars = (f64::from(WIDTH - 24) / (0.5 * TITLE_SIZE)) as usize;
+    let mut lines: Vec<String> = Vec::new();
+    for word in title.split(' ') {
+        match lines.last_mut() {
+            Some(line) if line.chars().count() + 1 + word.chars().count() <= max_chars => {
+                line.push(' ');
+                line.push_str(word);
+            }
+            _ => lines.push(word.to_string()),
+        }
+    }
+    lines
 }
+
+/// Title font size and line height [px].
+const TITLE_SIZE: f64 = 24.0;
+const TITLE_LINE_H: u32 = 26;
 
 /// The figure as SVG text (see [`write_svg`]).
 pub fn render_svg(fig: &Figure<'_>) -> io::Result<String> {
     validate(fig)?;
     let (x0, x1) = x_range(fig).unwrap_or((0.0, 1.0));
     let n = fig.panels.len() as u32;
-    let height = TITLE_H + PANEL_H * n + 20;
+    let lines = title_lines(fig.title);
+    let title_h = TITLE_H + TITLE_LINE_H * (lines.len().max(1) as u32 - 1);
+    let height = title_h + PANEL_H * n + 20;
     let mut buf = String::new();
     {
         let root = SVGBackend::with_string(&mut buf, (WIDTH, height)).into_drawing_area();
         root.fill(&WHITE).map_err(other)?;
-        let (title, body) = root.split_vertically(TITLE_H);
-        title
-            .draw_text(
-                fig.title,
-                &TextStyle::from((FONT, title_size(fig.title)).into_font()).color(&BLACK),
-                (12, 10),
-            )
-            .map_err(other)?;
+        let (title, body) = root.split_vertically(title_h);
+        let style = TextStyle::from((FONT, TITLE_SIZE).into_font()).color(&BLACK);
+        for (k, line) in lines.iter().enumerate() {
+            title
+                .draw_text(line, &style, (12, 10 + TITLE_LINE_H as i32 * k as i32))
+                .map_err(other)?;
+        }
         let (body, _) = body.split_vertically(PANEL_H * n);
         let areas = body.split_evenly((fig.panels.len(), 1));
         for (k, (area, panel)) in areas.iter().zip(&fig.panels).enumerate() {
@@ -480,6 +495,16 @@ mod tests {
         assert_eq!(tick_text(20.0, 0.0, 100.0), "20");
         assert_eq!(tick_text(24.05, 23.99, 24.11), "24.05");
         assert_eq!(tick_text(1e-18, -1.0, 1.0), "0");
+    }
+
+    #[test]
+    fn long_titles_are_wrapped_at_spaces() {
+        assert_eq!(title_lines("short title"), vec!["short title"]);
+        let long = "word ".repeat(60);
+        let lines = title_lines(long.trim());
+        assert!(lines.len() >= 2);
+        assert_eq!(lines.join(" "), long.trim());
+        assert_eq!(title_lines(""), vec![""]);
     }
 
     #[test]
