@@ -290,6 +290,9 @@ pub struct Sim {
     encoder_offset_rad: f64,
     /// Current-sense offsets removed from every sample [A] (once calibrated).
     current_offsets: Option<Abc>,
+    /// The position stage has run since position mode was entered: its
+    /// reference is this move's (before that it is the last move's, or 0).
+    position_planned: bool,
 }
 
 impl Sim {
@@ -327,6 +330,7 @@ impl Sim {
             trace: record.then(|| Trace::new(&TRACE_COLUMNS)),
             encoder_offset_rad: setup.bench.sensors.encoder_offset_rad as f64,
             current_offsets: None,
+            position_planned: false,
         }
     }
 
@@ -432,11 +436,16 @@ impl Sim {
             Command::Position { .. } => self.cascade.velocity_ref().rad_s as f64,
             _ => nan,
         };
-        let pos_ref = match fb.active {
-            Command::Position { .. } => {
-                self.cascade.position.position_loop().reference().position as f64
-            }
-            _ => nan,
+        // The position stage runs every few periods: in the first periods
+        // of a move its reference is still the previous move's (or 0).
+        let position_mode = matches!(fb.active, Command::Position { .. });
+        self.position_planned = position_mode
+            && (self.position_planned
+                || self.cascade.last_output().is_some_and(|o| o.run_position));
+        let pos_ref = if self.position_planned {
+            self.cascade.position.position_loop().reference().position as f64
+        } else {
+            nan
         };
         let row = [
             fb.i_dq_a.d as f64,
