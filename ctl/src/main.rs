@@ -530,44 +530,61 @@ fn write_csv(path: &Path, samples: &[StreamSample]) -> std::io::Result<()> {
 }
 
 fn write_svg(path: &Path, samples: &[StreamSample]) -> Result<(), Box<dyn std::error::Error>> {
-    use plotters::prelude::*;
-    let root = SVGBackend::new(path, (1000, 750)).into_drawing_area();
-    root.fill(&WHITE)?;
-    let panels = root.split_evenly((3, 1));
+    use foc_plot::{Figure, Panel, Series};
+    // One frame per panel: on the wire the velocity and position are the
+    // output's (after the joint's gear ratio and offset, mechanical), the
+    // currents the rotor's dq frame.
     let t0 = samples.first().map_or(0.0, |s| s.host_time.as_secs_f64());
-    type Series = (&'static str, &'static str, fn(&StreamSample) -> f32);
-    let series: [Series; 3] = [
-        ("velocity", "rad/s, output", |s| s.sample.velocity_rad_s),
-        ("position", "rad, output", |s| s.sample.position_rad),
-        ("i_q", "A", |s| s.sample.i_q_a),
-    ];
-    for (area, (name, unit, get)) in panels.iter().zip(series) {
-        let pts: Vec<(f64, f64)> = samples
-            .iter()
-            .map(|s| (s.host_time.as_secs_f64() - t0, f64::from(get(s))))
-            .collect();
-        let t1 = pts.last().map_or(1.0, |p| p.0.max(1e-3));
-        let (lo, hi) = pts
-            .iter()
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| {
-                (a.min(p.1), b.max(p.1))
-            });
-        let (lo, hi) = if lo.is_finite() && hi > lo {
-            (lo, hi)
-        } else {
-            (lo.min(0.0) - 1.0, hi.max(0.0) + 1.0)
-        };
-        let pad = 0.05 * (hi - lo);
-        let mut chart = ChartBuilder::on(area)
-            .caption(format!("{name} [{unit}]"), ("sans-serif", 18))
-            .margin(8)
-            .x_label_area_size(28)
-            .y_label_area_size(60)
-            .build_cartesian_2d(0.0..t1, (lo - pad)..(hi + pad))?;
-        chart.configure_mesh().x_desc("host time [s]").draw()?;
-        chart.draw_series(LineSeries::new(pts, &BLUE))?;
-    }
-    root.present()?;
+    let t: Vec<f64> = samples
+        .iter()
+        .map(|s| s.host_time.as_secs_f64() - t0)
+        .collect();
+    let col = |get: fn(&StreamSample) -> f32| -> Vec<f64> {
+        samples.iter().map(|s| f64::from(get(s))).collect()
+    };
+    let velocity = col(|s| s.sample.velocity_rad_s);
+    let position = col(|s| s.sample.position_rad);
+    let i_d = col(|s| s.sample.i_d_a);
+    let i_q = col(|s| s.sample.i_q_a);
+    let fig = Figure {
+        title: "foc-ctl telemetry",
+        x_label: "host time [s] (from the first sample)",
+        panels: vec![
+            Panel {
+                y_label: "velocity [rad/s] (output, mechanical)",
+                series: vec![Series {
+                    name: "velocity",
+                    x: &t,
+                    y: &velocity,
+                }],
+            },
+            Panel {
+                y_label: "position [rad] (output, mechanical, multi-turn)",
+                series: vec![Series {
+                    name: "position",
+                    x: &t,
+                    y: &position,
+                }],
+            },
+            Panel {
+                y_label: "current [A] (rotor dq frame, measured)",
+                series: vec![
+                    Series {
+                        name: "i_q",
+                        x: &t,
+                        y: &i_q,
+                    },
+                    Series {
+                        name: "i_d",
+                        x: &t,
+                        y: &i_d,
+                    },
+                ],
+            },
+        ],
+        x_marker: None,
+    };
+    foc_plot::write_svg(path, &fig)?;
     Ok(())
 }
 

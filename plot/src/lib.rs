@@ -93,14 +93,18 @@ fn finite_min_max(values: impl IntoIterator<Item = f64>) -> Option<(f64, f64)> {
         })
 }
 
-/// `(lo, hi)` clamped to finite values, `lo < hi` kept.
+/// Largest axis limit [same unit as the data]: beyond it an axis' span
+/// could overflow (and plotters' tick search would not end).
+const LIMIT: f64 = 1e300;
+
+/// `(lo, hi)` clamped to `-LIMIT..=LIMIT`, `lo < hi` kept.
 fn finite_band(lo: f64, hi: f64) -> (f64, f64) {
-    let lo = lo.max(f64::MIN);
-    let hi = hi.min(f64::MAX);
+    let lo = lo.clamp(-LIMIT, LIMIT);
+    let hi = hi.clamp(-LIMIT, LIMIT);
     if lo < hi {
         (lo, hi)
     } else {
-        // Only reachable at the very ends of the f64 range.
+        // Only reachable at the limits: a band inside them.
         let mid = 0.5 * lo + 0.5 * hi;
         (mid - 0.05 * mid.abs() - 1.0, mid + 0.05 * mid.abs() + 1.0)
     }
@@ -125,7 +129,7 @@ fn pad(lo: f64, hi: f64) -> (f64, f64) {
 /// Fitted range `(lo, hi)` of the finite values, with margin: 5 % of the
 /// span on each side; a constant gets 5 % of its magnitude on each side
 /// (+-1 around 0). `None` without any finite value. Always `lo < hi`, both
-/// finite.
+/// within +-1e300 (larger values are drawn at the axis' edge).
 ///
 /// ```
 /// assert_eq!(foc_plot::fit_range([0.0, 10.0]), Some((-0.5, 10.5)));
@@ -146,7 +150,13 @@ fn x_range(fig: &Figure<'_>) -> Option<(f64, f64)> {
                 .map(|(x, _)| *x)
         })
     });
-    finite_min_max(xs).map(|(lo, hi)| if lo < hi { (lo, hi) } else { pad(lo, hi) })
+    finite_min_max(xs).map(|(lo, hi)| {
+        if lo < hi {
+            finite_band(lo, hi)
+        } else {
+            pad(lo, hi)
+        }
+    })
 }
 
 fn invalid(msg: String) -> io::Error {
@@ -200,8 +210,7 @@ fn tick_text(v: f64, lo: f64, hi: f64) -> String {
         return "0".into();
     }
     if !(1e-4..1e6).contains(&scale) || !span.is_finite() {
-        let s = format!("{v:.3e}");
-        return s;
+        return format!("{v:.3e}");
     }
     // Ticks are about span/10 apart; one more decimal than that needs.
     let step = span / 10.0;
@@ -248,8 +257,8 @@ fn draw_panel(
     let (head, body) = area.split_vertically(24);
     head.draw_text(
         panel.y_label,
-        &TextStyle::from((FONT, 16).into_font()).color(&BLACK),
-        (78, 6),
+        &TextStyle::from((FONT, 19).into_font()).color(&BLACK),
+        (78, 4),
     )
     .map_err(other)?;
     let (plot, legend) = body.split_horizontally(w.saturating_sub(LEGEND_W));
@@ -275,10 +284,10 @@ fn draw_panel(
         .y_labels(6)
         .x_label_formatter(&x_fmt)
         .y_label_formatter(&y_fmt)
-        .label_style((FONT, 13))
+        .label_style((FONT, 15))
         .light_line_style(TRANSPARENT);
     if let Some(d) = x_label {
-        mesh.x_desc(d).axis_desc_style((FONT, 15));
+        mesh.x_desc(d).axis_desc_style((FONT, 18));
     }
     mesh.draw().map_err(other)?;
     if fitted.is_none() {
@@ -303,7 +312,12 @@ fn draw_panel(
     }
     for (k, s) in panel.series.iter().enumerate() {
         let color = COLORS[k % COLORS.len()];
-        for run in finite_runs(s) {
+        for mut run in finite_runs(s) {
+            // Inside the axes already, but for values beyond `LIMIT`:
+            // plotters' pixel mapping would overflow on them.
+            for p in &mut run {
+                *p = (p.0.clamp(x0, x1), p.1.clamp(y0, y1));
+            }
             if run.len() == 1 {
                 chart
                     .draw_series(run.iter().map(|p| Circle::new(*p, 2, color.filled())))
@@ -316,7 +330,7 @@ fn draw_panel(
         }
     }
     // Legend beside the plot: a line sample and the name per series.
-    let text = TextStyle::from((FONT, 14).into_font()).color(&BLACK);
+    let text = TextStyle::from((FONT, 17).into_font()).color(&BLACK);
     let mut y = 12;
     for (k, s) in panel.series.iter().enumerate() {
         let color = COLORS[k % COLORS.len()];
@@ -326,14 +340,17 @@ fn draw_panel(
                 color.stroke_width(2),
             ))
             .map_err(other)?;
-        let empty = !s.x.iter().zip(s.y).any(|(x, y)| x.is_finite() && y.is_finite());
+        let empty =
+            !s.x.iter()
+                .zip(s.y)
+                .any(|(x, y)| x.is_finite() && y.is_finite());
         let name = if empty {
             format!("{} (no data)", s.name)
         } else {
             s.name.to_string()
         };
         legend.draw_text(&name, &text, (36, y)).map_err(other)?;
-        y += 20;
+        y += 22;
     }
     if let Some((_, label)) = marker {
         legend
@@ -349,24 +366,46 @@ fn draw_panel(
     Ok(())
 }
 
+/// The title as lines that fit the figure's width at [`TITLE_SIZE`]
+/// (about 0.5 em a character): split at spaces, one line per chunk.
+fn title_lines(title: &str) -> Vec<String> {
+    let max_chars = (f64::from(WIDTH - 24) / (0.5 * TITLE_SIZE)) as usize;
+    let mut lines: Vec<String> = Vec::new();
+    for word in title.split(' ') {
+        match lines.last_mut() {
+            Some(line) if line.chars().count() + 1 + word.chars().count() <= max_chars => {
+                line.push(' ');
+                line.push_str(word);
+            }
+            _ => lines.push(word.to_string()),
+        }
+    }
+    lines
+}
+
+/// Title font size and line height [px].
+const TITLE_SIZE: f64 = 24.0;
+const TITLE_LINE_H: u32 = 26;
+
 /// The figure as SVG text (see [`write_svg`]).
 pub fn render_svg(fig: &Figure<'_>) -> io::Result<String> {
     validate(fig)?;
     let (x0, x1) = x_range(fig).unwrap_or((0.0, 1.0));
     let n = fig.panels.len() as u32;
-    let height = TITLE_H + PANEL_H * n + 20;
+    let lines = title_lines(fig.title);
+    let title_h = TITLE_H + TITLE_LINE_H * (lines.len().max(1) as u32 - 1);
+    let height = title_h + PANEL_H * n + 20;
     let mut buf = String::new();
     {
         let root = SVGBackend::with_string(&mut buf, (WIDTH, height)).into_drawing_area();
         root.fill(&WHITE).map_err(other)?;
-        let (title, body) = root.split_vertically(TITLE_H);
-        title
-            .draw_text(
-                fig.title,
-                &TextStyle::from((FONT, 20).into_font()).color(&BLACK),
-                (12, 10),
-            )
-            .map_err(other)?;
+        let (title, body) = root.split_vertically(title_h);
+        let style = TextStyle::from((FONT, TITLE_SIZE).into_font()).color(&BLACK);
+        for (k, line) in lines.iter().enumerate() {
+            title
+                .draw_text(line, &style, (12, 10 + TITLE_LINE_H as i32 * k as i32))
+                .map_err(other)?;
+        }
         let (body, _) = body.split_vertically(PANEL_H * n);
         let areas = body.split_evenly((fig.panels.len(), 1));
         for (k, (area, panel)) in areas.iter().zip(&fig.panels).enumerate() {
@@ -400,7 +439,8 @@ mod tests {
     use super::*;
 
     fn close(a: (f64, f64), b: (f64, f64)) -> bool {
-        (a.0 - b.0).abs() <= 1e-12 * (1.0 + b.0.abs()) && (a.1 - b.1).abs() <= 1e-12 * (1.0 + b.1.abs())
+        (a.0 - b.0).abs() <= 1e-12 * (1.0 + b.0.abs())
+            && (a.1 - b.1).abs() <= 1e-12 * (1.0 + b.1.abs())
     }
 
     #[test]
@@ -433,7 +473,11 @@ mod tests {
         assert!(close(r, (0.9, 3.1)), "{r:?}");
         assert_eq!(fit_range([f64::NAN, f64::INFINITY]), None);
         // The extremes of f64 stay finite and ordered.
-        for v in [[f64::MAX, f64::MAX], [f64::MIN, f64::MAX], [f64::MIN, f64::MIN]] {
+        for v in [
+            [f64::MAX, f64::MAX],
+            [f64::MIN, f64::MAX],
+            [f64::MIN, f64::MIN],
+        ] {
             let (lo, hi) = fit_range(v).unwrap();
             assert!(lo.is_finite() && hi.is_finite() && lo < hi, "{v:?}");
         }
@@ -454,10 +498,24 @@ mod tests {
     }
 
     #[test]
+    fn long_titles_are_wrapped_at_spaces() {
+        assert_eq!(title_lines("short title"), vec!["short title"]);
+        let long = "word ".repeat(60);
+        let lines = title_lines(long.trim());
+        assert!(lines.len() >= 2);
+        assert_eq!(lines.join(" "), long.trim());
+        assert_eq!(title_lines(""), vec![""]);
+    }
+
+    #[test]
     fn finite_runs_split_at_gaps() {
         let x = [0.0, 1.0, 2.0, 3.0, 4.0, 5.0];
         let y = [1.0, f64::NAN, 2.0, 3.0, f64::INFINITY, f64::NAN];
-        let s = Series { name: "s", x: &x, y: &y };
+        let s = Series {
+            name: "s",
+            x: &x,
+            y: &y,
+        };
         let runs: Vec<_> = finite_runs(&s).collect();
         assert_eq!(runs, vec![vec![(0.0, 1.0)], vec![(2.0, 2.0), (3.0, 3.0)]]);
     }
@@ -470,13 +528,25 @@ mod tests {
                 Panel {
                     y_label: "current [A]",
                     series: vec![
-                        Series { name: "reference", x: t, y: a },
-                        Series { name: "measured", x: t, y: b },
+                        Series {
+                            name: "reference",
+                            x: t,
+                            y: a,
+                        },
+                        Series {
+                            name: "measured",
+                            x: t,
+                            y: b,
+                        },
                     ],
                 },
                 Panel {
                     y_label: "position [rad] (rotor, mechanical)",
-                    series: vec![Series { name: "true", x: t, y: b }],
+                    series: vec![Series {
+                        name: "true",
+                        x: t,
+                        y: b,
+                    }],
                 },
             ],
             x_marker: Some((t[1], "trigger")),
@@ -492,6 +562,7 @@ mod tests {
         let path = dir.join("sub").join("fig.svg");
         write_svg(&path, &figure(&t, &a, &b)).unwrap();
         let s = std::fs::read_to_string(&path).unwrap();
+        std::fs::copy(&path, std::env::temp_dir().join("foc-plot-last.svg")).unwrap();
         let _ = std::fs::remove_dir_all(&dir);
         assert!(s.contains("<svg"));
         for label in [
@@ -508,8 +579,9 @@ mod tests {
         }
         // The time axis ends at the data's last sample (5.94 ms), not at
         // some padded round number: a tick label past it would show.
-        assert!(s.contains(">0.005<"), "no 5 ms tick");
-        assert!(!s.contains(">0.006<") && !s.contains(">-0.05<"));
+        let texts: Vec<&str> = s.lines().map(str::trim).collect();
+        assert!(texts.contains(&"0.005"), "no 5 ms tick");
+        assert!(!texts.contains(&"0.006") && !texts.contains(&"-0.05"));
     }
 
     #[test]
@@ -520,7 +592,11 @@ mod tests {
             x_label: "t",
             panels: vec![Panel {
                 y_label: "y",
-                series: vec![Series { name: "s", x: &t, y: &t[..2] }],
+                series: vec![Series {
+                    name: "s",
+                    x: &t,
+                    y: &t[..2],
+                }],
             }],
             x_marker: None,
         };
@@ -555,7 +631,11 @@ mod tests {
                 panels: vec![
                     Panel {
                         y_label: "y",
-                        series: vec![Series { name: "s", x: xs, y: ys }],
+                        series: vec![Series {
+                            name: "s",
+                            x: xs,
+                            y: ys,
+                        }],
                     },
                     Panel {
                         y_label: "empty",

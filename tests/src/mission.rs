@@ -290,6 +290,9 @@ pub struct Sim {
     encoder_offset_rad: f64,
     /// Current-sense offsets removed from every sample [A] (once calibrated).
     current_offsets: Option<Abc>,
+    /// The position stage has run since position mode was entered: its
+    /// reference is this move's (before that it is the last move's, or 0).
+    position_planned: bool,
 }
 
 impl Sim {
@@ -327,6 +330,7 @@ impl Sim {
             trace: record.then(|| Trace::new(&TRACE_COLUMNS)),
             encoder_offset_rad: setup.bench.sensors.encoder_offset_rad as f64,
             current_offsets: None,
+            position_planned: false,
         }
     }
 
@@ -432,11 +436,16 @@ impl Sim {
             Command::Position { .. } => self.cascade.velocity_ref().rad_s as f64,
             _ => nan,
         };
-        let pos_ref = match fb.active {
-            Command::Position { .. } => {
-                self.cascade.position.position_loop().reference().position as f64
-            }
-            _ => nan,
+        // The position stage runs every few periods: in the first periods
+        // of a move its reference is still the previous move's (or 0).
+        let position_mode = matches!(fb.active, Command::Position { .. });
+        self.position_planned = position_mode
+            && (self.position_planned
+                || self.cascade.last_output().is_some_and(|o| o.run_position));
+        let pos_ref = if self.position_planned {
+            self.cascade.position.position_loop().reference().position as f64
+        } else {
+            nan
         };
         let row = [
             fb.i_dq_a.d as f64,
@@ -1239,8 +1248,13 @@ impl MissionResult {
                         "rad/s",
                         &["speed_ref_rad_s", "speed_rad_s", "speed_est_rad_s"],
                     ),
-                    Panel::new("position (encoder frame)", "rad", &["position_rad"]),
-                    Panel::new("mode, bridge on", "1", &["mode", "bridge_on"]),
+                    Panel::new(
+                        "position (rotor, mechanical, true, bench's encoder frame)",
+                        "rad",
+                        &["position_rad"],
+                    ),
+                    mode_panel(),
+                    Panel::new("bridge on (0 off, 1 on)", "flag", &["bridge_on"]),
                 ],
             )?;
             out.push(p);
@@ -1249,6 +1263,8 @@ impl MissionResult {
         let p = dir.join("mission.csv");
         closed.write_csv(&p)?;
         out.push(p);
+        let (closed_plot, true_in_drive) =
+            with_true_position_in_drive_frame(decimate(&closed, 4000));
         let mission_panels = [
             Panel::new("q current", "A", &["iq_ref_a", "iq_a"]),
             Panel::new("d current", "A", &["id_ref_a", "id_a"]),
@@ -1258,17 +1274,11 @@ impl MissionResult {
                 "rad/s",
                 &["speed_ref_rad_s", "speed_rad_s", "speed_est_rad_s"],
             ),
-            Panel::new(
-                "position (encoder frame)",
-                "rad",
-                &["position_ref_rad", "position_rad"],
-            ),
-            Panel::new("duties", "1", &["duty_a", "duty_b", "duty_c"]),
-            Panel::new(
-                "bus, mode, load",
-                "V | mode | N m",
-                &["v_bus_v", "mode", "load_nm"],
-            ),
+            Panel::new(POSITION_PANEL, "rad", &["position_ref_rad", &true_in_drive]),
+            Panel::new("PWM duty", "1", &["duty_a", "duty_b", "duty_c"]),
+            Panel::new("bus voltage", "V", &["v_bus_v"]),
+            Panel::new("load torque", "N m", &["load_nm"]),
+            mode_panel(),
         ];
         let p = dir.join("mission.svg");
         crate::report::plot_svg(
@@ -1278,7 +1288,7 @@ impl MissionResult {
                 self.summary.motor,
                 closed.len().div_ceil(4000).max(1)
             ),
-            &decimate(&closed, 4000),
+            &closed_plot,
             &mission_panels,
         )?;
         out.push(p);
@@ -1293,7 +1303,9 @@ impl MissionResult {
             t.write_csv(&p)?;
             out.push(p);
             let p = dir.join("current_step.svg");
-            crate::report::plot_svg(
+            // The first row with the new reference.
+            let step_at = t.time_s().get(seg.start - zoom.start).copied();
+            crate::report::plot_svg_marked(
                 &p,
                 &format!(
                     "q-current step, rotor locked: {} ({:.2} % overshoot)",
@@ -1305,6 +1317,8 @@ impl MissionResult {
                     Panel::new("d current", "A", &["id_ref_a", "id_a"]),
                     Panel::new("dq voltages", "V", &["vd_v", "vq_v"]),
                 ],
+                "time [s]",
+                step_at.map(|t| (t, "step")),
             )?;
             out.push(p);
         }
@@ -1319,7 +1333,7 @@ impl MissionResult {
                         &["speed_ref_rad_s", "speed_rad_s", "speed_est_rad_s"],
                     ),
                     Panel::new("q current", "A", &["iq_ref_a", "iq_a"]),
-                    Panel::new("load", "N m", &["load_nm"]),
+                    Panel::new("load torque", "N m", &["load_nm"]),
                 ],
             ),
             (
@@ -1327,9 +1341,9 @@ impl MissionResult {
                 "position",
                 vec![
                     Panel::new(
-                        "position (encoder frame)",
+                        POSITION_PANEL,
                         "rad",
-                        &["position_ref_rad", "position_rad", "position_est_rad"],
+                        &["position_ref_rad", "position_est_rad", TRUE_IN_DRIVE],
                     ),
                     Panel::new("speed", "rad/s", &["speed_ref_rad_s", "speed_rad_s"]),
                     Panel::new("q current", "A", &["iq_ref_a", "iq_a"]),
@@ -1348,7 +1362,19 @@ impl MissionResult {
                     start: seg.start,
                     end,
                 };
-                let dec = decimate(&self.slice(&whole), 4000);
+                let (dec, true_in_drive) =
+                    with_true_position_in_drive_frame(decimate(&self.slice(&whole), 4000));
+                let panels: Vec<Panel> = panels
+                    .into_iter()
+                    .map(|mut p| {
+                        for s in &mut p.signals {
+                            if s == TRUE_IN_DRIVE {
+                                s.clone_from(&true_in_drive);
+                            }
+                        }
+                        p
+                    })
+                    .collect();
                 let p = dir.join(format!("{file}.svg"));
                 crate::report::plot_svg(
                     &p,
@@ -1386,6 +1412,88 @@ impl MissionResult {
         out.push(p);
         Ok(out)
     }
+}
+
+/// Title of the position panels: the reference, the drive's estimate and
+/// the plant's true position, all in the drive's frame.
+const POSITION_PANEL: &str = "position (rotor, mechanical, drive's frame)";
+
+/// Stands for the true position's column in the drive's frame in a panel
+/// list (replaced by [`with_true_position_in_drive_frame`]'s name).
+const TRUE_IN_DRIVE: &str = "<true position in the drive's frame>";
+
+/// The drive's mode code as its own panel, the codes spelled out.
+fn mode_panel() -> Panel {
+    let codes: Vec<String> = [
+        (Mode::Disabled, "disabled"),
+        (Mode::Torque, "torque"),
+        (Mode::Velocity, "velocity"),
+        (Mode::Position, "position"),
+        (Mode::OpenLoop, "open loop"),
+        (Mode::Impedance, "impedance"),
+    ]
+    .iter()
+    .map(|(m, name)| format!("{} {name}", *m as u8))
+    .collect();
+    Panel::new(
+        &format!("drive mode ({})", codes.join(", ")),
+        "code",
+        &["mode"],
+    )
+}
+
+/// Whole turns `k` with `position_est_rad = position_rad + k 2 pi` over most
+/// rows of `trace` (0 without rows that have both).
+///
+/// The two columns are in different frames: `position_rad` is the plant's
+/// true position in the encoder's frame, unwrapped since the simulation
+/// started ([`Sim::true_position_rad`]); the drive's position (its
+/// estimate `position_est_rad`, its reference `position_ref_rad`) counts
+/// turns from the encoder's single-turn reading (0..2 pi) where its angle
+/// tracker last restarted (reset, start-up, calibration). So they differ
+/// by whole turns, fixed between restarts: after the default mission's
+/// identification by -1 turn (6.28 rad).
+pub fn drive_frame_turns(trace: &Trace) -> i64 {
+    let mut counts: Vec<(i64, usize)> = Vec::new();
+    for (t, e) in col(trace, "position_rad")
+        .iter()
+        .zip(col(trace, "position_est_rad"))
+    {
+        let k = ((e - t) / std::f64::consts::TAU).round();
+        if !k.is_finite() {
+            continue;
+        }
+        let k = k as i64;
+        match counts.iter_mut().find(|(kk, _)| *kk == k) {
+            Some((_, n)) => *n += 1,
+            None => counts.push((k, 1)),
+        }
+    }
+    counts.iter().max_by_key(|(_, n)| *n).map_or(0, |(k, _)| *k)
+}
+
+/// `trace` with the true position shifted by [`drive_frame_turns`] whole
+/// turns into the drive's frame, and the name of that column
+/// (`position_rad` itself when no shift is needed, else e.g.
+/// `position_rad - 1 turn`), so that a plot shows the reference, the
+/// estimate and the true position in one frame.
+pub fn with_true_position_in_drive_frame(trace: Trace) -> (Trace, String) {
+    let k = drive_frame_turns(&trace);
+    if k == 0 {
+        return (trace, "position_rad".into());
+    }
+    let shift = k as f64 * std::f64::consts::TAU;
+    let values: Vec<f64> = col(&trace, "position_rad")
+        .iter()
+        .map(|p| p + shift)
+        .collect();
+    let name = format!(
+        "position_rad {} {} turn{}",
+        if k < 0 { '-' } else { '+' },
+        k.unsigned_abs(),
+        if k.unsigned_abs() == 1 { "" } else { "s" }
+    );
+    (trace.with_column(&name, values), name)
 }
 
 /// Every `k`-th row of `trace`, at most `max_rows` rows.

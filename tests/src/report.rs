@@ -9,7 +9,6 @@
 //! plot_svg("out/trace.svg", "current step", &t, &[Panel::new("q current", "A", &["iq_ref_a", "iq_a"])]).unwrap();
 //! ```
 
-use plotters::prelude::*;
 use std::fmt::Write as _;
 use std::io;
 use std::path::Path;
@@ -54,6 +53,15 @@ impl Trace {
     pub fn column(&self, name: &str) -> Option<&[f64]> {
         let i = self.names.iter().position(|n| n == name)?;
         self.columns.get(i).map(|c| c.as_slice())
+    }
+    /// This trace with one more column (`values` cut or padded with NaN to
+    /// the number of rows), e.g. a signal converted into another frame for
+    /// a plot.
+    pub fn with_column(mut self, name: &str, mut values: Vec<f64>) -> Self {
+        values.resize(self.time_s.len(), f64::NAN);
+        self.names.push(name.to_string());
+        self.columns.push(values);
+        self
     }
     /// Number of rows.
     pub fn len(&self) -> usize {
@@ -136,34 +144,30 @@ impl Panel {
     }
 }
 
-fn range(values: impl Iterator<Item = f64>) -> (f64, f64) {
-    let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
-    for v in values.filter(|v| v.is_finite()) {
-        lo = lo.min(v);
-        hi = hi.max(v);
+impl Panel {
+    /// The axis label: the title with the unit in brackets after its first
+    /// word group, a frame in parentheses kept after it:
+    /// `("position (rotor, mechanical)", "rad")` gives
+    /// `position [rad] (rotor, mechanical)`.
+    pub fn y_label(&self) -> String {
+        match self.title.find(" (") {
+            Some(i) => format!("{} [{}]{}", &self.title[..i], self.unit, &self.title[i..]),
+            None => format!("{} [{}]", self.title, self.unit),
+        }
     }
-    if !lo.is_finite() {
-        return (0.0, 1.0);
-    }
-    // A flat signal still gets a readable axis: at least 0.1 of a unit, or
-    // 1 % of its magnitude, around it.
-    let span = (hi - lo).max(0.1).max(0.01 * lo.abs().max(hi.abs()));
-    let mid = 0.5 * (lo + hi);
-    let half = 0.5 * span * 1.1;
-    (mid - half, mid + half)
 }
 
-const COLORS: [RGBColor; 6] = [BLUE, RED, GREEN, MAGENTA, CYAN, BLACK];
-
-/// SVG with one panel per [`Panel`], stacked, all against time [s].
-/// Unknown signal names are an error.
+/// SVG with one panel per [`Panel`], stacked, all against time [s], drawn
+/// by [`foc_plot`] (axes fitted to the data: time from the first to the
+/// last row, each panel's y from its minimum to its maximum with a small
+/// margin, NaN rows left as gaps). Unknown signal names are an error.
 pub fn plot_svg(
     path: impl AsRef<Path>,
     title: &str,
     trace: &Trace,
     panels: &[Panel],
 ) -> io::Result<()> {
-    plot_svg_against(path, title, trace, panels, "time [s]")
+    plot_svg_marked(path, title, trace, panels, "time [s]", None)
 }
 
 /// As [`plot_svg`], with the trace's first column (its "time" column)
@@ -175,10 +179,20 @@ pub fn plot_svg_against(
     panels: &[Panel],
     x_desc: &str,
 ) -> io::Result<()> {
-    let path = path.as_ref();
-    if let Some(dir) = path.parent() {
-        std::fs::create_dir_all(dir)?;
-    }
+    plot_svg_marked(path, title, trace, panels, x_desc, None)
+}
+
+/// As [`plot_svg_against`], with an optional dashed vertical line at
+/// `marker.0` (same unit as the x axis) labelled `marker.1` (e.g. the
+/// instant a step is commanded).
+pub fn plot_svg_marked(
+    path: impl AsRef<Path>,
+    title: &str,
+    trace: &Trace,
+    panels: &[Panel],
+    x_desc: &str,
+    marker: Option<(f64, &str)>,
+) -> io::Result<()> {
     for p in panels {
         for s in &p.signals {
             if trace.column(s).is_none() {
@@ -186,57 +200,29 @@ pub fn plot_svg_against(
             }
         }
     }
-    let h = 60 + 260 * panels.len().max(1) as u32;
-    let root = SVGBackend::new(path, (900, h)).into_drawing_area();
-    root.fill(&WHITE).map_err(other)?;
-    let root = root.titled(title, ("sans-serif", 22)).map_err(other)?;
-    let areas = root.split_evenly((panels.len().max(1), 1));
-    let (t0, t1) = range(trace.time_s().iter().copied());
-    for (area, p) in areas.iter().zip(panels) {
-        let (y0, y1) = range(
-            p.signals
-                .iter()
-                .filter_map(|s| trace.column(s))
-                .flat_map(|c| c.iter().copied()),
-        );
-        let mut chart = ChartBuilder::on(area)
-            .caption(&p.title, ("sans-serif", 16))
-            .margin(8)
-            .x_label_area_size(30)
-            .y_label_area_size(60)
-            .build_cartesian_2d(t0..t1, y0..y1)
-            .map_err(other)?;
-        chart
-            .configure_mesh()
-            .x_desc(x_desc)
-            .y_desc(p.unit.as_str())
-            .draw()
-            .map_err(other)?;
-        for (k, s) in p.signals.iter().enumerate() {
-            let col = trace.column(s).unwrap_or(&[]);
-            let color = COLORS[k % COLORS.len()];
-            chart
-                .draw_series(LineSeries::new(
-                    trace
-                        .time_s()
-                        .iter()
-                        .zip(col)
-                        .filter(|(_, v)| v.is_finite())
-                        .map(|(t, v)| (*t, *v)),
-                    &color,
-                ))
-                .map_err(other)?
-                .label(s.as_str())
-                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], color));
-        }
-        chart
-            .configure_series_labels()
-            .background_style(WHITE.mix(0.8))
-            .border_style(BLACK)
-            .draw()
-            .map_err(other)?;
-    }
-    root.present().map_err(other)
+    let labels: Vec<String> = panels.iter().map(Panel::y_label).collect();
+    let fig = foc_plot::Figure {
+        title,
+        x_label: x_desc,
+        panels: panels
+            .iter()
+            .zip(&labels)
+            .map(|(p, label)| foc_plot::Panel {
+                y_label: label,
+                series: p
+                    .signals
+                    .iter()
+                    .map(|s| foc_plot::Series {
+                        name: s,
+                        x: trace.time_s(),
+                        y: trace.column(s).unwrap_or(&[]),
+                    })
+                    .collect(),
+            })
+            .collect(),
+        x_marker: marker,
+    };
+    foc_plot::write_svg(path.as_ref(), &fig)
 }
 
 /// Header of a dynamometer "Performance Curve Report" (design §12).
