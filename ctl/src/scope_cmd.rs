@@ -176,7 +176,9 @@ pub fn scope(c: &mut Client, cmd: ScopeCmd) -> CliResult {
             Ok(())
         }
         ScopeCmd::Read(a) => {
-            let cap = c.scope_capture(Duration::from_secs_f64(a.wait))?;
+            let wait = Duration::try_from_secs_f64(a.wait)
+                .map_err(|_| format!("--wait {}: not a time", a.wait))?;
+            let cap = c.scope_capture(wait)?;
             println!(
                 "{} samples of {} signal(s), trigger at sample {}",
                 cap.samples(),
@@ -213,7 +215,9 @@ fn write_outputs(
     title: &str,
 ) -> CliResult {
     if let Some(p) = csv {
-        cap.write_csv(std::io::BufWriter::new(std::fs::File::create(p)?))?;
+        let mut w = std::io::BufWriter::new(std::fs::File::create(p)?);
+        cap.write_csv(&mut w)?;
+        std::io::Write::flush(&mut w)?;
         println!("wrote {}", p.display());
     }
     if let Some(p) = svg {

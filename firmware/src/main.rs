@@ -124,8 +124,8 @@ mod app {
         /// lock per request.
         scope: comms::BoardScope,
         /// The command channel (UART, decoder, protocol state, settings).
-        /// Used by `serial` and `housekeeping`, both priority 1, so never
-        /// contended.
+        /// Used by `serial`, `housekeeping` and `stream`, all priority 1, so
+        /// never contended.
         comms: comms::Comms,
     }
 
@@ -413,6 +413,11 @@ mod app {
     /// host's, up to the UART's capacity), at 1 kHz.
     #[task(binds = EXTI4, priority = 1, shared = [feedback, timing, status, identified, config_request, command, comms])]
     fn stream(mut cx: stream::Context) {
+        // Nothing to do (and no lock at the current loop's priority) while
+        // the stream is off.
+        if cx.shared.comms.lock(|c| c.device.telemetry_every()) == 0 {
+            return;
+        }
         let fb = cx.shared.feedback.lock(|f| *f);
         let tm = cx.shared.timing.lock(|t| *t);
         let status = cx.shared.status.lock(|s| *s);

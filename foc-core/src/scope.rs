@@ -9,10 +9,12 @@
 //! firmware bench counts the instructions, `cargo xtask bench`).
 //!
 //! Trigger sources ([`TriggerKind`]): none (only [`Scope::force`]), a new
-//! active command (the first period in which [`Feedback::active`] differs
-//! from the period before: a step seen from its first period), a newly
-//! latched fault, or a signal crossing a level (rising, falling, either;
-//! checked on recorded samples). The trigger sample and the
+//! active command (a period in which [`Feedback::active`] differs from the
+//! period before), a newly latched fault, or a signal crossing a level
+//! (rising, falling, either; checked on recorded samples). Command and
+//! fault events are watched every period; the trigger sample is the first
+//! recorded sample at or after the event (the event's own period when the
+//! divider is 1, up to `divider - 1` periods later otherwise). The trigger sample and the
 //! `samples - pre_trigger - 1` after it are kept, and up to `pre_trigger`
 //! samples before it (fewer when the trigger came sooner after arming).
 //!
@@ -430,14 +432,16 @@ impl<B: AsRef<[f32]> + AsMut<[f32]>> Scope<B> {
     }
 
     /// Start recording, waiting for the trigger. `now` is the latest
-    /// feedback: a command or fault already in force when arming does not
-    /// trigger.
+    /// feedback the caller has: its command and faults do not trigger (a
+    /// command posted but not yet taken by the drive does, when it is).
     pub fn arm(&mut self, now: &Feedback) {
         self.state = State::Armed;
         self.head = 0;
         self.recorded = 0;
         self.countdown = 1;
         self.pending = false;
+        self.trigger_index = 0;
+        self.trigger_period = 0;
         self.last_active = now.active;
         self.last_faults = now.faults;
         self.last_level = None;
@@ -595,7 +599,7 @@ impl<B: AsRef<[f32]> + AsMut<[f32]>> Scope<B> {
         let buf = self.buf.as_ref();
         let mut copied = 0;
         for (i, o) in out.iter_mut().enumerate() {
-            let v = offset + i;
+            let v = offset.saturating_add(i);
             if v >= total {
                 break;
             }

@@ -827,7 +827,7 @@ impl DeviceState {
             Request::StartHoming(h) => self.start_homing(ctx, &h),
             Request::ReadHoming => Ok(Response::Homing(self.homing_state)),
             Request::StartTelemetry(rate) => {
-                let every = match rate {
+                let mut every = match rate {
                     TelemetryRate::EveryPeriods(0) => return Err(out_of_range(1)),
                     TelemetryRate::EveryPeriods(k) => k,
                     TelemetryRate::Hz(hz) => {
@@ -846,10 +846,19 @@ impl DeviceState {
                 };
                 if let Some(max_hz) = ctx.max_stream_hz() {
                     let pwm = ctx.param(ParamId::PwmFrequencyHz).unwrap_or(f32::NAN);
-                    // Also refused when the PWM frequency is unknown (NaN).
-                    let rate = pwm / every as f32;
-                    if rate.is_nan() || rate > max_hz {
+                    // The rate asked for (a rate, or the divider's), also
+                    // refused when the PWM frequency is unknown (NaN).
+                    let asked = match rate {
+                        TelemetryRate::Hz(hz) => hz,
+                        TelemetryRate::EveryPeriods(_) => pwm / every as f32,
+                    };
+                    if asked.is_nan() || asked > max_hz {
                         return Err(out_of_range(1));
+                    }
+                    // A rate rounded to whole periods stays within the cap.
+                    let floor = pwm / max_hz;
+                    if floor.is_finite() && (every as f32) < floor {
+                        every = (floor as u32).saturating_add(1);
                     }
                 }
                 self.telemetry_every = every;

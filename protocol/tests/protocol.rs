@@ -1483,6 +1483,16 @@ fn the_stream_rate_is_capped_at_what_the_link_carries() {
     );
     let every = dev.telemetry_every();
     assert_eq!(every, 133);
+    // The cap itself is accepted (its divider rounded up, not down past it).
+    assert_eq!(
+        start(&mut dev, &mut ctx, 4, TelemetryRate::Hz(at_115200)),
+        Response::Ack
+    );
+    assert!(20_000.0 / dev.telemetry_every() as f32 <= at_115200);
+    assert_eq!(
+        start(&mut dev, &mut ctx, 5, TelemetryRate::Hz(150.0)),
+        Response::Ack
+    );
     for (seq, r) in [
         (2, TelemetryRate::Hz(250.0)),
         (3, TelemetryRate::EveryPeriods(20)),

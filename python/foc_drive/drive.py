@@ -912,9 +912,15 @@ class Drive:
         self.scope_configure(signals, divider, samples, pre_trigger, trigger)
         self.scope_arm()
         if pre_trigger > 0:
-            st = self.scope_status()
-            # The pre-trigger samples take this long to record (plus margin).
-            time.sleep(st.pre_trigger * st.sample_period_s * 1.2 + 0.002)
+            # Poll until the pre-trigger samples are recorded (the device's
+            # own time; a slow device, e.g. under emulation, takes longer),
+            # with a host-time backstop of wait_s.
+            deadline = time.monotonic() + wait_s
+            while True:
+                st = self.scope_status()
+                if st.captured >= st.pre_trigger or time.monotonic() >= deadline:
+                    break
+                time.sleep(0.002)
         if action is not None:
             action(self)
         if parse_trigger(trigger)[0] == m.ScopeTrigger.manual:

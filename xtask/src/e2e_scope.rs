@@ -56,15 +56,21 @@ pub fn current_step(client: &mut Client, backstop: Duration, out: &Path) -> Resu
     std::fs::create_dir_all(out)?;
     for (name, cap) in [("firmware", &report.capture), ("bench", &bench)] {
         let csv = out.join(format!("current_step_{name}.csv"));
-        cap.write_csv(std::io::BufWriter::new(std::fs::File::create(&csv)?))?;
+        let mut w = std::io::BufWriter::new(std::fs::File::create(&csv)?);
+        cap.write_csv(&mut w)?;
+        std::io::Write::flush(&mut w)?;
         let svg = out.join(format!("current_step_{name}.svg"));
         foc_ctl::scope::plot(cap, &svg, &format!("q-current step of {STEP_A} A, {name}"))?;
     }
     print!("{report}");
-    let settle = |x: &StepFigures| x.settling_periods.map_or(i64::MAX, i64::from);
     let d_os = (f.overshoot_pct - b.overshoot_pct).abs();
-    let d_settle = (settle(&f) - settle(&b)).abs();
-    let ok = d_os <= OVERSHOOT_TOL_PP && d_settle <= SETTLING_TOL_PERIODS;
+    // Both must settle within the capture, and agree.
+    let ok = match (f.settling_periods, b.settling_periods) {
+        (Some(x), Some(y)) => {
+            d_os <= OVERSHOOT_TOL_PP && (i64::from(x) - i64::from(y)).abs() <= SETTLING_TOL_PERIODS
+        }
+        _ => false,
+    };
     let line = format!(
         "scope current step {STEP_A} A (kp {kp:.4} V/A, ki {ki:.1} V/(A s)): firmware overshoot {:.2} %, 5 % settling {} periods, rise {}; bench {:.2} %, {} periods, rise {} (tolerances {OVERSHOOT_TOL_PP} pp, {SETTLING_TOL_PERIODS} period); captures in {}",
         f.overshoot_pct,
