@@ -1,0 +1,16 @@
+//! CANopen for the FOC drive: a CiA 301 node with the CiA 402 drive
+//! profile, on top of the drive's [`foc_protocol::device::DeviceContext`].
+//!
+//! no_std, no alloc, no unsafe, no panics. The node is sans-I/O: its owner
+//! (the firmware's CAN task, the host test bus) hands it received frames and
+//! the time, and sends the frames it produces.
+#![no_std]
+#![forbid(unsafe_code)]
+#![deny(missing_docs)]
+
+pub mod abort;
+pub mod cia402;
+pub mod frame;
+
+pub use abort::Abort;
+pub use frame::CanFrame;
