@@ -87,6 +87,13 @@ pub fn steps() -> Vec<Step> {
         crate::python::run_tests,
     ));
 
+    // CANopen (issue 22): the Python canopen master against three drives
+    // on the host test bus.
+    steps.push(Step::new(
+        "CANopen: python-canopen master, three drives on the host test bus",
+        crate::canopen::run_tests,
+    ));
+
     // Smoke run of the closed-loop simulation (the default motor's mission,
     // a few seconds): it must pass its criteria and write its reports.
     // Then the same mission started from the configuration the first one

@@ -8,6 +8,7 @@ mod bench;
 mod boards;
 mod budget;
 mod build;
+mod canopen;
 mod check;
 mod dyno;
 mod e2e;
@@ -70,6 +71,9 @@ enum Command {
     /// environment under the target directory and run its tests against
     /// `foc-ctl simulate`.
     Python,
+    /// CANopen (CiA 301 / CiA 402): a Python `canopen` master against
+    /// several drives on the host test bus (foc-canbus).
+    Canopen,
     /// Fuzz foc-protocol (cargo-fuzz targets in fuzz/; nightly + cargo-fuzz),
     /// or `--replay` the corpus through the same checks on stable.
     Fuzz(fuzz::FuzzArgs),
@@ -91,6 +95,7 @@ fn main() -> ExitCode {
         Command::E2e(args) => e2e::run_cmd(args),
         Command::Fuzz(args) => fuzz::run_cmd(args),
         Command::Python => python::run_tests(),
+        Command::Canopen => canopen::run_tests(),
         Command::Boards => {
             list_boards();
             Ok(())

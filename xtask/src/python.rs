@@ -3,6 +3,7 @@
 //! packages, so an installed numpy is used; pip fetches what is missing),
 //! then its unittest suite against `foc-ctl simulate` (the debug binary).
 
+use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use crate::util::{cargo, root, run, target_dir, Error, Result};
@@ -10,21 +11,8 @@ use crate::util::{cargo, root, run, target_dir, Error, Result};
 /// Build `foc-ctl`, install the package, run its tests.
 pub fn run_tests() -> Result {
     run(cargo(["build", "-p", "foc-ctl"]))?;
-    let venv = target_dir().join("python-venv");
-    let python = venv.join("bin").join("python3");
-    if !python.exists() {
-        let mut c = Command::new("python3");
-        c.args(["-m", "venv", "--system-site-packages"]).arg(&venv);
-        run(c)?;
-    }
-    let mut pip = Command::new(&python);
-    pip.args([
-        "-m",
-        "pip",
-        "install",
-        "--quiet",
-        "--disable-pip-version-check",
-    ]);
+    let python = venv()?;
+    let mut pip = pip(&python);
     // Build with the environment's setuptools and wheel when it has them
     // (no download); else pip fetches them (build isolation).
     if has_build_backend(&python) {
@@ -48,7 +36,33 @@ pub fn run_tests() -> Result {
     run(t)
 }
 
-fn has_build_backend(python: &std::path::Path) -> bool {
+/// The project's virtual environment (target/python-venv, with the
+/// system's site packages), created if missing: its `python3`.
+pub fn venv() -> Result<PathBuf> {
+    let venv = target_dir().join("python-venv");
+    let python = venv.join("bin").join("python3");
+    if !python.exists() {
+        let mut c = Command::new("python3");
+        c.args(["-m", "venv", "--system-site-packages"]).arg(&venv);
+        run(c)?;
+    }
+    Ok(python)
+}
+
+/// `python -m pip install --quiet` in the environment of `python`.
+pub fn pip(python: &Path) -> Command {
+    let mut pip = Command::new(python);
+    pip.args([
+        "-m",
+        "pip",
+        "install",
+        "--quiet",
+        "--disable-pip-version-check",
+    ]);
+    pip
+}
+
+fn has_build_backend(python: &Path) -> bool {
     Command::new(python)
         .args(["-c", "import setuptools, wheel"])
         .status()
