@@ -589,12 +589,11 @@ impl Cia402 {
         let st = ctx.status();
         let faulted = st.faulted || !ctx.faults().0.is_empty();
         match self.state {
-            State::Fault => {
-                if self.reset_pending && !faulted {
-                    self.reset_pending = false;
-                    self.state = State::SwitchOnDisabled;
-                }
+            State::Fault if self.reset_pending && !faulted => {
+                self.reset_pending = false;
+                self.state = State::SwitchOnDisabled;
             }
+            State::Fault => {}
             State::FaultReactionActive => {
                 self.disable(ctx);
                 if ctx.mode() == Mode::Disabled {

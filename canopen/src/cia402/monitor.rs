@@ -36,7 +36,7 @@ impl WindowTimer {
 
     /// `cond` now: true once it has held for at least `time_ms`.
     pub fn held(&mut self, cond: bool, now_us: u64, time_ms: u16) -> bool {
-        self.elapsed_us(cond, now_us) >= u64::from(time_ms) * 1000
+        cond && self.elapsed_us(cond, now_us) >= u64::from(time_ms) * 1000
     }
 
     /// `cond` now: true once it has held for longer than `time_ms`

@@ -81,14 +81,15 @@ pub const fn next(s: State, c: CwCommand) -> Option<State> {
     }
 }
 
-/// The statusword's state bits (0, 1, 2, 3, 5, 6) of a state, bit 5
-/// (quick stop, active low) outside the states that define it taken from
-/// `quick_stop_bit` (controlword bit 2: 1 = no quick stop asked).
+/// The statusword's state bits (0, 1, 2, 3, 5, 6) of a state. Bit 5
+/// (quick stop, active low) is 0 in not ready to switch on and switch on
+/// disabled; in fault reaction active and fault it shows `quick_stop_bit`
+/// (controlword bit 2: 1 = no quick stop asked).
 pub const fn state_bits(s: State, quick_stop_bit: bool) -> u16 {
     let qs = if quick_stop_bit { 0x20 } else { 0 };
     match s {
-        State::NotReadyToSwitchOn => qs,
-        State::SwitchOnDisabled => 0x40 | qs,
+        State::NotReadyToSwitchOn => 0,
+        State::SwitchOnDisabled => 0x40,
         State::ReadyToSwitchOn => 0x21,
         State::SwitchedOn => 0x23,
         State::OperationEnabled => 0x27,
