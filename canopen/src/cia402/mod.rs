@@ -259,7 +259,13 @@ pub const FOLLOWING_ERROR_CODE: u16 = 0x8611;
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 struct Stop {
     option: i16,
+    /// When the ramp reached 0 [us].
+    ramp_done_us: Option<u64>,
 }
+
+/// Options 1 / 2: after the ramp, the longest wait for standstill
+/// (|velocity| within 0x606D) before the bridge is switched off [us].
+pub const STANDSTILL_TIMEOUT_US: u64 = 200_000;
 
 /// The profile: state machine, mode and values of one axis.
 ///
@@ -324,6 +330,8 @@ impl Cia402 {
                 kp_per_s: DEFAULT_KP_PER_S,
                 kp_nm_per_rad: 0.0,
                 kd_nm_s_per_rad: 0.0,
+                ki_nm_per_rad_s: 0.0,
+                torque_max_nm: 0.0,
             },
             reached: WindowTimer::new(),
             ferr_timer: WindowTimer::new(),
@@ -405,7 +413,7 @@ impl Cia402 {
         let Some(to) = state::next(from, c) else {
             return;
         };
-        let stop_holds = matches!(self.stop, Some(Stop { option: 5 | 6 }));
+        let stop_holds = matches!(self.stop, Some(Stop { option: 5 | 6, .. }));
         if from == State::QuickStopActive && to == State::OperationEnabled && !stop_holds {
             return;
         }
@@ -471,7 +479,10 @@ impl Cia402 {
             self.disable(ctx);
             return;
         }
-        self.stop = Some(Stop { option });
+        self.stop = Some(Stop {
+            option,
+            ramp_done_us: None,
+        });
         self.gen.demand.vel_rad_s = finite_or_zero(ctx.feedback().velocity_rad_s);
         self.target_reached = false;
         self.update(now_us, ctx);
@@ -571,7 +582,7 @@ impl Cia402 {
         self.supervise(ctx);
         match self.state {
             State::OperationEnabled => self.run(dt_s, now_us, ctx),
-            State::QuickStopActive => self.run_stop(dt_s, ctx),
+            State::QuickStopActive => self.run_stop(dt_s, now_us, ctx),
             _ => {}
         }
         self.refresh(ctx);
@@ -633,6 +644,8 @@ impl Cia402 {
             halt: self.cw & CW_HALT != 0,
         };
         self.gen.step(self.mode, &i);
+        self.gen
+            .integrate_error(self.mode, self.follower, &self.gains, &i);
         let cmd = self.gen.command(self.mode, self.follower, &self.gains, &i);
         self.monitor(now_us, &fb);
         if self.profile_fault.is_some() {
@@ -644,10 +657,10 @@ impl Cia402 {
         }
     }
 
-    /// Quick stop active: ramp to 0, then disable (0x605A 1, 2) or hold
-    /// velocity 0 (5, 6).
-    fn run_stop<C: DeviceContext>(&mut self, dt_s: f32, ctx: &mut C) {
-        let Some(stop) = self.stop else {
+    /// Quick stop active: ramp to 0, then (0x605A 1, 2) disable at
+    /// standstill, or (5, 6) hold velocity 0.
+    fn run_stop<C: DeviceContext>(&mut self, dt_s: f32, now_us: u64, ctx: &mut C) {
+        let Some(mut stop) = self.stop else {
             return;
         };
         let p = &self.params;
@@ -657,13 +670,32 @@ impl Cia402 {
         };
         let done = self.gen.step_stop(uinc_to_rad(decel), dt_s);
         self.target_reached = done;
-        let rad_s = self.gen.demand.vel_rad_s;
-        if done && matches!(stop.option, 1 | 2) {
-            self.enter(State::SwitchOnDisabled, 0, ctx);
-        } else if !self.post(Command::Velocity { rad_s }, ctx) {
-            self.warning = true;
-            self.enter(State::SwitchOnDisabled, 0, ctx);
+        if done && stop.ramp_done_us.is_none() {
+            stop.ramp_done_us = Some(now_us);
+            self.stop = Some(stop);
         }
+        if matches!(stop.option, 1 | 2) && self.standstill(stop, now_us, ctx) {
+            self.enter(State::SwitchOnDisabled, now_us, ctx);
+        } else if !self.post(
+            Command::Velocity {
+                rad_s: self.gen.demand.vel_rad_s,
+            },
+            ctx,
+        ) {
+            self.warning = true;
+            self.enter(State::SwitchOnDisabled, now_us, ctx);
+        }
+    }
+
+    /// The ramp is done and the rotor within the velocity window (or the
+    /// wait for it timed out).
+    fn standstill<C: DeviceContext>(&self, stop: Stop, now_us: u64, ctx: &C) -> bool {
+        let Some(t) = stop.ramp_done_us else {
+            return false;
+        };
+        let v = units::rad_to_inc(ctx.feedback().velocity_rad_s).unsigned_abs();
+        v <= u32::from(self.params.velocity_window_inc_s)
+            || now_us.saturating_sub(t) >= STANDSTILL_TIMEOUT_US
     }
 
     /// The connection to the master was lost (heartbeat consumer timeout,

@@ -18,9 +18,9 @@ use foc_core::control::{Command, Feedback, Limits};
 use foc_protocol::device::DeviceContext;
 use foc_protocol::message::ParamId;
 
-use super::units::RAD_PER_INC;
 use super::units::{
-    clamp_abs, clamp_range, finite_or_zero, inc_to_rad, permille_to_amps, uinc_to_rad,
+    clamp_abs, clamp_range, finite_or_zero, inc_to_rad, permille_to_amps, rated_current_a,
+    uinc_to_rad, RAD_PER_INC,
 };
 use super::{OpMode, Params, Targets};
 
@@ -57,6 +57,10 @@ pub struct FollowerGains {
     pub kp_nm_per_rad: f32,
     /// Impedance damping [N m s/rad].
     pub kd_nm_s_per_rad: f32,
+    /// Integral gain on the position error [N m/(rad s)].
+    pub ki_nm_per_rad_s: f32,
+    /// Bound of the integral's torque [N m].
+    pub torque_max_nm: f32,
 }
 
 /// What one update works with.
@@ -89,6 +93,9 @@ pub struct Demand {
     pub vel_rad_s: f32,
     /// q current [A].
     pub iq_a: f32,
+    /// Feed-forward torque of the impedance follower [N m]: the integral
+    /// of the position error (the drive's speed-loop integral, moved here).
+    pub torque_ff_nm: f32,
 }
 
 /// Move `x` towards `target` by at most `accel dt` when speeding up (away
@@ -129,6 +136,7 @@ pub struct Generator {
     last_target_inc: i32,
     last_change_us: u64,
     interval_us: u64,
+    v_back_rad_s: f32,
     v_est_rad_s: f32,
 }
 
@@ -141,6 +149,7 @@ impl Generator {
                 pos_rad: p,
                 vel_rad_s: finite_or_zero(fb.velocity_rad_s),
                 iq_a: finite_or_zero(fb.i_dq_ref_a.q),
+                torque_ff_nm: 0.0,
             },
             traj: Trapezoid::plan(p, 0.0, p, 1.0, 1.0),
             target_rad: p,
@@ -271,17 +280,23 @@ impl Generator {
         let since = now_us.saturating_sub(self.last_change_us);
         if target_inc != self.last_target_inc {
             let d = target_inc.wrapping_sub(self.last_target_inc) as f32 * RAD_PER_INC;
-            self.v_est_rad_s = if (1..=100_000).contains(&since) {
+            let v_back = if (1..=100_000).contains(&since) {
                 d / (since as f32 * 1e-6)
             } else {
                 0.0
             };
+            // The backward difference is the velocity half an interval
+            // ago; the command holds for the next interval: extrapolate to
+            // its middle (one interval ahead).
+            self.v_est_rad_s = finite_or_zero(2.0 * v_back - self.v_back_rad_s);
+            self.v_back_rad_s = v_back;
             self.interval_us = since;
             self.last_target_inc = target_inc;
             self.last_change_us = now_us;
         } else if since > self.interval_us.saturating_mul(2) {
             // The targets stopped moving.
             self.v_est_rad_s = 0.0;
+            self.v_back_rad_s = 0.0;
         }
     }
 
@@ -324,6 +339,19 @@ impl Generator {
         }
     }
 
+    /// Position modes with the impedance follower: integrate the position
+    /// error into the feed-forward torque (bounded by the rated torque).
+    pub fn integrate_error(&mut self, mode: OpMode, f: Follower, g: &FollowerGains, i: &Inputs) {
+        let position = matches!(mode, OpMode::ProfilePosition | OpMode::CyclicPosition);
+        if !(position && f == Follower::Impedance) {
+            self.demand.torque_ff_nm = 0.0;
+            return;
+        }
+        let e = finite_or_zero(self.demand.pos_rad - i.fb.position_rad);
+        let t = self.demand.torque_ff_nm + g.ki_nm_per_rad_s * e * i.dt_s;
+        self.demand.torque_ff_nm = clamp_abs(t, g.torque_max_nm);
+    }
+
     /// The drive command of the demand in `mode`.
     pub fn command(&self, mode: OpMode, f: Follower, g: &FollowerGains, i: &Inputs) -> Command {
         let d = self.demand;
@@ -348,13 +376,16 @@ pub fn follower_gains<C: DeviceContext>(ctx: &C) -> FollowerGains {
     let positive = |x: Option<f32>| x.filter(|v| v.is_finite() && *v > 0.0);
     let kp = positive(ctx.param(ParamId::PositionKp)).unwrap_or(DEFAULT_KP_PER_S);
     let kv = positive(ctx.param(ParamId::SpeedKp)).unwrap_or(0.0);
+    let ki = positive(ctx.param(ParamId::SpeedKi)).unwrap_or(0.0);
     let kt = positive(Some(ctx.torque_constant_nm_per_a())).unwrap_or(0.0);
     let l = ctx.limits();
     let kd = clamp_range(kt * kv, 0.0, l.max_kd_nm_s_per_rad);
     FollowerGains {
         kp_per_s: kp,
-        kp_nm_per_rad: clamp_range(kd * kp, 0.0, l.max_kp_nm_per_rad),
+        kp_nm_per_rad: clamp_range(kt * (kv * kp + ki), 0.0, l.max_kp_nm_per_rad),
         kd_nm_s_per_rad: kd,
+        ki_nm_per_rad_s: finite_or_zero(kt * ki * kp),
+        torque_max_nm: finite_or_zero(kt * rated_current_a(&l)),
     }
 }
 
@@ -368,7 +399,7 @@ pub fn follow(d: &Demand, f: Follower, g: &FollowerGains, i: &Inputs) -> Command
             velocity_rad_s: clamp_abs(d.vel_rad_s, vmax),
             kp_nm_per_rad: g.kp_nm_per_rad,
             kd_nm_s_per_rad: g.kd_nm_s_per_rad,
-            torque_ff_nm: 0.0,
+            torque_ff_nm: d.torque_ff_nm,
             torque_limit_nm: f32::INFINITY,
         }),
         // Impedance without stiffness allowed (limit 0): velocity.

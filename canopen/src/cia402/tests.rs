@@ -403,11 +403,23 @@ fn quick_stop_ramps_then_disables_option_2() {
         if let Some(Command::Velocity { rad_s }) = ctx.posted {
             assert!(rad_s <= last && rad_s >= 0.0);
             last = rad_s;
+            ctx.fb.velocity_rad_s = rad_s; // an ideal drive
         }
     }
     assert_eq!(p.state(), State::SwitchOnDisabled);
     assert_eq!(ctx.posted, Some(Command::Disable));
     assert!((95_000..=105_000).contains(&t), "{t}");
+    // A drive that does not stop: disabled after the standstill time-out.
+    let (mut p, mut ctx) = started(OpMode::ProfileVelocity);
+    reach(&mut p, &mut ctx, State::OperationEnabled);
+    ctx.fb.velocity_rad_s = 1.0;
+    assert_eq!(cw(&mut p, &mut ctx, QUICK_STOP), State::QuickStopActive);
+    let mut t = 0;
+    while p.state() == State::QuickStopActive && t < 1_000_000 {
+        t += 1000;
+        p.update(t, &mut ctx);
+    }
+    assert_eq!(t, 1000 + STANDSTILL_TIMEOUT_US, "ramp done at once");
 }
 
 #[test]
