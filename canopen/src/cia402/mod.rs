@@ -280,7 +280,23 @@ pub const STANDSTILL_TIMEOUT_US: u64 = 200_000;
 /// - a non-finite value from the drive reads as 0 (the drive latches its
 ///   own `NonFinite` fault, which the profile then follows to Fault);
 /// - 0x6007 = 1 (fault) acts in ready to switch on, switched on, operation
-///   enabled and quick stop active (not while switch on disabled).
+///   enabled and quick stop active (not while switch on disabled);
+/// - halt (bit 8) acts in pp (profile deceleration, then hold; the move
+///   resumes on release), pv (ramp to 0) and tq (torque to 0 with the
+///   slope); the cyclic modes ignore it (the master owns the trajectory);
+/// - csp ignores the target present when the mode starts (holds the
+///   actual position, bit 12 = 0) until a different one is written;
+/// - quick stop with 0x605A = 1 / 2 switches the bridge off once the ramp
+///   is done and the rotor is within the velocity window 0x606D, at most
+///   [`STANDSTILL_TIMEOUT_US`] after the ramp;
+/// - the rated current (0x6075) is the drive's current limit, the rated
+///   torque (0x6076) `kt` times it: torque and current per mille are the
+///   same number (the q current over the current limit);
+/// - pp plans its own trapezoid (`foc_core`'s planner, in the profile):
+///   the drive's trajectory limits can only be set while disabled
+///   (`Status::check_config`, [`foc_protocol::device::Refusal::NotDisabled`]),
+///   so 0x6081 / 0x6083 / 0x6084 could not change during a move; the
+///   trapezoid is symmetric, with the smaller of 0x6083 and 0x6084.
 #[derive(Clone, Debug)]
 pub struct Cia402 {
     /// Targets (written by SDO / RPDO).
@@ -384,7 +400,14 @@ impl Cia402 {
     /// disable operation, fault reset on the rising edge of bit 7; new
     /// set-point on the rising edge of bit 4 in pp; halt bit 8). Refused
     /// transitions leave the state unchanged (not an abort: CiA 402).
+    /// [`Self::actuals`] (the statusword) follow at once.
     pub fn write_controlword<C: DeviceContext>(&mut self, cw: u16, now_us: u64, ctx: &mut C) {
+        self.take_controlword(cw, now_us, ctx);
+        self.refresh(ctx);
+    }
+
+    /// The controlword's transition and pp set-point.
+    fn take_controlword<C: DeviceContext>(&mut self, cw: u16, now_us: u64, ctx: &mut C) {
         let rising = cw & !self.cw;
         self.cw = cw;
         if rising & CW_FAULT_RESET != 0 {
@@ -540,7 +563,7 @@ impl Cia402 {
                 self.start_mode(now_us, ctx);
             }
         }
-        self.actuals.mode_display = m as i8;
+        self.refresh(ctx);
         Ok(())
     }
 
@@ -700,7 +723,7 @@ impl Cia402 {
 
     /// The connection to the master was lost (heartbeat consumer timeout,
     /// bus-off): react per 0x6007 (0 none, 1 fault, 2 disable voltage,
-    /// 3 quick stop). A fault reports [`Fault::CommandTimeout`] to the drive
+    /// 3 quick stop). The statusword follows at once. A fault reports [`Fault::CommandTimeout`] to the drive
     /// (bridge off at once) and goes to fault reaction active.
     pub fn connection_lost<C: DeviceContext>(&mut self, now_us: u64, ctx: &mut C) {
         let live = matches!(
@@ -719,6 +742,7 @@ impl Cia402 {
             3 => self.command(CwCommand::QuickStop, now_us, ctx),
             _ => {}
         }
+        self.refresh(ctx);
     }
 
     /// The profile's own fault (following error) latched in this node, if

@@ -25,25 +25,34 @@ use super::units::{
 use super::{OpMode, Params, Targets};
 
 /// How a position demand (pp's profile, csp's targets) goes to the drive.
-/// The default is [`Follower::Impedance`]: the smallest following error
-/// on the plant (see the README's CiA 402 figures and
-/// `tests/cia402_plant.rs`).
+///
+/// Measured on the bench plant (emulated board's motor, updates every
+/// 1 ms, `tests/cia402_plant.rs`): csp along a 1 rev (peak to peak)
+/// sinusoid over 1 s, max |0x60F4|: `Impedance` 255 inc (0.024 rad),
+/// `Velocity` 471 inc, `Position` 65 536 inc (does not follow, see
+/// there); all three settle to 0 inc after a pp move. Hence the default,
+/// [`Follower::Impedance`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum Follower {
     /// `Command::Position` at the demand: the drive's own trapezoid planner
-    /// re-plans to every new demand (its velocity / acceleration limits,
-    /// set only while disabled, bound the move).
+    /// re-plans to every new demand. It does not follow a demand that
+    /// changes at every position-loop step: each re-plan restarts the
+    /// trajectory at its first sample, so the drive's reference stands
+    /// still until the demand stops changing (foc-core's
+    /// `PositionStage::retarget`). Kept for comparison.
     Position,
     /// `Command::Velocity = v_demand + kp (p_demand - p_actual)`: the
     /// profile closes the position loop at its update rate with the drive's
-    /// position gain.
+    /// position gain; the drive's speed PI removes the static error.
     Velocity,
-    /// `Command::Impedance { p_demand, v_demand, kp, kd }`, with the
-    /// stiffness and damping of the drive's own position / speed cascade
-    /// (`kd = kt kv`, `kp = kd kp_pos`): the drive closes the loop every
-    /// PWM period and advances the position reference with the velocity
-    /// between updates.
+    /// `Command::Impedance { p_demand, v_demand, kp, kd, T_ff }`: the
+    /// drive's own P-PI position / speed cascade written as an impedance
+    /// (`kd = kt kv`, `kp = kt (kv kp_pos + ki)`, and the speed integral's
+    /// `kt ki kp_pos` integral of the position error as `T_ff`), closed by
+    /// the drive every PWM period, its position reference advancing with
+    /// the velocity between updates (no 1 ms staircase). A zero stiffness
+    /// limit falls back to [`Follower::Velocity`].
     Impedance,
 }
 
@@ -134,6 +143,8 @@ pub struct Generator {
     /// pv / tq: the (clamped) target the ramp runs to [rad/s] / [A].
     pub ramp_target: f32,
     last_target_inc: i32,
+    /// csp: a target written after the start is followed (bit 12).
+    pub following: bool,
     last_change_us: u64,
     interval_us: u64,
     v_back_rad_s: f32,
@@ -260,8 +271,17 @@ impl Generator {
 
     /// csp: the target position (clamped to the range) and a velocity
     /// feed-forward: 0x60B1 when non-zero, else estimated from the last
-    /// two different targets over the time between them.
+    /// two different targets over the time between them (extrapolated by
+    /// half an interval). The target present when the mode started is
+    /// ignored (the actual position is held, statusword bit 12 = 0) until
+    /// the master writes a different one: a stale 0x607A does not make the
+    /// axis jump at enable.
     pub fn step_csp(&mut self, i: &Inputs) {
+        if !self.following && i.targets.position_inc == self.last_target_inc {
+            self.demand.vel_rad_s = 0.0;
+            return;
+        }
+        self.following = true;
         let raw = inc_to_rad(i.targets.position_inc);
         let p = clamp_range(raw, i.limits.min_position_rad, i.limits.max_position_rad);
         self.limited = p != raw;

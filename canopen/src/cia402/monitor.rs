@@ -175,7 +175,7 @@ impl super::Cia402 {
     }
 
     /// Bit 12: pp set-point acknowledge, pv speed 0 (|v| within 0x606D),
-    /// csp / csv / cst target followed.
+    /// csp / csv / cst target followed (csp: once a new target came).
     fn bit12(&self, fb: &Feedback) -> bool {
         match self.mode {
             OpMode::ProfilePosition => self.ack,
@@ -183,7 +183,8 @@ impl super::Cia402 {
                 rad_to_inc(fb.velocity_rad_s).unsigned_abs()
                     <= u32::from(self.params.velocity_window_inc_s)
             }
-            OpMode::CyclicPosition | OpMode::CyclicVelocity | OpMode::CyclicTorque => true,
+            OpMode::CyclicPosition => self.gen.following,
+            OpMode::CyclicVelocity | OpMode::CyclicTorque => true,
             OpMode::ProfileTorque | OpMode::NoMode => false,
         }
     }

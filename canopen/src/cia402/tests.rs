@@ -622,3 +622,72 @@ fn tq_ramps_with_the_slope_and_limits_to_0x6072() {
     assert_ne!(p.actuals.statusword & STATUS_TARGET_REACHED, 0);
     assert_ne!(p.actuals.statusword & STATUS_INTERNAL_LIMIT, 0);
 }
+
+#[test]
+fn csp_ignores_the_stale_target_until_a_new_one() {
+    let (mut p, mut ctx) = started(OpMode::CyclicPosition);
+    p.targets.position_inc = 5 * INC_PER_REV; // stale
+    ctx.fb.position_rad = 1.0;
+    reach(&mut p, &mut ctx, State::OperationEnabled);
+    p.update(1000, &mut ctx);
+    assert_eq!(p.demand().pos_rad, 1.0);
+    assert_eq!(p.actuals.statusword & STATUS_MODE_12, 0);
+    p.targets.position_inc = rad_to_inc(1.0) + 10;
+    p.update(2000, &mut ctx);
+    assert_ne!(p.actuals.statusword & STATUS_MODE_12, 0);
+    assert_eq!(p.actuals.position_demand_inc, rad_to_inc(1.0) + 10);
+}
+
+mod never_panics {
+    use super::*;
+    use proptest::prelude::*;
+
+    fn any_f32() -> impl Strategy<Value = f32> {
+        prop_oneof![
+            Just(f32::NAN),
+            Just(f32::INFINITY),
+            Just(-f32::INFINITY),
+            -1e6f32..1e6f32,
+            any::<f32>(),
+        ]
+    }
+
+    proptest! {
+        /// Any controlwords, modes, targets and feedback (NaN included):
+        /// no panic, the statusword always shows the state, and a posted
+        /// command always passed the drive's rules.
+        #[test]
+        fn any_sequence(
+            steps in proptest::collection::vec(
+                (any::<u16>(), any::<i8>(), any::<i32>(), any_f32(), any_f32(), any::<bool>()),
+                1..60,
+            )
+        ) {
+            let mut ctx = Fake::new();
+            let mut p = Cia402::new();
+            let mut t = 0u64;
+            for (w, m, target, pos, vel, fault) in steps {
+                t += 700;
+                ctx.fb.position_rad = pos;
+                ctx.fb.velocity_rad_s = vel;
+                if fault && w % 7 == 0 {
+                    ctx.trip(Fault::OverSpeed);
+                }
+                p.targets.position_inc = target;
+                p.targets.velocity_inc_s = target;
+                p.targets.torque_permille = target as i16;
+                let _ = p.write_mode(m, t, &mut ctx);
+                p.write_controlword(w, t, &mut ctx);
+                p.update(t, &mut ctx);
+                if w % 11 == 0 {
+                    p.connection_lost(t, &mut ctx);
+                }
+                prop_assert_eq!(state_of(p.actuals.statusword), Some(p.state()));
+                if let Some(c) = ctx.posted {
+                    let l = ctx.limits;
+                    prop_assert!(c == Command::Disable || c.validate(&l).is_ok(), "{:?}", c);
+                }
+            }
+        }
+    }
+}
