@@ -108,10 +108,15 @@ const RESET: u16 = 0x80;
 impl Bench {
     fn new() -> Self {
         let setup: Setup = emulated_setup();
-        let mut sim = Sim::new_calibrated(&setup, setup.cascade_config(), false);
+        let periods_per_ms = (setup.pwm_hz() / 1000.0).round() as usize;
+        let mut config = setup.cascade_config();
+        // The drive's own command time-out at 3 ms: the profile's posting
+        // at every update must keep it from firing (it would latch
+        // `CommandTimeout` and fail every test below).
+        config.current.command_timeout_periods = 3 * periods_per_ms as u32;
+        let mut sim = Sim::new_calibrated(&setup, config, false);
         let o = setup.bench.sensors.current_offset_a;
         sim.set_current_offsets(Abc::new(o[0] as f32, o[1] as f32, o[2] as f32));
-        let periods_per_ms = (setup.pwm_hz() / 1000.0).round() as usize;
         let mut b = Self {
             drive: Drive { sim },
             p: Cia402::new(),
@@ -162,6 +167,19 @@ impl Bench {
 
 fn rad_s_to_inc_s(w: f32) -> i32 {
     (w / TAU * INC_PER_REV as f32).round() as i32
+}
+
+#[test]
+fn the_drive_times_out_without_updates() {
+    let mut b = Bench::new();
+    b.enable(OpMode::ProfileVelocity);
+    // No update for 5 ms: the drive's own time-out latches.
+    b.drive.sim.run(5 * b.periods_per_ms);
+    let (faults, _) = b.drive.faults();
+    assert!(faults.contains(Fault::CommandTimeout));
+    b.ms(2);
+    assert_eq!(b.p.state(), State::Fault);
+    assert_eq!(b.p.actuals.error_code, 0x8130);
 }
 
 #[test]

@@ -29,7 +29,7 @@ use super::{OpMode, Params, Targets};
 /// Measured on the bench plant (emulated board's motor, updates every
 /// 1 ms, `tests/cia402_plant.rs`): csp along a 1 rev (peak to peak)
 /// sinusoid over 1 s, max |0x60F4|: `Impedance` 255 inc (0.024 rad),
-/// `Velocity` 471 inc, `Position` 65 536 inc (does not follow, see
+/// `Velocity` 469 inc, `Position` 65 536 inc (does not follow, see
 /// there); all three settle to 0 inc after a pp move. Hence the default,
 /// [`Follower::Impedance`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
