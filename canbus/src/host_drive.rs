@@ -70,15 +70,17 @@ pub const FIRMWARE_VERSION: [u8; 3] = [0, 1, 0];
 /// A fault to inject into the plant or its sensors.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum FaultKind {
-    /// `encoder`: the encoder reading freezes (a broken encoder: the
-    /// drive's plausibility checks trip).
+    /// `encoder`: the encoder reading freezes (a broken encoder): at 100
+    /// rad/s the drive latches `AngleSensorStuck` within about 450 periods.
     EncoderStuck,
     /// `short` (or `overcurrent`): a phase-to-phase short A-B at the motor
-    /// terminals through 10 mohm (an over-current).
+    /// terminals through 10 mohm: `OverCurrentPhase` within 2 periods.
     PhaseShort,
-    /// `open-phase`: phase C's lead disconnected.
+    /// `open-phase`: phase C's lead disconnected (the drive has no
+    /// open-phase detection: unloaded, nothing latches).
     OpenPhase,
-    /// `nan-current`: the phase A current channel reads NaN.
+    /// `nan-current`: the phase A current channel reads NaN: `NonFinite`
+    /// at once.
     NanCurrent,
     /// `clear`: every injected fault removed (the drive's latched faults
     /// stay until cleared).
