@@ -68,13 +68,10 @@ impl Client {
     /// Read what is there (waits up to 20 ms).
     pub fn poll(&mut self) {
         let mut buf = [0u8; 4096];
-        match self.stream.read(&mut buf) {
-            Ok(n) => {
-                for &b in &buf[..n] {
-                    self.byte(b);
-                }
+        if let Ok(n) = self.stream.read(&mut buf) {
+            for &b in &buf[..n] {
+                self.byte(b);
             }
-            Err(_) => {}
         }
     }
 
