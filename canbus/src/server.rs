@@ -7,15 +7,18 @@
 //! [`Decoder`] turns bytes into events:
 //!
 //! - a frame (`t`/`r`) from a client whose channel is open goes on the bus
-//!   ([`Bus::send`]); from a closed channel it is refused with BEL (as an
-//!   adapter refuses to transmit while closed); a 29-bit frame is ignored;
-//! - `O` / `L` open the channel (the first client to open gets the frames
+//!   ([`Bus::send`]); from a closed or listen-only channel it is refused
+//!   with BEL (as an adapter refuses to transmit then); a 29-bit frame is
+//!   ignored;
+//! - `O` / `L` (listen-only) open the channel (the first client to open gets the frames
 //!   the bus kept since boot: see [`crate::bus`]), `C` closes it; the
 //!   answer is `\r`; `V` answers [`VERSION`], `v` [`VERSION`] too, `N`
 //!   [`SERIAL`], `F` `F00`; every other command `\r` (bit rates,
 //!   timestamps, filters are accepted and have no effect: the bus has no
 //!   bit timing);
-//! - a malformed line is answered with BEL and otherwise ignored;
+//! - a malformed line is answered with BEL and otherwise ignored; an
+//!   empty line (python-can sends one for "no data bit rate") gets no
+//!   answer;
 //! - a client that disconnects (or cannot be written to for
 //!   [`WRITE_TIMEOUT`]) is detached; nothing else changes.
 //!
@@ -66,6 +69,8 @@ struct Conn {
     stream: TcpStream,
     decoder: Decoder,
     kind: PortKind,
+    /// Opened with `L`: receives, may not send.
+    listen_only: bool,
     /// Bytes to write once the current message is handled.
     pending: Vec<u8>,
 }
@@ -236,6 +241,7 @@ fn bus_loop(mut bus: Bus, rx: Receiver<Msg>, stop: Arc<AtomicBool>) {
                         stream,
                         decoder: Decoder::new(),
                         kind,
+                        listen_only: false,
                         pending: Vec::new(),
                     },
                 );
@@ -275,12 +281,12 @@ fn bus_loop(mut bus: Bus, rx: Receiver<Msg>, stop: Arc<AtomicBool>) {
 
 /// One decoded event of connection `id`.
 fn handle_event(bus: &mut Bus, conns: &mut BTreeMap<PortId, Conn>, id: PortId, ev: Event) {
-    let Some(kind) = conns.get(&id).map(|c| c.kind) else {
+    let Some((kind, listen_only)) = conns.get(&id).map(|c| (c.kind, c.listen_only)) else {
         return;
     };
     let reply: &[u8] = match (kind, ev) {
         (_, Event::Frame(f)) => {
-            if bus.port_open(id) {
+            if bus.port_open(id) && !listen_only {
                 bus.send(Origin::Port(id), f);
                 &[]
             } else {
@@ -299,6 +305,11 @@ fn handle_event(bus: &mut Bus, conns: &mut BTreeMap<PortId, Conn>, id: PortId, e
             let mut line = [0u8; 8];
             let n = encode_reply(cmd, VERSION, SERIAL, 0, &mut line);
             if let Some(c) = conns.get_mut(&id) {
+                match cmd {
+                    Cmd::Open | Cmd::Close => c.listen_only = false,
+                    Cmd::ListenOnly => c.listen_only = true,
+                    _ => {}
+                }
                 c.pending.extend_from_slice(line.get(..n).unwrap_or(&[OK]));
             }
             &[]
