@@ -53,13 +53,13 @@
 use foc_canopen::CanFrame;
 use std::collections::VecDeque;
 
-/// Default communication cycle period [us].
+/// Default communication cycle period \[us\].
 pub const DEFAULT_CYCLE_US: u32 = 1000;
 /// COB-ID of the SYNC frame.
 pub const SYNC_ID: u16 = 0x080;
 /// Frames kept for the first client (boot-up messages and what follows).
 pub const BACKLOG: usize = 4096;
-/// Longest bus time one tick step covers [us].
+/// Longest bus time one tick step covers \[us\].
 pub const TICK_US: u64 = 1000;
 
 /// A node's CAN controller state.
@@ -74,7 +74,7 @@ pub enum BusState {
 }
 
 /// A node hosted on the bus: a CANopen node with its drive. Every method
-/// gets the bus time [us] and an `out` to send frames with (delivered
+/// gets the bus time \[us\] and an `out` to send frames with (delivered
 /// after the call returns, in the order sent).
 ///
 /// The real one is [`crate::drive_node::DriveNode`] (the drive with a
@@ -126,7 +126,7 @@ pub enum Origin {
 /// One frame on the bus, as traced.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct TraceEntry {
-    /// Bus time [us].
+    /// Bus time \[us\].
     pub time_us: u64,
     /// Sender.
     pub origin: Origin,
@@ -136,7 +136,7 @@ pub struct TraceEntry {
 
 struct Hosted {
     node: Box<dyn BusNode>,
-    /// Bus-off until this bus time [us].
+    /// Bus-off until this bus time \[us\].
     bus_off_until: Option<u64>,
 }
 
@@ -161,7 +161,7 @@ pub struct Bus {
 }
 
 impl Bus {
-    /// An empty bus at time 0 with this communication cycle period [us]
+    /// An empty bus at time 0 with this communication cycle period \[us\]
     /// (0 is taken as [`DEFAULT_CYCLE_US`]).
     pub fn new(cycle_us: u32) -> Self {
         Self {
@@ -191,12 +191,12 @@ impl Bus {
         self.trace.as_deref().unwrap_or(&[])
     }
 
-    /// Bus time [us].
+    /// Bus time \[us\].
     pub fn now_us(&self) -> u64 {
         self.now_us
     }
 
-    /// The communication cycle period a SYNC advances the bus by [us].
+    /// The communication cycle period a SYNC advances the bus by \[us\].
     pub fn cycle_us(&self) -> u32 {
         self.cycle_us
     }

@@ -7,14 +7,14 @@
 //! | every `heartbeat_ms` of bus time | heartbeat `0x700+id [state]` |
 //! | NMT `0x000 [cs, id or 0]` | nothing; state 0x05 (start `0x01`), 0x04 (stop `0x02`), 0x7F (pre-op `0x80`); `0x81`/`0x82` reboot (boot-up again) |
 //! | a frame to `0x600+id` | echo of its data on `0x580+id` |
-//! | SYNC `0x080` | `0x180+id`: bus time [us] (u32 LE), PWM periods run (u32 LE) |
+//! | SYNC `0x080` | `0x180+id`: bus time \[us\] (u32 LE), PWM periods run (u32 LE) |
 //! | bus state change | `0x080+id [0x00, 0x81, state]` (EMCY-like, on recovery only: nothing gets out while bus-off) |
 //! | a fault injected | `0x080+id [0x10, 0x00, 0x01]` at the next tick |
 
 use crate::bus::{BusNode, BusState};
 use foc_canopen::CanFrame;
 
-/// PWM frequency the fake drive "runs" at [Hz] (counted in its TPDO).
+/// PWM frequency the fake drive "runs" at \[Hz\] (counted in its TPDO).
 pub const FAKE_PWM_HZ: u64 = 20_000;
 
 /// PWM periods between bus times `from_us` and `to_us` at `pwm_hz`:
@@ -29,7 +29,7 @@ pub fn periods_between(from_us: u64, to_us: u64, pwm_hz: u64) -> u64 {
 #[derive(Clone, Debug)]
 pub struct FakeNode {
     id: u8,
-    /// Heartbeat period [ms] (0: none).
+    /// Heartbeat period \[ms\] (0: none).
     pub heartbeat_ms: u64,
     state: u8,
     periods: u64,

@@ -61,7 +61,7 @@ pub type DriveFlash = FakeFlash<4, 1024, 4>;
 /// The store's region of [`DriveFlash`] (all of it).
 const STORE_RANGE: core::ops::Range<u32> = 0..4096;
 
-/// Current limit of the emulated board [A] (limits above it are refused).
+/// Current limit of the emulated board \[A\] (limits above it are refused).
 pub const MAX_CURRENT_A: f32 = foc_bench::scope_step::MAX_CURRENT_A;
 
 /// Version reported by the host drive.
@@ -202,8 +202,9 @@ impl HostDrive {
         self.power_on();
     }
 
-    /// The raw flash (e.g. to build another drive on a copy).
-    pub fn flash(&mut self) -> Option<DriveFlash> {
+    /// A copy of the raw flash (e.g. to build another drive on it with
+    /// [`Self::with_flash`]); `None` if the store is unusable.
+    pub fn flash_copy(&mut self) -> Option<DriveFlash> {
         let s = self.store.take()?;
         let f = s.into_flash();
         self.store = Store::new(f.clone(), STORE_RANGE).ok();
@@ -223,7 +224,7 @@ impl HostDrive {
         self.periods
     }
 
-    /// PWM frequency [Hz].
+    /// PWM frequency \[Hz\].
     pub fn pwm_hz(&self) -> u32 {
         self.setup.bench.pwm_frequency_hz as u32
     }

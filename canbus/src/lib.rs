@@ -68,7 +68,7 @@ pub struct Options {
     pub first_id: u8,
     /// The node hosted.
     pub node: NodeKind,
-    /// Communication cycle period a SYNC advances the bus by [us].
+    /// Communication cycle period a SYNC advances the bus by \[us\].
     pub cycle_us: u32,
     /// TCP port on 127.0.0.1 (0: any free one).
     pub port: u16,

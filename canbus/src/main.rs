@@ -32,7 +32,7 @@ struct Args {
     /// TCP port on 127.0.0.1 (0: any free one).
     #[arg(long, default_value_t = 0)]
     port: u16,
-    /// Communication cycle period a SYNC advances the bus by [us].
+    /// Communication cycle period a SYNC advances the bus by \[us\].
     #[arg(long, default_value_t = 1000)]
     cycle_us: u32,
     /// The hosted node.
