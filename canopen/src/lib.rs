@@ -11,6 +11,7 @@
 pub mod abort;
 pub mod cia402;
 pub mod frame;
+pub mod slcan;
 
 pub use abort::Abort;
 pub use frame::CanFrame;
