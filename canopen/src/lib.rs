@@ -14,3 +14,6 @@ pub mod frame;
 
 pub use abort::Abort;
 pub use frame::CanFrame;
+pub mod od;
+pub mod emcy;
+pub mod profile;
