@@ -17,3 +17,6 @@ pub use frame::CanFrame;
 pub mod od;
 pub mod emcy;
 pub mod profile;
+pub mod nmt;
+pub mod sdo;
+pub mod pdo;

@@ -19,6 +19,7 @@
 mod table;
 
 pub use table::OBJECTS;
+pub(crate) use table::{RPDO_DEFAULT, TPDO_DEFAULT};
 
 use crate::Abort;
 
