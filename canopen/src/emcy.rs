@@ -185,7 +185,13 @@ impl Emcy {
     /// A communication error (heartbeat, bus-off, PDO length): sets its
     /// register bits while `latched` (cleared by [`Self::clear_comm`]) and
     /// sends its EMCY.
-    pub fn comm_error(&mut self, cob_id: u16, code: u16, latched: bool, out: &mut dyn FnMut(CanFrame)) {
+    pub fn comm_error(
+        &mut self,
+        cob_id: u16,
+        code: u16,
+        latched: bool,
+        out: &mut dyn FnMut(CanFrame),
+    ) {
         if latched {
             self.comm_bits |= register_bits(code);
         }

@@ -14,9 +14,10 @@ pub mod frame;
 
 pub use abort::Abort;
 pub use frame::CanFrame;
-pub mod od;
 pub mod emcy;
-pub mod profile;
 pub mod nmt;
-pub mod sdo;
+pub mod node;
+pub mod od;
 pub mod pdo;
+pub mod profile;
+pub mod sdo;

@@ -35,7 +35,12 @@ pub trait Profile {
     /// Write 0x6040.
     fn write_controlword<C: DeviceContext>(&mut self, cw: u16, now_us: u64, ctx: &mut C);
     /// Write 0x6060.
-    fn write_mode<C: DeviceContext>(&mut self, mode: i8, now_us: u64, ctx: &mut C) -> Result<(), Abort>;
+    fn write_mode<C: DeviceContext>(
+        &mut self,
+        mode: i8,
+        now_us: u64,
+        ctx: &mut C,
+    ) -> Result<(), Abort>;
     /// Check a whole parameter set.
     fn check_params(&self, p: &Params) -> Result<(), Abort>;
     /// Step the profile (SYNC and tick).
@@ -74,7 +79,12 @@ impl Profile for Cia402 {
     fn write_controlword<C: DeviceContext>(&mut self, cw: u16, now_us: u64, ctx: &mut C) {
         Cia402::write_controlword(self, cw, now_us, ctx)
     }
-    fn write_mode<C: DeviceContext>(&mut self, mode: i8, now_us: u64, ctx: &mut C) -> Result<(), Abort> {
+    fn write_mode<C: DeviceContext>(
+        &mut self,
+        mode: i8,
+        now_us: u64,
+        ctx: &mut C,
+    ) -> Result<(), Abort> {
         Cia402::write_mode(self, mode, now_us, ctx)
     }
     fn check_params(&self, p: &Params) -> Result<(), Abort> {

@@ -105,10 +105,16 @@ impl SdoServer {
         let (index, sub, last) = match self.transfer {
             Transfer::Idle => return None,
             Transfer::Download {
-                index, sub, last_us, ..
+                index,
+                sub,
+                last_us,
+                ..
             }
             | Transfer::Upload {
-                index, sub, last_us, ..
+                index,
+                sub,
+                last_us,
+                ..
             } => (index, sub, last_us),
         };
         if now_us.saturating_sub(last) >= TIMEOUT_US {

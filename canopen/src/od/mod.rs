@@ -213,7 +213,11 @@ pub fn lookup(index: u16, sub: u8) -> Result<&'static ObjectDef, Abort> {
             }
         }
     }
-    Err(if any { Abort::NoSubIndex } else { Abort::NoObject })
+    Err(if any {
+        Abort::NoSubIndex
+    } else {
+        Abort::NoObject
+    })
 }
 
 /// The definition of `index`/`sub`, if any.

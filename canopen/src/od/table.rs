@@ -130,8 +130,26 @@ impl Builder {
         let o = RPDO_COMM[n as usize];
         let k = Kind::Record(2);
         self.head(i, o, k, Const)
-            .sub(i, 1, o, "COB-ID used by RPDO", k, Unsigned32, Rw, Default::NodeId(0x200 + 0x100 * n as u32))
-            .sub(i, 2, o, "Transmission type", k, Unsigned8, Rw, Default::Int(255))
+            .sub(
+                i,
+                1,
+                o,
+                "COB-ID used by RPDO",
+                k,
+                Unsigned32,
+                Rw,
+                Default::NodeId(0x200 + 0x100 * n as u32),
+            )
+            .sub(
+                i,
+                2,
+                o,
+                "Transmission type",
+                k,
+                Unsigned8,
+                Rw,
+                Default::Int(255),
+            )
     }
 
     /// TPDO `n` (0..4) communication parameters (sub 4 reserved).
@@ -140,8 +158,26 @@ impl Builder {
         let o = TPDO_COMM[n as usize];
         let k = Kind::Record(5);
         self.head(i, o, k, Const)
-            .sub(i, 1, o, "COB-ID used by TPDO", k, Unsigned32, Rw, Default::NodeId(0x180 + 0x100 * n as u32))
-            .sub(i, 2, o, "Transmission type", k, Unsigned8, Rw, Default::Int(255))
+            .sub(
+                i,
+                1,
+                o,
+                "COB-ID used by TPDO",
+                k,
+                Unsigned32,
+                Rw,
+                Default::NodeId(0x180 + 0x100 * n as u32),
+            )
+            .sub(
+                i,
+                2,
+                o,
+                "Transmission type",
+                k,
+                Unsigned8,
+                Rw,
+                Default::Int(255),
+            )
             .sub(i, 3, o, "Inhibit time", k, Unsigned16, Rw, Default::Int(0))
             .sub(i, 5, o, "Event timer", k, Unsigned16, Rw, Default::Int(0))
     }
@@ -164,7 +200,16 @@ impl Builder {
         let mut s = 0;
         while s < 8 {
             let d = if s < default.len() { default[s] } else { 0 };
-            self = self.sub(index, s as u8 + 1, object, MAPPED[s], k, Unsigned32, Rw, Default::Int(d as i64));
+            self = self.sub(
+                index,
+                s as u8 + 1,
+                object,
+                MAPPED[s],
+                k,
+                Unsigned32,
+                Rw,
+                Default::Int(d as i64),
+            );
             s += 1;
         }
         self
@@ -250,8 +295,24 @@ const fn build() -> Builder {
         n: 0,
     };
     b = b
-        .var(0x1000, "Device type", Unsigned32, Const, false, None, Default::Int(0x0002_0192))
-        .var(0x1001, "Error register", Unsigned8, Ro, true, None, Default::Int(0));
+        .var(
+            0x1000,
+            "Device type",
+            Unsigned32,
+            Const,
+            false,
+            None,
+            Default::Int(0x0002_0192),
+        )
+        .var(
+            0x1001,
+            "Error register",
+            Unsigned8,
+            Ro,
+            true,
+            None,
+            Default::Int(0),
+        );
     let pef = "Pre-defined error field";
     let k = Kind::Array(8);
     b = b.push(ObjectDef {
@@ -268,34 +329,162 @@ const fn build() -> Builder {
     });
     let mut s = 0;
     while s < 8 {
-        b = b.sub(0x1003, s as u8 + 1, pef, ERRORS[s], k, Unsigned32, Ro, Default::Int(0));
+        b = b.sub(
+            0x1003,
+            s as u8 + 1,
+            pef,
+            ERRORS[s],
+            k,
+            Unsigned32,
+            Ro,
+            Default::Int(0),
+        );
         s += 1;
     }
     b = b
-        .var(0x1005, "COB-ID SYNC", Unsigned32, Rw, false, None, Default::Int(0x80))
-        .var(0x1006, "Communication cycle period", Unsigned32, Rw, false, None, Default::Int(1000))
-        .var(0x1008, "Manufacturer device name", VisibleString, Const, false, None, Default::Device)
-        .var(0x1009, "Manufacturer hardware version", VisibleString, Const, false, None, Default::Device)
-        .var(0x100A, "Manufacturer software version", VisibleString, Const, false, None, Default::Device);
+        .var(
+            0x1005,
+            "COB-ID SYNC",
+            Unsigned32,
+            Rw,
+            false,
+            None,
+            Default::Int(0x80),
+        )
+        .var(
+            0x1006,
+            "Communication cycle period",
+            Unsigned32,
+            Rw,
+            false,
+            None,
+            Default::Int(1000),
+        )
+        .var(
+            0x1008,
+            "Manufacturer device name",
+            VisibleString,
+            Const,
+            false,
+            None,
+            Default::Device,
+        )
+        .var(
+            0x1009,
+            "Manufacturer hardware version",
+            VisibleString,
+            Const,
+            false,
+            None,
+            Default::Device,
+        )
+        .var(
+            0x100A,
+            "Manufacturer software version",
+            VisibleString,
+            Const,
+            false,
+            None,
+            Default::Device,
+        );
     let (o, k) = ("Store parameters", Kind::Array(1));
-    b = b.head(0x1010, o, k, Const).sub(0x1010, 1, o, "Save all parameters", k, Unsigned32, Rw, Default::Int(1));
+    b = b.head(0x1010, o, k, Const).sub(
+        0x1010,
+        1,
+        o,
+        "Save all parameters",
+        k,
+        Unsigned32,
+        Rw,
+        Default::Int(1),
+    );
     let o = "Restore default parameters";
     b = b
         .head(0x1011, o, k, Const)
-        .sub(0x1011, 1, o, "Restore all default parameters", k, Unsigned32, Rw, Default::Int(1))
-        .var(0x1014, "COB-ID EMCY", Unsigned32, Ro, false, None, Default::NodeId(0x80));
+        .sub(
+            0x1011,
+            1,
+            o,
+            "Restore all default parameters",
+            k,
+            Unsigned32,
+            Rw,
+            Default::Int(1),
+        )
+        .var(
+            0x1014,
+            "COB-ID EMCY",
+            Unsigned32,
+            Ro,
+            false,
+            None,
+            Default::NodeId(0x80),
+        );
     let o = "Consumer heartbeat time";
     b = b
         .head(0x1016, o, k, Const)
-        .sub(0x1016, 1, o, "Consumer heartbeat time 1", k, Unsigned32, Rw, Default::Int(0))
-        .var(0x1017, "Producer heartbeat time", Unsigned16, Rw, false, None, Default::Int(100));
+        .sub(
+            0x1016,
+            1,
+            o,
+            "Consumer heartbeat time 1",
+            k,
+            Unsigned32,
+            Rw,
+            Default::Int(0),
+        )
+        .var(
+            0x1017,
+            "Producer heartbeat time",
+            Unsigned16,
+            Rw,
+            false,
+            None,
+            Default::Int(100),
+        );
     let (o, k) = ("Identity object", Kind::Record(4));
     b = b
         .head(0x1018, o, k, Const)
-        .sub(0x1018, 1, o, "Vendor-ID", k, Unsigned32, Ro, Default::Device)
-        .sub(0x1018, 2, o, "Product code", k, Unsigned32, Ro, Default::Device)
-        .sub(0x1018, 3, o, "Revision number", k, Unsigned32, Ro, Default::Device)
-        .sub(0x1018, 4, o, "Serial number", k, Unsigned32, Ro, Default::Device);
+        .sub(
+            0x1018,
+            1,
+            o,
+            "Vendor-ID",
+            k,
+            Unsigned32,
+            Ro,
+            Default::Device,
+        )
+        .sub(
+            0x1018,
+            2,
+            o,
+            "Product code",
+            k,
+            Unsigned32,
+            Ro,
+            Default::Device,
+        )
+        .sub(
+            0x1018,
+            3,
+            o,
+            "Revision number",
+            k,
+            Unsigned32,
+            Ro,
+            Default::Device,
+        )
+        .sub(
+            0x1018,
+            4,
+            o,
+            "Serial number",
+            k,
+            Unsigned32,
+            Ro,
+            Default::Device,
+        );
     b = b.rpdo_comm(0).rpdo_comm(1).rpdo_comm(2).rpdo_comm(3);
     let mut n = 0;
     while n < 4 {
@@ -320,58 +509,336 @@ const fn build() -> Builder {
         .p(0x2006, "Firmware version", Unsigned32, Ro, false, d)
         .p(0x2010, "Current loop kp [V per A]", Real32, Ro, false, d)
         .p(0x2011, "Current loop ki [V per A s]", Real32, Ro, false, d)
-        .p(0x2012, "Speed loop kp [A per rad per s]", Real32, Rw, false, d)
+        .p(
+            0x2012,
+            "Speed loop kp [A per rad per s]",
+            Real32,
+            Rw,
+            false,
+            d,
+        )
         .p(0x2013, "Speed loop ki [A per rad]", Real32, Rw, false, d)
         .p(0x2014, "Position loop kp [1 per s]", Real32, Ro, false, d)
-        .var(0x2100, "CAN node id", Unsigned8, Rw, false, Some((1, 127)), Default::Int(1))
-        .var(0x2101, "CAN bit rate [kbit per s]", Unsigned16, Rw, false, Some((125, 1000)), Default::Int(500));
+        .var(
+            0x2100,
+            "CAN node id",
+            Unsigned8,
+            Rw,
+            false,
+            Some((1, 127)),
+            Default::Int(1),
+        )
+        .var(
+            0x2101,
+            "CAN bit rate [kbit per s]",
+            Unsigned16,
+            Rw,
+            false,
+            Some((125, 1000)),
+            Default::Int(500),
+        );
     // CiA 402.
     b = b
-        .var(0x6007, "Abort connection option code", Integer16, Rw, false, Some((0, 3)), Default::Int(1))
+        .var(
+            0x6007,
+            "Abort connection option code",
+            Integer16,
+            Rw,
+            false,
+            Some((0, 3)),
+            Default::Int(1),
+        )
         .p(0x603F, "Error code", Unsigned16, Ro, true, Default::Int(0))
         .p(0x6040, "Controlword", Unsigned16, Rw, true, Default::Int(0))
         .p(0x6041, "Statusword", Unsigned16, Ro, true, Default::Int(0))
-        .var(0x605A, "Quick stop option code", Integer16, Rw, false, Some((0, 8)), Default::Int(2))
-        .p(0x6060, "Modes of operation", Integer8, Rw, true, Default::Int(0))
-        .p(0x6061, "Modes of operation display", Integer8, Ro, true, Default::Int(0))
-        .p(0x6062, "Position demand value", Integer32, Ro, true, Default::Int(0))
-        .p(0x6064, "Position actual value", Integer32, Ro, true, Default::Int(0))
-        .p(0x6065, "Following error window", Unsigned32, Rw, false, Default::Int(INC_PER_REV as i64 / 4))
-        .p(0x6066, "Following error time out", Unsigned16, Rw, false, Default::Int(100))
-        .p(0x6067, "Position window", Unsigned32, Rw, false, Default::Int(100))
-        .p(0x6068, "Position window time", Unsigned16, Rw, false, Default::Int(10))
-        .p(0x606B, "Velocity demand value", Integer32, Ro, true, Default::Int(0))
-        .p(0x606C, "Velocity actual value", Integer32, Ro, true, Default::Int(0))
-        .p(0x606D, "Velocity window", Unsigned16, Rw, false, Default::Int(1000))
-        .p(0x606E, "Velocity window time", Unsigned16, Rw, false, Default::Int(10))
-        .p(0x6071, "Target torque", Integer16, Rw, true, Default::Int(0))
-        .p(0x6072, "Max torque", Unsigned16, Rw, false, Default::Int(1000))
+        .var(
+            0x605A,
+            "Quick stop option code",
+            Integer16,
+            Rw,
+            false,
+            Some((0, 8)),
+            Default::Int(2),
+        )
+        .p(
+            0x6060,
+            "Modes of operation",
+            Integer8,
+            Rw,
+            true,
+            Default::Int(0),
+        )
+        .p(
+            0x6061,
+            "Modes of operation display",
+            Integer8,
+            Ro,
+            true,
+            Default::Int(0),
+        )
+        .p(
+            0x6062,
+            "Position demand value",
+            Integer32,
+            Ro,
+            true,
+            Default::Int(0),
+        )
+        .p(
+            0x6064,
+            "Position actual value",
+            Integer32,
+            Ro,
+            true,
+            Default::Int(0),
+        )
+        .p(
+            0x6065,
+            "Following error window",
+            Unsigned32,
+            Rw,
+            false,
+            Default::Int(INC_PER_REV as i64 / 4),
+        )
+        .p(
+            0x6066,
+            "Following error time out",
+            Unsigned16,
+            Rw,
+            false,
+            Default::Int(100),
+        )
+        .p(
+            0x6067,
+            "Position window",
+            Unsigned32,
+            Rw,
+            false,
+            Default::Int(100),
+        )
+        .p(
+            0x6068,
+            "Position window time",
+            Unsigned16,
+            Rw,
+            false,
+            Default::Int(10),
+        )
+        .p(
+            0x606B,
+            "Velocity demand value",
+            Integer32,
+            Ro,
+            true,
+            Default::Int(0),
+        )
+        .p(
+            0x606C,
+            "Velocity actual value",
+            Integer32,
+            Ro,
+            true,
+            Default::Int(0),
+        )
+        .p(
+            0x606D,
+            "Velocity window",
+            Unsigned16,
+            Rw,
+            false,
+            Default::Int(1000),
+        )
+        .p(
+            0x606E,
+            "Velocity window time",
+            Unsigned16,
+            Rw,
+            false,
+            Default::Int(10),
+        )
+        .p(
+            0x6071,
+            "Target torque",
+            Integer16,
+            Rw,
+            true,
+            Default::Int(0),
+        )
+        .p(
+            0x6072,
+            "Max torque",
+            Unsigned16,
+            Rw,
+            false,
+            Default::Int(1000),
+        )
         .p(0x6075, "Motor rated current", Unsigned32, Ro, false, d)
         .p(0x6076, "Motor rated torque", Unsigned32, Ro, false, d)
-        .p(0x6077, "Torque actual value", Integer16, Ro, true, Default::Int(0))
-        .p(0x6078, "Current actual value", Integer16, Ro, true, Default::Int(0))
-        .p(0x6079, "DC link circuit voltage", Unsigned32, Ro, true, Default::Int(0))
-        .p(0x607A, "Target position", Integer32, Rw, true, Default::Int(0))
-        .p(0x607F, "Max profile velocity", Unsigned32, Rw, false, Default::Int(10 * INC_PER_REV as i64))
-        .p(0x6081, "Profile velocity", Unsigned32, Rw, false, Default::Int(INC_PER_REV as i64))
-        .p(0x6083, "Profile acceleration", Unsigned32, Rw, false, Default::Int(10 * INC_PER_REV as i64))
-        .p(0x6084, "Profile deceleration", Unsigned32, Rw, false, Default::Int(10 * INC_PER_REV as i64))
-        .p(0x6085, "Quick stop deceleration", Unsigned32, Rw, false, Default::Int(100 * INC_PER_REV as i64))
-        .p(0x6087, "Torque slope", Unsigned32, Rw, false, Default::Int(10_000));
+        .p(
+            0x6077,
+            "Torque actual value",
+            Integer16,
+            Ro,
+            true,
+            Default::Int(0),
+        )
+        .p(
+            0x6078,
+            "Current actual value",
+            Integer16,
+            Ro,
+            true,
+            Default::Int(0),
+        )
+        .p(
+            0x6079,
+            "DC link circuit voltage",
+            Unsigned32,
+            Ro,
+            true,
+            Default::Int(0),
+        )
+        .p(
+            0x607A,
+            "Target position",
+            Integer32,
+            Rw,
+            true,
+            Default::Int(0),
+        )
+        .p(
+            0x607F,
+            "Max profile velocity",
+            Unsigned32,
+            Rw,
+            false,
+            Default::Int(10 * INC_PER_REV as i64),
+        )
+        .p(
+            0x6081,
+            "Profile velocity",
+            Unsigned32,
+            Rw,
+            false,
+            Default::Int(INC_PER_REV as i64),
+        )
+        .p(
+            0x6083,
+            "Profile acceleration",
+            Unsigned32,
+            Rw,
+            false,
+            Default::Int(10 * INC_PER_REV as i64),
+        )
+        .p(
+            0x6084,
+            "Profile deceleration",
+            Unsigned32,
+            Rw,
+            false,
+            Default::Int(10 * INC_PER_REV as i64),
+        )
+        .p(
+            0x6085,
+            "Quick stop deceleration",
+            Unsigned32,
+            Rw,
+            false,
+            Default::Int(100 * INC_PER_REV as i64),
+        )
+        .p(
+            0x6087,
+            "Torque slope",
+            Unsigned32,
+            Rw,
+            false,
+            Default::Int(10_000),
+        );
     let (o, k) = ("Position encoder resolution", Kind::Array(2));
     b = b
         .head(0x608F, o, k, Const)
-        .sub(0x608F, 1, o, "Encoder increments", k, Unsigned32, Const, Default::Int(INC_PER_REV as i64))
-        .sub(0x608F, 2, o, "Motor revolutions", k, Unsigned32, Const, Default::Int(1))
-        .p(0x60B1, "Velocity offset", Integer32, Rw, true, Default::Int(0))
-        .p(0x60B2, "Torque offset", Integer16, Rw, true, Default::Int(0));
+        .sub(
+            0x608F,
+            1,
+            o,
+            "Encoder increments",
+            k,
+            Unsigned32,
+            Const,
+            Default::Int(INC_PER_REV as i64),
+        )
+        .sub(
+            0x608F,
+            2,
+            o,
+            "Motor revolutions",
+            k,
+            Unsigned32,
+            Const,
+            Default::Int(1),
+        )
+        .p(
+            0x60B1,
+            "Velocity offset",
+            Integer32,
+            Rw,
+            true,
+            Default::Int(0),
+        )
+        .p(
+            0x60B2,
+            "Torque offset",
+            Integer16,
+            Rw,
+            true,
+            Default::Int(0),
+        );
     let (o, k) = ("Interpolation time period", Kind::Record(2));
     b = b
         .head(0x60C2, o, k, Const)
-        .sub(0x60C2, 1, o, "Interpolation time period value", k, Unsigned8, Ro, Default::Int(1))
-        .sub(0x60C2, 2, o, "Interpolation time index", k, Integer8, Ro, Default::Int(-3))
-        .p(0x60F4, "Following error actual value", Integer32, Ro, true, Default::Int(0))
-        .p(0x60FF, "Target velocity", Integer32, Rw, true, Default::Int(0))
-        .p(0x6502, "Supported drive modes", Unsigned32, Const, false, Default::Int(OpMode::SUPPORTED_MASK as i64));
+        .sub(
+            0x60C2,
+            1,
+            o,
+            "Interpolation time period value",
+            k,
+            Unsigned8,
+            Ro,
+            Default::Int(1),
+        )
+        .sub(
+            0x60C2,
+            2,
+            o,
+            "Interpolation time index",
+            k,
+            Integer8,
+            Ro,
+            Default::Int(-3),
+        )
+        .p(
+            0x60F4,
+            "Following error actual value",
+            Integer32,
+            Ro,
+            true,
+            Default::Int(0),
+        )
+        .p(
+            0x60FF,
+            "Target velocity",
+            Integer32,
+            Rw,
+            true,
+            Default::Int(0),
+        )
+        .p(
+            0x6502,
+            "Supported drive modes",
+            Unsigned32,
+            Const,
+            false,
+            Default::Int(OpMode::SUPPORTED_MASK as i64),
+        );
     b
 }
