@@ -14,6 +14,7 @@ pub mod frame;
 
 pub use abort::Abort;
 pub use frame::CanFrame;
+pub mod eds;
 pub mod emcy;
 pub mod nmt;
 pub mod node;
