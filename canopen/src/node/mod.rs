@@ -248,6 +248,13 @@ impl<P: Profile> Node<P> {
         &self.dict.profile
     }
 
+    /// Replace the profile (tests and simulators that drive a fake
+    /// profile from outside).
+    #[doc(hidden)]
+    pub fn replace_profile_for_test(&mut self, p: P) {
+        self.dict.profile = p;
+    }
+
     /// The settings in force.
     pub fn settings(&self) -> &CommSettings {
         &self.settings
