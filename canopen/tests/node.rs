@@ -117,10 +117,7 @@ fn expedited_and_segmented_download() {
         [0x60, 0x81, 0x60, 0, 0, 0, 0, 0]
     );
     // 4 bytes, 3 unused, last.
-    assert_eq!(
-        b.sdo([0x00 | (3 << 1) | 1, 0x10, 0x27, 0, 0, 0, 0, 0])[0],
-        0x20
-    );
+    assert_eq!(b.sdo([(3 << 1) | 1, 0x10, 0x27, 0, 0, 0, 0, 0])[0], 0x20);
     assert_eq!(b.read_u32(0x6081, 0), 10_000);
     // Segmented in two segments with toggles, size 2 into 0x1017.
     assert_eq!(b.sdo([0x21, 0x17, 0x10, 0, 2, 0, 0, 0])[0], 0x60);

@@ -276,6 +276,9 @@ impl CanDevice for FakeDevice {
 
 pub const ID: u8 = 5;
 
+/// Every object's value or abort.
+pub type Snapshot = Vec<(u16, u8, Result<Vec<u8>, Abort>)>;
+
 /// A bench: node, device, the frames sent, the time.
 pub struct Bench {
     pub node: Node<FakeProfile>,
@@ -398,7 +401,7 @@ impl Bench {
     }
     /// Every readable object's value (or abort), through the node's own
     /// read (no SDO traffic, no side effect).
-    pub fn snapshot(&self) -> Vec<(u16, u8, Result<Vec<u8>, Abort>)> {
+    pub fn snapshot(&self) -> Snapshot {
         OBJECTS
             .iter()
             .map(|d| {
@@ -413,14 +416,7 @@ impl Bench {
             .collect()
     }
     /// Everything that must not change after a refused request.
-    pub fn state(
-        &self,
-    ) -> (
-        Vec<(u16, u8, Result<Vec<u8>, Abort>)>,
-        FakeProfile,
-        u32,
-        usize,
-    ) {
+    pub fn state(&self) -> (Snapshot, FakeProfile, u32, usize) {
         (
             self.snapshot(),
             self.node.cia402().clone(),
