@@ -230,3 +230,61 @@ impl Default for HeartbeatConsumer {
         Self::new()
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn producer_does_not_burst_after_a_stall() {
+        let mut p = HeartbeatProducer::new();
+        p.restart(100, 0);
+        assert!(!p.poll(99_999));
+        assert!(p.poll(100_000));
+        // Stalled for a second: one beat, then one period on.
+        assert!(p.poll(1_100_000));
+        assert!(!p.poll(1_150_000));
+        assert!(p.poll(1_200_000));
+    }
+
+    #[test]
+    fn consumer_ignores_other_nodes_and_restarts_on_a_new_entry() {
+        let mut c = HeartbeatConsumer::new();
+        c.configure((1 << 16) | 50);
+        assert_eq!(c.poll(10_000_000), None, "not before the first heartbeat");
+        assert_eq!(c.on_heartbeat(2, 0), None);
+        assert_eq!(c.poll(10_000_000), None);
+        assert_eq!(c.on_heartbeat(1, 0), None);
+        assert_eq!(c.poll(50_000), None);
+        assert_eq!(c.poll(50_001), Some(ConsumerEvent::Lost));
+        assert!(c.expired());
+        c.configure((1 << 16) | 60);
+        assert!(!c.expired());
+        assert_eq!(c.poll(1_000_000), None);
+        assert_eq!(HeartbeatConsumer::decode(0x0080_0010), None, "node 128");
+        assert_eq!(HeartbeatConsumer::decode(0x0001_0000), None, "time 0");
+    }
+
+    #[test]
+    fn commands_and_transitions() {
+        assert_eq!(
+            NmtCommand::parse(&[0x81, 0], 3),
+            Some(NmtCommand::ResetNode)
+        );
+        assert_eq!(
+            NmtCommand::parse(&[0x82, 3], 3),
+            Some(NmtCommand::ResetCommunication)
+        );
+        assert_eq!(NmtCommand::parse(&[0x02], 3), None);
+        assert_eq!(
+            NmtCommand::Stop.next(NmtState::Operational),
+            NmtState::Stopped
+        );
+        assert_eq!(
+            NmtCommand::Start.next(NmtState::Initialising),
+            NmtState::Initialising
+        );
+        assert!(!NmtState::Stopped.sdo());
+        assert!(!NmtState::PreOperational.pdo());
+    }
+}

@@ -222,3 +222,59 @@ pub fn check_entry(entry: u32, rx: bool) -> Result<&'static ObjectDef, Abort> {
     }
     Ok(def)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn cob_id_rules() {
+        let t = PdoConfig::tpdo_default(0, 5);
+        assert_eq!(t.with_comm(false, 1, 0x186), Err(Abort::InvalidValue));
+        assert_eq!(
+            t.with_comm(false, 1, 0x185 | EXTENDED),
+            Err(Abort::InvalidValue)
+        );
+        assert_eq!(
+            t.with_comm(false, 1, 0x185 | NO_RTR).map(|c| c.cob_id),
+            Ok(0x4000_0185)
+        );
+        let off = t.with_comm(false, 1, INVALID | 0x185).unwrap();
+        assert!(!off.valid());
+        assert_eq!(
+            off.with_comm(false, 1, 0x701),
+            Err(Abort::InvalidValue),
+            "restricted"
+        );
+        assert_eq!(off.with_comm(false, 1, 0x186).map(|c| c.id()), Ok(0x186));
+        assert_eq!(
+            t.with_comm(true, 3, 0),
+            Err(Abort::NoSubIndex),
+            "RPDO has no inhibit time"
+        );
+        assert_eq!(t.with_comm(false, 2, 252), Err(Abort::InvalidValue));
+        assert_eq!(
+            t.with_comm(false, 2, 240).map(|c| c.synchronous()),
+            Ok(true)
+        );
+    }
+
+    #[test]
+    fn mapping_rules() {
+        let mut r = PdoConfig::rpdo_default(0, 5);
+        r.cob_id |= INVALID;
+        assert_eq!(
+            r.with_mapping(true, 1, 0x607A_0020),
+            Err(Abort::UnsupportedAccess)
+        );
+        let r = r.with_mapping(true, 0, 0).unwrap();
+        let r = r.with_mapping(true, 2, 0x607A_0020).unwrap();
+        assert_eq!(r.with_mapping(true, 9, 0), Err(Abort::NoSubIndex));
+        let r = r.with_mapping(true, 0, 2).unwrap();
+        assert_eq!(r.map.entries(), &[0x6040_0010, 0x607A_0020]);
+        assert_eq!(r.map.bytes(), 6);
+        assert_eq!(check_entry(0x6041_0010, true), Err(Abort::NotMappable));
+        assert!(check_entry(0x6041_0010, false).is_ok());
+        assert_eq!(check_entry(0x6040_0020, true), Err(Abort::NotMappable));
+    }
+}
