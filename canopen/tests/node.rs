@@ -626,6 +626,10 @@ fn profile_fault_and_bus_off() {
 #[test]
 fn save_path_stores_the_drive_and_the_comm_settings() {
     let mut b = Bench::new();
+    // Not saved: a reset keeps the node id.
+    b.write(0x2100, 0, &[8]).unwrap();
+    b.nmt(0x81, ID);
+    assert_eq!(b.node.node_id(), ID);
     b.write(0x2100, 0, &[9]).unwrap();
     b.write(0x2101, 0, &1000u16.to_le_bytes()).unwrap();
     assert_eq!(

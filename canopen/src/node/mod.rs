@@ -267,7 +267,8 @@ impl<P: Profile> Node<P> {
     }
 
     /// True once after an NMT "reset node": the owner may restart the
-    /// device (to take a saved bit rate).
+    /// device (to take a saved bit rate; the node itself takes the saved
+    /// node id and heartbeat times at once, the profile is not reset).
     pub fn take_reset_request(&mut self) -> bool {
         core::mem::replace(&mut self.reset_request, false)
     }
@@ -339,7 +340,9 @@ impl<P: Profile> Node<P> {
                 match cmd {
                     NmtCommand::ResetNode => {
                         self.reset_request = true;
-                        self.settings = self.dict.settings_to_save();
+                        if let Some(saved) = self.dict.saved {
+                            self.settings = saved;
+                        }
                         self.boot(now_us, ctx, out);
                     }
                     NmtCommand::ResetCommunication => self.boot(now_us, ctx, out),

@@ -42,6 +42,8 @@ pub(crate) struct Dict<P> {
     pub emcy: Emcy,
     /// 0x2100 / 0x2101: the settings for the next boot.
     pub next: CommSettings,
+    /// The settings last saved by 0x1010 (taken by NMT reset node).
+    pub saved: Option<CommSettings>,
     /// The profile (0x6xxx).
     pub profile: P,
 }
@@ -126,6 +128,7 @@ impl<P: Profile> Dict<P> {
             tpdo: [PdoConfig::tpdo_default(0, 1); COUNT],
             emcy: Emcy::new(),
             next: *settings,
+            saved: None,
             profile,
         };
         d.reset_comm(settings);
@@ -518,6 +521,7 @@ impl<P: Profile> Dict<P> {
                     .map_err(|_| Abort::Hardware)?;
                 let s = self.settings_to_save();
                 ctx.save_comm(&s).map_err(|_| Abort::Hardware)?;
+                self.saved = Some(s);
             }
             Action::Restore => {
                 let link = ctx.link_setting();
