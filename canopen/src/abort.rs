@@ -54,6 +54,8 @@ pub enum Abort {
     LocalControl = 0x0800_0021,
     /// ... because of the present device state.
     DeviceState = 0x0800_0022,
+    /// No data available (the device does not have this value).
+    NoData = 0x0800_0024,
 }
 
 impl Abort {

@@ -15,3 +15,11 @@ pub mod slcan;
 
 pub use abort::Abort;
 pub use frame::CanFrame;
+pub mod eds;
+pub mod emcy;
+pub mod nmt;
+pub mod node;
+pub mod od;
+pub mod pdo;
+pub mod profile;
+pub mod sdo;
