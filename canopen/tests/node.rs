@@ -48,7 +48,7 @@ fn table_is_sorted_unique_and_consistent() {
 
 #[test]
 fn fresh_node_holds_the_table_defaults() {
-    let mut b = Bench::with(CommSettings::new(ID, 500, 100, None).unwrap());
+    let mut b = Bench::with(CommSettings::new(ID, 1000, 100, None).unwrap());
     for d in OBJECTS {
         // Actual values (ro, 0x6xxx) follow the drive; 0x2100 is the next boot's.
         if !d.access.readable()
@@ -442,7 +442,7 @@ fn synchronous_cyclic_tpdo_every_nth_sync_and_acyclic_on_change() {
 
 #[test]
 fn event_tpdo_respects_inhibit_time_and_event_timer() {
-    let mut b = Bench::with(CommSettings::new(ID, 500, 0, None).unwrap());
+    let mut b = Bench::with(CommSettings::new(ID, 1000, 0, None).unwrap());
     b.write_u32(0x1800, 1, 0x8000_0185).unwrap();
     b.write(0x1800, 3, &50u16.to_le_bytes()).unwrap(); // 5 ms
     b.write(0x1800, 5, &20u16.to_le_bytes()).unwrap(); // 20 ms

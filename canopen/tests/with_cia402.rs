@@ -1,5 +1,5 @@
 //! The node with the real CiA 402 profile. Ignored until the profile's
-//! bodies land (they are `todo!()` on this branch): un-ignore then.
+//! bodies.
 
 mod common;
 
@@ -9,7 +9,7 @@ use foc_canopen::node::{CommSettings, Node};
 use foc_canopen::CanFrame;
 
 #[test]
-#[ignore = "needs cia402"]
+
 fn cia402_parameter_defaults_are_the_tables() {
     let real = Cia402::new();
     let fake = FakeProfile::new();
@@ -21,11 +21,11 @@ fn cia402_parameter_defaults_are_the_tables() {
 }
 
 #[test]
-#[ignore = "needs cia402"]
+
 fn node_with_cia402_boots_serves_sdo_and_pdo() {
     let mut dev = FakeDevice::new();
     let mut sent = Vec::new();
-    let mut node = Node::new(CommSettings::new(ID, 500, 100, None).unwrap());
+    let mut node = Node::new(CommSettings::new(ID, 1000, 100, None).unwrap());
     node.boot(0, &mut dev, &mut |f| sent.push(f));
     node.tick(1000, &mut dev, &mut |f| sent.push(f));
     assert!(node.read_object(0x6041, 0, &dev).is_ok());

@@ -7,8 +7,8 @@
 //! time ([`Node::tick`], at 1 kHz or more), and sends every frame the node
 //! gives to `out`.
 //!
-//! ```ignore
-//! let mut node = Node::new(CommSettings::new(5, 500, 100, Some((1, 300))).unwrap());
+//! ```text
+//! let mut node = Node::new(CommSettings::new(5, 1000, 100, Some((1, 300))).unwrap());
 //! node.boot(now_us, &mut ctx, &mut |f| can.send(f));
 //! // CAN task: node.on_frame(&rx, now_us, &mut ctx, &mut |f| can.send(f));
 //! // 1 kHz:    node.tick(now_us, &mut ctx, &mut |f| can.send(f));
@@ -88,10 +88,10 @@ impl CommSettings {
     /// Supported bit rates [kbit/s].
     pub const BIT_RATES: [u16; 4] = [125, 250, 500, 1000];
 
-    /// Node 1, 500 kbit/s, heartbeat every 100 ms, no consumer.
+    /// Node 1, 1 Mbit/s (the default bit rate), heartbeat every 100 ms, no consumer.
     pub const DEFAULT: Self = Self {
         node_id: 1,
-        bitrate_kbit: 500,
+        bitrate_kbit: 1000,
         heartbeat_ms: 100,
         consumer: None,
     };

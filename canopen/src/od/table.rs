@@ -289,6 +289,9 @@ pub(crate) const TPDO_DEFAULT: [&[u32]; 4] = [
     &[0x6041_0010, 0x606C_0020],
 ];
 
+/// The profile's defaults: one definition, `Params::DEFAULT`.
+const P402: crate::cia402::Params = crate::cia402::Params::DEFAULT;
+
 const fn build() -> Builder {
     let mut b = Builder {
         t: [PLACEHOLDER; MAX],
@@ -535,7 +538,7 @@ const fn build() -> Builder {
             Rw,
             false,
             Some((125, 1000)),
-            Default::Int(500),
+            Default::Int(1000),
         );
     // CiA 402.
     b = b
@@ -546,7 +549,7 @@ const fn build() -> Builder {
             Rw,
             false,
             Some((0, 3)),
-            Default::Int(1),
+            Default::Int(P402.abort_connection_option as i64),
         )
         .p(0x603F, "Error code", Unsigned16, Ro, true, Default::Int(0))
         .p(0x6040, "Controlword", Unsigned16, Rw, true, Default::Int(0))
@@ -558,7 +561,7 @@ const fn build() -> Builder {
             Rw,
             false,
             Some((0, 8)),
-            Default::Int(2),
+            Default::Int(P402.quick_stop_option as i64),
         )
         .p(
             0x6060,
@@ -598,7 +601,7 @@ const fn build() -> Builder {
             Unsigned32,
             Rw,
             false,
-            Default::Int(INC_PER_REV as i64 / 4),
+            Default::Int(P402.following_error_window_inc as i64),
         )
         .p(
             0x6066,
@@ -606,7 +609,7 @@ const fn build() -> Builder {
             Unsigned16,
             Rw,
             false,
-            Default::Int(100),
+            Default::Int(P402.following_error_timeout_ms as i64),
         )
         .p(
             0x6067,
@@ -614,7 +617,7 @@ const fn build() -> Builder {
             Unsigned32,
             Rw,
             false,
-            Default::Int(100),
+            Default::Int(P402.position_window_inc as i64),
         )
         .p(
             0x6068,
@@ -622,7 +625,7 @@ const fn build() -> Builder {
             Unsigned16,
             Rw,
             false,
-            Default::Int(10),
+            Default::Int(P402.position_window_time_ms as i64),
         )
         .p(
             0x606B,
@@ -646,7 +649,7 @@ const fn build() -> Builder {
             Unsigned16,
             Rw,
             false,
-            Default::Int(1000),
+            Default::Int(P402.velocity_window_inc_s as i64),
         )
         .p(
             0x606E,
@@ -654,7 +657,7 @@ const fn build() -> Builder {
             Unsigned16,
             Rw,
             false,
-            Default::Int(10),
+            Default::Int(P402.velocity_window_time_ms as i64),
         )
         .p(
             0x6071,
@@ -670,7 +673,7 @@ const fn build() -> Builder {
             Unsigned16,
             Rw,
             false,
-            Default::Int(1000),
+            Default::Int(P402.max_torque_permille as i64),
         )
         .p(0x6075, "Motor rated current", Unsigned32, Ro, false, d)
         .p(0x6076, "Motor rated torque", Unsigned32, Ro, false, d)
@@ -712,7 +715,7 @@ const fn build() -> Builder {
             Unsigned32,
             Rw,
             false,
-            Default::Int(10 * INC_PER_REV as i64),
+            Default::Int(P402.max_profile_velocity_inc_s as i64),
         )
         .p(
             0x6081,
@@ -720,7 +723,7 @@ const fn build() -> Builder {
             Unsigned32,
             Rw,
             false,
-            Default::Int(INC_PER_REV as i64),
+            Default::Int(P402.profile_velocity_inc_s as i64),
         )
         .p(
             0x6083,
@@ -728,7 +731,7 @@ const fn build() -> Builder {
             Unsigned32,
             Rw,
             false,
-            Default::Int(10 * INC_PER_REV as i64),
+            Default::Int(P402.profile_acceleration_inc_s2 as i64),
         )
         .p(
             0x6084,
@@ -736,7 +739,7 @@ const fn build() -> Builder {
             Unsigned32,
             Rw,
             false,
-            Default::Int(10 * INC_PER_REV as i64),
+            Default::Int(P402.profile_deceleration_inc_s2 as i64),
         )
         .p(
             0x6085,
@@ -744,7 +747,7 @@ const fn build() -> Builder {
             Unsigned32,
             Rw,
             false,
-            Default::Int(100 * INC_PER_REV as i64),
+            Default::Int(P402.quick_stop_deceleration_inc_s2 as i64),
         )
         .p(
             0x6087,
@@ -752,7 +755,7 @@ const fn build() -> Builder {
             Unsigned32,
             Rw,
             false,
-            Default::Int(10_000),
+            Default::Int(P402.torque_slope_permille_s as i64),
         );
     let (o, k) = ("Position encoder resolution", Kind::Array(2));
     b = b

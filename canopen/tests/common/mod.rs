@@ -290,7 +290,7 @@ pub struct Bench {
 impl Bench {
     /// Booted (pre-operational), node 5, heartbeat 100 ms, master 1 at 300 ms.
     pub fn new() -> Self {
-        Self::with(CommSettings::new(ID, 500, 100, Some((1, 300))).unwrap())
+        Self::with(CommSettings::new(ID, 1000, 100, Some((1, 300))).unwrap())
     }
     pub fn with(s: CommSettings) -> Self {
         let mut b = Self {
