@@ -179,7 +179,10 @@ fn the_drive_times_out_without_updates() {
     assert!(faults.contains(Fault::CommandTimeout));
     b.ms(2);
     assert_eq!(b.p.state(), State::Fault);
-    assert_eq!(b.p.actuals.error_code, 0x8130);
+    assert_eq!(
+        b.p.actuals.error_code,
+        foc_canopen::emcy::fault_code(Fault::CommandTimeout)
+    );
 }
 
 #[test]

@@ -61,25 +61,6 @@ pub fn outside_following_window(error_inc: i32, window_inc: u32) -> bool {
     window_inc != u32::MAX && error_inc.unsigned_abs() > window_inc
 }
 
-/// The CiA 301 / 402 error code (0x603F, EMCY) of a drive fault.
-pub const fn emcy_code(f: Fault) -> u16 {
-    match f {
-        Fault::OverCurrentPhase | Fault::OverCurrentVector => 0x2310,
-        Fault::BusOverVoltage => 0x3210,
-        Fault::BusUnderVoltage => 0x3220,
-        Fault::CurrentSumMismatch | Fault::CurrentSenseError => 0x5210,
-        Fault::AngleSensorError | Fault::AngleSensorImplausible | Fault::AngleSensorStuck => 0x7305,
-        Fault::NonFinite | Fault::LoopOverrun | Fault::Watchdog => 0x6100,
-        Fault::CommandTimeout => 0x8130,
-        Fault::BusSenseError => 0x5200,
-        Fault::OverTemperature => 0x4310,
-        Fault::GateDriverFault | Fault::PwmError => 0x5400,
-        Fault::CalibrationFailed => 0x6320,
-        Fault::OverSpeed | Fault::SpeedRunaway => 0x8400,
-        Fault::TravelLimit => 0x8612,
-    }
-}
-
 impl super::Cia402 {
     /// Following error (pp, csp) and target reached, after the demand of
     /// this update.
@@ -142,7 +123,7 @@ impl super::Cia402 {
             (a.position_inc, 0)
         };
         a.following_error_inc = a.position_demand_inc.saturating_sub(a.position_inc);
-        let drive = ctx.faults().1.map(emcy_code);
+        let drive = ctx.faults().1.map(crate::emcy::fault_code);
         a.error_code = self.profile_fault.or(drive).unwrap_or(0);
         self.actuals.statusword = self.statusword(&fb);
     }
