@@ -10,7 +10,7 @@
 //! assert!(!w.held(false, 11_000, 10));  // left: restarts
 //! ```
 
-use foc_core::control::{Fault, Feedback};
+use foc_core::control::Feedback;
 use foc_protocol::device::DeviceContext;
 
 use super::state::state_bits;
