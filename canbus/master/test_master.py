@@ -119,14 +119,14 @@ class BootAndConfigure(Rig):
     def test_identity_configuration_and_state_machine(self):
         for n in self.nodes:
             self.assertEqual(n.sdo[0x1000].raw & 0xFFFF, 402)
-            vendor = n.sdo[0x1018][1].raw
-            product = n.sdo[0x1018][2].raw
-            self.assertNotEqual(vendor, 0)
-            self.assertNotEqual(product, 0)
+            # No CiA vendor ID is assigned to the project: 0.
+            self.assertEqual(n.sdo[0x1018][1].raw, 0)
+            self.assertEqual(n.sdo[0x1018][2].raw, 0x402)  # product code, as the EDS
+            self.assertEqual(n.sdo[0x1018][2].raw, self.bus.eds_product(n))
             name = n.sdo[0x1008].raw  # segmented upload (longer than 4 bytes)
             self.assertGreater(len(name), 4)
             # Configuration and calibration through the manufacturer objects.
-            self.assertEqual(n.sdo[0x2000][1].raw, 7)  # pole pairs of the emulated motor
+            self.assertEqual(n.sdo[0x2000].raw, 7)  # pole pairs of the emulated motor
             self.assertEqual(n.sdo[0x2100].raw, n.id)
             supported = n.sdo[0x6502].raw
             for mode in (1, 3, 4, 8, 9, 10):
@@ -142,8 +142,8 @@ class BootAndConfigure(Rig):
 
 class CyclicPosition(Rig):
     # Largest |position demand - actual| over the move [inc] (stated in the
-    # README; measured about FIXME inc).
-    FOLLOWING_ERROR_LIMIT_INC = 2000
+    # README; measured 113 / 177 / 261 inc for the 1 / 2 / 3 rev axes).
+    FOLLOWING_ERROR_LIMIT_INC = 400
 
     def test_csp_three_axes_follow_a_coordinated_trajectory(self):
         self.run_all(MODE_CSP)
@@ -225,8 +225,10 @@ class FaultsAndLinkLoss(Rig):
         for n in self.nodes:
             n.sdo[0x60FF].raw = 2 * INC_PER_REV
         self.clock.tick(300)
+        # The encoder of node 2 freezes: the drive detects the stuck sensor
+        # (AngleSensorStuck) and latches.
         self.bus.control("fault 2 encoder")
-        self.clock.tick(50)
+        self.clock.tick(300)
         barrier(self.nodes[1])
         faulty = self.nodes[1]
         codes = [e.code for e in faulty.emcy.log]
@@ -240,10 +242,15 @@ class FaultsAndLinkLoss(Rig):
             v = n.sdo[0x606C].raw
             self.assertLess(abs(v - 2 * INC_PER_REV), n.sdo[0x606D].raw + 1)
         # Repair the sensor, fault reset, enable again.
-        self.bus.control("repair 2")
+        # Repaired, the reading jumps to the rotor's angle (the drive may
+        # latch that jump too); then the master resets the fault.
+        self.bus.control("fault 2 clear")
+        self.clock.tick(10)
         faulty.controlword = 0x0080
         self.clock.tick(10)
-        self.assertEqual(state_of(self.statusword(faulty)), "SWITCH ON DISABLED")
+        self.assertEqual(state_of(self.statusword(faulty)), "SWITCH ON DISABLED",
+                         f"error code {faulty.sdo[0x603F].raw:#06x}, "
+                         f"EMCY {[hex(e.code) for e in faulty.emcy.log]}")
         self.assertEqual(faulty.emcy.log[-1].code, 0x0000)  # error reset
         faulty.state = "OPERATION ENABLED"
         self.clock.tick(300)
@@ -300,7 +307,7 @@ class BadRequests(Rig):
             ("u16 written with 4 bytes", [0x23, 0x17, 0x10, 0, 1, 2, 3, 4], 0x06070012),
             ("u32 written with 1 byte", [0x2F, 0x81, 0x60, 0, 1, 0, 0, 0], 0x06070013),
             ("profile velocity too high", [0x23, 0x81, 0x60, 0, 0xFF, 0xFF, 0xFF, 0x7F], 0x06090031),
-            ("remap while the PDO is valid", [0x23, 0x00, 0x1A, 1, 0x10, 0, 0x41, 0x60], 0x06010000),
+            ("remap while the mapping is in use", [0x23, 0x00, 0x1A, 1, 0x10, 0, 0x41, 0x60], 0x08000022),
             ("short frame", [0x40, 0x00], None),
         ]
         for name, payload, code in cases:

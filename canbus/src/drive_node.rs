@@ -54,17 +54,19 @@ pub struct DriveNode<P> {
     pub drive: HostDrive,
     /// The protocol.
     pub protocol: P,
-    make: fn(u8) -> P,
+    make: fn(u8, &HostDrive) -> P,
 }
 
 impl<P: DriveProtocol> DriveNode<P> {
     /// Node `id`: a drive on a blank flash and `make(id)`'s protocol
     /// (`make` builds it again at every power cycle).
-    pub fn new(id: u8, make: fn(u8) -> P) -> Self {
+    pub fn new(id: u8, make: fn(u8, &HostDrive) -> P) -> Self {
+        let drive = HostDrive::new();
+        let protocol = make(id, &drive);
         Self {
             id,
-            drive: HostDrive::new(),
-            protocol: make(id),
+            drive,
+            protocol,
             make,
         }
     }
@@ -94,7 +96,7 @@ impl<P: DriveProtocol> BusNode for DriveNode<P> {
     }
     fn power_cycle(&mut self) {
         self.drive.power_cycle();
-        self.protocol = (self.make)(self.id);
+        self.protocol = (self.make)(self.id, &self.drive);
     }
     fn inject_fault(&mut self, kind: &str) -> Result<String, String> {
         let k = FaultKind::parse(kind).ok_or_else(|| {
@@ -126,6 +128,10 @@ impl MiniProtocol {
     /// For node `id`.
     pub fn new(id: u8) -> Self {
         Self { id, faulted: false }
+    }
+    /// For node `id` (the signature [`DriveNode::new`] takes).
+    pub fn for_drive(id: u8, _drive: &HostDrive) -> Self {
+        Self::new(id)
     }
     fn frame(&self, base: u16, data: &[u8]) -> Option<CanFrame> {
         CanFrame::new(base + u16::from(self.id), data)

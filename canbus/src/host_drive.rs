@@ -120,6 +120,9 @@ pub struct HostDrive {
     boot_link: Option<WatchdogConfig>,
     /// PWM periods run since power-on.
     periods: u64,
+    /// The CAN node's communication settings a 0x1010 "save" kept (they
+    /// survive a power cycle, like the flash).
+    comm: Option<foc_canopen::node::CommSettings>,
 }
 
 impl Default for HostDrive {
@@ -160,6 +163,7 @@ impl HostDrive {
             store: Store::new(flash, STORE_RANGE).ok(),
             boot_link: None,
             periods: 0,
+            comm: None,
         };
         d.power_on();
         d
@@ -252,6 +256,17 @@ impl HostDrive {
     /// The link-watchdog setting of the record loaded at the last boot.
     pub fn boot_link_setting(&self) -> Option<WatchdogConfig> {
         self.boot_link
+    }
+
+    /// The CAN node's saved communication settings, if any.
+    pub fn saved_comm(&self) -> Option<foc_canopen::node::CommSettings> {
+        self.comm
+    }
+
+    /// Keep the CAN node's communication settings for the next boot.
+    pub fn store_comm(&mut self, s: foc_canopen::node::CommSettings) -> Result<(), ErrorCode> {
+        self.comm = Some(s);
+        Ok(())
     }
 
     /// Inject a fault into the plant or its sensors.

@@ -39,6 +39,7 @@
 #![deny(missing_docs)]
 
 pub mod bus;
+pub mod canopen_node;
 pub mod control;
 pub mod drive_node;
 pub mod fake;
@@ -51,9 +52,11 @@ use std::net::TcpListener;
 /// Which node the bus hosts.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 pub enum NodeKind {
-    /// The real drive under [`drive_node::MiniProtocol`] (the CANopen
-    /// node's slot until it lands).
+    /// The real drive under the CANopen node (CiA 301 + CiA 402).
     #[default]
+    Canopen,
+    /// The real drive under [`drive_node::MiniProtocol`] (a minimal
+    /// stand-in protocol, for the bus's own tests).
     Drive,
     /// [`fake::FakeNode`] (no drive).
     Fake,
@@ -82,7 +85,7 @@ impl Default for Options {
         Self {
             nodes: 3,
             first_id: 1,
-            node: NodeKind::Drive,
+            node: NodeKind::Canopen,
             cycle_us: bus::DEFAULT_CYCLE_US,
             port: 0,
             relays: Vec::new(),
@@ -116,9 +119,12 @@ pub fn build_bus(o: &Options) -> std::io::Result<Bus> {
     for id in ids {
         match o.node {
             NodeKind::Fake => bus.add_node(Box::new(fake::FakeNode::new(id))),
+            NodeKind::Canopen => {
+                bus.add_node(Box::new(drive_node::DriveNode::new(id, canopen_node::make)))
+            }
             NodeKind::Drive => bus.add_node(Box::new(drive_node::DriveNode::new(
                 id,
-                drive_node::MiniProtocol::new,
+                drive_node::MiniProtocol::for_drive,
             ))),
         };
     }

@@ -12,7 +12,10 @@ use std::io::{BufRead, Write};
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
 enum Node {
-    /// The real drive (foc-core + plant) under the stand-in protocol.
+    /// The real drive (foc-core + plant) under the CANopen node (CiA 301 +
+    /// CiA 402).
+    Canopen,
+    /// The real drive under a minimal stand-in protocol (bus tests).
     Drive,
     /// The fake node (no drive).
     Fake,
@@ -36,7 +39,7 @@ struct Args {
     #[arg(long, default_value_t = 1000)]
     cycle_us: u32,
     /// The hosted node.
-    #[arg(long, value_enum, default_value_t = Node::Drive)]
+    #[arg(long, value_enum, default_value_t = Node::Canopen)]
     node: Node,
     /// Connect out to an SLCAN TCP endpoint (tcp:HOST:PORT) and make it a
     /// participant (repeatable).
@@ -50,6 +53,7 @@ fn main() -> std::process::ExitCode {
         nodes: a.nodes,
         first_id: a.first_id,
         node: match a.node {
+            Node::Canopen => NodeKind::Canopen,
             Node::Drive => NodeKind::Drive,
             Node::Fake => NodeKind::Fake,
         },

@@ -97,7 +97,7 @@ fn last_tpdo(out: &[(u32, CanFrame)], id: u16) -> (f32, u8) {
 fn drives_on_the_bus_and_a_fault_on_one_node() {
     let mut bus = Bus::new(1000);
     for id in 1..=3 {
-        bus.add_node(Box::new(DriveNode::new(id, MiniProtocol::new)));
+        bus.add_node(Box::new(DriveNode::new(id, MiniProtocol::for_drive)));
     }
     bus.boot();
     bus.add_port(1, PortKind::Client);

@@ -467,8 +467,9 @@ fn event_tpdo_respects_inhibit_time_and_event_timer() {
             }
         }
     }
-    // Changes at 1, 6, 11 (inhibit 5 ms); then the event timer every 20 ms.
-    assert_eq!(sent, vec![1000, 6000, 11_000, 31_000, 51_000]);
+    // Sent at 0 by the NMT start (taken above); changes every ms held
+    // back by the 5 ms inhibit: 5, 10; then the event timer every 20 ms.
+    assert_eq!(sent, vec![5000, 10_000, 30_000, 50_000]);
 }
 
 trait ProfileMut {

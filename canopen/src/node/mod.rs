@@ -320,8 +320,23 @@ impl<P: Profile> Node<P> {
         self.nmt = s;
     }
 
-    /// A received frame.
+    /// A received frame; then the event-driven TPDOs whose data it
+    /// changed (e.g. the statusword after a controlword) go out at once,
+    /// not at the next tick (inhibit times respected).
     pub fn on_frame<C: CanDevice>(
+        &mut self,
+        f: &CanFrame,
+        now_us: u64,
+        ctx: &mut C,
+        out: &mut dyn FnMut(CanFrame),
+    ) {
+        self.handle_frame(f, now_us, ctx, out);
+        if self.nmt.pdo() {
+            self.event_tpdos(now_us, ctx, out);
+        }
+    }
+
+    fn handle_frame<C: CanDevice>(
         &mut self,
         f: &CanFrame,
         now_us: u64,
