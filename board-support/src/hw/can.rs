@@ -12,12 +12,16 @@
 //!
 //! Two things are register-level here (PAC, RM0090 §32.9):
 //!
-//! - **Receive** (FIFO 0): bxcan 0.8 stores a received DLC of 9 to 15
-//!   (legal on the wire, meaning 8 bytes, ISO 11898-1) as the frame's
-//!   length, and its `Data` then slices 15 bytes out of 8: any node on
-//!   the bus could panic the drive with one frame. [`CanBus::receive`]
-//!   reads the FIFO 0 mailbox itself and clamps the DLC
-//!   ([`crate::logic::can::RxFrame`], host-tested).
+//! - **Receive** (FIFO 0): bxcan 0.8's `receive` copies the mailbox's
+//!   4-bit DLC (`CAN_RDTxR.DLC`) into the frame's length unchecked, and
+//!   its `Data` then slices up to 15 bytes out of 8 (`Frame::dlc` and
+//!   `Frame::data` would panic). A DLC of 9 to 15 is legal on the wire
+//!   (it means 8 bytes, ISO 11898-1); whether the bxCAN stores it
+//!   unclamped is not checked here (RM0090 §32.9.3 documents 0 to 8), so
+//!   this port's `receive` (`embedded_can::nb::Can`) reads the FIFO 0
+//!   mailbox itself and clamps the DLC to 8
+//!   ([`crate::logic::can::RxFrame`], host-tested): no frame from the bus
+//!   can panic the drive.
 //! - **Bus state**: `CAN_ESR` (BOFF, EPVF), which bxcan does not expose.
 //!
 //! # Behaviour
@@ -39,9 +43,8 @@
 //!   pre-defined connection set uses 11-bit identifiers) into FIFO 0
 //!   (RM0090 §32.7.4).
 //! - `CAN_IER.FMPIE0` set: the `CAN1_RX0` interrupt is pending while
-//!   FIFO 0 holds a frame; the task bound to it must call
-//!   [`CanBus::receive`] until `WouldBlock`. The NVIC line is left to the
-//!   RTIC app.
+//!   FIFO 0 holds a frame; the task bound to it must call `receive` until
+//!   `WouldBlock`. The NVIC line is left to the RTIC app.
 //! - Transmit: bxcan's three mailboxes (it may replace a pending frame of
 //!   lower priority and hand it back, see `foc_core::hal::CanPort`);
 //!   refused (`WouldBlock`) while stopped or bus-off, so no stale frame

@@ -12,9 +12,10 @@
 //! ```
 //!
 //! Every rate here uses the same 14-quantum bit: 1 + 11 + 2 tq, SJW 1 tq,
-//! sample point 12/14 = 85.7 % (inside the 75-90 % band CiA recommends for
-//! 125 kbit/s-1 Mbit/s; 87.5 % exactly would need 8 or 16 tq per bit,
-//! which 42 MHz does not divide into 1 Mbit/s). From the ODrive's
+//! sample point 12/14 = 85.7 % (CiA DS 102 recommends 87.5 %, and
+//! 75-90 % is the range usually allowed; 87.5 % exactly needs a multiple
+//! of 8 tq per bit, and 42 MHz / 1 Mbit/s = 42 clocks per bit has none
+//! within the bxCAN's 8-25 tq). From the ODrive's
 //! APB1 = 42 MHz only the prescaler changes:
 //!
 //! | rate        | prescaler | tq       | `CAN_BTR`     |
