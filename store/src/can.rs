@@ -43,12 +43,6 @@ pub const MAX_CAN_RECORD_BYTES: usize = 32;
 /// The bit rates a node may be set to [kbit/s].
 pub const BITRATES_KBIT: [u16; 4] = [125, 250, 500, 1000];
 
-/// Bytes of the envelope around the payload: version, length, CRC.
-const HEADER_BYTES: usize = 4;
-const CRC_BYTES: usize = 4;
-
-const CRC32: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
-
 /// The CANopen node settings kept across power-off (CiA 301: node-ID,
 /// bit rate, producer heartbeat time `0x1017`, one consumer heartbeat
 /// entry `0x1016:01`).
@@ -85,11 +79,6 @@ fn check(ok: bool, field: &'static str) -> Result<(), Invalid> {
     }
 }
 
-fn le_u16(bytes: &[u8], at: usize) -> Option<u16> {
-    let b = bytes.get(at..at.checked_add(2)?)?;
-    Some(u16::from_le_bytes([*b.first()?, *b.get(1)?]))
-}
-
 impl CanRecord {
     /// The settings of a drive that never stored any: node 1, 1 Mbit/s,
     /// heartbeat every 1000 ms, no consumer.
@@ -124,30 +113,7 @@ impl CanRecord {
     /// [`RecordError::TooLong`] when it does not fit in `out` or exceeds
     /// [`MAX_CAN_RECORD_BYTES`]. Does not validate (see [`Self::validate`]).
     pub fn encode(&self, out: &mut [u8]) -> Result<usize, RecordError> {
-        let limit = out.len().min(MAX_CAN_RECORD_BYTES);
-        let room = limit
-            .checked_sub(HEADER_BYTES + CRC_BYTES)
-            .ok_or(RecordError::TooLong)?;
-        let payload_len = {
-            let payload = out
-                .get_mut(HEADER_BYTES..HEADER_BYTES + room)
-                .ok_or(RecordError::TooLong)?;
-            postcard::to_slice(self, payload)
-                .map_err(|_| RecordError::TooLong)?
-                .len()
-        };
-        let len = u16::try_from(payload_len).map_err(|_| RecordError::TooLong)?;
-        let [v0, v1] = CAN_SCHEMA_VERSION.to_le_bytes();
-        let [l0, l1] = len.to_le_bytes();
-        out.get_mut(..HEADER_BYTES)
-            .ok_or(RecordError::TooLong)?
-            .copy_from_slice(&[v0, v1, l0, l1]);
-        let body_end = HEADER_BYTES + payload_len;
-        let crc = CRC32.checksum(out.get(..body_end).ok_or(RecordError::TooLong)?);
-        out.get_mut(body_end..body_end + CRC_BYTES)
-            .ok_or(RecordError::TooLong)?
-            .copy_from_slice(&crc.to_le_bytes());
-        Ok(body_end + CRC_BYTES)
+        crate::envelope::seal(self, CAN_SCHEMA_VERSION, out, MAX_CAN_RECORD_BYTES)
     }
 
     /// Read an envelope: length, then CRC, then version (only
@@ -155,32 +121,13 @@ impl CanRecord {
     /// [`RecordError::UnsupportedVersion`]). `bytes` must be exactly one
     /// envelope. Does not validate.
     pub fn decode(bytes: &[u8]) -> Result<CanRecord, RecordError> {
-        if bytes.len() > MAX_CAN_RECORD_BYTES {
-            return Err(RecordError::TooLong);
-        }
-        let version = le_u16(bytes, 0).ok_or(RecordError::TooShort)?;
-        let len = usize::from(le_u16(bytes, 2).ok_or(RecordError::TooShort)?);
-        let body_end = HEADER_BYTES + len;
-        let total = body_end + CRC_BYTES;
-        if bytes.len() < total {
-            return Err(RecordError::TooShort);
-        }
-        if bytes.len() > total {
-            return Err(RecordError::TooLong);
-        }
-        let body = bytes.get(..body_end).ok_or(RecordError::TooShort)?;
-        let crc_bytes = bytes.get(body_end..total).ok_or(RecordError::TooShort)?;
-        let stored = u32::from_le_bytes(crc_bytes.try_into().map_err(|_| RecordError::TooShort)?);
-        if CRC32.checksum(body) != stored {
-            return Err(RecordError::BadChecksum);
-        }
+        let (version, payload) = crate::envelope::open(bytes, MAX_CAN_RECORD_BYTES)?;
         if version != CAN_SCHEMA_VERSION {
             return Err(RecordError::UnsupportedVersion {
                 found: version,
                 supported: CAN_SCHEMA_VERSION,
             });
         }
-        let payload = body.get(HEADER_BYTES..).ok_or(RecordError::TooShort)?;
         match postcard::take_from_bytes::<CanRecord>(payload) {
             Ok((r, [])) => Ok(r),
             _ => Err(RecordError::Malformed),

@@ -41,6 +41,7 @@
 extern crate std;
 
 pub mod can;
+mod envelope;
 #[cfg(any(test, feature = "fake"))]
 pub mod fake;
 pub mod record;
