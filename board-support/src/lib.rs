@@ -46,7 +46,8 @@
 //!   on every board), `SERIAL_BAUD: u32` (115200, 8N1),
 //!   `BRAKE_OUTPUT: bool` (the board switches a brake resistor),
 //!   `STAGE_TEMPERATURE_SENSOR: bool` (the board measures its power-stage
-//!   temperature);
+//!   temperature), `HAS_CAN: bool` (the board has a CAN port, see "CAN"
+//!   below);
 //! - type aliases `Pwm`, `Currents`, `Angle`, `Bus`, `Brake` implementing
 //!   [`foc_core::hal::PwmDriver`], [`foc_core::hal::CurrentSense`],
 //!   [`foc_core::hal::AngleSensor`], [`foc_core::hal::BusVoltage`] (with
@@ -75,6 +76,23 @@
 //! the second `-serial` device. Receive on RXNE, transmit from a ring
 //! drained by TXE; `read_byte`, `write`, `on_interrupt` (call it from the
 //! task bound to `SERIAL_IRQ`), errors counted, never a panic.
+//!
+//! # CAN
+//!
+//! | board                      | CAN port                                        |
+//! |----------------------------|-------------------------------------------------|
+//! | ODrive v3.x                | CAN1 on PB8 (RX) / PB9 (TX), on-board transceiver: `Board::can` |
+//! | NUCLEO-F446RE + IHM07M1    | none: the F446 has bxCAN (CAN1 RX/TX on PA11/PA12 or PB8/PB9, AF9), but neither the NUCLEO nor the X-NUCLEO-IHM07M1 shield has a CAN transceiver; an external transceiver board would be needed |
+//! | NUCLEO-F401RE + IHM07M1    | none: the STM32F401 has no CAN controller        |
+//! | QEMU                       | none (no bxCAN model)                            |
+//!
+//! On the ODrive, `board::HAS_CAN` is true and the board module adds:
+//! `Can` ([`hw::can::CanBus`], implementing [`foc_core::hal::CanPort`]),
+//! `Bitrate` ([`logic::can::Bitrate`]: 125 / 250 / 500 / 1000 kbit/s),
+//! `CAN_RX_IRQ: pac::Interrupt` (`CAN1_RX0`) and the `Board::can` field.
+//! `init` leaves the controller asleep, off the bus; `can.start(bitrate)`
+//! joins it (bit timing, automatic bus-off recovery). Elsewhere
+//! `HAS_CAN` is false and there is no port.
 //!
 //! Safe state = TIM1 `BDTR.MOE = 0` (outputs forced to their idle level,
 //! low: every switch off) **and** the power stage's enable pins low (and,

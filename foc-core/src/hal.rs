@@ -1,7 +1,7 @@
 //! Hardware traits: the only way control code reaches a board.
 //!
 //! Each trait is narrow, has its own `Error` type and never needs to allocate
-//! or block. Boards (`board-support`), the emulated board and the host test
+//! or block (the CAN port's are [`embedded_can`]'s, see [`CanPort`]). Boards (`board-support`), the emulated board and the host test
 //! bench implement them; the control loops never know which.
 //!
 //! ```
@@ -178,4 +178,100 @@ impl BrakeOutput for NoBrake {
     fn is_brake_on(&self) -> bool {
         false
     }
+}
+
+/// Fault-confinement state of a CAN controller (ISO 11898-1 fault
+/// confinement, the same three states on every controller): what a
+/// CANopen node reports in its emergency messages (CiA 301 error codes
+/// `0x8120` "CAN in error passive mode", `0x8140` "recovered from bus
+/// off").
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum BusState {
+    /// Both error counters at most 127: the node takes full part in
+    /// error signalling.
+    ErrorActive,
+    /// The transmit or the receive error counter above 127: the node
+    /// still sends and receives, but signals errors only passively.
+    ErrorPassive,
+    /// The transmit error counter went above 255: the node is off the bus
+    /// and sends nothing until it has recovered (on the STM32's bxCAN, by
+    /// itself after 128 occurrences of 11 recessive bits when automatic
+    /// bus-off management is on).
+    BusOff,
+}
+
+impl BusState {
+    /// True while the node is off the bus.
+    #[inline]
+    pub const fn is_bus_off(self) -> bool {
+        matches!(self, BusState::BusOff)
+    }
+}
+
+/// A CAN controller: frames in and out through `embedded-can`'s
+/// non-blocking [`embedded_can::nb::Can`] (frames are
+/// [`embedded_can::Frame`]s, errors [`embedded_can::Error`]s), plus the
+/// controller's fault-confinement state, which a CANopen node needs and
+/// `embedded-can` does not carry.
+///
+/// `transmit` follows `embedded-can`: when every transmit buffer is full
+/// it may replace a pending frame of lower priority and return it
+/// (`Ok(Some(frame))`): the caller sends that one again later or counts it
+/// as lost. `Err(nb::Error::WouldBlock)`: nothing was queued (also while
+/// the controller is off the bus or not started). `receive` returns
+/// `WouldBlock` when no frame is waiting.
+///
+/// ```
+/// use embedded_can::{nb::Can, ErrorKind, Frame, Id, StandardId};
+/// use foc_core::hal::{BusState, CanPort};
+///
+/// #[derive(Clone, Debug, PartialEq)]
+/// struct F { id: StandardId, len: usize, data: [u8; 8] }
+/// impl Frame for F {
+///     fn new(id: impl Into<Id>, data: &[u8]) -> Option<Self> {
+///         let Id::Standard(id) = id.into() else { return None };
+///         let mut d = [0; 8];
+///         d.get_mut(..data.len())?.copy_from_slice(data);
+///         Some(F { id, len: data.len(), data: d })
+///     }
+///     fn new_remote(_: impl Into<Id>, _: usize) -> Option<Self> { None }
+///     fn is_extended(&self) -> bool { false }
+///     fn is_remote_frame(&self) -> bool { false }
+///     fn id(&self) -> Id { Id::Standard(self.id) }
+///     fn dlc(&self) -> usize { self.len }
+///     fn data(&self) -> &[u8] { &self.data[..self.len] }
+/// }
+///
+/// /// A loop-back port: what is sent is received.
+/// struct Loopback { frame: Option<F>, state: BusState }
+/// impl Can for Loopback {
+///     type Frame = F;
+///     type Error = ErrorKind;
+///     fn transmit(&mut self, f: &F) -> nb::Result<Option<F>, ErrorKind> {
+///         if self.state.is_bus_off() || self.frame.is_some() {
+///             return Err(nb::Error::WouldBlock);
+///         }
+///         self.frame = Some(f.clone());
+///         Ok(None)
+///     }
+///     fn receive(&mut self) -> nb::Result<F, ErrorKind> {
+///         self.frame.take().ok_or(nb::Error::WouldBlock)
+///     }
+/// }
+/// impl CanPort for Loopback {
+///     fn bus_state(&self) -> BusState { self.state }
+/// }
+///
+/// let mut port = Loopback { frame: None, state: BusState::ErrorActive };
+/// let heartbeat = F::new(StandardId::new(0x701).unwrap(), &[0x05]).unwrap();
+/// assert_eq!(port.transmit(&heartbeat), Ok(None));
+/// assert_eq!(port.receive(), Ok(heartbeat.clone()));
+/// port.state = BusState::BusOff;
+/// assert_eq!(port.transmit(&heartbeat), Err(nb::Error::WouldBlock));
+/// ```
+pub trait CanPort: embedded_can::nb::Can {
+    /// The controller's fault-confinement state now (read from the
+    /// hardware, cheap enough to poll every millisecond).
+    fn bus_state(&self) -> BusState;
 }

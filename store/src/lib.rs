@@ -4,8 +4,10 @@
 //!   checksummed envelope and its validation.
 //! - [`settings`]: the live [`Settings`] and their conversion to and from a
 //!   record.
-//! - [`store`]: [`Store`], the record in a power-fail-safe log over NOR
-//!   flash (sequential-storage's map).
+//! - [`can`]: the CAN node settings [`CanRecord`], their own envelope and
+//!   validation (stored apart from the drive record).
+//! - [`store`]: [`Store`], the records in a power-fail-safe log over NOR
+//!   flash (sequential-storage's map, one key per record).
 //! - `fake` (tests, feature `fake`): a RAM NOR flash with power-cut
 //!   injection.
 //! - `text` (feature `std`): TOML export and import.
@@ -38,6 +40,8 @@
 #[cfg(any(test, feature = "std"))]
 extern crate std;
 
+pub mod can;
+mod envelope;
 #[cfg(any(test, feature = "fake"))]
 pub mod fake;
 pub mod record;
@@ -49,6 +53,7 @@ pub mod text;
 #[cfg(test)]
 mod tests;
 
+pub use can::CanRecord;
 pub use record::{DriveRecord, Invalid, Label, RecordError, MAX_RECORD_BYTES, SCHEMA_VERSION};
 pub use settings::Settings;
 pub use store::{Store, StoreError};

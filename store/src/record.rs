@@ -49,12 +49,6 @@ pub const SCHEMA_VERSION: u16 = 4;
 /// must move records this long (`foc_protocol::config::MAX_RECORD`).
 pub const MAX_RECORD_BYTES: usize = 320;
 
-/// Bytes of the envelope around the payload: version, length, CRC.
-const HEADER_BYTES: usize = 4;
-const CRC_BYTES: usize = 4;
-
-const CRC32: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
-
 /// A user label: printable ASCII, at most 32 bytes.
 pub type Label = heapless::String<32>;
 
@@ -587,43 +581,12 @@ pub mod v3 {
     }
 }
 
-fn le_u16(bytes: &[u8], at: usize) -> Option<u16> {
-    let b = bytes.get(at..at.checked_add(2)?)?;
-    Some(u16::from_le_bytes([*b.first()?, *b.get(1)?]))
-}
-
 impl DriveRecord {
     /// Write the envelope into `out`; returns the number of bytes used.
     /// [`RecordError::TooLong`] when it does not fit in `out` or exceeds
     /// [`MAX_RECORD_BYTES`]. Does not validate (see [`Self::validate`]).
     pub fn encode(&self, out: &mut [u8]) -> Result<usize, RecordError> {
-        let limit = out.len().min(MAX_RECORD_BYTES);
-        let out = out.get_mut(..limit).ok_or(RecordError::TooLong)?;
-        let payload_room = limit
-            .checked_sub(HEADER_BYTES + CRC_BYTES)
-            .ok_or(RecordError::TooLong)?;
-        let payload_len = {
-            let room = out
-                .get_mut(HEADER_BYTES..HEADER_BYTES + payload_room)
-                .ok_or(RecordError::TooLong)?;
-            postcard::to_slice(self, room)
-                .map_err(|_| RecordError::TooLong)?
-                .len()
-        };
-        let len = u16::try_from(payload_len).map_err(|_| RecordError::TooLong)?;
-        let header = out.get_mut(..HEADER_BYTES).ok_or(RecordError::TooLong)?;
-        header.copy_from_slice(&[
-            SCHEMA_VERSION.to_le_bytes()[0],
-            SCHEMA_VERSION.to_le_bytes()[1],
-            len.to_le_bytes()[0],
-            len.to_le_bytes()[1],
-        ]);
-        let body_end = HEADER_BYTES + payload_len;
-        let crc = CRC32.checksum(out.get(..body_end).ok_or(RecordError::TooLong)?);
-        out.get_mut(body_end..body_end + CRC_BYTES)
-            .ok_or(RecordError::TooLong)?
-            .copy_from_slice(&crc.to_le_bytes());
-        Ok(body_end + CRC_BYTES)
+        crate::envelope::seal(self, SCHEMA_VERSION, out, MAX_RECORD_BYTES)
     }
 
     /// Read an envelope: length, then CRC, then version ([`SCHEMA_VERSION`]
@@ -633,26 +596,7 @@ impl DriveRecord {
     /// none).
     /// `bytes` must be exactly one envelope. Does not validate.
     pub fn decode(bytes: &[u8]) -> Result<DriveRecord, RecordError> {
-        if bytes.len() > MAX_RECORD_BYTES {
-            return Err(RecordError::TooLong);
-        }
-        let version = le_u16(bytes, 0).ok_or(RecordError::TooShort)?;
-        let len = usize::from(le_u16(bytes, 2).ok_or(RecordError::TooShort)?);
-        let body_end = HEADER_BYTES + len;
-        let total = body_end + CRC_BYTES;
-        if bytes.len() < total {
-            return Err(RecordError::TooShort);
-        }
-        if bytes.len() > total {
-            return Err(RecordError::TooLong);
-        }
-        let body = bytes.get(..body_end).ok_or(RecordError::TooShort)?;
-        let crc_bytes = bytes.get(body_end..total).ok_or(RecordError::TooShort)?;
-        let stored = u32::from_le_bytes(crc_bytes.try_into().map_err(|_| RecordError::TooShort)?);
-        if CRC32.checksum(body) != stored {
-            return Err(RecordError::BadChecksum);
-        }
-        let payload = body.get(HEADER_BYTES..).ok_or(RecordError::TooShort)?;
+        let (version, payload) = crate::envelope::open(bytes, MAX_RECORD_BYTES)?;
         match version.cmp(&SCHEMA_VERSION) {
             core::cmp::Ordering::Greater => Err(RecordError::UnsupportedVersion {
                 found: version,

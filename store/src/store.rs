@@ -2,9 +2,12 @@
 //!
 //! # Design
 //!
-//! The store is a [`sequential_storage::map::MapStorage`] with one key
-//! ([`RECORD_KEY`]) whose value is the record's envelope
-//! ([`DriveRecord::encode`]). sequential-storage is a tested,
+//! The store is a [`sequential_storage::map::MapStorage`] with two keys:
+//! [`RECORD_KEY`], whose value is the drive record's envelope
+//! ([`DriveRecord::encode`]), and [`CAN_RECORD_KEY`], the CAN node
+//! settings' ([`CanRecord::encode`], saved and loaded apart:
+//! [`Store::save_can`], [`Store::load_can`]; a region never given one
+//! yields [`CanRecord::DEFAULT`] through [`Store::load_can_or_default`]). sequential-storage is a tested,
 //! power-fail-safe log over NOR flash: every save appends a new item to the
 //! open page and the newest valid item wins, so the previous record stays
 //! readable until the new one is completely written. We do not hand-write a
@@ -66,13 +69,20 @@ use embedded_storage::nor_flash::{
 use sequential_storage::cache::{Cache, Uncached};
 use sequential_storage::map::{MapConfig, MapStorage};
 
+use crate::can::{CanRecord, MAX_CAN_RECORD_BYTES};
 use crate::record::{DriveRecord, Invalid, RecordError, MAX_RECORD_BYTES};
 
 /// The map key of the drive record.
 pub const RECORD_KEY: u8 = 1;
 
+/// The map key of the CAN node settings ([`CanRecord`]).
+pub const CAN_RECORD_KEY: u8 = 2;
+
 /// Largest flash word sequential-storage supports [bytes].
 const MAX_WORD_BYTES: usize = 32;
+
+// The CAN envelope fits where the drive record's does.
+const _: () = assert!(MAX_CAN_RECORD_BYTES <= MAX_RECORD_BYTES);
 
 /// Work buffer: key, envelope, and rounding up to the flash word.
 const BUFFER_BYTES: usize = 1 + MAX_RECORD_BYTES + MAX_WORD_BYTES;
@@ -182,7 +192,8 @@ impl<F: MultiwriteNorFlash> embedded_storage_async::nor_flash::MultiwriteNorFlas
 
 type Map<F> = MapStorage<u8, Blocking<F>, Cache<Uncached, Uncached, Uncached, u8>>;
 
-/// The drive record in a region of NOR flash (see the module docs).
+/// The drive record and the CAN node settings in a region of NOR flash
+/// (see the module docs).
 pub struct Store<F: NorFlash> {
     map: Map<F>,
     buffer: [u8; BUFFER_BYTES],
@@ -211,32 +222,95 @@ impl<F: NorFlash> Store<F> {
         })
     }
 
-    /// The stored record: `Ok(None)` when the store is empty (the region
-    /// is blank: never written, or erased); a region that was written but
-    /// yields no record is [`StoreError::NoValidRecord`]; a stored record
+    /// The stored record: `Ok(None)` when the store holds none (the region
+    /// is blank: never written, or erased; or it holds only other keys'
+    /// items, e.g. the CAN settings); a region that was written but yields
+    /// no item at all is [`StoreError::NoValidRecord`]; a stored record
     /// is decoded and validated ([`StoreError::Record`],
     /// [`StoreError::Invalid`]). May repair (write) the region after an
     /// interrupted operation (see the module docs).
+    ///
+    /// With the CAN settings stored, a first drive-record save cut short
+    /// loads as `Ok(None)` (the region holds a valid item), not as
+    /// `NoValidRecord`.
     pub fn load(&mut self) -> Result<Option<DriveRecord>, StoreError> {
-        let found =
-            embassy_futures::block_on(self.map.fetch_item::<&[u8]>(&mut self.buffer, &RECORD_KEY))
-                .map_err(map_error)?
-                .is_some();
-        if !found {
-            return if self.is_blank()? {
-                Ok(None)
-            } else {
-                Err(StoreError::NoValidRecord)
-            };
-        }
-        // Fetched again: the first borrow of the buffer ended above.
-        let bytes =
-            embassy_futures::block_on(self.map.fetch_item::<&[u8]>(&mut self.buffer, &RECORD_KEY))
-                .map_err(map_error)?
-                .ok_or(StoreError::NoValidRecord)?;
-        let record = DriveRecord::decode(bytes)?;
+        let mut envelope = [0u8; MAX_RECORD_BYTES];
+        let Some(n) = self.fetch(RECORD_KEY, &mut envelope)? else {
+            return Ok(None);
+        };
+        let record = DriveRecord::decode(envelope.get(..n).ok_or(StoreError::NoValidRecord)?)?;
         record.validate()?;
         Ok(Some(record))
+    }
+
+    /// The stored CAN node settings: `Ok(None)` when none were saved (the
+    /// region is blank or holds only other keys' items); otherwise as
+    /// [`Self::load`] (a written region without any item is
+    /// [`StoreError::NoValidRecord`]; a stored record is decoded and
+    /// validated). May repair the region like [`Self::load`].
+    pub fn load_can(&mut self) -> Result<Option<CanRecord>, StoreError> {
+        let mut envelope = [0u8; MAX_CAN_RECORD_BYTES];
+        let Some(n) = self.fetch(CAN_RECORD_KEY, &mut envelope)? else {
+            return Ok(None);
+        };
+        let record = CanRecord::decode(envelope.get(..n).ok_or(StoreError::NoValidRecord)?)?;
+        record.validate()?;
+        Ok(Some(record))
+    }
+
+    /// [`Self::load_can`], with [`CanRecord::DEFAULT`] when none was
+    /// saved. Errors stay errors (the caller decides whether to fall back
+    /// to the defaults).
+    pub fn load_can_or_default(&mut self) -> Result<CanRecord, StoreError> {
+        Ok(self.load_can()?.unwrap_or_default())
+    }
+
+    /// Store `r` as the CAN node settings. Validates first: nothing is
+    /// written for invalid settings ([`StoreError::Invalid`]). The drive
+    /// record is not touched. On any error the previous settings are
+    /// still the ones [`Self::load_can`] returns, unless the new ones were
+    /// completely written.
+    pub fn save_can(&mut self, r: &CanRecord) -> Result<(), StoreError> {
+        r.validate()?;
+        let mut envelope = [0u8; MAX_CAN_RECORD_BYTES];
+        let n = r.encode(&mut envelope)?;
+        self.store(
+            CAN_RECORD_KEY,
+            envelope
+                .get(..n)
+                .ok_or(StoreError::Record(RecordError::TooLong))?,
+        )
+    }
+
+    /// The newest value of `key`, copied into `out`; its length, or `None`
+    /// when the key has no item and the region is blank or holds other
+    /// items ([`StoreError::NoValidRecord`] when it was written but holds
+    /// no item at all). A value longer than `out` is
+    /// [`RecordError::TooLong`].
+    fn fetch(&mut self, key: u8, out: &mut [u8]) -> Result<Option<usize>, StoreError> {
+        let found = embassy_futures::block_on(self.map.fetch_item::<&[u8]>(&mut self.buffer, &key))
+            .map_err(map_error)?;
+        if let Some(bytes) = found {
+            let dst = out
+                .get_mut(..bytes.len())
+                .ok_or(StoreError::Record(RecordError::TooLong))?;
+            dst.copy_from_slice(bytes);
+            return Ok(Some(bytes.len()));
+        }
+        if self.is_blank()? || self.holds_any_item()? {
+            Ok(None)
+        } else {
+            Err(StoreError::NoValidRecord)
+        }
+    }
+
+    /// True when the log holds at least one complete item (of any key).
+    fn holds_any_item(&mut self) -> Result<bool, StoreError> {
+        let mut items = embassy_futures::block_on(self.map.fetch_all_items(&mut self.buffer))
+            .map_err(map_error)?;
+        let first =
+            embassy_futures::block_on(items.next::<&[u8]>(&mut self.buffer)).map_err(map_error)?;
+        Ok(first.is_some())
     }
 
     /// Store `r` as the new record. Validates first: nothing is written for
@@ -254,9 +328,14 @@ impl<F: NorFlash> Store<F> {
         )
     }
 
-    /// Append raw envelope bytes (no validation).
+    /// Append raw envelope bytes of the drive record (no validation).
     fn save_envelope(&mut self, bytes: &[u8]) -> Result<(), StoreError> {
-        embassy_futures::block_on(self.map.store_item(&mut self.buffer, &RECORD_KEY, &bytes))
+        self.store(RECORD_KEY, bytes)
+    }
+
+    /// Append `bytes` as the newest value of `key`.
+    fn store(&mut self, key: u8, bytes: &[u8]) -> Result<(), StoreError> {
+        embassy_futures::block_on(self.map.store_item(&mut self.buffer, &key, &bytes))
             .map_err(map_error)
     }
 
@@ -267,7 +346,14 @@ impl<F: NorFlash> Store<F> {
         self.save_envelope(bytes)
     }
 
-    /// Erase the whole region (the store is then empty).
+    /// Store raw bytes under the CAN key, bypassing validation (tests).
+    #[cfg(test)]
+    pub(crate) fn save_can_raw(&mut self, bytes: &[u8]) -> Result<(), StoreError> {
+        self.store(CAN_RECORD_KEY, bytes)
+    }
+
+    /// Erase the whole region (the store is then empty: the drive record
+    /// and the CAN settings both go).
     pub fn erase(&mut self) -> Result<(), StoreError> {
         embassy_futures::block_on(self.map.erase_all()).map_err(map_error)
     }

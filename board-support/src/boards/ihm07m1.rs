@@ -84,6 +84,9 @@ pub const BREAK_IRQ: pac::Interrupt = pac::Interrupt::TIM1_BRK_TIM9;
 pub const SERIAL_IRQ: pac::Interrupt = pac::Interrupt::USART2;
 /// TIM1 BKIN wired to a hardware fault signal.
 pub const HAS_BREAK_INPUT: bool = false;
+/// No CAN port: the X-NUCLEO-IHM07M1 has no CAN transceiver (and the
+/// F401 no CAN controller); see the crate docs, "CAN".
+pub const HAS_CAN: bool = false;
 /// Largest phase current of the power stage [A] (L6230: 2.8 A peak, 1.4 A rms).
 pub const MAX_PHASE_CURRENT_A: f32 = 2.8;
 /// Largest current the sensing can measure [A] (1.65 V / (1.53 * 0.33 ohm)).

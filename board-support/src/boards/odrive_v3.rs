@@ -23,6 +23,7 @@
 //! | M1 AH/BH/CH, AL/BL/CL| PC6-8, PA7/PB0/PB1 | GPIO out low (M1 unused)     |
 //! | GPIO3 / GPIO4        | PA2 / PA3        | USART2 TX / RX (AF7), command UART, 115200 8N1 |
 //! | GPIO1 (feature `as5047p`) | PA0         | GPIO out, idle high: AS5047P CSn |
+//! | CAN_R / CAN_D (J2)   | PB8 / PB9        | CAN1_RX / CAN1_TX (AF9), on-board transceiver |
 //!
 //! Command UART: USART2 on the J3 header pins GPIO3 (PA2, TX) and GPIO4
 //! (PA3, RX). The ODrive firmware calls this port UART_B; its default
@@ -32,6 +33,22 @@
 //! docs `uart.md`, "How to use UART on GPIO3/4"). USART2 is used so that
 //! every board has the same `SERIAL_IRQ` vector (`USART2`), which the RTIC
 //! app binds by name.
+//!
+//! CAN ([`Can`], [`HAS_CAN`] = true): CAN1 on PB8 (RX) / PB9 (TX), AF9,
+//! to the board's CAN transceiver (J2 CANH / CANL; the termination
+//! resistor is a DIP switch on the board). Source: ODrive firmware
+//! `Firmware/Board/v3/Src/can.c` (`HAL_CAN_MspInit`: "PB8 ------>
+//! CAN1_RX, PB9 ------> CAN1_TX", `GPIO_AF9_CAN1`, `AutoBusOff = ENABLE`),
+//! cross-checked with stm32f4xx-hal 0.23's alternate-function table for
+//! the F405 (`gpio/alt/f4.rs`: CAN1 RX PB8<9>, TX PB9<9>). `init` leaves
+//! the controller asleep (off the bus): start it with the stored node
+//! settings' rate, `board.can.start(bitrate)`; then frames through
+//! [`foc_core::hal::CanPort`], received in the task bound to
+//! [`CAN_RX_IRQ`] (`CAN1_RX0`). Bit timing from APB1 = 42 MHz: 14 tq
+//! (1 + 11 + 2, SJW 1, sample point 85.7 %), prescaler 3 / 6 / 12 / 24
+//! for 1000 / 500 / 250 / 125 kbit/s, `CAN_BTR` `0x001A_0002` at
+//! 1 Mbit/s (`logic::can`; RM0090 §32.7.7). Automatic bus-off recovery
+//! (ABOM). Details: [`crate::hw::can`]. **Unverified on hardware.**
 //!
 //! Power stage: shunts 0.5 mOhm (v3.4 and later; 0.675 mOhm on v3.1-3.3),
 //! DRV8301 amplifier gain 10/20/40/80 (40 used: +-82 A range), VBUS divider
@@ -127,11 +144,14 @@ pub use crate::hw::angle::AngleSource;
 #[cfg(not(feature = "as5047p"))]
 use crate::hw::angle::{AngleInput, HallSensor, QuadEncoder};
 use crate::hw::brake::{aux_off_hard, AuxBrake};
+pub use crate::hw::can::{CanBus, CanError};
 use crate::hw::drv8301::{Drv8301, Drv8301Error};
 pub use crate::hw::flash::StoreFlash;
 use crate::hw::pwm::{PwmConfig, Tim1Pwm, Topology};
 pub use crate::hw::serial::CommandSerial;
 use crate::hw::{delay_us, enable_cycle_counter, PinId, Port};
+use crate::logic::can::BitTiming;
+pub use crate::logic::can::Bitrate;
 use crate::logic::drv8301::{Control1, Control2, Gain, GateCurrent, OcpMode, OctwMode, PwmMode};
 use crate::logic::scaling::{CurrentScale, VoltageScale};
 use crate::pac;
@@ -176,6 +196,20 @@ pub const BREAK_IRQ: pac::Interrupt = pac::Interrupt::TIM1_BRK_TIM9;
 pub const SERIAL_IRQ: pac::Interrupt = pac::Interrupt::USART2;
 /// Baud rate of the command UART [bit/s] (8N1).
 pub const SERIAL_BAUD: u32 = 115_200;
+/// The board has a CAN port ([`Can`]: CAN1 on PB8 / PB9 and the on-board
+/// transceiver).
+pub const HAS_CAN: bool = true;
+/// CAN receive interrupt: FIFO 0 holds a frame (`CAN1_RX0`; every
+/// accepted frame goes to FIFO 0).
+pub const CAN_RX_IRQ: pac::Interrupt = pac::Interrupt::CAN1_RX0;
+// Every CAN bit rate is exact from this APB1 clock (`logic::can`).
+const _: () = {
+    let mut i = 0;
+    while i < Bitrate::ALL.len() {
+        assert!(BitTiming::for_bitrate(PCLK1_HZ, Bitrate::ALL[i]).is_some());
+        i += 1;
+    }
+};
 /// TIM1 BKIN wired to a hardware fault signal.
 pub const HAS_BREAK_INPUT: bool = false;
 /// Largest phase current of the power stage [A] (without MOSFET cooling).
@@ -295,6 +329,8 @@ pub type Angle = As5047p<ExclusiveDevice<Spi<pac::SPI3>, PA0<Output>, dwt::Delay
 pub type Bus = RegularBus;
 /// The brake chopper on the AUX output (TIM2_CH4 on AUX_H).
 pub type Brake = AuxBrake;
+/// The CAN port: CAN1 (bxCAN) on PB8 / PB9.
+pub type Can = CanBus;
 /// The M0 DRV8301 on SPI3.
 pub type GateDriver = Drv8301<Spi<pac::SPI3>, PC13<Output>>;
 
@@ -327,6 +363,8 @@ pub struct Board {
     /// The configuration store's flash region ([`STORE_RANGE`]). Erasing a
     /// sector stalls the CPU for 1-2 s: bridge off first (`hw::flash`).
     pub store: StoreFlash,
+    /// CAN1 on PB8 / PB9, asleep (off the bus) until `can.start(..)`.
+    pub can: Can,
 }
 
 /// Set up clocks, pins, TIM1, ADC1, the DRV8301 and the angle input.
@@ -480,6 +518,9 @@ pub fn init(dp: pac::Peripherals) -> Board {
     let serial =
         CommandSerial::usart2_on_pa2_pa3(dp.USART2, gpioa.pa2, gpioa.pa3, &mut rcc, SERIAL_BAUD);
 
+    // CAN1 on PB8/PB9 (AF9), asleep until started with the stored rate.
+    let can = CanBus::can1_on_pb8_pb9(dp.CAN1, gpiob.pb8, gpiob.pb9, &mut rcc);
+
     Board {
         pwm,
         currents,
@@ -496,6 +537,7 @@ pub fn init(dp: pac::Peripherals) -> Board {
         // After `rcc.freeze`, which sets the wait states through its own
         // FLASH_ACR pointer and does not need the peripheral.
         store: StoreFlash::new(dp.FLASH, STORE_RANGE),
+        can,
     }
 }
 

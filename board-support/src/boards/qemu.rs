@@ -90,6 +90,8 @@ pub const CURRENT_IRQ: pac::Interrupt = pac::Interrupt::ADC;
 pub const BREAK_IRQ: pac::Interrupt = pac::Interrupt::TIM1_BRK_TIM9;
 /// No break input.
 pub const HAS_BREAK_INPUT: bool = false;
+/// No CAN port (QEMU's netduinoplus2 models no bxCAN).
+pub const HAS_CAN: bool = false;
 /// Command UART interrupt: USART2, QEMU's second `-serial` device (start
 /// QEMU with `-serial null -serial tcp:127.0.0.1:PORT,server,nowait`).
 pub const SERIAL_IRQ: pac::Interrupt = pac::Interrupt::USART2;

@@ -10,6 +10,8 @@ pub mod angle;
 pub mod as5047p;
 #[cfg(feature = "odrive-v3")]
 pub mod brake;
+#[cfg(feature = "odrive-v3")]
+pub mod can;
 pub mod drv8301;
 #[cfg(not(feature = "qemu"))]
 pub mod flash;

@@ -4,6 +4,7 @@
 //! use lives here, where `cargo test -p board-support` can check it.
 
 pub mod as5047p;
+pub mod can;
 pub mod dead_time;
 pub mod drv8301;
 pub mod emu_args;

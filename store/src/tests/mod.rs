@@ -1,6 +1,7 @@
 //! Tests of the whole crate: records, settings, the store under power cuts
 //! and garbage, wear, TOML.
 
+mod can_tests;
 mod power_cut;
 #[cfg(feature = "std")]
 mod props;
