@@ -140,6 +140,28 @@ class BootAndConfigure(Rig):
             self.assertEqual(state_of(self.statusword(n)), "SWITCH ON DISABLED")
 
 
+class NodeIdStored(Rig):
+    nodes_on_bus = 1
+
+    def test_node_id_configured_saved_and_taken_at_the_next_boot(self):
+        n = self.nodes[0]
+        n.sdo[0x2100].raw = 5
+        # Not in force before a save and a reset: the node still answers as 1.
+        self.assertEqual(n.sdo[0x2100].raw, 5)
+        # 0x1010 sub 1 "save" (0x65766173): configuration and CAN settings
+        # go to the drive's flash.
+        n.sdo[0x1010][1].raw = 0x65766173
+        booted = []
+        moved = self.bus.add_402_node(5)
+        moved.nmt.add_heartbeat_callback(lambda state: booted.append(state))
+        self.bus.control("reset 1")  # power cycle of the drive
+        self.assertTrue(wait_until(lambda: 0 in booted), "no boot-up from node 5")
+        self.assertEqual(moved.sdo[0x2100].raw, 5)
+        self.assertEqual(moved.sdo[0x6041].raw & 0x004F, 0x0000)  # not ready: starting
+        self.clock.tick(100)
+        self.assertEqual(moved.sdo[0x6041].raw & 0x004F, 0x0040)  # switch on disabled
+
+
 class CyclicPosition(Rig):
     # Largest |position demand - actual| over the move [inc] (stated in the
     # README; measured 113 / 177 / 261 inc for the 1 / 2 / 3 rev axes).

@@ -62,16 +62,8 @@ pub const BACKLOG: usize = 4096;
 /// Longest bus time one tick step covers \[us\].
 pub const TICK_US: u64 = 1000;
 
-/// A node's CAN controller state.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum BusState {
-    /// Normal operation.
-    ErrorActive,
-    /// Error passive (still sends and receives).
-    ErrorPassive,
-    /// Off the bus: sends and receives nothing.
-    BusOff,
-}
+/// A node's CAN controller state (the hardware layer's).
+pub use foc_core::hal::BusState;
 
 /// A node hosted on the bus: a CANopen node with its drive. Every method
 /// gets the bus time \[us\] and an `out` to send frames with (delivered

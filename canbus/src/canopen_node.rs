@@ -11,7 +11,7 @@ use crate::bus::BusState;
 use crate::drive_node::DriveProtocol;
 use crate::host_drive::HostDrive;
 use foc_canopen::eds::EdsInfo;
-use foc_canopen::node::{BusState as NodeBusState, CanDevice, CommSettings, Identity, Node};
+use foc_canopen::node::{CanDevice, CommSettings, Identity, Node};
 use foc_canopen::CanFrame;
 use foc_protocol::device::WatchdogConfig;
 use foc_protocol::message::ErrorCode;
@@ -53,14 +53,6 @@ impl CanDevice for HostDrive {
     }
 }
 
-fn node_state(s: BusState) -> NodeBusState {
-    match s {
-        BusState::ErrorActive => NodeBusState::ErrorActive,
-        BusState::ErrorPassive => NodeBusState::ErrorPassive,
-        BusState::BusOff => NodeBusState::BusOff,
-    }
-}
-
 impl DriveProtocol for Node {
     fn boot(&mut self, now_us: u64, drive: &mut HostDrive, out: &mut dyn FnMut(CanFrame)) {
         Node::boot(self, now_us, drive, out);
@@ -84,6 +76,6 @@ impl DriveProtocol for Node {
         drive: &mut HostDrive,
         out: &mut dyn FnMut(CanFrame),
     ) {
-        Node::on_bus_state(self, node_state(state), now_us, drive, out);
+        Node::on_bus_state(self, state, now_us, drive, out);
     }
 }

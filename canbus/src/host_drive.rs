@@ -120,8 +120,8 @@ pub struct HostDrive {
     boot_link: Option<WatchdogConfig>,
     /// PWM periods run since power-on.
     periods: u64,
-    /// The CAN node's communication settings a 0x1010 "save" kept (they
-    /// survive a power cycle, like the flash).
+    /// The CAN node's communication settings stored in the flash, as
+    /// loaded at power-on (and updated by a save).
     comm: Option<foc_canopen::node::CommSettings>,
 }
 
@@ -175,6 +175,10 @@ impl HostDrive {
         self.settings = self.base;
         self.label = Label::new();
         self.boot_link = None;
+        self.comm = match self.store.as_mut().map(|s| s.load_can()) {
+            Some(Ok(Some(r))) => foc_canopen::node::CommSettings::from_record(&r).ok(),
+            _ => None,
+        };
         if let Some(Ok(Some(rec))) = self.store.as_mut().map(|s| s.load()) {
             if let Ok(s) = self.admit(&rec) {
                 self.settings = s;
@@ -263,8 +267,11 @@ impl HostDrive {
         self.comm
     }
 
-    /// Keep the CAN node's communication settings for the next boot.
+    /// Keep the CAN node's communication settings for the next boot: in
+    /// the flash, as the firmware does (`foc_store::CanRecord`).
     pub fn store_comm(&mut self, s: foc_canopen::node::CommSettings) -> Result<(), ErrorCode> {
+        let store = self.store.as_mut().ok_or(ErrorCode::Unsupported)?;
+        store.save_can(&s.to_record()).map_err(store_error)?;
         self.comm = Some(s);
         Ok(())
     }

@@ -684,3 +684,35 @@ fn manufacturer_objects_read_the_drive_and_write_gains_through_it() {
     b.write_u32(0x1006, 0, 0).unwrap();
     assert_eq!(b.read_u32(0x60C2, 1), 0);
 }
+
+#[test]
+fn comm_settings_and_the_stored_record_agree() {
+    assert_eq!(
+        CommSettings::DEFAULT.to_record(),
+        foc_store::CanRecord::DEFAULT
+    );
+    assert_eq!(
+        CommSettings::from_record(&foc_store::CanRecord::DEFAULT),
+        Ok(CommSettings::DEFAULT)
+    );
+    let s = CommSettings::new(9, 250, 50, Some((127, 300))).unwrap();
+    assert_eq!(CommSettings::from_record(&s.to_record()), Ok(s));
+    assert!(s.to_record().validate().is_ok());
+    // What one refuses the other refuses.
+    for (id, kbit, consumer) in [
+        (0u8, 1000u16, 0u8),
+        (128, 1000, 0),
+        (5, 800, 0),
+        (5, 1000, 5),
+    ] {
+        let r = foc_store::CanRecord {
+            node_id: id,
+            bitrate_kbit: kbit,
+            heartbeat_ms: 100,
+            consumer_node: consumer,
+            consumer_ms: if consumer == 0 { 0 } else { 100 },
+        };
+        assert!(r.validate().is_err());
+        assert!(CommSettings::from_record(&r).is_err());
+    }
+}

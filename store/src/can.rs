@@ -81,11 +81,11 @@ fn check(ok: bool, field: &'static str) -> Result<(), Invalid> {
 
 impl CanRecord {
     /// The settings of a drive that never stored any: node 1, 1 Mbit/s,
-    /// heartbeat every 1000 ms, no consumer.
+    /// heartbeat every 100 ms, no consumer.
     pub const DEFAULT: CanRecord = CanRecord {
         node_id: 1,
         bitrate_kbit: 1000,
-        heartbeat_ms: 1000,
+        heartbeat_ms: 100,
         consumer_node: 0,
         consumer_ms: 0,
     };

@@ -48,17 +48,8 @@ pub struct Identity {
     pub hardware_version: &'static str,
 }
 
-/// The CAN controller's error state.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum BusState {
-    /// Normal.
-    ErrorActive,
-    /// Error counters above 127.
-    ErrorPassive,
-    /// Off the bus.
-    BusOff,
-}
+/// The CAN controller's error state (the hardware layer's).
+pub use foc_core::hal::BusState;
 
 /// Why [`CommSettings::new`] refused.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -121,6 +112,28 @@ impl CommSettings {
             consumer,
         })
     }
+    /// From the stored record (`foc_store::CanRecord`, validated again
+    /// here: the two rule sets agree, see the tests).
+    pub fn from_record(r: &foc_store::CanRecord) -> Result<Self, SettingsError> {
+        let consumer = (r.consumer_node != 0).then_some((r.consumer_node, r.consumer_ms));
+        Self::new(r.node_id, r.bitrate_kbit, r.heartbeat_ms, consumer)
+    }
+
+    /// As the stored record.
+    pub const fn to_record(&self) -> foc_store::CanRecord {
+        let (consumer_node, consumer_ms) = match self.consumer {
+            Some((n, ms)) => (n, ms),
+            None => (0, 0),
+        };
+        foc_store::CanRecord {
+            node_id: self.node_id,
+            bitrate_kbit: self.bitrate_kbit,
+            heartbeat_ms: self.heartbeat_ms,
+            consumer_node,
+            consumer_ms,
+        }
+    }
+
     /// Node id, 1..=127.
     pub const fn node_id(&self) -> u8 {
         self.node_id
