@@ -12,7 +12,8 @@
 //!   entries it enables must fit into 64 bits ([`Abort::PdoTooLong`]);
 //! - a valid COB-ID cannot be changed into another valid one
 //!   ([`Abort::InvalidValue`]); 29-bit identifiers and the restricted
-//!   identifiers of CiA 301 table 70 are refused;
+//!   identifiers of CiA 301 table 70 are refused; a TPDO's bit 30 ("no
+//!   RTR") stays set: this node does not answer remote frames;
 //! - transmission types: 0..=240, 254, 255 (RTR-only types are not
 //!   supported); the inhibit time changes only while the PDO is invalid.
 //!
@@ -21,7 +22,8 @@
 //! ```
 //! use foc_canopen::pdo::PdoConfig;
 //! let t1 = PdoConfig::tpdo_default(0, 5);
-//! assert_eq!(t1.cob_id, 0x185);
+//! assert_eq!(t1.cob_id, 0x4000_0185); // bit 30: no RTR
+//! assert_eq!(t1.id(), 0x185);
 //! assert_eq!(t1.map.entries(), &[0x6041_0010]);
 //! ```
 
@@ -109,7 +111,7 @@ impl PdoConfig {
     /// TPDO `n` (0..4) at its defaults for `node_id`.
     pub fn tpdo_default(n: usize, node_id: u8) -> Self {
         Self {
-            cob_id: 0x180 + 0x100 * n as u32 + u32::from(node_id),
+            cob_id: NO_RTR | (0x180 + 0x100 * n as u32 + u32::from(node_id)),
             transmission: 255,
             inhibit_100us: 0,
             event_ms: 0,
@@ -139,6 +141,11 @@ impl PdoConfig {
         match sub {
             1 => {
                 if v & EXTENDED != 0 || v & 0x1FFF_F800 != 0 {
+                    return Err(Abort::InvalidValue);
+                }
+                // A TPDO cannot be requested by a remote frame here:
+                // bit 30 ("no RTR") stays set.
+                if !rx && v & NO_RTR == 0 {
                     return Err(Abort::InvalidValue);
                 }
                 let new_valid = v & INVALID == 0;
@@ -239,14 +246,22 @@ mod tests {
             t.with_comm(false, 1, 0x185 | NO_RTR).map(|c| c.cob_id),
             Ok(0x4000_0185)
         );
-        let off = t.with_comm(false, 1, INVALID | 0x185).unwrap();
+        assert_eq!(
+            t.with_comm(false, 1, 0x185),
+            Err(Abort::InvalidValue),
+            "a TPDO keeps bit 30 (no RTR)"
+        );
+        let off = t.with_comm(false, 1, INVALID | NO_RTR | 0x185).unwrap();
         assert!(!off.valid());
         assert_eq!(
-            off.with_comm(false, 1, 0x701),
+            off.with_comm(false, 1, NO_RTR | 0x701),
             Err(Abort::InvalidValue),
             "restricted"
         );
-        assert_eq!(off.with_comm(false, 1, 0x186).map(|c| c.id()), Ok(0x186));
+        assert_eq!(
+            off.with_comm(false, 1, NO_RTR | 0x186).map(|c| c.id()),
+            Ok(0x186)
+        );
         assert_eq!(
             t.with_comm(true, 3, 0),
             Err(Abort::NoSubIndex),

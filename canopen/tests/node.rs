@@ -326,7 +326,11 @@ fn default_pdo_mappings_and_cob_ids() {
     ];
     for n in 0..4u16 {
         assert_eq!(b.read_u32(0x1400 + n, 1), 0x205 + 0x100 * u32::from(n));
-        assert_eq!(b.read_u32(0x1800 + n, 1), 0x185 + 0x100 * u32::from(n));
+        assert_eq!(
+            b.read_u32(0x1800 + n, 1),
+            0x4000_0185 + 0x100 * u32::from(n),
+            "bit 30: no RTR"
+        );
         assert_eq!(b.read_u32(0x1400 + n, 2), 255);
         assert_eq!(b.read_u32(0x1800 + n, 2), 255);
         let (r, t) = (rx[n as usize], tx[n as usize]);
@@ -367,7 +371,7 @@ fn remapping_procedure_over_sdo() {
         Err(0x0800_0022),
         "valid PDO"
     );
-    b.write_u32(0x1801, 1, 0x8000_0285).unwrap();
+    b.write_u32(0x1801, 1, 0xC000_0285).unwrap();
     assert_eq!(
         b.write_u32(0x1A01, 1, 0x6064_0020),
         Err(0x0601_0000),
@@ -395,7 +399,7 @@ fn remapping_procedure_over_sdo() {
     assert_eq!(b.write(0x1A01, 0, &[3]), Err(0x0604_0042), "96 bits");
     assert_eq!(b.write(0x1A01, 0, &[9]), Err(0x0609_0031));
     b.write(0x1A01, 0, &[2]).unwrap();
-    b.write_u32(0x1801, 1, 0x285).unwrap();
+    b.write_u32(0x1801, 1, 0x4000_0285).unwrap();
     // An RPDO cannot map a read-only object.
     b.write_u32(0x1400, 1, 0x8000_0205).unwrap();
     b.write(0x1600, 0, &[0]).unwrap();
@@ -443,10 +447,10 @@ fn synchronous_cyclic_tpdo_every_nth_sync_and_acyclic_on_change() {
 #[test]
 fn event_tpdo_respects_inhibit_time_and_event_timer() {
     let mut b = Bench::with(CommSettings::new(ID, 1000, 0, None).unwrap());
-    b.write_u32(0x1800, 1, 0x8000_0185).unwrap();
+    b.write_u32(0x1800, 1, 0xC000_0185).unwrap();
     b.write(0x1800, 3, &50u16.to_le_bytes()).unwrap(); // 5 ms
     b.write(0x1800, 5, &20u16.to_le_bytes()).unwrap(); // 20 ms
-    b.write_u32(0x1800, 1, 0x185).unwrap();
+    b.write_u32(0x1800, 1, 0x4000_0185).unwrap();
     assert_eq!(
         b.write(0x1800, 3, &[0, 0]),
         Err(0x0609_0030),

@@ -1,5 +1,4 @@
-//! The node with the real CiA 402 profile. Ignored until the profile's
-//! bodies.
+//! The node with the real CiA 402 profile.
 
 mod common;
 
@@ -45,4 +44,99 @@ fn node_with_cia402_boots_serves_sdo_and_pdo() {
     node.tick(4000, &mut dev, &mut |f| sent.push(f));
     assert_eq!(node.cia402().controlword(), 0x06);
     assert!(sent.iter().any(|f| f.id == 0x185));
+}
+
+/// A node, booted and operational, with the real profile.
+fn operational() -> (Node, FakeDevice, Vec<CanFrame>) {
+    let mut dev = FakeDevice::new();
+    let mut sent = Vec::new();
+    let mut node = Node::new(CommSettings::new(ID, 1000, 100, None).unwrap());
+    node.boot(0, &mut dev, &mut |f| sent.push(f));
+    node.tick(1000, &mut dev, &mut |f| sent.push(f));
+    node.on_frame(
+        &CanFrame::new(0, &[1, ID]).unwrap(),
+        2000,
+        &mut dev,
+        &mut |f| sent.push(f),
+    );
+    (node, dev, sent)
+}
+
+#[test]
+fn one_rpdo_is_one_data_set_the_controlword_acts_last() {
+    let (mut node, mut dev, mut sent) = operational();
+    for (t, cw) in [(3000, 0x06u8), (4000, 0x07)] {
+        node.on_frame(
+            &CanFrame::new(0x205, &[cw, 0]).unwrap(),
+            t,
+            &mut dev,
+            &mut |f| sent.push(f),
+        );
+    }
+    // RPDO2 (default: controlword + mode): enable operation with the mode
+    // in the same frame. Applied in mapping order the enable would meet
+    // "no mode" and be refused.
+    node.on_frame(
+        &CanFrame::new(0x305, &[0x0F, 0, 3]).unwrap(),
+        5000,
+        &mut dev,
+        &mut |f| sent.push(f),
+    );
+    assert_eq!(node.cia402().requested_mode(), 3);
+    assert_eq!(
+        node.cia402().actuals.statusword & 0x6F,
+        0x27,
+        "operation enabled, statusword {:#06x}",
+        node.cia402().actuals.statusword
+    );
+}
+
+#[test]
+fn two_targets_mapped_in_one_rpdo_both_count() {
+    let (mut node, mut dev, mut sent) = operational();
+    // RPDO4: target velocity + velocity offset (remapped the CiA 301 way).
+    let w = |node: &mut Node, dev: &mut FakeDevice, i: u16, s: u8, d: &[u8]| {
+        node.write_object(i, s, d, 3000, dev).unwrap();
+    };
+    w(
+        &mut node,
+        &mut dev,
+        0x1403,
+        1,
+        &0x8000_0505u32.to_le_bytes(),
+    );
+    w(&mut node, &mut dev, 0x1603, 0, &[0]);
+    w(
+        &mut node,
+        &mut dev,
+        0x1603,
+        1,
+        &0x60FF_0020u32.to_le_bytes(),
+    );
+    w(
+        &mut node,
+        &mut dev,
+        0x1603,
+        2,
+        &0x60B1_0020u32.to_le_bytes(),
+    );
+    w(&mut node, &mut dev, 0x1603, 0, &[2]);
+    w(
+        &mut node,
+        &mut dev,
+        0x1403,
+        1,
+        &0x0000_0505u32.to_le_bytes(),
+    );
+    let mut data = [0u8; 8];
+    data[..4].copy_from_slice(&1000i32.to_le_bytes());
+    data[4..].copy_from_slice(&500i32.to_le_bytes());
+    node.on_frame(
+        &CanFrame::new(0x505, &data).unwrap(),
+        4000,
+        &mut dev,
+        &mut |f| sent.push(f),
+    );
+    let t = node.cia402().targets;
+    assert_eq!((t.velocity_inc_s, t.velocity_offset_inc_s), (1000, 500));
 }

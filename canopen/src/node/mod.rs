@@ -519,13 +519,21 @@ impl<P: Profile> Node<P> {
         }
     }
 
-    /// Apply an RPDO's data: every mapped value is validated as an SDO
-    /// write would be; one refused value drops the whole PDO.
+    /// Apply an RPDO's data as one data set: every mapped value is
+    /// validated as an SDO write would be (one refused value drops the
+    /// whole PDO); then the targets and parameters, the other objects in
+    /// mapping order, and the controlword last, so a controlword acts on
+    /// the target and mode sent with it (pp's new set-point with 0x607A,
+    /// enable with 0x6060).
     fn apply_rpdo<C: CanDevice>(&mut self, n: usize, data: &[u8], now_us: u64, ctx: &mut C) {
         let Some(cfg) = self.dict.rpdo.get(n).copied() else {
             return;
         };
         let mut actions: [Option<Action>; 8] = [None; 8];
+        let mut targets = *self.dict.profile.targets();
+        let mut params = *self.dict.profile.params();
+        let (mut staged_t, mut staged_p) = (false, false);
+        let mut controlword = None;
         let mut pos = 0usize;
         for (slot, &e) in actions.iter_mut().zip(cfg.map.entries()) {
             let Ok(def) = pdo::check_entry(e, true) else {
@@ -539,13 +547,25 @@ impl<P: Profile> Node<P> {
             let Ok(v) = od::parse(def, bytes) else {
                 return;
             };
-            let Ok(a) = self.dict.prepare_value(def, v, ctx) else {
-                return;
-            };
-            *slot = Some(a);
+            match self.dict.prepare_staged(def, v, ctx, targets, params) {
+                Ok(Action::Targets(t)) => (targets, staged_t) = (t, true),
+                Ok(Action::Params(p)) => (params, staged_p) = (p, true),
+                Ok(Action::Controlword(cw)) => controlword = Some(cw),
+                Ok(a) => *slot = Some(a),
+                Err(_) => return,
+            }
+        }
+        if staged_t {
+            let _ = self.dict.apply(Action::Targets(targets), now_us, ctx);
+        }
+        if staged_p {
+            let _ = self.dict.apply(Action::Params(params), now_us, ctx);
         }
         for a in actions.into_iter().flatten() {
             let _ = self.dict.apply(a, now_us, ctx);
+        }
+        if let Some(cw) = controlword {
+            let _ = self.dict.apply(Action::Controlword(cw), now_us, ctx);
         }
     }
 

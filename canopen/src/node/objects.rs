@@ -338,11 +338,24 @@ impl<P: Profile> Dict<P> {
         v: Value,
         ctx: &C,
     ) -> Result<Action, Abort> {
+        let (t, p) = (*self.profile.targets(), *self.profile.params());
+        self.prepare_staged(def, v, ctx, t, p)
+    }
+
+    /// As [`Self::prepare_value`], on top of targets `t` and parameters
+    /// `p` already staged by the earlier objects of the same PDO (so two
+    /// targets mapped in one RPDO both count).
+    pub fn prepare_staged<C: CanDevice>(
+        &self,
+        def: &ObjectDef,
+        v: Value,
+        ctx: &C,
+        mut t: Targets,
+        mut p: Params,
+    ) -> Result<Action, Abort> {
         od::check_range(def, v)?;
         let i = v.int();
         let u = i as u32;
-        let mut t = *self.profile.targets();
-        let mut p = *self.profile.params();
         let a = match (def.index, def.sub) {
             (0x1003, 0) if i == 0 => Action::ClearHistory,
             (0x1003, _) => return Err(Abort::InvalidValue),

@@ -166,7 +166,8 @@ impl Builder {
                 k,
                 Unsigned32,
                 Rw,
-                Default::NodeId(0x180 + 0x100 * n as u32),
+                // Bit 30: no RTR (this node does not answer remote frames).
+                Default::NodeId(0x4000_0000 | (0x180 + 0x100 * n as u32)),
             )
             .sub(
                 i,
