@@ -654,15 +654,26 @@ fn save_path_stores_the_drive_and_the_comm_settings() {
     b.dev.store_fails = true;
     assert_eq!(b.write_u32(0x1010, 1, SAVE), Err(0x0606_0000));
     b.dev.store_fails = false;
-    b.write_u32(0x1011, 1, LOAD).unwrap();
-    assert_eq!(b.dev.stores.last(), Some(&StoreOp::Erase));
-    assert_eq!(b.write_u32(0x1011, 1, SAVE), Err(0x0800_0020));
     assert_eq!(b.read_u32(0x1010, 1), 1);
     // Reset node takes the saved node id.
     b.sent.clear();
     b.nmt(0x81, ID);
     assert_eq!(b.node.node_id(), 9);
     assert!(b.take().contains(&CanFrame::new(0x709, &[0]).unwrap()));
+}
+
+#[test]
+fn restore_forgets_the_saved_settings() {
+    let mut b = Bench::new();
+    b.write(0x2100, 0, &[9]).unwrap();
+    b.write_u32(0x1010, 1, SAVE).unwrap();
+    // Restore erases the store: a reset then keeps the settings in force
+    // (the defaults come at the next power-on), not the erased ones.
+    b.write_u32(0x1011, 1, LOAD).unwrap();
+    assert_eq!(b.dev.stores.last(), Some(&StoreOp::Erase));
+    assert_eq!(b.write_u32(0x1011, 1, SAVE), Err(0x0800_0020));
+    b.nmt(0x81, ID);
+    assert_eq!(b.node.node_id(), ID);
 }
 
 #[test]

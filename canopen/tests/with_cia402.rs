@@ -140,3 +140,52 @@ fn two_targets_mapped_in_one_rpdo_both_count() {
     let t = node.cia402().targets;
     assert_eq!((t.velocity_inc_s, t.velocity_offset_inc_s), (1000, 500));
 }
+
+/// Operational and in operation enabled (pv).
+fn enabled() -> (Node, FakeDevice, Vec<CanFrame>) {
+    let (mut node, mut dev, mut sent) = operational();
+    for (t, data) in [
+        (3000, &[0x06u8, 0, 3][..]),
+        (4000, &[0x07, 0, 3]),
+        (5000, &[0x0F, 0, 3]),
+    ] {
+        node.on_frame(
+            &CanFrame::new(0x305, data).unwrap(),
+            t,
+            &mut dev,
+            &mut |f| sent.push(f),
+        );
+    }
+    assert_eq!(
+        node.cia402().state(),
+        foc_canopen::cia402::State::OperationEnabled
+    );
+    (node, dev, sent)
+}
+
+#[test]
+fn nmt_stop_and_resets_are_a_connection_loss_for_a_running_drive() {
+    use foc_canopen::cia402::State;
+    // 0x6007 = 1 (default): the drive's CommandTimeout fault, bridge off.
+    for nmt in [[0x02u8, ID], [0x82, ID], [0x81, ID], [0x02, 0]] {
+        let (mut node, mut dev, mut sent) = enabled();
+        node.on_frame(&CanFrame::new(0, &nmt).unwrap(), 6000, &mut dev, &mut |f| {
+            sent.push(f)
+        });
+        assert!(
+            matches!(
+                node.cia402().state(),
+                State::FaultReactionActive | State::Fault
+            ),
+            "NMT {nmt:02x?}: {:?}",
+            node.cia402().state()
+        );
+        assert!(
+            dev.ctx
+                .faults
+                .contains(foc_core::control::Fault::CommandTimeout),
+            "{nmt:02x?}"
+        );
+        assert_eq!(dev.ctx.posted, Some(foc_core::control::Command::Disable));
+    }
+}

@@ -181,10 +181,10 @@ impl BrakeOutput for NoBrake {
 }
 
 /// Fault-confinement state of a CAN controller (ISO 11898-1 fault
-/// confinement, the same three states on every controller): what a
-/// CANopen node reports in its emergency messages (CiA 301 error codes
-/// `0x8120` "CAN in error passive mode", `0x8140` "recovered from bus
-/// off").
+/// confinement, the same three states on every controller). The CANopen
+/// node treats bus-off as a lost connection and reports the recovery
+/// (CiA 301 error code `0x8140` "recovered from bus off"); it does not
+/// report error passive (`0x8120`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum BusState {

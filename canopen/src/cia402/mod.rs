@@ -311,7 +311,9 @@ pub struct Cia402 {
     cw: u16,
     profile_fault: Option<u16>,
     warning: bool,
-    reset_pending: bool,
+    /// A fault reset waiting for the drive's clear: the drive period at
+    /// the reset.
+    reset_pending: Option<u32>,
     last_us: Option<u64>,
     gen: Generator,
     follower: Follower,
@@ -338,7 +340,7 @@ impl Cia402 {
             cw: 0,
             profile_fault: None,
             warning: false,
-            reset_pending: false,
+            reset_pending: None,
             last_us: None,
             gen: Generator::default(),
             follower: Follower::Impedance,
@@ -536,7 +538,7 @@ impl Cia402 {
         if ctx.faults().0.is_empty() {
             self.state = State::SwitchOnDisabled;
         } else {
-            self.reset_pending = true;
+            self.reset_pending = Some(ctx.feedback().period);
         }
     }
 
@@ -623,9 +625,19 @@ impl Cia402 {
         let st = ctx.status();
         let faulted = st.faulted || !ctx.faults().0.is_empty();
         match self.state {
-            State::Fault if self.reset_pending && !faulted => {
-                self.reset_pending = false;
+            State::Fault if self.reset_pending.is_some() && !faulted => {
+                self.reset_pending = None;
                 self.state = State::SwitchOnDisabled;
+            }
+            // The drive clears in its next period: still faulted two
+            // periods after the reset, the fault stayed (or came back), and
+            // only a new fault-reset edge may leave Fault.
+            State::Fault
+                if self
+                    .reset_pending
+                    .is_some_and(|p0| ctx.feedback().period.wrapping_sub(p0) >= 2) =>
+            {
+                self.reset_pending = None;
             }
             State::Fault => {}
             State::FaultReactionActive => {
@@ -648,7 +660,7 @@ impl Cia402 {
     fn fault_reaction<C: DeviceContext>(&mut self, ctx: &mut C) {
         self.state = State::FaultReactionActive;
         self.stop = None;
-        self.reset_pending = false;
+        self.reset_pending = None;
         self.disable(ctx);
     }
 

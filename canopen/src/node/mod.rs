@@ -325,6 +325,29 @@ impl<P: Profile> Node<P> {
         self.nmt = NmtState::PreOperational;
     }
 
+    /// Reset communication: the communication settings a 0x1010 save
+    /// stored (else those in force), then boot-up.
+    fn reset_communication<C: CanDevice>(
+        &mut self,
+        now_us: u64,
+        ctx: &mut C,
+        out: &mut dyn FnMut(CanFrame),
+    ) {
+        if let Some(saved) = self.dict.saved {
+            self.settings = saved;
+        }
+        self.boot(now_us, ctx, out);
+    }
+
+    /// Reset application: the profile back to its power-on values
+    /// (disable voltage: the bridge off unless in Fault, which stays until
+    /// a fault reset; parameters at their defaults, targets zero).
+    fn reset_application<C: CanDevice>(&mut self, now_us: u64, ctx: &mut C) {
+        self.dict.profile.write_controlword(0, now_us, ctx);
+        self.dict.profile.set_params(crate::cia402::Params::DEFAULT);
+        *self.dict.profile.targets_mut() = crate::cia402::Targets::ZERO;
+    }
+
     fn set_state(&mut self, s: NmtState) {
         if s != NmtState::Operational {
             self.tpdo_run = [TpdoRun::default(); COUNT];
@@ -368,13 +391,22 @@ impl<P: Profile> Node<P> {
                 match cmd {
                     NmtCommand::ResetNode => {
                         self.reset_request = true;
-                        if let Some(saved) = self.dict.saved {
-                            self.settings = saved;
-                        }
-                        self.boot(now_us, ctx, out);
+                        self.dict.profile.connection_lost(now_us, ctx);
+                        self.reset_application(now_us, ctx);
+                        self.reset_communication(now_us, ctx, out);
                     }
-                    NmtCommand::ResetCommunication => self.boot(now_us, ctx, out),
-                    c => self.set_state(c.next(self.nmt)),
+                    NmtCommand::ResetCommunication => {
+                        self.dict.profile.connection_lost(now_us, ctx);
+                        self.reset_communication(now_us, ctx, out);
+                    }
+                    c => {
+                        let next = c.next(self.nmt);
+                        if next == NmtState::Stopped && self.nmt != NmtState::Stopped {
+                            // Entering Stopped is a connection loss (0x6007).
+                            self.dict.profile.connection_lost(now_us, ctx);
+                        }
+                        self.set_state(next);
+                    }
                 }
             }
             return;

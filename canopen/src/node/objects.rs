@@ -540,6 +540,9 @@ impl<P: Profile> Dict<P> {
                 let link = ctx.link_setting();
                 ctx.store(StoreOp::Erase, &[], link)
                     .map_err(|_| Abort::Hardware)?;
+                // Nothing stored any more: a reset keeps the settings in
+                // force; the next power-on starts from the defaults.
+                self.saved = None;
             }
             Action::SpeedGains(g) => ctx.set_speed_gains(g).map_err(refusal)?,
             Action::NodeId(n) => {

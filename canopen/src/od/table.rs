@@ -561,7 +561,8 @@ const fn build() -> Builder {
             Integer16,
             Rw,
             false,
-            Some((0, 8)),
+            // 0, 1, 2, 5, 6 (3 and 4 are refused: no current-limit stop).
+            Some((0, 6)),
             Default::Int(P402.quick_stop_option as i64),
         )
         .p(
