@@ -172,8 +172,11 @@ class Firmware(unittest.TestCase):
             last[:] = [fw.sdo[0x606C].raw]
             return abs(last[0] - target) <= window
 
+        t0 = time.monotonic()
         self.assertTrue(poll(reached, VELOCITY_WALL_S, step=0.1),
                         f"velocity {last} inc/s, target {target} +- {window}")
+        print(f"node {FIRMWARE_ID}: 0x606C = {last[0]} inc/s (target {target} +- {window}) "
+              f"after {time.monotonic() - t0:.1f} s wall", end=" ... ", flush=True)
         self.assertTrue(
             poll(lambda: self.statusword() & SW_TARGET_REACHED, STEP_WALL_S),
             f"target reached not set: {self.statusword():#06x}",
