@@ -84,15 +84,17 @@
 //! | ODrive v3.x                | CAN1 on PB8 (RX) / PB9 (TX), on-board transceiver: `Board::can` |
 //! | NUCLEO-F446RE + IHM07M1    | none: the F446 has bxCAN (CAN1 RX/TX on PA11/PA12 or PB8/PB9, AF9), but neither the NUCLEO nor the X-NUCLEO-IHM07M1 shield has a CAN transceiver; an external transceiver board would be needed |
 //! | NUCLEO-F401RE + IHM07M1    | none: the STM32F401 has no CAN controller        |
-//! | QEMU                       | none (no bxCAN model)                            |
+//! | QEMU                       | no bxCAN model: the same frames as SLCAN lines on USART3 (QEMU's third `-serial`), [`hw::slcan::SlcanPort`]: `Board::can` |
 //!
 //! On the ODrive, `board::HAS_CAN` is true and the board module adds:
 //! `Can` ([`hw::can::CanBus`], implementing [`foc_core::hal::CanPort`]),
 //! `Bitrate` ([`logic::can::Bitrate`]: 125 / 250 / 500 / 1000 kbit/s),
 //! `CAN_RX_IRQ: pac::Interrupt` (`CAN1_RX0`) and the `Board::can` field.
 //! `init` leaves the controller asleep, off the bus; `can.start(bitrate)`
-//! joins it (bit timing, automatic bus-off recovery). Elsewhere
-//! `HAS_CAN` is false and there is no port.
+//! joins it (bit timing, automatic bus-off recovery). The emulated board
+//! has the same names (`Can` = [`hw::slcan::SlcanPort`], `CAN_RX_IRQ` =
+//! `USART3`, `Bitrate` recorded only). Elsewhere `HAS_CAN` is false and
+//! there is no port.
 //!
 //! Safe state = TIM1 `BDTR.MOE = 0` (outputs forced to their idle level,
 //! low: every switch off) **and** the power stage's enable pins low (and,

@@ -81,3 +81,90 @@ impl CanFrame {
         }
     }
 }
+
+/// [`CanFrame`] is itself an [`embedded_can::Frame`] (standard
+/// identifiers only), so a port that carries CANopen frames as they are
+/// (the emulated board's SLCAN UART) needs no conversion. Never panics:
+/// an out-of-range field written directly is clamped (id to 11 bits,
+/// length to 8).
+impl Frame for CanFrame {
+    /// A data frame; `None` for an extended identifier or more than 8 bytes.
+    fn new(id: impl Into<Id>, data: &[u8]) -> Option<Self> {
+        match id.into() {
+            Id::Standard(s) => CanFrame::new(s.as_raw(), data),
+            Id::Extended(_) => None,
+        }
+    }
+
+    /// A remote frame; `None` for an extended identifier or `dlc > 8`.
+    fn new_remote(id: impl Into<Id>, dlc: usize) -> Option<Self> {
+        match id.into() {
+            Id::Standard(s) => CanFrame::remote(s.as_raw(), u8::try_from(dlc).ok()?),
+            Id::Extended(_) => None,
+        }
+    }
+
+    fn is_extended(&self) -> bool {
+        false
+    }
+
+    fn is_remote_frame(&self) -> bool {
+        self.rtr
+    }
+
+    fn id(&self) -> Id {
+        // Masked to 11 bits, `StandardId::new` cannot refuse it.
+        Id::Standard(StandardId::new(self.id & 0x7FF).unwrap_or(StandardId::ZERO))
+    }
+
+    fn dlc(&self) -> usize {
+        usize::from(self.len.min(8))
+    }
+
+    fn data(&self) -> &[u8] {
+        CanFrame::data(self)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn embedded_can_frame_round_trips() {
+        let id = StandardId::new(0x601).unwrap();
+        let f = <CanFrame as Frame>::new(id, &[1, 2, 3]).unwrap();
+        assert_eq!(f, CanFrame::new(0x601, &[1, 2, 3]).unwrap());
+        assert_eq!(Frame::id(&f), Id::Standard(id));
+        assert_eq!(Frame::dlc(&f), 3);
+        assert_eq!(Frame::data(&f), &[1, 2, 3]);
+        assert!(!f.is_extended() && !f.is_remote_frame());
+        let r = <CanFrame as Frame>::new_remote(id, 8).unwrap();
+        assert!(r.is_remote_frame());
+        assert_eq!(Frame::dlc(&r), 8);
+        assert_eq!(Frame::data(&r), &[] as &[u8]);
+        assert_eq!(CanFrame::from_frame(&r), Some(r));
+        assert_eq!(r.to_frame::<CanFrame>(), Some(r));
+    }
+
+    #[test]
+    fn refused_and_clamped() {
+        let ext = embedded_can::ExtendedId::new(0x1234_5678).unwrap();
+        assert_eq!(<CanFrame as Frame>::new(ext, &[]), None);
+        assert_eq!(<CanFrame as Frame>::new_remote(ext, 1), None);
+        let id = StandardId::new(0x80).unwrap();
+        assert_eq!(<CanFrame as Frame>::new(id, &[0; 9]), None);
+        assert_eq!(<CanFrame as Frame>::new_remote(id, 9), None);
+        assert_eq!(<CanFrame as Frame>::new_remote(id, 300), None);
+        // Fields written out of range directly: clamped, no panic.
+        let wild = CanFrame {
+            id: 0xFFFF,
+            rtr: false,
+            len: 200,
+            data: [7; 8],
+        };
+        assert_eq!(Frame::id(&wild), Id::Standard(StandardId::MAX));
+        assert_eq!(Frame::dlc(&wild), 8);
+        assert_eq!(Frame::data(&wild).len(), 8);
+    }
+}

@@ -242,6 +242,10 @@ pub struct Link<'a> {
     pub out: Outbox,
     /// The scope (frames only; `None` in a poll).
     pub scope: Option<&'a mut dyn ScopePort>,
+    /// The link-watchdog setting in force (the protocol's
+    /// `DeviceState::link_setting`), for the CANopen node's 0x1010 save.
+    #[cfg(feature = "can")]
+    pub link_setting: WatchdogConfig,
 }
 
 impl Link<'_> {
@@ -605,6 +609,38 @@ impl DeviceContext for Link<'_> {
     }
 }
 
+/// The CANopen node's identity (0x1018, 0x1008, 0x1009): no CiA vendor
+/// ID is assigned to the project (0); product code and revision are the
+/// EDS's (`docs/canopen/foc-drive.eds`), as on the host test bus.
+#[cfg(feature = "can")]
+pub const CAN_IDENTITY: foc_canopen::node::Identity = foc_canopen::node::Identity {
+    vendor_id: 0,
+    product_code: foc_canopen::eds::EdsInfo::FOC_DRIVE.product_number,
+    revision: foc_canopen::eds::EdsInfo::FOC_DRIVE.revision_number,
+    serial: 0,
+    device_name: "rust-foc drive",
+    hardware_version: board::NAME,
+};
+
+#[cfg(feature = "can")]
+impl foc_canopen::node::CanDevice for Link<'_> {
+    fn identity(&self) -> foc_canopen::node::Identity {
+        CAN_IDENTITY
+    }
+    fn link_setting(&self) -> WatchdogConfig {
+        self.link_setting
+    }
+    /// Only while the drive is quiet (as a configuration save: the flash
+    /// write stalls the processor), then into the store's CAN record.
+    fn save_comm(&mut self, s: &foc_canopen::node::CommSettings) -> Result<(), ErrorCode> {
+        self.quiet()?;
+        let store = self.store.as_mut().ok_or(ErrorCode::Unsupported)?;
+        persist::guarded(|| store.save_can(&s.to_record())).map_err(store_error)?;
+        defmt::info!("store: CAN settings saved: {}", s);
+        Ok(())
+    }
+}
+
 /// Link counters (for the log).
 #[derive(Clone, Copy, Debug, Default, defmt::Format)]
 pub struct LinkCounters {
@@ -746,6 +782,8 @@ impl Comms {
                 store: &mut self.store,
                 out: Outbox::default(),
                 scope: Some(&mut *scope),
+                #[cfg(feature = "can")]
+                link_setting: self.device.link_setting(),
             };
             if let Some(n) = self
                 .device
@@ -770,11 +808,31 @@ impl Comms {
             store: &mut self.store,
             out: Outbox::default(),
             scope: None,
+            #[cfg(feature = "can")]
+            link_setting: self.device.link_setting(),
         };
         if let Some((seq, msg)) = self.device.poll_stream(&mut link, now_period) {
             if let Ok(n) = encode(seq, &msg, &mut self.tx) {
                 self.send(n);
             }
+        }
+    }
+
+    /// The [`DeviceContext`] of one CAN frame or node tick (the CANopen
+    /// node's [`foc_canopen::node::CanDevice`]): `snap` is the shared state
+    /// now; commit the link's outbox after the call, as for a protocol
+    /// frame.
+    #[cfg(feature = "can")]
+    pub fn can_link(&mut self, snap: Snapshot) -> Link<'_> {
+        self.fold_identification(snap.identified);
+        Link {
+            snap,
+            settings: &mut self.settings,
+            label: &mut self.label,
+            store: &mut self.store,
+            out: Outbox::default(),
+            scope: None,
+            link_setting: self.device.link_setting(),
         }
     }
 
@@ -789,6 +847,8 @@ impl Comms {
             store: &mut self.store,
             out: Outbox::default(),
             scope: None,
+            #[cfg(feature = "can")]
+            link_setting: self.device.link_setting(),
         };
         let sample = self.device.poll(&mut link, now_period);
         let mut out = link.out;

@@ -10,8 +10,9 @@
 //! | `speed_loop` | `EXTI1` (pended by `current_loop`) | 3 | every `SPEED_DIVIDER` = 10 periods, 2 kHz | `SpeedStage::step`: velocity PI -> `iq_ref` |
 //! | `position_loop` | `EXTI2` (pended by `current_loop`) | 2 | every `POSITION_DIVIDER` = 20 periods, 1 kHz | `PositionStage::step`: trajectory + P -> velocity reference |
 //! | `housekeeping` | `EXTI3` (pended by `current_loop`) | 1 | every 400 periods, 50 Hz | start-up command, telemetry log, command-channel poll (link watchdog, homing steps, streamed telemetry too, as `stream` does) |
-//! | `stream` | `EXTI4` (pended by `current_loop`) | 1 | every `STREAM_DIVIDER` = 20 periods, 1 kHz | the telemetry stream (`DeviceState::poll_stream`): a sample when one is due, up to what the UART carries (about 190 Hz at 115200 baud) |
+//! | `stream` | `EXTI4` (pended by `current_loop`, and by the CAN interrupt) | 1 | every `STREAM_DIVIDER` = 20 periods, 1 kHz | boards with CAN: the CANopen node (received frames, tick); the telemetry stream (`DeviceState::poll_stream`): a sample when one is due, up to what the UART carries (about 190 Hz at 115200 baud) |
 //! | `serial` | `USART2` (`board::SERIAL_IRQ`, the command UART) | 1 | per received / sent byte | command channel: bytes to `DeviceState::on_byte`, replies queued (see `comms`) |
+//! | (CAN) | `board::CAN_RX_IRQ` (`CAN1_RX0` on the ODrive, `USART3` under QEMU; boards with CAN only) | lowest (as 1) | per received frame / byte | outside RTIC, shares nothing: masks itself and pends `stream`, which runs the CANopen node (see `can`) and unmasks it |
 //! | `idle` | - | 0 | background | feeds the watchdog only while the current loop runs |
 //!
 //! `EXTI1..4` are used only as software-pended vectors: no EXTI line is
@@ -36,6 +37,8 @@
 
 #[cfg(feature = "qemu")]
 mod brake_mission;
+#[cfg(feature = "can")]
+mod can;
 mod comms;
 mod config;
 mod events;
@@ -54,12 +57,20 @@ use defmt_rtt as _;
 #[cfg(feature = "qemu")]
 use defmt_semihosting as _;
 
+/// Boards without a CAN port: the `can` shared resource is empty (no
+/// node, no code, no RAM).
+#[cfg(not(feature = "can"))]
+mod can {
+    /// Nothing: the board has no CAN port.
+    pub struct CanNode;
+}
+
 /// Current-loop runs; `idle` feeds the watchdog only when this advances.
 static CURRENT_LOOP_RUNS: AtomicU32 = AtomicU32::new(0);
 
 #[rtic::app(device = board_support::pac, peripherals = true)]
 mod app {
-    use super::{comms, config, events, persist, timing, watchdog, CURRENT_LOOP_RUNS};
+    use super::{can, comms, config, events, persist, timing, watchdog, CURRENT_LOOP_RUNS};
     use board_support::board;
     use board_support::pac::Interrupt;
     use core::sync::atomic::Ordering;
@@ -127,6 +138,9 @@ mod app {
         /// Used by `serial`, `housekeeping` and `stream`, all priority 1, so
         /// never contended.
         comms: comms::Comms,
+        /// The CANopen node and its port (`can`; empty on boards without
+        /// CAN). Used by `stream` (priority 1) only.
+        can: can::CanNode,
     }
 
     #[local]
@@ -155,7 +169,17 @@ mod app {
         let watchdog_reset = watchdog::take_reset_flag();
         let b = board::init(cx.device);
         // The stored configuration, or the build-time one (see `persist`).
-        let boot = persist::boot(b.store);
+        #[cfg_attr(not(feature = "can"), allow(unused_mut))]
+        let mut boot = persist::boot(b.store);
+        // The CANopen node with its stored settings, on the started port.
+        #[cfg(feature = "can")]
+        let can_node = {
+            let n = can::CanNode::start(b.can, boot.store.as_mut());
+            can::enable_interrupt(&mut cp.NVIC);
+            n
+        };
+        #[cfg(not(feature = "can"))]
+        let can_node = can::CanNode;
         let cfg = persist::cascade(&boot.settings);
         let angle_kind = board::angle_kind();
         // `persist::admit` kept a calibration only where the sensor's
@@ -213,6 +237,7 @@ mod app {
                 identified: None,
                 config_request: comms::ConfigMailbox::EMPTY,
                 comms: comms::Comms::new(b.serial, boot),
+                can: can_node,
                 scope: foc_core::scope::Scope::new(&mut cx.local.scope_buf[..]),
             },
             Local {
@@ -410,9 +435,13 @@ mod app {
     }
 
     /// The telemetry stream: a sample when one is due (its rate is the
-    /// host's, up to the UART's capacity), at 1 kHz.
-    #[task(binds = EXTI4, priority = 1, shared = [feedback, timing, status, identified, config_request, command, comms])]
+    /// host's, up to the UART's capacity), at 1 kHz. On boards with CAN
+    /// first the CANopen node (`can`): received frames, then its tick;
+    /// the CAN interrupt pends this task too.
+    #[task(binds = EXTI4, priority = 1, shared = [feedback, timing, status, identified, config_request, command, comms, can])]
     fn stream(mut cx: stream::Context) {
+        #[cfg(feature = "can")]
+        can_service(&mut cx);
         // Nothing to do (and no lock at the current loop's priority) while
         // the stream is off.
         if cx.shared.comms.lock(|c| c.device.telemetry_every()) == 0 {
@@ -428,6 +457,56 @@ mod app {
         };
         let snap = link_snapshot(&fb, &tm, status, identified, pending);
         cx.shared.comms.lock(|c| c.stream(snap, fb.period));
+    }
+
+    /// The shared state now, for the CANopen node's link.
+    #[cfg(feature = "can")]
+    fn can_snapshot(cx: &mut stream::Context) -> comms::Snapshot {
+        use rtic::Mutex as _;
+        let fb = cx.shared.feedback.lock(|f| *f);
+        let tm = cx.shared.timing.lock(|t| *t);
+        let status = cx.shared.status.lock(|s| *s);
+        let identified = cx.shared.identified.lock(|x| *x);
+        let pending = comms::Pending {
+            command: cx.shared.command.lock(|c| c.command),
+            calibration: cx.shared.config_request.lock(|m| m.calibration_pending()),
+        };
+        link_snapshot(&fb, &tm, status, identified, pending)
+    }
+
+    /// Commit a CAN link's outbox, as `serial` does a frame's.
+    #[cfg(feature = "can")]
+    fn can_commit(cx: &mut stream::Context, out: &comms::Outbox) {
+        use rtic::Mutex as _;
+        if out.touches_config() {
+            cx.shared.config_request.lock(|m| m.merge(&out.config));
+        }
+        if out.touches_command() {
+            cx.shared.command.lock(|c| out.apply_command(c));
+        }
+    }
+
+    /// The CANopen node: every received frame (each with a fresh
+    /// snapshot, its changes committed before the next), then the tick,
+    /// then the CAN interrupt unmasked again (`can::on_can_interrupt`).
+    #[cfg(feature = "can")]
+    fn can_service(cx: &mut stream::Context) {
+        use rtic::Mutex as _;
+        cx.shared.can.lock(|n| n.service_port());
+        // Bounded: every pass takes a frame from the port.
+        for _ in 0..board_support::hw::serial::RX_CAPACITY {
+            let snap = can_snapshot(cx);
+            let comms = &mut cx.shared.comms;
+            let Some(out) = cx.shared.can.lock(|n| comms.lock(|c| n.receive(c, snap))) else {
+                break;
+            };
+            can_commit(cx, &out);
+        }
+        let snap = can_snapshot(cx);
+        let comms = &mut cx.shared.comms;
+        let out = cx.shared.can.lock(|n| comms.lock(|c| n.tick(c, snap)));
+        can_commit(cx, &out);
+        can::unmask_interrupt();
     }
 
     /// Housekeeping: start-up command, command-channel poll and telemetry, at 50 Hz.

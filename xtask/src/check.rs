@@ -88,9 +88,9 @@ pub fn steps() -> Vec<Step> {
     ));
 
     // CANopen (issue 22): the Python canopen master against three drives
-    // on the host test bus.
+    // on the host test bus, then the emulated firmware on the bus.
     steps.push(Step::new(
-        "CANopen: python-canopen master, three drives on the host test bus",
+        "CANopen: python-canopen master, three drives on the host test bus, then the emulated firmware joined to it",
         crate::canopen::run_tests,
     ));
 

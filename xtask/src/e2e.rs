@@ -179,7 +179,7 @@ impl Emulator {
 }
 
 /// A free loopback port (bound and released; QEMU binds it next).
-fn free_port() -> Result<u16> {
+pub fn free_port() -> Result<u16> {
     let l = TcpListener::bind((Ipv4Addr::LOCALHOST, 0))?;
     Ok(l.local_addr()?.port())
 }

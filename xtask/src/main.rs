@@ -72,7 +72,8 @@ enum Command {
     /// `foc-ctl simulate`.
     Python,
     /// CANopen (CiA 301 / CiA 402): a Python `canopen` master against
-    /// several drives on the host test bus (foc-canbus).
+    /// several drives on the host test bus (foc-canbus), then against the
+    /// emulated firmware (QEMU, CAN as SLCAN on USART3) joined to the bus.
     Canopen,
     /// Fuzz foc-protocol (cargo-fuzz targets in fuzz/; nightly + cargo-fuzz),
     /// or `--replay` the corpus through the same checks on stable.

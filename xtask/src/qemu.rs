@@ -267,6 +267,18 @@ pub fn spawn_decoded(
     icount: &str,
     usart2: &str,
 ) -> Result<(Child, Receiver<String>)> {
+    spawn_decoded_serials(elf, args, icount, &["null", usart2])
+}
+
+/// [`spawn_decoded`] with every `-serial` device given, in order: QEMU's
+/// stm32f405 maps them onto USART1, USART2, USART3, ... (the emulated
+/// board's CAN port is the third, USART3).
+pub fn spawn_decoded_serials(
+    elf: &Path,
+    args: &[&str],
+    icount: &str,
+    serials: &[&str],
+) -> Result<(Child, Receiver<String>)> {
     // Read the table first: a bad ELF fails before QEMU starts.
     let table = defmt_table(elf)?;
     let mut semi = String::from("enable=on,target=native,arg=firmware");
@@ -274,9 +286,12 @@ pub fn spawn_decoded(
         semi.push_str(",arg=");
         semi.push_str(a);
     }
-    let mut qemu = Command::new("qemu-system-arm")
-        .args(["-M", "netduinoplus2", "-nographic", "-monitor", "none"])
-        .args(["-serial", "null", "-serial", usart2])
+    let mut qemu = Command::new("qemu-system-arm");
+    qemu.args(["-M", "netduinoplus2", "-nographic", "-monitor", "none"]);
+    for s in serials {
+        qemu.args(["-serial", s]);
+    }
+    let mut qemu = qemu
         .args(["-semihosting-config", &semi, "-icount", icount, "-kernel"])
         .arg(elf)
         .stdin(Stdio::null())

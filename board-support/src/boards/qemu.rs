@@ -58,6 +58,8 @@
 
 pub use crate::hw::serial::CommandSerial;
 use crate::hw::serial::SerialConfig;
+pub use crate::hw::slcan::{SlcanError, SlcanPort};
+pub use crate::logic::can::Bitrate;
 use crate::pac;
 use core::cell::{Cell, RefCell};
 use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
@@ -90,8 +92,16 @@ pub const CURRENT_IRQ: pac::Interrupt = pac::Interrupt::ADC;
 pub const BREAK_IRQ: pac::Interrupt = pac::Interrupt::TIM1_BRK_TIM9;
 /// No break input.
 pub const HAS_BREAK_INPUT: bool = false;
-/// No CAN port (QEMU's netduinoplus2 models no bxCAN).
-pub const HAS_CAN: bool = false;
+/// A CAN port: QEMU's netduinoplus2 models no bxCAN, so the board's
+/// [`Can`] carries the frames as SLCAN lines on USART3, QEMU's third
+/// `-serial` device (start QEMU with `-serial null -serial null -serial
+/// tcp:127.0.0.1:PORT,server=on,wait=off`; `foc-canbus --relay` joins it
+/// to the host test bus).
+pub const HAS_CAN: bool = true;
+/// CAN receive interrupt: USART3's (a received SLCAN byte).
+pub const CAN_RX_IRQ: pac::Interrupt = pac::Interrupt::USART3;
+/// The CAN port: SLCAN over USART3 ([`crate::hw::slcan`]).
+pub type Can = SlcanPort;
 /// Command UART interrupt: USART2, QEMU's second `-serial` device (start
 /// QEMU with `-serial null -serial tcp:127.0.0.1:PORT,server,nowait`).
 pub const SERIAL_IRQ: pac::Interrupt = pac::Interrupt::USART2;
@@ -446,6 +456,9 @@ pub struct Board {
     pub led: Led,
     /// Command UART: USART2 (QEMU `-serial` number two).
     pub serial: CommandSerial,
+    /// The CAN port: SLCAN over USART3 (QEMU `-serial` number three), not
+    /// started until `can.start(..)`.
+    pub can: Can,
     /// The configuration store: a host file through semihosting
     /// (`store=PATH`), failing every operation without one.
     pub store: StoreFlash,
@@ -504,6 +517,16 @@ pub fn init(dp: pac::Peripherals) -> Board {
             pclk_hz: SYSCLK_HZ,
         },
     );
+    // CAN port: USART3, RCC_APB1ENR.USART3EN (RM0090 7.3.13; not modelled
+    // by QEMU, set anyway as on hardware), no GPIO set-up (as USART2).
+    dp.RCC.apb1enr().modify(|_, w| w.usart3en().set_bit());
+    let can = SlcanPort::new(CommandSerial::usart3(
+        dp.USART3,
+        SerialConfig {
+            baud: SERIAL_BAUD,
+            pclk_hz: SYSCLK_HZ,
+        },
+    ));
     Board {
         pwm: SimPwm { _private: () },
         currents: SimCurrents {
@@ -514,6 +537,7 @@ pub fn init(dp: pac::Peripherals) -> Board {
         brake: SimBrake { _private: () },
         led: Led::new(None),
         serial,
+        can,
         store: StoreFlash::open(args),
     }
 }

@@ -17,6 +17,8 @@ pub mod drv8301;
 pub mod flash;
 pub mod pwm;
 pub mod serial;
+#[cfg(feature = "qemu")]
+pub mod slcan;
 
 use crate::pac;
 

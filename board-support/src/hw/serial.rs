@@ -121,8 +121,27 @@ impl CommandSerial {
     /// transmitter on, RXNE interrupt enabled. The NVIC line is left to
     /// the RTIC app.
     pub fn usart2(_usart: pac::USART2, cfg: SerialConfig) -> Self {
+        Self::at(pac::USART2::ptr() as usize, cfg)
+    }
+
+    /// Set up USART3 (RM0090 §2.3 memory map: 0x4000_4800, on APB1; the
+    /// same register block as USART2, RM0090 §30.6), clock already enabled
+    /// (`RCC_APB1ENR.USART3EN`, RM0090 §7.3.13) and pins already in their
+    /// alternate function by the board: 8N1 at `cfg.baud` (`pclk_hz` is
+    /// PCLK1), receiver and transmitter on, RXNE interrupt enabled (the
+    /// `USART3` NVIC line is left to the RTIC app). The emulated board
+    /// carries its CAN frames on it (QEMU's third `-serial` device). Not
+    /// on the STM32F401, which has no USART3 (RM0368 §19: USART1, 2, 6).
+    #[cfg(not(feature = "nucleo-f401re-ihm07m1"))]
+    pub fn usart3(_usart: pac::USART3, cfg: SerialConfig) -> Self {
+        Self::at(pac::USART3::ptr() as usize, cfg)
+    }
+
+    /// The driver of the USART register block at `base` (a constructor
+    /// took ownership of that peripheral), configured.
+    fn at(base: usize, cfg: SerialConfig) -> Self {
         let mut s = Self {
-            base: pac::USART2::ptr() as usize,
+            base,
             rx: Ring::new(),
             tx: Ring::new(),
             errors: SerialErrors::default(),
