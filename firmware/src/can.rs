@@ -23,15 +23,21 @@
 //! - Time: the current loop's period counter (`Feedback::period`, PWM
 //!   periods) extended to 64 bits, in microseconds. Under QEMU this is the
 //!   emulated drive's time, not the host's nor the host test bus's.
-//! - Transmit: every frame the node produces goes to `port.transmit`;
-//!   a full transmit buffer drops the frame (counted in
-//!   [`CanCounters::tx_dropped`], never a wait), as does a pending frame
-//!   the controller hands back for a more urgent one.
-//! - NMT "reset node": the node resets its communication with the saved
-//!   settings itself (node ID, heartbeat times); this glue then re-times
-//!   the port to the saved bit rate when it differs. The drive is not
-//!   restarted (the profile's state stays, as CiA 402 allows: a fault
-//!   reaction or a disable goes through the controlword).
+//! - Transmit: every frame the node produces goes to `port.transmit`
+//!   (the ODrive's port queues it and fills its mailboxes in order; the
+//!   tick's `port.poll` drains the queue); a full queue drops the frame
+//!   (counted in [`CanCounters::tx_dropped`], never a wait).
+//! - NMT "reset node": the node reacts per 0x6007 (a running drive is
+//!   faulted or disabled), puts the profile back to its power-on values
+//!   (disable voltage, default parameters, zero targets) and resets its
+//!   communication with the saved settings (node ID, heartbeat times);
+//!   this glue then re-times the port to the saved bit rate when it
+//!   differs (the boot-up message is queued before that: at the old
+//!   rate). The processor is not reset.
+//! - One master at a time: a command the node posts feeds the command
+//!   channel's link watchdog ([`Comms::can_posted`]), and the profile
+//!   re-posts its command every tick while enabled, so a serial command
+//!   is overwritten within a millisecond.
 
 use crate::comms::{Comms, Outbox, Snapshot};
 use crate::persist::BoardStore;
@@ -221,6 +227,7 @@ impl CanNode {
             } = self;
             node.on_frame(&frame, now_us, &mut link, &mut |f| send(port, counters, f));
             let out = link.out;
+            comms.can_posted(&out);
             self.after_reset_request();
             return Some(out);
         }
@@ -234,6 +241,7 @@ impl CanNode {
         let now_us = self.clock.now_us(snap.feedback.period);
         let mut link = comms.can_link(snap);
         self.boot_once(now_us, &mut link);
+        self.port.poll();
         let state = self.port.bus_state();
         let changed = state != self.bus_state;
         self.bus_state = state;
@@ -249,6 +257,7 @@ impl CanNode {
         }
         node.tick(now_us, &mut link, &mut out);
         let outbox = link.out;
+        comms.can_posted(&outbox);
         self.after_reset_request();
         outbox
     }

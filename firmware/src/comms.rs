@@ -822,6 +822,10 @@ impl Comms {
     /// node's [`foc_canopen::node::CanDevice`]): `snap` is the shared state
     /// now; commit the link's outbox after the call, as for a protocol
     /// frame.
+    ///
+    /// A command the node posts also feeds the command channel's link
+    /// watchdog ([`Comms::can_posted`]): the node's own supervision is the
+    /// heartbeat consumer.
     #[cfg(feature = "can")]
     pub fn can_link(&mut self, snap: Snapshot) -> Link<'_> {
         self.fold_identification(snap.identified);
@@ -833,6 +837,16 @@ impl Comms {
             out: Outbox::default(),
             scope: None,
             link_setting: self.device.link_setting(),
+        }
+    }
+
+    /// The CANopen node posted a command (`out`): feed the command
+    /// channel's link watchdog, so it does not act against the CAN
+    /// master's commands (whichever front end posted last owns the drive).
+    #[cfg(feature = "can")]
+    pub fn can_posted(&mut self, out: &Outbox) {
+        if out.post.is_some() {
+            self.device.feed_watchdog();
         }
     }
 

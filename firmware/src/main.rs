@@ -65,6 +65,9 @@ mod can {
     pub struct CanNode;
 }
 
+// The firmware's `can` feature and the board's CAN port go together.
+const _: () = assert!(board::HAS_CAN == cfg!(feature = "can"));
+
 /// Current-loop runs; `idle` feeds the watchdog only when this advances.
 static CURRENT_LOOP_RUNS: AtomicU32 = AtomicU32::new(0);
 
@@ -442,8 +445,8 @@ mod app {
     fn stream(mut cx: stream::Context) {
         #[cfg(feature = "can")]
         can_service(&mut cx);
-        // Nothing to do (and no lock at the current loop's priority) while
-        // the stream is off.
+        // Nothing more to do (and, on boards without CAN, no lock at the
+        // current loop's priority) while the stream is off.
         if cx.shared.comms.lock(|c| c.device.telemetry_every()) == 0 {
             return;
         }

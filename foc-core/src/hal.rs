@@ -274,4 +274,9 @@ pub trait CanPort: embedded_can::nb::Can {
     /// The controller's fault-confinement state now (read from the
     /// hardware, cheap enough to poll every millisecond).
     fn bus_state(&self) -> BusState;
+
+    /// Service the port, at least every millisecond: e.g. move queued
+    /// frames into free transmit buffers, drop what is queued while
+    /// bus-off. Default: nothing.
+    fn poll(&mut self) {}
 }

@@ -523,6 +523,15 @@ impl DeviceState {
         &self.watchdog
     }
 
+    /// A command reached the drive through another front end with its own
+    /// link supervision (the CANopen node: its heartbeat consumer): feed
+    /// this link's watchdog, so it does not stop or fault a drive that
+    /// front end is commanding. The front end that posted last owns the
+    /// drive; run one master at a time.
+    pub fn feed_watchdog(&mut self) {
+        self.watchdog.feed();
+    }
+
     /// The link-watchdog setting a saved configuration carries: the host's
     /// (`SetWatchdog`), or the automatic one.
     pub const fn link_setting(&self) -> WatchdogConfig {

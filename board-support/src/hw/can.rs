@@ -45,10 +45,16 @@
 //! - `CAN_IER.FMPIE0` set: the `CAN1_RX0` interrupt is pending while
 //!   FIFO 0 holds a frame; the task bound to it must call `receive` until
 //!   `WouldBlock`. The NVIC line is left to the RTIC app.
-//! - Transmit: bxcan's three mailboxes (it may replace a pending frame of
-//!   lower priority and hand it back, see `foc_core::hal::CanPort`);
-//!   refused (`WouldBlock`) while stopped or bus-off, so no stale frame
-//!   waits in a mailbox for the recovery.
+//! - **Transmit** (register level too): a queue of
+//!   [`crate::logic::can::TX_QUEUE`] frames, moved into the three
+//!   mailboxes as they free up (at every `transmit` and `poll`, oldest
+//!   first, `CAN_MCR.TXFP` = 1 so the bus sees them in that order).
+//!   bxcan 0.8's `transmit` is not used: it refuses a frame whose
+//!   identifier is not more urgent than every pending one even with a
+//!   free mailbox, which drops most of a node's burst (four TPDOs after a
+//!   statusword change). `WouldBlock` while the queue is full, stopped or
+//!   bus-off; at bus-off `poll` drops the queue and aborts the mailboxes,
+//!   so no stale frame goes out after the recovery.
 //!
 //! ```ignore
 //! // After the store was read:
@@ -63,7 +69,9 @@
 //! }
 //! ```
 
-use crate::logic::can::{bus_state, esr, BitTiming, Bitrate, RxFrame};
+use crate::logic::can::{
+    bus_state, esr, free_mailboxes, BitTiming, Bitrate, RxFrame, TxQueue, TxWords, TXRQ,
+};
 use crate::pac;
 use bxcan::filter::Mask32;
 use bxcan::{Fifo, Interrupt, StandardId};
@@ -105,6 +113,8 @@ pub struct CanBus {
     pclk1_hz: u32,
     bitrate: Bitrate,
     started: bool,
+    /// Frames waiting for a free mailbox, oldest first.
+    txq: TxQueue,
 }
 
 impl CanBus {
@@ -148,6 +158,7 @@ impl CanBus {
             pclk1_hz,
             bitrate: Bitrate::DEFAULT,
             started: false,
+            txq: TxQueue::new(),
         }
     }
 
@@ -168,6 +179,16 @@ impl CanBus {
             .set_bit_timing(btr)
             .set_automatic_retransmit(true)
             .leave_disabled();
+        // CAN_MCR.TXFP = 1: the mailboxes go out in the order they were
+        // requested, not by identifier (RM0090 §32.9.2, §32.7.1), so the
+        // queue's order is the bus's. Set while asleep, before joining.
+        // SAFETY: a read-modify-write of CAN1_MCR's TXFP bit only; `self`
+        // owns CAN1.
+        unsafe {
+            (*pac::CAN1::ptr())
+                .mcr()
+                .modify(|r, w| w.bits(r.bits() | MCR_TXFP));
+        }
         // Sets CAN_MCR.ABOM and clears SLEEP (bxcan 0.8,
         // `Can::enable_non_blocking`); WouldBlock only means "joining".
         let _ = self.can.enable_non_blocking();
@@ -201,6 +222,46 @@ impl CanBus {
     }
 }
 
+/// `CAN_MCR.TXFP`: transmit FIFO priority (by request order).
+const MCR_TXFP: u32 = 1 << 2;
+/// `CAN_TSR.ABRQ0..2`: abort the request of mailbox 0, 1, 2.
+const TSR_ABRQ: u32 = (1 << 7) | (1 << 15) | (1 << 23);
+
+impl CanBus {
+    /// Move queued frames into the free mailboxes, oldest first
+    /// (register level: bxcan 0.8's `transmit` refuses a frame whose
+    /// identifier is not more urgent than every pending one, even with a
+    /// free mailbox, which would drop most of a CANopen node's burst).
+    fn pump(&mut self) {
+        // SAFETY: CAN1's transmit status and mailbox registers (RM0090
+        // §32.9.2 CAN_TSR, §32.9.3 CAN_TIxR/TDTxR/TDLxR/TDHxR); `self`
+        // owns CAN1 and bxcan's transmit is never called. A mailbox is
+        // written only while TSR says it is empty, TIxR (with TXRQ) last.
+        let can = unsafe { &*pac::CAN1::ptr() };
+        let tsr = can.tsr().read().bits();
+        for i in free_mailboxes(tsr) {
+            let Some(w) = self.txq.pop_front() else {
+                return;
+            };
+            let mb = can.tx(i);
+            mb.tdtr().write(|x| unsafe { x.bits(w.tdtr) });
+            mb.tdlr().write(|x| unsafe { x.bits(w.tdlr) });
+            mb.tdhr().write(|x| unsafe { x.bits(w.tdhr) });
+            mb.tir().write(|x| unsafe { x.bits(w.tir | TXRQ) });
+        }
+    }
+
+    /// Bus-off: drop the queue and abort the mailboxes' requests, so no
+    /// stale frame goes out after the recovery.
+    fn flush(&mut self) {
+        self.txq.clear();
+        // SAFETY: CAN_TSR's ABRQx bits are rs (set to abort); the other
+        // bits written 0 have no effect (rc_w1 / read-only), RM0090
+        // §32.9.2. `self` owns CAN1.
+        unsafe { (*pac::CAN1::ptr()).tsr().write(|w| w.bits(TSR_ABRQ)) };
+    }
+}
+
 /// `CAN_ESR` of CAN1.
 fn read_esr() -> u32 {
     // SAFETY: a read of CAN1_ESR (RM0090 §32.9.2), no side effect; the
@@ -212,14 +273,25 @@ impl embedded_can::nb::Can for CanBus {
     type Frame = Frame;
     type Error = CanError;
 
+    /// Queue `frame` (in order; `WouldBlock` when the queue is full, the
+    /// port stopped or bus-off) and fill the free mailboxes.
     fn transmit(&mut self, frame: &Frame) -> nb::Result<Option<Frame>, CanError> {
+        use embedded_can::Frame as F;
         if !self.started || bus_state(read_esr()).is_bus_off() {
             return Err(nb::Error::WouldBlock);
         }
-        match self.can.transmit(frame) {
-            Ok(status) => Ok(status.dequeued_frame().cloned()),
-            Err(nb::Error::WouldBlock) => Err(nb::Error::WouldBlock),
-            Err(nb::Error::Other(never)) => match never {},
+        let w = TxWords::new(
+            F::id(frame),
+            F::is_remote_frame(frame),
+            F::dlc(frame),
+            F::data(frame),
+        );
+        let queued = self.txq.push_back(w).is_ok();
+        self.pump();
+        if queued {
+            Ok(None)
+        } else {
+            Err(nb::Error::WouldBlock)
         }
     }
 
@@ -262,5 +334,15 @@ impl CanPort for CanBus {
     /// From `CAN_ESR` (RM0090 §32.9.2): BOFF, then EPVF.
     fn bus_state(&self) -> BusState {
         bus_state(read_esr())
+    }
+
+    /// Fill the free mailboxes from the queue; bus-off: drop the queue and
+    /// abort the pending requests.
+    fn poll(&mut self) {
+        if bus_state(read_esr()).is_bus_off() {
+            self.flush();
+        } else if self.started {
+            self.pump();
+        }
     }
 }

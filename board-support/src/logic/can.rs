@@ -216,6 +216,66 @@ mod rir {
     pub const RTR: u32 = 1 << 1;
 }
 
+/// `CAN_TIxR.TXRQ`: transmit request (RM0090 §32.9.3).
+pub const TXRQ: u32 = 1;
+
+/// A frame as a transmit mailbox's four registers take it (`CAN_TIxR`
+/// without `TXRQ`, `CAN_TDTxR`, `CAN_TDLxR`, `CAN_TDHxR`; RM0090
+/// §32.9.3): the identifier field has the layout of the receive
+/// mailbox's `CAN_RIxR` ([`RxFrame::from_registers`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct TxWords {
+    /// `CAN_TIxR` (STID/EXID, IDE, RTR; `TXRQ` clear).
+    pub tir: u32,
+    /// `CAN_TDTxR` (DLC).
+    pub tdtr: u32,
+    /// `CAN_TDLxR`: data bytes 0-3.
+    pub tdlr: u32,
+    /// `CAN_TDHxR`: data bytes 4-7.
+    pub tdhr: u32,
+}
+
+impl TxWords {
+    /// The registers for `id`, a remote frame of `dlc` bytes or a data
+    /// frame of `data` (at most 8 bytes taken, the DLC clamped to 8).
+    pub fn new(id: Id, remote: bool, dlc: usize, data: &[u8]) -> Self {
+        let mut tir = match id {
+            Id::Standard(s) => u32::from(s.as_raw()) << 21,
+            Id::Extended(e) => (e.as_raw() << 3) | rir::IDE,
+        };
+        let mut bytes = [0u8; 8];
+        let len = if remote {
+            tir |= rir::RTR;
+            dlc.min(8)
+        } else {
+            let n = data.len().min(8);
+            if let (Some(dst), Some(src)) = (bytes.get_mut(..n), data.get(..n)) {
+                dst.copy_from_slice(src);
+            }
+            n
+        };
+        Self {
+            tir,
+            tdtr: len as u32,
+            tdlr: u32::from_le_bytes([bytes[0], bytes[1], bytes[2], bytes[3]]),
+            tdhr: u32::from_le_bytes([bytes[4], bytes[5], bytes[6], bytes[7]]),
+        }
+    }
+}
+
+/// Frames waiting for a free transmit mailbox, oldest first.
+pub type TxQueue = heapless::Deque<TxWords, TX_QUEUE>;
+
+/// Frames the transmit queue holds (a node's burst: four TPDOs, EMCYs,
+/// an SDO reply and a heartbeat in one millisecond, with room).
+pub const TX_QUEUE: usize = 32;
+
+/// `CAN_TSR.TME0..2`: the free transmit mailboxes (RM0090 §32.9.2), as
+/// indices `0..3`.
+pub fn free_mailboxes(tsr: u32) -> impl Iterator<Item = usize> {
+    (0..3).filter(move |i| tsr & (1 << (26 + i)) != 0)
+}
+
 /// A received frame as the mailbox registers hold it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct RxFrame {
@@ -392,5 +452,50 @@ mod tests {
         // Reserved bits above DLC ignored (RDTxR also holds FMI and TIME).
         let f = RxFrame::from_registers(0x181 << 21, 0xFFFF_FF03, 0, 0);
         assert_eq!(f.len, 3);
+    }
+}
+
+#[cfg(test)]
+mod tx_tests {
+    use super::*;
+
+    #[test]
+    fn transmit_words_read_back_as_the_receive_mailbox_would() {
+        let id = Id::Standard(StandardId::new(0x185).unwrap());
+        let w = TxWords::new(id, false, 3, &[1, 2, 3]);
+        assert_eq!(w.tir & TXRQ, 0);
+        let rx = RxFrame::from_registers(w.tir, w.tdtr, w.tdlr, w.tdhr);
+        assert_eq!(
+            (rx.id, rx.remote, rx.payload()),
+            (id, false, &[1u8, 2, 3][..])
+        );
+        let r = TxWords::new(id, true, 12, &[]);
+        let rx = RxFrame::from_registers(r.tir, r.tdtr, r.tdlr, r.tdhr);
+        assert_eq!((rx.remote, rx.len), (true, 8));
+        let long = TxWords::new(id, false, 0, &[9; 12]);
+        assert_eq!(long.tdtr, 8);
+        let ext = Id::Extended(ExtendedId::new(0x1234_5678).unwrap());
+        let e = TxWords::new(ext, false, 0, &[]);
+        assert_eq!(RxFrame::from_registers(e.tir, e.tdtr, 0, 0).id, ext);
+    }
+
+    #[test]
+    fn free_mailboxes_from_tsr() {
+        assert_eq!(free_mailboxes(0).count(), 0);
+        let all: heapless::Vec<usize, 3> = free_mailboxes(0x1C00_0000).collect();
+        assert_eq!(&all[..], &[0, 1, 2]);
+        let one: heapless::Vec<usize, 3> = free_mailboxes(1 << 27).collect();
+        assert_eq!(&one[..], &[1]);
+    }
+
+    #[test]
+    fn the_queue_keeps_order_and_refuses_when_full() {
+        let mut q = TxQueue::new();
+        let id = Id::Standard(StandardId::new(0x701).unwrap());
+        for k in 0..TX_QUEUE {
+            assert!(q.push_back(TxWords::new(id, false, 0, &[k as u8])).is_ok());
+        }
+        assert!(q.push_back(TxWords::new(id, false, 0, &[0xFF])).is_err());
+        assert_eq!(q.pop_front().map(|w| w.tdlr & 0xFF), Some(0));
     }
 }

@@ -280,8 +280,9 @@ impl<P: Profile> Node<P> {
     }
 
     /// True once after an NMT "reset node": the owner may restart the
-    /// device (to take a saved bit rate; the node itself takes the saved
-    /// node id and heartbeat times at once, the profile is not reset).
+    /// port (to take a saved bit rate; the node itself takes the saved
+    /// node id and heartbeat times at once, and has already put the
+    /// profile back to its power-on values).
     pub fn take_reset_request(&mut self) -> bool {
         core::mem::replace(&mut self.reset_request, false)
     }
