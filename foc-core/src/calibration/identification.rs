@@ -7,7 +7,7 @@
 //! | stage | routine | asks for | uses |
 //! |---|---|---|---|
 //! | [`Stage::Resistance`] | [`PhaseResistance`] | open-loop voltage | - |
-//! | [`Stage::Inductance`] | [`Inductance`] | open-loop voltage | - |
+//! | [`Stage::Inductance`] | [`Inductance`] | open-loop voltage | R, to correct the exponential current response |
 //! | (gains) | [`current_loop_config`] | nothing (same period) | R, Ld, Lq |
 //! | [`Stage::Alignment`] | [`Alignment`] | open-loop voltage | R and the dead-time drop, to size the voltage |
 //! | [`Stage::Flux`] | [`FluxLinkage`] | closed-loop velocity | the permit of R, L, gains and alignment |
@@ -67,7 +67,7 @@ pub struct IdentificationConfig {
     pub pole_pairs: u8,
     /// Resistance step.
     pub resistance: ResistanceConfig,
-    /// Inductance step.
+    /// Inductance step; its `r_ohm` is replaced by the measured resistance.
     pub inductance: InductanceConfig,
     /// Alignment step; its `voltage_v` is replaced by
     /// `R * alignment_current_a + dead-time drop` (bounded by its
@@ -306,7 +306,10 @@ impl Identification {
     fn after_resistance(&mut self, res: ResistanceResult) -> Result<Option<Identified>, CalError> {
         self.r = Some(res);
         self.stage = Stage::Inductance;
-        self.running = Running::Inductance(Inductance::new(self.cfg.inductance));
+        // The measured resistance corrects the exponential current response.
+        let mut l = self.cfg.inductance;
+        l.r_ohm = res.r_ohm;
+        self.running = Running::Inductance(Inductance::new(l));
         Ok(None)
     }
 
