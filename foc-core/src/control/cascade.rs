@@ -11,6 +11,7 @@ use super::current::CurrentLoopConfig;
 use super::estimator::{AngleTrackerConfig, SpeedObserverConfig};
 use super::homing::{Homing, HomingError, HomingMethod, HomingStep};
 use super::joint::{JointConfig, JointError, JointSetup, OutputFrame, TravelConfig};
+use super::model::ModelTolerances;
 use super::permit::Calibrated;
 use super::position::PositionLoopConfig;
 use super::speed::SpeedLoopConfig;
@@ -112,8 +113,11 @@ impl CascadeConfig {
                     // over 100 ms windows.
                     max_speed_rad_s: 1.2 * max_velocity,
                     runaway_periods: (0.1 * pwm_frequency_hz) as u32,
-                    // Current sense: tracking error above 15 % of the
-                    // current limit for 2 ms.
+                    // Current sense and angle from the motor model
+                    // (design §24): floor 2 % of the current limit.
+                    model: ModelTolerances::for_current_limit(max_current_a),
+                    // Its back-up: tracking error above 15 % of the
+                    // current limit for 2 ms off the voltage limit.
                     tracking_band_a: 0.15 * max_current_a,
                     tracking_periods: (0.002 * pwm_frequency_hz) as u32,
                     ..SupervisorConfig::default()

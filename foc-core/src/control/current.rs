@@ -183,6 +183,9 @@ pub struct CurrentLoopOutput {
     pub voltage_limited: bool,
     /// True when an input was unusable: duties are centred, state untouched.
     pub invalid: bool,
+    /// `(sin, cos)` of the angle the measured currents were turned by
+    /// (the sample's `theta_e`).
+    pub sin_cos: (f32, f32),
 }
 
 /// The current loop: two PIs plus the frame transforms and modulator.
@@ -445,6 +448,7 @@ impl CurrentLoop {
             svpwm: sv,
             voltage_limited: self.pi_d.state.saturated || self.pi_q.state.saturated,
             invalid: sv.invalid,
+            sin_cos: (sin, cos),
         }
     }
 }
@@ -489,6 +493,7 @@ impl CurrentLoop {
             svpwm: sv,
             voltage_limited: limited,
             invalid: sv.invalid,
+            sin_cos: (sin, cos),
         }
     }
 }
@@ -520,6 +525,7 @@ impl CurrentLoopOutput {
         svpwm: SvpwmOutput::NEUTRAL_INVALID,
         voltage_limited: false,
         invalid: true,
+        sin_cos: (0.0, 1.0),
     };
 }
 

@@ -66,6 +66,7 @@ pub mod drive;
 pub mod estimator;
 pub mod homing;
 pub mod joint;
+pub mod model;
 pub mod permit;
 pub mod position;
 pub mod power;

@@ -3,6 +3,7 @@
 use super::current::{CurrentLoop, CurrentLoopConfig, CurrentLoopInput, CurrentLoopOutput};
 use super::estimator::{AngleTracker, AngleTrackerConfig, SpeedObserver, SpeedObserverConfig};
 use super::joint::{Impedance, ImpedanceLaw, JointConfig};
+use super::model::{ModelCheck, Period, Verdict};
 use super::permit::Calibrated;
 use super::position::{PositionLoop, PositionLoopConfig};
 use super::power::{PowerInputs, PowerLimitsConfig, PowerReport, PowerStage};
@@ -181,6 +182,9 @@ pub struct CurrentStageState {
     pub last_innovation_rad: f32,
     /// Periods since the raw angle reading last changed.
     pub unchanged_periods: u32,
+    /// The tracked speed [rad/s, mechanical] when the reading last changed
+    /// (names a model-check trip with a frozen reading, design §24).
+    pub speed_at_change_rad_s: f32,
     /// The speed stage's q-current reference as the current loop uses it,
     /// interpolated over the speed-loop period [A] (design §19).
     pub iq_interp_a: f32,
@@ -229,6 +233,7 @@ impl CurrentStageState {
             last_interp: MechanicalAngle::ZERO,
             last_innovation_rad: 0.0,
             unchanged_periods: 0,
+            speed_at_change_rad_s: 0.0,
             iq_interp_a: 0.0,
             iq_step_a: 0.0,
             iq_target_a: 0.0,
@@ -282,6 +287,8 @@ pub struct CurrentStage {
     /// current loop's motor changes).
     mechanics: Option<Mechanics>,
     supervisor: Supervisor,
+    /// The model-based current-sense and angle check (design §24).
+    model: ModelCheck,
     state: CurrentStageState,
     /// Power limits, when configured.
     power: Option<PowerStage>,
@@ -309,6 +316,7 @@ impl CurrentStage {
                 );
                 sup
             },
+            model: model_check(&config),
             config,
             state: CurrentStageState::new(config.angle.interpolation_half_count()),
             power: config.power.map(PowerStage::new),
@@ -373,6 +381,7 @@ impl CurrentStage {
         self.observer.reset();
         self.state.reset();
         self.state.last_innovation_rad = 0.0;
+        self.model.reset();
     }
 
     /// The configuration.
@@ -401,6 +410,26 @@ impl CurrentStage {
         }
         self.state.calibrated = true;
         self.rederive_mechanics();
+        self.rebuild_model();
+    }
+
+    /// The model check for the present motor, period and angle sensor (its
+    /// healthy margin kept).
+    fn rebuild_model(&mut self) {
+        let peak = self.model.peak_ratio();
+        self.model = model_check(&self.config);
+        self.model.keep_peak_ratio(peak);
+    }
+
+    /// The model-based sensor check (design §24): its last residual and
+    /// the healthy margin.
+    pub fn model_check(&self) -> &ModelCheck {
+        &self.model
+    }
+
+    /// Forget the model check's healthy margin (start a new measurement).
+    pub fn reset_model_margin(&mut self) {
+        self.model.reset_peak();
     }
 
     /// The observer's `kt / J` after the motor changed.
@@ -427,6 +456,7 @@ impl CurrentStage {
         }
         self.revoke_calibration();
         self.rederive_mechanics();
+        self.rebuild_model();
     }
 
     /// Replace the angle calibration with values no permit vouches for.
@@ -441,6 +471,7 @@ impl CurrentStage {
         self.tracker.reset();
         self.observer.reset();
         self.revoke_calibration();
+        self.rebuild_model();
     }
 
     /// Lock the closed-loop modes again; a closed-loop command that is
@@ -794,6 +825,7 @@ impl CurrentStage {
                 self.state.last_innovation_rad = innovation;
                 let changed = self.state.last_raw != Some(raw);
                 self.state.unchanged_periods = if changed {
+                    self.state.speed_at_change_rad_s = self.tracker.velocity_rad_s();
                     0
                 } else {
                     self.state.unchanged_periods.saturating_add(1)
@@ -995,6 +1027,7 @@ impl CurrentStage {
         let windowed = self.power_window(sensed, w_e, requested.unwrap_or(0.0));
         if self.supervisor.is_faulted() {
             self.state.active = Command::Disable;
+            self.model.reset();
             return (None, i_ref, theta_e);
         }
         // The closed-loop modes share one (inlined) current-loop call.
@@ -1043,10 +1076,20 @@ impl CurrentStage {
             }
             (None, _) => None,
         };
-        if closed_iq.is_some() && !self.currents_plausible(out.as_ref(), i_ref, w_e, sensed.v_bus_v)
+        // The model takes its speed from the angle's change; for a coarse
+        // sensor (halls) from the torque-fed observer, which knows the
+        // acceleration between the edges (design §19).
+        let w_observer = self.observer.velocity_rad_s() * pp;
+        if closed_iq.is_some()
+            && !(self.sensors_plausible(out.as_ref(), sensed, w_observer)
+                && self.currents_track(out.as_ref(), i_ref, w_e))
         {
             self.state.active = Command::Disable;
             return (None, i_ref, theta_e);
+        }
+        if closed_iq.is_none() {
+            // Open loop: the angle is not the rotor's; the model waits.
+            self.model.reset();
         }
         (out, i_ref, theta_e)
     }
@@ -1079,37 +1122,105 @@ impl CurrentStage {
         true
     }
 
-    /// Current-sense plausibility (closed loop): the loop's tracking error
-    /// against the supervisor's band, excused while the back-EMF alone
-    /// takes more than half the voltage available (the reference may then
-    /// be out of reach at high speed) and while the angle reading looks
-    /// frozen. False when it trips.
+    /// Sensor plausibility from the motor model (closed loop, design
+    /// §24): judges this period, then records what it drives. False when
+    /// a fault tripped.
     #[inline(always)]
-    fn currents_plausible(
+    fn sensors_plausible(
+        &mut self,
+        out: Option<&CurrentLoopOutput>,
+        sensed: &Sensed,
+        w_e_rad_s: f32,
+    ) -> bool {
+        let Some(o) = out.filter(|o| !o.invalid) else {
+            self.model.reset();
+            return true;
+        };
+        let p = Period {
+            i_ab_a: sensed.i_ab,
+            i_dq_a: o.i_dq_a,
+            sin_cos: o.sin_cos,
+            theta_e: sensed.theta_e,
+            // The observer's speed against the tracker's (coarse sensors).
+            omega_spread_rad_s: w_e_rad_s
+                - self.tracker.velocity_rad_s() * self.config.angle.pole_pairs as f32,
+            omega_e_rad_s: w_e_rad_s,
+            unchanged_periods: self.state.unchanged_periods,
+        };
+        let fault = match self.model.check(&p) {
+            Verdict::CurrentSense if self.angle_frozen() => Some(Fault::AngleSensorStuck),
+            Verdict::CurrentSense => Some(Fault::CurrentSenseError),
+            // A fine sensor only: a coarse one (halls) legitimately stands
+            // still through a reversal inside one of its wide counts.
+            Verdict::Quiet
+                if self.state.interpolation.is_none()
+                    && self.angle_frozen()
+                    && self.emf_shows_motion() =>
+            {
+                Some(Fault::AngleSensorStuck)
+            }
+            Verdict::Quiet => None,
+        };
+        match fault {
+            Some(f) => {
+                self.supervisor.trip(f);
+                self.model.reset();
+                false
+            }
+            None => {
+                self.model.record(&p, o.duties, sensed.v_bus_v);
+                true
+            }
+        }
+    }
+
+    /// The angle reading has stood still for longer than the speed it had
+    /// when it last moved needs to move it two counts: a model-check trip
+    /// is then the angle's (a frozen angle makes the model's back-EMF and
+    /// the currents disagree), not the current sensors'.
+    #[inline(always)]
+    fn angle_frozen(&self) -> bool {
+        let cpr = self.config.angle.sensor_counts_per_rev;
+        let count_rad = if cpr > 0 {
+            core::f32::consts::TAU / cpr as f32
+        } else {
+            0.01
+        };
+        let still_s = self.config.current.ts_s * self.state.unchanged_periods as f32;
+        self.state.speed_at_change_rad_s.abs() * still_s > 2.0 * count_rad
+    }
+
+    /// The back-EMF the model check measured (independent of the angle)
+    /// is at least half what the speed at the reading's last change
+    /// gives, and above the check's own uncertainty: the rotor still
+    /// turns (a rotor stopped against an end stop has no back-EMF).
+    #[inline(always)]
+    fn emf_shows_motion(&self) -> bool {
+        let r = self.model.last();
+        let e = r.emf_dq_v;
+        let e_sq = e.d * e.d + e.q * e.q;
+        let m = &self.config.current.motor;
+        let expected_v = 0.5
+            * (self.state.speed_at_change_rad_s * m.pole_pairs as f32 * m.flux_linkage_wb).abs();
+        e_sq > expected_v * expected_v && e_sq > r.min_emf_v * r.min_emf_v
+    }
+
+    /// The slower back-up of the model check: the loop's tracking error
+    /// against the supervisor's band, excused on the voltage limit (the
+    /// reference out of reach: back-EMF, or `L di/dt` while a large
+    /// inductance slews) and while the angle reading looks frozen (the
+    /// stuck check's to name). False when it trips.
+    #[inline(always)]
+    fn currents_track(
         &mut self,
         out: Option<&CurrentLoopOutput>,
         i_ref: Dq,
         w_e_rad_s: f32,
-        v_bus_v: f32,
     ) -> bool {
         let Some(o) = out else {
             return true;
         };
         let (ed, eq) = (i_ref.d - o.i_dq_a.d, i_ref.q - o.i_dq_a.q);
-        // The reference may be out of reach: the voltage it needs in steady
-        // state (resistive drop, back-EMF and the inductive cross term, an
-        // upper bound) above 90 % of the voltage available, or the back-EMF
-        // alone above half of it.
-        let m = &self.config.current.motor;
-        let i_mag = i_ref.d.abs() + i_ref.q.abs();
-        let emf_v = (w_e_rad_s * m.flux_linkage_wb).abs();
-        let need_v = m.r_ohm * i_mag + emf_v + (w_e_rad_s * m.lq_h).abs() * i_mag;
-        let avail_v = self.config.current.max_modulation * v_bus_v * crate::FRAC_1_SQRT_3;
-        let emf_limited = o.voltage_limited && (2.0 * emf_v > avail_v || need_v > 0.9 * avail_v);
-        // A reading frozen while the tracked or commanded speed says it
-        // should have moved two counts is the angle sensor's fault (the
-        // stuck check's to name): a wrong angle makes the loop lose track
-        // too.
         let cpr = self.config.angle.sensor_counts_per_rev;
         let count_rad = if cpr > 0 {
             core::f32::consts::TAU / cpr as f32
@@ -1120,14 +1231,15 @@ impl CurrentStage {
             Command::Velocity { rad_s } => rad_s.abs(),
             _ => 0.0,
         };
-        let tracked_rad_s = self.tracker.velocity_rad_s().abs();
+        let pp = self.config.angle.pole_pairs.max(1) as f32;
+        let tracked_rad_s = (w_e_rad_s / pp).abs();
         let speed = if commanded_rad_s > tracked_rad_s {
             commanded_rad_s
         } else {
             tracked_rad_s
         };
         let moved_rad = speed * self.config.current.ts_s * self.state.unchanged_periods as f32;
-        let excused = emf_limited || moved_rad > 2.0 * count_rad;
+        let excused = o.voltage_limited || moved_rad > 2.0 * count_rad;
         self.supervisor
             .check_tracking(ed * ed + eq * eq, excused)
             .is_none()
@@ -1219,6 +1331,27 @@ impl CurrentStage {
 }
 
 /// `max_current_a` not finite and non-negative -> 0.
+/// The model check of a stage configuration: the current loop's motor and
+/// period, the supervisor's tolerances with the angle sensor's resolution
+/// added (a whole count for a fine sensor, a quarter of one where the
+/// stage interpolates a coarse one).
+fn model_check(c: &CurrentStageConfig) -> ModelCheck {
+    let a = &c.angle;
+    let count_e_rad = match a.sensor_counts_per_rev {
+        0 => 0.0,
+        n => core::f32::consts::TAU * a.pole_pairs as f32 / n as f32,
+    };
+    let mut tol = c.supervisor.model;
+    // An interpolated coarse sensor (halls) is within its half-count
+    // window; a fine one within a count.
+    tol.angle_e_rad += match a.interpolation_half_count() {
+        Some(_) => 0.5 * count_e_rad,
+        None => count_e_rad,
+    };
+    let coarse = a.interpolation_half_count().is_some();
+    ModelCheck::new(c.current.motor, c.current.ts_s, tol, coarse)
+}
+
 fn sanitize_limits(mut l: Limits) -> Limits {
     if !(l.max_current_a >= 0.0 && l.max_current_a < f32::INFINITY) {
         l.max_current_a = 0.0;

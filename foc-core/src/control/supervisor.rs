@@ -17,6 +17,7 @@
 //! assert!(!sup.is_faulted());
 //! ```
 
+use super::model::ModelTolerances;
 use crate::frames::Abc;
 
 /// A fault the supervisor can latch. Each has a stable numeric code.
@@ -205,15 +206,17 @@ pub struct SupervisorConfig {
     pub runaway_periods: u32,
     /// Runaway band [rad/s]: speed errors below it never count.
     pub runaway_band_rad_s: f32,
-    /// Current-sense plausibility ([`Fault::CurrentSenseError`]): the
-    /// current loop's tracking error `|i_dq_ref - i_dq|` [A] above which a
-    /// period counts. A dead or stuck current channel (two shunts: the
-    /// third current is derived from it) leaves the loop unable to track
-    /// while the true current runs away unseen.
+    /// Current-sense plausibility from the motor model
+    /// ([`Fault::CurrentSenseError`], see [`super::model`]): how far the
+    /// identified model may be from the motor, and the trip count.
+    pub model: ModelTolerances,
+    /// The slower back-up ([`Fault::CurrentSenseError`]): the current
+    /// loop's tracking error `|i_dq_ref - i_dq|` [A] above which a period
+    /// counts. Periods on the voltage limit never count: there the loop
+    /// cannot follow its reference (the back-EMF, or the `L di/dt` a large
+    /// inductance needs while it slews, takes the voltage).
     pub tracking_band_a: f32,
-    /// Consecutive periods above the band that trip; 0 disables. Periods
-    /// where the voltage limit is reached because of the back-EMF (high
-    /// speed, the reference legitimately out of reach) do not count.
+    /// Consecutive periods above the band that trip; 0 disables.
     pub tracking_periods: u32,
     /// Over-temperature threshold [deg C].
     pub max_temperature_c: f32,
@@ -250,6 +253,7 @@ impl Default for SupervisorConfig {
             max_speed_rad_s: 1.0e4,
             runaway_periods: 2000, // 100 ms at 20 kHz
             runaway_band_rad_s: 5.0,
+            model: ModelTolerances::for_current_limit(10.0),
             tracking_band_a: 2.5,
             tracking_periods: 40, // 2 ms at 20 kHz
             max_temperature_c: 90.0,
@@ -283,6 +287,10 @@ impl SupervisorConfig {
             max_angle_step_e_rad: upper(self.max_angle_step_e_rad),
             max_temperature_c: upper(self.max_temperature_c),
             max_speed_rad_s: upper(self.max_speed_rad_s),
+            model: ModelTolerances {
+                floor_a: upper(self.model.floor_a),
+                ..self.model
+            },
             tracking_band_a: upper(self.tracking_band_a),
             runaway_band_rad_s: upper(self.runaway_band_rad_s),
             stuck_current_a: upper(self.stuck_current_a),
@@ -348,9 +356,9 @@ impl Supervisor {
         }
     }
 
-    /// The current-sense plausibility check, once per closed-loop current
+    /// The current-sense back-up check, once per closed-loop current
     /// period: `error_sq_a2` is `|i_dq_ref - i_dq|^2` [A^2], `excused` true
-    /// when the voltage limit is reached because of the back-EMF. Latches
+    /// on the voltage limit (or with the angle reading frozen). Latches
     /// [`Fault::CurrentSenseError`] after more than `tracking_periods`
     /// consecutive periods above the band.
     #[inline]

@@ -10,6 +10,7 @@ use core::hint::black_box;
 use foc_core::angle::{ElectricalAngle, MechanicalAngle};
 use foc_core::control::current::{CurrentLoop, CurrentLoopInput, CurrentLoopOutput};
 use foc_core::control::estimator::{AngleTracker, SpeedObserver};
+use foc_core::control::model::{ModelCheck, Period, Verdict};
 use foc_core::control::power::{PowerInputs, PowerReport, PowerStage};
 use foc_core::control::stage::Sample;
 use foc_core::control::supervisor::{Checks, Fault, Supervisor};
@@ -87,6 +88,38 @@ pub fn measure_pieces(rig: &mut Rig, baseline: u32, currents: &dyn Fn(u32) -> Ab
                 black_box(&checks),
                 black_box(sq),
             ));
+        }),
+    );
+    let mut model = ModelCheck::new(
+        cfg.current.motor,
+        cfg.current.ts_s,
+        cfg.supervisor.model,
+        false,
+    );
+    let period = |k: u32| {
+        let i = currents(k);
+        let ab = transforms::clarke(i);
+        let th = rotor(k).to_electrical(cfg.angle.pole_pairs);
+        let (s, c) = foc_core::trig::sin_cos(th);
+        Period {
+            i_ab_a: ab,
+            i_dq_a: transforms::park(ab, s, c),
+            sin_cos: (s, c),
+            theta_e: th,
+            omega_spread_rad_s: 0.0,
+            omega_e_rad_s: 150.0 * cfg.angle.pole_pairs as f32,
+            unchanged_periods: 0,
+        }
+    };
+    for k in 0..4 {
+        model.record(&period(k), [0.5; 3], 24.0);
+    }
+    let next = core::cell::Cell::new(period(4));
+    add(
+        "  part: model check (ModelCheck::check + record)",
+        measure(baseline, n, &mut |k| next.set(period(4 + k)), &mut |_| {
+            let p = black_box(next.get());
+            black_box(model_part(&mut model, &p));
         }),
     );
     if let Some(p) = cfg.power {
@@ -175,6 +208,13 @@ fn estimators_part(
 #[inline(never)]
 fn supervision_part(sup: &mut Supervisor, checks: &Checks, sq: f32) -> Option<Fault> {
     sup.check_vector_sq(checks, sq)
+}
+
+#[inline(never)]
+fn model_part(m: &mut ModelCheck, p: &Period) -> Verdict {
+    let v = m.check(p);
+    m.record(p, [0.52, 0.49, 0.49], 24.0);
+    v
 }
 
 #[inline(never)]

@@ -1,0 +1,661 @@
+//! Sensor supervision from the motor model (design §24): the current
+//! sensors judged by how well the motor's own equations explain what they
+//! read, not by how well the loop tracks its reference.
+//!
+//! Every closed-loop period the check predicts this period's currents
+//! from its estimate of last period's, the voltage the bridge really
+//! applied over the period in between (rebuilt from the duties it was
+//! given and the bus they were computed for, plus the dead time as far as
+//! it is configured), the electrical speed and the identified `R`, `Ld`,
+//! `Lq` and `psi`:
+//!
+//! ```text
+//! x = estimate of i(k-1) in the dq frame of theta(k)   (this sample's frame)
+//! Ld dx_d/dt = v_d - R x_d - w (Ld - Lq) x_q - e_d - dist_d
+//! Lq dx_q/dt = v_q - R x_q - w (Ld - Lq) x_d - e_q - dist_q
+//! e = w psi (sin(w Ts / 2), cos(w Ts / 2))    (the back-EMF, mid-period)
+//! x_pred = a x + b (v - cross - e - dist),  a = exp(-R Ts / L),  b = (1 - a) / R
+//! r = i(k) - x_pred
+//! ```
+//!
+//! per axis; the cross terms are what the frame's rotation leaves of a
+//! salient rotor's inductances. It is an observer: the estimate moves
+//! [`CURRENT_GAIN`] of the way to the measurement, and a voltage
+//! disturbance `dist` (what the model's resistance, flux linkage and dead
+//! time are off by) [`DISTURBANCE_GAIN`] of the way to what the residual
+//! says. The speed is the angle's own change, averaged
+//! ([`SPEED_AVERAGE_PERIODS`]); for a coarse sensor (halls) the caller's
+//! estimate.
+//!
+//! Two checks, neither of which looks at the reference (a current
+//! slewing at the voltage limit, a current limit, the power windows,
+//! impedance mode all leave a healthy drive quiet, whatever its size):
+//!
+//! - fast: `|r|` against a bound carried along with the estimate: what an
+//!   inductance off by [`ModelTolerances::inductance`] does to this
+//!   period's predicted change, what the disturbance estimate's error (its
+//!   start at the full tolerances, then the changes of current and speed
+//!   since, decaying at its gain) and the angle sensor's resolution can
+//!   do, plus a floor for noise and quantisation.
+//!   [`ModelTolerances::trip_periods`] periods over (a period more than four
+//!   times over counts twice) trip. A dead channel shows at once;
+//! - slow: the disturbance the readings need must stay inside what the
+//!   tolerances allow at this current and speed ([`ENVELOPE_MARGIN`] times
+//!   resistance, flux linkage, inductance terms, held while the estimate
+//!   forgets); [`ENVELOPE_PERIODS`] periods outside trip. A frozen channel,
+//!   a wrong gain or an offset drags the disturbance out of it while the
+//!   loop pushes.
+//!
+//! Either verdict is [`Verdict::CurrentSense`]; the current stage names
+//! it the angle's (`AngleSensorStuck`) when the angle reading has stood
+//! still longer than its last speed allows, and it also latches that
+//! when the back-EMF the check measures (independent of the angle) shows
+//! the rotor turning under a still reading.
+//!
+//! ```
+//! use foc_core::control::model::{ModelCheck, ModelTolerances, Period, Verdict};
+//! use foc_core::control::MotorParams;
+//! use foc_core::frames::{AlphaBeta, Dq};
+//! use foc_core::angle::ElectricalAngle;
+//! let motor = MotorParams { pole_pairs: 7, r_ohm: 0.5, ld_h: 1e-4, lq_h: 1e-4, flux_linkage_wb: 0.005 };
+//! let mut m = ModelCheck::new(motor, 50e-6, ModelTolerances::for_current_limit(10.0), false);
+//! // Bridge on, rotor still, no current, zero volts: the model expects zero.
+//! let p = Period { i_ab_a: AlphaBeta::new(0.0, 0.0), i_dq_a: Dq::ZERO, sin_cos: (0.0, 1.0),
+//!     theta_e: ElectricalAngle::ZERO, omega_spread_rad_s: 0.0, omega_e_rad_s: 0.0,
+//!     unchanged_periods: 0 };
+//! for _ in 0..3 {
+//!     assert_eq!(m.check(&p), Verdict::Quiet);
+//!     m.record(&p, [0.5; 3], 24.0);
+//! }
+//! // A reading of 3 A out of nowhere is not the motor.
+//! let bad = Period { i_ab_a: AlphaBeta::new(3.0, 0.0), i_dq_a: Dq::new(3.0, 0.0), ..p };
+//! let mut v = Verdict::Quiet;
+//! for _ in 0..3 {
+//!     v = m.check(&bad);
+//!     m.record(&bad, [0.5; 3], 24.0);
+//! }
+//! assert_eq!(v, Verdict::CurrentSense);
+//! ```
+
+use super::MotorParams;
+use crate::angle::ElectricalAngle;
+use crate::frames::{Abc, AlphaBeta, Dq};
+use crate::transforms;
+
+/// How far the identified model may be from the motor, and the check's
+/// floor and trip count.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct ModelTolerances {
+    /// Noise and quantisation floor of the current residual [A].
+    pub floor_a: f32,
+    /// Relative error of the resistance: identification and the winding's
+    /// temperature (copper +39 % from 20 to 120 deg C) together.
+    pub resistance: f32,
+    /// Relative error of the inductances.
+    pub inductance: f32,
+    /// Relative error of the flux linkage (identification, magnet
+    /// temperature).
+    pub flux: f32,
+    /// Angle error the sensor may have [rad, electrical] on top of its
+    /// resolution (interpolation, timing).
+    pub angle_e_rad: f32,
+    /// The bridge's dead time [s] as far as it is known (0: none known);
+    /// the applied voltage is corrected by `-sgn(i) V_bus t_d f_pwm` per
+    /// phase and the bound widened by one phase's worth.
+    pub dead_time_s: f32,
+    /// Periods over the bound that trip; 0 disables the check.
+    pub trip_periods: u8,
+}
+
+impl ModelTolerances {
+    /// Defaults for a drive with the given current limit [A]: a floor of
+    /// 2 % of it, resistance 60 %, inductance 30 %, flux linkage 25 %,
+    /// 0.05 rad of angle, no dead time known, 3 periods. A steady error
+    /// ends up in the disturbance estimate; its envelope
+    /// ([`ENVELOPE_MARGIN`] times these) covers a resistance 30 % off on a
+    /// winding 100 K hotter (+80 %), tested on every motor file.
+    pub fn for_current_limit(max_current_a: f32) -> Self {
+        let floor = 0.02 * max_current_a;
+        Self {
+            floor_a: if floor.is_finite() && floor > 0.0 {
+                floor
+            } else {
+                0.1
+            },
+            resistance: 0.6,
+            inductance: 0.3,
+            flux: 0.25,
+            angle_e_rad: 0.05,
+            dead_time_s: 0.0,
+            trip_periods: 3,
+        }
+    }
+}
+
+/// What the check concluded this period.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Verdict {
+    /// Nothing to report (or not enough history yet).
+    Quiet,
+    /// The currents read do not follow the voltage applied.
+    CurrentSense,
+}
+
+/// One period's inputs.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Period {
+    /// Measured currents, stationary frame [A].
+    pub i_ab_a: AlphaBeta,
+    /// The same in the dq frame of this period's angle [A].
+    pub i_dq_a: Dq,
+    /// `(sin, cos)` of this period's electrical angle.
+    pub sin_cos: (f32, f32),
+    /// This period's electrical angle (the one `sin_cos` is of): the
+    /// model's speed is its change, averaged over [`SPEED_AVERAGE_PERIODS`].
+    pub theta_e: ElectricalAngle,
+    /// How uncertain that estimate is [rad/s, electrical] where it is the
+    /// model's speed (a coarse angle): its back-EMF joins the bounds.
+    pub omega_spread_rad_s: f32,
+    /// An electrical speed estimate [rad/s]: where the angle is too coarse
+    /// for its change to give a speed ([`ModelCheck::new`]'s `coarse`),
+    /// the model's speed; otherwise the average's start.
+    pub omega_e_rad_s: f32,
+    /// Periods since the angle reading last changed.
+    pub unchanged_periods: u32,
+}
+
+/// The last evaluated period, for tests, the scope and the margin report.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Residual {
+    /// Measured minus predicted current, dq frame of the sample [A].
+    pub r_dq_a: Dq,
+    /// The bound it was held against [A].
+    pub bound_a: f32,
+    /// The back-EMF the residual implies, same frame [V].
+    pub emf_dq_v: Dq,
+    /// The EMF below which the angle is not judged [V].
+    pub min_emf_v: f32,
+    /// The disturbance estimate [V] and its envelope [V].
+    pub disturbance_dq_v: Dq,
+    /// See `disturbance_dq_v`.
+    pub envelope_v: f32,
+    /// The model's electrical speed [rad/s].
+    pub omega_e_rad_s: f32,
+}
+
+/// How far the current estimate moves to the measurement each period: the
+/// estimate is mostly the model's, so a reading that drifts away from the
+/// motor (a dead or frozen channel while the loop pushes) is seen growing
+/// for many periods, not one period's worth of it.
+pub const CURRENT_GAIN: f32 = 0.25;
+
+/// How far the disturbance estimate moves each period (time constant 32
+/// periods): slow against a sensor fault's first periods, fast against a
+/// resistance that warms.
+pub const DISTURBANCE_GAIN: f32 = 1.0 / 32.0;
+
+/// The model's speed is the sensor's angle change averaged over about this
+/// many periods (a first-order average): a count's quantisation shrinks by
+/// as much, and unlike a torque-fed estimate it does not lag an
+/// acceleration the drive does not cause (a load).
+pub const SPEED_AVERAGE_PERIODS: f32 = 8.0;
+
+/// The disturbance envelope is this many times what the tolerances allow.
+pub const ENVELOPE_MARGIN: f32 = 2.0;
+
+/// Consecutive periods outside the envelope that trip.
+pub const ENVELOPE_PERIODS: u8 = 4;
+
+/// The voltage the tolerances allow the model to be off by [V]: resistance
+/// at the current, flux linkage and the inductances' cross terms at the
+/// speed.
+#[inline(always)]
+fn volts_tol(t: &ModelTolerances, k: &Derived, x_l1_a: f32, w_abs: f32) -> f32 {
+    t.resistance * k.r_ohm * x_l1_a
+        + w_abs * (t.flux * k.psi_wb + t.inductance * k.l_max_h * x_l1_a)
+}
+
+/// Constants derived once from the motor and the period.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Derived {
+    a_d: f32,
+    a_q: f32,
+    b_d: f32,
+    b_q: f32,
+    inv_b_d: f32,
+    inv_b_q: f32,
+    b_max: f32,
+    half_ts_s: f32,
+    inv_ts: f32,
+    psi_wb: f32,
+    ld_minus_lq_h: f32,
+    l_max_h: f32,
+    r_ohm: f32,
+    /// `t_d f_pwm`.
+    dead_fraction: f32,
+    /// Whether the model is usable at all (finite, positive L, Ts and flux
+    /// linkage).
+    usable: bool,
+    /// The angle is too coarse for its change to give the speed.
+    coarse_angle: bool,
+}
+
+/// Run-time state.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct ModelState {
+    /// The model's current estimate after last period's correction,
+    /// stationary frame [A], if the bridge was driven.
+    prev_i_ab_a: Option<AlphaBeta>,
+    /// The estimated voltage disturbance (what the model's R, psi and
+    /// dead-time errors add), dq frame [V].
+    dist_dq_v: Dq,
+    /// Bound of the estimate's error after the correction [A].
+    err_a: f32,
+    /// Bound of the disturbance estimate's error [V].
+    dist_err_v: f32,
+    /// Last judged period's estimate and speed (the disturbance bound
+    /// follows their changes).
+    prev_x_dq_a: Dq,
+    prev_omega_e_rad_s: f32,
+    /// [`ModelCheck::check`] judged (and corrected) this period.
+    judged: bool,
+    /// Dead-time voltage error per volt of bus, from last period's current
+    /// signs (stationary frame).
+    prev_dead_ab: AlphaBeta,
+    /// Voltage computed last period (acts over the next) [V], with the bus
+    /// voltage it was computed for [V].
+    v_newer: Option<(AlphaBeta, f32)>,
+    /// Voltage computed two periods ago (acted over the last) [V], and its bus.
+    v_older: Option<(AlphaBeta, f32)>,
+    current_count: u8,
+    /// Largest `(|r| / bound)^2` seen since the last [`ModelCheck::reset_peak`].
+    peak_ratio_sq: f32,
+    /// Largest `(|disturbance| / envelope)^2` seen, likewise.
+    peak_dist_ratio_sq: f32,
+    /// Consecutive periods with the disturbance outside its envelope.
+    dist_count: u8,
+    /// Last period's angle and the averaged speed [rad/s, electrical].
+    prev_theta_e: Option<ElectricalAngle>,
+    omega_avg_rad_s: f32,
+    /// The envelope of the last judged period [V].
+    envelope_v: f32,
+    last: Residual,
+}
+
+/// The model-based sensor check (module docs).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ModelCheck {
+    tol: ModelTolerances,
+    k: Derived,
+    state: ModelState,
+}
+
+/// `exp(-x)` for `x >= 0` at configuration time: the (2,2) Pade
+/// approximant on `x / 4`, squared twice (within 1e-6 for `x <= 4`).
+fn exp_neg(x: f32) -> f32 {
+    let y = 0.25 * x;
+    let n = 1.0 - 0.5 * y + y * y / 12.0;
+    let d = 1.0 + 0.5 * y + y * y / 12.0;
+    let e = n / d;
+    let e2 = e * e;
+    e2 * e2
+}
+
+/// `(a, b)` of one axis: `a = exp(-R Ts / L)`, `b = (1 - a) / R`
+/// (`Ts / L` without resistance).
+fn axis(r_ohm: f32, l_h: f32, ts_s: f32) -> (f32, f32) {
+    let x = r_ohm * ts_s / l_h;
+    if r_ohm > 1e-9 && x.is_finite() {
+        let a = exp_neg(x);
+        (a, (1.0 - a) / r_ohm)
+    } else {
+        (1.0, ts_s / l_h)
+    }
+}
+
+impl Derived {
+    fn new(m: MotorParams, ts_s: f32, tol: &ModelTolerances, coarse_angle: bool) -> Self {
+        let usable = crate::all_finite([m.r_ohm, m.ld_h, m.lq_h, m.flux_linkage_wb, ts_s])
+            && m.ld_h > 0.0
+            && m.lq_h > 0.0
+            // Flux linkage 0: not identified yet (the identification's
+            // provisional permit while it measures it): the check waits.
+            && m.flux_linkage_wb > 0.0
+            && ts_s > 0.0
+            && m.r_ohm >= 0.0;
+        let (a_d, b_d) = axis(m.r_ohm, m.ld_h, ts_s);
+        let (a_q, b_q) = axis(m.r_ohm, m.lq_h, ts_s);
+        let dead = tol.dead_time_s / ts_s;
+        Self {
+            a_d,
+            a_q,
+            b_d,
+            b_q,
+            inv_b_d: 1.0 / b_d,
+            inv_b_q: 1.0 / b_q,
+            b_max: if b_d > b_q { b_d } else { b_q },
+            half_ts_s: 0.5 * ts_s,
+            inv_ts: 1.0 / ts_s,
+            psi_wb: m.flux_linkage_wb,
+            ld_minus_lq_h: m.ld_h - m.lq_h,
+            l_max_h: if m.ld_h > m.lq_h { m.ld_h } else { m.lq_h },
+            r_ohm: m.r_ohm,
+            dead_fraction: if dead.is_finite() && dead > 0.0 {
+                dead
+            } else {
+                0.0
+            },
+            usable,
+            coarse_angle,
+        }
+    }
+}
+
+impl ModelCheck {
+    /// The check for `motor` at the period `ts_s` [s]; `coarse_angle` when the angle moves in steps too coarse for its
+    /// change to give a speed (halls: [`Period::omega_e_rad_s`] is used).
+    pub fn new(motor: MotorParams, ts_s: f32, tol: ModelTolerances, coarse_angle: bool) -> Self {
+        Self {
+            tol,
+            k: Derived::new(motor, ts_s, &tol, coarse_angle),
+            state: ModelState::default(),
+        }
+    }
+
+    /// The tolerances in use.
+    pub fn tolerances(&self) -> &ModelTolerances {
+        &self.tol
+    }
+
+    /// Forget the history (bridge off, a new configuration): the next two
+    /// driven periods rebuild it before anything is judged. The healthy
+    /// margin ([`Self::peak_ratio`]) is kept.
+    pub fn reset(&mut self) {
+        if self.state.v_newer.is_none() && self.state.prev_i_ab_a.is_none() {
+            // Nothing recorded since the last reset (the bridge-off periods).
+            return;
+        }
+        let (peak, peak_dist) = (self.state.peak_ratio_sq, self.state.peak_dist_ratio_sq);
+        self.state = ModelState {
+            peak_ratio_sq: peak,
+            peak_dist_ratio_sq: peak_dist,
+            ..ModelState::default()
+        };
+    }
+
+    /// Carry a margin over from a check this one replaces.
+    pub fn keep_peak_ratio(&mut self, ratio: f32) {
+        if ratio.is_finite() {
+            self.state.peak_ratio_sq = ratio * ratio;
+        }
+    }
+
+    /// Forget the largest ratio seen.
+    pub fn reset_peak(&mut self) {
+        self.state.peak_ratio_sq = 0.0;
+        self.state.peak_dist_ratio_sq = 0.0;
+    }
+
+    /// Largest `|residual| / bound` seen in a judged period (the margin:
+    /// a healthy drive stays below 1).
+    pub fn peak_ratio(&self) -> f32 {
+        crate::sqrtf(self.state.peak_ratio_sq)
+    }
+
+    /// Largest `|disturbance| / envelope` seen (the slow check's margin).
+    pub fn peak_disturbance_ratio(&self) -> f32 {
+        crate::sqrtf(self.state.peak_dist_ratio_sq)
+    }
+
+    /// The last judged period.
+    pub fn last(&self) -> &Residual {
+        &self.state.last
+    }
+
+    /// The EMF [V] above which the angle is judged, at the last judged
+    /// period's current (see [`Residual::min_emf_v`]).
+    pub fn min_emf_v(&self) -> f32 {
+        self.state.last.min_emf_v
+    }
+
+    /// Record what this period drove: the measured currents (their signs
+    /// for the dead time too, `i_abc_a` is derived from `p.i_ab_a` with a
+    /// zero sum) and the duties handed to the bridge with the bus voltage
+    /// they were computed for. Call after [`Self::check`] in every period
+    /// the bridge is driven; [`Self::reset`] in every other.
+    #[inline(always)]
+    pub fn record(&mut self, p: &Period, duties: [f32; 3], v_bus_v: f32) {
+        let [da, db, dc] = duties;
+        let v = transforms::clarke(Abc::new(da * v_bus_v, db * v_bus_v, dc * v_bus_v));
+        self.state.v_older = self.state.v_newer;
+        self.state.v_newer = Some((v, v_bus_v));
+        if !self.state.judged {
+            // Nothing judged this period (the first two driven ones): the
+            // estimate starts at the reading, the bounds at the tolerances.
+            self.state.prev_i_ab_a = Some(p.i_ab_a);
+            self.start_bound(p.i_dq_a, p.omega_e_rad_s);
+        }
+        self.state.judged = false;
+        if self.k.dead_fraction > 0.0 {
+            let i = transforms::inverse_clarke(p.i_ab_a);
+            let s = |x: f32| if x > 0.0 { -1.0 } else { 1.0 };
+            self.state.prev_dead_ab = transforms::clarke(Abc::new(s(i.a), s(i.b), s(i.c)));
+        }
+    }
+
+    /// Judge this period (module docs). Without two periods of history, or
+    /// with a model that is not usable, nothing is judged.
+    #[inline(always)]
+    pub fn check(&mut self, p: &Period) -> Verdict {
+        let (Some(x_ab), Some((mut v_ab, vbus))) = (self.state.prev_i_ab_a, self.state.v_older)
+        else {
+            return Verdict::Quiet;
+        };
+        if !self.k.usable || self.tol.trip_periods == 0 {
+            return Verdict::Quiet;
+        }
+        let w_old = self.state.omega_avg_rad_s;
+        let w = self.average_speed(p);
+        let k = &self.k;
+        let t = &self.tol;
+        let (sin, cos) = p.sin_cos;
+        let dead_v = vbus * k.dead_fraction;
+        if k.dead_fraction > 0.0 {
+            let d = self.state.prev_dead_ab;
+            v_ab = AlphaBeta::new(v_ab.alpha + d.alpha * dead_v, v_ab.beta + d.beta * dead_v);
+        }
+        let x0 = transforms::park(x_ab, sin, cos);
+        let v = transforms::park(v_ab, sin, cos);
+        // The average lags an acceleration by about its length.
+        let w_lag = (w - w_old).abs() * SPEED_AVERAGE_PERIODS;
+        let emf = w * k.psi_wb;
+        let e_d = emf * w * k.half_ts_s;
+        let cross = w * k.ld_minus_lq_h;
+        let e_model_q = emf + cross * x0.d;
+        let dist = self.state.dist_dq_v;
+        let pred_d = k.a_d * x0.d + k.b_d * (v.d - cross * x0.q - e_d - dist.d);
+        let pred_q = k.a_q * x0.q + k.b_q * (v.q - e_model_q - dist.q);
+        let r = Dq::new(p.i_dq_a.d - pred_d, p.i_dq_a.q - pred_q);
+
+        // The bound: the estimate's own error carried over, what the
+        // inductance tolerance and the disturbance estimate's error can do
+        // this period, and the floor.
+        let wabs = w.abs();
+        let x0n = x0.d.abs() + x0.q.abs();
+        let step = (pred_d - x0.d).abs() + (pred_q - x0.q).abs();
+        let spread = if k.coarse_angle {
+            p.omega_spread_rad_s.abs()
+        } else {
+            0.0
+        };
+        let angle_v = (wabs * t.angle_e_rad + w_lag + spread) * k.psi_wb;
+        let err_pred = self.state.err_a
+            + t.inductance * step
+            + k.b_max * (self.state.dist_err_v + angle_v + dead_v);
+        let bound = err_pred + t.floor_a;
+
+        // The back-EMF the measurement implies, and its uncertainty.
+        let emf_dq = Dq::new(
+            e_d + dist.d - r.d * k.inv_b_d,
+            e_model_q + dist.q - r.q * k.inv_b_q,
+        );
+        let inv_b_max = if k.inv_b_d < k.inv_b_q {
+            k.inv_b_q
+        } else {
+            k.inv_b_d
+        };
+        let volts = t.resistance * k.r_ohm * x0n + wabs * t.inductance * k.l_max_h * x0n;
+        let min_emf = 2.0 * ((t.floor_a + t.inductance * step) * inv_b_max + volts + angle_v);
+        self.state.last = Residual {
+            r_dq_a: r,
+            bound_a: bound,
+            emf_dq_v: emf_dq,
+            min_emf_v: min_emf,
+            disturbance_dq_v: self.state.dist_dq_v,
+            envelope_v: 0.0,
+            omega_e_rad_s: w,
+        };
+        // What the disturbance estimate may hold now: the tolerances at
+        // this current and speed, the inductance's share of this period's
+        // slew, and, since the estimate forgets only at its own rate,
+        // what the envelope was lately, decaying at that rate.
+        let env_now = ENVELOPE_MARGIN
+            * (volts_tol(t, k, x0n, wabs) + t.inductance * step * inv_b_max + angle_v)
+            + 0.5 * t.floor_a * inv_b_max
+            + dead_v;
+        let env_held = (1.0 - DISTURBANCE_GAIN) * self.state.envelope_v;
+        let env = if env_now > env_held {
+            env_now
+        } else {
+            env_held
+        };
+        self.state.envelope_v = env;
+        self.state.last.envelope_v = env;
+        self.correct(p, Dq::new(pred_d, pred_q), r, err_pred, x0, w);
+        let r_sq = r.d * r.d + r.q * r.q;
+        let b_sq = bound * bound;
+        let ratio_sq = r_sq / b_sq;
+        if ratio_sq > self.state.peak_ratio_sq {
+            self.state.peak_ratio_sq = ratio_sq;
+        }
+        // The slow check: the disturbance the readings need must stay
+        // inside what the tolerances allow at this current and speed.
+        let k_coarse = self.k.coarse_angle;
+        let d = self.state.dist_dq_v;
+        let d_sq = d.d * d.d + d.q * d.q;
+        let env_sq = env * env;
+        let d_ratio_sq = d_sq / env_sq;
+        if d_ratio_sq > self.state.peak_dist_ratio_sq && !k_coarse {
+            self.state.peak_dist_ratio_sq = d_ratio_sq;
+        }
+        self.state.dist_count = if d_sq > env_sq {
+            self.state.dist_count.saturating_add(1)
+        } else {
+            0
+        };
+        // Not with a coarse angle (halls): in the Q-85SX hub motor's
+        // impedance segment its disturbance grew past any envelope on a
+        // healthy drive (not yet understood; issue 32 stays open).
+        if self.state.dist_count >= ENVELOPE_PERIODS && !k_coarse {
+            return Verdict::CurrentSense;
+        }
+        self.count_current(r_sq > b_sq, r_sq > 16.0 * b_sq)
+    }
+
+    /// The observer's correction: the estimate moves [`CURRENT_GAIN`] of
+    /// the way to the measurement, the disturbance [`DISTURBANCE_GAIN`] of
+    /// the way to what the residual says; their error bounds follow
+    /// (module docs).
+    #[inline(always)]
+    fn correct(&mut self, p: &Period, pred: Dq, r: Dq, err_pred: f32, x0: Dq, w: f32) {
+        let k = &self.k;
+        let t = &self.tol;
+        let s = &mut self.state;
+        let x = Dq::new(pred.d + CURRENT_GAIN * r.d, pred.q + CURRENT_GAIN * r.q);
+        s.prev_i_ab_a = Some(transforms::inverse_park(x, p.sin_cos.0, p.sin_cos.1));
+        s.dist_dq_v = Dq::new(
+            s.dist_dq_v.d - DISTURBANCE_GAIN * r.d * k.inv_b_d,
+            s.dist_dq_v.q - DISTURBANCE_GAIN * r.q * k.inv_b_q,
+        );
+        s.err_a = (1.0 - CURRENT_GAIN) * err_pred + CURRENT_GAIN * t.floor_a;
+        // What the disturbance did since: R, psi and the cross terms
+        // against the change of current and speed.
+        let dx = (x0.d - s.prev_x_dq_a.d).abs() + (x0.q - s.prev_x_dq_a.q).abs();
+        let dw = (w - s.prev_omega_e_rad_s).abs();
+        let x0n = x0.d.abs() + x0.q.abs();
+        let moved_v = t.resistance * k.r_ohm * dx
+            + t.flux * k.psi_wb * dw
+            + t.inductance * k.l_max_h * (dw * x0n + w.abs() * dx);
+        let inv_b_max = if k.inv_b_d < k.inv_b_q {
+            k.inv_b_q
+        } else {
+            k.inv_b_d
+        };
+        // Noise enters the disturbance estimate through the residual and
+        // is averaged over its time constant: a quarter of the floor's
+        // voltage stays (about sqrt(2 DISTURBANCE_GAIN) of it).
+        s.dist_err_v = (1.0 - DISTURBANCE_GAIN) * s.dist_err_v
+            + DISTURBANCE_GAIN * 0.25 * t.floor_a * inv_b_max
+            + moved_v;
+        s.prev_x_dq_a = x0;
+        s.prev_omega_e_rad_s = w;
+        s.judged = true;
+    }
+
+    /// This period's speed [rad/s, electrical]: the angle's change,
+    /// averaged (see [`SPEED_AVERAGE_PERIODS`]).
+    #[inline(always)]
+    fn average_speed(&mut self, p: &Period) -> f32 {
+        let s = &mut self.state;
+        if self.k.coarse_angle {
+            s.omega_avg_rad_s = if p.omega_e_rad_s.is_finite() {
+                p.omega_e_rad_s
+            } else {
+                0.0
+            };
+            return s.omega_avg_rad_s;
+        }
+        if let Some(prev) = s.prev_theta_e {
+            let w_now = p.theta_e.diff_radians(prev) * self.k.inv_ts;
+            s.omega_avg_rad_s += (w_now - s.omega_avg_rad_s) * (1.0 / SPEED_AVERAGE_PERIODS);
+        }
+        s.prev_theta_e = Some(p.theta_e);
+        s.omega_avg_rad_s
+    }
+
+    /// The disturbance bound when the check starts: everything the
+    /// tolerances allow at this current and speed.
+    #[inline(always)]
+    fn start_bound(&mut self, x_dq: Dq, w: f32) {
+        let k = &self.k;
+        let t = &self.tol;
+        let xn = x_dq.d.abs() + x_dq.q.abs();
+        self.state.dist_err_v = t.resistance * k.r_ohm * xn
+            + w.abs() * (t.flux * k.psi_wb + t.inductance * k.l_max_h * xn);
+        self.state.err_a = t.floor_a;
+        if self.state.prev_theta_e.is_none() {
+            self.state.omega_avg_rad_s = if w.is_finite() { w } else { 0.0 };
+        }
+        self.state.prev_x_dq_a = x_dq;
+        self.state.prev_omega_e_rad_s = w;
+    }
+
+    #[inline(always)]
+    fn count_current(&mut self, over: bool, gross: bool) -> Verdict {
+        let s = &mut self.state;
+        s.current_count = if gross {
+            s.current_count.saturating_add(2)
+        } else if over {
+            s.current_count.saturating_add(1)
+        } else {
+            s.current_count.saturating_sub(1)
+        };
+        if s.current_count >= self.tol.trip_periods {
+            Verdict::CurrentSense
+        } else {
+            Verdict::Quiet
+        }
+    }
+}
