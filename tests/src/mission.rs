@@ -755,6 +755,11 @@ pub struct MissionSummary {
     pub impedance: Option<ImpedanceFigures>,
     /// Faults latched during the mission (names).
     pub faults: Vec<String>,
+    /// The model check's largest healthy residual over its bound (design
+    /// §24): the false-alarm margin, below 1 on a healthy drive.
+    pub model_margin: f64,
+    /// The same for the model check's disturbance against its envelope.
+    pub model_disturbance_margin: f64,
     /// PWM periods simulated.
     pub periods: usize,
     /// Simulated time [s].
@@ -770,6 +775,13 @@ impl MissionSummary {
         let mut f = Vec::new();
         if !self.faults.is_empty() {
             f.push(format!("faults latched: {}", self.faults.join(", ")));
+        }
+        let worst = self.model_margin.max(self.model_disturbance_margin);
+        if worst.is_nan() || worst >= 1.0 {
+            f.push(format!(
+                "model check margin {:.2}: a healthy residual reached its bound",
+                worst
+            ));
         }
         if let Some(e) = &self.identification_failure {
             f.push(format!("identification failed: {e}"));
@@ -1136,6 +1148,13 @@ impl MissionSummary {
                 );
             }
         }
+        row(
+            "model check: largest healthy residual / bound, disturbance / envelope",
+            format!(
+                "{:.2}, {:.2}",
+                self.model_margin, self.model_disturbance_margin
+            ),
+        );
         row(
             "faults",
             if self.faults.is_empty() {
@@ -2405,6 +2424,13 @@ impl Mission<'_> {
             braking: None,
             impedance: None,
             faults: mission_faults(trace),
+            model_margin: self.sim.cascade.current.model_check().peak_ratio() as f64,
+            model_disturbance_margin: self
+                .sim
+                .cascade
+                .current
+                .model_check()
+                .peak_disturbance_ratio() as f64,
             periods,
             sim_time_s: periods as f64 * ts,
             wall_time_s: wall.elapsed().as_secs_f64(),

@@ -23,6 +23,21 @@ use crate::real::Real;
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
 
+/// Every motor file in the bench's `motors/` folder (`tests/motors/`),
+/// sorted by name: the set every check and controller is tested on.
+pub fn all_motor_files() -> Vec<PathBuf> {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("motors");
+    let mut v: Vec<_> = std::fs::read_dir(dir)
+        .map(|d| {
+            d.filter_map(|e| e.ok().map(|e| e.path()))
+                .filter(|p| p.extension().is_some_and(|e| e == "toml"))
+                .collect()
+        })
+        .unwrap_or_default();
+    v.sort();
+    v
+}
+
 /// The contents of one motor file, validated.
 #[derive(Clone, Debug, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]

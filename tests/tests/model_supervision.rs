@@ -1,0 +1,414 @@
+//! The model-based sensor supervision (design §24, issue 32) on every motor
+//! file in `tests/motors/`:
+//!
+//! - (a) no false trip: velocity steps from standstill to 0.1 ... 1.0 of the
+//!   no-load speed (current-limited, and voltage-limited near the top),
+//!   reversals, a load step, with the plant's R and L 30 % off the values
+//!   the drive was given and the winding at 120 deg C (R x 1.39); the
+//!   mission (braking, impedance) is `closed_loop.rs`'s, which fails on a
+//!   margin at or above 1;
+//! - (b) a current channel dead, frozen, with a 0.6 gain or a 20 % offset,
+//!   two and three shunts: detected within a few periods, the true current
+//!   never more than 10 % above the over-current trip;
+//!
+//! What is asserted of (b) is the dead phase B with two shunts (the issue's
+//! case, caught within 5 periods on every motor file); the other faults'
+//! figures are printed, not all of them caught yet.
+//!
+//! Each test prints its figures per motor: the margin (largest healthy
+//! residual / bound), detection delays and peak true currents.
+
+use foc_bench::mission::{Setup, Sim};
+use foc_bench::motor_file::all_motor_files;
+use foc_bench::plant::{MotorParams, Plant, Shunts};
+use foc_bench::real::Real;
+use foc_core::control::{BridgeCommand, Command, Fault};
+use foc_core::frames::Abc;
+use foc_core::hal::PhaseCurrents;
+
+fn setups() -> Vec<(String, Setup)> {
+    all_motor_files()
+        .iter()
+        .map(|p| {
+            let stem = p.file_stem().unwrap().to_string_lossy().into_owned();
+            let mut s = Setup::load(p).unwrap();
+            s.bench.sensors.encoder_offset_rad = 0.0;
+            (stem, s)
+        })
+        .collect()
+}
+
+/// A calibrated simulation whose plant is `plant_motor` (the drive keeps
+/// the motor file's values).
+fn sim_with_plant(s: &Setup, plant_motor: MotorParams) -> Sim {
+    let config = s.cascade_config();
+    let mut sim = Sim::with_plant(s, Plant::new(plant_motor, s.bench), config, false);
+    sim.cascade
+        .set_calibration(&s.supplied_calibration(&config));
+    sim
+}
+
+/// Top speed of the steps: the no-load speed within the linear range, or
+/// the mission's highest speed where that is lower.
+fn top_speed(s: &Setup) -> f32 {
+    s.max_speed_rad_s().min(s.max_mission_speed_rad_s())
+}
+
+/// Periods for a step of `dw` [rad/s] at the current limit, with margin.
+fn step_periods(s: &Setup, dw: f32) -> usize {
+    let accel = s.kt() * s.max_current_a / s.motor.inertia_kg_m2 as f32;
+    let t = 1.5 * dw.abs() / accel + 0.03;
+    (t.min(0.4) * s.pwm_hz()) as usize
+}
+
+/// Runs `n` periods; the first fault, if any, unless it is an over-current
+/// the plant's true phase current confirms (at or above the trip: not a
+/// false trip, a mistuned loop overshooting).
+fn run_clean(sim: &mut Sim, n: usize) -> Option<Fault> {
+    let sup = sim.cascade.config().current.supervisor;
+    let (mut phase_peak, mut vector_peak) = (0.0f32, 0.0f32);
+    for _ in 0..n {
+        sim.step();
+        for i in sim.plant.phase_currents_a() {
+            phase_peak = phase_peak.max(i.abs() as f32);
+        }
+        let (id, iq) = (sim.plant.id_a() as f32, sim.plant.iq_a() as f32);
+        vector_peak = vector_peak.max((id * id + iq * iq).sqrt());
+        if let Some(f) = sim.cascade.feedback().first_fault {
+            let real = match f {
+                Fault::OverCurrentPhase => phase_peak >= 0.95 * sup.max_phase_current_a,
+                Fault::OverCurrentVector => vector_peak >= 0.95 * sup.max_vector_current_a,
+                _ => false,
+            };
+            if real {
+                println!(
+                    "  (true over-current: phase {phase_peak:.1} A, vector {vector_peak:.1} A)"
+                );
+                return None;
+            }
+            return Some(f);
+        }
+    }
+    None
+}
+
+/// Steps to `f` of the top speed from standstill, the reversal to `-f`,
+/// a rated load step, a stop. Returns the first fault with its segment.
+fn speed_profile(sim: &mut Sim, s: &Setup, f: f32) -> Option<(String, Fault)> {
+    let w = f * top_speed(s);
+    let segments: [(&str, f32, f32); 4] = [
+        ("step", w, 0.0),
+        ("reversal", -w, 0.0),
+        ("load step", -w, s.kt() * s.rated_current_a),
+        ("stop", 0.0, 0.0),
+    ];
+    let mut from = 0.0f32;
+    for (name, to, load) in segments {
+        sim.load_nm = load.copysign(to);
+        sim.cascade
+            .command(Command::Velocity { rad_s: to })
+            .unwrap();
+        let n = step_periods(s, to - from);
+        if let Some(fault) = run_clean(sim, n) {
+            return Some((format!("{name} to {to:.1} rad/s"), fault));
+        }
+        if sim.cascade.feedback().first_fault.is_some() {
+            // A true over-current (see `run_clean`): the profile ends.
+            return None;
+        }
+        from = to;
+    }
+    sim.load_nm = 0.0;
+    None
+}
+
+/// The plant variants of (a): nominal, R and L 30 % off either way, the
+/// winding at 120 deg C (copper R x 1.39 on top of +30 %).
+fn plant_variants(m: &MotorParams) -> Vec<(&'static str, MotorParams)> {
+    let scaled = |r: Real, l: Real| MotorParams {
+        r_ohm: m.r_ohm * r,
+        ld_h: m.ld_h * l,
+        lq_h: m.lq_h * l,
+        ..*m
+    };
+    vec![
+        ("nominal", *m),
+        ("R +30 %, L -30 %", scaled(1.3, 0.7)),
+        ("R -30 %, L +30 %", scaled(0.7, 1.3)),
+        ("R +30 % at 120 C, L +30 %", scaled(1.3 * 1.39, 1.3)),
+        ("R -30 %, L -30 %", scaled(0.7, 0.7)),
+    ]
+}
+
+#[test]
+fn healthy_drive_never_trips_on_any_motor_file() {
+    let mut failures = Vec::new();
+    for (stem, s) in setups() {
+        let (mut worst, mut worst_dist) = (0.0f32, 0.0f32);
+        for (what, plant) in plant_variants(&s.motor) {
+            for f in [0.1, 0.25, 0.5, 1.0] {
+                let mut sim = sim_with_plant(&s, plant);
+                let fault = speed_profile(&mut sim, &s, f);
+                let m = sim.cascade.current.model_check();
+                worst = worst.max(m.peak_ratio());
+                worst_dist = worst_dist.max(m.peak_disturbance_ratio());
+                if let Some((seg, fault)) = fault {
+                    failures.push(format!(
+                        "{stem} ({what}, {f} of top speed): {} in the {seg}",
+                        fault.name()
+                    ));
+                }
+            }
+        }
+        println!(
+            "{stem}: largest healthy residual / bound {worst:.2}, disturbance / envelope {worst_dist:.2}"
+        );
+        if worst >= 1.0 || worst_dist >= 1.0 {
+            failures.push(format!("{stem}: margin {worst:.2}"));
+        }
+    }
+    assert!(failures.is_empty(), "{failures:#?}");
+}
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum ChannelFault {
+    Dead,
+    Frozen,
+    Gain(f32),
+    Offset(f32),
+}
+
+/// Phase `ph`'s reading corrupted.
+fn corrupt(c: PhaseCurrents, ph: usize, fault: ChannelFault, held: f32) -> PhaseCurrents {
+    let bad = |v: f32| match fault {
+        ChannelFault::Dead => 0.0,
+        ChannelFault::Frozen => held,
+        ChannelFault::Gain(g) => g * v,
+        ChannelFault::Offset(o) => v + o,
+    };
+    match c {
+        PhaseCurrents::TwoPhase { a_a, b_a } => match ph {
+            0 => PhaseCurrents::TwoPhase { a_a: bad(a_a), b_a },
+            _ => PhaseCurrents::TwoPhase { a_a, b_a: bad(b_a) },
+        },
+        PhaseCurrents::ThreePhase(i) => PhaseCurrents::ThreePhase(match ph {
+            0 => Abc::new(bad(i.a), i.b, i.c),
+            1 => Abc::new(i.a, bad(i.b), i.c),
+            _ => Abc::new(i.a, i.b, bad(i.c)),
+        }),
+    }
+}
+
+/// What a channel fault did: periods to the fault (None: never), the fault,
+/// the largest true phase current from the break to the trip [A].
+struct Detection {
+    periods: Option<usize>,
+    fault: Option<Fault>,
+    peak_true_a: f32,
+}
+
+/// The issue's scenario: torque (half the current limit), rotor free, the
+/// fault injected on phase `ph` after 2 ms; runs 20 ms.
+fn inject(s: &Setup, shunts: Shunts, ph: usize, fault: ChannelFault) -> Detection {
+    let mut s2 = s.clone();
+    s2.bench.sensors.shunts = shunts;
+    let mut sim = sim_with_plant(&s2, s2.motor);
+    let f = s2.pwm_hz();
+    sim.cascade
+        .command(Command::Torque {
+            iq_a: 0.5 * s2.max_current_a,
+        })
+        .unwrap();
+    sim.run((0.002 * f) as usize);
+    assert_eq!(sim.cascade.feedback().first_fault, None, "before the fault");
+    let held = {
+        let i = sim.sample().currents.unwrap().to_abc();
+        [i.a, i.b, i.c][ph]
+    };
+    let mut peak = 0.0f32;
+    for k in 0..(0.02 * f) as usize {
+        let mut smp = sim.sample();
+        smp.currents = smp.currents.map(|c| corrupt(c, ph, fault, held));
+        let b = sim.step_with(&smp);
+        for i in sim.plant.phase_currents_a() {
+            peak = peak.max(i.abs() as f32);
+        }
+        if let Some(got) = sim.cascade.feedback().first_fault {
+            assert_eq!(
+                b,
+                BridgeCommand::SafeState,
+                "bridge on in the tripping period"
+            );
+            return Detection {
+                periods: Some(k),
+                fault: Some(got),
+                peak_true_a: peak,
+            };
+        }
+    }
+    Detection {
+        periods: None,
+        fault: None,
+        peak_true_a: peak,
+    }
+}
+
+#[test]
+fn broken_current_channel_is_caught_before_it_does_harm() {
+    let mut failures = Vec::new();
+    for (stem, s) in setups() {
+        let trip_a = s.cascade_config().current.supervisor.max_phase_current_a;
+        for (shunts, phases) in [(Shunts::Two, 2usize), (Shunts::Three, 3)] {
+            for ph in 0..phases {
+                for fault in [
+                    ChannelFault::Dead,
+                    ChannelFault::Frozen,
+                    ChannelFault::Gain(0.6),
+                    ChannelFault::Offset(0.2 * s.max_current_a),
+                ] {
+                    let d = inject(&s, shunts, ph, fault);
+                    let line = format!(
+                        "{stem} {shunts:?} phase {ph} {fault:?}: {} after {:?} periods, peak true {:.2} A (trip {:.1} A)",
+                        d.fault.map_or("none", |f| f.name()),
+                        d.periods,
+                        d.peak_true_a,
+                        trip_a
+                    );
+                    println!("{line}");
+                    // Asserted: phase B dead (the issue's case) within 5
+                    // periods and the true current never 10 % past the
+                    // trip. The other cases are printed: not all are
+                    // caught yet (issue 32 stays open).
+                    if shunts == Shunts::Two && ph == 1 && fault == ChannelFault::Dead {
+                        let named = d.fault == Some(Fault::CurrentSenseError);
+                        if !named || d.periods.is_none_or(|k| k > 5) {
+                            failures.push(format!("{line}: wanted within 5 periods"));
+                        }
+                        if d.peak_true_a > 1.1 * trip_a {
+                            failures.push(format!("{line}: true current past the trip"));
+                        }
+                    }
+                }
+            }
+        }
+    }
+    assert!(failures.is_empty(), "{failures:#?}");
+}
+
+/// The stated speed of the frozen-angle check [rad/s, mechanical]: where
+/// the back-EMF is twice the voltage the current floor stands for in one
+/// period (`floor / b`, `b = (1 - exp(-R Ts / L)) / R` of the smaller
+/// inductance): below it one period's back-EMF is lost in the noise the
+/// check must allow.
+fn stated_speed(s: &Setup) -> f32 {
+    let m = &s.motor;
+    let floor = s.cascade_config().current.supervisor.model.floor_a as Real;
+    let ts: Real = 1.0 / s.bench.pwm_frequency_hz;
+    let l = m.ld_h.min(m.lq_h);
+    let r = m.r_ohm;
+    let b = (1.0 - (-r * ts / l).exp()) / r;
+    (2.0 * floor / b / (Real::from(m.pole_pairs) * m.flux_linkage_wb)) as f32
+}
+
+/// (c) The angle reading frozen at speed in torque mode (a third of the
+/// rated current against an equal load), at the larger of a third of the
+/// top speed and 1.5 times the stated speed ([`stated_speed`]) where the
+/// motor reaches that: the drive must latch `AngleSensorStuck` within
+/// 5 ms there. Motors whose top speed is below it, and the hall-sensor
+/// hub motor, are run at a third of the top speed and their figures
+/// printed (issue 32 stays open for them).
+#[test]
+fn frozen_angle_in_torque_mode_is_caught_at_speed() {
+    let mut failures = Vec::new();
+    let mut asserted = 0;
+    for (stem, s) in setups() {
+        let mut sim = sim_with_plant(&s, s.motor);
+        let f = s.pwm_hz();
+        let stated = stated_speed(&s);
+        // Fine sensors only: with halls the stage interpolates inside a
+        // count, and the check is not claimed for them yet.
+        let hall = foc_bench::identify::hall_class(&s);
+        let above = !hall && 1.5 * stated <= 0.9 * top_speed(&s);
+        let w = if above {
+            (0.3 * top_speed(&s)).max(1.5 * stated)
+        } else {
+            0.3 * top_speed(&s)
+        };
+        sim.cascade.command(Command::Velocity { rad_s: w }).unwrap();
+        assert_eq!(run_clean(&mut sim, step_periods(&s, w)), None, "{stem}");
+        let iq = 0.3 * s.rated_current_a;
+        sim.load_nm = s.kt() * iq;
+        sim.cascade.command(Command::Torque { iq_a: iq }).unwrap();
+        assert_eq!(run_clean(&mut sim, (0.005 * f) as usize), None, "{stem}");
+        let speed = sim.plant.omega_m_rad_s() as f32;
+        let frozen = sim.sample().angle.unwrap();
+        let mut got = None;
+        for k in 0..(0.02 * f) as usize {
+            let mut smp = sim.sample();
+            smp.angle = Some(frozen);
+            sim.step_with(&smp);
+            if let Some(fault) = sim.cascade.feedback().first_fault {
+                got = Some((k, fault));
+                break;
+            }
+        }
+        let line = format!(
+            "{stem}: angle frozen at {speed:.1} rad/s (stated speed {stated:.1} rad/s) in torque mode: {}",
+            match got {
+                Some((k, fault)) => format!(
+                    "{} after {k} periods ({:.2} ms)",
+                    fault.name(),
+                    k as f32 / f * 1e3
+                ),
+                None => "not detected in 20 ms".into(),
+            }
+        );
+        println!("{line}");
+        if above {
+            asserted += 1;
+            match got {
+                Some((k, Fault::AngleSensorStuck)) if (k as f32) <= 0.005 * f => {}
+                _ => failures.push(line),
+            }
+        }
+    }
+    assert!(failures.is_empty(), "{failures:#?}");
+    assert!(
+        asserted >= 3,
+        "only {asserted} motor files reach their stated speed"
+    );
+}
+
+/// Prints the disturbance estimate against its envelope through a healthy
+/// velocity profile (`M=<motor file stem> FR=<fraction of top speed>`).
+#[test]
+#[ignore]
+fn trace_healthy() {
+    let name = std::env::var("M").unwrap_or("hkc-cheetah".into());
+    let fr: f32 = std::env::var("FR").map_or(0.1, |p| p.parse().unwrap());
+    let (_, s) = setups().into_iter().find(|(n, _)| *n == name).unwrap();
+    let mut sim = sim_with_plant(&s, s.motor);
+    let w = fr * top_speed(&s);
+    for (to, load) in [(w, 0.0), (-w, 0.0), (-w, s.kt() * s.rated_current_a)] {
+        sim.load_nm = load.copysign(to);
+        sim.cascade
+            .command(Command::Velocity { rad_s: to })
+            .unwrap();
+        for k in 0..step_periods(&s, 2.0 * w) {
+            sim.step();
+            let r = *sim.cascade.current.model_check().last();
+            let dn = r.disturbance_dq_v.magnitude();
+            if dn > 0.7 * r.envelope_v || k % 200 == 0 {
+                println!(
+                    "to {to:.0} k {k} dist ({:.3},{:.3}) env {:.3} w_model {:.1} r {:.3} bound {:.3} iq {:.2} w {:.1} {:?}",
+                    r.disturbance_dq_v.d, r.disturbance_dq_v.q, r.envelope_v, r.omega_e_rad_s,
+                    r.r_dq_a.magnitude(), r.bound_a, sim.plant.iq_a(), sim.plant.omega_m_rad_s(),
+                    sim.cascade.feedback().first_fault
+                );
+            }
+            if sim.cascade.feedback().first_fault.is_some() {
+                return;
+            }
+        }
+    }
+}
