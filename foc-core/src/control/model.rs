@@ -13,7 +13,7 @@
 //! x = estimate of i(k-1) in the dq frame of theta(k)   (this sample's frame)
 //! Ld dx_d/dt = v_d - R x_d - w (Ld - Lq) x_q - e_d - dist_d
 //! Lq dx_q/dt = v_q - R x_q - w (Ld - Lq) x_d - e_q - dist_q
-//! e = w psi (sin(w Ts / 2), cos(w Ts / 2))    (the back-EMF, mid-period)
+//! e = w psi ((1 - cos X) / X, sin X / X), X = w Ts   (the back-EMF over the period)
 //! x_pred = a x + b (v - cross - e - dist),  a = exp(-R Ts / L),  b = (1 - a) / R
 //! r = i(k) - x_pred
 //! ```
@@ -133,6 +133,24 @@ impl ModelTolerances {
     }
 }
 
+impl ModelTolerances {
+    /// A tolerance that is NaN, infinite or negative becomes 0: the bound
+    /// tightens and the check trips rather than goes blind (as the
+    /// supervisor's own limits do).
+    pub fn sanitized(self) -> Self {
+        let t = |x: f32| if x.is_finite() && x > 0.0 { x } else { 0.0 };
+        Self {
+            floor_a: t(self.floor_a),
+            resistance: t(self.resistance),
+            inductance: t(self.inductance),
+            flux: t(self.flux),
+            angle_e_rad: t(self.angle_e_rad),
+            dead_time_s: t(self.dead_time_s),
+            trip_periods: self.trip_periods,
+        }
+    }
+}
+
 /// What the check concluded this period.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -227,7 +245,7 @@ struct Derived {
     inv_b_d: f32,
     inv_b_q: f32,
     b_max: f32,
-    half_ts_s: f32,
+    ts_s: f32,
     inv_ts: f32,
     psi_wb: f32,
     ld_minus_lq_h: f32,
@@ -307,12 +325,16 @@ fn exp_neg(x: f32) -> f32 {
 /// (`Ts / L` without resistance).
 fn axis(r_ohm: f32, l_h: f32, ts_s: f32) -> (f32, f32) {
     let x = r_ohm * ts_s / l_h;
-    if r_ohm > 1e-9 && x.is_finite() {
-        let a = exp_neg(x);
-        (a, (1.0 - a) / r_ohm)
-    } else {
-        (1.0, ts_s / l_h)
+    if !x.is_finite() || x > 8.0 {
+        // The current settles within a period: `a` is below 4e-4.
+        return (0.0, if r_ohm > 0.0 { 1.0 / r_ohm } else { 0.0 });
     }
+    if x < 1e-3 {
+        // `(1 - a) / R` would lose its digits: its series, Ts / L (1 - x / 2).
+        return (1.0 - x, ts_s / l_h * (1.0 - 0.5 * x));
+    }
+    let a = exp_neg(x);
+    (a, (1.0 - a) / r_ohm)
 }
 
 impl Derived {
@@ -327,6 +349,10 @@ impl Derived {
             && m.r_ohm >= 0.0;
         let (a_d, b_d) = axis(m.r_ohm, m.ld_h, ts_s);
         let (a_q, b_q) = axis(m.r_ohm, m.lq_h, ts_s);
+        let usable = usable
+            && crate::all_finite([b_d, b_q, 1.0 / b_d, 1.0 / b_q, tol.floor_a])
+            && b_d > 0.0
+            && b_q > 0.0;
         let dead = tol.dead_time_s / ts_s;
         Self {
             a_d,
@@ -336,7 +362,7 @@ impl Derived {
             inv_b_d: 1.0 / b_d,
             inv_b_q: 1.0 / b_q,
             b_max: if b_d > b_q { b_d } else { b_q },
-            half_ts_s: 0.5 * ts_s,
+            ts_s,
             inv_ts: 1.0 / ts_s,
             psi_wb: m.flux_linkage_wb,
             ld_minus_lq_h: m.ld_h - m.lq_h,
@@ -357,6 +383,7 @@ impl ModelCheck {
     /// The check for `motor` at the period `ts_s` [s]; `coarse_angle` when the angle moves in steps too coarse for its
     /// change to give a speed (halls: [`Period::omega_e_rad_s`] is used).
     pub fn new(motor: MotorParams, ts_s: f32, tol: ModelTolerances, coarse_angle: bool) -> Self {
+        let tol = tol.sanitized();
         Self {
             tol,
             k: Derived::new(motor, ts_s, &tol, coarse_angle),
@@ -385,11 +412,16 @@ impl ModelCheck {
         };
     }
 
-    /// Carry a margin over from a check this one replaces.
-    pub fn keep_peak_ratio(&mut self, ratio: f32) {
-        if ratio.is_finite() {
-            self.state.peak_ratio_sq = ratio * ratio;
-        }
+    /// The margins, squared (residual, disturbance), to carry over to a
+    /// check that replaces this one ([`Self::keep_peaks`]).
+    pub fn peaks_sq(&self) -> (f32, f32) {
+        (self.state.peak_ratio_sq, self.state.peak_dist_ratio_sq)
+    }
+
+    /// Carry the margins over from a check this one replaces.
+    pub fn keep_peaks(&mut self, (residual_sq, disturbance_sq): (f32, f32)) {
+        self.state.peak_ratio_sq = residual_sq;
+        self.state.peak_dist_ratio_sq = disturbance_sq;
     }
 
     /// Forget the largest ratio seen.
@@ -470,8 +502,13 @@ impl ModelCheck {
         let v = transforms::park(v_ab, sin, cos);
         // The average lags an acceleration by about its length.
         let w_lag = (w - w_old).abs() * SPEED_AVERAGE_PERIODS;
-        let emf = w * k.psi_wb;
-        let e_d = emf * w * k.half_ts_s;
+        // The back-EMF averaged over the period, in this sample's frame:
+        // w psi ((1 - cos X) / X, sin X / X), X = w Ts (two-term series,
+        // within 0.3 % of it up to X = 1).
+        let x = w * k.ts_s;
+        let x2 = x * x;
+        let emf = w * k.psi_wb * (1.0 - x2 * (1.0 / 6.0));
+        let e_d = w * k.psi_wb * x * (0.5 - x2 * (1.0 / 24.0));
         let cross = w * k.ld_minus_lq_h;
         let e_model_q = emf + cross * x0.d;
         let dist = self.state.dist_dq_v;
@@ -537,7 +574,8 @@ impl ModelCheck {
         let r_sq = r.d * r.d + r.q * r.q;
         let b_sq = bound * bound;
         let ratio_sq = r_sq / b_sq;
-        if ratio_sq > self.state.peak_ratio_sq {
+        // (A NaN ratio is kept: the margin report shows it.)
+        if ratio_sq > self.state.peak_ratio_sq || ratio_sq.is_nan() {
             self.state.peak_ratio_sq = ratio_sq;
         }
         // The slow check: the disturbance the readings need must stay
@@ -547,7 +585,7 @@ impl ModelCheck {
         let d_sq = d.d * d.d + d.q * d.q;
         let env_sq = env * env;
         let d_ratio_sq = d_sq / env_sq;
-        if d_ratio_sq > self.state.peak_dist_ratio_sq && !k_coarse {
+        if (d_ratio_sq > self.state.peak_dist_ratio_sq || d_ratio_sq.is_nan()) && !k_coarse {
             self.state.peak_dist_ratio_sq = d_ratio_sq;
         }
         self.state.dist_count = if d_sq > env_sq {

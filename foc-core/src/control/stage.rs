@@ -416,9 +416,9 @@ impl CurrentStage {
     /// The model check for the present motor, period and angle sensor (its
     /// healthy margin kept).
     fn rebuild_model(&mut self) {
-        let peak = self.model.peak_ratio();
+        let peaks = self.model.peaks_sq();
         self.model = model_check(&self.config);
-        self.model.keep_peak_ratio(peak);
+        self.model.keep_peaks(peaks);
     }
 
     /// The model-based sensor check (design §24): its last residual and
@@ -1084,6 +1084,8 @@ impl CurrentStage {
             && !(self.sensors_plausible(out.as_ref(), sensed, w_observer)
                 && self.currents_track(out.as_ref(), i_ref, w_e))
         {
+            // The bridge goes off: nothing recorded this period was applied.
+            self.model.reset();
             self.state.active = Command::Disable;
             return (None, i_ref, theta_e);
         }
@@ -1148,14 +1150,14 @@ impl CurrentStage {
             unchanged_periods: self.state.unchanged_periods,
         };
         let fault = match self.model.check(&p) {
-            Verdict::CurrentSense if self.angle_frozen() => Some(Fault::AngleSensorStuck),
+            Verdict::CurrentSense if self.angle_frozen() || self.still_while_emf_moves() => {
+                Some(Fault::AngleSensorStuck)
+            }
             Verdict::CurrentSense => Some(Fault::CurrentSenseError),
             // A fine sensor only: a coarse one (halls) legitimately stands
             // still through a reversal inside one of its wide counts.
             Verdict::Quiet
-                if self.state.interpolation.is_none()
-                    && self.angle_frozen()
-                    && self.emf_shows_motion() =>
+                if self.state.interpolation.is_none() && self.still_while_emf_moves() =>
             {
                 Some(Fault::AngleSensorStuck)
             }
@@ -1187,7 +1189,26 @@ impl CurrentStage {
             0.01
         };
         let still_s = self.config.current.ts_s * self.state.unchanged_periods as f32;
+        let moved_rad = self.state.speed_at_change_rad_s.abs() * still_s;
+        // Two counts' worth and more, but not so long that the rotor has
+        // likely just stopped (20 counts' worth): then it is the currents.
+        moved_rad > 2.0 * count_rad && moved_rad < 20.0 * count_rad
+    }
+
+    /// The reading has stood still for two counts' worth at its last speed
+    /// (however long since) while the measured back-EMF says the rotor
+    /// turns.
+    #[inline(always)]
+    fn still_while_emf_moves(&self) -> bool {
+        let cpr = self.config.angle.sensor_counts_per_rev;
+        let count_rad = if cpr > 0 {
+            core::f32::consts::TAU / cpr as f32
+        } else {
+            0.01
+        };
+        let still_s = self.config.current.ts_s * self.state.unchanged_periods as f32;
         self.state.speed_at_change_rad_s.abs() * still_s > 2.0 * count_rad
+            && self.emf_shows_motion()
     }
 
     /// The back-EMF the model check measured (independent of the angle)
@@ -1330,11 +1351,10 @@ impl CurrentStage {
     }
 }
 
-/// `max_current_a` not finite and non-negative -> 0.
 /// The model check of a stage configuration: the current loop's motor and
 /// period, the supervisor's tolerances with the angle sensor's resolution
-/// added (a whole count for a fine sensor, a quarter of one where the
-/// stage interpolates a coarse one).
+/// added (a whole count for a fine sensor, half of one where the stage
+/// interpolates a coarse one).
 fn model_check(c: &CurrentStageConfig) -> ModelCheck {
     let a = &c.angle;
     let count_e_rad = match a.sensor_counts_per_rev {
@@ -1352,6 +1372,7 @@ fn model_check(c: &CurrentStageConfig) -> ModelCheck {
     ModelCheck::new(c.current.motor, c.current.ts_s, tol, coarse)
 }
 
+/// `max_current_a` not finite and non-negative -> 0.
 fn sanitize_limits(mut l: Limits) -> Limits {
     if !(l.max_current_a >= 0.0 && l.max_current_a < f32::INFINITY) {
         l.max_current_a = 0.0;
