@@ -191,6 +191,9 @@ pub fn cascade(pwm_frequency_hz: f32) -> CascadeConfig {
         c.current.supervisor.angle_step_floor_rad =
             1.5 * core::f32::consts::TAU / (6.0 * f32::from(motor.pole_pairs.max(1)));
     }
+    // The model check (design §24) corrects the applied voltage by the
+    // bridge's dead time and allows for it near a current's zero.
+    c.current.supervisor.model.dead_time_s = board_support::board::DEAD_TIME_NS as f32 * 1e-9;
     c.current.power = Some(power_limits(&c));
     c
 }

@@ -412,3 +412,36 @@ fn trace_healthy() {
         }
     }
 }
+
+/// The emulated board's plant (dead time 200 ns, ADC noise and offsets,
+/// no compute delay in its own model: the emulation applies the duties in
+/// the next period) holding torque 0, then a 5 A step: no fault (the e2e
+/// scope step on the firmware does the same).
+#[test]
+fn emulated_board_torque_zero_hold_and_step_stay_quiet() {
+    use foc_bench::scope_step::{emulated_setup, MAX_CURRENT_A};
+    let setup = emulated_setup();
+    let pwm = setup.bench.pwm_frequency_hz as f32;
+    let mut config = foc_core::control::cascade::CascadeConfig::for_motor(
+        foc_bench::mission::control_motor(&setup.motor),
+        pwm,
+        MAX_CURRENT_A,
+    );
+    config.current.supervisor.model.dead_time_s = foc_plant::emulated::DEAD_TIME_NS as f32 * 1e-9;
+    let mut sim = Sim::new_calibrated(&setup, config, false);
+    let o = setup.bench.sensors.current_offset_a;
+    sim.set_current_offsets(Abc::new(o[0] as f32, o[1] as f32, o[2] as f32));
+    sim.cascade.command(Command::Torque { iq_a: 0.0 }).unwrap();
+    let hold = run_clean(&mut sim, (0.2 * pwm) as usize);
+    let m = sim.cascade.current.model_check();
+    println!(
+        "emulated board, torque 0 for 0.2 s: {:?}, margins {:.2} / {:.2}",
+        hold,
+        m.peak_ratio(),
+        m.peak_disturbance_ratio()
+    );
+    assert_eq!(hold, None);
+    sim.cascade.command(Command::Torque { iq_a: 5.0 }).unwrap();
+    let step = run_clean(&mut sim, (0.05 * pwm) as usize);
+    assert_eq!(step, None);
+}

@@ -36,8 +36,15 @@ pub const FIRMWARE_STEPS: usize = 3;
 pub fn current_step(client: &mut Client, backstop: Duration, out: &Path) -> Result {
     let mut reports = Vec::with_capacity(FIRMWARE_STEPS);
     for _ in 0..FIRMWARE_STEPS {
-        let r = tune::run(client, Loop::Current, STEP_A, backstop)
-            .map_err(|e| Error(format!("FAIL scope: tune current: {e}")))?;
+        let r = match tune::run(client, Loop::Current, STEP_A, backstop) {
+            Ok(r) => r,
+            Err(e) => {
+                let fault = client.read_telemetry().map(|t| t.fault_code);
+                return Err(Error(format!(
+                    "FAIL scope: tune current: {e} (fault code {fault:?})"
+                )));
+            }
+        };
         reports.push(r);
     }
     let all: Vec<String> = reports

@@ -472,7 +472,18 @@ impl ModelCheck {
         self.state.judged = false;
         if self.k.dead_fraction > 0.0 {
             let i = transforms::inverse_clarke(p.i_ab_a);
-            let s = |x: f32| if x > 0.0 { -1.0 } else { 1.0 };
+            // A current within the floor has no sign to trust: no
+            // correction there (the bounds allow twice the dead time).
+            let f = self.tol.floor_a;
+            let s = |x: f32| {
+                if x > f {
+                    -1.0
+                } else if x < -f {
+                    1.0
+                } else {
+                    0.0
+                }
+            };
             self.state.prev_dead_ab = transforms::clarke(Abc::new(s(i.a), s(i.b), s(i.c)));
         }
     }
@@ -530,7 +541,7 @@ impl ModelCheck {
         let angle_v = (wabs * t.angle_e_rad + w_lag + spread) * k.psi_wb;
         let err_pred = self.state.err_a
             + t.inductance * step
-            + k.b_max * (self.state.dist_err_v + angle_v + dead_v);
+            + k.b_max * (self.state.dist_err_v + angle_v + 2.0 * dead_v);
         let bound = err_pred + t.floor_a;
 
         // The back-EMF the measurement implies, and its uncertainty.
@@ -544,7 +555,8 @@ impl ModelCheck {
             k.inv_b_d
         };
         let volts = t.resistance * k.r_ohm * x0n + wabs * t.inductance * k.l_max_h * x0n;
-        let min_emf = 2.0 * ((t.floor_a + t.inductance * step) * inv_b_max + volts + angle_v);
+        let min_emf =
+            2.0 * ((t.floor_a + t.inductance * step) * inv_b_max + volts + angle_v + 2.0 * dead_v);
         self.state.last = Residual {
             r_dq_a: r,
             bound_a: bound,
@@ -561,7 +573,7 @@ impl ModelCheck {
         let env_now = ENVELOPE_MARGIN
             * (volts_tol(t, k, x0n, wabs) + t.inductance * step * inv_b_max + angle_v)
             + 0.5 * t.floor_a * inv_b_max
-            + dead_v;
+            + 2.0 * dead_v;
         let env_held = (1.0 - DISTURBANCE_GAIN) * self.state.envelope_v;
         let env = if env_now > env_held {
             env_now

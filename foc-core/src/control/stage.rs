@@ -1150,9 +1150,7 @@ impl CurrentStage {
             unchanged_periods: self.state.unchanged_periods,
         };
         let fault = match self.model.check(&p) {
-            Verdict::CurrentSense if self.angle_frozen() || self.still_while_emf_moves() => {
-                Some(Fault::AngleSensorStuck)
-            }
+            Verdict::CurrentSense if self.angle_frozen() => Some(Fault::AngleSensorStuck),
             Verdict::CurrentSense => Some(Fault::CurrentSenseError),
             // A fine sensor only: a coarse one (halls) legitimately stands
             // still through a reversal inside one of its wide counts.
@@ -1188,27 +1186,23 @@ impl CurrentStage {
         } else {
             0.01
         };
-        let still_s = self.config.current.ts_s * self.state.unchanged_periods as f32;
-        let moved_rad = self.state.speed_at_change_rad_s.abs() * still_s;
-        // Two counts' worth and more, but not so long that the rotor has
-        // likely just stopped (20 counts' worth): then it is the currents.
-        moved_rad > 2.0 * count_rad && moved_rad < 20.0 * count_rad
+        let ts = self.config.current.ts_s;
+        let speed = self.state.speed_at_change_rad_s.abs();
+        let moved_rad = speed * ts * self.state.unchanged_periods as f32;
+        // A speed that moves two counts within 20 periods (slower, a
+        // still reading is a rotor at rest); two counts' worth and more,
+        // for at most 50 ms (longer, the rotor has likely stopped: then it
+        // is the currents).
+        let still_s = ts * self.state.unchanged_periods as f32;
+        speed * ts * 20.0 > 2.0 * count_rad && moved_rad > 2.0 * count_rad && still_s < 0.05
     }
 
-    /// The reading has stood still for two counts' worth at its last speed
-    /// (however long since) while the measured back-EMF says the rotor
-    /// turns.
+    /// The reading has stood still for two counts' worth and more at its
+    /// last speed ([`Self::angle_frozen`]) while the measured back-EMF
+    /// says the rotor turns.
     #[inline(always)]
     fn still_while_emf_moves(&self) -> bool {
-        let cpr = self.config.angle.sensor_counts_per_rev;
-        let count_rad = if cpr > 0 {
-            core::f32::consts::TAU / cpr as f32
-        } else {
-            0.01
-        };
-        let still_s = self.config.current.ts_s * self.state.unchanged_periods as f32;
-        self.state.speed_at_change_rad_s.abs() * still_s > 2.0 * count_rad
-            && self.emf_shows_motion()
+        self.angle_frozen() && self.emf_shows_motion()
     }
 
     /// The back-EMF the model check measured (independent of the angle)
