@@ -652,7 +652,7 @@ fn bus_current_and_power_limits_hold_within_5_percent() {
                 h.early_max,
                 100.0 * (h.early_max / h.limit - 1.0),
             );
-            println!("{line}");
+            println!("{line} faults {:?}", h.faults);
             let ok = h.faults.is_empty()
                 && h.periods as f64 > 0.02 * pwm
                 && h.max < 1.05 * h.limit

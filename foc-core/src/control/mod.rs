@@ -74,6 +74,7 @@ pub mod speed;
 pub mod stage;
 pub mod supervisor;
 pub mod trajectory;
+pub mod unbalance;
 
 use crate::angle::ElectricalAngle;
 use crate::frames::Dq;

@@ -23,11 +23,11 @@
 //! [`CURRENT_GAIN`] of the way to the measurement, and a voltage
 //! disturbance `dist` (what the model's resistance, flux linkage and dead
 //! time are off by) [`DISTURBANCE_GAIN`] of the way to what the residual
-//! says. The speed is the angle's own change, averaged
-//! ([`SPEED_AVERAGE_PERIODS`]); for a coarse sensor (halls) the caller's
+//! says. The speed is the angle's own change over a window
+//! ([`SPEED_WINDOW_PERIODS`]); for a coarse sensor (halls) the caller's
 //! estimate.
 //!
-//! Two checks, neither of which looks at the reference (a current
+//! Three checks, none of which looks at the reference (a current
 //! slewing at the voltage limit, a current limit, the power windows,
 //! impedance mode all leave a healthy drive quiet, whatever its size):
 //!
@@ -46,24 +46,29 @@
 //!   a wrong gain or an offset drags the disturbance out of it while the
 //!   loop pushes.
 //!
-//! Either verdict is [`Verdict::CurrentSense`]; the current stage names
+//! - unbalance ([`super::unbalance`]): the voltage the model misses,
+//!   turned by the angle and by twice it and averaged, must stay balanced
+//!   (a wrong gain or an offset on one channel is not), at speed.
+//!
+//! Every verdict is [`Verdict::CurrentSense`]; the current stage names
 //! it the angle's (`AngleSensorStuck`) when the angle reading has stood
 //! still longer than its last speed allows, and it also latches that
 //! when the back-EMF the check measures (independent of the angle) shows
 //! the rotor turning under a still reading.
 //!
 //! ```
-//! use foc_core::control::model::{ModelCheck, ModelTolerances, Period, Verdict};
+//! use foc_core::control::model::{ModelCheck, ModelTolerances, Period, Verdict, SPEED_WINDOW_PERIODS};
 //! use foc_core::control::MotorParams;
 //! use foc_core::frames::{AlphaBeta, Dq};
 //! use foc_core::angle::ElectricalAngle;
 //! let motor = MotorParams { pole_pairs: 7, r_ohm: 0.5, ld_h: 1e-4, lq_h: 1e-4, flux_linkage_wb: 0.005 };
 //! let mut m = ModelCheck::new(motor, 50e-6, ModelTolerances::for_current_limit(10.0), false);
-//! // Bridge on, rotor still, no current, zero volts: the model expects zero.
+//! // Bridge on, rotor still, no current, zero volts: the model expects zero
+//! // (judged once the speed window is full).
 //! let p = Period { i_ab_a: AlphaBeta::new(0.0, 0.0), i_dq_a: Dq::ZERO, sin_cos: (0.0, 1.0),
 //!     theta_e: ElectricalAngle::ZERO, omega_spread_rad_s: 0.0, omega_e_rad_s: 0.0,
 //!     unchanged_periods: 0 };
-//! for _ in 0..3 {
+//! for _ in 0..SPEED_WINDOW_PERIODS + 3 {
 //!     assert_eq!(m.check(&p), Verdict::Quiet);
 //!     m.record(&p, [0.5; 3], 24.0);
 //! }
@@ -77,6 +82,7 @@
 //! assert_eq!(v, Verdict::CurrentSense);
 //! ```
 
+use super::unbalance::{Limits, Unbalance};
 use super::MotorParams;
 use crate::angle::ElectricalAngle;
 use crate::frames::{Abc, AlphaBeta, Dq};
@@ -171,7 +177,7 @@ pub struct Period {
     /// `(sin, cos)` of this period's electrical angle.
     pub sin_cos: (f32, f32),
     /// This period's electrical angle (the one `sin_cos` is of): the
-    /// model's speed is its change, averaged over [`SPEED_AVERAGE_PERIODS`].
+    /// model's speed is its change over [`SPEED_WINDOW_PERIODS`].
     pub theta_e: ElectricalAngle,
     /// How uncertain that estimate is [rad/s, electrical] where it is the
     /// model's speed (a coarse angle): its back-EMF joins the bounds.
@@ -214,11 +220,15 @@ pub const CURRENT_GAIN: f32 = 0.25;
 /// resistance that warms.
 pub const DISTURBANCE_GAIN: f32 = 1.0 / 32.0;
 
-/// The model's speed is the sensor's angle change averaged over about this
-/// many periods (a first-order average): a count's quantisation shrinks by
-/// as much, and unlike a torque-fed estimate it does not lag an
-/// acceleration the drive does not cause (a load).
-pub const SPEED_AVERAGE_PERIODS: f32 = 8.0;
+/// The model's speed is the sensor's angle change over this many periods
+/// (a moving window of exact angle increments): one count's quantisation
+/// is spread over the window, and unlike a torque-fed estimate it does not
+/// lag an acceleration the drive does not cause (a load) by more than half
+/// the window. Its lag is bounded by the difference of the window's two
+/// halves (the acceleration times half the window).
+pub const SPEED_WINDOW_PERIODS: usize = 32;
+
+const HALF_WINDOW: usize = SPEED_WINDOW_PERIODS / 2;
 
 /// The disturbance envelope is this many times what the tolerances allow.
 pub const ENVELOPE_MARGIN: f32 = 2.0;
@@ -253,6 +263,9 @@ struct Derived {
     r_ohm: f32,
     /// `t_d f_pwm`.
     dead_fraction: f32,
+    /// The unbalance check's noise at the start [V^2]: the floor's
+    /// voltage, squared.
+    unbalance_start_var_v2: f32,
     /// Whether the model is usable at all (finite, positive L, Ts and flux
     /// linkage).
     usable: bool,
@@ -294,12 +307,63 @@ pub struct ModelState {
     peak_dist_ratio_sq: f32,
     /// Consecutive periods with the disturbance outside its envelope.
     dist_count: u8,
-    /// Last period's angle and the averaged speed [rad/s, electrical].
+    /// Last period's angle and the window's speed [rad/s, electrical].
     prev_theta_e: Option<ElectricalAngle>,
-    omega_avg_rad_s: f32,
+    speed: SpeedWindow,
     /// The envelope of the last judged period [V].
     envelope_v: f32,
+    /// The unbalance check (a channel's gain or offset, at speed).
+    unbalance: Unbalance,
     last: Residual,
+}
+
+/// The last [`SPEED_WINDOW_PERIODS`] angle increments (raw turn fractions,
+/// so their sums are exact) and the sums of its newer and older halves.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+struct SpeedWindow {
+    incs: [i32; SPEED_WINDOW_PERIODS],
+    /// Slot of the oldest increment (the next to be replaced).
+    next: usize,
+    /// Increments held (up to the window's length): the speed is judged
+    /// only from a full window.
+    held: usize,
+    sum_new: i64,
+    sum_old: i64,
+    /// The window's speed and the lag bound [rad/s, electrical].
+    omega_rad_s: f32,
+    lag_rad_s: f32,
+}
+
+impl SpeedWindow {
+    /// Whether the window holds a full window of increments.
+    fn full(&self) -> bool {
+        self.held >= SPEED_WINDOW_PERIODS
+    }
+
+    /// One period's increment; updates the speed and its lag bound.
+    #[inline(always)]
+    fn push(&mut self, inc: i32, inv_ts: f32) {
+        let mid = (self.next + HALF_WINDOW) % SPEED_WINDOW_PERIODS;
+        // (Both indices are below the window's length: `get` only keeps
+        // the no-panic guarantee visible.)
+        let crossing = i64::from(self.incs.get(mid).copied().unwrap_or(0));
+        let leaving = i64::from(self.incs.get(self.next).copied().unwrap_or(0));
+        self.sum_new += i64::from(inc) - crossing;
+        self.sum_old += crossing - leaving;
+        if let Some(slot) = self.incs.get_mut(self.next) {
+            *slot = inc;
+        }
+        self.next = (self.next + 1) % SPEED_WINDOW_PERIODS;
+        if self.held < SPEED_WINDOW_PERIODS {
+            self.held += 1;
+        }
+        // 2^32 per turn.
+        let to_rad_s = core::f32::consts::TAU / 4_294_967_296.0 * inv_ts / HALF_WINDOW as f32;
+        let w_new = self.sum_new as f32 * to_rad_s;
+        let w_old = self.sum_old as f32 * to_rad_s;
+        self.omega_rad_s = 0.5 * (w_new + w_old);
+        self.lag_rad_s = (w_new - w_old).abs();
+    }
 }
 
 /// The model-based sensor check (module docs).
@@ -373,6 +437,10 @@ impl Derived {
             } else {
                 0.0
             },
+            unbalance_start_var_v2: {
+                let v = tol.floor_a / if b_d < b_q { b_d } else { b_q };
+                v * v
+            },
             usable,
             coarse_angle,
         }
@@ -387,7 +455,10 @@ impl ModelCheck {
         Self {
             tol,
             k: Derived::new(motor, ts_s, &tol, coarse_angle),
-            state: ModelState::default(),
+            state: ModelState {
+                unbalance: Unbalance::new(ts_s),
+                ..ModelState::default()
+            },
         }
     }
 
@@ -405,35 +476,66 @@ impl ModelCheck {
             return;
         }
         let (peak, peak_dist) = (self.state.peak_ratio_sq, self.state.peak_dist_ratio_sq);
+        let mut unbalance = self.state.unbalance;
+        unbalance.reset();
         self.state = ModelState {
             peak_ratio_sq: peak,
             peak_dist_ratio_sq: peak_dist,
+            unbalance,
             ..ModelState::default()
         };
     }
 
-    /// The margins, squared (residual, disturbance), to carry over to a
-    /// check that replaces this one ([`Self::keep_peaks`]).
-    pub fn peaks_sq(&self) -> (f32, f32) {
-        (self.state.peak_ratio_sq, self.state.peak_dist_ratio_sq)
+    /// A period the bridge is not driven by the closed loop (off, open
+    /// loop) with a valid angle reading: [`Self::reset`], but the speed
+    /// window keeps counting the angle's increments, so that a drive
+    /// enabled on a turning rotor is judged from its first periods.
+    pub fn idle(&mut self, theta_e: ElectricalAngle) {
+        if self.state.v_newer.is_some() || self.state.prev_i_ab_a.is_some() {
+            let (speed, prev) = (self.state.speed, self.state.prev_theta_e);
+            self.reset();
+            self.state.speed = speed;
+            self.state.prev_theta_e = prev;
+        }
+        if !self.k.coarse_angle {
+            self.push_angle(theta_e);
+        }
+    }
+
+    /// The margins, squared (residual, disturbance, unbalance), to carry
+    /// over to a check that replaces this one ([`Self::keep_peaks`]).
+    pub fn peaks_sq(&self) -> [f32; 3] {
+        [
+            self.state.peak_ratio_sq,
+            self.state.peak_dist_ratio_sq,
+            self.state.unbalance.peak_sq(),
+        ]
     }
 
     /// Carry the margins over from a check this one replaces.
-    pub fn keep_peaks(&mut self, (residual_sq, disturbance_sq): (f32, f32)) {
+    pub fn keep_peaks(&mut self, [residual_sq, disturbance_sq, unbalance_sq]: [f32; 3]) {
         self.state.peak_ratio_sq = residual_sq;
         self.state.peak_dist_ratio_sq = disturbance_sq;
+        self.state.unbalance.set_peak_sq(unbalance_sq);
     }
 
     /// Forget the largest ratio seen.
     pub fn reset_peak(&mut self) {
         self.state.peak_ratio_sq = 0.0;
         self.state.peak_dist_ratio_sq = 0.0;
+        self.state.unbalance.set_peak_sq(0.0);
     }
 
     /// Largest `|residual| / bound` seen in a judged period (the margin:
     /// a healthy drive stays below 1).
     pub fn peak_ratio(&self) -> f32 {
         crate::sqrtf(self.state.peak_ratio_sq)
+    }
+
+    /// Largest `|unbalance average| / threshold` seen (the unbalance
+    /// check's margin, [`super::unbalance`]).
+    pub fn peak_unbalance_ratio(&self) -> f32 {
+        self.state.unbalance.peak_ratio()
     }
 
     /// Largest `|disturbance| / envelope` seen (the slow check's margin).
@@ -467,7 +569,12 @@ impl ModelCheck {
             // Nothing judged this period (the first two driven ones): the
             // estimate starts at the reading, the bounds at the tolerances.
             self.state.prev_i_ab_a = Some(p.i_ab_a);
-            self.start_bound(p.i_dq_a, p.omega_e_rad_s);
+            let w = if self.k.coarse_angle || !self.state.speed.full() {
+                p.omega_e_rad_s
+            } else {
+                self.state.speed.omega_rad_s
+            };
+            self.start_bound(p.i_dq_a, w);
         }
         self.state.judged = false;
         if self.k.dead_fraction > 0.0 {
@@ -492,15 +599,21 @@ impl ModelCheck {
     /// with a model that is not usable, nothing is judged.
     #[inline(always)]
     pub fn check(&mut self, p: &Period) -> Verdict {
+        // The speed window fills whatever else is missing: nothing is
+        // judged (and the estimate restarts at the reading) until it is
+        // full of this run's increments.
+        let w = self.average_speed(p);
         let (Some(x_ab), Some((mut v_ab, vbus))) = (self.state.prev_i_ab_a, self.state.v_older)
         else {
             return Verdict::Quiet;
         };
-        if !self.k.usable || self.tol.trip_periods == 0 {
+        if !self.k.usable
+            || self.tol.trip_periods == 0
+            || !(self.k.coarse_angle || self.state.speed.full())
+        {
             return Verdict::Quiet;
         }
-        let w_old = self.state.omega_avg_rad_s;
-        let w = self.average_speed(p);
+        let w_lag = self.state.speed.lag_rad_s;
         let k = &self.k;
         let t = &self.tol;
         let (sin, cos) = p.sin_cos;
@@ -511,8 +624,6 @@ impl ModelCheck {
         }
         let x0 = transforms::park(x_ab, sin, cos);
         let v = transforms::park(v_ab, sin, cos);
-        // The average lags an acceleration by about its length.
-        let w_lag = (w - w_old).abs() * SPEED_AVERAGE_PERIODS;
         // The back-EMF averaged over the period, in this sample's frame:
         // w psi ((1 - cos X) / X, sin X / X), X = w Ts (two-term series,
         // within 0.3 % of it up to X = 1).
@@ -572,7 +683,7 @@ impl ModelCheck {
         // what the envelope was lately, decaying at that rate.
         let env_now = ENVELOPE_MARGIN
             * (volts_tol(t, k, x0n, wabs) + t.inductance * step * inv_b_max + angle_v)
-            + 0.5 * t.floor_a * inv_b_max
+            + 0.125 * t.floor_a * inv_b_max
             + 2.0 * dead_v;
         let env_held = (1.0 - DISTURBANCE_GAIN) * self.state.envelope_v;
         let env = if env_now > env_held {
@@ -582,6 +693,16 @@ impl ModelCheck {
         };
         self.state.envelope_v = env;
         self.state.last.envelope_v = env;
+        // The voltage the model misses this period: the disturbance and
+        // what the residual adds to it.
+        let missed = Dq::new(dist.d - r.d * k.inv_b_d, dist.q - r.q * k.inv_b_q);
+        let lim = Limits {
+            envelope_v: env,
+            scale_v: (k.r_ohm + wabs * k.l_max_h) * crate::sqrtf(x0.d * x0.d + x0.q * x0.q),
+            innovation_v: Dq::new(-r.d * k.inv_b_d, -r.q * k.inv_b_q),
+            start_var_v2: k.unbalance_start_var_v2,
+        };
+        let unbalanced = !k.coarse_angle && self.state.unbalance.update(missed, p.sin_cos, w, &lim);
         self.correct(p, Dq::new(pred_d, pred_q), r, err_pred, x0, w);
         let r_sq = r.d * r.d + r.q * r.q;
         let b_sq = bound * bound;
@@ -608,7 +729,7 @@ impl ModelCheck {
         // Not with a coarse angle (halls): in the Q-85SX hub motor's
         // impedance segment its disturbance grew past any envelope on a
         // healthy drive (not yet understood; issue 32 stays open).
-        if self.state.dist_count >= ENVELOPE_PERIODS && !k_coarse {
+        if (self.state.dist_count >= ENVELOPE_PERIODS && !k_coarse) || unbalanced {
             return Verdict::CurrentSense;
         }
         self.count_current(r_sq > b_sq, r_sq > 16.0 * b_sq)
@@ -654,25 +775,32 @@ impl ModelCheck {
         s.judged = true;
     }
 
-    /// This period's speed [rad/s, electrical]: the angle's change,
-    /// averaged (see [`SPEED_AVERAGE_PERIODS`]).
+    /// This period's speed [rad/s, electrical]: the angle's change over
+    /// the window (see [`SPEED_WINDOW_PERIODS`]).
     #[inline(always)]
     fn average_speed(&mut self, p: &Period) -> f32 {
         let s = &mut self.state;
         if self.k.coarse_angle {
-            s.omega_avg_rad_s = if p.omega_e_rad_s.is_finite() {
+            s.speed.omega_rad_s = if p.omega_e_rad_s.is_finite() {
                 p.omega_e_rad_s
             } else {
                 0.0
             };
-            return s.omega_avg_rad_s;
+            return s.speed.omega_rad_s;
         }
+        self.push_angle(p.theta_e);
+        self.state.speed.omega_rad_s
+    }
+
+    /// The angle's increment since the last period into the speed window.
+    #[inline(always)]
+    fn push_angle(&mut self, theta_e: ElectricalAngle) {
+        let s = &mut self.state;
         if let Some(prev) = s.prev_theta_e {
-            let w_now = p.theta_e.diff_radians(prev) * self.k.inv_ts;
-            s.omega_avg_rad_s += (w_now - s.omega_avg_rad_s) * (1.0 / SPEED_AVERAGE_PERIODS);
+            let inc = theta_e.wrapping_sub(prev).to_bits() as i32;
+            s.speed.push(inc, self.k.inv_ts);
         }
-        s.prev_theta_e = Some(p.theta_e);
-        s.omega_avg_rad_s
+        s.prev_theta_e = Some(theta_e);
     }
 
     /// The disturbance bound when the check starts: everything the
@@ -685,9 +813,6 @@ impl ModelCheck {
         self.state.dist_err_v = t.resistance * k.r_ohm * xn
             + w.abs() * (t.flux * k.psi_wb + t.inductance * k.l_max_h * xn);
         self.state.err_a = t.floor_a;
-        if self.state.prev_theta_e.is_none() {
-            self.state.omega_avg_rad_s = if w.is_finite() { w } else { 0.0 };
-        }
         self.state.prev_x_dq_a = x_dq;
         self.state.prev_omega_e_rad_s = w;
     }

@@ -1090,8 +1090,9 @@ impl CurrentStage {
             return (None, i_ref, theta_e);
         }
         if closed_iq.is_none() {
-            // Open loop: the angle is not the rotor's; the model waits.
-            self.model.reset();
+            // Open loop or off: the angle does not drive the bridge; the
+            // model waits, its speed window counts the reading's increments.
+            self.model.idle(sensed.theta_e);
         }
         (out, i_ref, theta_e)
     }
