@@ -184,7 +184,8 @@ pub struct Period {
     pub omega_spread_rad_s: f32,
     /// An electrical speed estimate [rad/s]: where the angle is too coarse
     /// for its change to give a speed ([`ModelCheck::new`]'s `coarse`),
-    /// the model's speed; otherwise the average's start.
+    /// the model's speed; otherwise unused (the window of angle
+    /// increments gives it, see [`SPEED_WINDOW_PERIODS`]).
     pub omega_e_rad_s: f32,
     /// Periods since the angle reading last changed.
     pub unchanged_periods: u32,
@@ -471,7 +472,10 @@ impl ModelCheck {
     /// driven periods rebuild it before anything is judged. The healthy
     /// margin ([`Self::peak_ratio`]) is kept.
     pub fn reset(&mut self) {
-        if self.state.v_newer.is_none() && self.state.prev_i_ab_a.is_none() {
+        if self.state.v_newer.is_none()
+            && self.state.prev_i_ab_a.is_none()
+            && self.state.prev_theta_e.is_none()
+        {
             // Nothing recorded since the last reset (the bridge-off periods).
             return;
         }
@@ -558,7 +562,8 @@ impl ModelCheck {
     /// for the dead time too, `i_abc_a` is derived from `p.i_ab_a` with a
     /// zero sum) and the duties handed to the bridge with the bus voltage
     /// they were computed for. Call after [`Self::check`] in every period
-    /// the bridge is driven; [`Self::reset`] in every other.
+    /// the bridge is driven; [`Self::idle`] in every other with a valid
+    /// angle reading, [`Self::reset`] otherwise.
     #[inline(always)]
     pub fn record(&mut self, p: &Period, duties: [f32; 3], v_bus_v: f32) {
         let [da, db, dc] = duties;
@@ -602,15 +607,13 @@ impl ModelCheck {
         // The speed window fills whatever else is missing: nothing is
         // judged (and the estimate restarts at the reading) until it is
         // full of this run's increments.
+        let was_full = self.k.coarse_angle || self.state.speed.full();
         let w = self.average_speed(p);
         let (Some(x_ab), Some((mut v_ab, vbus))) = (self.state.prev_i_ab_a, self.state.v_older)
         else {
             return Verdict::Quiet;
         };
-        if !self.k.usable
-            || self.tol.trip_periods == 0
-            || !(self.k.coarse_angle || self.state.speed.full())
-        {
+        if !self.k.usable || self.tol.trip_periods == 0 || !was_full {
             return Verdict::Quiet;
         }
         let w_lag = self.state.speed.lag_rad_s;
@@ -702,7 +705,9 @@ impl ModelCheck {
             innovation_v: Dq::new(-r.d * k.inv_b_d, -r.q * k.inv_b_q),
             start_var_v2: k.unbalance_start_var_v2,
         };
-        let unbalanced = !k.coarse_angle && self.state.unbalance.update(missed, p.sin_cos, w, &lim);
+        let w_min = if wabs > w_lag { wabs - w_lag } else { 0.0 };
+        let unbalanced =
+            !k.coarse_angle && self.state.unbalance.update(missed, p.sin_cos, w_min, &lim);
         self.correct(p, Dq::new(pred_d, pred_q), r, err_pred, x0, w);
         let r_sq = r.d * r.d + r.q * r.q;
         let b_sq = bound * bound;
@@ -766,7 +771,9 @@ impl ModelCheck {
         };
         // Noise enters the disturbance estimate through the residual and
         // is averaged over its time constant: a quarter of the floor's
-        // voltage stays (about sqrt(2 DISTURBANCE_GAIN) of it).
+        // voltage is allowed for it (twice the standard deviation,
+        // sqrt(g / (2 - g)) = 1/8, an average with gain g keeps of a
+        // white noise as large as the floor).
         s.dist_err_v = (1.0 - DISTURBANCE_GAIN) * s.dist_err_v
             + DISTURBANCE_GAIN * 0.25 * t.floor_a * inv_b_max
             + moved_v;
@@ -832,5 +839,58 @@ impl ModelCheck {
         } else {
             Verdict::Quiet
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn check() -> ModelCheck {
+        let motor = MotorParams {
+            pole_pairs: 7,
+            r_ohm: 0.5,
+            ld_h: 1e-4,
+            lq_h: 1e-4,
+            flux_linkage_wb: 0.005,
+        };
+        ModelCheck::new(motor, 50e-6, ModelTolerances::for_current_limit(10.0), false)
+    }
+
+    /// The rotor at 1000 rad/s electrical, period `k`.
+    fn angle(k: u32) -> ElectricalAngle {
+        ElectricalAngle::from_radians(1000.0 * 50e-6 * k as f32)
+    }
+
+    #[test]
+    fn idle_periods_fill_the_speed_window() {
+        let mut m = check();
+        for k in 0..=SPEED_WINDOW_PERIODS as u32 {
+            m.idle(angle(k));
+        }
+        assert!(m.state.speed.full());
+        assert!((m.state.speed.omega_rad_s - 1000.0).abs() < 1.0);
+        assert!(m.state.speed.lag_rad_s < 1.0);
+    }
+
+    /// A reset (a fault, a period without an angle) empties the window: a
+    /// gap in the readings must not enter it as one period's increment.
+    #[test]
+    fn a_reset_empties_the_speed_window() {
+        let mut m = check();
+        for k in 0..=SPEED_WINDOW_PERIODS as u32 {
+            m.idle(angle(k));
+        }
+        m.reset();
+        m.reset();
+        assert_eq!(m.state.speed.held, 0);
+        assert_eq!(m.state.prev_theta_e, None);
+        // Readings resume 100 periods later: the window starts again.
+        for k in 0..=SPEED_WINDOW_PERIODS as u32 {
+            assert!(!m.state.speed.full());
+            m.idle(angle(100 + k));
+        }
+        assert!(m.state.speed.full());
+        assert!((m.state.speed.omega_rad_s - 1000.0).abs() < 1.0);
     }
 }

@@ -140,6 +140,8 @@ impl Unbalance {
     /// of the angle whose `(sin, cos)` is `sin_cos`) at the electrical
     /// speed `w_rad_s`; true when an average has stood over its threshold
     /// for [`TRIP_PERIODS`] periods.
+    /// `w_rad_s` is the speed with its uncertainty taken off (the
+    /// smallest it may be), as the leak grows when the rotor turns less.
     #[inline(always)]
     pub fn update(&mut self, m: Dq, sin_cos: (f32, f32), w_rad_s: f32, lim: &Limits) -> bool {
         if self.gamma <= 0.0 {
@@ -169,19 +171,19 @@ impl Unbalance {
             self.z2.d + g * (m2.d - self.z2.d),
             self.z2.q + g * (m2.q - self.z2.q),
         );
-        // What a balanced error leaks: its average turned at h w is
-        // gamma / (h w Ts) of it.
+        // What a balanced error leaks: an average with gain g of a phasor
+        // turning x per period keeps g / |1 - (1 - g) e^(-jx)| of it, at
+        // least g / (2 |sin(x / 2)|) ([`chord`]).
         let turn = w_rad_s.abs() * self.ts_s;
-        let leak1 = if turn > g {
-            lim.envelope_v * g / turn
-        } else {
-            lim.envelope_v
+        let leak = |x: f32| {
+            let c = chord(x);
+            if c > g {
+                lim.envelope_v * g / c
+            } else {
+                lim.envelope_v
+            }
         };
-        let leak2 = if 2.0 * turn > g {
-            lim.envelope_v * g / (2.0 * turn)
-        } else {
-            lim.envelope_v
-        };
+        let (leak1, leak2) = (leak(turn), leak(2.0 * turn));
         let keep = 1.0 - g;
         let th1 = max(leak1 + TOLERANCE * lim.scale_v + noise_v, keep * self.th.0);
         let th2 = max(leak2 + TOLERANCE * lim.scale_v + noise_v, keep * self.th.1);
@@ -199,6 +201,15 @@ impl Unbalance {
         };
         self.count >= TRIP_PERIODS
     }
+}
+
+/// `2 |sin(x / 2)|` for `x >= 0` (the chord of a turn by `x`): zero
+/// where the turn is a whole number of turns (a phasor that turns by
+/// exactly a turn each period is not averaged away).
+#[inline(always)]
+fn chord(x: f32) -> f32 {
+    let half = crate::angle::ElectricalAngle::from_radians(0.5 * x);
+    2.0 * crate::trig::sin_cos(half).0.abs()
 }
 
 #[inline(always)]
