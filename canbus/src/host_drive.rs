@@ -1,7 +1,7 @@
 //! [`HostDrive`]: the real drive on the host, as the protocol and the
 //! CANopen node see it ([`DeviceContext`]).
 //!
-//! It is foc-bench's [`Sim`]: the real foc-core [`foc_core::control::cascade::Cascade`]
+//! It is foc-bench's [`Sim`]: the real foc-core [`foc_core::drive::cascade::Cascade`]
 //! against the emulated board's motor and inverter
 //! ([`foc_bench::scope_step::emulated_setup`]), calibrated from the
 //! bench's knowledge as in the bench's closed-loop tests, its current
@@ -42,9 +42,9 @@
 use foc_bench::mission::{Setup, Sim};
 use foc_bench::plant::{EncoderFault, Faults, Phase, PhaseShort};
 use foc_bench::scope_step::emulated_setup;
-use foc_core::control::cascade::CascadeConfig;
 use foc_core::control::joint::JointSetup;
 use foc_core::control::{Command, CommandError, Fault, FaultSet, Feedback, Limits, Mode};
+use foc_core::drive::cascade::CascadeConfig;
 use foc_core::drive::{ConfigChange, JointChange, Status};
 use foc_protocol::config::{ConfigSource, StoreOp, MAX_RECORD};
 use foc_protocol::device::{DeviceContext, Refusal, WatchdogConfig};

@@ -27,10 +27,10 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 
-use foc_core::control::cascade::CascadeConfig;
 use foc_core::control::joint::{Impedance, JointSetup};
 use foc_core::control::Feedback;
 use foc_core::control::{Command, CommandError, Fault, FaultSet, Limits, Mode, MotorParams};
+use foc_core::drive::cascade::CascadeConfig;
 use foc_core::scope::{Scope, State};
 use foc_core::tuning::CurrentPiGains;
 use foc_protocol::config::{ConfigSource, StoreOp, MAX_RECORD};

@@ -5,9 +5,9 @@
 //! paired with; a different motor needs its own values (or the
 //! identification routines).
 
-use foc_core::control::cascade::CascadeConfig;
 use foc_core::control::power::PowerLimitsConfig;
 use foc_core::control::{Command, MotorParams};
+use foc_core::drive::cascade::CascadeConfig;
 
 /// Speed loop every N current-loop periods (20 kHz / 10 = 2 kHz).
 pub const SPEED_DIVIDER: u16 = 10;

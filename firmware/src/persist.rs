@@ -7,7 +7,7 @@
 use crate::{config, watchdog};
 use board_support::board;
 use core::sync::atomic::{AtomicBool, Ordering};
-use foc_core::control::cascade::CascadeConfig;
+use foc_core::drive::cascade::CascadeConfig;
 use foc_protocol::WatchdogConfig;
 use foc_store::record::WatchdogRecord;
 use foc_store::settings::{reaction_record, timeout_reaction};

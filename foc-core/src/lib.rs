@@ -19,13 +19,29 @@
 //! - [`svpwm`]: seven-segment space-vector PWM (design §8).
 //! - [`pi`]: PI controller with anti-windup (design §6).
 //! - [`tuning`]: current-loop gains from motor parameters (design §11).
-//! - [`control`]: the cascade's loops and stages, the fault supervisor.
+//! - [`control`]: the loops and stages, the fault supervisor.
 //! - [`calibration`]: offsets and the motor identification routines.
-//! - [`drive`]: the drive's life each PWM period, from reset on.
+//! - [`drive`]: the drive's life each PWM period, from reset on, and the
+//!   cascade ([`drive::cascade`]) that assembles the loops.
 //! - [`response`]: step-response figures (design §22).
 //! - [`scope`]: scope capture of the feedback (design §22).
 //! - [`hal`]: hardware traits implemented by boards.
 //! - [`math`]: square root, clamps and constants without library calls.
+//!
+//! ## Layers
+//!
+//! Bottom to top; a module may use its own layer and those below, never
+//! one above (`tests/layers.rs` reads the source and fails otherwise):
+//!
+//! 1. math: [`math`], [`frames`], [`angle`], [`trig`], [`transforms`],
+//!    [`svpwm`], [`pi`], [`tuning`];
+//! 2. [`hal`]: the hardware traits;
+//! 3. [`control`]: the loops, stages, estimators and checks of one
+//!    period, and the permit type that unlocks them;
+//! 4. [`calibration`]: the routines that measure what `control` needs and
+//!    hand out permits;
+//! 5. [`drive`] (the lifecycle, the rules of the link, the cascade that
+//!    assembles the loops), [`scope`], [`response`].
 #![no_std]
 #![forbid(unsafe_code)]
 #![warn(missing_docs)]

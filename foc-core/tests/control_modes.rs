@@ -9,11 +9,11 @@
 use core::f32::consts::{PI, TAU};
 use foc_core::angle::{ElectricalAngle, MechanicalAngle};
 use foc_core::calibration::Calibrated;
-use foc_core::control::cascade::{Cascade, CascadeConfig};
 use foc_core::control::stage::{CurrentStage, Sample, TimeoutReaction};
 use foc_core::control::{
     BridgeCommand, Command, CommandError, CommandSlot, Fault, Mode, MotorParams,
 };
+use foc_core::drive::cascade::{Cascade, CascadeConfig};
 use foc_core::frames::Abc;
 use foc_core::hal::PhaseCurrents;
 use proptest::prelude::*;

@@ -6,9 +6,9 @@
 use foc_core::angle::MechanicalAngle;
 use foc_core::calibration::offsets::OffsetLimits;
 use foc_core::calibration::Calibrated;
-use foc_core::control::cascade::CascadeConfig;
 use foc_core::control::power::PowerLimitsConfig;
 use foc_core::control::{Command, CommandSlot, Fault, Feedback, Mode, MotorParams};
+use foc_core::drive::cascade::CascadeConfig;
 use foc_core::drive::{
     AngleKind, ConfigChange, Drive, Event, Inputs, LifecycleConfig, Mail, Output, Phase, Refusal,
     Status,

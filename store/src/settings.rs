@@ -12,7 +12,8 @@
 //! [`Settings::apply_to`]); without mechanics they are the build's.
 //!
 //! ```
-//! use foc_core::control::{cascade::CascadeConfig, MotorParams};
+//! use foc_core::control::MotorParams;
+//! use foc_core::drive::cascade::CascadeConfig;
 //! use foc_store::{record::Label, DriveRecord, Settings};
 //! let motor = MotorParams { pole_pairs: 7, r_ohm: 0.2, ld_h: 60e-6, lq_h: 60e-6, flux_linkage_wb: 0.004 };
 //! let base = Settings::from_cascade(&CascadeConfig::for_motor(motor, 20_000.0, 5.0));
@@ -22,15 +23,15 @@
 //! assert_eq!(record.apply(&base, 16_000).unwrap_err().field, "pwm_frequency_hz");
 //! ```
 
-use foc_core::control::cascade::CascadeConfig;
 use foc_core::control::current::CurrentLoopConfig;
-use foc_core::control::joint::{JointSetup, OutputFrame, TravelConfig};
+use foc_core::control::joint::{JointSetup, OutputFrame};
 use foc_core::control::permit::Calibrated;
 use foc_core::control::position::PositionLoopConfig;
 use foc_core::control::power::PowerLimitsConfig;
 use foc_core::control::speed::SpeedLoopConfig;
 use foc_core::control::stage::{AngleCalibration, TimeoutReaction};
 use foc_core::control::{Limits, Mechanics};
+use foc_core::drive::cascade::CascadeConfig;
 
 use crate::record::{
     AngleRecord, CurrentGainsRecord, DividersRecord, DriveRecord, Invalid, JointRecord, Label,
@@ -93,7 +94,7 @@ impl Settings {
             joint: JointSetup {
                 frame: OutputFrame::IDENTITY,
                 travel_out_rad: None,
-                travel: TravelConfig::for_cascade(c),
+                travel: c.default_travel(),
                 joint: c.current.joint,
             },
         }

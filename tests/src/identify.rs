@@ -1,6 +1,6 @@
 //! Motor identification against the bench plant, through the firmware's
 //! own start-up path: the [`Sim`]'s controller is restarted from reset
-//! ([`foc_core::control::cascade::Cascade::from_reset`]), so foc-core's
+//! ([`foc_core::drive::cascade::Cascade::from_reset`]), so foc-core's
 //! drive `Lifecycle` runs exactly what the firmware's current-loop
 //! interrupt runs, one PWM period at a time, with the supervisor watching
 //! every period:
@@ -35,8 +35,8 @@ use crate::mission::{Setup, Sim};
 use foc_core::calibration::identification::{IdentificationConfig, Identified, Stage};
 use foc_core::calibration::offsets::{OffsetError, OffsetLimits};
 use foc_core::calibration::{CalStep, Calibrated};
-use foc_core::control::cascade::Cascade;
 use foc_core::control::Fault;
+use foc_core::drive::cascade::Cascade;
 use foc_core::drive::{Event, LifecycleConfig};
 use foc_core::frames::Abc;
 

@@ -6,8 +6,8 @@
 //! this one.
 
 use crate::mission::{control_motor, Setup, Sim};
-use foc_core::control::cascade::CascadeConfig;
 use foc_core::control::Command;
+use foc_core::drive::cascade::CascadeConfig;
 use foc_core::scope::{Scope, ScopeConfig, ScopeStatus, Signal, State, TriggerKind};
 use foc_plant::emulated;
 

@@ -85,10 +85,10 @@
 
 use foc_core::angle::{ElectricalAngle, MechanicalAngle};
 use foc_core::calibration::Calibrated;
-use foc_core::control::cascade::{Cascade, CascadeConfig};
 use foc_core::control::joint::Impedance;
 use foc_core::control::stage::Sample;
 use foc_core::control::{BridgeCommand, Command, Mode};
+use foc_core::drive::cascade::{Cascade, CascadeConfig};
 use foc_core::frames::Abc;
 use foc_core::hal::PhaseCurrents;
 use serde::Deserialize;

@@ -22,9 +22,9 @@ use foc_bench::metrics;
 use foc_bench::mission::{Setup, Sim};
 use foc_bench::motor_file::MotorFile;
 use foc_bench::plant::{Mechanics, SensorConfig};
-use foc_core::control::cascade::CascadeConfig;
 use foc_core::control::current::DEFAULT_ANTI_WINDUP;
 use foc_core::control::{BridgeCommand, Command};
+use foc_core::drive::cascade::CascadeConfig;
 use foc_core::pi::AntiWindup;
 use std::path::PathBuf;
 

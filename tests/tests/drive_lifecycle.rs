@@ -11,9 +11,9 @@ use foc_bench::mission::{Setup, Sim};
 use foc_bench::plant::{Phase as PlantPhase, Plant};
 use foc_core::calibration::identification::Stage;
 use foc_core::calibration::CalError;
-use foc_core::control::cascade::Cascade;
 use foc_core::control::stage::Sample;
 use foc_core::control::{BridgeCommand, Command, CommandError, Fault, Mode};
+use foc_core::drive::cascade::Cascade;
 use foc_core::drive::{ConfigChange, Event, Phase, Refusal};
 use foc_core::hal::PhaseCurrents;
 

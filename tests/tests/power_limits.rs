@@ -22,9 +22,9 @@
 use foc_bench::mission::{control_motor, Setup, Sim};
 use foc_bench::plant::{Mechanics, Plant};
 use foc_bench::power::{DcLinkConfig, SourceKind, StageThermal, WindingThermal};
-use foc_core::control::cascade::CascadeConfig;
 use foc_core::control::power::{ActiveLimit, PowerLimitsConfig};
 use foc_core::control::{BridgeCommand, Command, Fault};
+use foc_core::drive::cascade::CascadeConfig;
 use std::sync::OnceLock;
 
 fn cheetah() -> Setup {

@@ -778,6 +778,16 @@ fn pulse_sign(k: u8) -> f32 {
     }
 }
 
+impl From<MechanicsResult> for crate::control::Mechanics {
+    fn from(r: MechanicsResult) -> Self {
+        Self {
+            inertia_kg_m2: r.inertia_kg_m2,
+            viscous_friction_nm_s_per_rad: r.viscous_friction_nm_s_per_rad,
+            coulomb_friction_nm: r.coulomb_friction_nm,
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     extern crate std;

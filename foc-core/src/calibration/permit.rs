@@ -22,8 +22,9 @@
 //!
 //! ```
 //! use foc_core::calibration::{Calibrated, CalError};
-//! use foc_core::calibration::permit::CalibratedCascade;
-//! use foc_core::control::{cascade::{Cascade, CascadeConfig}, current::CurrentLoopConfig, stage::AngleCalibration, Command, CommandError, MotorParams};
+//! use foc_core::drive::cascade::CalibratedCascade;
+//! use foc_core::control::{current::CurrentLoopConfig, stage::AngleCalibration, Command, CommandError, MotorParams};
+//! use foc_core::drive::cascade::{Cascade, CascadeConfig};
 //! use foc_core::angle::ElectricalAngle;
 //! let motor = MotorParams { pole_pairs: 7, r_ohm: 0.2, ld_h: 60e-6, lq_h: 60e-6, flux_linkage_wb: 0.004 };
 //! let angle = AngleCalibration { pole_pairs: 7, zero_offset: ElectricalAngle::from_degrees(42.0), reversed: true, sensor_counts_per_rev: 0 };
@@ -44,11 +45,9 @@
 //! ```
 
 use super::common::CalError;
-use crate::control::cascade::{Cascade, CascadeConfig};
 use crate::control::current::CurrentLoopConfig;
 pub use crate::control::permit::{Calibrated, PermitError};
-use crate::control::stage::{AngleCalibration, Sample};
-use crate::control::{BridgeCommand, Command, CommandError, Fault, Feedback};
+use crate::control::stage::AngleCalibration;
 
 impl From<PermitError> for CalError {
     fn from(_: PermitError) -> Self {
@@ -63,56 +62,4 @@ pub(crate) fn identified(
     current: CurrentLoopConfig,
 ) -> Result<Calibrated, CalError> {
     Calibrated::supplied(angle, current).map_err(|_| CalError::ImplausibleResult)
-}
-
-/// A thin wrapper: a [`Cascade`] built with a [`Calibrated`] permit
-/// already installed (`Cascade::new` + `Cascade::set_calibration`).
-#[derive(Clone, Copy, Debug)]
-pub struct CalibratedCascade {
-    inner: Cascade,
-}
-
-impl CalibratedCascade {
-    /// The cascade of `config` with the permit's angle calibration and
-    /// current-loop configuration installed (closed-loop modes unlocked).
-    pub fn new(config: CascadeConfig, permit: &Calibrated) -> Self {
-        let mut inner = Cascade::new(config);
-        inner.set_calibration(permit);
-        Self { inner }
-    }
-
-    /// Post a command (see `Cascade::command`).
-    pub fn command(&mut self, cmd: Command) -> Result<(), CommandError> {
-        self.inner.command(cmd)
-    }
-
-    /// One PWM period (see `Cascade::step`).
-    pub fn step(&mut self, sample: &Sample) -> BridgeCommand {
-        self.inner.step(sample)
-    }
-
-    /// The feedback of the last step.
-    pub fn feedback(&self) -> &Feedback {
-        self.inner.feedback()
-    }
-
-    /// Request a fault clear.
-    pub fn clear_faults(&mut self) {
-        self.inner.clear_faults();
-    }
-
-    /// Latch a fault found outside the loops.
-    pub fn report_fault(&mut self, f: Fault) {
-        self.inner.report_fault(f);
-    }
-
-    /// Read access to the cascade.
-    pub fn cascade(&self) -> &Cascade {
-        &self.inner
-    }
-
-    /// The cascade itself.
-    pub fn into_inner(self) -> Cascade {
-        self.inner
-    }
 }

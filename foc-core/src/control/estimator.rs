@@ -52,6 +52,15 @@
 
 use crate::angle::{MechanicalAngle, MultiTurn};
 
+/// The speed observer's angle and speed poles [rad/s] (design §19).
+pub const OBSERVER_POLE_RAD_S: f32 = 2.0 * core::f32::consts::PI * 50.0;
+/// The speed observer's disturbance pole [rad/s] (design §19). With the
+/// other two the speed gain `p^2 + 2 p pd` (50^2 + 2 50 25 = 5000 Hz^2) stays
+/// below the 80 Hz tracker's `wn^2` (6400 Hz^2), so at standstill the
+/// speed is no noisier than the tracker's, while the disturbance (a load)
+/// is learnt within a few milliseconds.
+pub const OBSERVER_DISTURBANCE_POLE_RAD_S: f32 = 2.0 * core::f32::consts::PI * 25.0;
+
 /// PLL gains.
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -251,11 +260,10 @@ impl SpeedObserverConfig {
     }
 
     /// The observer of the cascade's poles
-    /// ([`crate::control::cascade::OBSERVER_POLE_RAD_S`] and
+    /// ([`OBSERVER_POLE_RAD_S`] and
     /// `OBSERVER_DISTURBANCE_POLE_RAD_S`) with the model of `m` for the
     /// torque constant `kt` [N m / A]: `kt / J` and the friction.
     pub fn for_mechanics(m: &crate::control::Mechanics, kt: f32, ts_s: f32) -> Self {
-        use crate::control::cascade::{OBSERVER_DISTURBANCE_POLE_RAD_S, OBSERVER_POLE_RAD_S};
         Self::new(
             OBSERVER_POLE_RAD_S,
             OBSERVER_DISTURBANCE_POLE_RAD_S,
@@ -396,7 +404,6 @@ impl SpeedObserver {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::control::cascade::{OBSERVER_DISTURBANCE_POLE_RAD_S, OBSERVER_POLE_RAD_S};
 
     #[test]
     fn tracks_a_ramp_through_many_turns() {

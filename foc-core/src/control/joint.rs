@@ -313,21 +313,29 @@ pub struct TravelConfig {
 }
 
 impl TravelConfig {
-    /// Defaults for a cascade: a fault 0.1 rad (rotor) beyond the range,
-    /// braking with half the current limit when the rotor's inertia is
-    /// known (else at the position loop's acceleration limit), the speed
-    /// loop's proportional gain as the soft stop's.
-    pub fn for_cascade(c: &super::cascade::CascadeConfig) -> Self {
-        let kt = c.current.current.motor.torque_constant_nm_per_a();
-        let lim = c.current.limits.max_current_a;
-        let brake = match c.mechanics {
-            Some(m) if m.is_usable() && kt > 0.0 => 0.5 * kt * lim / m.inertia_kg_m2,
-            _ => c.position.max_acceleration_rad_s2,
+    /// Defaults: a fault 0.1 rad (rotor) beyond the range, braking with
+    /// half the current limit `max_current_a` when the rotor's inertia is
+    /// known (`mechanics`, with the torque constant `kt_nm_per_a`), else at
+    /// the position loop's acceleration limit `max_accel_rad_s2`; the soft
+    /// stop's gain `kv_a_per_rad_s` (the speed loop's proportional gain).
+    /// `CascadeConfig::default_travel` fills these in from a cascade.
+    pub fn defaults(
+        kt_nm_per_a: f32,
+        max_current_a: f32,
+        mechanics: Option<super::Mechanics>,
+        max_accel_rad_s2: f32,
+        kv_a_per_rad_s: f32,
+    ) -> Self {
+        let brake = match mechanics {
+            Some(m) if m.is_usable() && kt_nm_per_a > 0.0 => {
+                0.5 * kt_nm_per_a * max_current_a / m.inertia_kg_m2
+            }
+            _ => max_accel_rad_s2,
         };
         Self {
             fault_margin_rad: 0.1,
             brake_accel_rad_s2: brake,
-            kv_a_per_rad_s: c.speed.kp_a_per_rad_s,
+            kv_a_per_rad_s,
         }
     }
 
@@ -454,12 +462,12 @@ impl JointSetup {
     /// The stage's change for this setup: the travel range in the rotor
     /// frame (it replaces the motor's position range, it does not narrow
     /// it), or `unbounded_rad`, the motor's own range, without one.
-    pub fn rotor_change(&self, unbounded_rad: (f32, f32)) -> crate::drive::JointChange {
+    pub fn rotor_change(&self, unbounded_rad: (f32, f32)) -> JointChange {
         let (range, travel) = match self.travel_out_rad {
             Some((lo, hi)) => (self.frame.range_to_rotor(lo, hi), Some(self.travel)),
             None => (unbounded_rad, None),
         };
-        crate::drive::JointChange {
+        JointChange {
             min_position_rad: range.0,
             max_position_rad: range.1,
             joint: JointConfig {
@@ -482,6 +490,21 @@ impl JointSetup {
         }
         Ok(())
     }
+}
+
+/// The travel range (the limits' position range) and the joint settings,
+/// rotor frame. Taken in any mode once started; refused
+/// ([`super::Refusal::Unsupported`]) when a value is invalid, and
+/// ([`super::Refusal::NotDisabled`]) when the active command's position target
+/// lies outside the new range.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct JointChange {
+    /// Lower end of the range [rad, rotor].
+    pub min_position_rad: f32,
+    /// Upper end of the range [rad, rotor].
+    pub max_position_rad: f32,
+    /// Travel limits, impedance entry and timeout.
+    pub joint: JointConfig,
 }
 
 #[cfg(test)]

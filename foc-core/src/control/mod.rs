@@ -31,7 +31,8 @@
 //! # Wiring a board
 //!
 //! ```
-//! use foc_core::control::{cascade::{Cascade, CascadeConfig}, Command, CommandError, MotorParams, drive};
+//! use foc_core::control::{Command, CommandError, MotorParams, drive};
+//! use foc_core::drive::cascade::{Cascade, CascadeConfig};
 //! use foc_core::calibration::Calibrated;
 //! # use foc_core::{hal::*, angle::MechanicalAngle, frames::Abc};
 //! # struct Pwm(bool); struct Cs; struct Enc; struct Bus;
@@ -60,7 +61,6 @@
 //! assert!(pwm.is_enabled());
 //! ```
 
-pub mod cascade;
 pub mod current;
 pub mod drive;
 pub mod estimator;
@@ -115,14 +115,21 @@ impl Mechanics {
     }
 }
 
-impl From<crate::calibration::mechanics::MechanicsResult> for Mechanics {
-    fn from(r: crate::calibration::mechanics::MechanicsResult) -> Self {
-        Self {
-            inertia_kg_m2: r.inertia_kg_m2,
-            viscous_friction_nm_s_per_rad: r.viscous_friction_nm_s_per_rad,
-            coulomb_friction_nm: r.coulomb_friction_nm,
-        }
-    }
+/// Why a configuration change or a calibration request was refused
+/// (nothing changed).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Refusal {
+    /// Start-up or a calibration is still running: try again later.
+    Busy,
+    /// Closed-loop mode requested before a calibration permit exists.
+    NotCalibrated,
+    /// Only allowed while the drive is disabled.
+    NotDisabled,
+    /// A fault is latched: clear it first.
+    Faulted,
+    /// Not available on this drive, or values it cannot vouch for.
+    Unsupported,
 }
 
 /// Electrical parameters of a PMSM.

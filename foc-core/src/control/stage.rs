@@ -2,6 +2,7 @@
 
 use super::current::{CurrentLoop, CurrentLoopConfig, CurrentLoopInput, CurrentLoopOutput};
 use super::estimator::{AngleTracker, AngleTrackerConfig, SpeedObserver, SpeedObserverConfig};
+use super::joint::JointChange;
 use super::joint::{Impedance, ImpedanceLaw, JointConfig};
 use super::model::{ModelCheck, Period, Verdict};
 use super::permit::Calibrated;
@@ -9,10 +10,10 @@ use super::position::{PositionLoop, PositionLoopConfig};
 use super::power::{PowerInputs, PowerLimitsConfig, PowerReport, PowerStage};
 use super::speed::{SpeedLoop, SpeedLoopConfig};
 use super::supervisor::{Checks, Fault, Supervisor, SupervisorConfig};
+use super::Refusal;
 use super::{BridgeCommand, Command, CommandSlot, Feedback, Limits, Mechanics, Mode};
 use crate::angle::{ElectricalAngle, MechanicalAngle};
 use crate::clamp;
-use crate::drive::{JointChange, Refusal};
 use crate::frames::Dq;
 use crate::hal::PhaseCurrents;
 use crate::transforms;
@@ -1541,8 +1542,8 @@ impl PositionStage {
 mod tests {
     extern crate std;
     use super::*;
-    use crate::control::cascade::CascadeConfig;
     use crate::control::MotorParams;
+    use crate::drive::cascade::CascadeConfig;
     use std::vec::Vec;
 
     fn config() -> CurrentStageConfig {

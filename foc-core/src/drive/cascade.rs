@@ -7,38 +7,31 @@
 //! output being used from the next period on, exactly as when the current
 //! task pends the lower-priority tasks and returns.
 
-use super::current::CurrentLoopConfig;
-use super::estimator::{AngleTrackerConfig, SpeedObserverConfig};
-use super::homing::{Homing, HomingError, HomingMethod, HomingStep};
-use super::joint::{JointConfig, JointError, JointSetup, OutputFrame, TravelConfig};
-use super::model::ModelTolerances;
-use super::permit::Calibrated;
-use super::position::PositionLoopConfig;
-use super::speed::SpeedLoopConfig;
-use super::stage::{
+use super::{ConfigChange, Inputs, Lifecycle, LifecycleConfig, Output};
+use crate::angle::ElectricalAngle;
+use crate::control::current::CurrentLoopConfig;
+use crate::control::estimator::{AngleTrackerConfig, SpeedObserverConfig};
+use crate::control::homing::{Homing, HomingError, HomingMethod, HomingStep};
+use crate::control::joint::{JointConfig, JointError, JointSetup, OutputFrame, TravelConfig};
+use crate::control::model::ModelTolerances;
+use crate::control::permit::Calibrated;
+use crate::control::position::PositionLoopConfig;
+use crate::control::speed::SpeedLoopConfig;
+use crate::control::stage::{
     AngleCalibration, CurrentStage, CurrentStageConfig, PositionStage, Sample, SpeedStage,
     TimeoutReaction, VelocityRef,
 };
-use super::supervisor::{Fault, SupervisorConfig};
-use super::{
+use crate::control::supervisor::{Fault, SupervisorConfig};
+use crate::control::{
     BridgeCommand, Command, CommandError, CommandSlot, Feedback, Limits, Mechanics, MotorParams,
     Rates,
 };
-use crate::angle::ElectricalAngle;
-use crate::drive::{ConfigChange, Inputs, Lifecycle, LifecycleConfig, Output};
 use crate::frames::Abc;
 
 /// The angle tracker's bandwidth [rad/s] (80 Hz).
 pub const TRACKER_BANDWIDTH_RAD_S: f32 = 2.0 * core::f32::consts::PI * 80.0;
 
-/// The speed observer's angle and speed poles [rad/s] (design §19).
-pub const OBSERVER_POLE_RAD_S: f32 = 2.0 * core::f32::consts::PI * 50.0;
-/// The speed observer's disturbance pole [rad/s] (design §19). With the
-/// other two the speed gain `p^2 + 2 p pd` (50^2 + 2 50 25 = 5000 Hz^2) stays
-/// below the 80 Hz tracker's `wn^2` (6400 Hz^2), so at standstill the
-/// speed is no noisier than the tracker's, while the disturbance (a load)
-/// is learnt within a few milliseconds.
-pub const OBSERVER_DISTURBANCE_POLE_RAD_S: f32 = 2.0 * core::f32::consts::PI * 25.0;
+pub use crate::control::estimator::{OBSERVER_DISTURBANCE_POLE_RAD_S, OBSERVER_POLE_RAD_S};
 
 /// Configuration of the whole cascade.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -58,6 +51,19 @@ pub struct CascadeConfig {
 }
 
 impl CascadeConfig {
+    /// The joint's travel defaults for this cascade
+    /// ([`TravelConfig::defaults`] with its torque constant, current limit,
+    /// mechanics, position-loop acceleration and speed-loop gain).
+    pub fn default_travel(&self) -> TravelConfig {
+        TravelConfig::defaults(
+            self.current.current.motor.torque_constant_nm_per_a(),
+            self.current.limits.max_current_a,
+            self.mechanics,
+            self.position.max_acceleration_rad_s2,
+            self.speed.kp_a_per_rad_s,
+        )
+    }
+
     /// Reasonable defaults for a motor: source tuning of the current loop
     /// (technical optimum), speed loop at about 1/20 of the current-loop
     /// bandwidth for an assumed small inertia, position loop a fifth of that,
@@ -286,7 +292,7 @@ impl Cascade {
             joint: JointSetup {
                 frame: OutputFrame::IDENTITY,
                 travel_out_rad: None,
-                travel: TravelConfig::for_cascade(&config),
+                travel: config.default_travel(),
                 joint: config.current.joint,
             },
             unbounded_rad: (
@@ -528,5 +534,57 @@ impl Cascade {
         }
         self.output = Some(out);
         out.bridge
+    }
+}
+
+/// A thin wrapper: a [`Cascade`] built with a [`Calibrated`] permit
+/// already installed (`Cascade::new` + `Cascade::set_calibration`).
+#[derive(Clone, Copy, Debug)]
+pub struct CalibratedCascade {
+    inner: Cascade,
+}
+
+impl CalibratedCascade {
+    /// The cascade of `config` with the permit's angle calibration and
+    /// current-loop configuration installed (closed-loop modes unlocked).
+    pub fn new(config: CascadeConfig, permit: &Calibrated) -> Self {
+        let mut inner = Cascade::new(config);
+        inner.set_calibration(permit);
+        Self { inner }
+    }
+
+    /// Post a command (see `Cascade::command`).
+    pub fn command(&mut self, cmd: Command) -> Result<(), CommandError> {
+        self.inner.command(cmd)
+    }
+
+    /// One PWM period (see `Cascade::step`).
+    pub fn step(&mut self, sample: &Sample) -> BridgeCommand {
+        self.inner.step(sample)
+    }
+
+    /// The feedback of the last step.
+    pub fn feedback(&self) -> &Feedback {
+        self.inner.feedback()
+    }
+
+    /// Request a fault clear.
+    pub fn clear_faults(&mut self) {
+        self.inner.clear_faults();
+    }
+
+    /// Latch a fault found outside the loops.
+    pub fn report_fault(&mut self, f: Fault) {
+        self.inner.report_fault(f);
+    }
+
+    /// Read access to the cascade.
+    pub fn cascade(&self) -> &Cascade {
+        &self.inner
+    }
+
+    /// The cascade itself.
+    pub fn into_inner(self) -> Cascade {
+        self.inner
     }
 }

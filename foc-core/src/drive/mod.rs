@@ -23,7 +23,8 @@
 //! ```
 //! use foc_core::drive::{Drive, Inputs, LifecycleConfig, Phase};
 //! use foc_core::calibration::offsets::OffsetLimits;
-//! use foc_core::control::{cascade::CascadeConfig, CommandSlot, Feedback, MotorParams};
+//! use foc_core::control::{CommandSlot, Feedback, MotorParams};
+//! use foc_core::drive::cascade::CascadeConfig;
 //! # use foc_core::{hal::*, angle::MechanicalAngle, frames::Abc};
 //! # struct Pwm(bool); struct Cs; struct Enc; struct Bus;
 //! # impl PwmDriver for Pwm { type Error = (); fn period_counts(&self) -> u16 { 4200 }
@@ -57,6 +58,7 @@
 //! assert!(!drive.status().calibrated); // no permit yet: closed loop refused
 //! ```
 
+pub mod cascade;
 pub mod identify;
 pub mod lifecycle;
 pub mod period;

@@ -13,34 +13,18 @@
 //! assert_eq!(starting.check_config(), Err(Refusal::Busy));
 //! let idle = Status { mode: Mode::Disabled, calibrated: false, ..running };
 //! assert_eq!(idle.check_config(), Ok(()));
-//! # let limits = foc_core::control::cascade::CascadeConfig::for_motor(
+//! # let limits = foc_core::drive::cascade::CascadeConfig::for_motor(
 //! #     foc_core::control::MotorParams { pole_pairs: 7, r_ohm: 0.1, ld_h: 1e-4, lq_h: 1e-4, flux_linkage_wb: 0.01 },
 //! #     20_000.0, 5.0).current.limits;
 //! assert_eq!(idle.check_command(&Command::Torque { iq_a: 1.0 }, &limits), Err(CommandError::NotCalibrated));
 //! ```
 
 use crate::control::current::CurrentLoopConfig;
-use crate::control::joint::JointConfig;
+pub use crate::control::joint::JointChange;
 use crate::control::permit::Calibrated;
 use crate::control::power::PowerLimitsConfig;
+pub use crate::control::Refusal;
 use crate::control::{admit, Command, CommandError, Fault, Limits, Mechanics, Mode};
-
-/// Why a configuration change or a calibration request was refused
-/// (nothing changed).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum Refusal {
-    /// Start-up or a calibration is still running: try again later.
-    Busy,
-    /// Closed-loop mode requested before a calibration permit exists.
-    NotCalibrated,
-    /// Only allowed while the drive is disabled.
-    NotDisabled,
-    /// A fault is latched: clear it first.
-    Faulted,
-    /// Not available on this drive, or values it cannot vouch for.
-    Unsupported,
-}
 
 /// What the rules look at: the drive's state as its owner last published it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -133,21 +117,6 @@ pub struct ConfigChange {
     /// New travel range and joint settings (design §21): taken while
     /// running as well (homing moves the range), judged on its own.
     pub joint: Option<JointChange>,
-}
-
-/// The travel range (the limits' position range) and the joint settings,
-/// rotor frame. Taken in any mode once started; refused
-/// ([`Refusal::Unsupported`]) when a value is invalid, and
-/// ([`Refusal::NotDisabled`]) when the active command's position target
-/// lies outside the new range.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct JointChange {
-    /// Lower end of the range [rad, rotor].
-    pub min_position_rad: f32,
-    /// Upper end of the range [rad, rotor].
-    pub max_position_rad: f32,
-    /// Travel limits, impedance entry and timeout.
-    pub joint: JointConfig,
 }
 
 impl ConfigChange {

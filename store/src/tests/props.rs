@@ -10,8 +10,8 @@ use crate::record::{
 use crate::settings::Settings;
 use crate::store::Store;
 use core::f32::consts::TAU;
-use foc_core::control::cascade::CascadeConfig;
 use foc_core::control::MotorParams;
+use foc_core::drive::cascade::CascadeConfig;
 use proptest::prelude::*;
 
 fn pos() -> impl Strategy<Value = f32> {

@@ -487,8 +487,8 @@ fn a_version_3_record_migrates_without_the_joint() {
 #[test]
 fn a_migrated_record_applies_with_the_builds_joint() {
     use crate::Settings;
-    use foc_core::control::cascade::CascadeConfig;
     use foc_core::control::joint::OutputFrame;
+    use foc_core::drive::cascade::CascadeConfig;
     let now = record_a();
     let migrated = DriveRecord::decode(&envelope(3, &postcard_of(&as_v3(&now)))).unwrap();
     let mut base = Settings::from_cascade(&CascadeConfig::for_motor(
@@ -715,7 +715,7 @@ fn joint_is_checked_field_by_field() {
 #[test]
 fn joint_round_trips_through_settings() {
     use crate::Settings;
-    use foc_core::control::cascade::CascadeConfig;
+    use foc_core::drive::cascade::CascadeConfig;
     let r = record_a();
     let build = CascadeConfig::for_motor(r.motor.to_params(), 20_000.0, 5.0);
     let base = Settings::from_cascade(&build);
@@ -850,7 +850,7 @@ fn power_limits_are_checked_field_by_field() {
 #[test]
 fn power_limits_round_trip_through_settings_with_the_records_motor() {
     use crate::Settings;
-    use foc_core::control::cascade::CascadeConfig;
+    use foc_core::drive::cascade::CascadeConfig;
     let r = record_a();
     let base = Settings::from_cascade(&CascadeConfig::for_motor(
         r.motor.to_params(),
@@ -875,7 +875,7 @@ fn power_limits_round_trip_through_settings_with_the_records_motor() {
 #[test]
 fn mechanics_round_trip_through_settings() {
     use crate::Settings;
-    use foc_core::control::cascade::CascadeConfig;
+    use foc_core::drive::cascade::CascadeConfig;
     let r = record_a();
     let base = Settings::from_cascade(&CascadeConfig::for_motor(
         r.motor.to_params(),

@@ -5,8 +5,8 @@ use crate::record::{Invalid, Label, SCHEMA_VERSION};
 use crate::settings::Settings;
 use crate::text::{from_toml, to_toml};
 use crate::DriveRecord;
-use foc_core::control::cascade::CascadeConfig;
 use foc_core::control::{Limits, Mechanics, MotorParams};
+use foc_core::drive::cascade::CascadeConfig;
 
 fn base(pwm: f32) -> Settings {
     let motor = MotorParams {

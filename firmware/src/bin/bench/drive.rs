@@ -11,11 +11,11 @@ use super::{measure_rig, report, Stats};
 use board_support::board;
 use foc_core::calibration::offsets::OffsetLimits;
 use foc_core::calibration::Calibrated;
-use foc_core::control::cascade::CascadeConfig;
-use foc_core::control::joint::{Impedance, JointConfig, TravelConfig};
+use foc_core::control::joint::{Impedance, JointConfig};
 use foc_core::control::power::PowerLimitsConfig;
 use foc_core::control::stage::{PositionStage, SpeedStage, VelocityRef};
 use foc_core::control::{Command, CommandSlot, Feedback, Mode};
+use foc_core::drive::cascade::CascadeConfig;
 use foc_core::drive::{
     AngleKind, ConfigChange, Drive, JointChange, LifecycleConfig, Mail, Refusal, Status,
 };
@@ -280,7 +280,7 @@ fn travel_around(p: f32) -> ConfigChange {
             min_position_rad: p - 50.0,
             max_position_rad: p + 50.0,
             joint: JointConfig {
-                travel: Some(TravelConfig::for_cascade(&c)),
+                travel: Some(c.default_travel()),
                 ..c.current.joint
             },
         }),

@@ -21,10 +21,10 @@ use core::hint::black_box;
 use cortex_m::peripheral::{syst::SystClkSource, SYST};
 use defmt_semihosting as _;
 use foc_core::angle::ElectricalAngle;
-use foc_core::control::cascade::CascadeConfig;
 use foc_core::control::current::{CurrentLoop, CurrentLoopInput};
 use foc_core::control::stage::{PositionStage, SpeedStage, VelocityRef};
 use foc_core::control::{Command, Feedback, Mode, MotorParams};
+use foc_core::drive::cascade::CascadeConfig;
 use foc_core::frames::{Abc, AlphaBeta, Dq};
 use foc_core::{svpwm, transforms, trig};
 
