@@ -607,3 +607,60 @@ fn trace_fault() {
         }
     }
 }
+
+/// Prints what an angle that slips (a step of `STEP` electrical degrees,
+/// or a drift of `DRIFT` electrical degrees per millisecond) does in torque
+/// mode at speed, per motor.
+#[test]
+#[ignore]
+fn trace_angle_slip() {
+    let step_deg: f32 = std::env::var("STEP").map_or(60.0, |p| p.parse().unwrap());
+    let drift: f32 = std::env::var("DRIFT").map_or(0.0, |p| p.parse().unwrap());
+    for (stem, s) in setups() {
+        let mut sim = sim_with_plant(&s, s.motor);
+        let f = s.pwm_hz();
+        let w = 0.5 * top_speed(&s);
+        sim.cascade.command(Command::Velocity { rad_s: w }).unwrap();
+        assert_eq!(run_clean(&mut sim, step_periods(&s, w)), None, "{stem}");
+        let iq = 0.3 * s.rated_current_a;
+        sim.load_nm = s.kt() * iq;
+        sim.cascade.command(Command::Torque { iq_a: iq }).unwrap();
+        assert_eq!(run_clean(&mut sim, (0.005 * f) as usize), None, "{stem}");
+        let speed = sim.plant.omega_m_rad_s() as f32;
+        let pp = s.motor.pole_pairs as f32;
+        let mut got = None;
+        let mut peak = 0.0f32;
+        for k in 0..(0.05 * f) as usize {
+            let mut smp = sim.sample();
+            let off_e_deg = if drift > 0.0 {
+                drift * k as f32 / f * 1e3
+            } else {
+                step_deg
+            };
+            smp.angle = smp.angle.map(|a| {
+                foc_core::angle::MechanicalAngle::from_bits(a.to_bits().wrapping_add(
+                    foc_core::angle::MechanicalAngle::from_degrees(off_e_deg / pp).to_bits(),
+                ))
+            });
+            sim.step_with(&smp);
+            for i in sim.plant.phase_currents_a() {
+                peak = peak.max(i.abs() as f32);
+            }
+            if let Some(fault) = sim.cascade.feedback().first_fault {
+                got = Some((k, fault, off_e_deg));
+                break;
+            }
+        }
+        println!(
+            "{stem} at {speed:.1} rad/s: {}, peak true {peak:.1} A",
+            match got {
+                Some((k, fault, off)) => format!(
+                    "{} after {k} periods ({:.2} ms) at {off:.0} deg",
+                    fault.name(),
+                    k as f32 / f * 1e3
+                ),
+                None => "nothing in 50 ms".into(),
+            }
+        );
+    }
+}

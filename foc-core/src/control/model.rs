@@ -854,7 +854,12 @@ mod tests {
             lq_h: 1e-4,
             flux_linkage_wb: 0.005,
         };
-        ModelCheck::new(motor, 50e-6, ModelTolerances::for_current_limit(10.0), false)
+        ModelCheck::new(
+            motor,
+            50e-6,
+            ModelTolerances::for_current_limit(10.0),
+            false,
+        )
     }
 
     /// The rotor at 1000 rad/s electrical, period `k`.
