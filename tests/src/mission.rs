@@ -170,6 +170,10 @@ impl Setup {
         // The sensor's resolution is known before any calibration (the
         // supervisor's angle-step limit never goes below a few counts).
         c.current.angle.sensor_counts_per_rev = self.bench.sensors.encoder_counts_per_rev;
+        // The bridge's dead time is the board's, known as the firmware
+        // knows it (`board::DEAD_TIME_NS`, design §24): the model check
+        // corrects for it.
+        c.current.supervisor.model.dead_time_s = self.bench.dead_time_s as f32;
         // The plant's mechanics, as a user who knows them would give them
         // (the mission installs the identified ones instead).
         c.set_mechanics(&self.mechanics());

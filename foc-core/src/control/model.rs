@@ -686,7 +686,7 @@ impl ModelCheck {
         // what the envelope was lately, decaying at that rate.
         let env_now = ENVELOPE_MARGIN
             * (volts_tol(t, k, x0n, wabs) + t.inductance * step * inv_b_max + angle_v)
-            + 0.125 * t.floor_a * inv_b_max
+            + 0.25 * t.floor_a * inv_b_max
             + 2.0 * dead_v;
         let env_held = (1.0 - DISTURBANCE_GAIN) * self.state.envelope_v;
         let env = if env_now > env_held {

@@ -173,17 +173,17 @@ impl Unbalance {
         );
         // What a balanced error leaks: an average with gain g of a phasor
         // turning x per period keeps g / |1 - (1 - g) e^(-jx)| of it, at
-        // least g / (2 |sin(x / 2)|) ([`chord`]).
+        // least g / (2 |sin(x / 2)|) ([`chords`]).
         let turn = w_rad_s.abs() * self.ts_s;
-        let leak = |x: f32| {
-            let c = chord(x);
+        let leak = |c: f32| {
             if c > g {
                 lim.envelope_v * g / c
             } else {
                 lim.envelope_v
             }
         };
-        let (leak1, leak2) = (leak(turn), leak(2.0 * turn));
+        let (chord1, chord2) = chords(turn);
+        let (leak1, leak2) = (leak(chord1), leak(chord2));
         let keep = 1.0 - g;
         let th1 = max(leak1 + TOLERANCE * lim.scale_v + noise_v, keep * self.th.0);
         let th2 = max(leak2 + TOLERANCE * lim.scale_v + noise_v, keep * self.th.1);
@@ -203,13 +203,15 @@ impl Unbalance {
     }
 }
 
-/// `2 |sin(x / 2)|` for `x >= 0` (the chord of a turn by `x`): zero
-/// where the turn is a whole number of turns (a phasor that turns by
+/// `(2 |sin(x / 2)|, 2 |sin x|)` for `x >= 0`: the chords of a turn by
+/// `x` and by `2 x` (one sine and cosine: `sin x = 2 sin(x/2) cos(x/2)`),
+/// zero where the turn is a whole number of turns (a phasor that turns by
 /// exactly a turn each period is not averaged away).
 #[inline(always)]
-fn chord(x: f32) -> f32 {
+fn chords(x: f32) -> (f32, f32) {
     let half = crate::angle::ElectricalAngle::from_radians(0.5 * x);
-    2.0 * crate::trig::sin_cos(half).0.abs()
+    let (s, c) = crate::trig::sin_cos(half);
+    (2.0 * s.abs(), 4.0 * (s * c).abs())
 }
 
 #[inline(always)]
