@@ -662,6 +662,40 @@ fn save_path_stores_the_drive_and_the_comm_settings() {
     assert!(b.take().contains(&CanFrame::new(0x709, &[0]).unwrap()));
 }
 
+/// 0x1010 writes two records (the CAN settings, then the drive's): when
+/// either write fails the SDO aborts with 0x06060000 and nothing stored
+/// has changed (the CAN record is written back when the drive's fails).
+#[test]
+fn an_aborted_save_changes_nothing_stored() {
+    let mut b = Bench::new();
+    b.write(0x2100, 0, &[9]).unwrap();
+    b.write_u32(0x1010, 1, SAVE).unwrap();
+    let before = (b.dev.stores.clone(), b.dev.saved);
+    b.write(0x2100, 0, &[10]).unwrap();
+    // The CAN record cannot be written: the drive's is not touched.
+    b.dev.save_comm_fails = true;
+    assert_eq!(b.write_u32(0x1010, 1, SAVE), Err(0x0606_0000));
+    assert_eq!((b.dev.stores.clone(), b.dev.saved), before);
+    b.dev.save_comm_fails = false;
+    // The drive's record cannot be written: the CAN record goes back.
+    b.dev.store_fails = true;
+    assert_eq!(b.write_u32(0x1010, 1, SAVE), Err(0x0606_0000));
+    assert_eq!((b.dev.stores.clone(), b.dev.saved), before);
+    b.dev.store_fails = false;
+    // A reset node takes the last saved node id, not the aborted one.
+    b.nmt(0x81, ID);
+    assert_eq!(b.node.node_id(), 9);
+    // Never saved in this run: the rollback writes what the node started
+    // with (the store's record, or the defaults where it had none).
+    let mut b = Bench::new();
+    let boot = *b.node.settings();
+    b.write(0x2100, 0, &[11]).unwrap();
+    b.dev.store_fails = true;
+    assert_eq!(b.write_u32(0x1010, 1, SAVE), Err(0x0606_0000));
+    assert_eq!(b.dev.saved, Some(boot));
+    assert!(b.dev.stores.is_empty());
+}
+
 #[test]
 fn restore_forgets_the_saved_settings() {
     let mut b = Bench::new();

@@ -44,6 +44,12 @@ pub(crate) struct Dict<P> {
     pub next: CommSettings,
     /// The settings last saved by 0x1010 (taken by NMT reset node).
     pub saved: Option<CommSettings>,
+    /// What the store's CAN record holds as far as this node knows: the
+    /// settings it was created with (the firmware creates it from the
+    /// stored record, or the defaults where there is none), the last
+    /// saved ones, the defaults after a restore. A save whose second
+    /// write fails writes them back (see [`Action::Save`]).
+    pub stored: CommSettings,
     /// The profile (0x6xxx).
     pub profile: P,
 }
@@ -129,6 +135,7 @@ impl<P: Profile> Dict<P> {
             emcy: Emcy::new(),
             next: *settings,
             saved: None,
+            stored: *settings,
             profile,
         };
         d.reset_comm(settings);
@@ -529,12 +536,23 @@ impl<P: Profile> Dict<P> {
                 }
             }
             Action::Save => {
-                let link = ctx.link_setting();
-                ctx.store(StoreOp::Save, &[], link)
-                    .map_err(|_| Abort::Hardware)?;
+                // All or nothing (an aborted SDO changes nothing): the CAN
+                // record first; if the drive's record then fails, the CAN
+                // record goes back to what it held. (Two items of one
+                // power-fail-safe log: each write is whole or absent, the
+                // pair is made so by this order.)
                 let s = self.settings_to_save();
                 ctx.save_comm(&s).map_err(|_| Abort::Hardware)?;
+                let link = ctx.link_setting();
+                if ctx.store(StoreOp::Save, &[], link).is_err() {
+                    // If this fails as well the flash itself is failing:
+                    // the new CAN settings may stay (reported as the same
+                    // hardware abort).
+                    let _ = ctx.save_comm(&self.stored);
+                    return Err(Abort::Hardware);
+                }
                 self.saved = Some(s);
+                self.stored = s;
             }
             Action::Restore => {
                 let link = ctx.link_setting();
@@ -543,6 +561,7 @@ impl<P: Profile> Dict<P> {
                 // Nothing stored any more: a reset keeps the settings in
                 // force; the next power-on starts from the defaults.
                 self.saved = None;
+                self.stored = CommSettings::DEFAULT;
             }
             Action::SpeedGains(g) => ctx.set_speed_gains(g).map_err(refusal)?,
             Action::NodeId(n) => {
