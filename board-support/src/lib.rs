@@ -117,7 +117,7 @@
 //! the `JDRx` registers, converts to amperes and clears `JEOC`: call it from
 //! the `CURRENT_IRQ` handler.
 #![no_std]
-#![warn(missing_docs)]
+// The no-panic lints and `missing_docs`: `[workspace.lints]` (Cargo.toml).
 
 pub mod logic;
 

@@ -26,7 +26,7 @@ impl CanFrame {
             return None;
         }
         let mut d = [0u8; 8];
-        d[..data.len()].copy_from_slice(data);
+        d.get_mut(..data.len())?.copy_from_slice(data);
         Some(Self {
             id,
             rtr: false,
@@ -53,7 +53,7 @@ impl CanFrame {
         if self.rtr {
             &[]
         } else {
-            &self.data[..usize::from(self.len.min(8))]
+            self.data.get(..usize::from(self.len.min(8))).unwrap_or(&[])
         }
     }
 

@@ -4,6 +4,14 @@
 //! does at every SYNC / tick); the plant steps the PWM periods in between.
 //!
 //! Run with `--nocapture` for the figures (README, CiA 402 section).
+// Test support outside `#[test]` functions: unwrapping and indexing a
+// fixture is the test failing, which is what it should do.
+#![allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    clippy::panic,
+    clippy::indexing_slicing
+)]
 
 use foc_bench::mission::{Setup, Sim};
 use foc_bench::plant::Phase;

@@ -1,5 +1,13 @@
 //! The checked-in EDS (`docs/canopen/foc-drive.eds`) is what `write_eds`
 //! writes from the object table.
+// Test support outside `#[test]` functions: unwrapping and indexing a
+// fixture is the test failing, which is what it should do.
+#![allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    clippy::panic,
+    clippy::indexing_slicing
+)]
 
 use foc_canopen::eds::{write_eds, EdsInfo};
 

@@ -1,5 +1,13 @@
 //! Property tests: arbitrary frames never panic the node, and every SDO
 //! abort leaves the dictionary, the profile and the device unchanged.
+// Test support outside `#[test]` functions: unwrapping and indexing a
+// fixture is the test failing, which is what it should do.
+#![allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    clippy::panic,
+    clippy::indexing_slicing
+)]
 
 mod common;
 

@@ -1,4 +1,12 @@
 //! The node with the real CiA 402 profile.
+// Test support outside `#[test]` functions: unwrapping and indexing a
+// fixture is the test failing, which is what it should do.
+#![allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    clippy::panic,
+    clippy::indexing_slicing
+)]
 
 mod common;
 

@@ -5,6 +5,14 @@
 //!
 //! The numbers are host nanoseconds, for spotting regressions; the
 //! Cortex-M4F cost is counted separately (instructions under emulation).
+// Test support outside `#[test]` functions: unwrapping and indexing here fails the build or the test,
+// which is what it should do (the no-panic lints are for the MCU's code).
+#![allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    clippy::panic,
+    clippy::indexing_slicing
+)]
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use foc_core::angle::ElectricalAngle;

@@ -44,18 +44,7 @@
 //!    assembles the loops), [`scope`], [`response`].
 #![no_std]
 #![forbid(unsafe_code)]
-#![warn(missing_docs)]
-#![cfg_attr(
-    not(test),
-    deny(
-        clippy::unwrap_used,
-        clippy::expect_used,
-        clippy::panic,
-        clippy::indexing_slicing,
-        clippy::unreachable,
-        clippy::todo
-    )
-)]
+// The no-panic lints and `missing_docs`: `[workspace.lints]` (Cargo.toml).
 
 pub mod angle;
 pub mod calibration;

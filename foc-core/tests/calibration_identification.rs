@@ -10,6 +10,14 @@
 //! sensing, a quantised (14-bit) noisy angle sensor with an offset and a
 //! direction, and a one-period computation delay: the command returned in
 //! period k is applied during period k+1.
+// Test support outside `#[test]` functions: unwrapping and indexing here fails the build or the test,
+// which is what it should do (the no-panic lints are for the MCU's code).
+#![allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    clippy::panic,
+    clippy::indexing_slicing
+)]
 
 use foc_core::angle::MechanicalAngle;
 use foc_core::calibration::alignment::{Alignment, AlignmentConfig};

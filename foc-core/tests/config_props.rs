@@ -18,6 +18,14 @@
 //! set_current_config}` on a running cascade, `OffsetLimits`, and the
 //! calibration routines' `*Config::new` (`IdentificationConfig`,
 //! `ResistanceConfig`, `InductanceConfig`, `AlignmentConfig`, `FluxConfig`).
+// Test support outside `#[test]` functions: unwrapping and indexing here fails the build or the test,
+// which is what it should do (the no-panic lints are for the MCU's code).
+#![allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    clippy::panic,
+    clippy::indexing_slicing
+)]
 
 use foc_core::angle::{ElectricalAngle, MechanicalAngle};
 use foc_core::calibration::alignment::{Alignment, AlignmentConfig};

@@ -5,6 +5,14 @@
 //! no noise); the full bench with dead time, quantisation and noise lives in
 //! the `foc-bench` crate. Its abc<->dq projection is written with
 //! `cos(theta - 2pi/3)` sums, independently of `foc_core::transforms`.
+// Test support outside `#[test]` functions: unwrapping and indexing here fails the build or the test,
+// which is what it should do (the no-panic lints are for the MCU's code).
+#![allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    clippy::panic,
+    clippy::indexing_slicing
+)]
 
 use core::f32::consts::{PI, TAU};
 use foc_core::angle::{ElectricalAngle, MechanicalAngle};

@@ -8,6 +8,14 @@
 //! Unit-test modules (`#[cfg(test)] mod ... { }`) are skipped: a test may
 //! build its fixture from a higher layer (the stage's tests take the
 //! cascade's default configuration); they are not in the product's build.
+// Test support outside `#[test]` functions: unwrapping and indexing here fails the build or the test,
+// which is what it should do (the no-panic lints are for the MCU's code).
+#![allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    clippy::panic,
+    clippy::indexing_slicing
+)]
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};

@@ -12,6 +12,14 @@
 //! `v_q = R i_q + w_e (L_d i_d + psi)`) in f64. Tolerance: the window's roots
 //! are f32, so a limit holds within `1e-4` of the largest term of the power
 //! balance plus 1 mW.
+// Test support outside `#[test]` functions: unwrapping and indexing here fails the build or the test,
+// which is what it should do (the no-panic lints are for the MCU's code).
+#![allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    clippy::panic,
+    clippy::indexing_slicing
+)]
 
 use foc_core::control::power::{
     iq_window, ActiveLimit, BrakeChopper, IqWindow, PowerInputs, PowerLimitsConfig,

@@ -2,6 +2,14 @@
 //! output frame, `SetJoint`, homing and the link watchdog in impedance mode,
 //! against a [`RecordingContext`] (and, for an end-stop search, a point
 //! rotor with a stop integrated in the test).
+// Test support outside `#[test]` functions: unwrapping and indexing here fails the build or the test,
+// which is what it should do (the no-panic lints are for the MCU's code).
+#![allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    clippy::panic,
+    clippy::indexing_slicing
+)]
 
 use foc_core::control::homing::{EndStop, HomingMethod};
 use foc_core::control::joint::Impedance;

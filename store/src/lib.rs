@@ -24,18 +24,7 @@
 //! ```
 #![no_std]
 #![forbid(unsafe_code)]
-#![warn(missing_docs)]
-#![cfg_attr(
-    not(test),
-    deny(
-        clippy::unwrap_used,
-        clippy::expect_used,
-        clippy::panic,
-        clippy::indexing_slicing,
-        clippy::unreachable,
-        clippy::todo
-    )
-)]
+// The no-panic lints and `missing_docs`: `[workspace.lints]` (Cargo.toml).
 
 #[cfg(any(test, feature = "std"))]
 extern crate std;

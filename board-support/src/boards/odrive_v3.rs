@@ -203,6 +203,8 @@ pub const HAS_CAN: bool = true;
 /// accepted frame goes to FIFO 0).
 pub const CAN_RX_IRQ: pac::Interrupt = pac::Interrupt::CAN1_RX0;
 // Every CAN bit rate is exact from this APB1 clock (`logic::can`).
+// (Evaluated at compile time: an index out of range fails the build.)
+#[allow(clippy::indexing_slicing)]
 const _: () = {
     let mut i = 0;
     while i < Bitrate::ALL.len() {
@@ -430,6 +432,10 @@ pub fn init(dp: pac::Peripherals) -> Board {
     ) {
         Ok(pwm) => pwm,
         // Only a PWM_FREQUENCY_HZ const out of range gets here.
+        // A board constant out of range, found at init before the bridge
+        // was ever enabled (the timer never starts): halting is the safe
+        // state there.
+        #[allow(clippy::panic)]
         Err(e) => panic!("PWM timing: {:?}", e),
     };
 

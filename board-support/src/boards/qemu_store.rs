@@ -99,7 +99,7 @@ fn read_cmdline() -> EmuArgs {
     // call's `asm!` may write any memory whose address escaped, so this
     // plain read sees it.
     let len = block[1].min(buf.len());
-    EmuArgs::parse(&buf[..len])
+    EmuArgs::parse(buf.get(..len).unwrap_or(&buf))
 }
 
 // ------------------------------------------------------------ semihosting
@@ -175,7 +175,7 @@ fn fill_erased(handle: usize, from: u32, to: u32) -> Result<(), ()> {
     let mut at = from;
     while at < to {
         let n = ((to - at) as usize).min(CHUNK);
-        sys_write(handle, &ones[..n])?;
+        sys_write(handle, ones.get(..n).unwrap_or(&ones))?;
         at += n as u32;
     }
     Ok(())
@@ -294,7 +294,10 @@ impl NorFlash for StoreFlash {
         let mut at = offset;
         for part in bytes.chunks(CHUNK) {
             let mut cell = [0u8; CHUNK];
-            let cell = &mut cell[..part.len()];
+            // (`chunks(CHUNK)`: never longer than the cell.)
+            let cell = cell
+                .get_mut(..part.len())
+                .ok_or(SimStoreError::OutOfBounds)?;
             sys_seek(h, at)?;
             sys_read(h, cell)?;
             nor_program(cell, part);

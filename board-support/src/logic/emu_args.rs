@@ -105,9 +105,10 @@ impl EmuArgs {
             .iter()
             .position(|&b| b == 0)
             .unwrap_or(cmdline.len());
-        for token in cmdline[..end].split(|&b| b == b' ') {
+        for token in cmdline.get(..end).unwrap_or(cmdline).split(|&b| b == b' ') {
             if let Some(eq) = token.iter().position(|&b| b == b'=') {
-                args.apply(&token[..eq], &token[eq + 1..]);
+                let (key, rest) = token.split_at(eq);
+                args.apply(key, rest.get(1..).unwrap_or(&[]));
             }
         }
         args
@@ -147,7 +148,10 @@ impl EmuArgs {
             return;
         }
         let mut buf = [0u8; STORE_PATH_CAPACITY];
-        buf[..path.len()].copy_from_slice(path);
+        let Some(dst) = buf.get_mut(..path.len()) else {
+            return;
+        };
+        dst.copy_from_slice(path);
         self.store_path = Some(buf);
         self.store_path_len = path.len();
     }
@@ -156,8 +160,12 @@ impl EmuArgs {
         if name.len() > MISSION_CAPACITY || core::str::from_utf8(name).is_err() {
             return;
         }
-        self.mission = [0; MISSION_CAPACITY];
-        self.mission[..name.len()].copy_from_slice(name);
+        let mut buf = [0; MISSION_CAPACITY];
+        let Some(dst) = buf.get_mut(..name.len()) else {
+            return;
+        };
+        dst.copy_from_slice(name);
+        self.mission = buf;
         self.mission_len = name.len();
     }
 
@@ -165,19 +173,22 @@ impl EmuArgs {
     pub fn store_path(&self) -> Option<&[u8]> {
         self.store_path
             .as_ref()
-            .map(|p| &p[..self.store_path_len.min(STORE_PATH_CAPACITY - 1)])
+            .and_then(|p| p.get(..self.store_path_len.min(STORE_PATH_CAPACITY - 1)))
     }
 
     /// The store's host path with its terminating NUL (for `SYS_OPEN`).
     pub fn store_path_with_nul(&self) -> Option<&[u8]> {
         self.store_path
             .as_ref()
-            .map(|p| &p[..(self.store_path_len + 1).min(STORE_PATH_CAPACITY)])
+            .and_then(|p| p.get(..(self.store_path_len + 1).min(STORE_PATH_CAPACITY)))
     }
 
     /// The mission name (`""` without `mission=`).
     pub fn mission(&self) -> &str {
-        let bytes = &self.mission[..self.mission_len.min(MISSION_CAPACITY)];
+        let bytes = self
+            .mission
+            .get(..self.mission_len.min(MISSION_CAPACITY))
+            .unwrap_or(&[]);
         core::str::from_utf8(bytes).unwrap_or("")
     }
 }

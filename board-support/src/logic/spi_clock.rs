@@ -21,13 +21,13 @@ pub const DIVIDERS: [u32; 8] = [2, 4, 8, 16, 32, 64, 128, 256];
 /// divider`), or `None` when even `/256` is too fast or the result would
 /// be below 1 Hz.
 pub const fn fastest_divider(pclk_hz: u32, max_hz: u32) -> Option<u32> {
-    let mut i = 0;
-    while i < DIVIDERS.len() {
-        let div = DIVIDERS[i];
+    let mut rest: &[u32] = &DIVIDERS;
+    while let [div, tail @ ..] = rest {
+        let div = *div;
         if pclk_hz as u64 <= max_hz as u64 * div as u64 {
             return if pclk_hz / div > 0 { Some(div) } else { None };
         }
-        i += 1;
+        rest = tail;
     }
     None
 }

@@ -1,6 +1,11 @@
 //! The object table: every object and sub-object, sorted by index and
 //! sub-index (a test checks it). Built by a `const fn` so that the four
 //! PDO parameter sets are written once.
+//!
+//! Its functions are private `const fn`s evaluated only for the `static`
+//! table: an index out of range fails the build, it cannot panic at run
+//! time (hence the `indexing_slicing` allowance, this module only).
+#![allow(clippy::indexing_slicing)]
 
 use super::{Access, DataType, Default, Kind, ObjectDef};
 use crate::cia402::{OpMode, INC_PER_REV};

@@ -2,6 +2,14 @@
 //! it (the real CiA 402 bodies are another module's), and a device that
 //! records posts, stores and saves, with faults a test can set.
 #![allow(dead_code)]
+// Test support outside `#[test]` functions: unwrapping and indexing a
+// fixture is the test failing, which is what it should do.
+#![allow(
+    clippy::unwrap_used,
+    clippy::expect_used,
+    clippy::panic,
+    clippy::indexing_slicing
+)]
 
 use foc_canopen::cia402::{Actuals, Params, State, Targets};
 use foc_canopen::node::{CanDevice, CommSettings, Identity, Node};
