@@ -407,6 +407,23 @@ fn wrong_gain_or_offset_is_caught_at_steady_speed() {
     );
 }
 
+/// Up to `w` [rad/s] in velocity mode, then torque mode at a third of the
+/// rated current against an equal load for 5 ms, no fault on the way;
+/// returns the speed reached [rad/s, mechanical].
+fn torque_mode_at_speed(sim: &mut Sim, s: &Setup, w: f32, stem: &str) -> f32 {
+    sim.cascade.command(Command::Velocity { rad_s: w }).unwrap();
+    assert_eq!(run_clean(sim, step_periods(s, w)), None, "{stem}");
+    let iq = 0.3 * s.rated_current_a;
+    sim.load_nm = s.kt() * iq;
+    sim.cascade.command(Command::Torque { iq_a: iq }).unwrap();
+    assert_eq!(
+        run_clean(sim, (0.005 * s.pwm_hz()) as usize),
+        None,
+        "{stem}"
+    );
+    sim.plant.omega_m_rad_s() as f32
+}
+
 /// The stated speed of the frozen-angle check [rad/s, mechanical]: where
 /// the back-EMF is twice the voltage the current floor stands for in one
 /// period (`floor / b`, `b = (1 - exp(-R Ts / L)) / R` of the smaller
@@ -446,13 +463,7 @@ fn frozen_angle_in_torque_mode_is_caught_at_speed() {
         } else {
             0.3 * top_speed(&s)
         };
-        sim.cascade.command(Command::Velocity { rad_s: w }).unwrap();
-        assert_eq!(run_clean(&mut sim, step_periods(&s, w)), None, "{stem}");
-        let iq = 0.3 * s.rated_current_a;
-        sim.load_nm = s.kt() * iq;
-        sim.cascade.command(Command::Torque { iq_a: iq }).unwrap();
-        assert_eq!(run_clean(&mut sim, (0.005 * f) as usize), None, "{stem}");
-        let speed = sim.plant.omega_m_rad_s() as f32;
+        let speed = torque_mode_at_speed(&mut sim, &s, w, &stem);
         let frozen = sim.sample().angle.unwrap();
         let mut got = None;
         for k in 0..(0.02 * f) as usize {
@@ -620,13 +631,7 @@ fn trace_angle_slip() {
         let mut sim = sim_with_plant(&s, s.motor);
         let f = s.pwm_hz();
         let w = 0.5 * top_speed(&s);
-        sim.cascade.command(Command::Velocity { rad_s: w }).unwrap();
-        assert_eq!(run_clean(&mut sim, step_periods(&s, w)), None, "{stem}");
-        let iq = 0.3 * s.rated_current_a;
-        sim.load_nm = s.kt() * iq;
-        sim.cascade.command(Command::Torque { iq_a: iq }).unwrap();
-        assert_eq!(run_clean(&mut sim, (0.005 * f) as usize), None, "{stem}");
-        let speed = sim.plant.omega_m_rad_s() as f32;
+        let speed = torque_mode_at_speed(&mut sim, &s, w, &stem);
         let pp = s.motor.pole_pairs as f32;
         let mut got = None;
         let mut peak = 0.0f32;
