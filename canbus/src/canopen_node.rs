@@ -41,15 +41,18 @@ pub fn make(id: u8, drive: &HostDrive) -> Node {
     Node::new(settings)
 }
 
+/// The service's rules (`foc_service::Link`'s `CanDevice`), as on a board.
 impl CanDevice for HostDrive {
     fn identity(&self) -> Identity {
-        IDENTITY
+        self.view_parts().1.board().can_identity
     }
     fn link_setting(&self) -> WatchdogConfig {
         self.boot_link_setting().unwrap_or(WatchdogConfig::OFF)
     }
     fn save_comm(&mut self, s: &CommSettings) -> Result<(), ErrorCode> {
-        self.store_comm(*s)
+        self.with_link(|l| l.save_comm(s))?;
+        self.comm_saved(*s);
+        Ok(())
     }
 }
 

@@ -183,11 +183,11 @@ mod app {
         };
         #[cfg(not(feature = "can"))]
         let can_node = can::CanNode;
-        let cfg = persist::cascade(&boot.settings);
+        let cfg = boot.service.cascade();
         let angle_kind = board::angle_kind();
-        // `persist::admit` kept a calibration only where the sensor's
-        // zero survives a reset; the lifecycle checks that again.
-        let stored = boot.settings.permit();
+        // The service kept a calibration only where the sensor's zero
+        // survives a reset; the lifecycle checks that again.
+        let stored = boot.service.settings().permit();
         let life = LifecycleConfig {
             offsets: Some(OffsetLimits {
                 samples: config::OFFSET_CAL_SAMPLES,

@@ -418,6 +418,13 @@ impl Cascade {
         self.change = Some(c);
     }
 
+    /// A calibration (offsets, identification) is requested and not yet
+    /// taken by a step.
+    pub fn calibration_pending(&self) -> bool {
+        self.change
+            .is_some_and(|c| c.identify || c.calibrate_offsets)
+    }
+
     /// The lifecycle's output of the last step.
     pub fn last_output(&self) -> Option<&Output> {
         self.output.as_ref()

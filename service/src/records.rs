@@ -1,0 +1,148 @@
+//! Stored records and the board: which record a board takes ([`admit`]),
+//! the record of the settings in force ([`live_record`]), and the store
+//! as the service uses it ([`RecordStore`]).
+
+use crate::board::Board;
+use foc_protocol::message::ErrorCode;
+use foc_protocol::WatchdogConfig;
+use foc_store::record::WatchdogRecord;
+use foc_store::settings::{reaction_record, timeout_reaction};
+use foc_store::{CanRecord, DriveRecord, Invalid, Label, Settings, Store, StoreError};
+
+/// `rec` applied onto the board's build-time settings: whole, or refused.
+/// On top of the record's own checks, the board's: its current limit, its
+/// over-voltage threshold (the regen limit's end and the brake's
+/// switch-on voltage below it: else the fault lets the motor coast and its
+/// back-EMF charges the bus through the body diodes), its motor's pole
+/// pairs (the identification and a hall decoder are built for them) and
+/// its sensor's counts per turn (a calibration from another sensor is
+/// meaningless here).
+///
+/// Where the sensor's zero does not survive a reset (an incremental
+/// encoder), the record's motor model and gains apply but not its
+/// calibration: the settings come back uncalibrated, with the board's
+/// angle configuration, until an identification.
+pub fn admit(board: &Board, rec: &DriveRecord) -> Result<Settings, Invalid> {
+    let base = &board.base;
+    let invalid = |field| Err(Invalid { field });
+    if rec.motor.pole_pairs != base.current.motor.pole_pairs {
+        return invalid("motor.pole_pairs");
+    }
+    if rec
+        .calibration
+        .as_ref()
+        .is_some_and(|c| c.sensor_counts_per_rev != base.angle.sensor_counts_per_rev)
+    {
+        return invalid("calibration.sensor_counts_per_rev");
+    }
+    let mut s = rec.apply(base, board.pwm_hz)?;
+    if s.limits.max_current_a > board.max_current_a {
+        return invalid("limits.max_current_a");
+    }
+    if let Some(p) = &rec.power {
+        let over_voltage_v = board.bus_over_voltage_v();
+        if p.regen_end_v >= over_voltage_v {
+            return invalid("power.regen_end_v");
+        }
+        if p.brake_on_v < f32::INFINITY && p.brake_on_v >= over_voltage_v {
+            return invalid("power.brake_on_v");
+        }
+    }
+    if s.calibrated && !board.zero_survives_reset {
+        crate::log_warn!("store: the stored electrical zero does not apply to an incremental encoder (its zero is where the rotor was at reset): motor model and gains kept, identification needed");
+        s.calibrated = false;
+        s.angle = base.angle;
+    }
+    Ok(s)
+}
+
+/// The record of the settings `s` in force, labelled `label`, with the
+/// link watchdog `link` in force.
+pub fn live_record(
+    board: &Board,
+    label: &Label,
+    s: &Settings,
+    link: WatchdogConfig,
+) -> DriveRecord {
+    let mut s = *s;
+    s.watchdog = WatchdogRecord {
+        timeout_periods: link.timeout_periods,
+        reaction: reaction_record(link.reaction),
+    };
+    DriveRecord::from_settings(label, board.pwm_hz, &s)
+}
+
+/// The link-watchdog setting a record carries.
+pub fn link_setting(rec: &DriveRecord) -> WatchdogConfig {
+    WatchdogConfig {
+        timeout_periods: rec.watchdog.timeout_periods,
+        reaction: timeout_reaction(rec.watchdog.reaction),
+    }
+}
+
+/// A store failure as the link reports it: a record that is not one
+/// (damaged, another version, out of range) is `BadRecord`, anything else
+/// (flash, layout, full, an inconsistent region) `StoreFailed`.
+pub fn store_error(e: StoreError) -> ErrorCode {
+    crate::log_warn!("store: {}", e);
+    match e {
+        StoreError::Record(_) | StoreError::Invalid(_) => ErrorCode::BadRecord,
+        _ => ErrorCode::StoreFailed,
+    }
+}
+
+/// The configuration store as the service uses it. [`Store`] is one; a
+/// board wraps it to stretch its watchdog over a flash stall.
+pub trait RecordStore {
+    /// The newest drive record, if any.
+    fn load(&mut self) -> Result<Option<DriveRecord>, StoreError>;
+    /// Append a drive record.
+    fn save(&mut self, rec: &DriveRecord) -> Result<(), StoreError>;
+    /// Forget every record (the next boot starts from the build-time
+    /// settings).
+    fn erase(&mut self) -> Result<(), StoreError>;
+    /// The CAN node's stored communication settings, if any.
+    fn load_can(&mut self) -> Result<Option<CanRecord>, StoreError>;
+    /// Keep the CAN node's communication settings.
+    fn save_can(&mut self, rec: &CanRecord) -> Result<(), StoreError>;
+}
+
+impl<F: embedded_storage::nor_flash::NorFlash> RecordStore for Store<F> {
+    fn load(&mut self) -> Result<Option<DriveRecord>, StoreError> {
+        Store::load(self)
+    }
+    fn save(&mut self, rec: &DriveRecord) -> Result<(), StoreError> {
+        Store::save(self, rec)
+    }
+    fn erase(&mut self) -> Result<(), StoreError> {
+        Store::erase(self)
+    }
+    fn load_can(&mut self) -> Result<Option<CanRecord>, StoreError> {
+        Store::load_can(self)
+    }
+    fn save_can(&mut self, rec: &CanRecord) -> Result<(), StoreError> {
+        Store::save_can(self, rec)
+    }
+}
+
+/// No store at all (a board whose region is unusable, a simulation
+/// without flash): every operation answers `Unsupported`.
+pub enum NoStore {}
+
+impl RecordStore for NoStore {
+    fn load(&mut self) -> Result<Option<DriveRecord>, StoreError> {
+        match *self {}
+    }
+    fn save(&mut self, _: &DriveRecord) -> Result<(), StoreError> {
+        match *self {}
+    }
+    fn erase(&mut self) -> Result<(), StoreError> {
+        match *self {}
+    }
+    fn load_can(&mut self) -> Result<Option<CanRecord>, StoreError> {
+        match *self {}
+    }
+    fn save_can(&mut self, _: &CanRecord) -> Result<(), StoreError> {
+        match *self {}
+    }
+}

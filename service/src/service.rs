@@ -1,0 +1,214 @@
+//! [`Service`]: the configuration in force, its label, and what an
+//! identification left for the loops; [`Service::boot`] takes the stored
+//! record at power-on.
+
+use crate::board::Board;
+use crate::link::Link;
+use crate::mailbox::ConfigMailbox;
+use crate::records::{admit, link_setting, live_record, RecordStore};
+use crate::snapshot::{Identified, Snapshot};
+use foc_core::control::Mechanics;
+use foc_core::drive::ConfigChange;
+use foc_protocol::scope::ScopePort;
+use foc_protocol::WatchdogConfig;
+use foc_store::{DriveRecord, Invalid, Label, Settings, StoreError};
+
+/// What the boot found in the store.
+#[derive(Clone, Debug, PartialEq)]
+pub enum BootOutcome {
+    /// No store (none configured, or its region unusable).
+    NoStore,
+    /// The store is empty: build-time settings.
+    Empty,
+    /// A record was loaded (`calibrated`: with an angle calibration that
+    /// applies on this board).
+    Loaded {
+        /// The settings carry a calibration.
+        calibrated: bool,
+    },
+    /// The record does not fit this board: build-time settings.
+    Refused(Invalid),
+    /// The store could not be read: build-time settings.
+    Unreadable(StoreError),
+}
+
+/// The link's state of one drive (see the crate docs).
+#[derive(Clone, Debug)]
+pub struct Service {
+    board: Board,
+    settings: Settings,
+    label: Label,
+    /// The link-watchdog setting of the record loaded at boot.
+    boot_link: Option<WatchdogConfig>,
+    /// The identification last folded into `settings`.
+    seen_identification: u32,
+    /// Speed and position configurations re-derived from an
+    /// identification's mechanics, for the next outbox.
+    pending: ConfigMailbox,
+}
+
+impl Service {
+    /// The service of `board` with its build-time settings.
+    pub fn new(board: Board) -> Self {
+        Self {
+            settings: board.base,
+            board,
+            label: Label::new(),
+            boot_link: None,
+            seen_identification: 0,
+            pending: ConfigMailbox::EMPTY,
+        }
+    }
+
+    /// Power-on: the stored record if there is one and the board takes it
+    /// ([`admit`]), else the build-time settings. Never fails: what went
+    /// wrong is in the outcome.
+    pub fn boot<S: RecordStore>(board: Board, store: Option<&mut S>) -> (Self, BootOutcome) {
+        let mut s = Self::new(board);
+        let Some(store) = store else {
+            return (s, BootOutcome::NoStore);
+        };
+        let outcome = match store.load() {
+            Ok(None) => BootOutcome::Empty,
+            Ok(Some(rec)) => match admit(&s.board, &rec) {
+                Ok(settings) => {
+                    s.settings = settings;
+                    s.boot_link = Some(link_setting(&rec));
+                    s.label = rec.label;
+                    BootOutcome::Loaded {
+                        calibrated: settings.calibrated,
+                    }
+                }
+                Err(e) => BootOutcome::Refused(e),
+            },
+            Err(e) => BootOutcome::Unreadable(e),
+        };
+        (s, outcome)
+    }
+
+    /// The board's facts.
+    pub fn board(&self) -> &Board {
+        &self.board
+    }
+
+    /// The configuration in force.
+    pub fn settings(&self) -> &Settings {
+        &self.settings
+    }
+
+    /// The drive's label (saved with the configuration).
+    pub fn label(&self) -> &Label {
+        &self.label
+    }
+
+    /// Replace the label (saved with the next save).
+    pub fn set_label(&mut self, label: Label) {
+        self.label = label;
+    }
+
+    /// The link-watchdog setting of the record loaded at boot.
+    pub fn boot_link_setting(&self) -> Option<WatchdogConfig> {
+        self.boot_link
+    }
+
+    /// The cascade configuration the drive starts with: the board's with
+    /// the settings in force applied.
+    pub fn cascade(&self) -> foc_core::drive::cascade::CascadeConfig {
+        self.board.cascade_of(&self.settings)
+    }
+
+    /// The record of the configuration in force with the link watchdog
+    /// `link`.
+    pub fn live_record(&self, link: WatchdogConfig) -> DriveRecord {
+        live_record(&self.board, &self.label, &self.settings, link)
+    }
+
+    /// The drive's change that makes the settings in force its own:
+    /// limits, current loop, dividers, power, mechanics, the joint's
+    /// travel range, and the calibration where the sensor's zero survives
+    /// a reset.
+    pub fn full_change(&self) -> ConfigMailbox {
+        let s = &self.settings;
+        let permit = s.permit().filter(|_| self.board.zero_survives_reset);
+        ConfigMailbox {
+            current: Some(ConfigChange {
+                limits: Some(s.limits),
+                current: Some(s.current),
+                dividers: Some(s.dividers),
+                power: Some(s.power),
+                permit,
+                mechanics: s.mechanics,
+                joint: Some(
+                    s.joint
+                        .rotor_change((s.limits.min_position_rad, s.limits.max_position_rad)),
+                ),
+                ..ConfigChange::default()
+            }),
+            speed: Some(s.speed),
+            position: Some(s.position),
+        }
+    }
+
+    /// Make `s` (a whole, admitted record's settings) the configuration in
+    /// force; the change every loop must take.
+    pub(crate) fn adopt(&mut self, s: Settings, label: Label) -> ConfigMailbox {
+        self.settings = s;
+        self.label = label;
+        self.full_change()
+    }
+
+    /// The settings, mutable (the link's setters).
+    pub(crate) fn settings_mut(&mut self) -> &mut Settings {
+        &mut self.settings
+    }
+
+    /// Take a new identification into the settings: from now on they
+    /// carry its angle calibration, motor model and gains (and so a save
+    /// stores them). Its measured mechanics re-derive the speed and
+    /// position loops, sent with the next [`Self::take_pending`] (the
+    /// current stage's observer took them already).
+    pub fn fold_identification(&mut self, id: Option<Identified>) {
+        let Some(id) = id else {
+            return;
+        };
+        if id.count == self.seen_identification {
+            return;
+        }
+        self.seen_identification = id.count;
+        self.settings.angle = id.permit.angle();
+        self.settings.current = id.permit.current_config();
+        self.settings.calibrated = true;
+        if let Some(m) = id.result.mechanics {
+            let mut c = self.cascade();
+            let m = Mechanics::from(m);
+            if c.set_mechanics(&m) {
+                self.settings.mechanics = Some(m);
+                self.settings.speed = c.speed;
+                self.settings.position = c.position;
+                self.pending.speed = Some(c.speed);
+                self.pending.position = Some(c.position);
+            }
+        }
+    }
+
+    /// The configurations an identification left for the loops, once.
+    pub fn take_pending(&mut self) -> ConfigMailbox {
+        core::mem::replace(&mut self.pending, ConfigMailbox::EMPTY)
+    }
+
+    /// The link of one frame, CAN message or poll: `snap` is the shared
+    /// state now (its identification is folded in first), `store` the
+    /// configuration store (`None`: none), `scope` the drive's scope
+    /// (`None` outside frames), `link_setting` the link watchdog in force
+    /// (saved with the configuration). Commit its outbox after the call.
+    pub fn link<'a, S: RecordStore>(
+        &'a mut self,
+        snap: Snapshot,
+        store: Option<&'a mut S>,
+        scope: Option<&'a mut dyn ScopePort>,
+        link_setting: WatchdogConfig,
+    ) -> Link<'a, S> {
+        self.fold_identification(snap.identified);
+        Link::new(self, snap, store, scope, link_setting)
+    }
+}

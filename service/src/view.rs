@@ -1,0 +1,102 @@
+//! [`View`]: what the link reads (mode, faults, limits, parameters,
+//! telemetry) from a snapshot and the configuration in force.
+
+use crate::service::Service;
+use crate::snapshot::Snapshot;
+use foc_core::control::joint::JointSetup;
+use foc_core::control::{Fault, FaultSet, Feedback, Limits, Mode};
+use foc_core::drive::Status;
+use foc_protocol::message::{ParamId, Telemetry};
+
+/// A read-only view of one drive (see the module docs).
+#[derive(Clone, Copy, Debug)]
+pub struct View<'a> {
+    /// The shared state when the frame arrived.
+    pub snap: &'a Snapshot,
+    /// The service (configuration in force, board).
+    pub service: &'a Service,
+}
+
+impl View<'_> {
+    /// The drive's mode.
+    pub fn mode(&self) -> Mode {
+        self.snap.status.mode
+    }
+    /// Latched faults and the first of them.
+    pub fn faults(&self) -> (FaultSet, Option<Fault>) {
+        (self.snap.feedback.faults, self.snap.feedback.first_fault)
+    }
+    /// The motor's limits in force.
+    pub fn limits(&self) -> Limits {
+        self.service.settings().limits
+    }
+    /// The joint in force.
+    pub fn joint(&self) -> JointSetup {
+        self.service.settings().joint
+    }
+    /// The motor model's torque constant [N m / A].
+    pub fn torque_constant_nm_per_a(&self) -> f32 {
+        self.service
+            .settings()
+            .current
+            .motor
+            .torque_constant_nm_per_a()
+    }
+    /// The latest feedback.
+    pub fn feedback(&self) -> Feedback {
+        self.snap.feedback
+    }
+    /// The drive holds a calibration.
+    pub fn is_calibrated(&self) -> bool {
+        self.snap.status.calibrated
+    }
+    /// The drive's status.
+    pub fn status(&self) -> Status {
+        self.snap.status
+    }
+    /// A parameter's value (`None`: answered by the protocol itself).
+    pub fn param(&self, id: ParamId) -> Option<f32> {
+        let s = self.service.settings();
+        let board = self.service.board();
+        let m = s.current.motor;
+        Some(match id {
+            ParamId::PolePairs => f32::from(m.pole_pairs),
+            ParamId::ResistanceOhm => m.r_ohm,
+            ParamId::LdH => m.ld_h,
+            ParamId::LqH => m.lq_h,
+            ParamId::FluxLinkageWb => m.flux_linkage_wb,
+            ParamId::PwmFrequencyHz => board.pwm_hz as f32,
+            ParamId::SpeedDivider => f32::from(s.dividers.0),
+            ParamId::PositionDivider => f32::from(s.dividers.1),
+            ParamId::FirmwareVersion => {
+                let [a, b, c] = board.firmware_version;
+                f32::from(a) * 10_000.0 + f32::from(b) * 100.0 + f32::from(c)
+            }
+            ParamId::BusVoltageV => self.snap.feedback.v_bus_v,
+            ParamId::Calibrated => f32::from(u8::from(self.snap.status.calibrated)),
+            ParamId::MaxLoopCycles => self.snap.max_loop_cycles as f32,
+            ParamId::CurrentKp => s.current.q_gains.kp_v_per_a,
+            ParamId::CurrentKi => s.current.q_gains.ki_v_per_a_s,
+            ParamId::SpeedKp => s.speed.kp_a_per_rad_s,
+            ParamId::SpeedKi => s.speed.ki_a_per_rad,
+            ParamId::PositionKp => s.position.kp_per_s,
+            ParamId::ScopeCapacity => board.scope_values as f32,
+            // Answered by the protocol layer itself.
+            ParamId::ProtocolVersion | ParamId::TelemetryDivider | ParamId::WatchdogTimeout => {
+                return None
+            }
+        })
+    }
+    /// One telemetry sample.
+    pub fn telemetry(&self) -> Telemetry {
+        Telemetry::from_feedback(&self.snap.feedback, self.snap.max_loop_cycles)
+    }
+    /// The firmware's version.
+    pub fn firmware_version(&self) -> [u8; 3] {
+        self.service.board().firmware_version
+    }
+    /// Highest telemetry rate the link carries [Hz].
+    pub fn max_stream_hz(&self) -> Option<f32> {
+        self.service.board().max_stream_hz
+    }
+}

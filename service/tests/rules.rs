@@ -1,0 +1,279 @@
+//! The link's rules, once for every front end (firmware, CAN host bus,
+//! `foc-ctl simulate`): each drives a motor through this crate's
+//! [`Link`], so a rule tested here is the rule of all three.
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::indexing_slicing)]
+
+use foc_core::control::{Command, Feedback, Limits, Mode, MotorParams};
+use foc_core::drive::cascade::CascadeConfig;
+use foc_core::drive::Status;
+use foc_protocol::config::StoreOp;
+use foc_protocol::message::{Calibration, ErrorCode};
+use foc_protocol::{DeviceContext, Refusal, WatchdogConfig};
+use foc_service::{Board, BootOutcome, Link, Pending, Service, Snapshot};
+use foc_store::fake::FakeFlash;
+use foc_store::{DriveRecord, Label, Store};
+
+type Flash = FakeFlash<4, 1024, 4>;
+const PWM_HZ: u32 = 20_000;
+const MAX_CURRENT_A: f32 = 10.0;
+
+fn board(zero_survives_reset: bool) -> Board {
+    let motor = MotorParams {
+        pole_pairs: 7,
+        r_ohm: 0.1,
+        ld_h: 40e-6,
+        lq_h: 40e-6,
+        flux_linkage_wb: 0.004,
+    };
+    let cascade = CascadeConfig::for_motor(motor, PWM_HZ as f32, MAX_CURRENT_A);
+    let mut b = Board::new(cascade, PWM_HZ, MAX_CURRENT_A);
+    b.zero_survives_reset = zero_survives_reset;
+    b
+}
+
+fn store() -> Store<Flash> {
+    Store::new(Flash::new(), 0..4096).unwrap()
+}
+
+/// Disabled, running, calibrated, nothing pending.
+fn quiet_snapshot() -> Snapshot {
+    Snapshot {
+        feedback: Feedback::INIT,
+        max_loop_cycles: 0,
+        status: Status {
+            running: true,
+            mode: Mode::Disabled,
+            faulted: false,
+            calibrated: true,
+        },
+        identified: None,
+        pending: Pending {
+            command: Command::Disable,
+            calibration: false,
+        },
+    }
+}
+
+fn link<'a>(
+    s: &'a mut Service,
+    snap: Snapshot,
+    st: &'a mut Store<Flash>,
+) -> Link<'a, Store<Flash>> {
+    s.link(snap, Some(st), None, WatchdogConfig::OFF)
+}
+
+/// A record of `s`'s settings, calibrated, labelled "cal".
+fn calibrated_record(s: &Service) -> DriveRecord {
+    let mut set = *s.settings();
+    set.calibrated = true;
+    DriveRecord::from_settings(&Label::try_from("cal").unwrap(), PWM_HZ, &set)
+}
+
+#[test]
+fn store_operations_wait_for_a_quiet_drive() {
+    let mut s = Service::new(board(true));
+    let mut st = store();
+    let cases = [
+        (
+            Pending {
+                command: Command::Velocity { rad_s: 1.0 },
+                calibration: false,
+            },
+            false,
+            ErrorCode::NotDisabled,
+        ),
+        // Decided (the host bus used to allow it): a calibration asked
+        // for and not yet taken makes the drive busy.
+        (
+            Pending {
+                command: Command::Disable,
+                calibration: true,
+            },
+            false,
+            ErrorCode::Busy,
+        ),
+        (
+            Pending {
+                command: Command::Disable,
+                calibration: false,
+            },
+            true,
+            ErrorCode::Busy,
+        ),
+    ];
+    for (pending, brake_on, want) in cases {
+        let mut snap = quiet_snapshot();
+        snap.pending = pending;
+        snap.feedback.power.brake_on = brake_on;
+        let mut l = link(&mut s, snap, &mut st);
+        for op in [StoreOp::Save, StoreOp::Erase, StoreOp::Load] {
+            assert_eq!(l.store(op, &[], WatchdogConfig::OFF), Err(want), "{op:?}");
+        }
+        assert!(!l.out.touches_config());
+    }
+    assert_eq!(st.load().unwrap(), None, "nothing was written");
+    let mut l = link(&mut s, quiet_snapshot(), &mut st);
+    assert_eq!(l.store(StoreOp::Save, &[], WatchdogConfig::OFF), Ok(None));
+    assert!(st.load().unwrap().is_some());
+}
+
+#[test]
+fn a_stored_calibration_applies_only_where_the_sensor_zero_survives_a_reset() {
+    for survives in [true, false] {
+        let mut s = Service::new(board(survives));
+        let rec = calibrated_record(&s);
+        let mut st = store();
+        st.save(&rec).unwrap();
+        let mut l = link(&mut s, quiet_snapshot(), &mut st);
+        l.store(StoreOp::Load, &[], WatchdogConfig::OFF).unwrap();
+        let change = l.out.config.current.unwrap();
+        assert_eq!(change.permit.is_some(), survives, "survives {survives}");
+        assert_eq!(s.settings().calibrated, survives);
+        // At boot too.
+        let (booted, outcome) = Service::boot(board(survives), Some(&mut st));
+        assert_eq!(
+            outcome,
+            BootOutcome::Loaded {
+                calibrated: survives
+            }
+        );
+        assert_eq!(booted.settings().calibrated, survives);
+        assert_eq!(booted.label().as_str(), "cal");
+    }
+}
+
+#[test]
+fn limits_above_the_hardware_are_refused() {
+    let mut s = Service::new(board(true));
+    let mut st = store();
+    let before = *s.settings();
+    let mut l = link(&mut s, quiet_snapshot(), &mut st);
+    let too_much = Limits {
+        max_current_a: MAX_CURRENT_A * 1.01,
+        ..l.limits()
+    };
+    assert_eq!(l.set_limits(too_much), Err(Refusal::Unsupported));
+    assert!(!l.out.touches_config());
+    let at_limit = Limits {
+        max_current_a: MAX_CURRENT_A,
+        max_velocity_rad_s: 500.0,
+        ..l.limits()
+    };
+    assert_eq!(l.set_limits(at_limit), Ok(()));
+    let out = l.out;
+    assert_eq!(out.config.current.unwrap().limits, Some(at_limit));
+    assert_eq!(out.config.speed.unwrap().current_limit_a, MAX_CURRENT_A);
+    assert_eq!(s.settings().limits, at_limit);
+    assert_ne!(before.limits, at_limit);
+    // A record above the hardware's limit is refused whole.
+    let mut big = *s.settings();
+    big.limits.max_current_a = 5000.0;
+    big.speed.kp_a_per_rad_s *= 2.0;
+    let rec = DriveRecord::from_settings(&Label::new(), PWM_HZ, &big);
+    let mut buf = [0u8; foc_protocol::config::MAX_RECORD];
+    let n = rec.encode(&mut buf).unwrap();
+    let settled = *s.settings();
+    let mut l = link(&mut s, quiet_snapshot(), &mut st);
+    for op in [StoreOp::Apply, StoreOp::ApplyAndSave] {
+        assert_eq!(
+            l.store(op, &buf[..n], WatchdogConfig::OFF),
+            Err(ErrorCode::BadRecord)
+        );
+    }
+    assert!(!l.out.touches_config());
+    assert_eq!(*s.settings(), settled, "nothing applied");
+    assert_eq!(st.load().unwrap(), None, "nothing saved");
+}
+
+#[test]
+fn a_record_for_another_motor_changes_nothing() {
+    let mut s = Service::new(board(true));
+    let mut other = *s.settings();
+    other.current.motor.pole_pairs = 11;
+    let rec = DriveRecord::from_settings(&Label::new(), PWM_HZ, &other);
+    let mut st = store();
+    st.save(&rec).unwrap();
+    let before = *s.settings();
+    let mut l = link(&mut s, quiet_snapshot(), &mut st);
+    assert_eq!(
+        l.store(StoreOp::Load, &[], WatchdogConfig::OFF),
+        Err(ErrorCode::BadRecord)
+    );
+    assert!(!l.out.touches_config());
+    assert_eq!(*s.settings(), before);
+    let (_, outcome) = Service::boot(board(true), Some(&mut st));
+    assert!(matches!(outcome, BootOutcome::Refused(_)), "{outcome:?}");
+}
+
+#[test]
+fn a_failed_save_applies_nothing() {
+    let mut s = Service::new(board(true));
+    let mut changed = *s.settings();
+    changed.speed.kp_a_per_rad_s *= 2.0;
+    let rec = DriveRecord::from_settings(&Label::new(), PWM_HZ, &changed);
+    let mut buf = [0u8; foc_protocol::config::MAX_RECORD];
+    let n = rec.encode(&mut buf).unwrap();
+    let mut flash = Flash::new();
+    flash.cut_power_after_words(0);
+    let mut st = Store::new(flash, 0..4096).unwrap();
+    let before = *s.settings();
+    let mut l = link(&mut s, quiet_snapshot(), &mut st);
+    assert_eq!(
+        l.store(StoreOp::ApplyAndSave, &buf[..n], WatchdogConfig::OFF),
+        Err(ErrorCode::StoreFailed)
+    );
+    assert!(!l.out.touches_config());
+    assert_eq!(*s.settings(), before);
+}
+
+#[test]
+fn calibration_requests_follow_the_board() {
+    for identifies in [true, false] {
+        let mut b = board(true);
+        b.identifies = identifies;
+        let mut s = Service::new(b);
+        let mut st = store();
+        let mut l = link(&mut s, quiet_snapshot(), &mut st);
+        assert_eq!(
+            l.start_calibration(Calibration::Alignment),
+            Err(Refusal::Unsupported)
+        );
+        let id = l.start_calibration(Calibration::Identification);
+        assert_eq!(id.is_ok(), identifies);
+        assert_eq!(l.start_calibration(Calibration::Offsets), Ok(()));
+        let c = l.out.config.current.unwrap();
+        assert!(c.calibrate_offsets);
+        assert_eq!(c.identify, identifies);
+        assert!(l.out.config.calibration_pending());
+    }
+}
+
+#[test]
+fn a_travel_range_that_leaves_the_position_target_outside_is_refused() {
+    let mut s = Service::new(board(true));
+    let mut st = store();
+    let mut snap = quiet_snapshot();
+    snap.pending.command = Command::Position { rad: 5.0 };
+    let mut l = link(&mut s, snap, &mut st);
+    let mut j = l.joint();
+    j.travel_out_rad = Some((-1.0, 1.0));
+    assert_eq!(l.set_joint(j), Err(Refusal::NotDisabled));
+    j.travel_out_rad = Some((-10.0, 10.0));
+    assert_eq!(l.set_joint(j), Ok(()));
+    assert!(l.out.config.current.unwrap().joint.is_some());
+}
+
+#[test]
+fn a_keep_alive_posts_nothing_and_a_clear_comes_before_the_command() {
+    let mut s = Service::new(board(true));
+    let mut st = store();
+    let mut l = link(&mut s, quiet_snapshot(), &mut st);
+    l.keep_alive();
+    assert!(!l.out.touches_command());
+    l.clear_faults();
+    l.post(Command::Velocity { rad_s: 3.0 }).unwrap();
+    let mut slot = foc_core::control::CommandSlot::INIT;
+    l.out.apply_command(&mut slot);
+    assert_eq!(slot.command, Command::Velocity { rad_s: 3.0 });
+    assert_eq!((slot.seq, slot.clear_seq), (1, 1));
+}
