@@ -13,11 +13,14 @@
 //! against (none by default). Homing itself is the protocol's
 //! ([`foc_protocol::DeviceState`] runs it in `poll`), as on a board.
 //!
-//! Its configuration is a [`foc_store::Settings`] (limits, motor, gains,
-//! dividers, calibrated flag: what the drive reports and checks commands
-//! against), kept in a [`foc_store::Store`] over a RAM flash
-//! ([`SimFlash`]) that lives as long as the drive model, so the `config`
-//! commands (read, save, load, erase, apply) work as on a board.
+//! The link's rules are the firmware's: [`foc_service`]'s, with this
+//! model's board facts ([`sim_board`]: a 10 A hardware limit, identification
+//! on command, alignment only as part of it). Its configuration is the
+//! service's [`foc_store::Settings`] (limits, motor, gains, dividers,
+//! calibrated flag: what the drive reports and checks commands against),
+//! kept in a [`foc_store::Store`] over a RAM flash ([`SimFlash`]) that lives
+//! as long as the drive model, so the `config` commands (read, save, load,
+//! erase, apply) work as on a board.
 //!
 //! ```no_run
 //! use std::net::TcpListener;
@@ -27,23 +30,21 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 
-use foc_core::control::joint::{Impedance, JointSetup};
-use foc_core::control::Feedback;
-use foc_core::control::{Command, CommandError, Fault, FaultSet, Limits, Mode, MotorParams};
+use foc_core::calibration::identification::IdentificationResult;
+use foc_core::calibration::Calibrated;
+use foc_core::control::joint::Impedance;
+use foc_core::control::{Command, Fault, FaultSet, Feedback, Limits, MotorParams};
 use foc_core::drive::cascade::CascadeConfig;
+use foc_core::drive::Status;
+use foc_core::frames::Dq;
 use foc_core::scope::{Scope, State};
-use foc_core::tuning::CurrentPiGains;
-use foc_protocol::config::{ConfigSource, StoreOp, MAX_RECORD};
-use foc_protocol::device::{DeviceContext, DeviceState, Refusal, WatchdogConfig};
+use foc_protocol::device::{DeviceState, WatchdogConfig};
 use foc_protocol::frame::{encode, FrameDecoder, MAX_FRAME};
 use foc_protocol::joint::limits_in_force;
-use foc_protocol::message::{
-    Calibration, CurrentGains, ErrorCode, ParamId, PositionGains, SpeedGains, Telemetry,
-};
+use foc_protocol::message::Calibration;
+use foc_service::{Board, Identified, Link, Outbox, Pending, Service, Snapshot};
 use foc_store::fake::FakeFlash;
-use foc_store::record::WatchdogRecord;
-use foc_store::settings::{reaction_record, timeout_reaction};
-use foc_store::{DriveRecord, Label, Settings, Store, StoreError};
+use foc_store::{DriveRecord, Label, Settings, Store};
 use std::fmt;
 use std::io::{self, Read, Write};
 use std::net::{SocketAddr, TcpListener, TcpStream};
@@ -109,7 +110,34 @@ pub fn default_settings() -> Settings {
     s
 }
 
-/// The kinematic drive model, a [`DeviceContext`].
+/// The simulated board's facts for the link's rules ([`foc_service`]):
+/// [`default_settings`] as the build-time settings, a hardware current
+/// limit of [`MAX_CURRENT_A`] (limits above it are refused, as on a
+/// board), an exact angle (a stored calibration stays right across a
+/// restart), identification on command, the scope's [`SCOPE_VALUES`].
+pub fn sim_board() -> Board {
+    let motor = default_settings().current.motor;
+    let mut b = Board::new(
+        CascadeConfig::for_motor(motor, PWM_HZ, MAX_CURRENT_A),
+        PWM_HZ_RECORD,
+        MAX_CURRENT_A,
+    );
+    b.base = default_settings();
+    b.zero_survives_reset = true;
+    b.firmware_version = FIRMWARE_VERSION;
+    b.scope_values = SCOPE_VALUES as u32;
+    b
+}
+
+/// Version the simulated drive reports.
+pub const FIRMWARE_VERSION: [u8; 3] = [0, 1, 0];
+
+/// The kinematic drive model, a [`DeviceContext`] through the service's
+/// link ([`foc_service::Link`], the firmware's rules): each request sees
+/// the model now and its outbox is committed at once (a command re-checked
+/// by the model as the drive re-checks its mailbox, a calibration started,
+/// a fault latched; the configuration is the service's, which the model
+/// reads every step).
 pub struct SimDrive {
     /// Active command.
     pub command: Command,
@@ -119,19 +147,19 @@ pub struct SimDrive {
     pub faults: FaultSet,
     /// First fault.
     pub first_fault: Option<Fault>,
-    /// The configuration in force: limits (commands are checked against
-    /// them), motor (reported as parameters, used by the model), gains
-    /// (position gains used by the model, the others stored and reported),
-    /// dividers, and the calibrated flag (alignment done or a calibrated
-    /// record applied).
-    pub settings: Settings,
-    /// Label of the configuration in force.
-    pub label: Label,
+    /// The link's rules and the configuration in force: limits (commands
+    /// are checked against them), motor (reported as parameters, used by
+    /// the model), gains (position gains used by the model, the others
+    /// stored and reported), dividers, and the calibrated flag (an
+    /// identification done or a calibrated record applied).
+    pub service: Service,
     /// The configuration store; `None`: a device without one (the `config`
     /// requests answer `Unsupported`).
     pub store: Option<Store<SimFlash>>,
     /// Remaining calibration time [s] and routine.
     pub calibrating: Option<(f32, Calibration)>,
+    /// Identifications finished.
+    identifications: u32,
     /// Mechanical position [rad].
     pub position_rad: f32,
     /// Mechanical velocity [rad/s].
@@ -158,16 +186,18 @@ pub const SCOPE_VALUES: usize = 4096;
 
 impl Default for SimDrive {
     fn default() -> Self {
+        let mut service = Service::new(sim_board());
+        service.set_label(Label::try_from(DEFAULT_LABEL).unwrap_or_default());
         Self {
             command: Command::Disable,
             keep_alives: 0,
             faults: FaultSet::EMPTY,
             first_fault: None,
-            settings: default_settings(),
-            label: Label::try_from(DEFAULT_LABEL).unwrap_or_default(),
+            service,
             // An empty, erased flash.
             store: Store::new(SimFlash::new(), 0..SIM_FLASH_BYTES).ok(),
             calibrating: None,
+            identifications: 0,
             position_rad: 0.0,
             velocity_rad_s: 0.0,
             iq_a: 0.0,
@@ -187,8 +217,8 @@ impl fmt::Debug for SimDrive {
             .field("keep_alives", &self.keep_alives)
             .field("faults", &self.faults)
             .field("first_fault", &self.first_fault)
-            .field("settings", &self.settings)
-            .field("label", &self.label)
+            .field("settings", self.settings())
+            .field("label", self.service.label())
             .field("store", &self.store.as_ref().map(|_| "SimFlash"))
             .field("calibrating", &self.calibrating)
             .field("position_rad", &self.position_rad)
@@ -202,52 +232,119 @@ impl fmt::Debug for SimDrive {
     }
 }
 
-/// A store failure as the protocol reports it: a record that is not one
-/// (damaged, other version, out of range) is `BadRecord`, anything else
-/// (flash, layout, full, inconsistent region) `StoreFailed`.
-fn store_error(e: StoreError) -> ErrorCode {
-    match e {
-        StoreError::Record(_) | StoreError::Invalid(_) | StoreError::NoValidRecord => {
-            ErrorCode::BadRecord
-        }
-        StoreError::Layout | StoreError::Flash(_) | StoreError::Corrupt | StoreError::Full => {
-            ErrorCode::StoreFailed
-        }
-    }
-}
-
-/// The record's watchdog as the protocol's link-watchdog setting.
-fn link_of(w: &WatchdogRecord) -> WatchdogConfig {
-    WatchdogConfig {
-        timeout_periods: w.timeout_periods,
-        reaction: timeout_reaction(w.reaction),
-    }
-}
-
 impl SimDrive {
+    /// The configuration in force.
+    pub fn settings(&self) -> &Settings {
+        self.service.settings()
+    }
+
     /// The record of the configuration in force, with `link` (the
     /// link-watchdog setting in force) as its watchdog.
     pub fn live_record(&self, link: WatchdogConfig) -> DriveRecord {
-        let mut r = DriveRecord::from_settings(&self.label, PWM_HZ_RECORD, &self.settings);
-        r.watchdog = WatchdogRecord {
-            timeout_periods: link.timeout_periods,
-            reaction: reaction_record(link.reaction),
+        self.service.live_record(link)
+    }
+
+    /// Finish an identification: the model measures its own constants
+    /// exactly, and the service takes them as the firmware's does an
+    /// identification's result (calibrated from now on).
+    pub fn identify_now(&mut self) {
+        let s = *self.settings();
+        let m = s.current.motor;
+        let Ok(permit) = Calibrated::supplied(s.angle, s.current) else {
+            return;
         };
+        self.identifications = self.identifications.wrapping_add(1);
+        self.service.fold_identification(Some(Identified {
+            result: IdentificationResult {
+                r_ohm: m.r_ohm,
+                ld_h: m.ld_h,
+                lq_h: m.lq_h,
+                flux_linkage_wb: m.flux_linkage_wb,
+                mechanics: None,
+                angle: s.angle,
+                pole_pairs: m.pole_pairs,
+            },
+            permit,
+            count: self.identifications,
+        }));
+    }
+
+    /// The model now, as the link sees it.
+    fn snapshot(&self) -> Snapshot {
+        let feedback = self.sim_feedback();
+        Snapshot {
+            feedback,
+            max_loop_cycles: 0,
+            status: Status {
+                running: self.calibrating.is_none(),
+                mode: feedback.mode,
+                faulted: !self.faults.is_empty(),
+                calibrated: self.settings().calibrated,
+            },
+            identified: None,
+            pending: Pending {
+                command: self.command,
+                calibration: self.calibrating.is_some(),
+            },
+        }
+    }
+
+    /// The snapshot and the service (the link's read-only calls).
+    pub fn view_parts(&self) -> (Snapshot, &Service) {
+        (self.snapshot(), &self.service)
+    }
+
+    /// Run `f` on a link to the model now and commit its outbox.
+    pub fn with_link<R>(&mut self, f: impl FnOnce(&mut Link<'_, Store<SimFlash>>) -> R) -> R {
+        let snap = self.snapshot();
+        let mut link = self
+            .service
+            .link(snap, self.store.as_mut(), None, WatchdogConfig::OFF);
+        let r = f(&mut link);
+        let out = link.out;
+        self.commit(&out);
         r
     }
 
-    /// Validate `r` whole and make it the configuration in force; nothing
-    /// changes when it is refused. Its watchdog, for the protocol to take.
-    fn apply_record(&mut self, r: &DriveRecord) -> Result<WatchdogConfig, ErrorCode> {
-        self.settings = self.applied(r)?;
-        self.label = r.label.clone();
-        Ok(link_of(&r.watchdog))
+    /// An outbox into the model: the clear first, then the command (the
+    /// drive's own checks: only `Disable` while faulted, the limits in
+    /// force), a fault to latch, a calibration to run.
+    fn commit(&mut self, out: &Outbox) {
+        if out.clear {
+            self.faults = FaultSet::EMPTY;
+            self.first_fault = None;
+        }
+        if let Some(cmd) = out.post {
+            self.take_command(cmd);
+        }
+        let Some(change) = out.config.current else {
+            return;
+        };
+        if let Some(f) = change.fault {
+            self.trip(f);
+        }
+        if self.calibrating.is_none() {
+            if change.identify {
+                self.calibrating = Some((CALIBRATION_S, Calibration::Identification));
+            } else if change.calibrate_offsets {
+                self.calibrating = Some((CALIBRATION_S, Calibration::Offsets));
+            }
+        }
     }
 
-    /// The settings `r` would make (validated whole), without changing any.
-    fn applied(&self, r: &DriveRecord) -> Result<Settings, ErrorCode> {
-        r.apply(&self.settings, PWM_HZ_RECORD)
-            .map_err(|_| ErrorCode::BadRecord)
+    /// The drive's checks of a posted command (the protocol checked it
+    /// against the same state before).
+    fn take_command(&mut self, cmd: Command) {
+        if !self.faults.is_empty() && cmd != Command::Disable {
+            return;
+        }
+        if cmd.validate(&self.limits_in_force()).is_err() {
+            return;
+        }
+        if let Command::Impedance(i) = cmd {
+            self.impedance_ref_rad = i.position_rad;
+        }
+        self.command = cmd;
     }
 
     /// Latch a fault as the supervisor would (bridge off).
@@ -258,17 +355,17 @@ impl SimDrive {
     }
 
     fn kt(&self) -> f32 {
-        self.settings.current.motor.torque_constant_nm_per_a()
+        self.settings().current.motor.torque_constant_nm_per_a()
     }
 
     fn pole_pairs(&self) -> f32 {
-        f32::from(self.settings.current.motor.pole_pairs.max(1))
+        f32::from(self.settings().current.motor.pole_pairs.max(1))
     }
 
     /// The limits commands are checked against: the motor's, with the
     /// joint's travel range (rotor frame).
     pub fn limits_in_force(&self) -> Limits {
-        limits_in_force(&self.settings.limits, &self.settings.joint)
+        limits_in_force(&self.settings().limits, &self.settings().joint)
     }
 
     /// Advance by `periods` current-loop periods.
@@ -300,7 +397,7 @@ impl SimDrive {
     fn impedance_torque(&mut self, c: &Impedance, dt: f32) -> f32 {
         let t_max = c
             .torque_limit_nm
-            .min(self.kt() * self.settings.limits.max_current_a);
+            .min(self.kt() * self.settings().limits.max_current_a);
         let t = c.kp_nm_per_rad * (self.impedance_ref_rad - self.position_rad)
             + c.kd_nm_s_per_rad * (c.velocity_rad_s - self.velocity_rad_s)
             + c.torque_ff_nm;
@@ -329,7 +426,7 @@ impl SimDrive {
     /// Beyond the travel range by more than its margin with the bridge on:
     /// `TravelLimit`.
     fn check_travel(&mut self) {
-        let j = &self.settings.joint;
+        let j = &self.settings().joint;
         if j.travel_out_rad.is_none() || self.command == Command::Disable {
             return;
         }
@@ -341,18 +438,35 @@ impl SimDrive {
         }
     }
 
-    /// The model's feedback (rotor frame): telemetry, the active command,
-    /// the faults and the q-current reference.
+    /// The model's feedback (rotor frame): the model's state, the active
+    /// command, the faults, the q current and its reference, the voltages
+    /// a current loop would apply (back-EMF and resistive drop).
     pub fn sim_feedback(&self) -> Feedback {
-        let mut fb = foc_protocol::joint::feedback_of(&self.telemetry());
-        let t = self.telemetry();
+        let m = &self.settings().current.motor;
+        let w_e = self.velocity_rad_s * self.pole_pairs();
+        let (v_d, v_q) = match self.command {
+            Command::Disable => (0.0, 0.0),
+            Command::OpenLoop { v_d_v, v_q_v, .. } => (v_d_v, v_q_v),
+            _ => (
+                -w_e * m.lq_h * self.iq_a,
+                m.r_ohm * self.iq_a + w_e * m.flux_linkage_wb,
+            ),
+        };
+        let mut fb = Feedback::INIT;
+        fb.period = self.period;
+        fb.mode = self.command.mode();
         fb.active = self.command;
-        fb.faults = self.faults;
+        fb.position_rad = self.position_rad;
+        fb.velocity_rad_s = self.velocity_rad_s;
+        fb.i_dq_a = Dq::new(0.0, self.iq_a);
         fb.i_dq_ref_a.q = match self.command {
             Command::Torque { iq_a } => iq_a,
             _ => self.iq_a,
         };
-        fb.v_dq_v = foc_core::frames::Dq::new(t.v_d_v, t.v_q_v);
+        fb.v_dq_v = Dq::new(v_d, v_q);
+        fb.v_bus_v = self.v_bus_v;
+        fb.faults = self.faults;
+        fb.first_fault = self.first_fault;
         fb
     }
 
@@ -360,8 +474,8 @@ impl SimDrive {
     /// a first-order lag of time constant `L / kp` (a PI whose zero
     /// cancels the winding's pole, design §11).
     fn current_lag(&self, iq_ref: f32, dt: f32) -> f32 {
-        let kp = self.settings.current.q_gains.kp_v_per_a;
-        let l = self.settings.current.motor.lq_h;
+        let kp = self.settings().current.q_gains.kp_v_per_a;
+        let l = self.settings().current.motor.lq_h;
         if !(kp > 0.0 && l > 0.0) {
             return iq_ref;
         }
@@ -374,8 +488,8 @@ impl SimDrive {
             let t = t - dt;
             if t <= 0.0 {
                 self.calibrating = None;
-                if routine == Calibration::Alignment {
-                    self.settings.calibrated = true;
+                if routine == Calibration::Identification {
+                    self.identify_now();
                 }
             } else {
                 self.calibrating = Some((t, routine));
@@ -400,7 +514,7 @@ impl SimDrive {
             }
             Command::Velocity { rad_s } => follow(w0, rad_s),
             Command::Position { rad } => {
-                let g = self.settings.position;
+                let g = self.settings().position;
                 let w_ref = (g.kp_per_s * (rad - self.position_rad))
                     .clamp(-g.max_velocity_rad_s, g.max_velocity_rad_s);
                 follow(w0, w_ref)
@@ -421,226 +535,7 @@ impl SimDrive {
     }
 }
 
-impl DeviceContext for SimDrive {
-    fn post(&mut self, cmd: Command) -> Result<(), CommandError> {
-        if !self.faults.is_empty() && cmd != Command::Disable {
-            return Err(CommandError::Faulted);
-        }
-        cmd.validate(&self.limits_in_force())?;
-        if let Command::Impedance(i) = cmd {
-            self.impedance_ref_rad = i.position_rad;
-        }
-        self.command = cmd;
-        Ok(())
-    }
-    fn keep_alive(&mut self) {
-        self.keep_alives += 1;
-    }
-    fn mode(&self) -> Mode {
-        self.command.mode()
-    }
-    fn faults(&self) -> (FaultSet, Option<Fault>) {
-        (self.faults, self.first_fault)
-    }
-    fn clear_faults(&mut self) {
-        self.faults = FaultSet::EMPTY;
-        self.first_fault = None;
-    }
-    fn report_fault(&mut self, fault: Fault) {
-        self.trip(fault);
-    }
-    fn limits(&self) -> Limits {
-        self.settings.limits
-    }
-    fn set_limits(&mut self, limits: Limits) -> Result<(), Refusal> {
-        self.settings.limits = limits;
-        // As `DriveRecord::apply` does: the speed loop's output limit.
-        self.settings.speed.current_limit_a = limits.max_current_a;
-        Ok(())
-    }
-    fn joint(&self) -> JointSetup {
-        self.settings.joint
-    }
-    fn set_joint(&mut self, setup: JointSetup) -> Result<(), Refusal> {
-        let l = limits_in_force(&self.settings.limits, &setup);
-        // As the drive: a position target outside the new range refuses.
-        if let Command::Position { rad } = self.command {
-            if !(l.min_position_rad..=l.max_position_rad).contains(&rad) {
-                return Err(Refusal::NotDisabled);
-            }
-        }
-        self.settings.joint = setup;
-        Ok(())
-    }
-    fn set_current_gains(&mut self, g: CurrentGains) -> Result<(), Refusal> {
-        self.settings.current.d_gains = CurrentPiGains {
-            kp_v_per_a: g.kp_d,
-            ki_v_per_a_s: g.ki_d,
-        };
-        self.settings.current.q_gains = CurrentPiGains {
-            kp_v_per_a: g.kp_q,
-            ki_v_per_a_s: g.ki_q,
-        };
-        Ok(())
-    }
-    fn set_speed_gains(&mut self, g: SpeedGains) -> Result<(), Refusal> {
-        self.settings.speed.kp_a_per_rad_s = g.kp_a_per_rad_s;
-        self.settings.speed.ki_a_per_rad = g.ki_a_per_rad;
-        Ok(())
-    }
-    fn set_position_gains(&mut self, g: PositionGains) -> Result<(), Refusal> {
-        self.settings.position.kp_per_s = g.kp_per_s;
-        self.settings.position.max_velocity_rad_s = g.max_velocity_rad_s;
-        self.settings.position.max_acceleration_rad_s2 = g.max_acceleration_rad_s2;
-        Ok(())
-    }
-    fn set_dividers(&mut self, speed: u16, position: u16) -> Result<(), Refusal> {
-        self.settings.dividers = (speed, position);
-        self.settings.speed.ts_s = f32::from(speed) / PWM_HZ;
-        self.settings.position.ts_s = f32::from(position) / PWM_HZ;
-        Ok(())
-    }
-    fn start_calibration(&mut self, routine: Calibration) -> Result<(), Refusal> {
-        if self.calibrating.is_some() {
-            return Err(Refusal::Busy);
-        }
-        self.calibrating = Some((CALIBRATION_S, routine));
-        Ok(())
-    }
-    fn is_calibrated(&self) -> bool {
-        self.settings.calibrated
-    }
-    fn param(&self, id: ParamId) -> Option<f32> {
-        let m = &self.settings.current.motor;
-        Some(match id {
-            ParamId::PolePairs => f32::from(m.pole_pairs),
-            ParamId::ResistanceOhm => m.r_ohm,
-            ParamId::LdH => m.ld_h,
-            ParamId::LqH => m.lq_h,
-            ParamId::FluxLinkageWb => m.flux_linkage_wb,
-            ParamId::PwmFrequencyHz => PWM_HZ,
-            ParamId::SpeedDivider => f32::from(self.settings.dividers.0),
-            ParamId::PositionDivider => f32::from(self.settings.dividers.1),
-            ParamId::FirmwareVersion => 100.0,
-            ParamId::BusVoltageV => self.v_bus_v,
-            ParamId::Calibrated => f32::from(u8::from(self.settings.calibrated)),
-            ParamId::CurrentKp => self.settings.current.q_gains.kp_v_per_a,
-            ParamId::CurrentKi => self.settings.current.q_gains.ki_v_per_a_s,
-            ParamId::SpeedKp => self.settings.speed.kp_a_per_rad_s,
-            ParamId::SpeedKi => self.settings.speed.ki_a_per_rad,
-            ParamId::PositionKp => self.settings.position.kp_per_s,
-            ParamId::ScopeCapacity => self.scope.capacity() as f32,
-            // Not simulated; protocol-layer parameters are answered before.
-            ParamId::MaxLoopCycles
-            | ParamId::ProtocolVersion
-            | ParamId::TelemetryDivider
-            | ParamId::WatchdogTimeout => return None,
-        })
-    }
-    fn telemetry(&self) -> Telemetry {
-        let m = &self.settings.current.motor;
-        let w_e = self.velocity_rad_s * self.pole_pairs();
-        let (v_d, v_q) = match self.command {
-            Command::Disable => (0.0, 0.0),
-            Command::OpenLoop { v_d_v, v_q_v, .. } => (v_d_v, v_q_v),
-            _ => (
-                -w_e * m.lq_h * self.iq_a,
-                m.r_ohm * self.iq_a + w_e * m.flux_linkage_wb,
-            ),
-        };
-        Telemetry {
-            period: self.period,
-            i_d_a: 0.0,
-            i_q_a: self.iq_a,
-            v_d_v: v_d,
-            v_q_v: v_q,
-            velocity_rad_s: self.velocity_rad_s,
-            position_rad: self.position_rad,
-            mode: self.command.mode(),
-            fault_code: self.first_fault.map_or(0, Fault::code),
-            max_loop_cycles: 0,
-            v_bus_v: self.v_bus_v,
-            // The simulated drive models no power stage.
-            ..Telemetry::ZERO
-        }
-    }
-    fn firmware_version(&self) -> [u8; 3] {
-        [0, 1, 0]
-    }
-    fn feedback(&self) -> Feedback {
-        self.sim_feedback()
-    }
-    fn scope(&mut self) -> Option<&mut dyn foc_protocol::scope::ScopePort> {
-        Some(&mut self.scope)
-    }
-    fn config_record(
-        &mut self,
-        source: ConfigSource,
-        link: WatchdogConfig,
-        out: &mut [u8; MAX_RECORD],
-    ) -> Result<usize, ErrorCode> {
-        let record = match source {
-            ConfigSource::Live => self.live_record(link),
-            ConfigSource::Stored => self
-                .store
-                .as_mut()
-                .ok_or(ErrorCode::Unsupported)?
-                .load()
-                .map_err(store_error)?
-                .ok_or(ErrorCode::NothingStored)?,
-        };
-        record.encode(out).map_err(|_| ErrorCode::BadRecord)
-    }
-    fn store(
-        &mut self,
-        op: StoreOp,
-        staged: &[u8],
-        link: WatchdogConfig,
-    ) -> Result<Option<WatchdogConfig>, ErrorCode> {
-        if self.store.is_none() {
-            return Err(ErrorCode::Unsupported);
-        }
-        // A flash stall in the middle of a calibration: not now.
-        if self.calibrating.is_some() {
-            return Err(ErrorCode::Busy);
-        }
-        let live = self.live_record(link);
-        let store = self.store.as_mut().ok_or(ErrorCode::Unsupported)?;
-        match op {
-            StoreOp::Save => {
-                store.save(&live).map_err(store_error)?;
-                Ok(None)
-            }
-            StoreOp::Erase => {
-                store.erase().map_err(store_error)?;
-                Ok(None)
-            }
-            StoreOp::Load => {
-                let r = store
-                    .load()
-                    .map_err(store_error)?
-                    .ok_or(ErrorCode::NothingStored)?;
-                self.apply_record(&r).map(Some)
-            }
-            StoreOp::Apply => {
-                let r = DriveRecord::decode(staged).map_err(|_| ErrorCode::BadRecord)?;
-                self.apply_record(&r).map(Some)
-            }
-            StoreOp::ApplyAndSave => {
-                let r = DriveRecord::decode(staged).map_err(|_| ErrorCode::BadRecord)?;
-                // Validated whole and saved before anything changes: a
-                // refusal (BadRecord, StoreFailed) leaves all as it was.
-                self.applied(&r)?;
-                self.store
-                    .as_mut()
-                    .ok_or(ErrorCode::Unsupported)?
-                    .save(&r)
-                    .map_err(store_error)?;
-                self.apply_record(&r).map(Some)
-            }
-        }
-    }
-}
+foc_service::forward_device_context!(SimDrive, scope: scope);
 
 /// The simulated device: protocol state, decoder and drive.
 #[derive(Debug, Default)]

@@ -20,7 +20,9 @@ use std::time::{Duration, Instant};
 
 fn server(calibrated: bool) -> SimServer {
     let mut dev = SimDevice::default();
-    dev.drive.settings.calibrated = calibrated;
+    if calibrated {
+        dev.drive.identify_now();
+    }
     SimServer::spawn_with(TcpListener::bind("127.0.0.1:0").unwrap(), dev).unwrap()
 }
 
@@ -131,9 +133,9 @@ fn export_edit_import_takes_effect_and_is_saved() {
     assert_eq!(stored, edited);
     drop(c);
     let dev = server.stop().unwrap();
-    assert_eq!(dev.drive.settings.limits.max_current_a, 4.0);
-    assert_eq!(dev.drive.settings.speed.current_limit_a, 4.0);
-    assert_eq!(dev.drive.settings.current.q_gains.kp_v_per_a, 0.75);
+    assert_eq!(dev.drive.settings().limits.max_current_a, 4.0);
+    assert_eq!(dev.drive.settings().speed.current_limit_a, 4.0);
+    assert_eq!(dev.drive.settings().current.q_gains.kp_v_per_a, 0.75);
 }
 
 #[test]

@@ -16,7 +16,7 @@ use std::time::{Duration, Instant};
 /// A calibrated simulated drive, with end stops at `stops_rad` [rotor].
 fn server(stops_rad: (f32, f32)) -> SimServer {
     let mut dev = SimDevice::default();
-    dev.drive.settings.calibrated = true;
+    dev.drive.identify_now();
     dev.drive.stops_rad = stops_rad;
     SimServer::spawn_with(TcpListener::bind("127.0.0.1:0").unwrap(), dev).unwrap()
 }

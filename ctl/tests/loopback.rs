@@ -41,7 +41,7 @@ fn velocity_and_position_over_tcp() {
         Err(ClientError::Nack(ErrorCode::NotCalibrated)) => {}
         r => panic!("{r:?}"),
     }
-    c.calibrate(Calibration::Alignment).unwrap();
+    c.calibrate(Calibration::Identification).unwrap();
     let end = Instant::now() + Duration::from_secs(5);
     while c.param(ParamId::Calibrated).unwrap() != 1.0 {
         assert!(Instant::now() < end, "calibration did not finish");
@@ -95,13 +95,13 @@ fn velocity_and_position_over_tcp() {
     assert_eq!(st.bad_frames, 0);
     drop(c);
     let dev = server.stop().unwrap();
-    assert_eq!(dev.drive.settings.dividers, (8, 16));
+    assert_eq!(dev.drive.settings().dividers, (8, 16));
 }
 
 #[test]
 fn faults_and_watchdog_over_tcp() {
     let mut dev = SimDevice::default();
-    dev.drive.settings.calibrated = true;
+    dev.drive.identify_now();
     dev.drive.trip(Fault::BusOverVoltage);
     let server = SimServer::spawn_with(TcpListener::bind("127.0.0.1:0").unwrap(), dev).unwrap();
     let mut c = Client::connect_tcp(server.addr()).unwrap();
@@ -172,4 +172,19 @@ fn garbage_on_the_line_and_timeouts() {
         r => panic!("{r:?}"),
     }
     assert_eq!(c.stats().retransmissions, 2);
+}
+
+#[test]
+fn limits_above_the_simulated_boards_hardware_are_refused() {
+    // The firmware's rule (foc-service), with the simulated board's 10 A.
+    let server = SimServer::spawn(TcpListener::bind("127.0.0.1:0").unwrap()).unwrap();
+    let mut c = Client::connect_tcp(server.addr()).unwrap();
+    let mut l = foc_ctl::sim::default_settings().limits;
+    l.max_current_a = foc_ctl::sim::MAX_CURRENT_A * 2.0;
+    match c.set_limits(l) {
+        Err(ClientError::Nack(ErrorCode::Unsupported)) => {}
+        r => panic!("{r:?}"),
+    }
+    l.max_current_a = foc_ctl::sim::MAX_CURRENT_A;
+    c.set_limits(l).unwrap();
 }

@@ -15,7 +15,7 @@ fn calibrated() -> (SimServer, Client) {
     let server = SimServer::spawn(TcpListener::bind("127.0.0.1:0").unwrap()).unwrap();
     let mut c = Client::connect_tcp(server.addr()).unwrap();
     c.set_timeout(Duration::from_millis(500));
-    c.calibrate(Calibration::Alignment).unwrap();
+    c.calibrate(Calibration::Identification).unwrap();
     let end = Instant::now() + Duration::from_secs(5);
     while c.param(ParamId::Calibrated).unwrap() != 1.0 {
         assert!(Instant::now() < end, "calibration did not finish");

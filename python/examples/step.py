@@ -39,10 +39,10 @@ def main() -> int:
         hello = d.ping()
         print(f"drive: protocol v{hello.protocol_version}, firmware {hello.firmware}")
         if d.param("calibrated") != 1.0:
-            print("not calibrated: running the alignment")
-            d.calibrate("alignment")
+            print("not calibrated: running the identification")
+            d.calibrate("identification")
             if not wait_calibrated(d, 5.0):
-                print("the alignment did not finish", file=sys.stderr)
+                print("the identification did not finish", file=sys.stderr)
                 return 1
         try:
             d.velocity(0.0)

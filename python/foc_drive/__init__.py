@@ -7,7 +7,7 @@ CRC-32; ``protocol/src/message.rs`` of the firmware repository)::
 
     with Drive.connect_tcp("127.0.0.1", 4444) as d:
         print(d.ping())
-        d.calibrate("alignment")
+        d.calibrate("identification")
         d.velocity(50.0)
         data = d.stream(rate_hz=200, duration_s=1.0)
         print(data["velocity_rad_s"].mean(), data.lost)

@@ -61,8 +61,8 @@ class SimTestCase(unittest.TestCase):
         self.addCleanup(self.d.close)
 
     def calibrate(self):
-        self.d.calibrate("alignment")
-        wait_for(lambda: self.d.param("calibrated") == 1.0, 3.0, "alignment")
+        self.d.calibrate("identification")
+        wait_for(lambda: self.d.param("calibrated") == 1.0, 3.0, "identification")
 
 
 class Basics(SimTestCase):

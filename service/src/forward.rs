@@ -10,14 +10,29 @@
 //!   a link on the drive now, `f` run on it, its outbox committed (the
 //!   calls that change something).
 //!
-//! The scope is not forwarded (the trait's default: none).
+//! The scope does not go through the link: name the type's field that
+//! holds one (`forward_device_context!(T, scope: field)`), or the drive
+//! has none (the trait's default).
 
 /// Implement [`DeviceContext`](crate::DeviceContext) for `$t` through its
 /// `view_parts` and `with_link` (see the [module docs](crate::forward)).
 #[macro_export]
 macro_rules! forward_device_context {
     ($t:ty) => {
+        $crate::forward_device_context!(@impl $t, {});
+    };
+    ($t:ty, scope: $field:ident) => {
+        $crate::forward_device_context!(@impl $t, {
+            fn scope(
+                &mut self,
+            ) -> ::core::option::Option<&mut dyn $crate::__deps::foc_protocol::scope::ScopePort> {
+                ::core::option::Option::Some(&mut self.$field)
+            }
+        });
+    };
+    (@impl $t:ty, { $($extra:tt)* }) => {
         impl $crate::DeviceContext for $t {
+            $($extra)*
             fn post(
                 &mut self,
                 cmd: $crate::__deps::foc_core::control::Command,

@@ -81,13 +81,18 @@ pub fn link_setting(rec: &DriveRecord) -> WatchdogConfig {
 }
 
 /// A store failure as the link reports it: a record that is not one
-/// (damaged, another version, out of range) is `BadRecord`, anything else
-/// (flash, layout, full, an inconsistent region) `StoreFailed`.
+/// (damaged, another version, out of range, none valid) is `BadRecord`,
+/// anything else (flash, layout, full, an inconsistent region)
+/// `StoreFailed`.
 pub fn store_error(e: StoreError) -> ErrorCode {
     crate::log_warn!("store: {}", e);
     match e {
-        StoreError::Record(_) | StoreError::Invalid(_) => ErrorCode::BadRecord,
-        _ => ErrorCode::StoreFailed,
+        StoreError::Record(_) | StoreError::Invalid(_) | StoreError::NoValidRecord => {
+            ErrorCode::BadRecord
+        }
+        StoreError::Layout | StoreError::Flash(_) | StoreError::Corrupt | StoreError::Full => {
+            ErrorCode::StoreFailed
+        }
     }
 }
 
