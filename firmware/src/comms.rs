@@ -258,3 +258,46 @@ impl Comms {
         out
     }
 }
+
+/// The shared state now, for the link: feedback, timing, status, the last
+/// identification and what is pending in the mailboxes, all under one
+/// lock (one critical section at the current loop's priority, a copy of
+/// about 300 bytes), so every part is of the same period.
+pub fn snapshot(
+    feedback: impl rtic::Mutex<T = Feedback>,
+    timing: impl rtic::Mutex<T = crate::timing::LoopTiming>,
+    status: impl rtic::Mutex<T = foc_core::drive::Status>,
+    identified: impl rtic::Mutex<T = Option<Identified>>,
+    command: impl rtic::Mutex<T = foc_core::control::CommandSlot>,
+    request: impl rtic::Mutex<T = ConfigMailbox>,
+) -> Snapshot {
+    use rtic::mutex::prelude::*;
+    (feedback, timing, status, identified, command, request).lock(|fb, tm, st, id, c, r| Snapshot {
+        feedback: *fb,
+        max_loop_cycles: tm.max_cycles,
+        status: *st,
+        identified: *id,
+        pending: Pending {
+            command: c.command,
+            calibration: r.calibration_pending(),
+        },
+    })
+}
+
+/// Commit a link's outbox into the loops' mailboxes, under one lock:
+/// configuration changes merged into `request`, then the command part into
+/// `command` (a fault clear before the command).
+pub fn commit(
+    out: &Outbox,
+    command: impl rtic::Mutex<T = foc_core::control::CommandSlot>,
+    request: impl rtic::Mutex<T = ConfigMailbox>,
+) {
+    use rtic::mutex::prelude::*;
+    if !out.touches_config() && !out.touches_command() {
+        return;
+    }
+    (command, request).lock(|c, r| {
+        r.merge(&out.config);
+        out.apply_command(c);
+    });
+}

@@ -71,6 +71,27 @@ const _: () = assert!(board::HAS_CAN == cfg!(feature = "can"));
 /// Current-loop runs; `idle` feeds the watchdog only when this advances.
 static CURRENT_LOOP_RUNS: AtomicU32 = AtomicU32::new(0);
 
+/// `comms::snapshot` of a task's shared resources (`cx.shared`).
+macro_rules! snapshot {
+    ($s:expr) => {
+        comms::snapshot(
+            &mut $s.feedback,
+            &mut $s.timing,
+            &mut $s.status,
+            &mut $s.identified,
+            &mut $s.command,
+            &mut $s.config_request,
+        )
+    };
+}
+
+/// `comms::commit` of `out` into a task's shared resources (`cx.shared`).
+macro_rules! commit {
+    ($s:expr, $out:expr) => {
+        comms::commit($out, &mut $s.command, &mut $s.config_request)
+    };
+}
+
 #[rtic::app(device = board_support::pac, peripherals = true)]
 mod app {
     use super::{can, comms, config, events, persist, timing, watchdog, CURRENT_LOOP_RUNS};
@@ -387,23 +408,6 @@ mod app {
         cx.shared.velocity_ref.lock(|v| *v = vr);
     }
 
-    /// Take a snapshot of the shared state for the command channel.
-    fn link_snapshot(
-        fb: &Feedback,
-        tm: &timing::LoopTiming,
-        status: Status,
-        identified: Option<comms::Identified>,
-        pending: comms::Pending,
-    ) -> comms::Snapshot {
-        comms::Snapshot {
-            feedback: *fb,
-            max_loop_cycles: tm.max_cycles,
-            status,
-            identified,
-            pending,
-        }
-    }
-
     /// The command channel: bytes from the UART to the protocol, replies
     /// back; each request's changes committed before the next is read.
     #[task(
@@ -416,24 +420,11 @@ mod app {
         cx.shared.comms.lock(|c| c.serial.on_interrupt());
         // Bounded: every frame takes at least one byte of the RX ring.
         for _ in 0..board_support::hw::serial::RX_CAPACITY {
-            let fb = cx.shared.feedback.lock(|f| *f);
-            let tm = cx.shared.timing.lock(|t| *t);
-            let status = cx.shared.status.lock(|s| *s);
-            let identified = cx.shared.identified.lock(|x| *x);
-            let pending = comms::Pending {
-                command: cx.shared.command.lock(|c| c.command),
-                calibration: cx.shared.config_request.lock(|m| m.calibration_pending()),
-            };
-            let snap = link_snapshot(&fb, &tm, status, identified, pending);
+            let snap = snapshot!(cx.shared);
             let Some(out) = cx.shared.comms.lock(|c| c.receive(snap, &mut scope)) else {
                 break;
             };
-            if out.touches_config() {
-                cx.shared.config_request.lock(|m| m.merge(&out.config));
-            }
-            if out.touches_command() {
-                cx.shared.command.lock(|c| out.apply_command(c));
-            }
+            commit!(cx.shared, &out);
         }
     }
 
@@ -450,43 +441,10 @@ mod app {
         if cx.shared.comms.lock(|c| c.device.telemetry_every()) == 0 {
             return;
         }
-        let fb = cx.shared.feedback.lock(|f| *f);
-        let tm = cx.shared.timing.lock(|t| *t);
-        let status = cx.shared.status.lock(|s| *s);
-        let identified = cx.shared.identified.lock(|x| *x);
-        let pending = comms::Pending {
-            command: cx.shared.command.lock(|c| c.command),
-            calibration: cx.shared.config_request.lock(|m| m.calibration_pending()),
-        };
-        let snap = link_snapshot(&fb, &tm, status, identified, pending);
-        cx.shared.comms.lock(|c| c.stream(snap, fb.period));
-    }
-
-    /// The shared state now, for the CANopen node's link.
-    #[cfg(feature = "can")]
-    fn can_snapshot(cx: &mut stream::Context) -> comms::Snapshot {
-        use rtic::Mutex as _;
-        let fb = cx.shared.feedback.lock(|f| *f);
-        let tm = cx.shared.timing.lock(|t| *t);
-        let status = cx.shared.status.lock(|s| *s);
-        let identified = cx.shared.identified.lock(|x| *x);
-        let pending = comms::Pending {
-            command: cx.shared.command.lock(|c| c.command),
-            calibration: cx.shared.config_request.lock(|m| m.calibration_pending()),
-        };
-        link_snapshot(&fb, &tm, status, identified, pending)
-    }
-
-    /// Commit a CAN link's outbox, as `serial` does a frame's.
-    #[cfg(feature = "can")]
-    fn can_commit(cx: &mut stream::Context, out: &comms::Outbox) {
-        use rtic::Mutex as _;
-        if out.touches_config() {
-            cx.shared.config_request.lock(|m| m.merge(&out.config));
-        }
-        if out.touches_command() {
-            cx.shared.command.lock(|c| out.apply_command(c));
-        }
+        let snap = snapshot!(cx.shared);
+        cx.shared
+            .comms
+            .lock(|c| c.stream(snap, snap.feedback.period));
     }
 
     /// The CANopen node: every received frame (each with a fresh
@@ -498,17 +456,17 @@ mod app {
         cx.shared.can.lock(|n| n.service_port());
         // Bounded: every pass takes a frame from the port.
         for _ in 0..board_support::hw::serial::RX_CAPACITY {
-            let snap = can_snapshot(cx);
+            let snap = snapshot!(cx.shared);
             let comms = &mut cx.shared.comms;
             let Some(out) = cx.shared.can.lock(|n| comms.lock(|c| n.receive(c, snap))) else {
                 break;
             };
-            can_commit(cx, &out);
+            commit!(cx.shared, &out);
         }
-        let snap = can_snapshot(cx);
+        let snap = snapshot!(cx.shared);
         let comms = &mut cx.shared.comms;
         let out = cx.shared.can.lock(|n| comms.lock(|c| n.tick(c, snap)));
-        can_commit(cx, &out);
+        commit!(cx.shared, &out);
         can::unmask_interrupt();
     }
 
@@ -520,30 +478,19 @@ mod app {
         local = [started, power_limit]
     )]
     fn housekeeping(mut cx: housekeeping::Context) {
-        let status = cx.shared.status.lock(|s| *s);
-        let identified = cx.shared.identified.lock(|x| *x);
+        let snap = snapshot!(cx.shared);
+        let (fb, status) = (snap.feedback, snap.status);
         if status.running && !*cx.local.started {
             *cx.local.started = true;
             if let Some(cmd) = config::START_COMMAND {
                 cx.shared.command.lock(|c| c.post(cmd));
             }
         }
-        let fb = cx.shared.feedback.lock(|f| *f);
         let tm = cx.shared.timing.lock(|t| *t);
         super::log_power_limit(cx.local.power_limit, &fb);
         // Command channel: link watchdog and streamed telemetry.
-        let pending = comms::Pending {
-            command: cx.shared.command.lock(|c| c.command),
-            calibration: cx.shared.config_request.lock(|m| m.calibration_pending()),
-        };
-        let snap = link_snapshot(&fb, &tm, status, identified, pending);
         let out = cx.shared.comms.lock(|c| c.poll(snap, fb.period));
-        if out.touches_config() {
-            cx.shared.config_request.lock(|m| m.merge(&out.config));
-        }
-        if out.touches_command() {
-            cx.shared.command.lock(|c| out.apply_command(c));
-        }
+        commit!(cx.shared, &out);
         #[cfg(feature = "qemu")]
         {
             let running = status.running;
@@ -557,7 +504,7 @@ mod app {
                         fb: &fb,
                         running,
                         calibrated: status.calibrated,
-                        identified: identified.is_some(),
+                        identified: snap.identified.is_some(),
                     };
                     let mut comms = cx.shared.comms;
                     let mut save = || comms.lock(|c| c.save_and_verify());
@@ -572,7 +519,7 @@ mod app {
                     &super::mission::DriveState {
                         running,
                         overruns: tm.overruns,
-                        identified: identified.map(|i| i.result),
+                        identified: snap.identified.map(|i| i.result),
                     },
                 ),
             };
