@@ -1,0 +1,136 @@
+//! Sensor plausibility: the motor-model check (design §24) and the slower
+//! tracking back-up.
+
+use super::*;
+
+impl CurrentStage {
+    /// The model check for the present motor, period and angle sensor (its
+    /// healthy margin kept).
+    pub(super) fn rebuild_model(&mut self) {
+        let peaks = self.model.peaks_sq();
+        self.model = model_check(&self.config);
+        self.model.keep_peaks(peaks);
+    }
+
+    /// The model-based sensor check (design §24): its last residual and
+    /// the healthy margin.
+    pub fn model_check(&self) -> &ModelCheck {
+        &self.model
+    }
+
+    /// Forget the model check's healthy margin (start a new measurement).
+    pub fn reset_model_margin(&mut self) {
+        self.model.reset_peak();
+    }
+
+    /// Sensor plausibility from the motor model (closed loop, design
+    /// §24): judges this period, then records what it drives. False when
+    /// a fault tripped.
+    #[inline(always)]
+    pub(super) fn sensors_plausible(
+        &mut self,
+        out: Option<&CurrentLoopOutput>,
+        sensed: &Sensed,
+        w_e_rad_s: f32,
+    ) -> bool {
+        let Some(o) = out.filter(|o| !o.invalid) else {
+            self.model.reset();
+            return true;
+        };
+        let p = Period {
+            i_ab_a: sensed.i_ab,
+            i_dq_a: o.i_dq_a,
+            sin_cos: o.sin_cos,
+            theta_e: sensed.theta_e,
+            // The observer's speed against the tracker's (coarse sensors).
+            omega_spread_rad_s: w_e_rad_s
+                - self.tracker.velocity_rad_s() * self.config.angle.pole_pairs as f32,
+            omega_e_rad_s: w_e_rad_s,
+            unchanged_periods: self.state.unchanged_periods,
+        };
+        let fault = match self.model.check(&p) {
+            Verdict::CurrentSense if self.angle_frozen() => Some(Fault::AngleSensorStuck),
+            Verdict::CurrentSense => Some(Fault::CurrentSenseError),
+            // A fine sensor only: a coarse one (halls) legitimately stands
+            // still through a reversal inside one of its wide counts.
+            Verdict::Quiet
+                if self.state.interpolation.is_none() && self.still_while_emf_moves() =>
+            {
+                Some(Fault::AngleSensorStuck)
+            }
+            Verdict::Quiet => None,
+        };
+        match fault {
+            Some(f) => {
+                self.supervisor.trip(f);
+                self.model.reset();
+                false
+            }
+            None => {
+                self.model.record(&p, o.duties, sensed.v_bus_v);
+                true
+            }
+        }
+    }
+
+    /// The slower back-up of the model check: the loop's tracking error
+    /// against the supervisor's band, excused on the voltage limit (the
+    /// reference out of reach: back-EMF, or `L di/dt` while a large
+    /// inductance slews) and while the angle reading looks frozen (the
+    /// stuck check's to name). False when it trips.
+    #[inline(always)]
+    pub(super) fn currents_track(
+        &mut self,
+        out: Option<&CurrentLoopOutput>,
+        i_ref: Dq,
+        w_e_rad_s: f32,
+    ) -> bool {
+        let Some(o) = out else {
+            return true;
+        };
+        let (ed, eq) = (i_ref.d - o.i_dq_a.d, i_ref.q - o.i_dq_a.q);
+        let cpr = self.config.angle.sensor_counts_per_rev;
+        let count_rad = if cpr > 0 {
+            core::f32::consts::TAU / cpr as f32
+        } else {
+            0.01
+        };
+        let commanded_rad_s = match self.state.active {
+            Command::Velocity { rad_s } => rad_s.abs(),
+            _ => 0.0,
+        };
+        let pp = self.config.angle.pole_pairs.max(1) as f32;
+        let tracked_rad_s = (w_e_rad_s / pp).abs();
+        let speed = if commanded_rad_s > tracked_rad_s {
+            commanded_rad_s
+        } else {
+            tracked_rad_s
+        };
+        let moved_rad = speed * self.config.current.ts_s * self.state.unchanged_periods as f32;
+        let excused = o.voltage_limited || moved_rad > 2.0 * count_rad;
+        self.supervisor
+            .check_tracking(ed * ed + eq * eq, excused)
+            .is_none()
+    }
+}
+
+/// The model check of a stage configuration: the current loop's motor and
+/// period, the supervisor's tolerances with the angle sensor's resolution
+/// added (a whole count for a fine sensor, half of one where the stage
+/// interpolates a coarse one).
+pub(super) fn model_check(c: &CurrentStageConfig) -> ModelCheck {
+    let a = &c.angle;
+    let count_e_rad = match a.sensor_counts_per_rev {
+        0 => 0.0,
+        n => core::f32::consts::TAU * a.pole_pairs as f32 / n as f32,
+    };
+    let mut tol = c.supervisor.model;
+    // An interpolated coarse sensor (halls) is within its half-count
+    // window; a fine one within a count.
+    tol.angle_e_rad += match a.interpolation_half_count() {
+        Some(_) => 0.5 * count_e_rad,
+        None => count_e_rad,
+    };
+    let coarse = a.interpolation_half_count().is_some();
+    ModelCheck::new(c.current.motor, c.current.ts_s, tol, coarse)
+}

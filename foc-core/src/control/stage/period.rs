@@ -1,0 +1,335 @@
+//! One PWM period of the current stage: sense, control, publish.
+
+use super::*;
+
+impl CurrentStage {
+    /// The speed stage runs every `n` periods (0 counts as 1): its q-current
+    /// reference is interpolated over that many periods (design §19).
+    #[inline]
+    pub fn set_speed_periods(&mut self, n: u32) {
+        let n = n.max(1);
+        if n != self.state.speed_periods {
+            self.state.speed_periods = n;
+            self.state.speed_inv_periods = 1.0 / n as f32;
+        }
+    }
+
+    /// The speed stage's output `target_a` [A] as the current loop uses it
+    /// this period: a new value is reached in a straight line over the
+    /// speed-loop period instead of in one step.
+    #[inline(always)]
+    pub(super) fn interpolate_speed_output(&mut self, target_a: f32) -> f32 {
+        let st = &mut self.state;
+        if target_a != st.iq_target_a {
+            st.iq_target_a = target_a;
+            st.iq_step_a = (target_a - st.iq_interp_a) * st.speed_inv_periods;
+        }
+        let next = st.iq_interp_a + st.iq_step_a;
+        let reached = if st.iq_step_a >= 0.0 {
+            next >= target_a
+        } else {
+            next <= target_a
+        };
+        st.iq_interp_a = if reached { target_a } else { next };
+        // Within the current limit in force now (it may have been lowered
+        // while a ramp from a larger value was running).
+        let lim = self.config.limits.max_current_a;
+        clamp(st.iq_interp_a, -lim, lim)
+    }
+
+    /// One PWM period: commands, sensors, supervision, control. Returns what
+    /// the bridge must do and the feedback for the slower stages.
+    pub fn step(
+        &mut self,
+        slot: &CommandSlot,
+        iq_ref_from_speed_a: f32,
+        s: &Sample,
+    ) -> (BridgeCommand, Feedback) {
+        let mut fb = Feedback::INIT;
+        let bridge = self.step_into(slot, iq_ref_from_speed_a, s, &mut fb);
+        (bridge, fb)
+    }
+
+    /// [`Self::step`] with the feedback written in place into `fb` (every
+    /// field): the firmware passes the feedback its other tasks read, so
+    /// nothing is copied (design §20).
+    pub fn step_into(
+        &mut self,
+        slot: &CommandSlot,
+        iq_ref_from_speed_a: f32,
+        s: &Sample,
+        fb: &mut Feedback,
+    ) -> BridgeCommand {
+        self.state.period = self.state.period.wrapping_add(1);
+        self.take_operator_actions(slot);
+        let sensed = self.sense(s, iq_ref_from_speed_a);
+        self.apply_command_timeout();
+        let (out, i_ref, theta_e) = self.control(&sensed, iq_ref_from_speed_a);
+        self.publish(out, i_ref, theta_e, sensed.v_bus_v, fb)
+    }
+
+    /// Step 2: sensors and supervision: the angle used this period, the phase
+    /// currents and the checks of the fault supervisor. A failed read trips
+    /// its fault and leaves zeros.
+    #[inline(always)]
+    pub(super) fn sense(&mut self, s: &Sample, iq_ref_from_speed_a: f32) -> Sensed {
+        let mut sensed = Sensed {
+            theta_e: ElectricalAngle::ZERO,
+            i_abc: crate::frames::Abc::default(),
+            i_ab: crate::frames::AlphaBeta::new(0.0, 0.0),
+            v_bus_v: s.v_bus_v.unwrap_or(0.0),
+            v_bus_read_v: s.v_bus_v,
+            temperature_c: s.temperature_c,
+        };
+        match (s.currents, s.angle, s.v_bus_v) {
+            (None, _, _) => self.supervisor.trip(Fault::CurrentSenseError),
+            (_, None, _) => self.supervisor.trip(Fault::AngleSensorError),
+            (_, _, None) => self.supervisor.trip(Fault::BusSenseError),
+            (Some(cur), Some(raw), Some(v_bus_v)) => {
+                let mech = self.config.angle.mechanical(raw);
+                let innovation = self.tracker.update(mech);
+                let innovation_step = innovation - self.state.last_innovation_rad;
+                self.state.last_innovation_rad = innovation;
+                let changed = self.state.last_raw != Some(raw);
+                self.state.unchanged_periods = if changed {
+                    self.state.speed_at_change_rad_s = self.tracker.velocity_rad_s();
+                    0
+                } else {
+                    self.state.unchanged_periods.saturating_add(1)
+                };
+                let used = self.angle_used(mech, changed);
+                // The torque-fed observer (design §19) takes the angle used
+                // (the reading itself for a fine sensor) and the q current
+                // measured at the last period's start: the torque that
+                // drove the rotor since.
+                self.observer.update(used, self.state.last_i_dq.q);
+                sensed.theta_e = self.config.angle.electrical(used);
+                sensed.i_abc = cur.to_abc();
+                // |i_ab|^2 against the squared limit: no square root (see
+                // `Supervisor::check_vector_sq`).
+                sensed.i_ab = transforms::clarke(sensed.i_abc);
+                let i_ab = sensed.i_ab;
+                let vector_sq = i_ab.alpha * i_ab.alpha + i_ab.beta * i_ab.beta;
+                self.supervisor.check_vector_sq(
+                    &Checks {
+                        i_abc_a: sensed.i_abc,
+                        measured_sum_a: cur.measured_sum_a(),
+                        vector_current_a: 0.0, // unused: the square is passed
+                        v_bus_v,
+                        angle_innovation_rad: innovation.abs(),
+                        angle_step_rad: innovation_step.abs(),
+                        speed_rad_s: self.tracker.velocity_rad_s(),
+                        temperature_c: s.temperature_c,
+                    },
+                    vector_sq,
+                );
+                self.state.last_raw = Some(raw);
+                self.check_stuck(changed, iq_ref_from_speed_a);
+            }
+        }
+        sensed
+    }
+
+    /// Step 4: control: the current loop in the active mode (`None`: bridge off).
+    /// Returns the output, the dq current reference and the electrical
+    /// angle used (the open-loop angle in open loop).
+    #[inline(always)]
+    pub(super) fn control(
+        &mut self,
+        sensed: &Sensed,
+        iq_ref_from_speed_a: f32,
+    ) -> (Option<CurrentLoopOutput>, Dq, ElectricalAngle) {
+        let mut theta_e = sensed.theta_e;
+        let pp = self.config.angle.pole_pairs as f32;
+        let w_e = self.tracker.velocity_rad_s() * pp;
+        let mut i_ref = Dq::ZERO;
+        // The q-current each closed-loop mode asks for, before the window.
+        let lim = self.config.limits.max_current_a;
+        let from_speed = if iq_ref_from_speed_a.is_finite() {
+            clamp(iq_ref_from_speed_a, -lim, lim)
+        } else {
+            0.0
+        };
+        let requested = match self.state.active {
+            Command::Disable | Command::OpenLoop { .. } => {
+                self.state.iq_interp_a = 0.0;
+                self.state.iq_target_a = from_speed;
+                self.state.iq_step_a = 0.0;
+                None
+            }
+            Command::Torque { iq_a } => {
+                // The speed stage tracks this reference: entering velocity
+                // mode interpolates from it.
+                self.state.iq_interp_a = iq_a;
+                self.state.iq_target_a = from_speed;
+                self.state.iq_step_a = 0.0;
+                Some(iq_a)
+            }
+            Command::Velocity { .. } | Command::Position { .. } => {
+                Some(self.interpolate_speed_output(from_speed))
+            }
+            Command::Impedance(_) => {
+                let iq = clamp(self.impedance_iq(), -lim, lim);
+                // As in torque mode: the speed stage tracks it.
+                self.state.iq_interp_a = iq;
+                self.state.iq_target_a = from_speed;
+                self.state.iq_step_a = 0.0;
+                Some(iq)
+            }
+        };
+        self.state.travel_window_a = None;
+        let requested = requested.map(|iq| self.travel(iq));
+        // Stepped every period (winding estimate, chopper), faulted or not.
+        let windowed = self.power_window(sensed, w_e, requested.unwrap_or(0.0));
+        if self.supervisor.is_faulted() {
+            self.state.active = Command::Disable;
+            self.model.reset();
+            return (None, i_ref, theta_e);
+        }
+        // The closed-loop modes share one (inlined) current-loop call.
+        let w = &self.power_report;
+        let closed = requested.map(|iq| {
+            if windowed {
+                Dq::new(w.id_ref_a, w.clamp(iq))
+            } else {
+                Dq::new(0.0, iq)
+            }
+        });
+        let closed_iq = closed.map(|i| i.q);
+        let out = match (closed, self.state.active) {
+            (Some(i), _) => {
+                i_ref = i;
+                // `i_ab` is `clarke(i_abc)` (both zero when a read failed).
+                Some(self.current.step_inline_ab(
+                    &CurrentLoopInput {
+                        i_abc_a: sensed.i_abc,
+                        theta_e,
+                        omega_e_rad_s: w_e,
+                        v_bus_v: sensed.v_bus_v,
+                        i_dq_ref_a: i_ref,
+                    },
+                    sensed.i_ab,
+                ))
+            }
+            (
+                None,
+                Command::OpenLoop {
+                    v_d_v,
+                    v_q_v,
+                    omega_e_rad_s,
+                    ..
+                },
+            ) => {
+                let th = self.state.ol_theta;
+                self.state.ol_theta = th.add_radians(omega_e_rad_s * self.config.current.ts_s);
+                theta_e = th;
+                Some(self.current.step_voltage(
+                    sensed.i_abc,
+                    th,
+                    Dq::new(v_d_v, v_q_v),
+                    sensed.v_bus_v,
+                ))
+            }
+            (None, _) => None,
+        };
+        // The model takes its speed from the angle's change; for a coarse
+        // sensor (halls) from the torque-fed observer, which knows the
+        // acceleration between the edges (design §19).
+        let w_observer = self.observer.velocity_rad_s() * pp;
+        if closed_iq.is_some()
+            && !(self.sensors_plausible(out.as_ref(), sensed, w_observer)
+                && self.currents_track(out.as_ref(), i_ref, w_e))
+        {
+            // The bridge goes off: nothing recorded this period was applied.
+            self.model.reset();
+            self.state.active = Command::Disable;
+            return (None, i_ref, theta_e);
+        }
+        if closed_iq.is_none() {
+            // Open loop or off: the angle does not drive the bridge; the
+            // model waits, its speed window counts the reading's increments.
+            self.model.idle(sensed.theta_e);
+        }
+        (out, i_ref, theta_e)
+    }
+
+    /// Step 5: the bridge command and the feedback. A control output that is
+    /// itself invalid is a fault too.
+    #[inline(always)]
+    pub(super) fn publish(
+        &mut self,
+        out: Option<CurrentLoopOutput>,
+        i_ref: Dq,
+        theta_e: ElectricalAngle,
+        v_bus: f32,
+        fb: &mut Feedback,
+    ) -> BridgeCommand {
+        let out = match out {
+            Some(o) if o.invalid => {
+                self.supervisor.trip(Fault::NonFinite);
+                self.state.active = Command::Disable;
+                None
+            }
+            o => o,
+        };
+        let (bridge, duties, v_dq, i_dq, limited) = match out {
+            Some(o) => (
+                BridgeCommand::Duties(o.duties),
+                o.duties,
+                o.v_dq_v,
+                o.i_dq_a,
+                o.voltage_limited,
+            ),
+            None => {
+                self.current.reset();
+                (
+                    BridgeCommand::SafeState,
+                    [0.5; 3],
+                    Dq::ZERO,
+                    Dq::ZERO,
+                    false,
+                )
+            }
+        };
+        self.state.last_out_v_dq = v_dq;
+        self.state.last_i_dq = i_dq;
+        *fb = Feedback {
+            mode: self.state.active.mode(),
+            active: self.state.active,
+            position_rad: self.tracker.position().to_radians(),
+            velocity_rad_s: self.observer.velocity_rad_s(),
+            disturbance_rad_s2: self.observer.disturbance_rad_s2(),
+            theta_e,
+            i_dq_a: i_dq,
+            i_dq_ref_a: i_ref,
+            v_dq_v: v_dq,
+            v_bus_v: v_bus,
+            duties,
+            faults: self.supervisor.faults(),
+            first_fault: self.supervisor.first_fault(),
+            voltage_limited: limited,
+            current_limit_a: self.config.limits.max_current_a,
+            power: self.published_window(),
+            period: self.state.period,
+        };
+        bridge
+    }
+}
+
+/// What [`CurrentStage::step`] measured this period (zeros where a read
+/// failed).
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Sensed {
+    /// Electrical angle of the d axis from the sensor.
+    pub(super) theta_e: ElectricalAngle,
+    /// Phase currents [A].
+    pub(super) i_abc: crate::frames::Abc,
+    /// `clarke(i_abc)` [A].
+    pub(super) i_ab: crate::frames::AlphaBeta,
+    /// Bus voltage [V] (0 when the read failed).
+    pub(super) v_bus_v: f32,
+    /// The bus voltage as read.
+    pub(super) v_bus_read_v: Option<f32>,
+    /// Power-stage temperature as read.
+    pub(super) temperature_c: Option<f32>,
+}
