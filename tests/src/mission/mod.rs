@@ -1,0 +1,88 @@
+//! Closed-loop simulation: the real `foc-core` [`Cascade`] against the
+//! [`Plant`], at the real rates, through a scripted mission.
+//!
+//! Every PWM period [`Sim::step`] hands the controller the sample the plant
+//! took at the end of the previous period, then advances the plant by one
+//! period. The duties it returns go through the plant's shadow register
+//! (`compute_delay_periods = 1`), so they act one period after the sample,
+//! as in the firmware; a safe-state decision acts at once (the bridge is
+//! disabled for the very next period). The speed and position stages run
+//! every N and M periods inside [`Cascade::step`], exactly as the firmware
+//! pends them.
+//!
+//! The mission ([`run_mission`]):
+//!
+//! 1. **identify** ([`crate::identify::run`]): current-offset calibration
+//!    with the bridge off, then foc-core's `Identification` through the
+//!    mission's cascade: R, Ld, Lq, current-loop gains, alignment (electrical
+//!    zero, direction, pole-pair check) and the flux linkage (hall-class
+//!    sensors included). The rest of the mission runs on its permit
+//!    (measured gains and zero), not on supplied values; the bench does *not*
+//!    copy the plant's parameters or encoder offset, it reports the errors
+//!    against them.
+//! 2. **current step** (torque mode, rotor locked): `iq` 0 -> `I_step`.
+//! 3. **speed step** 0 -> `w1`, then a **ramp** `w1` -> `w2` (velocity mode).
+//! 4. **load step** at `w2` (about 40 % of the rated torque).
+//! 5. stop (load removed), then a **position move** of one turn.
+//! 6. **impedance** (design §21): the rotor held by the impedance law
+//!    (stiffness for 0.25 rad or 40 counts at 30 % of the torque limit,
+//!    damping ratio 0.7 on the identified inertia), load steps of +-30 %
+//!    of the torque limit and a sinusoidal load at a fifth of the spring's
+//!    natural frequency: the stiffness and damping measured as the motor's
+//!    torque against the true position and velocity. It fails beyond 5 %
+//!    (stiffness) or 10 % (damping).
+//! 7. **braking** (design §18): a DC link with the ODrive v3's bus capacitor
+//!    on a battery, a spin-up to the ramp's speed, then the supply made
+//!    non-sinking (a diode-fed bench supply) and a hard stop (0 rad/s at
+//!    once) with the board's power limits
+//!    ([`PowerLimitsConfig::for_board`]: regen ramp and d-axis braking):
+//!    the peak bus voltage against the over-voltage threshold, the
+//!    stopping time and where the kinetic energy went; then the same stop
+//!    with the ODrive's 2 ohm brake resistor switched by the drive's
+//!    chopper. It fails on a bus at or above the over-voltage threshold or
+//!    a fault; a stop that takes longer than the segment is reported, not
+//!    failed. The power limits and the DC link are only in this segment
+//!    (every earlier figure is unchanged).
+//!
+//! ```no_run
+//! use foc_bench::mission::{run_mission, Setup};
+//! let setup = Setup::load("tests/motors/dji-m2006.toml").unwrap();
+//! let r = run_mission(&setup, &mut |_| {});
+//! println!("{}", r.summary.to_markdown());
+//! assert!(r.summary.failures().is_empty());
+//! ```
+
+mod figures;
+mod markdown;
+mod result;
+mod run;
+mod segments;
+mod setup;
+mod sim;
+mod summary;
+
+use figures::*;
+pub use result::*;
+pub use run::*;
+pub use setup::*;
+pub use sim::*;
+pub use summary::*;
+
+use crate::identify;
+use crate::metrics;
+use crate::motor_file::{MotorFile, MotorFileError};
+use crate::plant::{self, BenchConfig, Measurements, Mechanics, Plant};
+use crate::power::{DcLinkConfig, SourceKind};
+use crate::report::{Panel, Trace};
+use foc_core::angle::{ElectricalAngle, MechanicalAngle};
+use foc_core::calibration::identification::IdentificationResult;
+use foc_core::calibration::Calibrated;
+use foc_core::control::power::{ActiveLimit, PowerLimitsConfig};
+use foc_core::control::stage::{AngleCalibration, Sample};
+use foc_core::control::{BridgeCommand, Command, Mode};
+use foc_core::drive::cascade::{Cascade, CascadeConfig};
+use foc_core::frames::Abc;
+use foc_core::hal::PhaseCurrents;
+use std::fmt::Write as _;
+use std::path::Path;
+use std::time::Instant;
