@@ -22,7 +22,7 @@
 use foc_core::angle::MechanicalAngle;
 use foc_core::calibration::alignment::{Alignment, AlignmentConfig};
 use foc_core::calibration::flux::{FluxConfig, FluxLinkage};
-use foc_core::calibration::identification::{Identification, IdentificationConfig, Stage};
+use foc_core::calibration::identification::{Identification, IdentificationConfig, Step};
 use foc_core::calibration::inductance::{Inductance, InductanceConfig};
 use foc_core::calibration::resistance::{PhaseResistance, ResistanceConfig};
 use foc_core::calibration::{CalError, CalInput, CalStep, Calibrated, ClosedLoopFeedback, Phase};
@@ -762,7 +762,7 @@ fn sequencer_identifies_motors() {
         cfg.alignment.speed_e_rad_s = sweep_speed(&m);
         let (s, id) = identify(m, &mut plant, cfg);
         let CalStep::Done(done) = s else {
-            panic!("{m:?}: {s:?} in {:?}", id.stage())
+            panic!("{m:?}: {s:?} in {:?}", id.current_step())
         };
         let r = done.result;
         println!(
@@ -778,7 +778,7 @@ fn sequencer_identifies_motors() {
         assert!(rel(r.flux_linkage_wb as f64, m.psi) < 0.10);
         assert!(r.angle.reversed);
         assert_eq!(r.pole_pairs, m.p);
-        assert_eq!(id.stage(), Stage::Done);
+        assert_eq!(id.current_step(), Step::Done);
         // The permit carries the measured gains (technical optimum).
         let c = done.permit.current_config();
         let ts = 1.0 / m.pwm_hz as f32;
@@ -802,7 +802,7 @@ fn sequencer_reports_failing_stage() {
         matches!(s, CalStep::Failed(CalError::PolePairMismatch { configured: 5, measured_x100 }) if (690..=710).contains(&measured_x100)),
         "{s:?}"
     );
-    assert_eq!(id.stage(), Stage::Alignment);
+    assert_eq!(id.current_step(), Step::Alignment);
     assert!(id.resistance().is_some());
     assert!(id.permit().is_none(), "no permit without a valid alignment");
     // Open phase C: fails in the resistance stage.
@@ -814,14 +814,14 @@ fn sequencer_reports_failing_stage() {
         IdentificationConfig::new(m.p, m.pwm_hz as f32, 3.0, 6.0),
     );
     assert_eq!(s, CalStep::Failed(CalError::OpenPhase(Phase::C)));
-    assert_eq!(id.stage(), Stage::Resistance);
+    assert_eq!(id.current_step(), Step::Resistance);
     // NaN current during the inductance stage.
     let mut id = Identification::new(IdentificationConfig::new(m.p, m.pwm_hz as f32, 3.0, 6.0));
     let mut plant = Plant::new(m);
     let mut last = None;
     for _ in 0..1_000_000 {
         let mut inp = plant.input();
-        if id.stage() == Stage::Inductance {
+        if id.current_step() == Step::Inductance {
             inp.i_abc_a.a = f32::NAN;
         }
         let s = id.step(&inp);
@@ -832,5 +832,5 @@ fn sequencer_reports_failing_stage() {
         plant.apply_step(&s);
     }
     assert_eq!(last, Some(CalStep::Failed(CalError::InvalidInput)));
-    assert_eq!(id.stage(), Stage::Inductance);
+    assert_eq!(id.current_step(), Step::Inductance);
 }

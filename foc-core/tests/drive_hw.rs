@@ -18,8 +18,8 @@ use foc_core::control::power::PowerLimitsConfig;
 use foc_core::control::{Command, CommandSlot, Fault, Feedback, Mode, MotorParams};
 use foc_core::drive::cascade::CascadeConfig;
 use foc_core::drive::{
-    AngleKind, ConfigChange, Drive, Event, Inputs, LifecycleConfig, Mail, Output, Phase, Refusal,
-    Status,
+    AngleKind, ConfigChange, Drive, Event, Inputs, LifePhase, LifecycleConfig, Mail, Output,
+    Refusal, Status,
 };
 use foc_core::frames::Abc;
 use foc_core::hal::{AngleSensor, BrakeOutput, BusVoltage, CurrentSense, PhaseCurrents, PwmDriver};
@@ -151,7 +151,7 @@ fn start_up_then_supplied_permit_then_break_latch_until_clear() {
         step(&mut d, &inputs);
         assert!(!d.pwm.on, "bridge on during start-up");
     }
-    assert_eq!(d.lifecycle().phase(), Phase::Run);
+    assert_eq!(d.lifecycle().phase(), LifePhase::Run);
     assert!(
         (d.currents.offsets.a - 0.1).abs() < 1e-6,
         "offsets installed"
@@ -247,7 +247,7 @@ fn run_period_takes_a_change_once_and_publishes_in_place() {
     for _ in 0..20 {
         fw.period(&mut d, false);
     }
-    assert_eq!(d.lifecycle().phase(), Phase::Run);
+    assert_eq!(d.lifecycle().phase(), LifePhase::Run);
     assert_eq!(fw.feedback.period, 12_345, "start-up wrote the feedback");
     assert!(fw.status.running && !fw.status.calibrated);
 
@@ -345,7 +345,7 @@ fn a_stored_permit_calibrates_absolute_and_hall_sensors_at_boot_without_motion()
         // replaces it.
         let (mut d, _) = drive_with(kind, true, permit);
         let (events, bridge_on) = start_up(&mut d, 20);
-        assert_eq!(d.lifecycle().phase(), Phase::Run, "{kind:?}");
+        assert_eq!(d.lifecycle().phase(), LifePhase::Run, "{kind:?}");
         assert!(d.status().calibrated, "{kind:?}: permit installed");
         assert!(!bridge_on, "{kind:?}: no motion before the first command");
         assert_eq!(events.last(), Some(&Event::CalibrationRestored), "{kind:?}");
@@ -363,7 +363,7 @@ fn an_incremental_encoder_ignores_a_stored_zero() {
     // Without start-up identification: uncalibrated, closed loop refused.
     let (mut d, _) = drive_with(AngleKind::Incremental, false, permit);
     let (events, bridge_on) = start_up(&mut d, 20);
-    assert_eq!(d.lifecycle().phase(), Phase::Run);
+    assert_eq!(d.lifecycle().phase(), LifePhase::Run);
     assert!(!d.status().calibrated);
     assert!(!bridge_on);
     assert_eq!(events.last(), Some(&Event::StartUpDone));
@@ -371,7 +371,7 @@ fn an_incremental_encoder_ignores_a_stored_zero() {
     let (mut d, _) = drive_with(AngleKind::Incremental, true, permit);
     let (events, _) = start_up(&mut d, 20);
     assert_eq!(events.last(), Some(&Event::IdentificationStarted));
-    assert_eq!(d.lifecycle().phase(), Phase::Identify);
+    assert_eq!(d.lifecycle().phase(), LifePhase::Identify);
 }
 
 #[test]
@@ -466,7 +466,7 @@ fn the_brake_follows_the_power_limits_chopper_with_hysteresis_and_goes_off_with_
     for _ in 0..10 {
         step(&mut d, &inputs);
     }
-    assert_eq!(d.lifecycle().phase(), Phase::Run);
+    assert_eq!(d.lifecycle().phase(), LifePhase::Run);
     // No power limits: the brake never conducts (below the over-voltage
     // threshold, 30 V).
     assert!(!steps(&mut d, &inputs, 29.0));
@@ -528,11 +528,11 @@ fn the_brake_works_during_the_start_up_calibrations_and_its_guard_locks_it_out()
     let p = d.stage().config().power.expect("configured");
     let inputs = Inputs::new(CommandSlot::INIT, 0.0);
     step(&mut d, &inputs);
-    assert_eq!(d.lifecycle().phase(), Phase::OffsetCalibration);
+    assert_eq!(d.lifecycle().phase(), LifePhase::OffsetCalibration);
     // A coasting motor pumps the bus during the offset calibration.
     d.bus.0 = p.brake_on_v + 0.5;
     step(&mut d, &inputs);
-    assert_eq!(d.lifecycle().phase(), Phase::OffsetCalibration);
+    assert_eq!(d.lifecycle().phase(), LifePhase::OffsetCalibration);
     assert!(d.brake.on, "brake on while calibrating");
     d.bus.0 = p.brake_off_v - 0.5;
     step(&mut d, &inputs);

@@ -477,7 +477,7 @@ enum Diode {
 
 /// How one phase terminal is driven over a sub-step.
 #[derive(Clone, Copy, Debug, PartialEq)]
-enum Drive {
+enum Leg {
     /// Connected to the bus a fraction `h` of the time, else to 0 V.
     Bus(Real),
     /// Not connected (current held at zero).
@@ -1027,8 +1027,8 @@ impl Plant {
     }
 
     /// Drive of each phase over the sub-step `[u0, u1]` (fractions of the period).
-    fn drives(&self, u0: Real, u1: Real, i_abc: [Real; 3]) -> [Drive; 3] {
-        let mut out = [Drive::Open; 3];
+    fn drives(&self, u0: Real, u1: Real, i_abc: [Real; 3]) -> [Leg; 3] {
+        let mut out = [Leg::Open; 3];
         let delta = self.cfg.dead_time_s * self.cfg.pwm_frequency_hz;
         for k in 0..3 {
             out[k] = if self.enabled {
@@ -1045,17 +1045,17 @@ impl Plant {
                 } else {
                     0.5 * dead
                 };
-                Drive::Bus((high + dead_high) / (b - a))
+                Leg::Bus((high + dead_high) / (b - a))
             } else {
                 match self.diodes[k] {
-                    Diode::Open => Drive::Open,
-                    Diode::High => Drive::Bus(1.0),
-                    Diode::Low => Drive::Bus(0.0),
+                    Diode::Open => Leg::Open,
+                    Diode::High => Leg::Bus(1.0),
+                    Diode::Low => Leg::Bus(0.0),
                 }
             };
         }
         if let Some(p) = self.faults.disconnected_phase {
-            out[p.index()] = Drive::Open;
+            out[p.index()] = Leg::Open;
         }
         out
     }
@@ -1067,7 +1067,7 @@ impl Plant {
             self.update_diodes(i_abc);
         }
         let drives = self.drives(u0, u1, i_abc);
-        let open = drives.iter().filter(|d| matches!(d, Drive::Open)).count();
+        let open = drives.iter().filter(|d| matches!(d, Leg::Open)).count();
 
         let x0 = [self.id, self.iq, self.omega_m, self.theta_m, self.v_cap];
         let f = |x: [Real; 5]| self.deriv(x, &drives, open);
@@ -1149,7 +1149,7 @@ impl Plant {
                 );
                 let ik = id * c - iq * s;
                 let crossed = match (drives[k], self.enabled, self.diodes[k]) {
-                    (Drive::Open, _, _) => true,
+                    (Leg::Open, _, _) => true,
                     (_, false, Diode::High) => ik > 0.0,
                     (_, false, Diode::Low) => ik < 0.0,
                     _ => false,
@@ -1175,8 +1175,8 @@ impl Plant {
         let mut vt = [0.0; 3];
         for k in 0..3 {
             vt[k] = match drives[k] {
-                Drive::Bus(h) => h * v_bus,
-                Drive::Open => self.open_terminal_voltage(k, &drives, v_bus),
+                Leg::Bus(h) => h * v_bus,
+                Leg::Open => self.open_terminal_voltage(k, &drives, v_bus),
             };
         }
         SubstepOut {
@@ -1207,7 +1207,7 @@ impl Plant {
 
     /// The bus at capacitor voltage `v_cap` (ignored without a DC link),
     /// given drives and phase currents.
-    fn bus(&self, v_cap: Real, drives: &[Drive; 3], i_abc: [Real; 3]) -> BusSolution {
+    fn bus(&self, v_cap: Real, drives: &[Leg; 3], i_abc: [Real; 3]) -> BusSolution {
         match &self.dc_link {
             None => BusSolution {
                 v_bus: self.bus_voltage(drives, i_abc),
@@ -1216,7 +1216,7 @@ impl Plant {
             Some(dc) => {
                 let mut i_dc = 0.0;
                 for k in 0..3 {
-                    if let Drive::Bus(h) = drives[k] {
+                    if let Leg::Bus(h) = drives[k] {
                         i_dc += h * i_abc[k];
                     }
                 }
@@ -1237,10 +1237,10 @@ impl Plant {
     }
 
     /// Conductance a phase short adds between the bus rails, `(h_a - h_b)^2 / r`.
-    fn short_conductance(&self, drives: &[Drive; 3]) -> Real {
+    fn short_conductance(&self, drives: &[Leg; 3]) -> Real {
         match self.faults.phase_short {
             Some(s) if s.r_ohm > 0.0 => match (drives[s.a.index()], drives[s.b.index()]) {
-                (Drive::Bus(ha), Drive::Bus(hb)) => (ha - hb) * (ha - hb) / s.r_ohm,
+                (Leg::Bus(ha), Leg::Bus(hb)) => (ha - hb) * (ha - hb) / s.r_ohm,
                 _ => 0.0,
             },
             _ => 0.0,
@@ -1248,10 +1248,10 @@ impl Plant {
     }
 
     /// Bus voltage with source resistance, given drives and phase currents.
-    fn bus_voltage(&self, drives: &[Drive; 3], i_abc: [Real; 3]) -> Real {
+    fn bus_voltage(&self, drives: &[Leg; 3], i_abc: [Real; 3]) -> Real {
         let mut i_dc = 0.0;
         for k in 0..3 {
-            if let Drive::Bus(h) = drives[k] {
+            if let Leg::Bus(h) = drives[k] {
                 i_dc += h * i_abc[k];
             }
         }
@@ -1262,10 +1262,10 @@ impl Plant {
     }
 
     /// Extra DC current drawn by a phase short.
-    fn short_dc_current(&self, drives: &[Drive; 3], v_bus: Real) -> Real {
+    fn short_dc_current(&self, drives: &[Leg; 3], v_bus: Real) -> Real {
         match self.faults.phase_short {
             Some(s) if s.r_ohm > 0.0 => match (drives[s.a.index()], drives[s.b.index()]) {
-                (Drive::Bus(ha), Drive::Bus(hb)) => (ha - hb) * (ha - hb) * v_bus / s.r_ohm,
+                (Leg::Bus(ha), Leg::Bus(hb)) => (ha - hb) * (ha - hb) * v_bus / s.r_ohm,
                 _ => 0.0,
             },
             _ => 0.0,
@@ -1273,10 +1273,10 @@ impl Plant {
     }
 
     /// Current in the short from leg `a` to leg `b` [A] (0 without a short).
-    fn short_current(&self, drives: &[Drive; 3], v_bus: Real) -> Real {
+    fn short_current(&self, drives: &[Leg; 3], v_bus: Real) -> Real {
         match self.faults.phase_short {
             Some(s) if s.r_ohm > 0.0 => match (drives[s.a.index()], drives[s.b.index()]) {
-                (Drive::Bus(ha), Drive::Bus(hb)) => (ha - hb) * v_bus / s.r_ohm,
+                (Leg::Bus(ha), Leg::Bus(hb)) => (ha - hb) * v_bus / s.r_ohm,
                 _ => 0.0,
             },
             _ => 0.0,
@@ -1284,16 +1284,16 @@ impl Plant {
     }
 
     /// Terminal voltages seen by the motor (a short ties its two terminals).
-    fn motor_terminal_v(&self, drives: &[Drive; 3], v_bus: Real) -> [Real; 3] {
+    fn motor_terminal_v(&self, drives: &[Leg; 3], v_bus: Real) -> [Real; 3] {
         let mut v = [0.0; 3];
         for k in 0..3 {
-            if let Drive::Bus(h) = drives[k] {
+            if let Leg::Bus(h) = drives[k] {
                 v[k] = h * v_bus;
             }
         }
         if let Some(s) = self.faults.phase_short {
             let (a, b) = (s.a.index(), s.b.index());
-            if let (Drive::Bus(_), Drive::Bus(_)) = (drives[a], drives[b]) {
+            if let (Leg::Bus(_), Leg::Bus(_)) = (drives[a], drives[b]) {
                 let m = 0.5 * (v[a] + v[b]);
                 v[a] = m;
                 v[b] = m;
@@ -1303,7 +1303,7 @@ impl Plant {
     }
 
     /// State derivative. `x = [id, iq, omega_m, theta_m, v_cap]`.
-    fn deriv(&self, x: [Real; 5], drives: &[Drive; 3], open: usize) -> Deriv {
+    fn deriv(&self, x: [Real; 5], drives: &[Leg; 3], open: usize) -> Deriv {
         let m = &self.motor;
         let r_ohm = self.winding_resistance_ohm();
         let [id0, iq0, omega, theta, v_cap] = x;
@@ -1324,7 +1324,7 @@ impl Plant {
         let v = self.motor_terminal_v(drives, v_bus);
         let (mut vd, mut vq) = (0.0, 0.0);
         for k in 0..3 {
-            if let Drive::Bus(_) = drives[k] {
+            if let Leg::Bus(_) = drives[k] {
                 vd += (2.0 / 3.0) * v[k] * cs[k].0;
                 vq -= (2.0 / 3.0) * v[k] * cs[k].1;
             }
@@ -1336,7 +1336,7 @@ impl Plant {
             diq = 0.0;
         } else if open == 1 {
             // Solve the open phase's terminal voltage so that its current stays 0.
-            if let Some(z) = drives.iter().position(|d| matches!(d, Drive::Open)) {
+            if let Some(z) = drives.iter().position(|d| matches!(d, Leg::Open)) {
                 let (c, s) = cs[z];
                 let (ad, aq) = (c, -s);
                 let (gd, gq) = (ad / m.ld_h, aq / m.lq_h);
@@ -1365,7 +1365,7 @@ impl Plant {
         };
         let mut i_dc = 0.0;
         for k in 0..3 {
-            if let Drive::Bus(h) = drives[k] {
+            if let Leg::Bus(h) = drives[k] {
                 i_dc += h * i_abc[k];
             }
         }
@@ -1414,17 +1414,17 @@ impl Plant {
 
     /// Terminal voltage of open phase `z`, from the constraint `di_z/dt = 0`
     /// (one open phase) or the star point (all open: back-EMF about the mean).
-    fn open_terminal_voltage(&self, z: usize, drives: &[Drive; 3], v_bus: Real) -> Real {
+    fn open_terminal_voltage(&self, z: usize, drives: &[Leg; 3], v_bus: Real) -> Real {
         let m = &self.motor;
         let th_e = self.theta_e_rad();
         let we = self.omega_e_rad_s();
         let e = PHASE_AXIS.map(|phi| -we * m.flux_linkage_wb * real::sin(th_e - phi));
-        let open = drives.iter().filter(|d| matches!(d, Drive::Open)).count();
+        let open = drives.iter().filter(|d| matches!(d, Leg::Open)).count();
         if open >= 2 {
             // No current: terminals float at star point + EMF; the star point is
             // set by the conducting phase (if any), else by the bus midpoint.
             let v = self.motor_terminal_v(drives, v_bus);
-            let star = match drives.iter().position(|d| matches!(d, Drive::Bus(_))) {
+            let star = match drives.iter().position(|d| matches!(d, Leg::Bus(_))) {
                 Some(k) => v[k] - e[k],
                 None => 0.5 * v_bus,
             };

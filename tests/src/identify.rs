@@ -32,7 +32,7 @@
 //! ```
 
 use crate::mission::{Setup, Sim};
-use foc_core::calibration::identification::{IdentificationConfig, Identified, Stage};
+use foc_core::calibration::identification::{IdentificationConfig, Identified, Step};
 use foc_core::calibration::offsets::{OffsetError, OffsetLimits};
 use foc_core::calibration::{CalStep, Calibrated};
 use foc_core::control::Fault;
@@ -113,7 +113,7 @@ pub struct Outcome {
     /// `Done(Identified)` or `Failed(reason)`.
     pub step: CalStep<Identified>,
     /// The stage it ended in (the failing one after `Failed`).
-    pub stage: Stage,
+    pub stage: Step,
     /// Current offsets found and installed [A].
     pub offsets: Abc,
     /// PWM periods of the offset calibration.
@@ -145,10 +145,10 @@ pub enum Error {
         /// The fault.
         fault: Fault,
         /// Identification stage.
-        stage: Stage,
+        stage: Step,
     },
     /// Not finished within [`TIME_LIMIT_S`].
-    Timeout(Stage),
+    Timeout(Step),
 }
 
 impl core::fmt::Display for Error {
@@ -230,7 +230,7 @@ pub fn run(
                 let permit = Calibrated::supplied(c.angle, c.current)
                     .expect("the identification's permit passed this check");
                 let done = CalStep::Done(Identified { result, permit });
-                return Ok(outcome(done, Stage::Done));
+                return Ok(outcome(done, Step::Done));
             }
             Event::IdentificationFailed(e, st) => return Ok(outcome(CalStep::Failed(e), st)),
             Event::IdentificationAborted(fault, st) => {
@@ -242,7 +242,7 @@ pub fn run(
     let stage = sim
         .cascade
         .lifecycle()
-        .identification_stage()
-        .unwrap_or(Stage::Resistance);
+        .identification_step()
+        .unwrap_or(Step::Resistance);
     Err(Error::Timeout(stage))
 }

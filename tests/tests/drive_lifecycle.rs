@@ -9,12 +9,12 @@
 use foc_bench::identify::{self, lifecycle_config, OFFSET_SAMPLES, SENSOR_CHECK_READS};
 use foc_bench::mission::{Setup, Sim};
 use foc_bench::plant::{Phase as PlantPhase, Plant};
-use foc_core::calibration::identification::Stage;
+use foc_core::calibration::identification::Step;
 use foc_core::calibration::CalError;
 use foc_core::control::stage::Sample;
 use foc_core::control::{BridgeCommand, Command, CommandError, Fault, Mode};
 use foc_core::drive::cascade::Cascade;
-use foc_core::drive::{ConfigChange, Event, Phase, Refusal};
+use foc_core::drive::{ConfigChange, Event, LifePhase, Refusal};
 use foc_core::hal::PhaseCurrents;
 
 fn dji() -> Setup {
@@ -104,7 +104,7 @@ fn start_up_order() {
     assert_eq!(seen[1], (n + r, Event::StartUpDone));
     assert!(!bridge_on, "the bridge was on during start-up");
     assert!(sim.current_offsets().is_some(), "offsets not installed");
-    assert_eq!(sim.cascade.lifecycle().phase(), Phase::Run);
+    assert_eq!(sim.cascade.lifecycle().phase(), LifePhase::Run);
     let status = sim.cascade.lifecycle().status(&sim.cascade.current);
     assert!(status.running && !status.calibrated && !status.faulted);
     assert_eq!(
@@ -267,7 +267,7 @@ fn identification_aborted_by_disable() {
         |e| *e == Event::IdentificationStarted,
     );
     sim.run(3000);
-    assert_eq!(sim.cascade.lifecycle().phase(), Phase::Identify);
+    assert_eq!(sim.cascade.lifecycle().phase(), LifePhase::Identify);
     assert!(matches!(sim.last_bridge(), BridgeCommand::Duties(_)));
     sim.cascade.command(Command::Disable).unwrap();
     sim.step();
@@ -278,7 +278,7 @@ fn identification_aborted_by_disable() {
         out.event
     );
     assert_eq!(out.bridge, BridgeCommand::SafeState);
-    assert_eq!(sim.cascade.lifecycle().phase(), Phase::Run);
+    assert_eq!(sim.cascade.lifecycle().phase(), LifePhase::Run);
     assert!(!sim.cascade.is_calibrated());
     assert_eq!(sim.cascade.feedback().first_fault, None);
 }
@@ -344,7 +344,7 @@ fn configuration_change_while_running_is_refused() {
         sim.cascade.last_output().unwrap().change,
         Some(Err(Refusal::NotDisabled))
     );
-    assert_eq!(sim.cascade.lifecycle().phase(), Phase::Run);
+    assert_eq!(sim.cascade.lifecycle().phase(), LifePhase::Run);
     // Disabled: applied whole.
     sim.cascade.command(Command::Disable).unwrap();
     sim.step();
@@ -406,7 +406,7 @@ fn permit_revoked_when_the_angle_calibration_changes() {
         ..ConfigChange::default()
     });
     sim.step();
-    assert_eq!(sim.cascade.lifecycle().phase(), Phase::Identify);
+    assert_eq!(sim.cascade.lifecycle().phase(), LifePhase::Identify);
     assert!(!sim.cascade.is_calibrated());
 }
 
@@ -437,7 +437,7 @@ fn identification_aborted_in_the_flux_step_leaves_no_permit() {
     let mut sim = from_reset(&s, Plant::new(s.motor, s.bench), true);
     let limit = (identify::TIME_LIMIT_S * s.pwm_hz()) as usize;
     let mut k = 0;
-    while sim.cascade.lifecycle().identification_stage() != Some(Stage::Flux) {
+    while sim.cascade.lifecycle().identification_step() != Some(Step::Flux) {
         sim.step();
         k += 1;
         assert!(k < limit, "no flux step");
@@ -449,7 +449,7 @@ fn identification_aborted_in_the_flux_step_leaves_no_permit() {
     sim.step();
     assert!(matches!(
         sim.cascade.last_output().unwrap().event,
-        Some(Event::IdentificationAborted(None, Stage::Flux))
+        Some(Event::IdentificationAborted(None, Step::Flux))
     ));
     assert!(!sim.cascade.is_calibrated());
     assert_eq!(
@@ -480,7 +480,7 @@ fn a_refused_calibration_keeps_the_settings_of_its_change() {
         Some(Err(Refusal::Faulted))
     );
     assert_eq!(sim.cascade.lifecycle().dividers(), (5, 7));
-    assert_eq!(sim.cascade.lifecycle().phase(), Phase::Run);
+    assert_eq!(sim.cascade.lifecycle().phase(), LifePhase::Run);
 }
 
 /// While start-up or an identification runs, the rules take only

@@ -14,7 +14,7 @@
 use foc_bench::identify::{self, config as id_config, Outcome};
 use foc_bench::mission::{Setup, Sim};
 use foc_bench::plant::{Phase, Plant};
-use foc_core::calibration::identification::{IdentificationConfig, IdentificationResult, Stage};
+use foc_core::calibration::identification::{IdentificationConfig, IdentificationResult, Step};
 use foc_core::calibration::{CalError, CalStep};
 use std::path::PathBuf;
 
@@ -120,7 +120,7 @@ fn wrong_pole_pairs_is_a_named_failure() {
         "{:?}",
         out.step
     );
-    assert_eq!(out.stage, Stage::Alignment);
+    assert_eq!(out.stage, Step::Alignment);
 }
 
 #[test]
@@ -134,7 +134,7 @@ fn disconnected_phase_is_a_named_failure() {
         "{:?}",
         out.step
     );
-    assert_eq!(out.stage, Stage::Resistance);
+    assert_eq!(out.stage, Step::Resistance);
 }
 
 #[test]

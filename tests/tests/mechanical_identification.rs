@@ -14,7 +14,7 @@
 use foc_bench::identify::{self, config as id_config};
 use foc_bench::mission::{Setup, Sim};
 use foc_bench::plant::Plant;
-use foc_core::calibration::identification::Stage;
+use foc_core::calibration::identification::Step;
 use foc_core::calibration::CalStep;
 use std::path::PathBuf;
 
@@ -44,7 +44,7 @@ fn identifies_inertia_and_friction_of_every_motor_file() {
         assert!(cfg.measure_mechanics, "{}", s.name);
         let mut stage_periods = 0usize;
         let out = identify::run(&mut sim, &s, cfg, &mut |sim| {
-            if sim.cascade.lifecycle().identification_stage() == Some(Stage::Mechanics) {
+            if sim.cascade.lifecycle().identification_step() == Some(Step::Mechanics) {
                 stage_periods += 1;
             }
         })

@@ -6,12 +6,12 @@
 //!
 //! | stage | routine | asks for | uses |
 //! |---|---|---|---|
-//! | [`Stage::Resistance`] | [`PhaseResistance`] | open-loop voltage | - |
-//! | [`Stage::Inductance`] | [`Inductance`] | open-loop voltage | R, to correct the exponential current response |
+//! | [`Step::Resistance`] | [`PhaseResistance`] | open-loop voltage | - |
+//! | [`Step::Inductance`] | [`Inductance`] | open-loop voltage | R, to correct the exponential current response |
 //! | (gains) | [`current_loop_config`] | nothing (same period) | R, Ld, Lq |
-//! | [`Stage::Alignment`] | [`Alignment`] | open-loop voltage | R and the dead-time drop, to size the voltage |
-//! | [`Stage::Flux`] | [`FluxLinkage`] | closed-loop velocity | the permit of R, L, gains and alignment |
-//! | [`Stage::Mechanics`] | [`MechanicalId`] | closed-loop torque, then velocity 0 | the same permit; `kt = 1.5 p psi` from the flux; the flux step's second speed as target |
+//! | [`Step::Alignment`] | [`Alignment`] | open-loop voltage | R and the dead-time drop, to size the voltage |
+//! | [`Step::Flux`] | [`FluxLinkage`] | closed-loop velocity | the permit of R, L, gains and alignment |
+//! | [`Step::Mechanics`] | [`MechanicalId`] | closed-loop torque, then velocity 0 | the same permit; `kt = 1.5 p psi` from the flux; the flux step's second speed as target |
 //!
 //! The flux step runs when [`IdentificationConfig::measure_flux`] is set
 //! (the rotor may spin), the mechanical step when
@@ -36,13 +36,13 @@
 //! - `Failed(reason)`: bridge off, report `reason` and [`Identification::stage`].
 //!
 //! ```
-//! use foc_core::calibration::identification::{Identification, IdentificationConfig, Stage};
+//! use foc_core::calibration::identification::{Identification, IdentificationConfig, Step};
 //! use foc_core::calibration::{CalInput, CalStep};
 //! use foc_core::{angle::MechanicalAngle, frames::Abc};
 //! let mut id = Identification::new(IdentificationConfig::new(7, 20_000.0, 2.0, 6.0));
 //! let bad = CalInput::open_loop(Abc::new(f32::NAN, 0.0, 0.0), MechanicalAngle::ZERO, 24.0);
 //! assert!(matches!(id.step(&bad), CalStep::Failed(_)));
-//! assert_eq!(id.stage(), Stage::Resistance);
+//! assert_eq!(id.current_step(), Step::Resistance);
 //! assert!(id.permit().is_none());
 //! ```
 
@@ -172,7 +172,7 @@ pub struct Identified {
 /// Where the sequencer is (or stopped).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum Stage {
+pub enum Step {
     /// Phase resistance.
     Resistance,
     /// Ld and Lq.
@@ -204,7 +204,7 @@ enum Running {
 pub struct Identification {
     cfg: IdentificationConfig,
     running: Running,
-    stage: Stage,
+    stage: Step,
     r: Option<ResistanceResult>,
     current: Option<CurrentLoopConfig>,
     angle: Option<AngleCalibration>,
@@ -220,7 +220,7 @@ impl Identification {
         Self {
             cfg: config,
             running: Running::Resistance(PhaseResistance::new(config.resistance)),
-            stage: Stage::Resistance,
+            stage: Step::Resistance,
             r: None,
             current: None,
             angle: None,
@@ -236,7 +236,7 @@ impl Identification {
     }
 
     /// The current stage (the failing one after `Failed`).
-    pub fn stage(&self) -> Stage {
+    pub fn current_step(&self) -> Step {
         self.stage
     }
 
@@ -292,7 +292,7 @@ impl Identification {
             };
             match next {
                 Ok(Some(done)) => {
-                    self.stage = Stage::Done;
+                    self.stage = Step::Done;
                     self.running = Running::Finished;
                     return CalStep::Done(done);
                 }
@@ -305,7 +305,7 @@ impl Identification {
 
     fn after_resistance(&mut self, res: ResistanceResult) -> Result<Option<Identified>, CalError> {
         self.r = Some(res);
-        self.stage = Stage::Inductance;
+        self.stage = Step::Inductance;
         // The measured resistance corrects the exponential current response.
         let mut l = self.cfg.inductance;
         l.r_ohm = res.r_ohm;
@@ -314,7 +314,7 @@ impl Identification {
     }
 
     fn after_inductance(&mut self, ld_h: f32, lq_h: f32) -> Result<Option<Identified>, CalError> {
-        self.stage = Stage::Gains;
+        self.stage = Step::Gains;
         let r = self.r.ok_or(CalError::InvalidConfig)?;
         let motor = MotorParams {
             pole_pairs: self.cfg.pole_pairs,
@@ -324,7 +324,7 @@ impl Identification {
             flux_linkage_wb: 0.0,
         };
         self.current = Some(current_loop_config(motor, 1.0 / self.cfg.pwm_frequency_hz)?);
-        self.stage = Stage::Alignment;
+        self.stage = Step::Alignment;
         let mut a = self.cfg.alignment;
         let offset = if r.v_offset_v > 0.0 {
             r.v_offset_v
@@ -348,7 +348,7 @@ impl Identification {
         if !self.cfg.measure_flux {
             return self.finish(None);
         }
-        self.stage = Stage::Flux;
+        self.stage = Step::Flux;
         let mut f = self.cfg.flux;
         f.r_ohm = current.motor.r_ohm;
         f.ld_h = current.motor.ld_h;
@@ -366,7 +366,7 @@ impl Identification {
         if !self.cfg.measure_mechanics {
             return self.finish(None);
         }
-        self.stage = Stage::Mechanics;
+        self.stage = Step::Mechanics;
         let mut m = self.cfg.mechanics;
         m.torque_constant_nm_per_a = 1.5 * f32::from(self.cfg.pole_pairs) * flux_linkage_wb;
         m.speed_target_rad_s = m.speed_target_rad_s.or(Some(speed_rad_s));

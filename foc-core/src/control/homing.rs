@@ -95,7 +95,7 @@ pub enum HomingStep {
 }
 
 #[derive(Clone, Copy, Debug, PartialEq)]
-enum Phase {
+enum Sequence {
     Start,
     Search {
         start_rad: f32,
@@ -118,7 +118,7 @@ pub struct Homing {
     /// Current-loop period [s].
     period_s: f32,
     kt_nm_per_a: f32,
-    phase: Phase,
+    phase: Sequence,
     /// `Feedback::period` of the last step.
     last_period: Option<u32>,
     /// Time since the last step [s].
@@ -205,7 +205,7 @@ impl Homing {
             method,
             period_s,
             kt_nm_per_a,
-            phase: Phase::Start,
+            phase: Sequence::Start,
             last_period: None,
             dt_s: 0.0,
         })
@@ -213,7 +213,7 @@ impl Homing {
 
     /// True once done or failed.
     pub fn finished(&self) -> bool {
-        self.phase == Phase::Finished
+        self.phase == Sequence::Finished
     }
 
     /// One step on the latest feedback.
@@ -226,15 +226,15 @@ impl Homing {
         let p = fb.position_rad;
         let e = match self.method {
             HomingMethod::Present => {
-                self.phase = Phase::Finished;
+                self.phase = Sequence::Finished;
                 return HomingStep::Done { home_rotor_rad: p };
             }
             HomingMethod::EndStop(e) => e,
         };
         let step = match self.phase {
-            Phase::Finished => return HomingStep::Running,
-            Phase::Start => {
-                self.phase = Phase::Search {
+            Sequence::Finished => return HomingStep::Running,
+            Sequence::Start => {
+                self.phase = Sequence::Search {
                     start_rad: p,
                     held_s: 0.0,
                     t_s: 0.0,
@@ -252,12 +252,12 @@ impl Homing {
             _ if fb.mode != Mode::Impedance || fb.first_fault.is_some() => {
                 HomingStep::Failed(HomingError::Interrupted)
             }
-            Phase::Search {
+            Sequence::Search {
                 start_rad,
                 held_s,
                 t_s,
             } => self.search(fb, &e, (start_rad, held_s, t_s), limits),
-            Phase::BackOff {
+            Sequence::BackOff {
                 stop_rad,
                 target_rad,
                 t_s,
@@ -271,7 +271,7 @@ impl Homing {
                         home_rotor_rad: stop_rad,
                     }
                 } else {
-                    self.phase = Phase::BackOff {
+                    self.phase = Sequence::BackOff {
                         stop_rad,
                         target_rad,
                         t_s: t_s + self.dt_s,
@@ -281,7 +281,7 @@ impl Homing {
             }
         };
         if matches!(step, HomingStep::Done { .. } | HomingStep::Failed(_)) {
-            self.phase = Phase::Finished;
+            self.phase = Sequence::Finished;
         }
         step
     }
@@ -303,7 +303,7 @@ impl Homing {
         if pushing && held_s >= e.confirm_s {
             let back = -e.velocity_rad_s.signum() * e.backoff_rad;
             let target_rad = clamp_range(p + back, limits);
-            self.phase = Phase::BackOff {
+            self.phase = Sequence::BackOff {
                 stop_rad: p,
                 target_rad,
                 t_s: 0.0,
@@ -321,7 +321,7 @@ impl Homing {
         if (p - start_rad).abs() > e.max_travel_rad || t_s > e.max_search_s() {
             return HomingStep::Failed(HomingError::NoStop);
         }
-        self.phase = Phase::Search {
+        self.phase = Sequence::Search {
             start_rad,
             held_s,
             t_s,

@@ -31,7 +31,7 @@
 //! # Wiring a board
 //!
 //! ```
-//! use foc_core::control::{Command, CommandError, MotorParams, drive};
+//! use foc_core::control::{io, Command, CommandError, MotorParams};
 //! use foc_core::drive::cascade::{Cascade, CascadeConfig};
 //! use foc_core::calibration::Calibrated;
 //! # use foc_core::{hal::*, angle::MechanicalAngle, frames::Abc};
@@ -55,16 +55,16 @@
 //! drive_ctl.set_calibration(&permit);
 //! drive_ctl.command(Command::Torque { iq_a: 1.0 }).unwrap();
 //! // In the PWM-synchronous interrupt (ADC end of conversion):
-//! let sample = drive::read_sample(&mut cs, &mut enc, &mut bus);
+//! let sample = io::read_sample(&mut cs, &mut enc, &mut bus);
 //! let bridge = drive_ctl.step(&sample);
-//! drive::apply(&mut pwm, bridge).unwrap();
+//! io::apply(&mut pwm, bridge).unwrap();
 //! assert!(pwm.is_enabled());
 //! ```
 
 pub mod current;
-pub mod drive;
 pub mod estimator;
 pub mod homing;
+pub mod io;
 pub mod joint;
 pub mod model;
 pub mod permit;

@@ -21,7 +21,7 @@
 
 use crate::angle::MechanicalAngle;
 use crate::calibration::identification::{
-    Identification, IdentificationConfig, IdentificationResult, Stage,
+    Identification, IdentificationConfig, IdentificationResult, Step,
 };
 use crate::calibration::{CalError, CalInput, CalStep, ClosedLoopFeedback};
 use crate::control::stage::{CurrentStage, Sample};
@@ -36,10 +36,10 @@ pub enum Outcome {
     /// Finished: the stage holds the measured calibration.
     Done(IdentificationResult),
     /// A routine failed (fault `CalibrationFailed` latched, bridge safe).
-    Failed(CalError, Stage),
+    Failed(CalError, Step),
     /// Stopped by a supervisor fault (bridge safe, the fault stays latched)
     /// or by an operator `Disable` (`None`).
-    Aborted(Option<Fault>, Stage),
+    Aborted(Option<Fault>, Step),
 }
 
 /// The sequencer plus the private command mailbox it drives the stage with.
@@ -79,8 +79,8 @@ impl Identifier {
     }
 
     /// The stage the sequencer is in.
-    pub fn stage(&self) -> Stage {
-        self.id.stage()
+    pub fn current_step(&self) -> Step {
+        self.id.current_step()
     }
 
     fn post_if_new(&mut self, cmd: Command) {
@@ -200,7 +200,7 @@ impl Identifier {
             Some(CalStep::Failed(e)) => {
                 self.give_up(stage);
                 stage.report_fault(Fault::CalibrationFailed);
-                let out = Outcome::Failed(e, self.id.stage());
+                let out = Outcome::Failed(e, self.id.current_step());
                 return self.finish(stage, iq_ref_a, s, out);
             }
         }
@@ -211,7 +211,7 @@ impl Identifier {
         // is only a consequence.
         if let Some(f) = fb.first_fault {
             self.give_up(stage);
-            return (Outcome::Aborted(Some(f), self.id.stage()), b, fb);
+            return (Outcome::Aborted(Some(f), self.id.current_step()), b, fb);
         }
         (Outcome::Running, b, fb)
     }
@@ -224,7 +224,7 @@ impl Identifier {
         s: &Sample,
     ) -> (Outcome, BridgeCommand, Feedback) {
         self.give_up(stage);
-        let out = Outcome::Aborted(None, self.id.stage());
+        let out = Outcome::Aborted(None, self.id.current_step());
         self.finish(stage, iq_ref_a, s, out)
     }
 

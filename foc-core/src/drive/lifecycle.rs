@@ -25,7 +25,7 @@
 use super::identify::{Identifier, Outcome};
 use super::rules::{ConfigChange, Refusal, Status};
 use super::AngleKind;
-use crate::calibration::identification::{IdentificationConfig, IdentificationResult, Stage};
+use crate::calibration::identification::{IdentificationConfig, IdentificationResult, Step};
 use crate::calibration::offsets::{OffsetCalibrator, OffsetError, OffsetLimits, OffsetStep};
 use crate::calibration::CalError;
 use crate::control::permit::Calibrated;
@@ -36,7 +36,7 @@ use crate::frames::Abc;
 /// Where the drive is in its life.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum Phase {
+pub enum LifePhase {
     /// Averaging the current-sensor offsets with the bridge off.
     OffsetCalibration,
     /// Checking that the angle sensor answers (consecutive good reads).
@@ -121,9 +121,9 @@ pub enum Event {
     /// (no identification, no motion): disabled, waiting for a command.
     CalibrationRestored,
     /// A routine failed (fault `CalibrationFailed` latched).
-    IdentificationFailed(CalError, Stage),
+    IdentificationFailed(CalError, Step),
     /// Stopped by a fault, or by an operator `Disable` (`None`).
-    IdentificationAborted(Option<Fault>, Stage),
+    IdentificationAborted(Option<Fault>, Step),
 }
 
 /// The drive's decision for one period.
@@ -152,7 +152,7 @@ pub struct Output {
 #[derive(Clone, Copy, Debug)]
 pub struct Lifecycle {
     config: LifecycleConfig,
-    phase: Phase,
+    phase: LifePhase,
     offsets: Option<OffsetCalibrator>,
     /// The current sensor's offsets are calibrated.
     offsets_ok: bool,
@@ -222,8 +222,8 @@ impl Lifecycle {
         Self {
             config,
             phase: match offsets {
-                Some(_) => Phase::OffsetCalibration,
-                None => Phase::SensorCheck(0),
+                Some(_) => LifePhase::OffsetCalibration,
+                None => LifePhase::SensorCheck(0),
             },
             offsets,
             offsets_ok: offsets.is_none(),
@@ -242,7 +242,7 @@ impl Lifecycle {
     /// handed calibrated measurements).
     pub fn started(config: LifecycleConfig) -> Self {
         Self {
-            phase: Phase::Run,
+            phase: LifePhase::Run,
             offsets_ok: true,
             ..Self::new(config)
         }
@@ -254,7 +254,7 @@ impl Lifecycle {
     }
 
     /// The phase.
-    pub fn phase(&self) -> Phase {
+    pub fn phase(&self) -> LifePhase {
         self.phase
     }
 
@@ -269,13 +269,13 @@ impl Lifecycle {
     }
 
     /// The stage of the identification running or last run.
-    pub fn identification_stage(&self) -> Option<Stage> {
-        self.identifier.map(|i| i.stage())
+    pub fn identification_step(&self) -> Option<Step> {
+        self.identifier.map(|i| i.current_step())
     }
 
     /// The status the rules look at.
     pub fn status(&self, stage: &CurrentStage) -> Status {
-        let running = self.phase == Phase::Run;
+        let running = self.phase == LifePhase::Run;
         Status {
             running,
             mode: stage.active().mode(),
@@ -321,7 +321,7 @@ impl Lifecycle {
     ) {
         // The operator's clear first: a fault found this period (power
         // stage, link watchdog) is latched after it and stays latched.
-        if self.phase == Phase::Run {
+        if self.phase == LifePhase::Run {
             out.faults_cleared = stage.take_clear(&inp.command);
         }
         if inp.gate_fault {
@@ -335,14 +335,17 @@ impl Lifecycle {
         // The brake chopper every period: the phases without a stage step
         // (bridge off) step it alone (a coasting motor still charges the
         // bus through the body diodes).
-        if matches!(self.phase, Phase::OffsetCalibration | Phase::SensorCheck(_)) {
+        if matches!(
+            self.phase,
+            LifePhase::OffsetCalibration | LifePhase::SensorCheck(_)
+        ) {
             stage.step_brake(s.v_bus_v);
         }
         match self.phase {
-            Phase::OffsetCalibration => self.step_offsets(stage, s, out),
-            Phase::SensorCheck(n) => self.step_sensor_check(stage, inp, s, n, out),
-            Phase::Identify => self.step_identify(stage, inp, s, out, fb),
-            Phase::Run => {
+            LifePhase::OffsetCalibration => self.step_offsets(stage, s, out),
+            LifePhase::SensorCheck(n) => self.step_sensor_check(stage, inp, s, n, out),
+            LifePhase::Identify => self.step_identify(stage, inp, s, out, fb),
+            LifePhase::Run => {
                 out.bridge = stage.step_into(&inp.command, inp.iq_ref_a, s, fb);
             }
         }
@@ -370,7 +373,7 @@ impl Lifecycle {
             self.apply_settings(stage, ch);
         }
         let joint = match ch.joint {
-            Some(j) if self.phase == Phase::Run => stage.set_joint(&j),
+            Some(j) if self.phase == LifePhase::Run => stage.set_joint(&j),
             Some(_) => Err(Refusal::Busy),
             None => Ok(()),
         };
@@ -452,7 +455,7 @@ impl Lifecycle {
         self.offsets = Some(OffsetCalibrator::new(limits));
         self.offsets_ok = false;
         self.skip_offset_sample = true;
-        self.phase = Phase::OffsetCalibration;
+        self.phase = LifePhase::OffsetCalibration;
         out.offsets_a = Some(Abc::default());
     }
 
@@ -469,7 +472,7 @@ impl Lifecycle {
         stage.revoke_calibration();
         self.identifier = Some(Identifier::new(cfg, operator));
         self.identify_seq = operator.seq;
-        self.phase = Phase::Identify;
+        self.phase = LifePhase::Identify;
         out.event = Some(Event::IdentificationStarted);
     }
 
@@ -484,7 +487,7 @@ impl Lifecycle {
             return;
         };
         let Some(cal) = self.offsets.as_mut() else {
-            self.phase = Phase::SensorCheck(0);
+            self.phase = LifePhase::SensorCheck(0);
             return;
         };
         match cal.step(reading) {
@@ -492,7 +495,7 @@ impl Lifecycle {
             OffsetStep::Done(o) => {
                 out.offsets_a = Some(o);
                 self.offsets_ok = true;
-                self.phase = Phase::SensorCheck(0);
+                self.phase = LifePhase::SensorCheck(0);
                 out.event = Some(Event::OffsetsDone(o));
             }
             OffsetStep::Failed(e) => {
@@ -516,7 +519,7 @@ impl Lifecycle {
             self.enter_run(stage);
             out.event = Some(Event::SensorCheckFailed);
         } else if n.saturating_add(1) < self.config.sensor_check_reads {
-            self.phase = Phase::SensorCheck(n + 1);
+            self.phase = LifePhase::SensorCheck(n + 1);
         } else if let Some(p) = self.stored_permit() {
             stage.set_calibration(&p);
             self.enter_run(stage);
@@ -541,7 +544,7 @@ impl Lifecycle {
     /// (the rotor may have moved meanwhile).
     fn enter_run(&mut self, stage: &mut CurrentStage) {
         stage.reset();
-        self.phase = Phase::Run;
+        self.phase = LifePhase::Run;
     }
 
     /// Inlined into [`Self::step`] with the identification routines (about
@@ -557,7 +560,7 @@ impl Lifecycle {
         fb_out: &mut Feedback,
     ) {
         let Some(id) = self.identifier.as_mut() else {
-            self.phase = Phase::Run;
+            self.phase = LifePhase::Run;
             return;
         };
         // An operator `Disable` posted after the start aborts.
@@ -588,7 +591,7 @@ impl Lifecycle {
         // seen: nothing sent before or during the identification starts
         // the motor now.
         stage.sync_mailbox(cmd);
-        self.phase = Phase::Run;
+        self.phase = LifePhase::Run;
     }
 }
 

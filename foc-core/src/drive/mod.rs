@@ -21,7 +21,7 @@
 //! so the start-up path the firmware runs is the one the host tests run.
 //!
 //! ```
-//! use foc_core::drive::{Drive, Inputs, LifecycleConfig, Phase};
+//! use foc_core::drive::{Drive, Inputs, LifecycleConfig, LifePhase};
 //! use foc_core::calibration::offsets::OffsetLimits;
 //! use foc_core::control::{CommandSlot, Feedback, MotorParams};
 //! use foc_core::drive::cascade::CascadeConfig;
@@ -54,7 +54,7 @@
 //!     drive.step(&inputs, &mut feedback);
 //!     assert!(!drive.pwm.is_enabled()); // bridge off during start-up
 //! }
-//! assert_eq!(drive.lifecycle().phase(), Phase::Run);
+//! assert_eq!(drive.lifecycle().phase(), LifePhase::Run);
 //! assert!(!drive.status().calibrated); // no permit yet: closed loop refused
 //! ```
 
@@ -64,7 +64,7 @@ pub mod lifecycle;
 pub mod period;
 pub mod rules;
 
-pub use lifecycle::{Event, Inputs, Lifecycle, LifecycleConfig, Output, Phase};
+pub use lifecycle::{Event, Inputs, LifePhase, Lifecycle, LifecycleConfig, Output};
 pub use period::Mail;
 
 /// What the angle sensor knows at power-up. It decides what a stored
@@ -96,7 +96,7 @@ impl AngleKind {
 }
 pub use rules::{ConfigChange, JointChange, Refusal, Status};
 
-use crate::control::drive::{apply, read_sample};
+use crate::control::io::{apply, read_sample};
 use crate::control::stage::{CurrentStage, CurrentStageConfig};
 use crate::control::{Fault, Feedback};
 use crate::frames::Abc;

@@ -11,10 +11,10 @@ use foc_core::angle::{ElectricalAngle, MechanicalAngle};
 use foc_core::control::current::{CurrentLoop, CurrentLoopInput, CurrentLoopOutput};
 use foc_core::control::estimator::{AngleTracker, SpeedObserver};
 use foc_core::control::model::{ModelCheck, Period, Verdict};
-use foc_core::control::power::{PowerInputs, PowerReport, PowerStage};
+use foc_core::control::power::{PowerInputs, PowerLimiter, PowerReport};
 use foc_core::control::stage::Sample;
 use foc_core::control::supervisor::{Checks, Fault, Supervisor};
-use foc_core::control::{drive, BridgeCommand, Feedback};
+use foc_core::control::{io, BridgeCommand, Feedback};
 use foc_core::frames::{Abc, Dq};
 use foc_core::transforms;
 
@@ -38,7 +38,7 @@ pub fn measure_pieces(rig: &mut Rig, baseline: u32, currents: &dyn Fn(u32) -> Ab
     };
     let d = rig.drive_mut();
     add(
-        "  part: sensor reads (emulated board, drive::read_sample)",
+        "  part: sensor reads (emulated board, io::read_sample)",
         measure(
             baseline,
             n,
@@ -123,10 +123,10 @@ pub fn measure_pieces(rig: &mut Rig, baseline: u32, currents: &dyn Fn(u32) -> Ab
         }),
     );
     if let Some(p) = cfg.power {
-        let mut power = PowerStage::new(p);
+        let mut power = PowerLimiter::new(p);
         let mut report = PowerReport::unlimited(0.0);
         add(
-            "  part: power limits (PowerStage::step_into)",
+            "  part: power limits (PowerLimiter::step_into)",
             measure(baseline, n, &mut |_| {}, &mut |k| {
                 power_part(
                     &mut power,
@@ -164,7 +164,7 @@ pub fn measure_pieces(rig: &mut Rig, baseline: u32, currents: &dyn Fn(u32) -> Ab
         }),
     );
     add(
-        "  part: PWM write (emulated board, drive::apply)",
+        "  part: PWM write (emulated board, io::apply)",
         measure(baseline, n, &mut |_| {}, &mut |k| {
             let x = 0.3 + 0.001 * k as f32;
             let _ = black_box(pwm_part(&mut d.pwm, black_box([x, 0.5, 0.7 - x])));
@@ -190,7 +190,7 @@ pub fn measure_pieces(rig: &mut Rig, baseline: u32, currents: &dyn Fn(u32) -> Ab
 
 #[inline(never)]
 fn read_part(d: &mut BoardDrive) -> Sample {
-    drive::read_sample(&mut d.currents, &mut d.angle, &mut d.bus)
+    io::read_sample(&mut d.currents, &mut d.angle, &mut d.bus)
 }
 
 #[inline(never)]
@@ -218,7 +218,14 @@ fn model_part(m: &mut ModelCheck, p: &Period) -> Verdict {
 }
 
 #[inline(never)]
-fn power_part(p: &mut PowerStage, i: Dq, v: Dq, ts: f32, inputs: PowerInputs, r: &mut PowerReport) {
+fn power_part(
+    p: &mut PowerLimiter,
+    i: Dq,
+    v: Dq,
+    ts: f32,
+    inputs: PowerInputs,
+    r: &mut PowerReport,
+) {
     p.step_into(i, v, ts, inputs, r)
 }
 
@@ -229,7 +236,7 @@ fn current_part(cl: &mut CurrentLoop, inp: &CurrentLoopInput) -> CurrentLoopOutp
 
 #[inline(never)]
 fn pwm_part(pwm: &mut board_support::board::Pwm, duties: [f32; 3]) -> Result<(), Fault> {
-    drive::apply(pwm, BridgeCommand::Duties(duties))
+    io::apply(pwm, BridgeCommand::Duties(duties))
 }
 
 #[inline(never)]

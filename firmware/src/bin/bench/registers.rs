@@ -16,7 +16,7 @@ use board_support::pac;
 use core::hint::black_box;
 use core::ptr::{addr_of_mut, write_volatile};
 use foc_core::angle::MechanicalAngle;
-use foc_core::control::{drive, BridgeCommand, Fault};
+use foc_core::control::{io, BridgeCommand, Fault};
 use foc_core::hal::{AngleSensor, BusVoltage, CurrentSense, PhaseCurrents};
 
 /// ADC1 and TIM1 stand-ins (32 words each covers both register blocks).
@@ -109,7 +109,7 @@ pub fn measure_real_board(baseline: u32) -> u32 {
         let x = 0.3 + 0.001 * k as f32;
         let _ = black_box(pwm_part(&mut pwm, black_box([x, 0.5, 0.7 - x])));
     });
-    report("real board: PWM write (Tim1Pwm via drive::apply)", s);
+    report("real board: PWM write (Tim1Pwm via io::apply)", s);
     sum + s.max
 }
 
@@ -132,5 +132,5 @@ fn angle_part(a: &mut AngleInput<pac::TIM3>) -> Result<MechanicalAngle, AngleErr
 
 #[inline(never)]
 fn pwm_part(pwm: &mut Tim1Pwm, duties: [f32; 3]) -> Result<(), Fault> {
-    drive::apply(pwm, BridgeCommand::Duties(duties))
+    io::apply(pwm, BridgeCommand::Duties(duties))
 }

@@ -1,4 +1,4 @@
-//! [`PowerStage`]: the power limits as the current stage runs them each
+//! [`PowerLimiter`]: the power limits as the current stage runs them each
 //! period (window, thermal estimate, chopper) and what it reports.
 
 use super::*;
@@ -70,7 +70,7 @@ impl PowerReport {
 /// The current stage's power limits: the configuration, the winding
 /// temperature estimate and the brake chopper, stepped once per period.
 #[derive(Clone, Copy, Debug)]
-pub struct PowerStage {
+pub struct PowerLimiter {
     pub(super) cfg: PowerLimitsConfig,
     pub(super) thermal: ThermalEstimate,
     pub(super) chopper: BrakeChopper,
@@ -83,7 +83,7 @@ pub struct PowerStage {
     pub(super) thermal_plan: ThermalPlan,
 }
 
-impl PowerStage {
+impl PowerLimiter {
     /// From `cfg` (sanitized here); the winding starts at the ambient
     /// temperature.
     pub fn new(cfg: PowerLimitsConfig) -> Self {

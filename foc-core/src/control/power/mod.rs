@@ -114,7 +114,7 @@
 //!
 //! Files: this one the configuration and its derating ramps; `window` the
 //! q-current window; `thermal` the winding-temperature estimate; `chopper`
-//! the brake chopper; `limiter` the per-period [`PowerStage`].
+//! the brake chopper; `limiter` the per-period [`PowerLimiter`].
 
 mod chopper;
 mod limiter;

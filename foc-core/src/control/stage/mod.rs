@@ -27,7 +27,7 @@ use super::joint::{Impedance, ImpedanceLaw, JointConfig};
 use super::model::{ModelCheck, Period, Verdict};
 use super::permit::Calibrated;
 use super::position::{PositionLoop, PositionLoopConfig};
-use super::power::{PowerInputs, PowerLimitsConfig, PowerReport, PowerStage};
+use super::power::{PowerInputs, PowerLimiter, PowerLimitsConfig, PowerReport};
 use super::speed::{SpeedLoop, SpeedLoopConfig};
 use super::supervisor::{Checks, Fault, Supervisor, SupervisorConfig};
 use super::Refusal;
@@ -225,7 +225,7 @@ pub struct CurrentStage {
     model: ModelCheck,
     state: CurrentStageState,
     /// Power limits, when configured.
-    power: Option<PowerStage>,
+    power: Option<PowerLimiter>,
     /// Their report of this period.
     power_report: PowerReport,
 }
@@ -253,7 +253,7 @@ impl CurrentStage {
             model: model_check(&config),
             config,
             state: CurrentStageState::new(config.angle.interpolation_half_count()),
-            power: config.power.map(PowerStage::new),
+            power: config.power.map(PowerLimiter::new),
             power_report: PowerReport::unlimited(config.limits.max_current_a),
         }
     }

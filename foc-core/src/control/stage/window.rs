@@ -15,7 +15,7 @@ impl CurrentStage {
         self.config.power = cfg;
         self.power = match (cfg, self.power.as_ref()) {
             (Some(c), Some(old)) => Some(old.reconfigured(c)),
-            (Some(c), None) => Some(PowerStage::new(c)),
+            (Some(c), None) => Some(PowerLimiter::new(c)),
             (None, _) => None,
         };
     }
