@@ -1,0 +1,77 @@
+//! What the sensors read at the sampling instant (offsets, noise,
+//! quantisation, faults).
+
+use super::*;
+
+impl Plant {
+    /// What the ADCs and the encoder read now.
+    pub(super) fn sample(&mut self) -> Measurements {
+        let s = self.cfg.sensors;
+        let i_abc = self.phase_currents_a();
+        let drives = self.drives(0.0, 1.0, i_abc);
+        let i_short = self.short_current(&drives, self.v_bus);
+        let mut legs = i_abc;
+        if let Some(sh) = self.faults.phase_short {
+            legs[sh.a.index()] += i_short;
+            legs[sh.b.index()] -= i_short;
+        }
+        let levels = (1u64 << s.adc_bits.min(31)) as Real;
+        let lsb_i = 2.0 * s.current_full_scale_a / levels;
+        let mut read = [0.0f32; 3];
+        for k in 0..3 {
+            let raw = legs[k] + s.current_offset_a[k] + self.faults.current_offset_error_a[k];
+            let sign = if self.faults.current_reversed.map(Phase::index) == Some(k) {
+                -1.0
+            } else {
+                1.0
+            };
+            let noise = s.current_noise_lsb_rms * self.rng.gaussian() as Real;
+            let counts = real::floor(sign * raw / lsb_i + levels / 2.0 + noise + 0.5)
+                .clamp(0.0, levels - 1.0);
+            read[k] = ((counts - levels / 2.0) * lsb_i) as f32;
+        }
+        if let Some(p) = self.faults.nan_current {
+            read[p.index()] = f32::NAN;
+        }
+        let currents = match s.shunts {
+            Shunts::Two => PhaseCurrents::TwoPhase {
+                a_a: read[0],
+                b_a: read[1],
+            },
+            Shunts::Three => PhaseCurrents::ThreePhase(Abc::new(read[0], read[1], read[2])),
+        };
+
+        // Encoder.
+        let cpr = s.encoder_counts_per_rev.max(1);
+        let dir = if self.faults.encoder_reversed {
+            -1.0
+        } else {
+            1.0
+        };
+        let turns = (dir * (self.theta_m - self.sensor_zero_m_rad) - s.encoder_offset_rad) / TAU;
+        let frac = turns - real::floor(turns);
+        let mut counts = (real::floor(frac * cpr as Real) as i64).rem_euclid(cpr as i64);
+        match self.faults.encoder {
+            EncoderFault::None => {}
+            EncoderFault::Stuck => counts = self.last_encoder_counts as i64,
+            EncoderFault::Jump(j) => counts = (counts + j as i64).rem_euclid(cpr as i64),
+        }
+        self.last_encoder_counts = counts as u32;
+        let bits = ((counts as u128) << 32) / cpr as u128;
+        let angle = MechanicalAngle::from_bits(bits as u32);
+
+        // Bus voltage.
+        let lsb_v = s.bus_full_scale_v / levels;
+        let noise = s.bus_noise_lsb_rms * self.rng.gaussian() as Real;
+        let vc = real::floor(self.v_bus / lsb_v + noise + 0.5).clamp(0.0, levels - 1.0);
+
+        Measurements {
+            currents,
+            angle,
+            v_bus_v: (vc * lsb_v) as f32,
+            stage_temperature_c: self.stage_thermal.map(|_| self.t_stage_c as f32),
+            time_s: self.time_s,
+            period: self.period,
+        }
+    }
+}
