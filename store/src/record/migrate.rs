@@ -1,0 +1,198 @@
+//! Older schema versions, frozen, and their migration to the current one.
+
+use super::*;
+
+/// Upgrade the payload of an older schema version to a record of this one.
+///
+/// Each older version is read with its own frozen struct and converted
+/// one step at a time: version 1 (before the power limits,
+/// [`v1::DriveRecordV1`]) gets `power: None` (the build's defaults),
+/// version 2 (before the mechanics, [`v2::DriveRecordV2`]) gets
+/// `mechanics: None`, version 3 (before the joint, [`v3::DriveRecordV3`])
+/// gets `joint: None`; a version-1 record goes `1 -> 2 -> 3 -> 4`. A
+/// migrated record is validated by the caller like any other; version 0
+/// and unknown versions are refused.
+pub(super) fn migrate(found: u16, payload: &[u8]) -> Result<DriveRecord, RecordError> {
+    match found {
+        1 => match postcard::take_from_bytes::<v1::DriveRecordV1>(payload) {
+            Ok((r, [])) => Ok(r.into_v2().into_v3().into_v4()),
+            _ => Err(RecordError::Malformed),
+        },
+        2 => match postcard::take_from_bytes::<v2::DriveRecordV2>(payload) {
+            Ok((r, [])) => Ok(r.into_v3().into_v4()),
+            _ => Err(RecordError::Malformed),
+        },
+        3 => match postcard::take_from_bytes::<v3::DriveRecordV3>(payload) {
+            Ok((r, [])) => Ok(r.into_v4()),
+            _ => Err(RecordError::Malformed),
+        },
+        _ => Err(RecordError::UnsupportedVersion {
+            found,
+            supported: SCHEMA_VERSION,
+        }),
+    }
+}
+
+/// Schema version 1: [`DriveRecord`] without `power`.
+pub mod v1 {
+    use super::*;
+
+    /// The version-1 layout (field for field [`DriveRecord`] up to
+    /// `watchdog`). Frozen: never change it.
+    #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    pub struct DriveRecordV1 {
+        /// See [`DriveRecord::label`].
+        pub label: Label,
+        /// See [`DriveRecord::pwm_frequency_hz`].
+        pub pwm_frequency_hz: u32,
+        /// See [`DriveRecord::motor`].
+        pub motor: MotorRecord,
+        /// See [`DriveRecord::current_gains`].
+        pub current_gains: CurrentGainsRecord,
+        /// See [`DriveRecord::calibration`].
+        pub calibration: Option<AngleRecord>,
+        /// See [`DriveRecord::limits`].
+        pub limits: LimitsRecord,
+        /// See [`DriveRecord::speed`].
+        pub speed: SpeedRecord,
+        /// See [`DriveRecord::position`].
+        pub position: PositionRecord,
+        /// See [`DriveRecord::dividers`].
+        pub dividers: DividersRecord,
+        /// See [`DriveRecord::watchdog`].
+        pub watchdog: WatchdogRecord,
+    }
+
+    impl DriveRecordV1 {
+        /// Version 2: the same values, the power limits at the build's
+        /// defaults.
+        pub fn into_v2(self) -> super::v2::DriveRecordV2 {
+            super::v2::DriveRecordV2 {
+                label: self.label,
+                pwm_frequency_hz: self.pwm_frequency_hz,
+                motor: self.motor,
+                current_gains: self.current_gains,
+                calibration: self.calibration,
+                limits: self.limits,
+                speed: self.speed,
+                position: self.position,
+                dividers: self.dividers,
+                watchdog: self.watchdog,
+                power: None,
+            }
+        }
+    }
+}
+
+/// Schema version 2: [`DriveRecord`] without `mechanics`.
+pub mod v2 {
+    use super::*;
+
+    /// The version-2 layout (field for field [`DriveRecord`] up to
+    /// `power`). Frozen: never change it.
+    #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    pub struct DriveRecordV2 {
+        /// See [`DriveRecord::label`].
+        pub label: Label,
+        /// See [`DriveRecord::pwm_frequency_hz`].
+        pub pwm_frequency_hz: u32,
+        /// See [`DriveRecord::motor`].
+        pub motor: MotorRecord,
+        /// See [`DriveRecord::current_gains`].
+        pub current_gains: CurrentGainsRecord,
+        /// See [`DriveRecord::calibration`].
+        pub calibration: Option<AngleRecord>,
+        /// See [`DriveRecord::limits`].
+        pub limits: LimitsRecord,
+        /// See [`DriveRecord::speed`].
+        pub speed: SpeedRecord,
+        /// See [`DriveRecord::position`].
+        pub position: PositionRecord,
+        /// See [`DriveRecord::dividers`].
+        pub dividers: DividersRecord,
+        /// See [`DriveRecord::watchdog`].
+        pub watchdog: WatchdogRecord,
+        /// See [`DriveRecord::power`].
+        pub power: Option<PowerRecord>,
+    }
+
+    impl DriveRecordV2 {
+        /// Version 3: the same values, the mechanics not identified (the
+        /// build's).
+        pub fn into_v3(self) -> super::v3::DriveRecordV3 {
+            super::v3::DriveRecordV3 {
+                label: self.label,
+                pwm_frequency_hz: self.pwm_frequency_hz,
+                motor: self.motor,
+                current_gains: self.current_gains,
+                calibration: self.calibration,
+                limits: self.limits,
+                speed: self.speed,
+                position: self.position,
+                dividers: self.dividers,
+                watchdog: self.watchdog,
+                power: self.power,
+                mechanics: None,
+            }
+        }
+    }
+}
+
+/// Schema version 3: [`DriveRecord`] without `joint`.
+pub mod v3 {
+    use super::*;
+
+    /// The version-3 layout (field for field [`DriveRecord`] up to
+    /// `mechanics`). Frozen: never change it.
+    #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    pub struct DriveRecordV3 {
+        /// See [`DriveRecord::label`].
+        pub label: Label,
+        /// See [`DriveRecord::pwm_frequency_hz`].
+        pub pwm_frequency_hz: u32,
+        /// See [`DriveRecord::motor`].
+        pub motor: MotorRecord,
+        /// See [`DriveRecord::current_gains`].
+        pub current_gains: CurrentGainsRecord,
+        /// See [`DriveRecord::calibration`].
+        pub calibration: Option<AngleRecord>,
+        /// See [`DriveRecord::limits`].
+        pub limits: LimitsRecord,
+        /// See [`DriveRecord::speed`].
+        pub speed: SpeedRecord,
+        /// See [`DriveRecord::position`].
+        pub position: PositionRecord,
+        /// See [`DriveRecord::dividers`].
+        pub dividers: DividersRecord,
+        /// See [`DriveRecord::watchdog`].
+        pub watchdog: WatchdogRecord,
+        /// See [`DriveRecord::power`].
+        pub power: Option<PowerRecord>,
+        /// See [`DriveRecord::mechanics`].
+        pub mechanics: Option<MechanicsRecord>,
+    }
+
+    impl DriveRecordV3 {
+        /// Version 4: the same values, the joint the build's.
+        pub fn into_v4(self) -> DriveRecord {
+            DriveRecord {
+                label: self.label,
+                pwm_frequency_hz: self.pwm_frequency_hz,
+                motor: self.motor,
+                current_gains: self.current_gains,
+                calibration: self.calibration,
+                limits: self.limits,
+                speed: self.speed,
+                position: self.position,
+                dividers: self.dividers,
+                watchdog: self.watchdog,
+                power: self.power,
+                mechanics: self.mechanics,
+                joint: None,
+            }
+        }
+    }
+}
