@@ -1,0 +1,423 @@
+//! The command line: commands, their arguments and help.
+
+use super::*;
+
+#[derive(Parser)]
+#[command(
+    name = "foc-ctl",
+    version,
+    about = "Command and telemetry tool for the FOC drive"
+)]
+pub(super) struct Cli {
+    /// Connect over TCP, e.g. QEMU's `-serial tcp:127.0.0.1:4444,server,nowait`.
+    #[arg(
+        long,
+        value_name = "HOST:PORT",
+        global = true,
+        conflicts_with = "serial"
+    )]
+    pub(super) tcp: Option<String>,
+    /// Serial port of a real board, e.g. /dev/ttyACM0.
+    #[arg(long, value_name = "PATH", global = true)]
+    pub(super) serial: Option<String>,
+    /// Serial baud rate.
+    #[arg(long, default_value_t = 115_200, global = true)]
+    pub(super) baud: u32,
+    /// Reply timeout per attempt [ms].
+    #[arg(long, default_value_t = 250, global = true)]
+    pub(super) timeout_ms: u64,
+    /// Retransmissions after the first attempt.
+    #[arg(long, default_value_t = 3, global = true)]
+    pub(super) retries: u32,
+    /// Reply timeout per attempt of flash operations (`config save|load|erase|import`,
+    /// reads of the stored record) [ms]: an erase stalls a board for seconds.
+    #[arg(long, default_value_t = 10000, global = true)]
+    pub(super) store_timeout_ms: u64,
+    #[command(subcommand)]
+    pub(super) cmd: Cmd,
+}
+
+#[derive(Subcommand)]
+pub(super) enum Cmd {
+    /// Protocol and firmware version.
+    Ping,
+    /// The drive's scope: PWM-rate capture of selected signals (set, arm,
+    /// trigger, status, read to CSV / SVG).
+    Scope {
+        #[command(subcommand)]
+        op: scope_cmd::ScopeCmd,
+    },
+    /// Step a loop, capture it with the scope, report overshoot, rise,
+    /// settling and bandwidth, suggest gains (leaves the drive disabled).
+    Tune(scope_cmd::TuneArgs),
+    /// Set mode and target.
+    Mode {
+        #[command(subcommand)]
+        mode: ModeCmd,
+    },
+    /// Send keep-alives (feeds the device's watchdog) for a while.
+    KeepAlive {
+        /// Interval [ms].
+        #[arg(long, default_value_t = 100)]
+        interval_ms: u64,
+        /// How long [s].
+        #[arg(long, default_value_t = 10.0)]
+        duration: f64,
+    },
+    /// Clear latched faults.
+    Clear,
+    /// Show latched faults.
+    Faults,
+    /// Read a parameter (`all` for every one).
+    Param {
+        /// pole-pairs, r, ld, lq, psi, pwm-frequency, speed-divider,
+        /// position-divider, firmware-version, protocol-version, bus-voltage,
+        /// calibrated, max-loop-cycles, telemetry-divider, watchdog-timeout, all
+        name: String,
+    },
+    /// Stream telemetry.
+    Telemetry {
+        /// Rate [Hz] (converted by the device to whole current-loop periods).
+        #[arg(long, default_value_t = 100.0, conflicts_with = "every")]
+        rate: f64,
+        /// Instead of a rate: one sample every K current-loop periods.
+        #[arg(long, value_name = "K")]
+        every: Option<u32>,
+        /// How long [s].
+        #[arg(long, default_value_t = 5.0)]
+        duration: f64,
+        /// Write the samples to a CSV file.
+        #[arg(long, value_name = "FILE")]
+        csv: Option<PathBuf>,
+        /// Live terminal sparklines of velocity and iq (on stderr).
+        #[arg(long)]
+        plot: bool,
+        /// Write an SVG plot at the end.
+        #[arg(long, value_name = "FILE")]
+        svg: Option<PathBuf>,
+    },
+    /// Set the motor's command limits (all eight; rotor frame).
+    Limits {
+        /// Current limit [A].
+        #[arg(long)]
+        max_current: f32,
+        /// Velocity limit [rad/s].
+        #[arg(long)]
+        max_velocity: f32,
+        /// Lowest position [rad].
+        #[arg(long, allow_hyphen_values = true)]
+        min_position: f32,
+        /// Highest position [rad].
+        #[arg(long, allow_hyphen_values = true)]
+        max_position: f32,
+        /// Open-loop voltage limit [V].
+        #[arg(long)]
+        max_ol_voltage: f32,
+        /// Open-loop electrical speed limit [rad/s].
+        #[arg(long)]
+        max_ol_omega_e: f32,
+        /// Largest impedance stiffness [N m/rad, rotor].
+        #[arg(long, allow_hyphen_values = true)]
+        max_kp: f32,
+        /// Largest impedance damping [N m s/rad, rotor].
+        #[arg(long, allow_hyphen_values = true)]
+        max_kd: f32,
+    },
+    /// The joint: output frame (gear, home offset), travel range, soft stop;
+    /// shown after a change, or alone without options.
+    Joint(JointArgs),
+    /// Home the joint (sets the output frame's zero) and wait for the result.
+    Home {
+        #[command(subcommand)]
+        method: HomeCmd,
+    },
+    /// One telemetry sample, the joint and homing, each value with its frame.
+    Status,
+    /// Set loop gains.
+    Gains {
+        #[command(subcommand)]
+        which: GainsCmd,
+    },
+    /// Loop dividers: speed loop every N, position loop every M periods (drive disabled).
+    Dividers {
+        /// N.
+        speed: u16,
+        /// M.
+        position: u16,
+    },
+    /// Link watchdog: reaction after TIMEOUT periods without a command or keep-alive (0 = off).
+    Watchdog {
+        /// Timeout [current-loop periods].
+        timeout_periods: u32,
+        /// Reaction.
+        #[arg(value_enum, default_value_t = Reaction::Disable)]
+        reaction: Reaction,
+    },
+    /// Start a calibration routine.
+    Calibrate {
+        /// Routine.
+        #[arg(value_enum)]
+        routine: Routine,
+    },
+    /// The drive's configuration record: show, save, load, erase, export, import.
+    Config {
+        #[command(subcommand)]
+        op: ConfigCmd,
+    },
+    /// Serve a simulated device (kinematic model) on a TCP address, for trying the tool.
+    Simulate {
+        /// Address to listen on.
+        #[arg(long, default_value = "127.0.0.1:4444")]
+        listen: String,
+        /// Mechanical end stops of the simulated rotor [rad, rotor] (to try
+        /// `home end-stop`).
+        #[arg(long, num_args = 2, value_names = ["LOW", "HIGH"], allow_hyphen_values = true)]
+        end_stops: Option<Vec<f32>>,
+    },
+}
+
+#[derive(clap::Args)]
+pub(super) struct JointArgs {
+    /// Rotor turns per output turn; negative when the output turns the other way.
+    #[arg(long, allow_hyphen_values = true)]
+    pub(super) gear_ratio: Option<f32>,
+    /// Home offset: the rotor position where the output reads 0 [rad, rotor].
+    #[arg(long, allow_hyphen_values = true)]
+    pub(super) offset: Option<f32>,
+    /// Travel range at the output [rad, output] (soft stop at its ends).
+    #[arg(long, num_args = 2, value_names = ["MIN", "MAX"], allow_hyphen_values = true, conflicts_with = "no_travel")]
+    pub(super) travel: Option<Vec<f32>>,
+    /// Remove the travel range (the motor's position range applies).
+    #[arg(long)]
+    pub(super) no_travel: bool,
+    /// Fault (TravelLimit) beyond the travel range by more than this [rad, rotor].
+    #[arg(long, allow_hyphen_values = true)]
+    pub(super) fault_margin: Option<f32>,
+    /// Soft stop's deceleration [rad/s^2, rotor].
+    #[arg(long, allow_hyphen_values = true)]
+    pub(super) brake_accel: Option<f32>,
+    /// Soft stop's velocity gain [A/(rad/s), rotor].
+    #[arg(long, allow_hyphen_values = true)]
+    pub(super) kv: Option<f32>,
+    /// Impedance entry blend [current-loop periods].
+    #[arg(long)]
+    pub(super) entry_blend: Option<u32>,
+    /// Least damping after an impedance command times out [N m s/rad, rotor].
+    #[arg(long, allow_hyphen_values = true)]
+    pub(super) timeout_kd: Option<f32>,
+}
+
+#[derive(Subcommand)]
+pub(super) enum HomeCmd {
+    /// The present position is home.
+    Present {
+        /// The output position home reads [rad, output].
+        #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+        at: f32,
+    },
+    /// Search an end stop at a slow speed, found by the current it takes
+    /// (at most the homing current), then back off. After it the joint
+    /// holds the back-off point until the next command (or the link
+    /// watchdog: damping, then disable).
+    EndStop {
+        /// Search velocity [rad/s, output]; its sign is the direction.
+        #[arg(long, allow_hyphen_values = true)]
+        velocity: f32,
+        /// Homing current [A]: the most the stop is pressed with.
+        #[arg(long, allow_hyphen_values = true)]
+        current: f32,
+        /// Share of the homing current, held with the joint still, that
+        /// means the stop is reached.
+        #[arg(long, allow_hyphen_values = true, default_value_t = 0.7)]
+        detect: f32,
+        /// How long the stop must be held [s].
+        #[arg(long, allow_hyphen_values = true, default_value_t = 0.05)]
+        confirm: f32,
+        /// Distance to back off from the stop [rad, output].
+        #[arg(long, allow_hyphen_values = true)]
+        backoff: f32,
+        /// Longest search before giving up [rad, output].
+        #[arg(long, allow_hyphen_values = true)]
+        max_travel: f32,
+        /// The output position the stop reads [rad, output].
+        #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+        at: f32,
+        /// Longest wait for the result [s].
+        #[arg(long, default_value_t = 60.0)]
+        timeout: f64,
+    },
+}
+
+impl HomeCmd {
+    /// The request (output frame) and the longest wait for its result [s].
+    pub(super) fn request(self) -> (HomingStart, f64) {
+        match self {
+            HomeCmd::Present { at } => (
+                HomingStart {
+                    method: HomingMethod::Present,
+                    home_output_rad: at,
+                },
+                0.0,
+            ),
+            HomeCmd::EndStop {
+                velocity,
+                current,
+                detect,
+                confirm,
+                backoff,
+                max_travel,
+                at,
+                timeout,
+            } => (
+                HomingStart {
+                    method: HomingMethod::EndStop(EndStop {
+                        velocity_rad_s: velocity,
+                        current_a: current,
+                        detect_fraction: detect,
+                        confirm_s: confirm,
+                        backoff_rad: backoff,
+                        max_travel_rad: max_travel,
+                    }),
+                    home_output_rad: at,
+                },
+                timeout,
+            ),
+        }
+    }
+}
+
+#[derive(Subcommand)]
+pub(super) enum ModeCmd {
+    /// Bridge off.
+    Disable,
+    /// Torque: q current [A].
+    Torque {
+        #[arg(allow_hyphen_values = true)]
+        iq_a: f32,
+    },
+    /// Velocity [rad/s, output].
+    Velocity {
+        #[arg(allow_hyphen_values = true)]
+        rad_s: f32,
+    },
+    /// Position [rad, output].
+    Position {
+        #[arg(allow_hyphen_values = true)]
+        rad: f32,
+    },
+    /// Impedance: torque = kp (position - p) + kd (velocity - v) + torque-ff
+    /// (output frame), clamped to the torque limit and the current limit.
+    Impedance {
+        /// Position reference [rad, output].
+        #[arg(long, allow_hyphen_values = true)]
+        position: f32,
+        /// Velocity reference [rad/s, output] (the reference advances with it).
+        #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+        velocity: f32,
+        /// Stiffness [N m/rad, output].
+        #[arg(long, allow_hyphen_values = true)]
+        kp: f32,
+        /// Damping [N m s/rad, output].
+        #[arg(long, allow_hyphen_values = true)]
+        kd: f32,
+        /// Feed-forward torque [N m, output].
+        #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+        torque_ff: f32,
+        /// Largest torque [N m, output] (default: the current limit's).
+        #[arg(long, allow_hyphen_values = true, default_value_t = f32::INFINITY)]
+        torque_limit: f32,
+    },
+    /// Open-loop dq voltage [V] at an electrical angle, rotating at omega_e.
+    OpenLoop {
+        #[arg(allow_hyphen_values = true)]
+        v_d: f32,
+        #[arg(allow_hyphen_values = true)]
+        v_q: f32,
+        /// Starting electrical angle [deg].
+        #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+        theta_deg: f32,
+        /// Electrical speed [rad/s].
+        #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+        omega_e: f32,
+    },
+}
+
+#[derive(Subcommand)]
+pub(super) enum GainsCmd {
+    /// Current loop [V/A, V/(A s)].
+    Current {
+        #[arg(long)]
+        kp_d: f32,
+        #[arg(long)]
+        ki_d: f32,
+        #[arg(long)]
+        kp_q: f32,
+        #[arg(long)]
+        ki_q: f32,
+    },
+    /// Speed loop [A/(rad/s), A/rad].
+    Speed {
+        #[arg(long)]
+        kp: f32,
+        #[arg(long)]
+        ki: f32,
+    },
+    /// Position loop [1/s] and trajectory limits.
+    Position {
+        #[arg(long)]
+        kp: f32,
+        /// [rad/s]
+        #[arg(long)]
+        max_velocity: f32,
+        /// [rad/s^2]
+        #[arg(long)]
+        max_acceleration: f32,
+    },
+}
+
+#[derive(Subcommand)]
+pub(super) enum ConfigCmd {
+    /// Print the configuration in force (or the stored one) as TOML.
+    Show {
+        /// The record in the drive's flash store instead (drive disabled).
+        #[arg(long)]
+        stored: bool,
+    },
+    /// Write the configuration in force to the flash store (drive disabled).
+    Save,
+    /// Apply the stored record (drive disabled; validated whole first).
+    Load,
+    /// Erase the flash store (the configuration in force is kept; the next
+    /// boot starts from the build-time defaults, uncalibrated).
+    Erase,
+    /// Write the configuration in force (or the stored one) to a TOML file.
+    Export {
+        /// The file to write.
+        file: PathBuf,
+        /// The record in the drive's flash store instead (drive disabled).
+        #[arg(long)]
+        stored: bool,
+    },
+    /// Check a TOML file on the host, send it, apply it and save it (drive disabled).
+    Import {
+        /// The file to read.
+        file: PathBuf,
+        /// Apply only; the flash store keeps its record.
+        #[arg(long)]
+        no_save: bool,
+    },
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+pub(super) enum Reaction {
+    Disable,
+    Stop,
+    Hold,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+pub(super) enum Routine {
+    Offsets,
+    Identification,
+    Alignment,
+}
