@@ -141,8 +141,6 @@ pub const FIRMWARE_VERSION: [u8; 3] = [0, 1, 0];
 pub struct SimDrive {
     /// Active command.
     pub command: Command,
-    /// Keep-alives received.
-    pub keep_alives: u32,
     /// Latched faults.
     pub faults: FaultSet,
     /// First fault.
@@ -190,7 +188,6 @@ impl Default for SimDrive {
         service.set_label(Label::try_from(DEFAULT_LABEL).unwrap_or_default());
         Self {
             command: Command::Disable,
-            keep_alives: 0,
             faults: FaultSet::EMPTY,
             first_fault: None,
             service,
@@ -214,7 +211,6 @@ impl fmt::Debug for SimDrive {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         f.debug_struct("SimDrive")
             .field("command", &self.command)
-            .field("keep_alives", &self.keep_alives)
             .field("faults", &self.faults)
             .field("first_fault", &self.first_fault)
             .field("settings", self.settings())

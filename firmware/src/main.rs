@@ -478,12 +478,14 @@ mod app {
         local = [started, power_limit]
     )]
     fn housekeeping(mut cx: housekeeping::Context) {
-        let snap = snapshot!(cx.shared);
+        let mut snap = snapshot!(cx.shared);
         let (fb, status) = (snap.feedback, snap.status);
         if status.running && !*cx.local.started {
             *cx.local.started = true;
             if let Some(cmd) = config::START_COMMAND {
                 cx.shared.command.lock(|c| c.post(cmd));
+                // The link below sees the mailbox as it is now.
+                snap.pending.command = cmd;
             }
         }
         let tm = cx.shared.timing.lock(|t| *t);

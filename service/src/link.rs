@@ -207,9 +207,10 @@ impl<S: RecordStore> DeviceContext for Link<'_, S> {
     fn set_joint(&mut self, setup: JointSetup) -> Result<(), Refusal> {
         let change = Self::joint_change(&setup, &self.service.settings().limits);
         // The drive refuses a range that leaves the active position
-        // target outside; the pending command is the one it will have.
-        let command = self.out.post.unwrap_or(self.snap.pending.command);
-        if let Command::Position { rad } = command {
+        // target outside. It applies a change before it takes a new
+        // command: the command in its mailbox (taken or about to be) is
+        // the one it checks, not one this request posts.
+        if let Command::Position { rad } = self.snap.pending.command {
             if !(change.min_position_rad..=change.max_position_rad).contains(&rad) {
                 return Err(Refusal::NotDisabled);
             }
