@@ -195,9 +195,15 @@ impl<P: Profile> Dict<P> {
                 return int(v);
             }
         }
-        let t = self.profile.targets();
-        let p = self.profile.params();
-        let a = self.profile.actuals();
+        match index {
+            0x1000..=0x1FFF => self.get_communication(index, sub, ctx),
+            0x2000..=0x5FFF => self.get_manufacturer(index, sub, ctx),
+            _ => self.get_profile(index, sub, ctx),
+        }
+    }
+
+    /// The communication objects (0x1000-0x1FFF).
+    fn get_communication<C: CanDevice>(&self, index: u16, sub: u8, ctx: &C) -> Result<Out, Abort> {
         match (index, sub) {
             (0x1001, 0) => int(self.emcy.register()),
             (0x1003, 0) => int(self.emcy.count()),
@@ -258,6 +264,14 @@ impl<P: Profile> Dict<P> {
                     .ok_or(Abort::NoObject)?;
                 map_value(c, s)
             }
+            _ => Err(Abort::NoData),
+        }
+    }
+
+    /// The manufacturer objects (0x2000-0x5FFF): the motor model, the
+    /// gains, the node's next communication settings.
+    fn get_manufacturer<C: CanDevice>(&self, index: u16, sub: u8, ctx: &C) -> Result<Out, Abort> {
+        match (index, sub) {
             (0x2000, 0) => {
                 let pp = ctx.param(ParamId::PolePairs).ok_or(Abort::NoData)?;
                 int(sat_u32(pp + 0.5).min(255))
@@ -278,6 +292,16 @@ impl<P: Profile> Dict<P> {
             (0x2014, 0) => real(ctx.param(ParamId::PositionKp)),
             (0x2100, 0) => int(self.next.node_id()),
             (0x2101, 0) => int(self.next.bitrate_kbit()),
+            _ => Err(Abort::NoData),
+        }
+    }
+
+    /// The device profile's objects (CiA 402, 0x6000 on).
+    fn get_profile<C: CanDevice>(&self, index: u16, sub: u8, ctx: &C) -> Result<Out, Abort> {
+        let t = self.profile.targets();
+        let p = self.profile.params();
+        let a = self.profile.actuals();
+        match (index, sub) {
             (0x603F, 0) => int(a.error_code),
             (0x6040, 0) => int(self.profile.controlword()),
             (0x6041, 0) => int(a.statusword),
@@ -357,10 +381,24 @@ impl<P: Profile> Dict<P> {
         def: &ObjectDef,
         v: Value,
         ctx: &C,
-        mut t: Targets,
-        mut p: Params,
+        t: Targets,
+        p: Params,
     ) -> Result<Action, Abort> {
         od::check_range(def, v)?;
+        match def.index {
+            0x1000..=0x1FFF => self.prepare_communication(def, v, ctx),
+            0x2000..=0x5FFF => self.prepare_manufacturer(def, v, ctx),
+            _ => self.prepare_profile(def, v, t, p),
+        }
+    }
+
+    /// A write to a communication object (0x1000-0x1FFF).
+    fn prepare_communication<C: CanDevice>(
+        &self,
+        def: &ObjectDef,
+        v: Value,
+        ctx: &C,
+    ) -> Result<Action, Abort> {
         let i = v.int();
         let u = i as u32;
         let a = match (def.index, def.sub) {
@@ -423,6 +461,21 @@ impl<P: Profile> Dict<P> {
                 let c = self.tpdo.get(n).ok_or(Abort::NoObject)?;
                 Action::Tpdo(n, c.with_mapping(false, s, u)?)
             }
+            _ => return Err(Abort::UnsupportedAccess),
+        };
+        Ok(a)
+    }
+
+    /// A write to a manufacturer object (0x2000-0x5FFF).
+    fn prepare_manufacturer<C: CanDevice>(
+        &self,
+        def: &ObjectDef,
+        v: Value,
+        ctx: &C,
+    ) -> Result<Action, Abort> {
+        let i = v.int();
+        let u = i as u32;
+        let a = match (def.index, def.sub) {
             (0x2012 | 0x2013, 0) => {
                 let Value::Real(x) = v else {
                     return Err(Abort::InvalidValue);
@@ -456,6 +509,23 @@ impl<P: Profile> Dict<P> {
                 }
                 Action::BitRate(u as u16)
             }
+            _ => return Err(Abort::UnsupportedAccess),
+        };
+        Ok(a)
+    }
+
+    /// A write to a device-profile object (CiA 402, 0x6000 on): targets,
+    /// the controlword and mode, or parameters (checked together).
+    fn prepare_profile(
+        &self,
+        def: &ObjectDef,
+        v: Value,
+        mut t: Targets,
+        mut p: Params,
+    ) -> Result<Action, Abort> {
+        let i = v.int();
+        let u = i as u32;
+        let a = match (def.index, def.sub) {
             (0x6040, 0) => Action::Controlword(u as u16),
             (0x6060, 0) => {
                 if OpMode::from_i8(i as i8).is_none() {
