@@ -166,9 +166,9 @@ impl Plant {
         let k3 = f(add(x0, &k2, 0.5 * dt));
         let k4 = f(add(x0, &k3, dt));
         let w = |a: Real, b: Real, c: Real, d: Real| (a + 2.0 * b + 2.0 * c + d) * dt / 6.0;
-        let mut id = self.id + w(k1.id, k2.id, k3.id, k4.id);
-        let mut iq = self.iq + w(k1.iq, k2.iq, k3.iq, k4.iq);
-        let mut omega = self.omega_m + w(k1.omega, k2.omega, k3.omega, k4.omega);
+        let id = self.id + w(k1.id, k2.id, k3.id, k4.id);
+        let iq = self.iq + w(k1.iq, k2.iq, k3.iq, k4.iq);
+        let omega = self.omega_m + w(k1.omega, k2.omega, k3.omega, k4.omega);
         let theta = self.theta_m + w(k1.theta, k2.theta, k3.theta, k4.theta);
         let v_cap = self.v_cap + w(k1.v_cap, k2.v_cap, k3.v_cap, k4.v_cap);
         self.energy.supply_j += w(k1.p_supply, k2.p_supply, k3.p_supply, k4.p_supply);
@@ -180,52 +180,94 @@ impl Plant {
         let e_in = w(k1.p_supply, k2.p_supply, k3.p_supply, k4.p_supply);
         let q_dc = w(k1.i_dc, k2.i_dc, k3.i_dc, k4.i_dc);
         let copper_j = w(k1.p_copper, k2.p_copper, k3.p_copper, k4.p_copper);
-        let (mut q_source, mut q_brake) = (0.0, 0.0);
-        if self.dc_link.is_some() {
-            let out = |p: Real| if p > 0.0 { p } else { 0.0 };
-            let e = &mut self.energy;
-            e.source_out_j += w(
-                out(k1.p_source),
-                out(k2.p_source),
-                out(k3.p_source),
-                out(k4.p_source),
-            );
-            e.source_in_j += w(
-                out(-k1.p_source),
-                out(-k2.p_source),
-                out(-k3.p_source),
-                out(-k4.p_source),
-            );
-            e.source_loss_j += w(
-                k1.p_source_loss,
-                k2.p_source_loss,
-                k3.p_source_loss,
-                k4.p_source_loss,
-            );
-            e.capacitor_j += w(k1.p_cap, k2.p_cap, k3.p_cap, k4.p_cap);
-            e.esr_j += w(k1.p_esr, k2.p_esr, k3.p_esr, k4.p_esr);
-            e.brake_j += w(k1.p_brake, k2.p_brake, k3.p_brake, k4.p_brake);
-            q_source = w(k1.i_source, k2.i_source, k3.i_source, k4.i_source);
-            q_brake = w(k1.i_brake, k2.i_brake, k3.i_brake, k4.i_brake);
+        let (q_source, q_brake) = if self.dc_link.is_some() {
             self.v_cap = v_cap;
-        }
+            self.dc_link_energy([&k1, &k2, &k3, &k4], dt)
+        } else {
+            (0.0, 0.0)
+        };
 
-        // Coulomb friction and stiction: the speed does not cross zero under friction.
+        let omega = self.stiction(omega, id, iq);
+        let (th, turns) = real::wrap_tau(theta);
+        self.theta_m = th;
+        self.turns += turns;
+        self.omega_m = omega;
+
+        let (id, iq) = self.constrain_currents(&drives, open, id, iq);
+        self.id = id;
+        self.iq = iq;
+
+        // Bus and terminal voltages at the end of the sub-step (for outputs).
+        let v_bus = self.bus(self.v_cap, &drives, self.phase_currents_a()).v_bus;
+        self.v_bus = v_bus;
+        let vt = self.terminal_voltages(&drives, v_bus);
+        SubstepOut {
+            e_in,
+            q_dc,
+            vt,
+            copper_j,
+            q_source,
+            q_brake,
+        }
+    }
+
+    /// The DC link's energies over a sub-step (RK4 weights of the four
+    /// stages `k`); the charge through the source and the brake resistor.
+    fn dc_link_energy(&mut self, k: [&Deriv; 4], dt: Real) -> (Real, Real) {
+        let [k1, k2, k3, k4] = k;
+        let w = |a: Real, b: Real, c: Real, d: Real| (a + 2.0 * b + 2.0 * c + d) * dt / 6.0;
+        let out = |p: Real| if p > 0.0 { p } else { 0.0 };
+        let e = &mut self.energy;
+        e.source_out_j += w(
+            out(k1.p_source),
+            out(k2.p_source),
+            out(k3.p_source),
+            out(k4.p_source),
+        );
+        e.source_in_j += w(
+            out(-k1.p_source),
+            out(-k2.p_source),
+            out(-k3.p_source),
+            out(-k4.p_source),
+        );
+        e.source_loss_j += w(
+            k1.p_source_loss,
+            k2.p_source_loss,
+            k3.p_source_loss,
+            k4.p_source_loss,
+        );
+        e.capacitor_j += w(k1.p_cap, k2.p_cap, k3.p_cap, k4.p_cap);
+        e.esr_j += w(k1.p_esr, k2.p_esr, k3.p_esr, k4.p_esr);
+        e.brake_j += w(k1.p_brake, k2.p_brake, k3.p_brake, k4.p_brake);
+        let q_source = w(k1.i_source, k2.i_source, k3.i_source, k4.i_source);
+        let q_brake = w(k1.i_brake, k2.i_brake, k3.i_brake, k4.i_brake);
+        (q_source, q_brake)
+    }
+
+    /// Coulomb friction and stiction: the speed `omega` does not cross zero
+    /// while the motor's torque is within the friction.
+    fn stiction(&self, omega: Real, id: Real, iq: Real) -> Real {
         if matches!(self.mechanics, Mechanics::Free)
             && self.motor.coulomb_friction_nm > 0.0
             && ((self.omega_m > 0.0 && omega < 0.0) || (self.omega_m < 0.0 && omega > 0.0))
         {
             let te = self.motor.torque_nm(id, iq);
             if (te - self.load_nm).abs() <= self.motor.coulomb_friction_nm {
-                omega = 0.0;
+                return 0.0;
             }
         }
-        let (th, turns) = real::wrap_tau(theta);
-        self.theta_m = th;
-        self.turns += turns;
-        self.omega_m = omega;
+        omega
+    }
 
-        // Constraints: open phases carry no current; a diode stops at zero current.
+    /// Constraints on the dq currents: open phases carry no current; a
+    /// diode stops at zero current.
+    fn constrain_currents(
+        &self,
+        drives: &[Leg; 3],
+        open: usize,
+        mut id: Real,
+        mut iq: Real,
+    ) -> (Real, Real) {
         let th_e = self.theta_e_rad();
         if open >= 2 {
             id = 0.0;
@@ -256,27 +298,19 @@ impl Plant {
                 iq = 0.0;
             }
         }
-        self.id = id;
-        self.iq = iq;
+        (id, iq)
+    }
 
-        // Bus and terminal voltages at the end of the sub-step (for outputs).
-        let v_bus = self.bus(self.v_cap, &drives, self.phase_currents_a()).v_bus;
-        self.v_bus = v_bus;
+    /// The terminal voltages at the end of a sub-step on the bus `v_bus`.
+    fn terminal_voltages(&self, drives: &[Leg; 3], v_bus: Real) -> [Real; 3] {
         let mut vt = [0.0; 3];
         for k in 0..3 {
             vt[k] = match drives[k] {
                 Leg::Bus(h) => h * v_bus,
-                Leg::Open => self.open_terminal_voltage(k, &drives, v_bus),
+                Leg::Open => self.open_terminal_voltage(k, drives, v_bus),
             };
         }
-        SubstepOut {
-            e_in,
-            q_dc,
-            vt,
-            copper_j,
-            q_source,
-            q_brake,
-        }
+        vt
     }
 
     /// State derivative. `x = [id, iq, omega_m, theta_m, v_cap]`.
