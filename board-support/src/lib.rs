@@ -64,6 +64,10 @@
 //!   once the NVIC line is unmasked, which is left to the RTIC app);
 //! - `pub fn emergency_disable()`: safe state from any context (steals the
 //!   peripherals; for panic / HardFault handlers), brake output included;
+//! - `pub fn after_panic() -> !` and `pub fn after_hardfault() -> !`: what
+//!   the board does once the handler has made the bridge safe and logged
+//!   (a real board stops for the debugger or the watchdog's reset; the
+//!   emulated board ends the emulation with the verdict as exit status);
 //! - `pub fn break_isr_ack()`: clears the TIM1 break flag, outputs stay off;
 //! - `pub fn gate_driver_fault() -> bool`: the power stage's fault pin is
 //!   asserted (DRV8301 nFAULT on the ODrive, L6230 DIAG/EN on the IHM07M1).

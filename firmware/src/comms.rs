@@ -51,7 +51,7 @@ pub type Link<'a> = foc_service::Link<'a, GuardedStore>;
 /// (unless the host configured it with `SetWatchdog`, `foc-ctl watchdog`):
 /// 1 s without a command or keep-alive stops the motor (velocity 0), one
 /// more second disables it (`CommandTimeout`). Commands that do not come
-/// over the link (`config::START_COMMAND`, the QEMU mission) do not arm it.
+/// over the link (`config::START_COMMAND`) do not arm it.
 pub const AUTO_WATCHDOG: WatchdogConfig = WatchdogConfig {
     timeout_periods: board::PWM_FREQUENCY_HZ,
     reaction: foc_core::control::stage::TimeoutReaction::Stop,
@@ -146,29 +146,6 @@ impl Comms {
             store: boot.store.map(GuardedStore),
             counters: LinkCounters::default(),
             tx: [0; MAX_FRAME],
-        }
-    }
-
-    /// Save the configuration in force and read it back: true when saved
-    /// and equal (the emulated board's store mission).
-    #[cfg(feature = "qemu")]
-    pub fn save_and_verify(&mut self) -> bool {
-        use foc_service::RecordStore;
-        let rec = self.service.live_record(self.device.link_setting());
-        let Some(store) = self.store.as_mut() else {
-            defmt::error!("store: none on this run");
-            return false;
-        };
-        match store.save(&rec).and_then(|()| store.load()) {
-            Ok(Some(back)) => {
-                defmt::info!("store: saved \"{=str}\"", rec.label.as_str());
-                back == rec
-            }
-            Ok(None) => false,
-            Err(e) => {
-                defmt::error!("store: {}", e);
-                false
-            }
         }
     }
 

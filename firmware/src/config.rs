@@ -46,14 +46,14 @@ pub const WATCHDOG_TIMEOUT_MS: u32 = 50;
 /// refused) until identification is run on command.
 pub const IDENTIFY_AT_STARTUP: bool = cfg!(feature = "qemu");
 
-/// [`IDENTIFY_AT_STARTUP`], except for the emulated board's damaged-store
-/// mission (`cargo xtask qemu`), which boots as a real board does, to show
-/// that it comes up uncalibrated. (The boot-from-store mission keeps the
-/// start-up identification configured: the stored calibration must replace
-/// it.)
+/// [`IDENTIFY_AT_STARTUP`], except on the emulated board started with
+/// `identify=off`, which boots as a real board does (to show that a board
+/// with a damaged store comes up uncalibrated; the boot-from-store runs
+/// keep the start-up identification configured: the stored calibration
+/// must replace it).
 pub fn identify_at_start_up() -> bool {
     #[cfg(feature = "qemu")]
-    if crate::store_mission::requested() == Some(crate::store_mission::StoreMission::Corrupt) {
+    if !board_support::board::args().identify_at_start_up {
         return false;
     }
     IDENTIFY_AT_STARTUP

@@ -4,9 +4,10 @@
 use foc_core::calibration::identification::IdentificationResult;
 use foc_core::drive::Event;
 
-/// Log `e`; returns the result of a successful identification (the
-/// current loop publishes it for the command channel and the mission).
-pub fn log(e: &Event) -> Option<IdentificationResult> {
+/// Log `e` (`period`: current-loop periods since reset); returns the
+/// result of a successful identification (the current loop publishes it
+/// for the command channel).
+pub fn log(e: &Event, period: u32) -> Option<IdentificationResult> {
     match *e {
         Event::OffsetsDone(o) => defmt::info!("current offsets [A]: {}", o),
         Event::OffsetsFailed(err) => defmt::error!("offset calibration failed: {}", err),
@@ -17,7 +18,8 @@ pub fn log(e: &Event) -> Option<IdentificationResult> {
         }
         Event::CalibrationRestored => {
             defmt::info!(
-                "start-up done: calibrated from the store, disabled, waiting for a command"
+                "start-up done: calibrated from the store at period {=u32}, disabled, waiting for a command",
+                period
             )
         }
         Event::IdentificationStarted => defmt::info!("identifying the motor"),

@@ -35,18 +35,12 @@
 #![no_std]
 #![no_main]
 
-#[cfg(feature = "qemu")]
-mod brake_mission;
 #[cfg(feature = "can")]
 mod can;
 mod comms;
 mod config;
 mod events;
-#[cfg(feature = "qemu")]
-mod mission;
 mod persist;
-#[cfg(feature = "qemu")]
-mod store_mission;
 mod timing;
 mod watchdog;
 
@@ -121,7 +115,7 @@ mod app {
     #[shared]
     struct Shared {
         /// Command mailbox. Written by `housekeeping` (prio 1: start
-        /// command, QEMU mission, link watchdog) and `serial` (prio 1:
+        /// command, link watchdog) and `serial` (prio 1:
         /// commands, keep-alives, fault clears from the link); read by
         /// `current_loop` (prio 4).
         command: CommandSlot,
@@ -332,11 +326,7 @@ mod app {
                 out
             });
         if let Some(e) = out.event {
-            #[cfg(feature = "qemu")]
-            if e == foc_core::drive::Event::CalibrationRestored {
-                super::store_mission::CALIBRATED_AT_PERIOD.store(*cx.local.tick, Ordering::Relaxed);
-            }
-            if let Some(result) = events::log(&e) {
+            if let Some(result) = events::log(&e, *cx.local.tick) {
                 let c = cx.local.drive.stage().config();
                 if let Ok(permit) = Calibrated::supplied(c.angle, c.current) {
                     cx.shared.identified.lock(|x| {
@@ -493,51 +483,6 @@ mod app {
         // Command channel: link watchdog and streamed telemetry.
         let out = cx.shared.comms.lock(|c| c.poll(snap, fb.period));
         commit!(cx.shared, &out);
-        #[cfg(feature = "qemu")]
-        {
-            let running = status.running;
-            // Only this task writes the mailbox: copy, update, write back,
-            // so the current loop is never blocked for the mission's logging.
-            let mut slot = cx.shared.command.lock(|c| *c);
-            let before = slot;
-            let done = match super::store_mission::requested() {
-                Some(m) => {
-                    let view = super::store_mission::View {
-                        fb: &fb,
-                        running,
-                        calibrated: status.calibrated,
-                        identified: snap.identified.is_some(),
-                    };
-                    let mut comms = cx.shared.comms;
-                    let mut save = || comms.lock(|c| c.save_and_verify());
-                    super::store_mission::tick(m, &view, &mut slot, &mut save)
-                }
-                None if super::brake_mission::requested() => {
-                    super::brake_mission::tick(&fb, running, &mut slot)
-                }
-                None => super::mission::tick(
-                    &fb,
-                    &mut slot,
-                    &super::mission::DriveState {
-                        running,
-                        overruns: tm.overruns,
-                        identified: snap.identified.map(|i| i.result),
-                    },
-                ),
-            };
-            if slot != before {
-                cx.shared.command.lock(|c| *c = slot);
-            }
-            if let Some(code) = done {
-                defmt::info!(
-                    "current loop: {=u32} runs, max {=u32} cycles (DWT; 0 under QEMU), {=u32} overruns",
-                    tm.runs,
-                    tm.max_cycles,
-                    tm.overruns
-                );
-                super::mission::exit(code);
-            }
-        }
         defmt::debug!(
             "mode {} w {} rad/s p {} rad iq {} A fault {} loop max {} cyc",
             fb.mode,
@@ -575,10 +520,7 @@ fn log_power_limit(
 fn panic(info: &core::panic::PanicInfo) -> ! {
     board::emergency_disable();
     defmt::error!("panic: {}", defmt::Display2Format(info));
-    #[cfg(feature = "qemu")]
-    mission::panic_exit();
-    #[cfg(not(feature = "qemu"))]
-    cortex_m::asm::udf()
+    board::after_panic()
 }
 
 /// HardFault: bridge off first, then log, then wait for the watchdog.
@@ -586,12 +528,7 @@ fn panic(info: &core::panic::PanicInfo) -> ! {
 unsafe fn HardFault(ef: &cortex_m_rt::ExceptionFrame) -> ! {
     board::emergency_disable();
     defmt::error!("HardFault at pc {=u32:#x}", ef.pc());
-    #[cfg(feature = "qemu")]
-    mission::exit(mission::EXIT_HARDFAULT);
-    #[cfg(not(feature = "qemu"))]
-    loop {
-        cortex_m::asm::nop();
-    }
+    board::after_hardfault()
 }
 
 /// Runs in `defmt::panic!` and friends: same path as a Rust panic.

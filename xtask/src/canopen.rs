@@ -81,10 +81,10 @@ pub fn firmware_on_bus(python: &Path, bus: &Path) -> Result {
     let port = e2e::free_port()?;
     let usart3 = format!("tcp:127.0.0.1:{port},server=on,wait=on");
     println!("QEMU: USART3 (CAN as SLCAN) on {usart3}");
-    // Mission `e2e`: passive, the drive is run from outside only.
+    // The drive is run from outside only (the firmware has no scripts).
     let (qemu, lines) = qemu::spawn_decoded_serials(
         &elf,
-        &["mission=e2e"],
+        &[],
         "shift=0,align=off,sleep=off",
         &["null", "null", &usart3],
     )?;

@@ -101,7 +101,7 @@ const DISABLE_EMULATED_S: f32 = 0.5;
 const RAW_REPLY_HOST_LIMIT: Duration = Duration::from_secs(3);
 
 /// Host-time backstop of a wait of `emulated_s` emulated seconds.
-fn host_backstop(emulated_s: f32) -> Duration {
+pub(crate) fn host_backstop(emulated_s: f32) -> Duration {
     Duration::from_secs_f32((emulated_s * BACKSTOP_HOST_S_PER_EMULATED_S).max(BACKSTOP_MIN_HOST_S))
 }
 
@@ -114,9 +114,11 @@ pub struct E2eArgs {
 }
 
 /// QEMU (its defmt log decoded in process), killed on drop.
-struct Emulator {
-    qemu: Child,
+pub(crate) struct Emulator {
+    pub(crate) qemu: Child,
     log: Arc<Mutex<VecDeque<String>>>,
+    /// Every decoded line so far.
+    all: Arc<Mutex<Vec<String>>>,
 }
 
 impl Drop for Emulator {
@@ -136,14 +138,28 @@ impl Emulator {
         let store = dir.join("e2e-store.bin");
         let _ = std::fs::remove_file(&store);
         let store_arg = format!("store={}", store.display());
-        let (qemu, lines) = qemu::spawn_decoded(
+        Self::start_with(
             elf,
-            &["mission=e2e", "sensor=absolute", store_arg.as_str()],
-            "shift=0,align=off,sleep=off",
-            &serial,
-        )?;
+            &["sensor=absolute", store_arg.as_str()],
+            &["null", serial.as_str()],
+            verbose,
+        )
+    }
+
+    /// QEMU with semihosting arguments `args` and `-serial` devices
+    /// `serials` (USART1, USART2, ...), its log decoded (echoed when
+    /// `verbose`, else warnings and errors only).
+    pub(crate) fn start_with(
+        elf: &Path,
+        args: &[&str],
+        serials: &[&str],
+        verbose: bool,
+    ) -> Result<Self> {
+        let (qemu, lines) =
+            qemu::spawn_decoded_serials(elf, args, "shift=0,align=off,sleep=off", serials)?;
         let log = Arc::new(Mutex::new(VecDeque::new()));
-        let tail = log.clone();
+        let all = Arc::new(Mutex::new(Vec::new()));
+        let (tail, every) = (log.clone(), all.clone());
         // Ends when QEMU's output closes (QEMU killed).
         thread::spawn(move || {
             for line in lines {
@@ -154,21 +170,45 @@ impl Emulator {
                     if l.len() >= 40 {
                         l.pop_front();
                     }
-                    l.push_back(line);
+                    l.push_back(line.clone());
+                }
+                if let Ok(mut a) = every.lock() {
+                    a.push(line);
                 }
             }
         });
-        Ok(Self { qemu, log })
+        Ok(Self { qemu, log, all })
     }
 
-    fn alive(&mut self) -> Result {
+    /// The first log line so far that contains `needle`.
+    pub(crate) fn log_line(&self, needle: &str) -> Option<String> {
+        self.all
+            .lock()
+            .ok()
+            .and_then(|a| a.iter().find(|l| l.contains(needle)).cloned())
+    }
+
+    /// QEMU's exit status once it has exited, within `backstop` host time
+    /// (`None`: still running then, or killed by a signal).
+    pub(crate) fn wait_exit(&mut self, backstop: Duration) -> Result<Option<i32>> {
+        let end = Instant::now() + backstop;
+        while Instant::now() < end {
+            if let Some(st) = self.qemu.try_wait()? {
+                return Ok(st.code());
+            }
+            thread::sleep(Duration::from_millis(20));
+        }
+        Ok(None)
+    }
+
+    pub(crate) fn alive(&mut self) -> Result {
         match self.qemu.try_wait()? {
             None => Ok(()),
             Some(s) => Err(Error(format!("QEMU exited early ({s})"))),
         }
     }
 
-    fn print_log_tail(&self) {
+    pub(crate) fn print_log_tail(&self) {
         if let Ok(l) = self.log.lock() {
             println!("last firmware log lines:");
             for line in l.iter() {
@@ -185,7 +225,7 @@ pub fn free_port() -> Result<u16> {
 }
 
 /// Connect to QEMU's server socket, retrying while it starts.
-fn connect(port: u16, deadline: Instant) -> Result<TcpStream> {
+pub(crate) fn connect(port: u16, deadline: Instant) -> Result<TcpStream> {
     let addr = SocketAddr::from((Ipv4Addr::LOCALHOST, port));
     loop {
         match TcpStream::connect_timeout(&addr, Duration::from_secs(1)) {
@@ -198,7 +238,7 @@ fn connect(port: u16, deadline: Instant) -> Result<TcpStream> {
     }
 }
 
-fn check(ok: bool, what: impl AsRef<str>) -> Result {
+pub(crate) fn check(ok: bool, what: impl AsRef<str>) -> Result {
     if ok {
         println!("PASS {}", what.as_ref());
         Ok(())
@@ -207,13 +247,13 @@ fn check(ok: bool, what: impl AsRef<str>) -> Result {
     }
 }
 
-fn client_err(what: &str) -> impl Fn(ClientError) -> Error + '_ {
+pub(crate) fn client_err(what: &str) -> impl Fn(ClientError) -> Error + '_ {
     move |e| Error(format!("{what}: {e}"))
 }
 
 /// The test proper, on a running emulator.
-struct Session {
-    client: Client,
+pub(crate) struct Session {
+    pub(crate) client: Client,
     raw: TcpStream,
     deadline: Instant,
     /// The firmware's PWM frequency [Hz] (periods per emulated second),
@@ -223,7 +263,7 @@ struct Session {
 
 impl Session {
     /// The firmware's PWM frequency [Hz], read from the device once.
-    fn pwm_hz(&mut self) -> Result<f32> {
+    pub(crate) fn pwm_hz(&mut self) -> Result<f32> {
         if let Some(hz) = self.pwm_hz {
             return Ok(hz);
         }
@@ -239,11 +279,11 @@ impl Session {
     }
 
     /// Emulated seconds from period `p0` to `p` (the firmware's counter).
-    fn emulated_s(&mut self, p0: u32, p: u32) -> Result<f32> {
+    pub(crate) fn emulated_s(&mut self, p0: u32, p: u32) -> Result<f32> {
         Ok(p.wrapping_sub(p0) as f32 / self.pwm_hz()?)
     }
 
-    fn telemetry(&mut self) -> Result<Telemetry> {
+    pub(crate) fn telemetry(&mut self) -> Result<Telemetry> {
         self.client
             .read_telemetry()
             .map_err(client_err("read telemetry"))
@@ -266,7 +306,7 @@ impl Session {
     /// the first sample); the host time is only a backstop
     /// ([`host_backstop`]). Returns the last sample and the emulated
     /// seconds it took.
-    fn wait_for(
+    pub(crate) fn wait_for(
         &mut self,
         what: &str,
         emulated_s: f32,
@@ -310,7 +350,7 @@ impl Session {
 
     /// Let `emulated_s` of emulated time pass (the firmware's period
     /// counter), with a host-time backstop. Returns the last sample.
-    fn let_pass(&mut self, emulated_s: f32) -> Result<Telemetry> {
+    pub(crate) fn let_pass(&mut self, emulated_s: f32) -> Result<Telemetry> {
         let p0 = self.telemetry()?.period;
         let pwm_hz = self.pwm_hz()?;
         let (t, _) = self.wait_for("letting emulated time pass", emulated_s * 2.0, 1, |t| {
@@ -414,7 +454,7 @@ fn run_session(emu: &mut Emulator, port: u16, start: Instant) -> Result {
 /// The checked scenarios, in order.
 impl Session {
     /// Connect the client (and a raw clone of its socket) to QEMU.
-    fn open(port: u16, deadline: Instant) -> Result<Self> {
+    pub(crate) fn open(port: u16, deadline: Instant) -> Result<Self> {
         let stream = connect(port, Instant::now() + Duration::from_secs(10))?;
         let raw = stream.try_clone()?;
         let mut client = Client::new(Box::new(TcpTransport::from_stream(stream)?))
@@ -430,7 +470,7 @@ impl Session {
     }
 
     /// Step 1a, ping: the protocol version matches.
-    fn ping(&mut self) -> Result {
+    pub(crate) fn ping(&mut self) -> Result {
         let hello = self.client.ping().map_err(client_err("ping"))?;
         check(
             hello.protocol_version == foc_protocol::PROTOCOL_VERSION,
@@ -447,7 +487,7 @@ impl Session {
 
     /// Step 1b, start-up: `calibrated` = 1 within [`STARTUP_EMULATED_S`] of
     /// emulated time (the firmware's period counter), then disabled, no fault.
-    fn startup(&mut self, emu: &mut Emulator) -> Result {
+    pub(crate) fn startup(&mut self, emu: &mut Emulator) -> Result {
         let t0 = Instant::now();
         let pwm_hz = self.pwm_hz()?;
         loop {

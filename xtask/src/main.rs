@@ -13,6 +13,7 @@ mod check;
 mod dyno;
 mod e2e;
 mod e2e_scope;
+mod fil;
 mod fuzz;
 mod python;
 mod qemu;

@@ -293,6 +293,22 @@ pub(crate) fn init(dp: pac::Peripherals, p: Params) -> Board {
     }
 }
 
+/// After a panic (the firmware's handler has turned the bridge off and
+/// logged): stop here with an undefined instruction (a debugger halts;
+/// otherwise the HardFault handler and then the independent watchdog reset
+/// the board, which boots with the bridge off).
+pub fn after_panic() -> ! {
+    cortex_m::asm::udf()
+}
+
+/// After a HardFault (bridge off, logged): wait for the independent
+/// watchdog's reset.
+pub fn after_hardfault() -> ! {
+    loop {
+        cortex_m::asm::nop();
+    }
+}
+
 /// Safe state from any context: `MOE = 0` and EN1..3 low. (No brake
 /// output to switch off on this shield.)
 pub fn emergency_disable() {

@@ -585,6 +585,22 @@ fn as5047p_on_spi3(spi: Spi<pac::SPI3>, ncs: PA0<Output>, rcc: &mut Rcc) -> Angl
     sensor
 }
 
+/// After a panic (the firmware's handler has turned the bridge off and
+/// logged): stop here with an undefined instruction (a debugger halts;
+/// otherwise the HardFault handler and then the independent watchdog reset
+/// the board, which boots with the bridge off).
+pub fn after_panic() -> ! {
+    cortex_m::asm::udf()
+}
+
+/// After a HardFault (bridge off, logged): wait for the independent
+/// watchdog's reset.
+pub fn after_hardfault() -> ! {
+    loop {
+        cortex_m::asm::nop();
+    }
+}
+
 /// Safe state from any context: `MOE = 0` and EN_GATE low (both DRV8301
 /// shut down; `init` must run again before the bridge can be enabled), and
 /// the brake chopper off (AUX_H low, taken from the timer; it stays off

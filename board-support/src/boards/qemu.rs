@@ -42,17 +42,19 @@
 //! physics time advances by exactly one PWM period per interrupt, whatever
 //! the emulated clock does.
 //!
-//! [`sim`] is the test harness's handle on the plant (load torque, fault
-//! injection, the true state) for the scripted mission.
+//! [`sim`] is the handle on the plant (load torque, fault injection, the
+//! true state) of the emulated bench: its instrument port (USART1, polled
+//! by the physics, see [`crate::logic::instrument`]) and the bench binary.
+//! The firmware never uses it.
 //!
 //! Options come from the semihosting command line ([`args`], see
 //! [`crate::logic::emu_args`]): `store=PATH` backs [`StoreFlash`] with a
 //! host file (`super::qemu_store`), `sensor=absolute` replaces the
 //! incremental encoder by an absolute (AS5047P-like, 14-bit) sensor
 //! mounted [`SIM_AS5047P_MOUNTING_OFFSET_RAD`] from the rotor's zero,
-//! `rotor=X` starts the rotor at `X` rad, `mission=NAME` names the test
-//! mission, `supply=nonsinking` and `brake=OHMS` configure the DC link
-//! (above). Without options the board behaves as before: incremental
+//! `rotor=X` starts the rotor at `X` rad, `supply=nonsinking` and
+//! `brake=OHMS` configure the DC link (above), `identify=off` tells the
+//! firmware to boot without the start-up identification. Without options the board behaves as before: incremental
 //! encoder, rotor at 0, no DC link, reading exactly what it read before
 //! the options existed.
 
@@ -527,6 +529,22 @@ pub fn init(dp: pac::Peripherals) -> Board {
             pclk_hz: SYSCLK_HZ,
         },
     ));
+    // Instrument port (the emulated bench's, see `instrument`): USART1,
+    // RCC_APB2ENR.USART1EN (RM0090 7.3.14; not modelled by QEMU), polled
+    // by the physics.
+    dp.RCC.apb2enr().modify(|_, w| w.usart1en().set_bit());
+    let port = CommandSerial::usart1(
+        dp.USART1,
+        SerialConfig {
+            baud: SERIAL_BAUD,
+            pclk_hz: SYSCLK_HZ,
+        },
+    );
+    free(|cs| {
+        INSTRUMENT
+            .borrow(cs)
+            .replace(Some(instrument::Port::new(port)))
+    });
     Board {
         pwm: SimPwm { _private: () },
         currents: SimCurrents {
@@ -601,6 +619,170 @@ fn TIM2() {
     tim.sr().write(|w| w.uif().clear_bit());
     step_physics();
     cortex_m::peripheral::NVIC::pend(CURRENT_IRQ);
+    instrument::poll();
+}
+
+/// The instrument port (USART1), once `init` has set it up.
+static INSTRUMENT: Mutex<RefCell<Option<instrument::Port>>> = Mutex::new(RefCell::new(None));
+
+/// The emulated bench's instrument port (see
+/// [`crate::logic::instrument`]): requests from the host on USART1, each
+/// acted on the simulated world and answered, polled once a period by the
+/// physics (TIM2). The firmware never touches it.
+mod instrument {
+    use super::sim::{self, SimFault};
+    use super::{free, CommandSerial, INSTRUMENT};
+    use crate::logic::instrument::{LineBuf, Reply, Request};
+    use core::fmt::Write as _;
+
+    /// The UART and its line buffer.
+    pub(super) struct Port {
+        serial: CommandSerial,
+        line: LineBuf,
+    }
+
+    impl Port {
+        pub(super) fn new(serial: CommandSerial) -> Self {
+            Self {
+                serial,
+                line: LineBuf::new(),
+            }
+        }
+    }
+
+    /// Take what arrived; act on complete requests (at most a few bytes a
+    /// period: QEMU hands one byte per empty receive register).
+    pub(super) fn poll() {
+        let mut panic = false;
+        free(|cs| {
+            let mut cell = INSTRUMENT.borrow(cs).borrow_mut();
+            let Some(p) = cell.as_mut() else {
+                return;
+            };
+            p.serial.on_interrupt();
+            while let Some(b) = p.serial.read_byte() {
+                let Some(line) = p.line.push(b) else {
+                    continue;
+                };
+                let mut reply = Reply::new();
+                match Request::parse(line) {
+                    Some(Request::Panic) => panic = true,
+                    Some(r) => act(r, &mut reply),
+                    None => {
+                        let _ = reply.write_str("error");
+                    }
+                }
+                let _ = reply.write_str("\n");
+                p.serial.write(reply.as_bytes());
+            }
+            p.serial.on_interrupt();
+        });
+        if panic {
+            // The emulated hardware fails inside its own interrupt: the
+            // firmware's panic handler must leave the bridge safe.
+            #[allow(clippy::panic)]
+            {
+                panic!("forced panic (instrument port)");
+            }
+        }
+    }
+
+    /// One request on the simulated world; its reply into `reply`.
+    fn act(r: Request, reply: &mut Reply) {
+        let ok = match r {
+            Request::Load(nm) => {
+                sim::set_load_torque_nm(nm);
+                true
+            }
+            Request::Jump(n) => {
+                sim::inject(SimFault::EncoderJump(n));
+                true
+            }
+            Request::Stuck => {
+                sim::inject(SimFault::EncoderStuck);
+                true
+            }
+            Request::Clear => {
+                sim::inject(SimFault::None);
+                true
+            }
+            Request::Break => {
+                sim::raise_break();
+                true
+            }
+            Request::Watch(w) => {
+                sim::start_stop_watch(w);
+                true
+            }
+            Request::Truth => {
+                let t = sim::truth();
+                let _ = write!(
+                    reply,
+                    "truth {} {} {} {} {} {} {} {} {} {}",
+                    t.time_s,
+                    t.omega_m_rad_s,
+                    t.position_rad,
+                    u8::from(t.bridge_enabled),
+                    u8::from(sim::outputs_on()),
+                    u8::from(sim::break_latched()),
+                    sim::on_periods_after_break(),
+                    t.periods,
+                    t.v_bus_v,
+                    t.brake_energy_j
+                );
+                false
+            }
+            Request::WatchRead => {
+                match sim::stop_watch() {
+                    Some(w) => {
+                        let _ = write!(
+                            reply,
+                            "watch {} {} {} {} {}",
+                            w.peak_v_bus_v,
+                            w.settle_periods(),
+                            w.armed_at_period,
+                            w.brake_energy_at_arm_j,
+                            w.kinetic_energy_at_arm_j
+                        );
+                    }
+                    None => {
+                        let _ = reply.write_str("watch none");
+                    }
+                }
+                false
+            }
+            Request::Panic => false,
+        };
+        if ok {
+            let _ = reply.write_str("ok");
+        }
+    }
+}
+
+/// After a panic (the firmware's handler has turned the bridge off and
+/// logged): let the simulated world run on for 20 periods, then end the
+/// emulation with the verdict as QEMU's exit status: 3 when the bridge is
+/// off and stayed off (the safe state), 2 otherwise.
+pub fn after_panic() -> ! {
+    // The physics may be the code that panicked (TIM2 cannot preempt
+    // itself): step it by hand.
+    for _ in 0..20 {
+        step_physics();
+    }
+    let t = sim::truth();
+    let safe = !sim::outputs_on() && !t.bridge_enabled && sim::emergency_latched();
+    if safe {
+        defmt::info!("panic: bridge in the safe state (20 periods later)");
+        sim::exit(3)
+    } else {
+        defmt::error!("panic: bridge NOT in the safe state");
+        sim::exit(2)
+    }
+}
+
+/// After a HardFault (bridge off, logged): end the emulation, exit status 4.
+pub fn after_hardfault() -> ! {
+    sim::exit(4)
 }
 
 /// The test harness's handle on the simulated world.

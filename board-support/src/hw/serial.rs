@@ -124,6 +124,17 @@ impl CommandSerial {
         Self::at(pac::USART2::ptr() as usize, cfg)
     }
 
+    /// Set up USART1 (RM0090 §2.3 memory map: 0x4001_1000, on APB2; the
+    /// same register block, RM0090 §30.6), clock already enabled
+    /// (`RCC_APB2ENR.USART1EN`, RM0090 §7.3.14): 8N1 at `cfg.baud`,
+    /// receiver and transmitter on. The emulated board polls it as its
+    /// instrument port (QEMU's first `-serial` device); its NVIC line stays
+    /// masked.
+    #[cfg(feature = "qemu")]
+    pub fn usart1(_usart: pac::USART1, cfg: SerialConfig) -> Self {
+        Self::at(pac::USART1::ptr() as usize, cfg)
+    }
+
     /// Set up USART3 (RM0090 §2.3 memory map: 0x4000_4800, on APB1; the
     /// same register block as USART2, RM0090 §30.6), clock already enabled
     /// (`RCC_APB1ENR.USART3EN`, RM0090 §7.3.13) and pins already in their

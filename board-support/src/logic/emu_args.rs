@@ -17,6 +17,7 @@
 //! | `mission` | name, <= 16 bytes UTF-8        | empty                     |
 //! | `supply`  | `nonsinking` or `ideal`        | ideal: no DC link         |
 //! | `brake`   | brake resistor [ohm], finite, > 0 | none                   |
+//! | `identify`| `on` or `off`: identify at start-up (as configured) or boot as a real board does | on |
 //!
 //! `supply=nonsinking` gives the emulated plant a DC link (bulk capacitor,
 //! a 24 V source that cannot take current back); `brake=OHMS` fits a brake
@@ -75,6 +76,9 @@ pub struct EmuArgs {
     /// `brake=R`: a brake resistor of `R` ohm across the DC link, switched
     /// by the firmware's chopper; `None` without (no brake output).
     pub brake_resistor_ohm: Option<f32>,
+    /// `identify=off`: boot without the start-up identification, as a real
+    /// board does (`on`, the default: as the firmware is configured).
+    pub identify_at_start_up: bool,
 }
 
 impl Default for EmuArgs {
@@ -95,6 +99,7 @@ impl EmuArgs {
         mission_len: 0,
         supply: EmuSupply::Ideal,
         brake_resistor_ohm: None,
+        identify_at_start_up: true,
     };
 
     /// Parse a command line (see the module docs); never fails.
@@ -129,6 +134,11 @@ impl EmuArgs {
                 }
             }
             b"mission" => self.set_mission(value),
+            b"identify" => match value {
+                b"on" => self.identify_at_start_up = true,
+                b"off" => self.identify_at_start_up = false,
+                _ => {}
+            },
             b"supply" => match value {
                 b"nonsinking" => self.supply = EmuSupply::NonSinking,
                 b"ideal" => self.supply = EmuSupply::Ideal,

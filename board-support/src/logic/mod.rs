@@ -10,6 +10,7 @@ pub mod drv8301;
 pub mod emu_args;
 pub mod encoder;
 pub mod hall;
+pub mod instrument;
 pub mod nor_region;
 pub mod pwm_timing;
 pub mod scaling;
