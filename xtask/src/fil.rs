@@ -222,6 +222,16 @@ impl Rig {
             .map_err(client_err("command"))
     }
 
+    /// Clear the faults and wait until the drive has taken the clear (at
+    /// its next period; a command sent before is refused while the fault
+    /// still shows).
+    fn clear(&mut self) -> Result {
+        self.s.client.clear_faults().map_err(client_err("clear"))?;
+        self.s
+            .wait_for("faults cleared", 0.05, 1, |t| t.fault_code == 0)?;
+        Ok(())
+    }
+
     fn first_fault(&mut self) -> Result<Option<Fault>> {
         Ok(Fault::from_code(self.s.telemetry()?.fault_code))
     }
@@ -352,11 +362,18 @@ fn main_steps(r: &mut Rig) -> Result {
     r.command(DriveCommand::Disable)
 }
 
-/// Position move of +30 rad: within 0.05 rad and at rest after 0.8 s, the
-/// true rotor moved as the drive says.
+/// Position move of +30 rad from rest: within 0.05 rad and at rest after
+/// 0.8 s, the true rotor moved as the drive says (both read at rest, so the
+/// moment each is read does not matter).
 fn position_move(r: &mut Rig) -> Result {
+    r.command(DriveCommand::Velocity { rad_s: 0.0 })?;
+    r.s.let_pass(0.3)?;
     let t = r.s.telemetry()?;
     let tr = r.inst.truth()?;
+    check(
+        tr.omega_rad_s.abs() < 1.0,
+        format!("at rest before the move ({:.3} rad/s)", tr.omega_rad_s),
+    )?;
     let target = t.position_rad + 30.0;
     let offset = tr.position_rad - t.position_rad;
     r.command(DriveCommand::Position { rad: target })?;
@@ -395,7 +412,7 @@ fn encoder_fault(r: &mut Rig) -> Result {
         t.mode == Mode::Disabled && !tr.outputs,
         "bridge still off until the explicit clear",
     )?;
-    r.s.client.clear_faults().map_err(client_err("clear"))?;
+    r.clear()?;
     r.command(DriveCommand::Velocity { rad_s: 50.0 })?;
     r.s.let_pass(0.4)?;
     let tr = r.inst.truth()?;
@@ -433,7 +450,7 @@ fn break_input(r: &mut Rig) -> Result {
         !tr.outputs && tr.break_latched && tr.on_after_break == 0,
         "break latch holds until the explicit clear",
     )?;
-    r.s.client.clear_faults().map_err(client_err("clear"))?;
+    r.clear()?;
     r.command(DriveCommand::Velocity { rad_s: 50.0 })?;
     r.s.let_pass(0.4)?;
     let tr = r.inst.truth()?;
