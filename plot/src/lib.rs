@@ -329,6 +329,16 @@ fn draw_panel(
             }
         }
     }
+    draw_legend(&legend, panel, marker.map(|(_, l)| l))
+}
+
+/// The legend beside a panel's plot: a line sample and the name of each
+/// series ("(no data)" when it has none), and the marker's label.
+fn draw_legend(
+    legend: &DrawingArea<SVGBackend<'_>, Shift>,
+    panel: &Panel<'_>,
+    marker: Option<&str>,
+) -> io::Result<()> {
     // Legend beside the plot: a line sample and the name per series.
     let text = TextStyle::from((FONT, 17).into_font()).color(&BLACK);
     let mut y = 12;
@@ -352,7 +362,7 @@ fn draw_panel(
         legend.draw_text(&name, &text, (36, y)).map_err(other)?;
         y += 22;
     }
-    if let Some((_, label)) = marker {
+    if let Some(label) = marker {
         legend
             .draw(&PathElement::new(
                 [(18, y), (18, y + 14)],

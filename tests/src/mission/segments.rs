@@ -243,26 +243,7 @@ impl Mission<'_> {
             let mut link = base.battery(v_src, 0.02);
             link.brake_resistor_ohm = brake.then_some(resistor_ohm);
             self.sim.plant.set_dc_link(Some(link));
-            self.sim
-                .cascade
-                .command(Command::Velocity { rad_s: w0 })
-                .ok();
-            // Until settled within 2 % of the speed for 50 ms (at most
-            // BRAKE_SPIN_S).
-            let mut settled = 0;
-            for _ in 0..secs(setup, BRAKE_SPIN_S) {
-                self.sim.step();
-                self.progress.tick(&self.sim);
-                let w = self.sim.plant.omega_m_rad_s() as f32;
-                settled = if (w - w0).abs() < 0.02 * w0.abs() {
-                    settled + 1
-                } else {
-                    0
-                };
-                if settled >= secs(setup, 0.05) {
-                    break;
-                }
-            }
+            self.spin_to(w0);
             if let Some(l) = self.sim.plant.dc_link_mut() {
                 l.source = SourceKind::NonSinking;
             }
@@ -272,69 +253,7 @@ impl Mission<'_> {
                 limits
             };
             self.sim.cascade.current.set_power_limits(Some(cfg));
-            self.sim.plant.reset_energy();
-            let ke0 = self.sim.plant.kinetic_energy_j() as f64;
-            let faults0: Vec<_> = self.sim.cascade.feedback().faults.iter().collect();
-            let n_ramp = (ramp_s * setup.bench.pwm_frequency_hz as f64).round() as usize;
-            let n = secs(setup, BRAKE_STOP_S);
-            let ts = 1.0 / setup.bench.pwm_frequency_hz as f64;
-            let mut stop = StopFigures {
-                ramp_s,
-                from_rad_s: self.sim.plant.omega_m_rad_s() as f64,
-                peak_bus_v: 0.0,
-                stop_s: None,
-                end_rad_s: 0.0,
-                kinetic_j: 0.0,
-                capacitor_j: 0.0,
-                resistor_j: 0.0,
-                copper_j: 0.0,
-                friction_j: 0.0,
-                source_j: 0.0,
-                regen_limited_periods: 0,
-                brake_periods: 0,
-                faults: Vec::new(),
-            };
-            for k in 0..n {
-                if k <= n_ramp && k % self.plan.speed_div == 0 {
-                    let w = if n_ramp == 0 {
-                        0.0
-                    } else {
-                        w0 * (1.0 - k as f32 / n_ramp as f32)
-                    };
-                    self.sim
-                        .cascade
-                        .command(Command::Velocity { rad_s: w })
-                        .ok();
-                }
-                self.sim.step();
-                self.progress.tick(&self.sim);
-                stop.peak_bus_v = stop.peak_bus_v.max(self.sim.plant.v_bus_v() as f64);
-                let fb = self.sim.cascade.feedback();
-                stop.regen_limited_periods += usize::from(fb.power.active == ActiveLimit::Regen);
-                stop.brake_periods += usize::from(fb.power.brake_on);
-                if stop.stop_s.is_none()
-                    && (self.sim.plant.omega_m_rad_s() as f64).abs() < 0.02 * w0 as f64
-                {
-                    stop.stop_s = Some((k + 1) as f64 * ts);
-                }
-            }
-            let e = *self.sim.plant.energy();
-            stop.end_rad_s = self.sim.plant.omega_m_rad_s() as f64;
-            stop.kinetic_j = ke0 - self.sim.plant.kinetic_energy_j() as f64;
-            stop.capacitor_j = e.capacitor_j as f64;
-            stop.resistor_j = e.brake_j as f64;
-            stop.copper_j = e.copper_j as f64;
-            stop.friction_j = e.friction_j as f64;
-            stop.source_j = (e.source_out_j - e.source_in_j) as f64;
-            stop.faults = self
-                .sim
-                .cascade
-                .feedback()
-                .faults
-                .iter()
-                .filter(|f| !faults0.contains(f))
-                .map(|f| f.name().to_string())
-                .collect();
+            let stop = self.stop_figures(w0, ramp_s);
             self.sim.cascade.current.set_power_limits(None);
             self.sim.plant.set_brake(false);
             self.sim.plant.set_dc_link(None);
@@ -354,5 +273,101 @@ impl Mission<'_> {
             resistor,
             resistor_ohm: resistor_ohm as f64,
         }
+    }
+
+    /// Spin to `w0` and hold it within 2 % for 50 ms (at most
+    /// [`BRAKE_SPIN_S`]).
+    fn spin_to(&mut self, w0: f32) {
+        let setup = self.setup;
+        self.sim
+            .cascade
+            .command(Command::Velocity { rad_s: w0 })
+            .ok();
+        // Until settled within 2 % of the speed for 50 ms (at most
+        // BRAKE_SPIN_S).
+        let mut settled = 0;
+        for _ in 0..secs(setup, BRAKE_SPIN_S) {
+            self.sim.step();
+            self.progress.tick(&self.sim);
+            let w = self.sim.plant.omega_m_rad_s() as f32;
+            settled = if (w - w0).abs() < 0.02 * w0.abs() {
+                settled + 1
+            } else {
+                0
+            };
+            if settled >= secs(setup, 0.05) {
+                break;
+            }
+        }
+    }
+
+    /// Stop from `w0` (a ramp over `ramp_s`, or at once) with the power
+    /// limits in force: the stop's figures.
+    fn stop_figures(&mut self, w0: f32, ramp_s: f64) -> StopFigures {
+        let setup = self.setup;
+        self.sim.plant.reset_energy();
+        let ke0 = self.sim.plant.kinetic_energy_j() as f64;
+        let faults0: Vec<_> = self.sim.cascade.feedback().faults.iter().collect();
+        let n_ramp = (ramp_s * setup.bench.pwm_frequency_hz as f64).round() as usize;
+        let n = secs(setup, BRAKE_STOP_S);
+        let ts = 1.0 / setup.bench.pwm_frequency_hz as f64;
+        let mut stop = StopFigures {
+            ramp_s,
+            from_rad_s: self.sim.plant.omega_m_rad_s() as f64,
+            peak_bus_v: 0.0,
+            stop_s: None,
+            end_rad_s: 0.0,
+            kinetic_j: 0.0,
+            capacitor_j: 0.0,
+            resistor_j: 0.0,
+            copper_j: 0.0,
+            friction_j: 0.0,
+            source_j: 0.0,
+            regen_limited_periods: 0,
+            brake_periods: 0,
+            faults: Vec::new(),
+        };
+        for k in 0..n {
+            if k <= n_ramp && k % self.plan.speed_div == 0 {
+                let w = if n_ramp == 0 {
+                    0.0
+                } else {
+                    w0 * (1.0 - k as f32 / n_ramp as f32)
+                };
+                self.sim
+                    .cascade
+                    .command(Command::Velocity { rad_s: w })
+                    .ok();
+            }
+            self.sim.step();
+            self.progress.tick(&self.sim);
+            stop.peak_bus_v = stop.peak_bus_v.max(self.sim.plant.v_bus_v() as f64);
+            let fb = self.sim.cascade.feedback();
+            stop.regen_limited_periods += usize::from(fb.power.active == ActiveLimit::Regen);
+            stop.brake_periods += usize::from(fb.power.brake_on);
+            if stop.stop_s.is_none()
+                && (self.sim.plant.omega_m_rad_s() as f64).abs() < 0.02 * w0 as f64
+            {
+                stop.stop_s = Some((k + 1) as f64 * ts);
+            }
+        }
+        let e = *self.sim.plant.energy();
+        stop.end_rad_s = self.sim.plant.omega_m_rad_s() as f64;
+        stop.kinetic_j = ke0 - self.sim.plant.kinetic_energy_j() as f64;
+        stop.capacitor_j = e.capacitor_j as f64;
+        stop.resistor_j = e.brake_j as f64;
+        stop.copper_j = e.copper_j as f64;
+        stop.friction_j = e.friction_j as f64;
+        stop.source_j = (e.source_out_j - e.source_in_j) as f64;
+        stop.faults = self
+            .sim
+            .cascade
+            .feedback()
+            .faults
+            .iter()
+            .filter(|f| !faults0.contains(f))
+            .map(|f| f.name().to_string())
+            .collect();
+        stop
     }
 }

@@ -297,47 +297,7 @@ impl MissionSummary {
             f.push(format!("identification failed: {e}"));
         }
         if let Some(id) = &self.identification {
-            // Issue 9's requirements: R and L within 5 %, flux linkage
-            // within 10 %, pole pairs and direction exact (the rotor starts
-            // at 0.7 rad here; R no longer depends on the start angle).
-            for (name, (_, err)) in [("R", id.r_ohm), ("Ld", id.ld_h), ("Lq", id.lq_h)] {
-                if !below(err.abs(), 5.0) {
-                    f.push(format!("identified {name} off by {err:+.1} %"));
-                }
-            }
-            if let Some((_, err)) = id.flux_linkage_wb {
-                if !below(err.abs(), 10.0) {
-                    f.push(format!("identified flux linkage off by {err:+.1} %"));
-                }
-            }
-            // Issue 18: inertia within 10 %, friction within 20 %.
-            match &id.mechanics {
-                Some(mf) => {
-                    if !below(mf.inertia_kg_m2.1.abs(), 10.0) {
-                        f.push(format!(
-                            "identified inertia off by {:+.1} %",
-                            mf.inertia_kg_m2.1
-                        ));
-                    }
-                    for (w, _, e) in mf.torque_at {
-                        if !below(e.abs(), 20.0) {
-                            f.push(format!(
-                                "identified friction at {w:.1} rad/s off by {e:+.1} %"
-                            ));
-                        }
-                    }
-                }
-                None => f.push("mechanics not identified".into()),
-            }
-            if id.pole_pairs.0 != id.pole_pairs.1 {
-                f.push(format!(
-                    "pole pairs {} found, {} true",
-                    id.pole_pairs.0, id.pole_pairs.1
-                ));
-            }
-            if id.reversed.0 != id.reversed.1 {
-                f.push("sensor direction wrong".into());
-            }
+            f.extend(id.failures());
         }
         if self.align_error_deg.abs() > 15.0 + self.encoder_count_rad.to_degrees() * 21.0 {
             f.push(format!("alignment error {:.1} deg", self.align_error_deg));
@@ -378,21 +338,84 @@ impl MissionSummary {
             f.extend(z.failures());
         }
         if let Some(b) = &self.braking {
-            for (name, stop) in [("capacitor", &b.capacitor), ("resistor", &b.resistor)] {
-                if !below(stop.peak_bus_v, b.over_voltage_v) {
-                    f.push(format!(
-                        "braking ({name}): bus {:.2} V, over-voltage threshold {:.2} V",
-                        stop.peak_bus_v, b.over_voltage_v
-                    ));
-                }
-                if !stop.faults.is_empty() {
-                    f.push(format!(
-                        "braking ({name}): faults latched: {}",
-                        stop.faults.join(", ")
-                    ));
-                }
+            f.extend(b.failures());
+        }
+        f
+    }
+}
+
+impl IdentificationSummary {
+    /// What is out of its requirement: R and L within 5 %, flux linkage
+    /// within 10 % (issue 9), inertia within 10 % and friction within 20 %
+    /// (issue 18), pole pairs and direction exact.
+    pub fn failures(&self) -> Vec<String> {
+        let mut f = Vec::new();
+        // Issue 9's requirements: R and L within 5 %, flux linkage
+        // within 10 %, pole pairs and direction exact (the rotor starts
+        // at 0.7 rad here; R no longer depends on the start angle).
+        for (name, (_, err)) in [("R", self.r_ohm), ("Ld", self.ld_h), ("Lq", self.lq_h)] {
+            if !below(err.abs(), 5.0) {
+                f.push(format!("identified {name} off by {err:+.1} %"));
             }
         }
+        if let Some((_, err)) = self.flux_linkage_wb {
+            if !below(err.abs(), 10.0) {
+                f.push(format!("identified flux linkage off by {err:+.1} %"));
+            }
+        }
+        // Issue 18: inertia within 10 %, friction within 20 %.
+        match &self.mechanics {
+            Some(mf) => {
+                if !below(mf.inertia_kg_m2.1.abs(), 10.0) {
+                    f.push(format!(
+                        "identified inertia off by {:+.1} %",
+                        mf.inertia_kg_m2.1
+                    ));
+                }
+                for (w, _, e) in mf.torque_at {
+                    if !below(e.abs(), 20.0) {
+                        f.push(format!(
+                            "identified friction at {w:.1} rad/s off by {e:+.1} %"
+                        ));
+                    }
+                }
+            }
+            None => f.push("mechanics not identified".into()),
+        }
+        if self.pole_pairs.0 != self.pole_pairs.1 {
+            f.push(format!(
+                "pole pairs {} found, {} true",
+                self.pole_pairs.0, self.pole_pairs.1
+            ));
+        }
+        if self.reversed.0 != self.reversed.1 {
+            f.push("sensor direction wrong".into());
+        }
+
+        f
+    }
+}
+
+impl BrakingSummary {
+    /// What is out of its requirement: the bus below the over-voltage
+    /// threshold, no fault latched, in both braking segments.
+    pub fn failures(&self) -> Vec<String> {
+        let mut f = Vec::new();
+        for (name, stop) in [("capacitor", &self.capacitor), ("resistor", &self.resistor)] {
+            if !below(stop.peak_bus_v, self.over_voltage_v) {
+                f.push(format!(
+                    "braking ({name}): bus {:.2} V, over-voltage threshold {:.2} V",
+                    stop.peak_bus_v, self.over_voltage_v
+                ));
+            }
+            if !stop.faults.is_empty() {
+                f.push(format!(
+                    "braking ({name}): faults latched: {}",
+                    stop.faults.join(", ")
+                ));
+            }
+        }
+
         f
     }
 }
