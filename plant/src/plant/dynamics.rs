@@ -346,34 +346,10 @@ impl Plant {
             did = 0.0;
             diq = 0.0;
         } else if open == 1 {
-            // Solve the open phase's terminal voltage so that its current stays 0.
-            if let Some(z) = drives.iter().position(|d| matches!(d, Leg::Open)) {
-                let (c, s) = cs[z];
-                let (ad, aq) = (c, -s);
-                let (gd, gq) = (ad / m.ld_h, aq / m.lq_h);
-                let (add, adq) = (-we * s, -we * c);
-                let den = ad * gd + aq * gq;
-                let mu = -(ad * did + aq * diq + add * id + adq * iq) / den;
-                did += mu * gd;
-                diq += mu * gq;
-            }
+            (did, diq) = self.open_phase_held(drives, &cs, we, (id, iq), (did, diq));
         }
         let te = if open >= 2 { 0.0 } else { m.torque_nm(id, iq) };
-        let domega = match self.mechanics {
-            Mechanics::Free => {
-                let tc = if omega > 0.0 {
-                    m.coulomb_friction_nm
-                } else if omega < 0.0 {
-                    -m.coulomb_friction_nm
-                } else {
-                    // Stiction: friction cancels the net torque up to its limit.
-                    let net = te - self.load_nm;
-                    net.clamp(-m.coulomb_friction_nm, m.coulomb_friction_nm)
-                };
-                (te - m.viscous_friction_nm_s_per_rad * omega - tc - self.load_nm) / m.inertia_kg_m2
-            }
-            Mechanics::Locked | Mechanics::ConstantSpeed(_) => 0.0,
-        };
+        let domega = self.acceleration(te, omega);
         let mut i_dc = 0.0;
         for k in 0..3 {
             if let Leg::Bus(h) = drives[k] {
@@ -391,21 +367,7 @@ impl Plant {
         } else {
             0.0
         };
-        // DC link: capacitor, source, ESR and brake terms (zero without).
-        let link = match &self.dc_link {
-            Some(dc) => Deriv {
-                v_cap: bus.i_cap / dc.c_f,
-                p_source: v_bus * bus.i_source,
-                p_source_loss: (self.source_v() - v_bus) * bus.i_source,
-                p_cap: v_cap * bus.i_cap,
-                p_esr: dc.esr_ohm * bus.i_cap * bus.i_cap,
-                p_brake: v_bus * bus.i_brake,
-                i_source: bus.i_source,
-                i_brake: bus.i_brake,
-                ..Deriv::default()
-            },
-            None => Deriv::default(),
-        };
+        let link = self.link_deriv(&bus, v_bus, v_cap);
         Deriv {
             id: did,
             iq: diq,
@@ -420,6 +382,70 @@ impl Plant {
             p_short,
             i_dc: i_dc + self.short_dc_current(drives, v_bus),
             ..link
+        }
+    }
+
+    /// With one phase open: its terminal voltage solved so that its current
+    /// stays 0, the dq current derivatives `(did, diq)` corrected.
+    fn open_phase_held(
+        &self,
+        drives: &[Leg; 3],
+        cs: &[(Real, Real); 3],
+        we: Real,
+        (id, iq): (Real, Real),
+        (mut did, mut diq): (Real, Real),
+    ) -> (Real, Real) {
+        let m = &self.motor;
+        if let Some(z) = drives.iter().position(|d| matches!(d, Leg::Open)) {
+            let (c, s) = cs[z];
+            let (ad, aq) = (c, -s);
+            let (gd, gq) = (ad / m.ld_h, aq / m.lq_h);
+            let (add, adq) = (-we * s, -we * c);
+            let den = ad * gd + aq * gq;
+            let mu = -(ad * did + aq * diq + add * id + adq * iq) / den;
+            did += mu * gd;
+            diq += mu * gq;
+        }
+        (did, diq)
+    }
+
+    /// The rotor's acceleration under the motor's torque `te` at `omega`
+    /// (viscous and Coulomb friction, stiction, the load; 0 when held).
+    fn acceleration(&self, te: Real, omega: Real) -> Real {
+        let m = &self.motor;
+        match self.mechanics {
+            Mechanics::Free => {
+                let tc = if omega > 0.0 {
+                    m.coulomb_friction_nm
+                } else if omega < 0.0 {
+                    -m.coulomb_friction_nm
+                } else {
+                    // Stiction: friction cancels the net torque up to its limit.
+                    let net = te - self.load_nm;
+                    net.clamp(-m.coulomb_friction_nm, m.coulomb_friction_nm)
+                };
+                (te - m.viscous_friction_nm_s_per_rad * omega - tc - self.load_nm) / m.inertia_kg_m2
+            }
+            Mechanics::Locked | Mechanics::ConstantSpeed(_) => 0.0,
+        }
+    }
+
+    /// The DC link's terms (capacitor, source, ESR, brake) of the
+    /// derivative; zero without a DC link.
+    fn link_deriv(&self, bus: &BusSolution, v_bus: Real, v_cap: Real) -> Deriv {
+        match &self.dc_link {
+            Some(dc) => Deriv {
+                v_cap: bus.i_cap / dc.c_f,
+                p_source: v_bus * bus.i_source,
+                p_source_loss: (self.source_v() - v_bus) * bus.i_source,
+                p_cap: v_cap * bus.i_cap,
+                p_esr: dc.esr_ohm * bus.i_cap * bus.i_cap,
+                p_brake: v_bus * bus.i_brake,
+                i_source: bus.i_source,
+                i_brake: bus.i_brake,
+                ..Deriv::default()
+            },
+            None => Deriv::default(),
         }
     }
 }
