@@ -42,7 +42,7 @@
 use super::common::{
     check_input, latch, periods, voltage_limit_v, CalError, CalInput, CalStep, CircularMean,
 };
-use crate::angle::{ElectricalAngle, MultiTurn};
+use crate::angle::{ElectricalAngle, MechanicalAngle, MultiTurn};
 use crate::control::stage::AngleCalibration;
 use crate::frames::Dq;
 use core::f32::consts::TAU;
@@ -150,6 +150,30 @@ struct Sweep {
     reversed: CircularMean,
 }
 
+impl Sweep {
+    /// The sensor's electrical angle against the commanded `theta`, in
+    /// both sign conventions.
+    fn record(&mut self, c: &AlignmentConfig, angle: MechanicalAngle, theta: ElectricalAngle) {
+        let normal = AngleCalibration {
+            pole_pairs: c.pole_pairs,
+            zero_offset: ElectricalAngle::ZERO,
+            reversed: false,
+            sensor_counts_per_rev: c.sensor_counts_per_rev,
+        };
+        let rev = AngleCalibration {
+            reversed: true,
+            ..normal
+        };
+        self.normal.add(
+            normal
+                .electrical(normal.mechanical(angle))
+                .wrapping_sub(theta),
+        );
+        self.reversed
+            .add(rev.electrical(rev.mechanical(angle)).wrapping_sub(theta));
+    }
+}
+
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum State {
     Hold { n: u32, forward: bool },
@@ -210,17 +234,7 @@ impl Alignment {
         }
         check_input(inp, self.cfg.max_current_a)?;
         let c = self.cfg;
-        let pos_rad = match self.position.as_mut() {
-            Some(p) => {
-                p.update(inp.angle);
-                p.to_radians()
-            }
-            None => {
-                let p = MultiTurn::new(inp.angle);
-                self.position = Some(p);
-                p.to_radians()
-            }
-        };
+        let pos_rad = self.position_rad(inp.angle);
         let v_lim = voltage_limit_v(c.max_voltage_v, inp.v_bus_v);
         let v_full = if c.voltage_v < v_lim {
             c.voltage_v
@@ -228,8 +242,6 @@ impl Alignment {
             v_lim
         };
         let hold = periods(c.hold_s, c.ts_s);
-        let lead = self.per_turn.saturating_mul(u32::from(c.lead_in_turns_e));
-        let window = self.per_turn.saturating_mul(u32::from(c.turns_e));
         let theta = self.theta;
         let mut v_d = v_full;
 
@@ -245,61 +257,8 @@ impl Alignment {
                 };
             }
             State::Sweep { n, forward } => {
-                let sweep = if forward {
-                    &mut self.fwd
-                } else {
-                    &mut self.back
-                };
-                if n == lead {
-                    sweep.start_rad = pos_rad;
-                    sweep.chunk_start_rad = pos_rad;
-                    sweep.min_chunk_rad = f32::INFINITY;
-                    sweep.max_chunk_rad = f32::NEG_INFINITY;
-                }
-                if n >= lead && n < lead + window {
-                    let normal = AngleCalibration {
-                        pole_pairs: c.pole_pairs,
-                        zero_offset: ElectricalAngle::ZERO,
-                        reversed: false,
-                        sensor_counts_per_rev: c.sensor_counts_per_rev,
-                    };
-                    let rev = AngleCalibration {
-                        reversed: true,
-                        ..normal
-                    };
-                    sweep.normal.add(
-                        normal
-                            .electrical(normal.mechanical(inp.angle))
-                            .wrapping_sub(theta),
-                    );
-                    sweep.reversed.add(
-                        rev.electrical(rev.mechanical(inp.angle))
-                            .wrapping_sub(theta),
-                    );
-                }
-                if n >= lead && (n + 1 - lead) % self.per_turn == 0 {
-                    // One electrical turn evaluated: its travel, signed in
-                    // the commanded direction.
-                    let chunk = pos_rad - sweep.chunk_start_rad;
-                    sweep.chunk_start_rad = pos_rad;
-                    let signed = if forward { chunk } else { -chunk };
-                    sweep.min_chunk_rad = sweep.min_chunk_rad.min(signed);
-                    sweep.max_chunk_rad = sweep.max_chunk_rad.max(signed);
-                }
-                if n + 1 >= lead + window {
-                    // Window closes with the sample of this period.
-                    sweep.travel_rad = pos_rad - sweep.start_rad;
-                    sweep.cmd_rad = window as f32 * self.step_bits as f32 * (TAU / 4_294_967_296.0);
-                    if forward {
-                        self.state = State::Hold {
-                            n: 0,
-                            forward: false,
-                        };
-                    } else {
-                        return self.finish().map(CalStep::Done);
-                    }
-                } else {
-                    self.state = State::Sweep { n: n + 1, forward };
+                if self.on_sweep(n, forward, pos_rad, inp.angle) {
+                    return self.finish().map(CalStep::Done);
                 }
                 let step = ElectricalAngle::from_bits(self.step_bits);
                 self.theta = if forward {
@@ -313,6 +272,69 @@ impl Alignment {
             v_dq: Dq::new(v_d, 0.0),
             theta_e: theta,
         })
+    }
+
+    /// The rotor's position since the first period [rad, mechanical].
+    fn position_rad(&mut self, angle: MechanicalAngle) -> f32 {
+        match self.position.as_mut() {
+            Some(p) => {
+                p.update(angle);
+                p.to_radians()
+            }
+            None => {
+                let p = MultiTurn::new(angle);
+                self.position = Some(p);
+                p.to_radians()
+            }
+        }
+    }
+
+    /// One period of a sweep: after the lead-in, the sensor's angle against
+    /// the commanded one in both sign conventions, and each electrical
+    /// turn's travel. True when the backward sweep's window has closed.
+    fn on_sweep(&mut self, n: u32, forward: bool, pos_rad: f32, angle: MechanicalAngle) -> bool {
+        let c = self.cfg;
+        let lead = self.per_turn.saturating_mul(u32::from(c.lead_in_turns_e));
+        let window = self.per_turn.saturating_mul(u32::from(c.turns_e));
+        let (theta, per_turn, step_bits) = (self.theta, self.per_turn, self.step_bits);
+        let sweep = if forward {
+            &mut self.fwd
+        } else {
+            &mut self.back
+        };
+        if n == lead {
+            sweep.start_rad = pos_rad;
+            sweep.chunk_start_rad = pos_rad;
+            sweep.min_chunk_rad = f32::INFINITY;
+            sweep.max_chunk_rad = f32::NEG_INFINITY;
+        }
+        if n >= lead && n < lead + window {
+            sweep.record(&c, angle, theta);
+        }
+        if n >= lead && (n + 1 - lead) % per_turn == 0 {
+            // One electrical turn evaluated: its travel, signed in
+            // the commanded direction.
+            let chunk = pos_rad - sweep.chunk_start_rad;
+            sweep.chunk_start_rad = pos_rad;
+            let signed = if forward { chunk } else { -chunk };
+            sweep.min_chunk_rad = sweep.min_chunk_rad.min(signed);
+            sweep.max_chunk_rad = sweep.max_chunk_rad.max(signed);
+        }
+        if n + 1 >= lead + window {
+            // Window closes with the sample of this period.
+            sweep.travel_rad = pos_rad - sweep.start_rad;
+            sweep.cmd_rad = window as f32 * step_bits as f32 * (TAU / 4_294_967_296.0);
+            if !forward {
+                return true;
+            }
+            self.state = State::Hold {
+                n: 0,
+                forward: false,
+            };
+        } else {
+            self.state = State::Sweep { n: n + 1, forward };
+        }
+        false
     }
 
     fn finish(&self) -> Result<AlignmentResult, CalError> {

@@ -197,6 +197,25 @@ impl FluxLinkage {
         )
     }
 
+    /// The second speed [rad/s]: the back-EMF at `emf_fraction` of the
+    /// voltage limit, from the first point's rough flux linkage.
+    fn second_speed(&self, first: (f32, f32), v_bus_v: f32) -> f32 {
+        let c = &self.cfg;
+        let v_lim = c.max_modulation * v_bus_v * crate::FRAC_1_SQRT_3;
+        let psi_rough = if first.1 > 0.0 {
+            first.0 / first.1
+        } else {
+            0.0
+        };
+        let p = f32::from(c.pole_pairs);
+        let w2 = if psi_rough > 0.0 && psi_rough.is_finite() {
+            c.emf_fraction * v_lim / (psi_rough * p)
+        } else {
+            4.0 * c.first_speed_rad_s
+        };
+        crate::clamp(w2, 2.0 * c.first_speed_rad_s, c.max_speed_rad_s)
+    }
+
     fn run(&mut self, inp: &CalInput) -> Result<CalStep<FluxResult>, CalError> {
         let c = self.cfg;
         if !c.is_valid() {
@@ -240,16 +259,7 @@ impl FluxLinkage {
                 self.periods_at_speed = 0;
                 if k == 0 {
                     self.points[0] = pt;
-                    // Second speed: back-EMF at `emf_fraction` of the limit.
-                    let v_lim = c.max_modulation * inp.v_bus_v * crate::FRAC_1_SQRT_3;
-                    let psi_rough = if pt.1 > 0.0 { pt.0 / pt.1 } else { 0.0 };
-                    let p = f32::from(c.pole_pairs);
-                    let w2 = if psi_rough > 0.0 && psi_rough.is_finite() {
-                        c.emf_fraction * v_lim / (psi_rough * p)
-                    } else {
-                        4.0 * c.first_speed_rad_s
-                    };
-                    let w2 = crate::clamp(w2, 2.0 * c.first_speed_rad_s, c.max_speed_rad_s);
+                    let w2 = self.second_speed(pt, inp.v_bus_v);
                     self.speeds[1] = w2;
                     self.state = State::Settle { k: 1, n: 0 };
                     return Ok(CalStep::Velocity { rad_s: w2 });

@@ -457,10 +457,25 @@ impl Inductance {
             return Err(CalError::InvalidConfig);
         }
         check_input(inp, self.cfg.max_current_a)?;
-        let c = self.cfg;
         let i = current_dq(inp.i_abc_a, ElectricalAngle::ZERO);
-        let v_lim = voltage_limit_v(c.max_voltage_v, inp.v_bus_v);
-        let target = c.bias_current_a;
+        let v_lim = voltage_limit_v(self.cfg.max_voltage_v, inp.v_bus_v);
+        let moving = self.track_bias(i, inp, v_lim);
+        self.fit(i);
+        let headroom = v_lim - self.v_bias;
+        if let Some(result) = self.advance(moving, headroom)? {
+            return Ok(CalStep::Done(result));
+        }
+        let u = self.wave_volts(headroom);
+        Ok(CalStep::Apply {
+            v_dq: self.applied_v(u),
+            theta_e: ElectricalAngle::ZERO,
+        })
+    }
+
+    /// The d current without the injected ripple and the bias voltage that
+    /// holds it at the target; true while the rotor still moves.
+    fn track_bias(&mut self, i: Dq, inp: &CalInput, v_lim: f32) -> bool {
+        let c = self.cfg;
         // The d current without the injected ripple: the mean over the last
         // whole wave cycle while the wave is on d (updated as each cycle
         // ends), the sample otherwise.
@@ -481,7 +496,7 @@ impl Inductance {
         let v_new = approach_v(
             self.v_bias,
             i_d_dc,
-            target,
+            c.bias_current_a,
             c.loop_bandwidth_rad_s,
             c.ramp_v_per_s,
             c.ts_s,
@@ -493,11 +508,14 @@ impl Inductance {
         }
         // Low-pass (16 periods) for the settling decision only.
         self.i_d_filt += (i_d_dc - self.i_d_filt) * (1.0 / 16.0);
+        moving
+    }
+
+    /// The fit: this period's current change against the wave voltage
+    /// commanded 1, 2, 3 periods ago.
+    fn fit(&mut self, i: Dq) {
         let delta = Dq::new(i.d - self.prev_i.d, i.q - self.prev_i.q);
         self.prev_i = i;
-
-        // The fit: this period's current change against the wave voltage
-        // commanded 1, 2, 3 periods ago.
         if let State::Probe { axis, .. } | State::Measure(axis) = self.state {
             if self.skip_left > 0 {
                 self.skip_left -= 1;
@@ -514,121 +532,160 @@ impl Inductance {
                 self.fitted = self.fitted.saturating_add(1);
             }
         }
+    }
 
-        let at_boundary = self.wave.left == 0;
-        let headroom = v_lim - self.v_bias;
+    /// The sequence: bias, probes, measurement, gap, per axis; the result
+    /// once the q measurement ends.
+    fn advance(
+        &mut self,
+        moving: bool,
+        headroom: f32,
+    ) -> Result<Option<InductanceResult>, CalError> {
         match self.state {
-            State::Bias(n) => {
-                self.bias_periods = self.bias_periods.saturating_add(1);
-                if self.bias_periods > periods(c.bias_timeout_s, c.ts_s) {
-                    return Err(if self.i_d_filt < 0.25 * target {
-                        CalError::NoCurrentResponse
-                    } else {
-                        CalError::Timeout
-                    });
-                }
-                let in_band = !moving && (target - self.i_d_filt).abs() < 0.03 * target;
-                self.state = if !in_band {
-                    State::Bias(0)
-                } else if n + 1 >= periods(c.settle_s, c.ts_s) {
-                    self.set_wave(c.start_voltage_v, 1);
-                    State::Probe {
-                        axis: Axis::D,
-                        n: 0,
-                    }
-                } else {
-                    State::Bias(n + 1)
-                };
-            }
-            State::Probe { axis, n } => {
-                let window = c.probe_periods.max(self.half_periods.saturating_mul(4));
-                if at_boundary && !self.changed && self.fitted >= window {
-                    let g = self.slope();
-                    let ripple = g * self.amp_v * self.half_periods as f32;
-                    let want = c.ripple_fraction * target;
-                    let n_max = self.max_half_periods(g);
-                    if ripple > 0.5 * want && ripple < 2.0 * want {
-                        self.start_measure(axis);
-                    } else if self.amp_v >= 0.999 * headroom
-                        && self.half_periods >= n_max
-                        && ripple < want
-                    {
-                        if ripple > 0.1 * want {
-                            self.start_measure(axis);
-                        } else {
-                            return Err(CalError::NoCurrentResponse);
-                        }
-                    } else if n >= c.max_probes {
-                        return Err(CalError::Timeout);
-                    } else {
-                        let k = if ripple > 0.0 { want / ripple } else { 8.0 };
-                        let k = crate::clamp(k, 0.125, 8.0);
-                        // Volt-periods wanted; the shortest half-wave that
-                        // carries them within the headroom.
-                        let v_periods = self.amp_v * self.half_periods as f32 * k;
-                        let len = libm::ceilf(v_periods / headroom);
-                        let len = if len.is_finite() && len >= 1.0 {
-                            (len as u32).min(n_max)
-                        } else {
-                            1
-                        };
-                        let new_amp = crate::clamp(v_periods / len as f32, 0.0, headroom);
-                        let usable = new_amp > 0.0;
-                        if !usable {
-                            return Err(CalError::VoltageLimitReached);
-                        }
-                        self.set_wave(new_amp, len);
-                        self.state = State::Probe { axis, n: n + 1 };
-                    }
-                }
-            }
-            State::Measure(axis) => {
-                let sweep = c.sweep_half_waves.saturating_mul(2);
-                let whole_sweeps = self.sweep_count.is_multiple_of(sweep);
-                let done = self.fitted >= c.measure_periods
-                    && (whole_sweeps || self.fitted >= c.measure_periods.saturating_mul(2));
-                if at_boundary && done {
-                    let l = exponential_corrected_h(
-                        c.ts_s / self.slope(),
-                        c.r_ohm,
-                        self.half_periods as f32 * c.ts_s,
-                    )
-                    .ok_or(CalError::ImplausibleResult)?;
-                    match axis {
-                        Axis::D => {
-                            self.ld_h = l;
-                            // Start the q probes with the d wave.
-                            self.ld_restart = (self.amp_v, self.half_periods);
-                            self.set_wave(0.0, self.half_periods);
-                            self.state = State::Gap(0);
-                        }
-                        Axis::Q => {
-                            return Ok(CalStep::Done(InductanceResult {
-                                ld_h: self.ld_h,
-                                lq_h: l,
-                            }));
-                        }
-                    }
-                }
-            }
-            State::Gap(n) => {
-                if !self.wave.idle() {
-                    // Still coming back to the centre.
-                } else if n >= c.skip_periods {
-                    let (amp, len) = self.ld_restart;
-                    self.set_wave(amp, len);
-                    self.state = State::Probe {
-                        axis: Axis::Q,
-                        n: 0,
-                    };
-                } else {
-                    self.state = State::Gap(n + 1);
-                }
-            }
+            State::Bias(n) => self.on_bias(n, moving)?,
+            State::Probe { axis, n } => self.on_probe(axis, n, headroom)?,
+            State::Measure(axis) => return self.on_measure(axis),
+            State::Gap(n) => self.on_gap(n),
         }
+        Ok(None)
+    }
 
-        // The wave: a new half-wave at a boundary (swept in the
-        // measurement), then this period's share of it.
+    /// Settle the d current on its target, then start the d probes.
+    fn on_bias(&mut self, n: u32, moving: bool) -> Result<(), CalError> {
+        let c = self.cfg;
+        let target = c.bias_current_a;
+        self.bias_periods = self.bias_periods.saturating_add(1);
+        if self.bias_periods > periods(c.bias_timeout_s, c.ts_s) {
+            return Err(if self.i_d_filt < 0.25 * target {
+                CalError::NoCurrentResponse
+            } else {
+                CalError::Timeout
+            });
+        }
+        let in_band = !moving && (target - self.i_d_filt).abs() < 0.03 * target;
+        self.state = if !in_band {
+            State::Bias(0)
+        } else if n + 1 >= periods(c.settle_s, c.ts_s) {
+            self.set_wave(c.start_voltage_v, 1);
+            State::Probe {
+                axis: Axis::D,
+                n: 0,
+            }
+        } else {
+            State::Bias(n + 1)
+        };
+        Ok(())
+    }
+
+    /// At a half-wave boundary after a whole probe window: measure with
+    /// this wave when its ripple is right, else resize it.
+    fn on_probe(&mut self, axis: Axis, n: u8, headroom: f32) -> Result<(), CalError> {
+        let c = self.cfg;
+        let window = c.probe_periods.max(self.half_periods.saturating_mul(4));
+        if self.wave.left != 0 || self.changed || self.fitted < window {
+            return Ok(());
+        }
+        let g = self.slope();
+        let ripple = g * self.amp_v * self.half_periods as f32;
+        let want = c.ripple_fraction * c.bias_current_a;
+        let n_max = self.max_half_periods(g);
+        if ripple > 0.5 * want && ripple < 2.0 * want {
+            self.start_measure(axis);
+        } else if self.amp_v >= 0.999 * headroom && self.half_periods >= n_max && ripple < want {
+            if ripple > 0.1 * want {
+                self.start_measure(axis);
+            } else {
+                return Err(CalError::NoCurrentResponse);
+            }
+        } else if n >= c.max_probes {
+            return Err(CalError::Timeout);
+        } else {
+            self.resize_wave(ripple, want, headroom, n_max)?;
+            self.state = State::Probe { axis, n: n + 1 };
+        }
+        Ok(())
+    }
+
+    /// The next probe's wave: the volt-periods that give the wanted ripple,
+    /// on the shortest half-wave that carries them within the headroom.
+    fn resize_wave(
+        &mut self,
+        ripple: f32,
+        want: f32,
+        headroom: f32,
+        n_max: u32,
+    ) -> Result<(), CalError> {
+        let k = if ripple > 0.0 { want / ripple } else { 8.0 };
+        let k = crate::clamp(k, 0.125, 8.0);
+        let v_periods = self.amp_v * self.half_periods as f32 * k;
+        let len = libm::ceilf(v_periods / headroom);
+        let len = if len.is_finite() && len >= 1.0 {
+            (len as u32).min(n_max)
+        } else {
+            1
+        };
+        let new_amp = crate::clamp(v_periods / len as f32, 0.0, headroom);
+        let usable = new_amp > 0.0;
+        if !usable {
+            return Err(CalError::VoltageLimitReached);
+        }
+        self.set_wave(new_amp, len);
+        Ok(())
+    }
+
+    /// After whole sweeps at a boundary: the axis's inductance; after d the
+    /// gap, after q the result.
+    fn on_measure(&mut self, axis: Axis) -> Result<Option<InductanceResult>, CalError> {
+        let c = self.cfg;
+        let sweep = c.sweep_half_waves.saturating_mul(2);
+        let whole_sweeps = self.sweep_count.is_multiple_of(sweep);
+        let done = self.fitted >= c.measure_periods
+            && (whole_sweeps || self.fitted >= c.measure_periods.saturating_mul(2));
+        if self.wave.left != 0 || !done {
+            return Ok(None);
+        }
+        let l = exponential_corrected_h(
+            c.ts_s / self.slope(),
+            c.r_ohm,
+            self.half_periods as f32 * c.ts_s,
+        )
+        .ok_or(CalError::ImplausibleResult)?;
+        match axis {
+            Axis::D => {
+                self.ld_h = l;
+                // Start the q probes with the d wave.
+                self.ld_restart = (self.amp_v, self.half_periods);
+                self.set_wave(0.0, self.half_periods);
+                self.state = State::Gap(0);
+                Ok(None)
+            }
+            Axis::Q => Ok(Some(InductanceResult {
+                ld_h: self.ld_h,
+                lq_h: l,
+            })),
+        }
+    }
+
+    /// Back to the centre, a pause, then the q probes.
+    fn on_gap(&mut self, n: u32) {
+        if !self.wave.idle() {
+            // Still coming back to the centre.
+        } else if n >= self.cfg.skip_periods {
+            let (amp, len) = self.ld_restart;
+            self.set_wave(amp, len);
+            self.state = State::Probe {
+                axis: Axis::Q,
+                n: 0,
+            };
+        } else {
+            self.state = State::Gap(n + 1);
+        }
+    }
+
+    /// The wave: a new half-wave at a boundary (swept in the measurement),
+    /// then this period's share of it [V], remembered for the fit.
+    fn wave_volts(&mut self, headroom: f32) -> f32 {
+        let c = self.cfg;
         if self.wave.left == 0 {
             let amp = match self.state {
                 State::Measure(_) => {
@@ -661,17 +718,18 @@ impl Inductance {
         };
         self.past_u_v.rotate_right(1);
         self.past_u_v[0] = u;
-        let v_dq = match self.state {
+        u
+    }
+
+    /// The voltage applied this period: the bias on d, the wave on its axis.
+    fn applied_v(&self, u: f32) -> Dq {
+        match self.state {
             State::Probe { axis: Axis::Q, .. } | State::Measure(Axis::Q) => Dq::new(self.v_bias, u),
             State::Probe { axis: Axis::D, .. } | State::Measure(Axis::D) | State::Gap(_) => {
                 Dq::new(self.v_bias + u, 0.0)
             }
             State::Bias(_) => Dq::new(self.v_bias, 0.0),
-        };
-        Ok(CalStep::Apply {
-            v_dq,
-            theta_e: ElectricalAngle::ZERO,
-        })
+        }
     }
 
     /// From the probes to the measurement with the same wave (the sweep

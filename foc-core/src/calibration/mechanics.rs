@@ -644,62 +644,11 @@ impl MechanicalId {
         };
         self.started = true;
         let (w, iq) = (fb.velocity_rad_s, fb.i_dq_a.q);
-        let w_t = self.target();
-        let w_min = c.min_speed_fraction * w_t;
         self.n = self.n.saturating_add(1);
         match self.state {
-            State::Pulse { k } => {
-                // The probe's ramp does not go into the fit (the speed
-                // estimate's lag changes with the acceleration).
-                self.measure(w, iq, k > 0);
-                let sw = pulse_sign(k) * w;
-                if k == 1 {
-                    for (at, level) in self.crossed.iter_mut().zip(CROSSINGS) {
-                        if at.is_none() && sw >= level * w_t {
-                            *at = Some(self.n);
-                        }
-                    }
-                }
-                if k == 0 {
-                    if w.abs() > self.peak_rad_s {
-                        self.peak_rad_s = w.abs();
-                    }
-                    if self.half_at.is_none() && sw >= 0.5 * w_t {
-                        self.half_at = Some(self.n);
-                    }
-                }
-                let end = if k < 3 { sw >= w_t } else { sw >= -w_min };
-                let limit = periods(c.pulse_timeout_s, c.ts_s);
-                let limit = match k {
-                    0 => limit.saturating_add(periods(c.accel_time_s, c.ts_s)),
-                    1 | 2 => limit.saturating_mul(2),
-                    _ => limit,
-                };
-                if end {
-                    match k {
-                        0 => {
-                            self.i1_a = self.pulse_current();
-                            self.enter(State::Pulse { k: 1 });
-                        }
-                        1 => {
-                            self.i1_a = self.refined_current();
-                            self.enter(State::Pulse { k: 2 });
-                        }
-                        2 => self.enter(State::Pulse { k: 3 }),
-                        _ => {
-                            self.result = Some(self.solve()?);
-                            self.enter(State::Stop { slow: 0 });
-                        }
-                    }
-                } else if self.n > limit {
-                    return Err(if k == 0 && self.peak_rad_s < w_min {
-                        CalError::NoAcceleration
-                    } else {
-                        CalError::SpeedNotReached
-                    });
-                }
-            }
+            State::Pulse { k } => self.on_pulse(k, w, iq)?,
             State::Stop { slow } => {
+                let w_min = c.min_speed_fraction * self.target();
                 let slow = if w.abs() < 0.5 * w_min { slow + 1 } else { 0 };
                 let still = slow >= periods(0.05, c.ts_s);
                 if still || self.n > periods(c.stop_timeout_s, c.ts_s) {
@@ -712,6 +661,70 @@ impl MechanicalId {
             }
         }
         Ok(self.command())
+    }
+
+    /// One period of pulse `k`: the fit's rows, the probe's times, and the
+    /// next pulse once this one reaches its speed.
+    fn on_pulse(&mut self, k: u8, w: f32, iq: f32) -> Result<(), CalError> {
+        let c = self.cfg;
+        let w_t = self.target();
+        let w_min = c.min_speed_fraction * w_t;
+        // The probe's ramp does not go into the fit (the speed
+        // estimate's lag changes with the acceleration).
+        self.measure(w, iq, k > 0);
+        let sw = pulse_sign(k) * w;
+        self.time_probe(k, w, sw, w_t);
+        let end = if k < 3 { sw >= w_t } else { sw >= -w_min };
+        let limit = periods(c.pulse_timeout_s, c.ts_s);
+        let limit = match k {
+            0 => limit.saturating_add(periods(c.accel_time_s, c.ts_s)),
+            1 | 2 => limit.saturating_mul(2),
+            _ => limit,
+        };
+        if end {
+            match k {
+                0 => {
+                    self.i1_a = self.pulse_current();
+                    self.enter(State::Pulse { k: 1 });
+                }
+                1 => {
+                    self.i1_a = self.refined_current();
+                    self.enter(State::Pulse { k: 2 });
+                }
+                2 => self.enter(State::Pulse { k: 3 }),
+                _ => {
+                    self.result = Some(self.solve()?);
+                    self.enter(State::Stop { slow: 0 });
+                }
+            }
+        } else if self.n > limit {
+            return Err(if k == 0 && self.peak_rad_s < w_min {
+                CalError::NoAcceleration
+            } else {
+                CalError::SpeedNotReached
+            });
+        }
+        Ok(())
+    }
+
+    /// The times the probe (pulse 0) and pulse 1 take to cross their speed
+    /// levels, `sw` the speed signed in the pulse's direction.
+    fn time_probe(&mut self, k: u8, w: f32, sw: f32, w_t: f32) {
+        if k == 1 {
+            for (at, level) in self.crossed.iter_mut().zip(CROSSINGS) {
+                if at.is_none() && sw >= level * w_t {
+                    *at = Some(self.n);
+                }
+            }
+        }
+        if k == 0 {
+            if w.abs() > self.peak_rad_s {
+                self.peak_rad_s = w.abs();
+            }
+            if self.half_at.is_none() && sw >= 0.5 * w_t {
+                self.half_at = Some(self.n);
+            }
+        }
     }
 
     /// Current of pulse 1 (and of 2 and 3 without a refinement) from the

@@ -302,9 +302,8 @@ impl PhaseResistance {
         let moving = self.motion.update(inp.angle);
         let target = self.target_a();
         let v_lim = voltage_limit_v(self.cfg.max_voltage_v, inp.v_bus_v);
-        let ts = self.cfg.ts_s;
         self.level_periods = self.level_periods.saturating_add(1);
-        if self.level_periods > periods(self.cfg.level_timeout_s, ts) {
+        if self.level_periods > periods(self.cfg.level_timeout_s, self.cfg.ts_s) {
             return Err(CalError::Timeout);
         }
 
@@ -317,15 +316,28 @@ impl PhaseResistance {
             }
             return Ok(self.apply(theta));
         }
+        self.drive_voltage(i, moving, target, v_lim)?;
+        let in_band = !moving && (target - f.magnitude()).abs() < 0.03 * target;
+        self.advance(inp.angle, i, in_band, theta)
+    }
 
-        // Integrator towards the target d current.
+    /// The integrator towards the target current, and the checks when it
+    /// reaches the voltage limit without reaching the target.
+    fn drive_voltage(
+        &mut self,
+        i: Dq,
+        moving: bool,
+        target: f32,
+        v_lim: f32,
+    ) -> Result<(), CalError> {
+        let f = self.i_filt;
         let v_new = approach_v(
             self.v_d,
             i.magnitude(),
             target,
             self.cfg.loop_bandwidth_rad_s,
             self.cfg.ramp_v_per_s,
-            ts,
+            self.cfg.ts_s,
             v_lim,
         );
         // Hold (never raise) the voltage while the rotor swings.
@@ -336,7 +348,7 @@ impl PhaseResistance {
         // At the voltage limit without reaching the target.
         if self.v_d >= v_lim && target - f.magnitude() > 0.03 * target {
             self.limit_periods = self.limit_periods.saturating_add(1);
-            if self.limit_periods > periods(self.cfg.settle_s, ts) {
+            if self.limit_periods > periods(self.cfg.settle_s, self.cfg.ts_s) {
                 return Err(if f.magnitude() < 0.25 * target {
                     CalError::OpenPhase(self.phase())
                 } else if Self::angle_error_rad(f) > self.cfg.max_angle_error_rad {
@@ -348,55 +360,68 @@ impl PhaseResistance {
         } else {
             self.limit_periods = 0;
         }
+        Ok(())
+    }
 
-        let in_band = !moving && (target - f.magnitude()).abs() < 0.03 * target;
+    /// Ramp, settle on the target with the rotor still, then average.
+    fn advance(
+        &mut self,
+        angle: MechanicalAngle,
+        i: Dq,
+        in_band: bool,
+        theta: ElectricalAngle,
+    ) -> Result<CalStep<ResistanceResult>, CalError> {
         match self.state {
             State::Rest | State::Ramp => {
                 if in_band {
                     self.state = State::Settle(0);
-                    self.anchor = inp.angle;
+                    self.anchor = angle;
                 }
             }
-            State::Settle(n) => {
-                if !in_band || !self.still(inp.angle) {
-                    // Out of the band, or the rotor still creeping: settle
-                    // again from here.
-                    self.state = State::Settle(0);
-                    self.anchor = inp.angle;
-                } else if n + 1 >= periods(self.cfg.settle_s, ts) {
-                    if self.level == Level::Align {
-                        // The rotor is in place: rest, then measure.
-                        self.level = Level::Low;
-                        self.state = State::Rest;
-                        self.v_d = 0.0;
-                        self.level_periods = 0;
-                        self.limit_periods = 0;
-                        return Ok(self.apply(theta));
-                    }
-                    self.state = State::Average;
-                    self.avg_v = Mean::ZERO;
-                    self.avg_i = Mean::ZERO;
-                    self.avg_iq = Mean::ZERO;
-                } else {
-                    self.state = State::Settle(n + 1);
-                }
-            }
+            State::Settle(n) => self.on_settle(n, angle, in_band),
             State::Average => {
-                if !self.still(inp.angle) {
+                if !self.still(angle) {
                     // The rotor moved after all: discard, settle again.
                     self.state = State::Settle(0);
-                    self.anchor = inp.angle;
+                    self.anchor = angle;
                     return Ok(self.apply(theta));
                 }
                 self.avg_v.add(self.v_d);
                 self.avg_i.add(i.d);
                 self.avg_iq.add(i.q);
-                if self.avg_v.count() >= periods(self.cfg.average_s, ts) {
+                if self.avg_v.count() >= periods(self.cfg.average_s, self.cfg.ts_s) {
                     return self.level_done(theta);
                 }
             }
         }
         Ok(self.apply(theta))
+    }
+
+    /// Settling: again from here when out of the band or creeping; once
+    /// settled, rest after the alignment level, else average.
+    fn on_settle(&mut self, n: u32, angle: MechanicalAngle, in_band: bool) {
+        if !in_band || !self.still(angle) {
+            // Out of the band, or the rotor still creeping: settle
+            // again from here.
+            self.state = State::Settle(0);
+            self.anchor = angle;
+        } else if n + 1 >= periods(self.cfg.settle_s, self.cfg.ts_s) {
+            if self.level == Level::Align {
+                // The rotor is in place: rest, then measure.
+                self.level = Level::Low;
+                self.state = State::Rest;
+                self.v_d = 0.0;
+                self.level_periods = 0;
+                self.limit_periods = 0;
+                return;
+            }
+            self.state = State::Average;
+            self.avg_v = Mean::ZERO;
+            self.avg_i = Mean::ZERO;
+            self.avg_iq = Mean::ZERO;
+        } else {
+            self.state = State::Settle(n + 1);
+        }
     }
 
     fn apply(&self, theta: ElectricalAngle) -> CalStep<ResistanceResult> {
