@@ -310,7 +310,10 @@ impl Lifecycle {
 
     /// [`Self::step`] writing into the caller's `out` (initialised by
     /// it): the output is built where the caller keeps it, not copied on
-    /// return (design §20).
+    /// return (design §20). Never inlined: whether the optimiser inlined
+    /// it into the caller changed with unrelated edits and moved every
+    /// period's instruction count by about 20.
+    #[inline(never)]
     fn step_out(
         &mut self,
         stage: &mut CurrentStage,

@@ -287,35 +287,12 @@ pub(super) fn iq_window_planned(
     plan: &WindowPlan,
     inp: &PowerInputs,
 ) -> IqWindow {
-    if !plan.model_ok {
-        return IqWindow::zero(ActiveLimit::InvalidModel);
-    }
     let missing = IqWindow::zero(ActiveLimit::MissingSensor);
-    let v = match inp.v_bus_v {
-        Some(v) if v > 0.0 && v < f32::INFINITY => v,
-        _ => return missing,
+    let g = match admitted(cfg, plan, inp) {
+        Ok(g) => g,
+        Err(w) => return w,
     };
-    let i_lim = inp.current_limit_a;
-    if !(0.0..f32::INFINITY).contains(&i_lim) {
-        return missing;
-    }
-    let k_stage = match inp.stage_temperature_c {
-        Some(t) if t.is_finite() => cfg.stage_factor(t),
-        None if !cfg.stage_derating_on() => 1.0,
-        _ => return missing,
-    };
-    let Some(t_winding) = inp.winding_temperature_c else {
-        return missing;
-    };
-    let k_winding = cfg.winding_factor(t_winding);
-
-    // 1. Thermal derating of the current limit (both ends).
-    let (k, k_by) = if k_stage < k_winding {
-        (k_stage, ActiveLimit::StageTemperature)
-    } else {
-        (k_winding, ActiveLimit::WindingTemperature)
-    };
-    let s = cfg.regen_factor(v);
+    let (v, i_lim, k, s) = (g.v_bus_v, g.i_lim_a, g.k, g.s);
     // The common case, cheaply: no derating, the bus below the regen ramp,
     // no d-current and no bus-current or power limit configured: the
     // window is the current limit (what the full computation gives then).
@@ -323,7 +300,7 @@ pub(super) fn iq_window_planned(
         && s >= 1.0
         && inp.i_d_a == 0.0
         && inp.omega_e_rad_s.is_finite()
-        && t_winding.is_finite()
+        && g.t_winding_c.is_finite()
         && plan.no_bus_or_power_limit
     {
         return IqWindow {
@@ -337,11 +314,96 @@ pub(super) fn iq_window_planned(
         };
     }
     // The d-axis braking current (bus in the regen ramp, braking asked).
-    let id_brake = braking_id_a(cfg, s, inp, k * i_lim, cfg.r_at_ohm(t_winding));
+    let id_brake = braking_id_a(cfg, s, inp, k * i_lim, cfg.r_at_ohm(g.t_winding_c));
     let i_d = inp.i_d_a + id_brake;
     let Some((a, b, c)) = coefficients(cfg, inp, i_d) else {
         return missing;
     };
+    let (mut lo, mut hi) = current_limit_ends(&g, i_d, id_brake);
+    cut_by_power(cfg, v, (a, b, c), &mut lo, &mut hi);
+
+    // 4. The bus-voltage regen ramp on the regenerating end (i_q b < 0),
+    // never below the current of zero net power (the copper loss of the
+    // d-current pays for that much braking).
+    if s < 1.0 {
+        let keep = zero_power_q_a(a, b, c);
+        if b > 0.0 {
+            let m = lo.mag;
+            lo.cut(max_of(s * m, min_of(keep, m)), ActiveLimit::Regen);
+        } else if b < 0.0 {
+            let m = hi.mag;
+            hi.cut(max_of(s * m, min_of(keep, m)), ActiveLimit::Regen);
+        }
+    }
+
+    if !(lo.mag >= 0.0 && hi.mag >= 0.0) {
+        return missing; // unreachable for finite inputs; NaN-safe anyway
+    }
+    window_of(lo, hi, i_lim, i_d)
+}
+
+/// What the window is computed from, once the inputs are admitted.
+struct Admitted {
+    v_bus_v: f32,
+    i_lim_a: f32,
+    /// The thermal derating factor and the limit it comes from.
+    k: f32,
+    k_by: ActiveLimit,
+    /// The bus-voltage regen factor.
+    s: f32,
+    t_winding_c: f32,
+}
+
+/// The inputs checked (the zero window naming what is missing or invalid
+/// otherwise), and step 1: the thermal derating of the current limit
+/// (both ends).
+#[inline(always)]
+fn admitted(
+    cfg: &PowerLimitsConfig,
+    plan: &WindowPlan,
+    inp: &PowerInputs,
+) -> Result<Admitted, IqWindow> {
+    if !plan.model_ok {
+        return Err(IqWindow::zero(ActiveLimit::InvalidModel));
+    }
+    let missing = IqWindow::zero(ActiveLimit::MissingSensor);
+    let v = match inp.v_bus_v {
+        Some(v) if v > 0.0 && v < f32::INFINITY => v,
+        _ => return Err(missing),
+    };
+    let i_lim = inp.current_limit_a;
+    if !(0.0..f32::INFINITY).contains(&i_lim) {
+        return Err(missing);
+    }
+    let k_stage = match inp.stage_temperature_c {
+        Some(t) if t.is_finite() => cfg.stage_factor(t),
+        None if !cfg.stage_derating_on() => 1.0,
+        _ => return Err(missing),
+    };
+    let Some(t_winding) = inp.winding_temperature_c else {
+        return Err(missing);
+    };
+    let k_winding = cfg.winding_factor(t_winding);
+    let (k, k_by) = if k_stage < k_winding {
+        (k_stage, ActiveLimit::StageTemperature)
+    } else {
+        (k_winding, ActiveLimit::WindingTemperature)
+    };
+    Ok(Admitted {
+        v_bus_v: v,
+        i_lim_a: i_lim,
+        k,
+        k_by,
+        s: cfg.regen_factor(v),
+        t_winding_c: t_winding,
+    })
+}
+
+/// Both ends at the (derated) current limit, and the current vector within
+/// it: `|i_q| <= sqrt(I^2 - i_d^2)`.
+#[inline(always)]
+fn current_limit_ends(g: &Admitted, i_d: f32, id_brake: f32) -> (End, End) {
+    let (i_lim, k, k_by) = (g.i_lim_a, g.k, g.k_by);
     let mut lo = End {
         mag: i_lim,
         by: ActiveLimit::None,
@@ -349,7 +411,6 @@ pub(super) fn iq_window_planned(
     let mut hi = lo;
     lo.cut(k * i_lim, k_by);
     hi.cut(k * i_lim, k_by);
-    // The current vector within the (derated) limit: |i_q| <= sqrt(I^2 - i_d^2).
     if i_d != 0.0 {
         let kk = k * i_lim;
         let room = kk * kk - i_d * i_d;
@@ -362,8 +423,21 @@ pub(super) fn iq_window_planned(
         lo.cut(q, by);
         hi.cut(q, by);
     }
+    (lo, hi)
+}
 
-    // 2. Motoring: P(iq) <= P_mot (NaN limits read as 0).
+/// Steps 2 and 3: the power balance `P(iq) = a iq^2 + b iq + c` within the
+/// motoring and regenerating power and bus-current limits (NaN limits read
+/// as 0).
+#[inline(always)]
+fn cut_by_power(
+    cfg: &PowerLimitsConfig,
+    v: f32,
+    (a, b, c): (f32, f32, f32),
+    lo: &mut End,
+    hi: &mut End,
+) {
+    // 2. Motoring: P(iq) <= P_mot.
     let p_bus_mot = v * cfg.bus_current_motoring_max_a;
     let p_cfg = limit_or_zero(cfg.power_motoring_max_w);
     let p_bus_mot = limit_or_zero(p_bus_mot);
@@ -394,24 +468,11 @@ pub(super) fn iq_window_planned(
         lo.cut(-x_lo, regen_by);
         hi.cut(x_hi, regen_by);
     }
+}
 
-    // 4. The bus-voltage regen ramp on the regenerating end (i_q b < 0),
-    // never below the current of zero net power (the copper loss of the
-    // d-current pays for that much braking).
-    if s < 1.0 {
-        let keep = zero_power_q_a(a, b, c);
-        if b > 0.0 {
-            let m = lo.mag;
-            lo.cut(max_of(s * m, min_of(keep, m)), ActiveLimit::Regen);
-        } else if b < 0.0 {
-            let m = hi.mag;
-            hi.cut(max_of(s * m, min_of(keep, m)), ActiveLimit::Regen);
-        }
-    }
-
-    if !(lo.mag >= 0.0 && hi.mag >= 0.0) {
-        return missing; // unreachable for finite inputs; NaN-safe anyway
-    }
+/// The window of the two ends, with the factor of the tighter one.
+#[inline(always)]
+fn window_of(lo: End, hi: End, i_lim: f32, i_d: f32) -> IqWindow {
     let (factor, active) = if i_lim > 0.0 {
         let (tight, by) = if lo.mag < hi.mag {
             (lo.mag, lo.by)
