@@ -97,6 +97,7 @@ mod app {
     use foc_core::control::power::ActiveLimit;
     use foc_core::control::stage::{PositionStage, SpeedStage, VelocityRef};
     use foc_core::control::{CommandSlot, Fault, Feedback, Mode};
+    use foc_core::drive::cascade::CascadeConfig;
     use foc_core::drive::{Drive, LifecycleConfig, Mail, Status};
 
     /// The board's drive: its hardware (and brake resistor switch), current
@@ -199,24 +200,9 @@ mod app {
         #[cfg(not(feature = "can"))]
         let can_node = can::CanNode;
         let cfg = boot.service.cascade();
-        let angle_kind = board::angle_kind();
         // The service kept a calibration only where the sensor's zero
         // survives a reset; the lifecycle checks that again.
-        let stored = boot.service.settings().permit();
-        let life = LifecycleConfig {
-            offsets: Some(OffsetLimits {
-                samples: config::OFFSET_CAL_SAMPLES,
-                max_offset_a: config::OFFSET_CAL_MAX_A,
-                max_noise_a: config::OFFSET_CAL_MAX_NOISE_A,
-            }),
-            sensor_check_reads: config::SENSOR_CHECK_READS,
-            identification: Some(config::identification(board::PWM_FREQUENCY_HZ as f32)),
-            identify_at_start_up: config::identify_at_start_up(),
-            speed_divider: cfg.rates.speed_divider,
-            position_divider: cfg.rates.position_divider,
-            angle_kind,
-            stored,
-        };
+        let life = lifecycle_config(&cfg, boot.service.settings().permit());
         let mut drive =
             Drive::new(b.pwm, b.currents, b.angle, b.bus, cfg.current, life).with_brake(b.brake);
         if watchdog_reset {
@@ -229,35 +215,15 @@ mod app {
             defmt::error!("DRV8301 configuration failed");
             drive.trip(Fault::GateDriverFault);
         }
-        let budget = (board::SYSCLK_HZ as f32 / board::PWM_FREQUENCY_HZ as f32)
-            * config::CURRENT_LOOP_BUDGET_FRACTION;
-        defmt::info!(
-            "{}: {} Hz PWM, speed /{}, position /{}, budget {} cycles",
-            board::NAME,
-            board::PWM_FREQUENCY_HZ,
-            config::SPEED_DIVIDER,
-            config::POSITION_DIVIDER,
-            budget as u32
-        );
+        let budget = current_loop_budget_logged();
         watchdog::start(config::WATCHDOG_TIMEOUT_MS);
         (
-            Shared {
-                command: CommandSlot::INIT,
-                feedback: Feedback::INIT,
-                iq_ref_a: 0.0,
-                velocity_ref: VelocityRef::default(),
-                timing: timing::LoopTiming {
-                    budget_cycles: budget as u32,
-                    ..Default::default()
-                },
-                break_fired: false,
-                status: STARTING,
-                identified: None,
-                config_request: comms::ConfigMailbox::EMPTY,
-                comms: comms::Comms::new(b.serial, boot),
-                can: can_node,
-                scope: foc_core::scope::Scope::new(&mut cx.local.scope_buf[..]),
-            },
+            shared_resources(
+                comms::Comms::new(b.serial, boot),
+                can_node,
+                budget,
+                foc_core::scope::Scope::new(&mut cx.local.scope_buf[..]),
+            ),
             Local {
                 drive,
                 tick: 0,
@@ -268,6 +234,72 @@ mod app {
                 seen_runs: 0,
             },
         )
+    }
+
+    /// The lifecycle's start-up (offset calibration, sensor check,
+    /// identification) from the build-time configuration, the loop rates of
+    /// `cfg` and the board's angle input, with the `stored` calibration.
+    fn lifecycle_config(cfg: &CascadeConfig, stored: Option<Calibrated>) -> LifecycleConfig {
+        let angle_kind = board::angle_kind();
+        LifecycleConfig {
+            offsets: Some(OffsetLimits {
+                samples: config::OFFSET_CAL_SAMPLES,
+                max_offset_a: config::OFFSET_CAL_MAX_A,
+                max_noise_a: config::OFFSET_CAL_MAX_NOISE_A,
+            }),
+            sensor_check_reads: config::SENSOR_CHECK_READS,
+            identification: Some(config::identification(board::PWM_FREQUENCY_HZ as f32)),
+            identify_at_start_up: config::identify_at_start_up(),
+            speed_divider: cfg.rates.speed_divider,
+            position_divider: cfg.rates.position_divider,
+            angle_kind,
+            stored,
+        }
+    }
+
+    /// The current loop's budget [CPU cycles per PWM period], logged with
+    /// the board's name and loop rates.
+    fn current_loop_budget_logged() -> f32 {
+        let budget = (board::SYSCLK_HZ as f32 / board::PWM_FREQUENCY_HZ as f32)
+            * config::CURRENT_LOOP_BUDGET_FRACTION;
+        defmt::info!(
+            "{}: {} Hz PWM, speed /{}, position /{}, budget {} cycles",
+            board::NAME,
+            board::PWM_FREQUENCY_HZ,
+            config::SPEED_DIVIDER,
+            config::POSITION_DIVIDER,
+            budget as u32
+        );
+        budget
+    }
+
+    /// The shared resources at start-up: empty mailboxes, nothing measured
+    /// yet, the status [`STARTING`], the command channel `comms`, the CAN
+    /// node `can` and the `scope`; the current loop's timing with its
+    /// `budget` [cycles].
+    fn shared_resources(
+        comms: comms::Comms,
+        can: can::CanNode,
+        budget: f32,
+        scope: comms::BoardScope,
+    ) -> Shared {
+        Shared {
+            command: CommandSlot::INIT,
+            feedback: Feedback::INIT,
+            iq_ref_a: 0.0,
+            velocity_ref: VelocityRef::default(),
+            timing: timing::LoopTiming {
+                budget_cycles: budget as u32,
+                ..Default::default()
+            },
+            break_fired: false,
+            status: STARTING,
+            identified: None,
+            config_request: comms::ConfigMailbox::EMPTY,
+            comms,
+            can,
+            scope,
+        }
     }
 
     #[idle(local = [seen_runs])]

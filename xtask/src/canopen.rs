@@ -17,7 +17,7 @@
 
 use std::io::{BufRead, BufReader, Write};
 use std::path::Path;
-use std::process::{Child, Command, Stdio};
+use std::process::{Child, Command, ExitStatus, Stdio};
 use std::thread;
 use std::time::{Duration, Instant};
 
@@ -79,16 +79,44 @@ impl Drop for Killed {
 pub fn firmware_on_bus(python: &Path, bus: &Path) -> Result {
     let (elf, _) = qemu::build_emulated()?;
     let port = e2e::free_port()?;
+    let mut qemu = spawn_firmware(&elf, port)?;
+    let (mut child, bus_port) = spawn_relay(bus, port)?;
+    let mut t = firmware_tests(python, bus, bus_port);
+    println!("$ {}", display(&t));
+    let mut tests = Killed(t.spawn()?);
+    let start = Instant::now();
+    let status = wait_for_tests(&mut tests, &mut qemu, start)?;
+    // Shut the bus down (QEMU is killed when `qemu` drops).
+    if let Some(stdin) = child.0.stdin.as_mut() {
+        let _ = writeln!(stdin, "quit");
+    }
+    match status {
+        Some(s) if s.success() => {
+            println!(
+                "firmware on the CAN bus: passed ({:.0} s)",
+                start.elapsed().as_secs_f32()
+            );
+            Ok(())
+        }
+        Some(s) => Err(Error(format!("the firmware's CAN tests failed ({s})"))),
+        None => Err(Error("the firmware's CAN tests did not finish".into())),
+    }
+}
+
+/// QEMU running the firmware `elf` with USART3 (the CAN port, SLCAN) on a
+/// TCP server at `port` that waits for the bus; the firmware's warnings,
+/// errors and CAN lines are printed as they come.
+fn spawn_firmware(elf: &Path, port: u16) -> Result<Killed> {
     let usart3 = format!("tcp:127.0.0.1:{port},server=on,wait=on");
     println!("QEMU: USART3 (CAN as SLCAN) on {usart3}");
     // The drive is run from outside only (the firmware has no scripts).
     let (qemu, lines) = qemu::spawn_decoded_serials(
-        &elf,
+        elf,
         &[],
         "shift=0,align=off,sleep=off",
         &["null", "null", &usart3],
     )?;
-    let mut qemu = Killed(qemu);
+    let qemu = Killed(qemu);
     // The firmware's log: warnings, errors and the CAN lines (ends when
     // QEMU's output closes).
     thread::spawn(move || {
@@ -98,6 +126,13 @@ pub fn firmware_on_bus(python: &Path, bus: &Path) -> Result {
             }
         }
     });
+    Ok(qemu)
+}
+
+/// `foc-canbus` (`bus`) with two hosted drives (node IDs 2 and 3),
+/// relaying to the firmware's port `port`; returns it and the port its
+/// master side listens on (from its first line, `listening ADDR:PORT`).
+fn spawn_relay(bus: &Path, port: u16) -> Result<(Killed, u16)> {
     let relay = format!("tcp:127.0.0.1:{port}");
     let mut cmd = Command::new(bus);
     cmd.args([
@@ -131,6 +166,12 @@ pub fn firmware_on_bus(python: &Path, bus: &Path) -> Result {
         .and_then(|a| a.rsplit(':').next())
         .and_then(|p| p.parse::<u16>().ok())
         .ok_or_else(|| Error(format!("foc-canbus did not start: {line:?}")))?;
+    Ok((child, bus_port))
+}
+
+/// The master's `test_firmware.py`, against the bus at `bus_port`
+/// (`FOC_FIRMWARE_BUS`).
+fn firmware_tests(python: &Path, bus: &Path, bus_port: u16) -> Command {
     let mut t = master(python, bus);
     t.env("FOC_FIRMWARE_BUS", bus_port.to_string()).args([
         "-m",
@@ -142,10 +183,17 @@ pub fn firmware_on_bus(python: &Path, bus: &Path) -> Result {
         "test_firmware.py",
         "-v",
     ]);
-    println!("$ {}", display(&t));
-    let mut tests = Killed(t.spawn()?);
-    let start = Instant::now();
-    let status = loop {
+    t
+}
+
+/// Wait for the master's `tests` to end: their exit status, or `None` if
+/// QEMU exited first or [`FIRMWARE_LIMIT`] passed since `start`.
+fn wait_for_tests(
+    tests: &mut Killed,
+    qemu: &mut Killed,
+    start: Instant,
+) -> Result<Option<ExitStatus>> {
+    Ok(loop {
         if let Some(s) = tests.0.try_wait()? {
             break Some(s);
         }
@@ -161,20 +209,5 @@ pub fn firmware_on_bus(python: &Path, bus: &Path) -> Result {
             break None;
         }
         thread::sleep(Duration::from_millis(100));
-    };
-    // Shut the bus down (QEMU is killed when `qemu` drops).
-    if let Some(stdin) = child.0.stdin.as_mut() {
-        let _ = writeln!(stdin, "quit");
-    }
-    match status {
-        Some(s) if s.success() => {
-            println!(
-                "firmware on the CAN bus: passed ({:.0} s)",
-                start.elapsed().as_secs_f32()
-            );
-            Ok(())
-        }
-        Some(s) => Err(Error(format!("the firmware's CAN tests failed ({s})"))),
-        None => Err(Error("the firmware's CAN tests did not finish".into())),
-    }
+    })
 }

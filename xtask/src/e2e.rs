@@ -758,6 +758,15 @@ impl Session {
     /// and saved by the drive) and read both records back equal to the
     /// edit; erase: nothing stored, and a load says so.
     fn configuration_store(&mut self) -> Result {
+        let rec = self.config_save()?;
+        self.config_import(&rec)?;
+        self.config_erase()?;
+        self.config_save_refused_in_burst()
+    }
+
+    /// Step 7, save: the live record (calibrated by the start-up
+    /// identification) saved and read back equal; returns it decoded.
+    fn config_save(&mut self) -> Result<DriveRecord> {
         let live = self
             .client
             .read_config(ConfigSource::Live)
@@ -779,7 +788,13 @@ impl Session {
             .read_config(ConfigSource::Stored)
             .map_err(client_err("read the stored configuration"))?;
         check(stored == live, "config save: stored record read back equal")?;
+        Ok(rec)
+    }
 
+    /// Step 7, import: `rec` exported as TOML, its label and speed gain
+    /// edited, imported (applied and saved); the live and stored records
+    /// read back equal to the edit.
+    fn config_import(&mut self, rec: &DriveRecord) -> Result {
         // Export, edit, import (as `foc-ctl config export` / `import`):
         // through the TOML text, checked on the host.
         let mut want = rec.clone();
@@ -813,8 +828,11 @@ impl Session {
         check(
             live == bytes[..n] && stored == live,
             "config import: live and stored records read back equal to the edit",
-        )?;
+        )
+    }
 
+    /// Step 7, erase: nothing stored afterwards, and a load says so.
+    fn config_erase(&mut self) -> Result {
         self.client
             .store(StoreOp::Erase)
             .map_err(client_err("config erase"))?;
@@ -824,8 +842,12 @@ impl Session {
             matches!(after, Err(ClientError::Nack(ErrorCode::NothingStored)))
                 && matches!(load, Err(ClientError::Nack(ErrorCode::NothingStored))),
             format!("config erase: nothing stored (read {after:?}, load {load:?})"),
-        )?;
+        )
+    }
 
+    /// Step 7, a velocity command and a save in one burst: the save is
+    /// refused and nothing is stored; the drive disabled again.
+    fn config_save_refused_in_burst(&mut self) -> Result {
         // A command and a save in one burst: whether or not the current
         // loop has taken the command when the save is handled (the firmware
         // checks the mailbox too, not only the last period's status), the

@@ -10,7 +10,7 @@
 
 use foc_core::scope::{Signal, State};
 use foc_ctl::scope::ScopeCapture;
-use foc_ctl::tune::{self, Loop, StepFigures};
+use foc_ctl::tune::{self, Loop, StepFigures, TuneReport};
 use foc_ctl::Client;
 use foc_protocol::message::ParamId;
 use foc_protocol::scope::ScopeReport;
@@ -34,6 +34,26 @@ pub const FIRMWARE_STEPS: usize = 3;
 /// Run the step on the drive ([`FIRMWARE_STEPS`] times) and on the bench,
 /// write both captures to `out` (CSV, SVG), compare.
 pub fn current_step(client: &mut Client, backstop: Duration, out: &Path) -> Result {
+    let report = median_firmware_step(client, backstop)?;
+    let param = |c: &mut Client, id| {
+        c.param(id)
+            .map_err(|e| Error(format!("FAIL scope: read {id:?}: {e}")))
+    };
+    let kp = param(client, ParamId::CurrentKp)?;
+    let ki = param(client, ParamId::CurrentKi)?;
+    let pwm_hz = param(client, ParamId::PwmFrequencyHz)?;
+    let bench = bench_step(kp, ki, pwm_hz)?;
+    let b = StepFigures::of(&bench, Signal::IqA, f64::from(STEP_A))
+        .ok_or_else(|| Error("FAIL scope: no iq in the bench's capture".into()))?;
+    let f = report.figures;
+    write_captures(out, &report.capture, &bench)?;
+    print!("{report}");
+    compare(&f, &b, (kp, ki), out)
+}
+
+/// The step on the drive, [`FIRMWARE_STEPS`] times (each one's figures
+/// printed): the run with the median settling time.
+fn median_firmware_step(client: &mut Client, backstop: Duration) -> Result<TuneReport> {
     let mut reports = Vec::with_capacity(FIRMWARE_STEPS);
     for _ in 0..FIRMWARE_STEPS {
         let r = match tune::run(client, Loop::Current, STEP_A, backstop) {
@@ -63,32 +83,31 @@ pub fn current_step(client: &mut Client, backstop: Duration, out: &Path) -> Resu
     );
     // Not settled sorts last.
     reports.sort_by_key(|r| r.figures.settling_periods.unwrap_or(u32::MAX));
-    let report = reports.swap_remove(FIRMWARE_STEPS / 2);
-    let param = |c: &mut Client, id| {
-        c.param(id)
-            .map_err(|e| Error(format!("FAIL scope: read {id:?}: {e}")))
-    };
-    let kp = param(client, ParamId::CurrentKp)?;
-    let ki = param(client, ParamId::CurrentKi)?;
-    let pwm_hz = param(client, ParamId::PwmFrequencyHz)?;
+    Ok(reports.swap_remove(FIRMWARE_STEPS / 2))
+}
+
+/// The same step on the bench with the drive's gains `kp`, `ki`, sampled
+/// at the drive's PWM frequency `pwm_hz`: its capture.
+fn bench_step(kp: f32, ki: f32, pwm_hz: f32) -> Result<ScopeCapture> {
     let (status, values) = foc_bench::scope_step::emulated_current_step(STEP_A, Some((kp, ki)));
     if status.state != State::Done {
         return Err(Error(
             "FAIL scope: the bench's capture did not finish".into(),
         ));
     }
-    let bench = ScopeCapture {
+    Ok(ScopeCapture {
         report: ScopeReport {
             status,
             sample_period_s: 1.0 / pwm_hz,
         },
         values,
-    };
-    let b = StepFigures::of(&bench, Signal::IqA, f64::from(STEP_A))
-        .ok_or_else(|| Error("FAIL scope: no iq in the bench's capture".into()))?;
-    let f = report.figures;
+    })
+}
+
+/// Both captures to `out`: `current_step_{firmware,bench}.csv` and `.svg`.
+fn write_captures(out: &Path, firmware: &ScopeCapture, bench: &ScopeCapture) -> Result {
     std::fs::create_dir_all(out)?;
-    for (name, cap) in [("firmware", &report.capture), ("bench", &bench)] {
+    for (name, cap) in [("firmware", firmware), ("bench", bench)] {
         let csv = out.join(format!("current_step_{name}.csv"));
         let mut w = std::io::BufWriter::new(std::fs::File::create(&csv)?);
         cap.write_csv(&mut w)?;
@@ -96,7 +115,13 @@ pub fn current_step(client: &mut Client, backstop: Duration, out: &Path) -> Resu
         let svg = out.join(format!("current_step_{name}.svg"));
         foc_ctl::scope::plot(cap, &svg, &format!("q-current step of {STEP_A} A, {name}"))?;
     }
-    print!("{report}");
+    Ok(())
+}
+
+/// The firmware's figures `f` against the bench's `b` (gains `(kp, ki)`,
+/// captures in `out`, for the report line): both settled, overshoot within
+/// [`OVERSHOOT_TOL_PP`] and settling within [`SETTLING_TOL_PERIODS`].
+fn compare(f: &StepFigures, b: &StepFigures, (kp, ki): (f32, f32), out: &Path) -> Result {
     let d_os = (f.overshoot_pct - b.overshoot_pct).abs();
     // Both must settle within the capture, and agree.
     let ok = match (f.settling_periods, b.settling_periods) {

@@ -61,9 +61,9 @@ use crate::hw::{enable_cycle_counter, PinId, Port};
 use crate::logic::hall::HallConfig;
 use crate::pac;
 use foc_core::hal::NoBrake;
-use stm32f4xx_hal::gpio::{GpioExt, PinState};
+use stm32f4xx_hal::gpio::{self, GpioExt, PinState};
 use stm32f4xx_hal::qei::Qei;
-use stm32f4xx_hal::rcc::{Config, Enable, RccExt, Reset};
+use stm32f4xx_hal::rcc::{Config, Enable, Rcc, RccExt, Reset};
 
 // Constants of the shield, the same on every NUCLEO-64 board it sits on
 // (re-exported by the board modules).
@@ -186,92 +186,40 @@ pub(crate) struct Params {
     pub angle: AngleSource,
 }
 
+/// Set up clocks, pins, TIM1, ADC1, the angle input and the command UART.
+/// Bridge disabled (MOE = 0, EN1..3 low), PWM counter running, NVIC
+/// untouched.
 pub(crate) fn init(dp: pac::Peripherals, p: Params) -> Board {
     // Safe state first: EN pins low before anything else.
     let mut rcc = dp.RCC.freeze(p.rcc);
     let gpioa = dp.GPIOA.split(&mut rcc);
     let gpiob = dp.GPIOB.split(&mut rcc);
     let gpioc = dp.GPIOC.split(&mut rcc);
-    let _en1 = gpioc.pc10.into_push_pull_output_in_state(PinState::Low);
-    let _en2 = gpioc.pc11.into_push_pull_output_in_state(PinState::Low);
-    let _en3 = gpioc.pc12.into_push_pull_output_in_state(PinState::Low);
-    let _diag = gpioa.pa11.into_pull_up_input();
-    let _led = gpioa.pa5.into_push_pull_output_in_state(PinState::Low);
+    outputs_safe((gpioc.pc10, gpioc.pc11, gpioc.pc12), gpioa.pa11, gpioa.pa5);
     enable_cycle_counter();
 
-    // TIM1: CH1..3 on PA8..10 (AF1).
-    let _ch1 = gpioa.pa8.into_alternate::<1>();
-    let _ch2 = gpioa.pa9.into_alternate::<1>();
-    let _ch3 = gpioa.pa10.into_alternate::<1>();
-    pac::TIM1::enable(&mut rcc);
-    pac::TIM1::reset(&mut rcc);
-    let tim_clk = rcc.clocks.timclk2().raw();
-    let pwm = match Tim1Pwm::new(
+    let pwm = tim1_three_pwm(
         dp.TIM1,
-        tim_clk,
-        PwmConfig {
-            frequency_hz: p.pwm_hz,
-            topology: Topology::ThreePwm,
-            break_input: None,
-            enable_pins: &ENABLE_PINS,
-            enable_pins_in_disable: true,
-        },
-    ) {
-        Ok(pwm) => pwm,
-        // Only a PWM_FREQUENCY_HZ const out of range gets here: a build-time
-        // configuration error, before the bridge was ever enabled.
-        // A board constant out of range, found at init before the bridge
-        // was ever enabled (the timer never starts): halting is the safe
-        // state there.
-        #[allow(clippy::panic)]
-        Err(e) => panic!("PWM timing: {:?}", e),
-    };
-
-    // ADC1.
-    let _ia = gpioa.pa0.into_analog();
-    let _ib = gpioc.pc1.into_analog();
-    let _ic = gpioc.pc0.into_analog();
-    let _vbus = gpioa.pa1.into_analog();
-    let _ntc = gpioc.pc2.into_analog();
-    pac::ADC1::enable(&mut rcc);
-    pac::ADC1::reset(&mut rcc);
-    setup_adc1(
+        (gpioa.pa8, gpioa.pa9, gpioa.pa10),
+        p.pwm_hz,
+        &mut rcc,
+    );
+    let (currents, bus) = adc1_sensing(
         &dp.ADC1,
         &dp.ADC_COMMON,
-        &CURRENT_CHANNELS,
-        SampleTime::Cycles15,
-        BUS_CHANNEL,
-        SampleTime::Cycles144,
+        (gpioa.pa0, gpioc.pc1, gpioc.pc0),
+        gpioa.pa1,
+        gpioc.pc2,
+        &mut rcc,
     );
-    let currents = InjectedCurrents::new(Shunts::Three(CURRENT_CHANNELS), CURRENT_SCALE);
-    set_regular_sample_time(&dp.ADC1, THERMISTOR_CHANNEL, SampleTime::Cycles144);
-    let bus = RegularBus::new(BUS_SCALE, BUS_CHANNEL).with_thermistor(THERMISTOR);
-
-    // Angle input on PA15 / PB3 / PB10.
-    let angle = match p.angle {
-        AngleSource::Encoder { cpr } => {
-            let qei = Qei::new(
-                dp.TIM2,
-                (
-                    gpioa.pa15.into_alternate::<1>(),
-                    gpiob.pb3.into_alternate::<1>(),
-                ),
-                &mut rcc,
-            );
-            let _z = gpiob.pb10.into_alternate::<1>();
-            let _ = qei.release();
-            // The index is not used to re-zero the count: the electrical
-            // zero is identified against the power-on count, and a later
-            // index pulse would move the angle by up to half a turn.
-            AngleInput::Encoder(QuadEncoder::new(cpr, false))
-        }
-        AngleSource::Hall(cfg) => {
-            let _h1 = gpioa.pa15.into_pull_up_input();
-            let _h2 = gpiob.pb3.into_pull_up_input();
-            let _h3 = gpiob.pb10.into_pull_up_input();
-            AngleInput::Hall(HallSensor::new(HALL_PINS, cfg.at_tick_rate(p.sysclk_hz)))
-        }
-    };
+    let angle = encoder_or_halls(
+        dp.TIM2,
+        p.angle,
+        p.sysclk_hz,
+        (gpioa.pa15, gpiob.pb3),
+        gpiob.pb10,
+        &mut rcc,
+    );
 
     // Command UART: USART2 TX/RX on PA2/PA3 (AF7), wired to the ST-LINK
     // virtual COM port (UM1724). Clock enable and reset through the HAL
@@ -290,6 +238,121 @@ pub(crate) fn init(dp: pac::Peripherals, p: Params) -> Board {
         // After `rcc.freeze`, which sets the wait states through its own
         // FLASH_ACR pointer and does not need the peripheral.
         store: StoreFlash::new(dp.FLASH, STORE_RANGE),
+    }
+}
+
+/// The safe state of the pins: the L6230 enables EN1..3 (PC10-12) low,
+/// DIAG/EN (PA11) an input with pull-up, the LED (PA5) off.
+fn outputs_safe(en: (gpio::PC10, gpio::PC11, gpio::PC12), diag: gpio::PA11, led: gpio::PA5) {
+    let _en1 = en.0.into_push_pull_output_in_state(PinState::Low);
+    let _en2 = en.1.into_push_pull_output_in_state(PinState::Low);
+    let _en3 = en.2.into_push_pull_output_in_state(PinState::Low);
+    let _diag = diag.into_pull_up_input();
+    let _led = led.into_push_pull_output_in_state(PinState::Low);
+}
+
+/// TIM1 3-PWM (the L6230 inserts the dead time): CH1..3 to PA8-10, TIM1's
+/// clock enabled and the timer reset, then [`Tim1Pwm`] at `pwm_hz` with
+/// the EN pins.
+fn tim1_three_pwm(
+    tim1: pac::TIM1,
+    pins: (gpio::PA8, gpio::PA9, gpio::PA10),
+    pwm_hz: u32,
+    rcc: &mut Rcc,
+) -> Pwm {
+    // TIM1: CH1..3 on PA8..10 (AF1).
+    let _ch1 = pins.0.into_alternate::<1>();
+    let _ch2 = pins.1.into_alternate::<1>();
+    let _ch3 = pins.2.into_alternate::<1>();
+    pac::TIM1::enable(rcc);
+    pac::TIM1::reset(rcc);
+    let tim_clk = rcc.clocks.timclk2().raw();
+    match Tim1Pwm::new(
+        tim1,
+        tim_clk,
+        PwmConfig {
+            frequency_hz: pwm_hz,
+            topology: Topology::ThreePwm,
+            break_input: None,
+            enable_pins: &ENABLE_PINS,
+            enable_pins_in_disable: true,
+        },
+    ) {
+        Ok(pwm) => pwm,
+        // Only a PWM_FREQUENCY_HZ const out of range gets here: a build-time
+        // configuration error, before the bridge was ever enabled.
+        // A board constant out of range, found at init before the bridge
+        // was ever enabled (the timer never starts): halting is the safe
+        // state there.
+        #[allow(clippy::panic)]
+        Err(e) => panic!("PWM timing: {:?}", e),
+    }
+}
+
+/// ADC1: the three shunts (U, V, W = PA0, PC1, PC0) in the injected
+/// group, VBUS (PA1) and the NTC (PC2) alternating in the regular group.
+fn adc1_sensing(
+    adc1: &pac::ADC1,
+    adc_common: &pac::ADC_COMMON,
+    shunts: (gpio::PA0, gpio::PC1, gpio::PC0),
+    vbus: gpio::PA1,
+    ntc: gpio::PC2,
+    rcc: &mut Rcc,
+) -> (Currents, Bus) {
+    // ADC1.
+    let _ia = shunts.0.into_analog();
+    let _ib = shunts.1.into_analog();
+    let _ic = shunts.2.into_analog();
+    let _vbus = vbus.into_analog();
+    let _ntc = ntc.into_analog();
+    pac::ADC1::enable(rcc);
+    pac::ADC1::reset(rcc);
+    setup_adc1(
+        adc1,
+        adc_common,
+        &CURRENT_CHANNELS,
+        SampleTime::Cycles15,
+        BUS_CHANNEL,
+        SampleTime::Cycles144,
+    );
+    let currents = InjectedCurrents::new(Shunts::Three(CURRENT_CHANNELS), CURRENT_SCALE);
+    set_regular_sample_time(adc1, THERMISTOR_CHANNEL, SampleTime::Cycles144);
+    let bus = RegularBus::new(BUS_SCALE, BUS_CHANNEL).with_thermistor(THERMISTOR);
+    (currents, bus)
+}
+
+/// The angle input on PA15 / PB3 / PB10: the encoder on TIM2 (A, B;
+/// Z = index) or halls H1..3, as `source` says; `sysclk_hz`, the core
+/// clock, is the hall timing's tick rate.
+fn encoder_or_halls(
+    tim2: pac::TIM2,
+    source: AngleSource,
+    sysclk_hz: u32,
+    ab: (gpio::PA15<gpio::Debugger>, gpio::PB3<gpio::Debugger>),
+    z: gpio::PB10,
+    rcc: &mut Rcc,
+) -> Angle {
+    // Angle input on PA15 / PB3 / PB10.
+    match source {
+        AngleSource::Encoder { cpr } => {
+            let qei = Qei::new(
+                tim2,
+                (ab.0.into_alternate::<1>(), ab.1.into_alternate::<1>()),
+                rcc,
+            );
+            let _z = z.into_alternate::<1>();
+            let _ = qei.release();
+            // The index is not used to re-zero the count: the electrical
+            // zero is identified against the power-on count, and a later
+            // index pulse would move the angle by up to half a turn.
+            AngleInput::Encoder(QuadEncoder::new(cpr, false))
+        }
+        AngleSource::Hall(cfg) => {
+            let _h1 = ab.0.into_pull_up_input();
+            let _h2 = ab.1.into_pull_up_input();
+            let _h3 = z.into_pull_up_input();
+            AngleInput::Hall(HallSensor::new(HALL_PINS, cfg.at_tick_rate(sysclk_hz)))
+        }
     }
 }
 

@@ -156,10 +156,10 @@ use crate::logic::drv8301::{Control1, Control2, Gain, GateCurrent, OcpMode, Octw
 use crate::logic::scaling::{CurrentScale, VoltageScale};
 use crate::pac;
 use fugit::RateExtU32;
-use stm32f4xx_hal::gpio::{GpioExt, Output, PinState, PC13};
+use stm32f4xx_hal::gpio::{self, GpioExt, Output, PinState, PC13};
 #[cfg(not(feature = "as5047p"))]
 use stm32f4xx_hal::qei::Qei;
-use stm32f4xx_hal::rcc::{Config, Enable, RccExt, Reset};
+use stm32f4xx_hal::rcc::{Config, Enable, Rcc, RccExt, Reset};
 use stm32f4xx_hal::spi::{Spi, SpiExt};
 #[cfg(feature = "as5047p")]
 use {
@@ -168,7 +168,6 @@ use {
     foc_core::hal::AngleSensor,
     stm32f4xx_hal::dwt::{self, DwtExt},
     stm32f4xx_hal::gpio::{PinSpeed, Speed, PA0, PC14},
-    stm32f4xx_hal::rcc::Rcc,
 };
 
 /// Board name.
@@ -373,151 +372,47 @@ pub struct Board {
 /// Bridge disabled (MOE = 0; EN_GATE high if the DRV8301 was configured),
 /// PWM counter running, NVIC untouched.
 pub fn init(dp: pac::Peripherals) -> Board {
-    let mut rcc = dp.RCC.freeze(
-        Config::hse(8.MHz())
-            .sysclk(SYSCLK_HZ.Hz())
-            .hclk(SYSCLK_HZ.Hz())
-            .pclk1(PCLK1_HZ.Hz())
-            .pclk2(84.MHz()),
-    );
+    let mut rcc = freeze_clocks(dp.RCC);
     let gpioa = dp.GPIOA.split(&mut rcc);
     let gpiob = dp.GPIOB.split(&mut rcc);
     let gpioc = dp.GPIOC.split(&mut rcc);
     let gpiod = dp.GPIOD.split(&mut rcc);
-    // AUX half-bridge off first: both gate inputs low (AUX_H goes to
-    // TIM2_CH4 once the timer holds it off, below).
-    let _aux_l = gpiob.pb10.into_push_pull_output_in_state(PinState::Low);
-    let aux_h = gpiob.pb11.into_push_pull_output_in_state(PinState::Low);
-    // Gate drivers off, M1 inputs low.
-    let _en_gate = gpiob.pb12.into_push_pull_output_in_state(PinState::Low);
-    let _m1 = (
-        gpioc.pc6.into_push_pull_output_in_state(PinState::Low),
-        gpioc.pc7.into_push_pull_output_in_state(PinState::Low),
-        gpioc.pc8.into_push_pull_output_in_state(PinState::Low),
-        gpioa.pa7.into_push_pull_output_in_state(PinState::Low),
-        gpiob.pb0.into_push_pull_output_in_state(PinState::Low),
-        gpiob.pb1.into_push_pull_output_in_state(PinState::Low),
+    let (aux_h, m0_ncs, _m1_ncs) = outputs_safe(
+        (gpiob.pb10, gpiob.pb11),
+        gpiob.pb12,
+        (gpioc.pc6, gpioc.pc7, gpioc.pc8),
+        (gpioa.pa7, gpiob.pb0, gpiob.pb1),
+        gpiod.pd2,
+        (gpioc.pc13, gpioc.pc14),
     );
-    let _nfault = gpiod.pd2.into_pull_up_input();
-    let m0_ncs = gpioc.pc13.into_push_pull_output_in_state(PinState::High);
-    let _m1_ncs = gpioc.pc14.into_push_pull_output_in_state(PinState::High);
     enable_cycle_counter();
 
-    // TIM1 6-PWM.
-    let _h = (
-        gpioa.pa8.into_alternate::<1>(),
-        gpioa.pa9.into_alternate::<1>(),
-        gpioa.pa10.into_alternate::<1>(),
-    );
-    let _l = (
-        gpiob.pb13.into_alternate::<1>(),
-        gpiob.pb14.into_alternate::<1>(),
-        gpiob.pb15.into_alternate::<1>(),
-    );
-    pac::TIM1::enable(&mut rcc);
-    pac::TIM1::reset(&mut rcc);
-    let tim_clk = rcc.clocks.timclk2().raw();
-    let pwm = match Tim1Pwm::new(
+    let pwm = tim1_six_pwm(
         dp.TIM1,
-        tim_clk,
-        PwmConfig {
-            frequency_hz: PWM_FREQUENCY_HZ,
-            topology: Topology::SixPwm {
-                dead_time_ns: DEAD_TIME_NS,
-            },
-            break_input: None,
-            enable_pins: &ENABLE_PINS,
-            enable_pins_in_disable: false,
-        },
-    ) {
-        Ok(pwm) => pwm,
-        // Only a PWM_FREQUENCY_HZ const out of range gets here.
-        // A board constant out of range, found at init before the bridge
-        // was ever enabled (the timer never starts): halting is the safe
-        // state there.
-        #[allow(clippy::panic)]
-        Err(e) => panic!("PWM timing: {:?}", e),
-    };
-
-    // DRV8301: EN_GATE high (MOE = 0 keeps every gate input low), let it
-    // start, configure over SPI3 (mode 1, 1 MHz) and read back.
-    let spi = dp.SPI3.spi(
-        (
-            Some(gpioc.pc10.into_alternate::<6>()),
-            Some(gpioc.pc11.into_alternate::<6>()),
-            Some(gpioc.pc12.into_alternate::<6>()),
-        ),
-        embedded_hal::spi::MODE_1,
-        1.MHz(),
+        (gpioa.pa8, gpioa.pa9, gpioa.pa10),
+        (gpiob.pb13, gpiob.pb14, gpiob.pb15),
         &mut rcc,
     );
-    EN_GATE.set(true);
-    delay_us(SYSCLK_HZ, 20_000);
-    let mut gate_driver = Drv8301::new(spi, m0_ncs, SYSCLK_HZ / 1_000_000);
-    let gate_driver_config = gate_driver.configure(DRV_CONTROL1, DRV_CONTROL2);
-    if gate_driver_config.is_err() {
-        EN_GATE.set(false);
-    }
-
-    // ADC1: B and C shunts, VBUS, M0 FET thermistor.
-    let _ib = gpioc.pc0.into_analog();
-    let _ic = gpioc.pc1.into_analog();
-    let _vbus = gpioa.pa6.into_analog();
-    let _m0_temp = gpioc.pc5.into_analog();
-    pac::ADC1::enable(&mut rcc);
-    pac::ADC1::reset(&mut rcc);
-    setup_adc1(
+    let (gate_driver, gate_driver_config) = drv8301_on_spi3(
+        dp.SPI3,
+        (gpioc.pc10, gpioc.pc11, gpioc.pc12),
+        m0_ncs,
+        &mut rcc,
+    );
+    let (currents, bus) = adc1_sensing(
         &dp.ADC1,
         &dp.ADC_COMMON,
-        &CURRENT_CHANNELS,
-        SampleTime::Cycles15,
-        BUS_CHANNEL,
-        SampleTime::Cycles144,
+        (gpioc.pc0, gpioc.pc1),
+        gpioa.pa6,
+        gpioc.pc5,
+        &mut rcc,
     );
-    let currents = InjectedCurrents::new(Shunts::BC(CURRENT_CHANNELS), CURRENT_SCALE);
-    set_regular_sample_time(&dp.ADC1, THERMISTOR_CHANNEL, SampleTime::Cycles144);
-    let bus = RegularBus::new(BUS_SCALE, BUS_CHANNEL).with_thermistor(THERMISTOR);
-
-    // Brake chopper: TIM2 (clock and reset through the HAL: RCC_APB1ENR /
-    // RCC_APB1RSTR, RM0090 7.3.13 / 7.3.8) with CCR4 = 0, then AUX_H to
-    // TIM2_CH4 (AF1): the pin goes from driven low to the timer's low.
-    pac::TIM2::enable(&mut rcc);
-    pac::TIM2::reset(&mut rcc);
-    let brake = AuxBrake::new(dp.TIM2, rcc.clocks.timclk1().raw());
-    let _aux_h = aux_h.into_alternate::<1>();
+    let brake = aux_brake(dp.TIM2, aux_h, &mut rcc);
 
     #[cfg(not(feature = "as5047p"))]
-    let angle = match ANGLE_SOURCE {
-        AngleSource::Encoder { cpr } => {
-            let qei = Qei::new(
-                dp.TIM3,
-                (
-                    gpiob.pb4.into_alternate::<2>(),
-                    gpiob.pb5.into_alternate::<2>(),
-                ),
-                &mut rcc,
-            );
-            let _z = gpioc.pc9.into_alternate::<2>();
-            let _ = qei.release();
-            // The index is not used to re-zero the count: the electrical
-            // zero is identified against the power-on count, and a later
-            // index pulse would move the angle by up to half a turn.
-            AngleInput::Encoder(QuadEncoder::new(cpr, false))
-        }
-        AngleSource::Hall(cfg) => {
-            let _h1 = gpiob.pb4.into_pull_up_input();
-            let _h2 = gpiob.pb5.into_pull_up_input();
-            let _h3 = gpioc.pc9.into_pull_up_input();
-            AngleInput::Hall(HallSensor::new(HALL_PINS, cfg.at_tick_rate(SYSCLK_HZ)))
-        }
-    };
-    // SPI3 from the DRV8301 to the AS5047P (module docs, "Bus hand-over").
+    let angle = encoder_or_halls(dp.TIM3, (gpiob.pb4, gpiob.pb5), gpioc.pc9, &mut rcc);
     #[cfg(feature = "as5047p")]
-    let (angle, gate_driver_ncs) = {
-        let (spi, m0_ncs) = gate_driver.release();
-        let ncs = gpioa.pa0.into_push_pull_output_in_state(PinState::High);
-        (as5047p_on_spi3(spi, ncs, &mut rcc), (m0_ncs, _m1_ncs))
-    };
+    let (angle, gate_driver_ncs) = spi3_to_as5047p(gate_driver, gpioa.pa0, _m1_ncs, &mut rcc);
 
     // Command UART: USART2 on PA2/PA3 (AF7). Clock enable and reset
     // through the HAL (RCC_APB1ENR.USART2EN, RM0090 7.3.13).
@@ -545,6 +440,221 @@ pub fn init(dp: pac::Peripherals) -> Board {
         store: StoreFlash::new(dp.FLASH, STORE_RANGE),
         can,
     }
+}
+
+/// Clocks: 8 MHz HSE to [`SYSCLK_HZ`] (HCLK the same), APB1 at
+/// [`PCLK1_HZ`], APB2 at 84 MHz.
+fn freeze_clocks(rcc: pac::RCC) -> Rcc {
+    rcc.freeze(
+        Config::hse(8.MHz())
+            .sysclk(SYSCLK_HZ.Hz())
+            .hclk(SYSCLK_HZ.Hz())
+            .pclk1(PCLK1_HZ.Hz())
+            .pclk2(84.MHz()),
+    )
+}
+
+/// Every output that can turn a FET on, driven off before anything else:
+/// the AUX half-bridge (AUX_L PB10, AUX_H PB11), EN_GATE (PB12) and the
+/// unused M1 gate inputs (PC6-8, PA7/PB0/PB1) low; then nFAULT (PD2) as
+/// an input with pull-up and both DRV8301 chip selects (PC13, PC14) idle
+/// high. Returns AUX_H (it goes to TIM2_CH4 later) and the chip selects
+/// (M0, M1).
+fn outputs_safe(
+    aux: (gpio::PB10, gpio::PB11),
+    en_gate: gpio::PB12,
+    m1_high: (gpio::PC6, gpio::PC7, gpio::PC8),
+    m1_low: (gpio::PA7, gpio::PB0, gpio::PB1),
+    nfault: gpio::PD2,
+    ncs: (gpio::PC13, gpio::PC14),
+) -> (gpio::PB11<Output>, PC13<Output>, gpio::PC14<Output>) {
+    // AUX half-bridge off first: both gate inputs low (AUX_H goes to
+    // TIM2_CH4 once the timer holds it off, below).
+    let _aux_l = aux.0.into_push_pull_output_in_state(PinState::Low);
+    let aux_h = aux.1.into_push_pull_output_in_state(PinState::Low);
+    // Gate drivers off, M1 inputs low.
+    let _en_gate = en_gate.into_push_pull_output_in_state(PinState::Low);
+    let _m1 = (
+        m1_high.0.into_push_pull_output_in_state(PinState::Low),
+        m1_high.1.into_push_pull_output_in_state(PinState::Low),
+        m1_high.2.into_push_pull_output_in_state(PinState::Low),
+        m1_low.0.into_push_pull_output_in_state(PinState::Low),
+        m1_low.1.into_push_pull_output_in_state(PinState::Low),
+        m1_low.2.into_push_pull_output_in_state(PinState::Low),
+    );
+    let _nfault = nfault.into_pull_up_input();
+    let m0_ncs = ncs.0.into_push_pull_output_in_state(PinState::High);
+    let m1_ncs = ncs.1.into_push_pull_output_in_state(PinState::High);
+    (aux_h, m0_ncs, m1_ncs)
+}
+
+/// TIM1 6-PWM: the high sides (PA8-10) and low sides (PB13-15) to their
+/// TIM1 channels (AF1), TIM1's clock enabled and the timer reset, then
+/// [`Tim1Pwm`] at [`PWM_FREQUENCY_HZ`] with [`DEAD_TIME_NS`].
+fn tim1_six_pwm(
+    tim1: pac::TIM1,
+    high: (gpio::PA8, gpio::PA9, gpio::PA10),
+    low: (gpio::PB13, gpio::PB14, gpio::PB15),
+    rcc: &mut Rcc,
+) -> Pwm {
+    // TIM1 6-PWM.
+    let _h = (
+        high.0.into_alternate::<1>(),
+        high.1.into_alternate::<1>(),
+        high.2.into_alternate::<1>(),
+    );
+    let _l = (
+        low.0.into_alternate::<1>(),
+        low.1.into_alternate::<1>(),
+        low.2.into_alternate::<1>(),
+    );
+    pac::TIM1::enable(rcc);
+    pac::TIM1::reset(rcc);
+    let tim_clk = rcc.clocks.timclk2().raw();
+    match Tim1Pwm::new(
+        tim1,
+        tim_clk,
+        PwmConfig {
+            frequency_hz: PWM_FREQUENCY_HZ,
+            topology: Topology::SixPwm {
+                dead_time_ns: DEAD_TIME_NS,
+            },
+            break_input: None,
+            enable_pins: &ENABLE_PINS,
+            enable_pins_in_disable: false,
+        },
+    ) {
+        Ok(pwm) => pwm,
+        // Only a PWM_FREQUENCY_HZ const out of range gets here.
+        // A board constant out of range, found at init before the bridge
+        // was ever enabled (the timer never starts): halting is the safe
+        // state there.
+        #[allow(clippy::panic)]
+        Err(e) => panic!("PWM timing: {:?}", e),
+    }
+}
+
+/// The M0 DRV8301 on SPI3 (SCK/MISO/MOSI = PC10/PC11/PC12, AF6; CS
+/// `m0_ncs`), and the result of its configuration. EN_GATE is left low
+/// when the configuration failed.
+fn drv8301_on_spi3(
+    spi3: pac::SPI3,
+    pins: (gpio::PC10, gpio::PC11, gpio::PC12),
+    m0_ncs: PC13<Output>,
+    rcc: &mut Rcc,
+) -> (GateDriver, Result<(), Drv8301Error>) {
+    // DRV8301: EN_GATE high (MOE = 0 keeps every gate input low), let it
+    // start, configure over SPI3 (mode 1, 1 MHz) and read back.
+    let spi = spi3.spi(
+        (
+            Some(pins.0.into_alternate::<6>()),
+            Some(pins.1.into_alternate::<6>()),
+            Some(pins.2.into_alternate::<6>()),
+        ),
+        embedded_hal::spi::MODE_1,
+        1.MHz(),
+        rcc,
+    );
+    EN_GATE.set(true);
+    delay_us(SYSCLK_HZ, 20_000);
+    let mut gate_driver = Drv8301::new(spi, m0_ncs, SYSCLK_HZ / 1_000_000);
+    let gate_driver_config = gate_driver.configure(DRV_CONTROL1, DRV_CONTROL2);
+    if gate_driver_config.is_err() {
+        EN_GATE.set(false);
+    }
+    (gate_driver, gate_driver_config)
+}
+
+/// ADC1: the B and C shunts (PC0, PC1) in the injected group, VBUS (PA6)
+/// and the M0 FET thermistor (PC5) alternating in the regular group.
+fn adc1_sensing(
+    adc1: &pac::ADC1,
+    adc_common: &pac::ADC_COMMON,
+    shunts: (gpio::PC0, gpio::PC1),
+    vbus: gpio::PA6,
+    m0_temp: gpio::PC5,
+    rcc: &mut Rcc,
+) -> (Currents, Bus) {
+    // ADC1: B and C shunts, VBUS, M0 FET thermistor.
+    let _ib = shunts.0.into_analog();
+    let _ic = shunts.1.into_analog();
+    let _vbus = vbus.into_analog();
+    let _m0_temp = m0_temp.into_analog();
+    pac::ADC1::enable(rcc);
+    pac::ADC1::reset(rcc);
+    setup_adc1(
+        adc1,
+        adc_common,
+        &CURRENT_CHANNELS,
+        SampleTime::Cycles15,
+        BUS_CHANNEL,
+        SampleTime::Cycles144,
+    );
+    let currents = InjectedCurrents::new(Shunts::BC(CURRENT_CHANNELS), CURRENT_SCALE);
+    set_regular_sample_time(adc1, THERMISTOR_CHANNEL, SampleTime::Cycles144);
+    let bus = RegularBus::new(BUS_SCALE, BUS_CHANNEL).with_thermistor(THERMISTOR);
+    (currents, bus)
+}
+
+/// The brake chopper on TIM2_CH4, off, with AUX_H (held low until now)
+/// handed to the timer.
+fn aux_brake(tim2: pac::TIM2, aux_h: gpio::PB11<Output>, rcc: &mut Rcc) -> Brake {
+    // Brake chopper: TIM2 (clock and reset through the HAL: RCC_APB1ENR /
+    // RCC_APB1RSTR, RM0090 7.3.13 / 7.3.8) with CCR4 = 0, then AUX_H to
+    // TIM2_CH4 (AF1): the pin goes from driven low to the timer's low.
+    pac::TIM2::enable(rcc);
+    pac::TIM2::reset(rcc);
+    let brake = AuxBrake::new(tim2, rcc.clocks.timclk1().raw());
+    let _aux_h = aux_h.into_alternate::<1>();
+    brake
+}
+
+/// The M0 encoder input (A/B = PB4/PB5 on TIM3, Z = PC9) or halls on the
+/// same pins, as [`ANGLE_SOURCE`] says.
+#[cfg(not(feature = "as5047p"))]
+fn encoder_or_halls(
+    tim3: pac::TIM3,
+    ab: (gpio::PB4<gpio::Debugger>, gpio::PB5),
+    z: gpio::PC9,
+    rcc: &mut Rcc,
+) -> Angle {
+    match ANGLE_SOURCE {
+        AngleSource::Encoder { cpr } => {
+            let qei = Qei::new(
+                tim3,
+                (ab.0.into_alternate::<2>(), ab.1.into_alternate::<2>()),
+                rcc,
+            );
+            let _z = z.into_alternate::<2>();
+            let _ = qei.release();
+            // The index is not used to re-zero the count: the electrical
+            // zero is identified against the power-on count, and a later
+            // index pulse would move the angle by up to half a turn.
+            AngleInput::Encoder(QuadEncoder::new(cpr, false))
+        }
+        AngleSource::Hall(cfg) => {
+            let _h1 = ab.0.into_pull_up_input();
+            let _h2 = ab.1.into_pull_up_input();
+            let _h3 = z.into_pull_up_input();
+            AngleInput::Hall(HallSensor::new(HALL_PINS, cfg.at_tick_rate(SYSCLK_HZ)))
+        }
+    }
+}
+
+/// SPI3 handed from the DRV8301 (`gate_driver`) to the AS5047P, CSn on
+/// `pa0` (idle high); returns the sensor and both DRV8301 chip selects
+/// (M0, `m1_ncs`), which stay high.
+#[cfg(feature = "as5047p")]
+fn spi3_to_as5047p(
+    gate_driver: GateDriver,
+    pa0: gpio::PA0,
+    m1_ncs: PC14<Output>,
+    rcc: &mut Rcc,
+) -> (Angle, (PC13<Output>, PC14<Output>)) {
+    // SPI3 from the DRV8301 to the AS5047P (module docs, "Bus hand-over").
+    let (spi, m0_ncs) = gate_driver.release();
+    let ncs = pa0.into_push_pull_output_in_state(PinState::High);
+    (as5047p_on_spi3(spi, ncs, rcc), (m0_ncs, m1_ncs))
 }
 
 /// SPI3 set up again for the AS5047P (mode 1, [`AS5047P_SPI_HZ`]; the

@@ -466,18 +466,37 @@ pub struct Board {
     pub store: StoreFlash,
 }
 
-/// Create the plant, start TIM2 as the period source, bridge off.
-///
-/// TIM2 (RM0090 section 18): prescaler to 1 MHz from QEMU's timer clock
-/// ([`QEMU_TIMER_CLOCK_HZ`]), auto-reload for [`EMULATED_PERIOD_US`],
-/// update interrupt enabled. Its
-/// NVIC priority stays 0 (the highest, above every RTIC task).
+/// Create the plant, start TIM2 as the period source
+/// ([`start_period_timer`]), bridge off.
 ///
 /// First reads the options ([`args`]) from the semihosting command line and
 /// opens the store file they name.
 pub fn init(dp: pac::Peripherals) -> Board {
     let args = super::qemu_store::init_args();
     let plant = sim_plant(args);
+    reset_world(plant);
+    start_period_timer(&dp.RCC, &dp.TIM2);
+    let serial = command_serial(&dp.RCC, dp.USART2);
+    let can = can_port(&dp.RCC, dp.USART3);
+    instrument_port(&dp.RCC, dp.USART1);
+    Board {
+        pwm: SimPwm { _private: () },
+        currents: SimCurrents {
+            offsets: Abc::default(),
+        },
+        angle: SimAngle { _private: () },
+        bus: SimBus { _private: () },
+        brake: SimBrake { _private: () },
+        led: Led::new(None),
+        serial,
+        can,
+        store: StoreFlash::open(args),
+    }
+}
+
+/// The simulated world from scratch: `plant` with no load and no watch,
+/// duties centred, no sample latched; bridge and brake off.
+fn reset_world(plant: Plant) {
     free(|cs| {
         WORLD.borrow(cs).replace(Some(World {
             plant,
@@ -494,9 +513,17 @@ pub fn init(dp: pac::Peripherals) -> Board {
     });
     BRIDGE_ON.store(false, Ordering::SeqCst);
     BRAKE_CMD.store(false, Ordering::SeqCst);
+}
+
+/// TIM2 as the period source, its interrupt unmasked.
+///
+/// TIM2 (RM0090 section 18): prescaler to 1 MHz from QEMU's timer clock
+/// ([`QEMU_TIMER_CLOCK_HZ`]), auto-reload for [`EMULATED_PERIOD_US`],
+/// update interrupt enabled. Its
+/// NVIC priority stays 0 (the highest, above every RTIC task).
+fn start_period_timer(rcc: &pac::RCC, tim: &pac::TIM2) {
     // RCC_APB1ENR.TIM2EN (RM0090 7.3.13); harmless where RCC is not modelled.
-    dp.RCC.apb1enr().modify(|_, w| w.tim2en().set_bit());
-    let tim = &dp.TIM2;
+    rcc.apb1enr().modify(|_, w| w.tim2en().set_bit());
     tim.psc()
         .write(|w| w.psc().set((QEMU_TIMER_CLOCK_HZ / 1_000_000 - 1) as u16));
     tim.arr().write(|w| w.arr().set(EMULATED_PERIOD_US - 1));
@@ -508,33 +535,47 @@ pub fn init(dp: pac::Peripherals) -> Board {
     // critical section) and pends ADC; unmasking it cannot break RTIC's
     // resource locking because it shares no RTIC resource.
     unsafe { cortex_m::peripheral::NVIC::unmask(pac::Interrupt::TIM2) };
+}
+
+/// The command UART: USART2 (QEMU `-serial` number two).
+fn command_serial(rcc: &pac::RCC, usart2: pac::USART2) -> CommandSerial {
     // Command UART: RCC_APB1ENR.USART2EN (RM0090 7.3.13; QEMU does not
     // model the RCC, so no ready flag is waited on). No GPIO set-up: QEMU
     // models no GPIO alternate functions.
-    dp.RCC.apb1enr().modify(|_, w| w.usart2en().set_bit());
-    let serial = CommandSerial::usart2(
-        dp.USART2,
+    rcc.apb1enr().modify(|_, w| w.usart2en().set_bit());
+    CommandSerial::usart2(
+        usart2,
         SerialConfig {
             baud: SERIAL_BAUD,
             pclk_hz: SYSCLK_HZ,
         },
-    );
+    )
+}
+
+/// The CAN port: SLCAN over USART3 (QEMU `-serial` number three), not
+/// started.
+fn can_port(rcc: &pac::RCC, usart3: pac::USART3) -> Can {
     // CAN port: USART3, RCC_APB1ENR.USART3EN (RM0090 7.3.13; not modelled
     // by QEMU, set anyway as on hardware), no GPIO set-up (as USART2).
-    dp.RCC.apb1enr().modify(|_, w| w.usart3en().set_bit());
-    let can = SlcanPort::new(CommandSerial::usart3(
-        dp.USART3,
+    rcc.apb1enr().modify(|_, w| w.usart3en().set_bit());
+    SlcanPort::new(CommandSerial::usart3(
+        usart3,
         SerialConfig {
             baud: SERIAL_BAUD,
             pclk_hz: SYSCLK_HZ,
         },
-    ));
+    ))
+}
+
+/// The emulated bench's instrument port on USART1, handed to the physics
+/// ([`INSTRUMENT`]).
+fn instrument_port(rcc: &pac::RCC, usart1: pac::USART1) {
     // Instrument port (the emulated bench's, see `instrument`): USART1,
     // RCC_APB2ENR.USART1EN (RM0090 7.3.14; not modelled by QEMU), polled
     // by the physics.
-    dp.RCC.apb2enr().modify(|_, w| w.usart1en().set_bit());
+    rcc.apb2enr().modify(|_, w| w.usart1en().set_bit());
     let port = CommandSerial::usart1(
-        dp.USART1,
+        usart1,
         SerialConfig {
             baud: SERIAL_BAUD,
             pclk_hz: SYSCLK_HZ,
@@ -545,19 +586,6 @@ pub fn init(dp: pac::Peripherals) -> Board {
             .borrow(cs)
             .replace(Some(instrument::Port::new(port)))
     });
-    Board {
-        pwm: SimPwm { _private: () },
-        currents: SimCurrents {
-            offsets: Abc::default(),
-        },
-        angle: SimAngle { _private: () },
-        bus: SimBus { _private: () },
-        brake: SimBrake { _private: () },
-        led: Led::new(None),
-        serial,
-        can,
-        store: StoreFlash::open(args),
-    }
 }
 
 /// Bridge and brake off from any context (panic, HardFault); they stay

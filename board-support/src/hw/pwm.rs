@@ -134,68 +134,10 @@ impl Tim1Pwm {
         // RM0090 17.4 (RM0390 16.4, RM0368 12.4). `bits` writes are for
         // multi-bit fields whose every value is valid.
         unsafe {
-            // Counter stopped while configuring.
-            tim.cr1().write(|w| w.cen().clear_bit());
-            // BDTR is written exactly once, below, with every field: its
-            // LOCK bits can be written only once after reset (any BDTR
-            // write freezes them, RM0090 17.4.18). MOE is 0 after the reset
-            // the caller did, so the outputs stay off meanwhile.
-            tim.psc().write(|w| w.psc().bits(t.psc));
-            tim.arr().write(|w| w.arr().bits(t.arr));
-            tim.rcr().write(|w| w.rep().bits(0));
-            // CH1..3: PWM mode 1 + preload; CH4: PWM mode 2 + preload.
-            tim.ccmr1_output().write(|w| {
-                w.oc1m().bits(0b110).oc1pe().set_bit();
-                w.oc2m().bits(0b110).oc2pe().set_bit()
-            });
-            tim.ccmr2_output().write(|w| {
-                w.oc3m().bits(0b110).oc3pe().set_bit();
-                w.oc4m().bits(0b111).oc4pe().set_bit()
-            });
-            for i in 0..3 {
-                tim.ccr(i).write(|w| w.ccr().bits(t.arr / 2));
-            }
-            tim.ccr(3).write(|w| w.ccr().bits(t.arr - 1));
-            // Active-high outputs; CC4 has no pin (OC4REF is internal).
-            tim.ccer().write(|w| {
-                w.cc1e().set_bit().cc2e().set_bit().cc3e().set_bit();
-                w.cc1ne().bit(six).cc2ne().bit(six).cc3ne().bit(six)
-            });
-            // TRGO = OC4REF; idle levels low; no COM preload.
-            tim.cr2().write(|w| {
-                w.mms().bits(0b111);
-                w.ois1().clear_bit().ois2().clear_bit().ois3().clear_bit();
-                w.ois1n()
-                    .clear_bit()
-                    .ois2n()
-                    .clear_bit()
-                    .ois3n()
-                    .clear_bit()
-            });
-            let dtg = dead_time.map(|d| d.dtg).unwrap_or(0);
-            tim.bdtr().write(|w| {
-                w.dtg().bits(dtg).ossi().set_bit().ossr().set_bit();
-                w.aoe().clear_bit().moe().clear_bit();
-                // LOCK level 1 (DTG, BKE, BKP, AOE frozen until reset), in
-                // this first and only full write (see above).
-                w.lock().bits(0b01);
-                match cfg.break_input {
-                    Some(p) => w.bke().set_bit().bkp().bit(p == BreakPolarity::ActiveHigh),
-                    None => w.bke().clear_bit(),
-                }
-            });
-            if cfg.break_input.is_some() {
-                tim.dier().write(|w| w.bie().set_bit());
-            }
-            // Load PSC/ARR/CCR preload registers, then clear the flags.
-            tim.egr().write(|w| w.ug().set_bit());
-            tim.sr().write(|w| w.bits(0));
-            // Stop TIM1 and disable its outputs on a debugger halt.
-            (*pac::DBGMCU::ptr())
-                .apb2_fz()
-                .modify(|_, w| w.dbg_tim1_stop().set_bit());
-            tim.cr1()
-                .write(|w| w.cms().bits(0b01).arpe().set_bit().cen().set_bit());
+            write_time_base(&tim, &t);
+            write_channels(&tim, t.arr, six);
+            write_break_and_dead_time(&tim, dead_time, cfg.break_input);
+            start_counter(&tim);
         }
         Ok(Self {
             arr: t.arr,
@@ -234,6 +176,113 @@ impl Tim1Pwm {
     pub fn dead_time(&self) -> Option<DeadTime> {
         self.dead_time
     }
+}
+
+// The steps of `Tim1Pwm::new`, in the order it calls them (the order of
+// the register writes matters).
+//
+// # Safety (each)
+// The caller owns TIM1 (`tim`) and has enabled its clock and reset it;
+// register fields as in RM0090 17.4 (RM0390 16.4, RM0368 12.4).
+
+/// Counter stopped, then the time base: `PSC`, `ARR` from `t`, `RCR = 0`.
+///
+/// # Safety
+/// See above: TIM1 owned, clocked and reset.
+unsafe fn write_time_base(tim: &pac::TIM1, t: &PwmTiming) {
+    // Counter stopped while configuring.
+    tim.cr1().write(|w| w.cen().clear_bit());
+    // BDTR is written exactly once, later (`write_break_and_dead_time`),
+    // with every field: its
+    // LOCK bits can be written only once after reset (any BDTR
+    // write freezes them, RM0090 17.4.18). MOE is 0 after the reset
+    // the caller did, so the outputs stay off meanwhile.
+    tim.psc().write(|w| w.psc().bits(t.psc));
+    tim.arr().write(|w| w.arr().bits(t.arr));
+    tim.rcr().write(|w| w.rep().bits(0));
+}
+
+/// The channels: CH1..3 in PWM mode 1 at half duty, CH4 in PWM mode 2 at
+/// `arr - 1` (the ADC trigger), outputs (complementary ones if `six`)
+/// enabled active high, `TRGO = OC4REF`, idle levels low.
+///
+/// # Safety
+/// See above: TIM1 owned, clocked and reset.
+unsafe fn write_channels(tim: &pac::TIM1, arr: u16, six: bool) {
+    // CH1..3: PWM mode 1 + preload; CH4: PWM mode 2 + preload.
+    tim.ccmr1_output().write(|w| {
+        w.oc1m().bits(0b110).oc1pe().set_bit();
+        w.oc2m().bits(0b110).oc2pe().set_bit()
+    });
+    tim.ccmr2_output().write(|w| {
+        w.oc3m().bits(0b110).oc3pe().set_bit();
+        w.oc4m().bits(0b111).oc4pe().set_bit()
+    });
+    for i in 0..3 {
+        tim.ccr(i).write(|w| w.ccr().bits(arr / 2));
+    }
+    tim.ccr(3).write(|w| w.ccr().bits(arr - 1));
+    // Active-high outputs; CC4 has no pin (OC4REF is internal).
+    tim.ccer().write(|w| {
+        w.cc1e().set_bit().cc2e().set_bit().cc3e().set_bit();
+        w.cc1ne().bit(six).cc2ne().bit(six).cc3ne().bit(six)
+    });
+    // TRGO = OC4REF; idle levels low; no COM preload.
+    tim.cr2().write(|w| {
+        w.mms().bits(0b111);
+        w.ois1().clear_bit().ois2().clear_bit().ois3().clear_bit();
+        w.ois1n()
+            .clear_bit()
+            .ois2n()
+            .clear_bit()
+            .ois3n()
+            .clear_bit()
+    });
+}
+
+/// `BDTR`, in its first and only write: dead time, off-state selections,
+/// `MOE = AOE = 0`, the break input, `LOCK = 1`; then the break interrupt
+/// if the board wires a break input.
+///
+/// # Safety
+/// See above: TIM1 owned, clocked and reset; `BDTR` not written since.
+unsafe fn write_break_and_dead_time(
+    tim: &pac::TIM1,
+    dead_time: Option<DeadTime>,
+    break_input: Option<BreakPolarity>,
+) {
+    let dtg = dead_time.map(|d| d.dtg).unwrap_or(0);
+    tim.bdtr().write(|w| {
+        w.dtg().bits(dtg).ossi().set_bit().ossr().set_bit();
+        w.aoe().clear_bit().moe().clear_bit();
+        // LOCK level 1 (DTG, BKE, BKP, AOE frozen until reset), in
+        // this first and only full write (see above).
+        w.lock().bits(0b01);
+        match break_input {
+            Some(p) => w.bke().set_bit().bkp().bit(p == BreakPolarity::ActiveHigh),
+            None => w.bke().clear_bit(),
+        }
+    });
+    if break_input.is_some() {
+        tim.dier().write(|w| w.bie().set_bit());
+    }
+}
+
+/// Preloads loaded and flags cleared, TIM1 frozen on a debugger halt, then
+/// the counter started centre-aligned with auto-reload preload.
+///
+/// # Safety
+/// See above: TIM1 owned and configured by the steps before.
+unsafe fn start_counter(tim: &pac::TIM1) {
+    // Load PSC/ARR/CCR preload registers, then clear the flags.
+    tim.egr().write(|w| w.ug().set_bit());
+    tim.sr().write(|w| w.bits(0));
+    // Stop TIM1 and disable its outputs on a debugger halt.
+    (*pac::DBGMCU::ptr())
+        .apb2_fz()
+        .modify(|_, w| w.dbg_tim1_stop().set_bit());
+    tim.cr1()
+        .write(|w| w.cms().bits(0b01).arpe().set_bit().cen().set_bit());
 }
 
 impl PwmDriver for Tim1Pwm {

@@ -51,7 +51,7 @@ use core::f32::consts::TAU;
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct AlignmentConfig {
-    /// PWM (step) period [s].
+    /// PWM (step) period \[s\].
     pub ts_s: f32,
     /// Configured pole pairs (checked, never changed).
     pub pole_pairs: u8,
@@ -59,11 +59,11 @@ pub struct AlignmentConfig {
     /// backwards relative to A -> B -> C, `Some(false)` forwards, `None` to
     /// detect it.
     pub expected_reversed: Option<bool>,
-    /// d-axis voltage during the sweeps [V].
+    /// d-axis voltage during the sweeps \[V\].
     pub voltage_v: f32,
-    /// Largest open-loop voltage [V] (also limited by the bus).
+    /// Largest open-loop voltage \[V\] (also limited by the bus).
     pub max_voltage_v: f32,
-    /// Current vector that aborts the routine [A].
+    /// Current vector that aborts the routine \[A\].
     pub max_current_a: f32,
     /// Sweep speed [rad/s, electrical].
     pub speed_e_rad_s: f32,
@@ -71,7 +71,7 @@ pub struct AlignmentConfig {
     pub turns_e: u16,
     /// Electrical turns at the start of each sweep that are not evaluated.
     pub lead_in_turns_e: u16,
-    /// Ramp-and-hold time before each sweep [s].
+    /// Ramp-and-hold time before each sweep \[s\].
     pub hold_s: f32,
     /// Largest accepted `|measured - configured|` pole pairs.
     pub max_pole_pair_error: f32,
@@ -311,7 +311,7 @@ impl Alignment {
         if n >= lead && n < lead + window {
             sweep.record(&c, angle, theta);
         }
-        if n >= lead && (n + 1 - lead) % per_turn == 0 {
+        if n >= lead && (n + 1 - lead).is_multiple_of(per_turn) {
             // One electrical turn evaluated: its travel, signed in
             // the commanded direction.
             let chunk = pos_rad - sweep.chunk_start_rad;

@@ -44,6 +44,27 @@ pub(super) struct SubstepOut {
     pub(super) q_brake: Real,
 }
 
+/// What a period's sub-steps integrated, summed over the period.
+#[derive(Clone, Copy, Debug)]
+struct PeriodSums {
+    /// Energy from the supply \[J\].
+    e_in: Real,
+    /// Charge through the DC link [C].
+    q_dc: Real,
+    /// Terminal voltages, each sub-step's divided by their number \[V\].
+    v_term: [Real; 3],
+    /// Bus voltage at each sub-step's end, summed \[V\].
+    v_bus_sum: Real,
+    /// Energy into the winding's copper \[J\].
+    e_copper: Real,
+    /// Charge from the source [C].
+    q_source: Real,
+    /// Charge through the brake resistor [C].
+    q_brake: Real,
+    /// The power stage's losses at each sub-step's end, summed \[W\].
+    p_stage_sum: Real,
+}
+
 pub(super) fn add(x: [Real; 5], d: &Deriv, h: Real) -> [Real; 5] {
     [
         x[0] + h * d.id,
@@ -67,6 +88,24 @@ impl Plant {
         bridge_enabled: bool,
         load_torque_nm: f32,
     ) -> Measurements {
+        self.apply_inputs(duties, bridge_enabled, load_torque_nm);
+
+        let n = self.cfg.substeps.max(1);
+        let t_period = self.cfg.period_s();
+        let dt = t_period / n as Real;
+        let sums = self.integrate_period(n, dt);
+        self.store_period_averages(&sums, n, t_period);
+        self.step_temperatures(&sums, n, t_period);
+        self.time_s += t_period as f64;
+        let m = self.sample();
+        self.period += 1;
+        m
+    }
+
+    /// The period's inputs: the cleaned duties through the compute delay,
+    /// the bridge state (the diodes reset on a change) and the load torque.
+    #[inline]
+    fn apply_inputs(&mut self, duties: [f32; 3], bridge_enabled: bool, load_torque_nm: f32) {
         let clean = duties.map(|d| {
             if d.is_finite() {
                 d.clamp(0.0, 1.0)
@@ -85,10 +124,11 @@ impl Plant {
         }
         self.enabled = bridge_enabled;
         self.load_nm = load_torque_nm as Real;
+    }
 
-        let n = self.cfg.substeps.max(1);
-        let t_period = self.cfg.period_s();
-        let dt = t_period / n as Real;
+    /// The period's `n` sub-steps of `dt`, and what they integrated.
+    #[inline]
+    fn integrate_period(&mut self, n: u32, dt: Real) -> PeriodSums {
         let mut e_in = 0.0;
         let mut q_dc = 0.0;
         let mut v_term = [0.0; 3];
@@ -116,19 +156,42 @@ impl Plant {
                 );
             }
         }
-        self.v_bus_avg = v_bus_sum / n as Real;
-        self.p_in_avg = e_in / t_period;
-        self.i_dc_avg = q_dc / t_period;
-        self.v_terminal_avg = v_term;
-        if self.dc_link.is_some() {
-            self.i_source_avg = q_source / t_period;
-            self.i_brake_avg = q_brake / t_period;
+        PeriodSums {
+            e_in,
+            q_dc,
+            v_term,
+            v_bus_sum,
+            e_copper,
+            q_source,
+            q_brake,
+            p_stage_sum,
         }
+    }
+
+    /// The period's averages from its `n` sub-steps' `sums` over
+    /// `t_period`: bus voltage, input power, DC current, terminal voltages
+    /// and, with a DC link, the source's and brake's currents.
+    #[inline]
+    fn store_period_averages(&mut self, sums: &PeriodSums, n: u32, t_period: Real) {
+        self.v_bus_avg = sums.v_bus_sum / n as Real;
+        self.p_in_avg = sums.e_in / t_period;
+        self.i_dc_avg = sums.q_dc / t_period;
+        self.v_terminal_avg = sums.v_term;
+        if self.dc_link.is_some() {
+            self.i_source_avg = sums.q_source / t_period;
+            self.i_brake_avg = sums.q_brake / t_period;
+        }
+    }
+
+    /// The winding's and the power stage's temperatures over the period
+    /// (where modelled), from its `n` sub-steps' `sums` over `t_period`.
+    #[inline]
+    fn step_temperatures(&mut self, sums: &PeriodSums, n: u32, t_period: Real) {
         if let Some(w) = self.winding_thermal {
             self.t_winding_c = power::thermal_step(
                 self.t_winding_c,
                 w.ambient_c,
-                e_copper / t_period,
+                sums.e_copper / t_period,
                 w.r_th_k_per_w,
                 w.tau_s,
                 t_period,
@@ -138,16 +201,12 @@ impl Plant {
             self.t_stage_c = power::thermal_step(
                 self.t_stage_c,
                 st.ambient_c,
-                p_stage_sum / n as Real,
+                sums.p_stage_sum / n as Real,
                 st.r_th_k_per_w,
                 st.tau_s,
                 t_period,
             );
         }
-        self.time_s += t_period as f64;
-        let m = self.sample();
-        self.period += 1;
-        m
     }
 
     /// One RK4 sub-step.

@@ -69,13 +69,13 @@ pub type Label = heapless::String<32>;
 pub struct MotorRecord {
     /// Pole pairs (>= 1).
     pub pole_pairs: u8,
-    /// Phase resistance [ohm] (> 0).
+    /// Phase resistance \[ohm\] (> 0).
     pub r_ohm: f32,
-    /// d-axis inductance [H] (> 0).
+    /// d-axis inductance \[H\] (> 0).
     pub ld_h: f32,
-    /// q-axis inductance [H] (> 0).
+    /// q-axis inductance \[H\] (> 0).
     pub lq_h: f32,
-    /// Permanent-magnet flux linkage [Wb] (>= 0).
+    /// Permanent-magnet flux linkage \[Wb\] (>= 0).
     pub flux_linkage_wb: f32,
 }
 
@@ -112,7 +112,7 @@ pub struct AngleRecord {
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct LimitsRecord {
-    /// Largest q-current reference [A].
+    /// Largest q-current reference \[A\].
     pub max_current_a: f32,
     /// Largest velocity [rad/s, mechanical].
     pub max_velocity_rad_s: f32,
@@ -120,7 +120,7 @@ pub struct LimitsRecord {
     pub min_position_rad: f32,
     /// Upper end of the position range [rad, mechanical].
     pub max_position_rad: f32,
-    /// Largest open-loop voltage magnitude [V].
+    /// Largest open-loop voltage magnitude \[V\].
     pub max_open_loop_voltage_v: f32,
     /// Largest open-loop electrical speed [rad/s].
     pub max_open_loop_omega_e_rad_s: f32,
@@ -187,24 +187,24 @@ pub struct WatchdogRecord {
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct PowerRecord {
-    /// Bus voltage where regenerative current starts to be reduced [V].
+    /// Bus voltage where regenerative current starts to be reduced \[V\].
     pub regen_start_v: f32,
-    /// Bus voltage with no regenerative current left [V] (>= start).
+    /// Bus voltage with no regenerative current left \[V\] (>= start).
     pub regen_end_v: f32,
-    /// Largest d-axis braking current in the regen ramp [A] (>= 0, `inf`:
+    /// Largest d-axis braking current in the regen ramp \[A\] (>= 0, `inf`:
     /// up to the current limit, 0: off).
     pub regen_id_max_a: f32,
-    /// Largest current drawn from the supply [A] (>= 0).
+    /// Largest current drawn from the supply \[A\] (>= 0).
     pub bus_current_motoring_max_a: f32,
-    /// Largest current returned to the supply [A] (>= 0).
+    /// Largest current returned to the supply \[A\] (>= 0).
     pub bus_current_regen_max_a: f32,
-    /// Largest power drawn from the supply [W] (>= 0).
+    /// Largest power drawn from the supply \[W\] (>= 0).
     pub power_motoring_max_w: f32,
-    /// Largest power returned to the supply [W] (>= 0).
+    /// Largest power returned to the supply \[W\] (>= 0).
     pub power_regen_max_w: f32,
     /// Winding-to-ambient thermal resistance [K/W] (> 0, finite).
     pub thermal_resistance_k_per_w: f32,
-    /// Winding thermal time constant [s] (>= 0, finite).
+    /// Winding thermal time constant \[s\] (>= 0, finite).
     pub thermal_time_constant_s: f32,
     /// Ambient temperature of the winding model [deg C] (finite).
     pub ambient_c: f32,
@@ -216,11 +216,11 @@ pub struct PowerRecord {
     pub stage_derate_start_c: f32,
     /// Measured stage temperature with no current left [deg C].
     pub stage_derate_end_c: f32,
-    /// Bus voltage where the brake chopper switches on [V].
+    /// Bus voltage where the brake chopper switches on \[V\].
     pub brake_on_v: f32,
-    /// Bus voltage where it switches off again [V] (<= on).
+    /// Bus voltage where it switches off again \[V\] (<= on).
     pub brake_off_v: f32,
-    /// Longest the chopper stays on without a break [s] (>= 0, `inf`: no
+    /// Longest the chopper stays on without a break \[s\] (>= 0, `inf`: no
     /// guard).
     pub brake_max_on_s: f32,
 }
@@ -292,7 +292,7 @@ pub struct JointRecord {
 pub struct DriveRecord {
     /// User label, printable ASCII.
     pub label: Label,
-    /// The PWM rate the gains and watchdog periods were made for [Hz].
+    /// The PWM rate the gains and watchdog periods were made for \[Hz\].
     pub pwm_frequency_hz: u32,
     /// Motor parameters.
     pub motor: MotorRecord,
@@ -408,6 +408,15 @@ impl DriveRecord {
     /// Check every value (see the module docs of [`crate::record`] and the
     /// field docs); the error names the first bad field by its TOML path.
     pub fn validate(&self) -> Result<(), Invalid> {
+        self.validate_motor_and_gains()?;
+        self.validate_limits()?;
+        self.validate_outer_loops()?;
+        self.validate_options()?;
+        self.validate_calibration()
+    }
+
+    /// The label, the PWM frequency, the motor and the current gains.
+    fn validate_motor_and_gains(&self) -> Result<(), Invalid> {
         check(
             self.label.bytes().all(|b| (0x20..=0x7e).contains(&b)),
             "label",
@@ -425,8 +434,11 @@ impl DriveRecord {
         check(positive(g.kp_d_v_per_a), "current_gains.kp_d_v_per_a")?;
         check(positive(g.ki_d_v_per_a_s), "current_gains.ki_d_v_per_a_s")?;
         check(positive(g.kp_q_v_per_a), "current_gains.kp_q_v_per_a")?;
-        check(positive(g.ki_q_v_per_a_s), "current_gains.ki_q_v_per_a_s")?;
+        check(positive(g.ki_q_v_per_a_s), "current_gains.ki_q_v_per_a_s")
+    }
 
+    /// The limits, as foc-core checks them, each error by its TOML path.
+    fn validate_limits(&self) -> Result<(), Invalid> {
         self.limits.to_limits().validate().map_err(|e| {
             invalid(match e {
                 LimitsError::MaxCurrent => "limits.max_current_a",
@@ -439,8 +451,11 @@ impl DriveRecord {
                 // joint's are checked with it, below).
                 LimitsError::MaxStiffness | LimitsError::MaxDamping => "limits",
             })
-        })?;
+        })
+    }
 
+    /// The speed and position loops and their dividers.
+    fn validate_outer_loops(&self) -> Result<(), Invalid> {
         check(
             non_negative(self.speed.kp_a_per_rad_s),
             "speed.kp_a_per_rad_s",
@@ -460,7 +475,11 @@ impl DriveRecord {
         )?;
 
         check(self.dividers.speed >= 1, "dividers.speed")?;
-        check(self.dividers.position >= 1, "dividers.position")?;
+        check(self.dividers.position >= 1, "dividers.position")
+    }
+
+    /// The optional parts: power limits, mechanics, joint.
+    fn validate_options(&self) -> Result<(), Invalid> {
         if let Some(p) = &self.power {
             p.validate()?;
         }
@@ -468,13 +487,19 @@ impl DriveRecord {
             mech.validate()?;
             // What foc-core's `CascadeConfig::set_mechanics` needs to derive
             // the loops from them: a torque constant.
-            let kt = m.to_params().torque_constant_nm_per_a();
+            let kt = self.motor.to_params().torque_constant_nm_per_a();
             check(kt.is_finite() && kt > 0.0, "mechanics")?;
         }
         if let Some(j) = &self.joint {
             j.validate(&self.limits)?;
         }
+        Ok(())
+    }
 
+    /// The calibration, if any: for this motor, and plausible with this
+    /// record's current loop.
+    fn validate_calibration(&self) -> Result<(), Invalid> {
+        let m = &self.motor;
         if let Some(c) = &self.calibration {
             check(c.pole_pairs == m.pole_pairs, "calibration.pole_pairs")?;
             check(
