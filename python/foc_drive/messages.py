@@ -1,10 +1,23 @@
 """Messages of the command channel: tags, codes and body layouts.
 
-Mirrors the tables of ``protocol/src/message.rs`` (every body a fixed
-sequence of little-endian fields, ``f32`` as IEEE 754 bits). Request bodies
-are built by the ``body_*`` functions, reply bodies decoded by the
-``decode_*`` functions (which raise :class:`~foc_drive.errors.ProtocolError`
-when a body does not have its exact layout).
+Mirrors, by hand, the tables of the Rust crate ``foc-protocol``
+(``protocol/src/message/``, ``protocol/src/scope.rs``,
+``protocol/src/config.rs``): every body a fixed sequence of little-endian
+fields, ``f32`` as IEEE 754 bits. Request bodies are built by the
+``body_*`` functions (one per request with a body), reply bodies decoded by
+the ``decode_*`` functions (which raise
+:class:`~foc_drive.errors.ProtocolError` when a body does not have its exact
+layout).
+
+The Rust side is the reference, and these layouts are checked against it:
+``protocol/tests/layouts.rs`` encodes every request and reply variant of
+the current protocol version with the crate's own encoder and writes them,
+with the code tables and constants mirrored here, to
+``python/tests/vectors/protocol-v<N>.json``; ``python/tests/test_layouts.py``
+builds every request body with the ``body_*`` functions, decodes every reply
+body with the ``decode_*`` functions and compares tags, codes, field names
+and constants. A message or code added on the Rust side fails that test
+until it is mirrored here.
 """
 
 from __future__ import annotations
@@ -185,6 +198,15 @@ class TimeoutReaction(enum.IntEnum):
     hold = 2
 
 
+class HomingFailure(enum.IntEnum):
+    """Why homing failed (the ``Homing`` reply's ``reason``)."""
+
+    NoStop = 1
+    Interrupted = 2
+    Aborted = 3
+    Refused = 4
+
+
 class ConfigSource(enum.IntEnum):
     """Which configuration record ``ReadConfig`` reads."""
 
@@ -327,11 +349,21 @@ REQUEST_FIELDS: Dict[int, Tuple[str, ...]] = {
     ),
     Tag.RUN_CALIBRATION: ("routine",),
     Tag.READ_PARAM: ("id",),
+    Tag.START_HOMING: (
+        "method",
+        "home_output_rad",
+        "velocity_rad_s",
+        "current_a",
+        "detect_fraction",
+        "confirm_s",
+        "backoff_rad",
+        "max_travel_rad",
+    ),
     Tag.START_TELEMETRY: ("kind", "value"),
     Tag.READ_CONFIG: ("source", "offset"),
     Tag.WRITE_CONFIG: ("offset", "total", "len"),
     Tag.STORE: ("op",),
-    Tag.SET_SCOPE: tuple(f"signals[{i}]" for i in range(SCOPE_SLOTS))
+    Tag.SET_SCOPE: tuple(f"signal{i}" for i in range(SCOPE_SLOTS))
     + ("divider", "samples", "pre_trigger", "trigger", "trigger_signal", "level"),
     Tag.READ_SCOPE_DATA: ("offset",),
 }
@@ -395,6 +427,124 @@ def body_open_loop(v_d_v: float, v_q_v: float, theta_e_bits: int, omega_e_rad_s:
         + pack_f32s(v_d_v, v_q_v)
         + struct.pack("<I", theta_e_bits)
         + f32_bits(omega_e_rad_s)
+    )
+
+
+def body_limits(
+    max_current_a: float,
+    max_velocity_rad_s: float,
+    min_position_rad: float,
+    max_position_rad: float,
+    max_open_loop_voltage_v: float,
+    max_open_loop_omega_e_rad_s: float,
+    max_kp_nm_per_rad: float,
+    max_kd_nm_s_per_rad: float,
+) -> bytes:
+    """``SetLimits`` body (rotor frame)."""
+    return pack_f32s(
+        max_current_a,
+        max_velocity_rad_s,
+        min_position_rad,
+        max_position_rad,
+        max_open_loop_voltage_v,
+        max_open_loop_omega_e_rad_s,
+        max_kp_nm_per_rad,
+        max_kd_nm_s_per_rad,
+    )
+
+
+def body_current_gains(kp_d: float, ki_d: float, kp_q: float, ki_q: float) -> bytes:
+    """``SetCurrentGains`` body."""
+    return pack_f32s(kp_d, ki_d, kp_q, ki_q)
+
+
+def body_speed_gains(kp_a_per_rad_s: float, ki_a_per_rad: float) -> bytes:
+    """``SetSpeedGains`` body (rotor frame)."""
+    return pack_f32s(kp_a_per_rad_s, ki_a_per_rad)
+
+
+def body_position_gains(
+    kp_per_s: float, max_velocity_rad_s: float, max_acceleration_rad_s2: float
+) -> bytes:
+    """``SetPositionGains`` body (rotor frame)."""
+    return pack_f32s(kp_per_s, max_velocity_rad_s, max_acceleration_rad_s2)
+
+
+def body_dividers(speed: int, position: int) -> bytes:
+    """``SetDividers`` body."""
+    return struct.pack("<HH", speed, position)
+
+
+def body_watchdog(timeout_periods: int, reaction: int) -> bytes:
+    """``SetWatchdog`` body (``reaction`` a :class:`TimeoutReaction` code)."""
+    return struct.pack("<IB", timeout_periods, reaction)
+
+
+def body_calibration(routine: int) -> bytes:
+    """``RunCalibration`` body (a :class:`Calibration` code)."""
+    return bytes([routine])
+
+
+def body_read_param(pid: int) -> bytes:
+    """``ReadParam`` body (a :class:`ParamId` code)."""
+    return bytes([pid])
+
+
+def body_start_telemetry(
+    rate_hz: Optional[float] = None, *, every_periods: Optional[int] = None
+) -> bytes:
+    """``StartTelemetry`` body: a rate [Hz] or every K periods (exactly one)."""
+    if (rate_hz is None) == (every_periods is None):
+        raise ValueError("give exactly one of rate_hz and every_periods")
+    if rate_hz is not None:
+        return b"\x01" + f32_bits(rate_hz)
+    return b"\x00" + struct.pack("<I", every_periods)
+
+
+def body_read_config(source: int, offset: int) -> bytes:
+    """``ReadConfig`` body (``source`` a :class:`ConfigSource` code)."""
+    return struct.pack("<BH", source, offset)
+
+
+def body_store(op: int) -> bytes:
+    """``Store`` body (a :class:`StoreOp` code)."""
+    return bytes([op])
+
+
+def body_read_scope_data(offset: int) -> bytes:
+    """``ReadScopeData`` body (value index)."""
+    return struct.pack("<H", offset)
+
+
+@dataclass(frozen=True)
+class EndStop:
+    """End-stop search settings of ``StartHoming`` (velocity, back-off and
+    longest travel in the output frame; the velocity's sign is the
+    direction)."""
+
+    velocity_rad_s: float
+    current_a: float
+    detect_fraction: float
+    confirm_s: float
+    backoff_rad: float
+    max_travel_rad: float
+
+
+def body_homing(home_output_rad: float, end_stop: Optional[EndStop] = None) -> bytes:
+    """``StartHoming`` body: the present position is home (``end_stop``
+    None), or search an end stop; the home point reads ``home_output_rad``
+    [rad, output]."""
+    if end_stop is None:
+        return b"\x00" + f32_bits(home_output_rad)
+    e = end_stop
+    return b"\x01" + pack_f32s(
+        home_output_rad,
+        e.velocity_rad_s,
+        e.current_a,
+        e.detect_fraction,
+        e.confirm_s,
+        e.backoff_rad,
+        e.max_travel_rad,
     )
 
 
@@ -693,6 +843,9 @@ def decode_joint(body: bytes) -> JointSettings:
     g, z, flag, lo, hi, fm, ba, kv, eb, tkd = r.take("<ffBfffffIf")
     r.finish()
     if flag == 0:
+        # Without a travel range its two fields are +0.0 (one layout per value).
+        if struct.pack("<ff", lo, hi) != bytes(8):
+            raise ProtocolError(f"joint without travel but with a range ({lo}, {hi})")
         travel = None
     elif flag == 1:
         travel = (lo, hi)
@@ -714,13 +867,24 @@ class Homing:
     def state_name(self) -> str:
         return self.STATES[self.state] if self.state < 4 else str(self.state)
 
+    @property
+    def failure(self) -> Optional[HomingFailure]:
+        """Why homing failed (None unless failed)."""
+        return HomingFailure(self.reason) if self.state == 3 else None
+
 
 def decode_homing(body: bytes) -> Homing:
+    """A ``Homing`` body: ``reason`` is a :class:`HomingFailure` code when
+    failed, else 0."""
     r = _Reader(Tag.HOMING, body)
     s, reason = r.take("<BB")
     r.finish()
     if s > 3:
         raise ProtocolError(f"homing state {s}")
+    if s == 3:
+        _enum(HomingFailure, reason, "homing failure")
+    elif reason != 0:
+        raise ProtocolError(f"homing state {s} with reason {reason}")
     return Homing(s, reason)
 
 
