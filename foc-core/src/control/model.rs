@@ -93,7 +93,7 @@ use crate::transforms;
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct ModelTolerances {
-    /// Noise and quantisation floor of the current residual [A].
+    /// Noise and quantisation floor of the current residual \[A\].
     pub floor_a: f32,
     /// Relative error of the resistance: identification and the winding's
     /// temperature (copper +39 % from 20 to 120 deg C) together.
@@ -106,7 +106,7 @@ pub struct ModelTolerances {
     /// Angle error the sensor may have [rad, electrical] on top of its
     /// resolution (interpolation, timing).
     pub angle_e_rad: f32,
-    /// The bridge's dead time [s] as far as it is known (0: none known);
+    /// The bridge's dead time \[s\] as far as it is known (0: none known);
     /// the applied voltage is corrected by `-sgn(i) V_bus t_d f_pwm` per
     /// phase and the bound widened by one phase's worth.
     pub dead_time_s: f32,
@@ -115,7 +115,7 @@ pub struct ModelTolerances {
 }
 
 impl ModelTolerances {
-    /// Defaults for a drive with the given current limit [A]: a floor of
+    /// Defaults for a drive with the given current limit \[A\]: a floor of
     /// 2 % of it, resistance 60 %, inductance 30 %, flux linkage 25 %,
     /// 0.05 rad of angle, no dead time known, 3 periods. A steady error
     /// ends up in the disturbance estimate; its envelope
@@ -170,9 +170,9 @@ pub enum Verdict {
 /// One period's inputs.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Period {
-    /// Measured currents, stationary frame [A].
+    /// Measured currents, stationary frame \[A\].
     pub i_ab_a: AlphaBeta,
-    /// The same in the dq frame of this period's angle [A].
+    /// The same in the dq frame of this period's angle \[A\].
     pub i_dq_a: Dq,
     /// `(sin, cos)` of this period's electrical angle.
     pub sin_cos: (f32, f32),
@@ -194,15 +194,15 @@ pub struct Period {
 /// The last evaluated period, for tests, the scope and the margin report.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Residual {
-    /// Measured minus predicted current, dq frame of the sample [A].
+    /// Measured minus predicted current, dq frame of the sample \[A\].
     pub r_dq_a: Dq,
-    /// The bound it was held against [A].
+    /// The bound it was held against \[A\].
     pub bound_a: f32,
-    /// The back-EMF the residual implies, same frame [V].
+    /// The back-EMF the residual implies, same frame \[V\].
     pub emf_dq_v: Dq,
-    /// The EMF below which the angle is not judged [V].
+    /// The EMF below which the angle is not judged \[V\].
     pub min_emf_v: f32,
-    /// The disturbance estimate [V] and its envelope [V].
+    /// The disturbance estimate \[V\] and its envelope \[V\].
     pub disturbance_dq_v: Dq,
     /// See `disturbance_dq_v`.
     pub envelope_v: f32,
@@ -237,13 +237,35 @@ pub const ENVELOPE_MARGIN: f32 = 2.0;
 /// Consecutive periods outside the envelope that trip.
 pub const ENVELOPE_PERIODS: u8 = 4;
 
-/// The voltage the tolerances allow the model to be off by [V]: resistance
+/// The voltage the tolerances allow the model to be off by \[V\]: resistance
 /// at the current, flux linkage and the inductances' cross terms at the
 /// speed.
 #[inline(always)]
 fn volts_tol(t: &ModelTolerances, k: &Derived, x_l1_a: f32, w_abs: f32) -> f32 {
     t.resistance * k.r_ohm * x_l1_a
         + w_abs * (t.flux * k.psi_wb + t.inductance * k.l_max_h * x_l1_a)
+}
+
+/// One period's prediction, residual and bound, as [`ModelCheck::check`]
+/// hands them from step to step.
+#[derive(Clone, Copy, Debug)]
+struct Step {
+    w: f32,
+    w_lag: f32,
+    wabs: f32,
+    x0: Dq,
+    x0n: f32,
+    dead_v: f32,
+    e_d: f32,
+    e_model_q: f32,
+    dist: Dq,
+    pred_d: f32,
+    pred_q: f32,
+    r: Dq,
+    step: f32,
+    angle_v: f32,
+    err_pred: f32,
+    bound: f32,
 }
 
 /// Constants derived once from the motor and the period.
@@ -278,14 +300,14 @@ struct Derived {
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct ModelState {
     /// The model's current estimate after last period's correction,
-    /// stationary frame [A], if the bridge was driven.
+    /// stationary frame \[A\], if the bridge was driven.
     prev_i_ab_a: Option<AlphaBeta>,
     /// The estimated voltage disturbance (what the model's R, psi and
-    /// dead-time errors add), dq frame [V].
+    /// dead-time errors add), dq frame \[V\].
     dist_dq_v: Dq,
-    /// Bound of the estimate's error after the correction [A].
+    /// Bound of the estimate's error after the correction \[A\].
     err_a: f32,
-    /// Bound of the disturbance estimate's error [V].
+    /// Bound of the disturbance estimate's error \[V\].
     dist_err_v: f32,
     /// Last judged period's estimate and speed (the disturbance bound
     /// follows their changes).
@@ -296,10 +318,10 @@ pub struct ModelState {
     /// Dead-time voltage error per volt of bus, from last period's current
     /// signs (stationary frame).
     prev_dead_ab: AlphaBeta,
-    /// Voltage computed last period (acts over the next) [V], with the bus
-    /// voltage it was computed for [V].
+    /// Voltage computed last period (acts over the next) \[V\], with the bus
+    /// voltage it was computed for \[V\].
     v_newer: Option<(AlphaBeta, f32)>,
-    /// Voltage computed two periods ago (acted over the last) [V], and its bus.
+    /// Voltage computed two periods ago (acted over the last) \[V\], and its bus.
     v_older: Option<(AlphaBeta, f32)>,
     current_count: u8,
     /// Largest `(|r| / bound)^2` seen since the last [`ModelCheck::reset_peak`].
@@ -311,7 +333,7 @@ pub struct ModelState {
     /// Last period's angle and the window's speed [rad/s, electrical].
     prev_theta_e: Option<ElectricalAngle>,
     speed: SpeedWindow,
-    /// The envelope of the last judged period [V].
+    /// The envelope of the last judged period \[V\].
     envelope_v: f32,
     /// The unbalance check (a channel's gain or offset, at speed).
     unbalance: Unbalance,
@@ -449,7 +471,7 @@ impl Derived {
 }
 
 impl ModelCheck {
-    /// The check for `motor` at the period `ts_s` [s]; `coarse_angle` when the angle moves in steps too coarse for its
+    /// The check for `motor` at the period `ts_s` \[s\]; `coarse_angle` when the angle moves in steps too coarse for its
     /// change to give a speed (halls: [`Period::omega_e_rad_s`] is used).
     pub fn new(motor: MotorParams, ts_s: f32, tol: ModelTolerances, coarse_angle: bool) -> Self {
         let tol = tol.sanitized();
@@ -552,7 +574,7 @@ impl ModelCheck {
         &self.state.last
     }
 
-    /// The EMF [V] above which the angle is judged, at the last judged
+    /// The EMF \[V\] above which the angle is judged, at the last judged
     /// period's current (see [`Residual::min_emf_v`]).
     pub fn min_emf_v(&self) -> f32 {
         self.state.last.min_emf_v
@@ -609,18 +631,29 @@ impl ModelCheck {
         // full of this run's increments.
         let was_full = self.k.coarse_angle || self.state.speed.full();
         let w = self.average_speed(p);
-        let (Some(x_ab), Some((mut v_ab, vbus))) = (self.state.prev_i_ab_a, self.state.v_older)
-        else {
+        let (Some(x_ab), Some((v_ab, vbus))) = (self.state.prev_i_ab_a, self.state.v_older) else {
             return Verdict::Quiet;
         };
         if !self.k.usable || self.tol.trip_periods == 0 || !was_full {
             return Verdict::Quiet;
         }
+        let s = self.predict(p, x_ab, v_ab, vbus, w);
+        let env = self.publish(&s);
+        let unbalanced = self.unbalance(p, &s, env);
+        self.correct(p, Dq::new(s.pred_d, s.pred_q), s.r, s.err_pred, s.x0, w);
+        self.judge(&s, env, unbalanced)
+    }
+
+    /// This period's prediction from the last one's current and voltage,
+    /// its residual and the residual's bound.
+    #[inline(always)]
+    fn predict(&self, p: &Period, x_ab: AlphaBeta, v_ab: AlphaBeta, vbus: f32, w: f32) -> Step {
         let w_lag = self.state.speed.lag_rad_s;
         let k = &self.k;
         let t = &self.tol;
         let (sin, cos) = p.sin_cos;
         let dead_v = vbus * k.dead_fraction;
+        let mut v_ab = v_ab;
         if k.dead_fraction > 0.0 {
             let d = self.state.prev_dead_ab;
             v_ab = AlphaBeta::new(v_ab.alpha + d.alpha * dead_v, v_ab.beta + d.beta * dead_v);
@@ -656,38 +689,66 @@ impl ModelCheck {
         let err_pred = self.state.err_a
             + t.inductance * step
             + k.b_max * (self.state.dist_err_v + angle_v + 2.0 * dead_v);
-        let bound = err_pred + t.floor_a;
+        Step {
+            w,
+            w_lag,
+            wabs,
+            x0,
+            x0n,
+            dead_v,
+            e_d,
+            e_model_q,
+            dist,
+            pred_d,
+            pred_q,
+            r,
+            step,
+            angle_v,
+            err_pred,
+            bound: err_pred + t.floor_a,
+        }
+    }
 
-        // The back-EMF the measurement implies, and its uncertainty.
+    /// The residual as published ([`Residual`]: the back-EMF the
+    /// measurement implies and its uncertainty), and the envelope the
+    /// disturbance estimate may hold now; returns that envelope.
+    #[inline(always)]
+    fn publish(&mut self, s: &Step) -> f32 {
+        let k = &self.k;
+        let t = &self.tol;
+        let (r, dist) = (s.r, s.dist);
         let emf_dq = Dq::new(
-            e_d + dist.d - r.d * k.inv_b_d,
-            e_model_q + dist.q - r.q * k.inv_b_q,
+            s.e_d + dist.d - r.d * k.inv_b_d,
+            s.e_model_q + dist.q - r.q * k.inv_b_q,
         );
         let inv_b_max = if k.inv_b_d < k.inv_b_q {
             k.inv_b_q
         } else {
             k.inv_b_d
         };
-        let volts = t.resistance * k.r_ohm * x0n + wabs * t.inductance * k.l_max_h * x0n;
-        let min_emf =
-            2.0 * ((t.floor_a + t.inductance * step) * inv_b_max + volts + angle_v + 2.0 * dead_v);
+        let volts = t.resistance * k.r_ohm * s.x0n + s.wabs * t.inductance * k.l_max_h * s.x0n;
+        let min_emf = 2.0
+            * ((t.floor_a + t.inductance * s.step) * inv_b_max
+                + volts
+                + s.angle_v
+                + 2.0 * s.dead_v);
         self.state.last = Residual {
             r_dq_a: r,
-            bound_a: bound,
+            bound_a: s.bound,
             emf_dq_v: emf_dq,
             min_emf_v: min_emf,
             disturbance_dq_v: self.state.dist_dq_v,
             envelope_v: 0.0,
-            omega_e_rad_s: w,
+            omega_e_rad_s: s.w,
         };
         // What the disturbance estimate may hold now: the tolerances at
         // this current and speed, the inductance's share of this period's
         // slew, and, since the estimate forgets only at its own rate,
         // what the envelope was lately, decaying at that rate.
         let env_now = ENVELOPE_MARGIN
-            * (volts_tol(t, k, x0n, wabs) + t.inductance * step * inv_b_max + angle_v)
+            * (volts_tol(t, k, s.x0n, s.wabs) + t.inductance * s.step * inv_b_max + s.angle_v)
             + 0.25 * t.floor_a * inv_b_max
-            + 2.0 * dead_v;
+            + 2.0 * s.dead_v;
         let env_held = (1.0 - DISTURBANCE_GAIN) * self.state.envelope_v;
         let env = if env_now > env_held {
             env_now
@@ -696,28 +757,44 @@ impl ModelCheck {
         };
         self.state.envelope_v = env;
         self.state.last.envelope_v = env;
-        // The voltage the model misses this period: the disturbance and
-        // what the residual adds to it.
+        env
+    }
+
+    /// The unbalance check on the voltage the model misses this period
+    /// (the disturbance and what the residual adds to it); not with a
+    /// coarse angle.
+    #[inline(always)]
+    fn unbalance(&mut self, p: &Period, s: &Step, env: f32) -> bool {
+        let k = &self.k;
+        let (r, dist, x0) = (s.r, s.dist, s.x0);
         let missed = Dq::new(dist.d - r.d * k.inv_b_d, dist.q - r.q * k.inv_b_q);
         let lim = Limits {
             envelope_v: env,
-            scale_v: (k.r_ohm + wabs * k.l_max_h) * crate::sqrtf(x0.d * x0.d + x0.q * x0.q),
+            scale_v: (k.r_ohm + s.wabs * k.l_max_h) * crate::sqrtf(x0.d * x0.d + x0.q * x0.q),
             innovation_v: Dq::new(-r.d * k.inv_b_d, -r.q * k.inv_b_q),
             start_var_v2: k.unbalance_start_var_v2,
         };
-        let w_min = if wabs > w_lag { wabs - w_lag } else { 0.0 };
-        let unbalanced =
-            !k.coarse_angle && self.state.unbalance.update(missed, p.sin_cos, w_min, &lim);
-        self.correct(p, Dq::new(pred_d, pred_q), r, err_pred, x0, w);
+        let w_min = if s.wabs > s.w_lag {
+            s.wabs - s.w_lag
+        } else {
+            0.0
+        };
+        !k.coarse_angle && self.state.unbalance.update(missed, p.sin_cos, w_min, &lim)
+    }
+
+    /// The verdict: the peaks for the margin report, the slow check (the
+    /// disturbance the readings need must stay inside the envelope), the
+    /// unbalance, then the residual against its bound.
+    #[inline(always)]
+    fn judge(&mut self, s: &Step, env: f32, unbalanced: bool) -> Verdict {
+        let r = s.r;
         let r_sq = r.d * r.d + r.q * r.q;
-        let b_sq = bound * bound;
+        let b_sq = s.bound * s.bound;
         let ratio_sq = r_sq / b_sq;
         // (A NaN ratio is kept: the margin report shows it.)
         if ratio_sq > self.state.peak_ratio_sq || ratio_sq.is_nan() {
             self.state.peak_ratio_sq = ratio_sq;
         }
-        // The slow check: the disturbance the readings need must stay
-        // inside what the tolerances allow at this current and speed.
         let k_coarse = self.k.coarse_angle;
         let d = self.state.dist_dq_v;
         let d_sq = d.d * d.d + d.q * d.q;

@@ -14,7 +14,7 @@ impl CurrentStage {
         }
     }
 
-    /// The speed stage's output `target_a` [A] as the current loop uses it
+    /// The speed stage's output `target_a` \[A\] as the current loop uses it
     /// this period: a new value is reached in a straight line over the
     /// speed-loop period instead of in one step.
     #[inline(always)]
@@ -139,18 +139,61 @@ impl CurrentStage {
         sensed: &Sensed,
         iq_ref_from_speed_a: f32,
     ) -> (Option<CurrentLoopOutput>, Dq, ElectricalAngle) {
-        let mut theta_e = sensed.theta_e;
         let pp = self.config.angle.pole_pairs as f32;
         let w_e = self.tracker.velocity_rad_s() * pp;
-        let mut i_ref = Dq::ZERO;
-        // The q-current each closed-loop mode asks for, before the window.
+        let requested = self.requested_iq(iq_ref_from_speed_a);
+        self.state.travel_window_a = None;
+        let requested = requested.map(|iq| self.travel(iq));
+        // Stepped every period (winding estimate, chopper), faulted or not.
+        let windowed = self.power_window(sensed, w_e, requested.unwrap_or(0.0));
+        if self.supervisor.is_faulted() {
+            self.state.active = Command::Disable;
+            self.model.reset();
+            return (None, Dq::ZERO, sensed.theta_e);
+        }
+        // The closed-loop modes share one (inlined) current-loop call.
+        let w = &self.power_report;
+        let closed = requested.map(|iq| {
+            if windowed {
+                Dq::new(w.id_ref_a, w.clamp(iq))
+            } else {
+                Dq::new(0.0, iq)
+            }
+        });
+        let (out, i_ref, theta_e) = self.current_loop(closed, sensed, w_e);
+        // The model takes its speed from the angle's change; for a coarse
+        // sensor (halls) from the torque-fed observer, which knows the
+        // acceleration between the edges (design §19).
+        let w_observer = self.observer.velocity_rad_s() * pp;
+        if closed.is_some()
+            && !(self.sensors_plausible(out.as_ref(), sensed, w_observer)
+                && self.currents_track(out.as_ref(), i_ref, w_e))
+        {
+            // The bridge goes off: nothing recorded this period was applied.
+            self.model.reset();
+            self.state.active = Command::Disable;
+            return (None, i_ref, theta_e);
+        }
+        if closed.is_none() {
+            // Open loop or off: the angle does not drive the bridge; the
+            // model waits, its speed window counts the reading's increments.
+            self.model.idle(sensed.theta_e);
+        }
+        (out, i_ref, theta_e)
+    }
+
+    /// The q-current the active closed-loop mode asks for, before the
+    /// travel limits and the power window (`None`: off or open loop); the
+    /// speed stage's interpolation follows the mode.
+    #[inline(always)]
+    fn requested_iq(&mut self, iq_ref_from_speed_a: f32) -> Option<f32> {
         let lim = self.config.limits.max_current_a;
         let from_speed = if iq_ref_from_speed_a.is_finite() {
             clamp(iq_ref_from_speed_a, -lim, lim)
         } else {
             0.0
         };
-        let requested = match self.state.active {
+        match self.state.active {
             Command::Disable | Command::OpenLoop { .. } => {
                 self.state.iq_interp_a = 0.0;
                 self.state.iq_target_a = from_speed;
@@ -176,40 +219,33 @@ impl CurrentStage {
                 self.state.iq_step_a = 0.0;
                 Some(iq)
             }
-        };
-        self.state.travel_window_a = None;
-        let requested = requested.map(|iq| self.travel(iq));
-        // Stepped every period (winding estimate, chopper), faulted or not.
-        let windowed = self.power_window(sensed, w_e, requested.unwrap_or(0.0));
-        if self.supervisor.is_faulted() {
-            self.state.active = Command::Disable;
-            self.model.reset();
-            return (None, i_ref, theta_e);
         }
-        // The closed-loop modes share one (inlined) current-loop call.
-        let w = &self.power_report;
-        let closed = requested.map(|iq| {
-            if windowed {
-                Dq::new(w.id_ref_a, w.clamp(iq))
-            } else {
-                Dq::new(0.0, iq)
-            }
-        });
-        let closed_iq = closed.map(|i| i.q);
-        let out = match (closed, self.state.active) {
-            (Some(i), _) => {
-                i_ref = i;
+    }
+
+    /// The current loop on the closed-loop reference `closed`, else the
+    /// open-loop voltage at the open-loop angle, else nothing; with the dq
+    /// reference and the electrical angle used.
+    #[inline(always)]
+    fn current_loop(
+        &mut self,
+        closed: Option<Dq>,
+        sensed: &Sensed,
+        w_e: f32,
+    ) -> (Option<CurrentLoopOutput>, Dq, ElectricalAngle) {
+        match (closed, self.state.active) {
+            (Some(i_ref), _) => {
                 // `i_ab` is `clarke(i_abc)` (both zero when a read failed).
-                Some(self.current.step_inline_ab(
+                let out = self.current.step_inline_ab(
                     &CurrentLoopInput {
                         i_abc_a: sensed.i_abc,
-                        theta_e,
+                        theta_e: sensed.theta_e,
                         omega_e_rad_s: w_e,
                         v_bus_v: sensed.v_bus_v,
                         i_dq_ref_a: i_ref,
                     },
                     sensed.i_ab,
-                ))
+                );
+                (Some(out), i_ref, sensed.theta_e)
             }
             (
                 None,
@@ -222,35 +258,16 @@ impl CurrentStage {
             ) => {
                 let th = self.state.ol_theta;
                 self.state.ol_theta = th.add_radians(omega_e_rad_s * self.config.current.ts_s);
-                theta_e = th;
-                Some(self.current.step_voltage(
+                let out = self.current.step_voltage(
                     sensed.i_abc,
                     th,
                     Dq::new(v_d_v, v_q_v),
                     sensed.v_bus_v,
-                ))
+                );
+                (Some(out), Dq::ZERO, th)
             }
-            (None, _) => None,
-        };
-        // The model takes its speed from the angle's change; for a coarse
-        // sensor (halls) from the torque-fed observer, which knows the
-        // acceleration between the edges (design §19).
-        let w_observer = self.observer.velocity_rad_s() * pp;
-        if closed_iq.is_some()
-            && !(self.sensors_plausible(out.as_ref(), sensed, w_observer)
-                && self.currents_track(out.as_ref(), i_ref, w_e))
-        {
-            // The bridge goes off: nothing recorded this period was applied.
-            self.model.reset();
-            self.state.active = Command::Disable;
-            return (None, i_ref, theta_e);
+            (None, _) => (None, Dq::ZERO, sensed.theta_e),
         }
-        if closed_iq.is_none() {
-            // Open loop or off: the angle does not drive the bridge; the
-            // model waits, its speed window counts the reading's increments.
-            self.model.idle(sensed.theta_e);
-        }
-        (out, i_ref, theta_e)
     }
 
     /// Step 5: the bridge command and the feedback. A control output that is
@@ -322,11 +339,11 @@ impl CurrentStage {
 pub(super) struct Sensed {
     /// Electrical angle of the d axis from the sensor.
     pub(super) theta_e: ElectricalAngle,
-    /// Phase currents [A].
+    /// Phase currents \[A\].
     pub(super) i_abc: crate::frames::Abc,
-    /// `clarke(i_abc)` [A].
+    /// `clarke(i_abc)` \[A\].
     pub(super) i_ab: crate::frames::AlphaBeta,
-    /// Bus voltage [V] (0 when the read failed).
+    /// Bus voltage \[V\] (0 when the read failed).
     pub(super) v_bus_v: f32,
     /// The bus voltage as read.
     pub(super) v_bus_read_v: Option<f32>,
