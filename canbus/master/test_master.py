@@ -164,7 +164,7 @@ class NodeIdStored(Rig):
 
 class CyclicPosition(Rig):
     # Largest |position demand - actual| over the move [inc] (stated in the
-    # README; measured 113 / 177 / 261 inc for the 1 / 2 / 3 rev axes).
+    # book's CANopen chapter; measured 113 / 177 / 261 inc for the 1 / 2 / 3 rev axes).
     FOLLOWING_ERROR_LIMIT_INC = 400
 
     def test_csp_three_axes_follow_a_coordinated_trajectory(self):

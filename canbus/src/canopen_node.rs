@@ -28,7 +28,7 @@ pub const IDENTITY: Identity = Identity {
     hardware_version: "emulated board + plant",
 };
 
-/// Heartbeat producer time of a node at first boot [ms].
+/// Heartbeat producer time of a node at first boot \[ms\].
 pub const HEARTBEAT_MS: u16 = 100;
 
 /// The node for drive `id` at boot: the communication settings the drive

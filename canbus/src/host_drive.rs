@@ -1,5 +1,5 @@
 //! [`HostDrive`]: the real drive on the host, as the protocol and the
-//! CANopen node see it ([`DeviceContext`]).
+//! CANopen node see it ([`DeviceContext`](foc_protocol::DeviceContext)).
 //!
 //! It is foc-bench's [`Sim`]: the real foc-core [`foc_core::drive::cascade::Cascade`]
 //! against the emulated board's motor and inverter
@@ -9,7 +9,7 @@
 //! only moves when told to: [`HostDrive::step_periods`] runs `n` PWM
 //! periods of drive and plant.
 //!
-//! Its [`DeviceContext`] is the firmware's: the link's rules are
+//! Its [`DeviceContext`](foc_protocol::DeviceContext) is the firmware's: the link's rules are
 //! [`foc_service`]'s, with this drive's board facts ([`host_board`]): a
 //! current limit above [`MAX_CURRENT_A`] is `Unsupported`, identification
 //! too (the drive starts calibrated from the bench's knowledge), store

@@ -35,6 +35,11 @@
 //! assert_eq!(server.control("reset 1"), "ok reset 1");
 //! # Ok::<(), std::io::Error>(())
 //! ```
+//!
+//! # Where to start reading
+//!
+//! [`bus::Bus`] (the frames every node sees), then [`host_drive::HostDrive`]
+//! (one simulated drive on it, with the firmware's link rules).
 #![forbid(unsafe_code)]
 #![deny(missing_docs)]
 

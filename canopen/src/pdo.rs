@@ -85,7 +85,7 @@ pub struct PdoConfig {
     pub transmission: u8,
     /// TPDO inhibit time [100 µs].
     pub inhibit_100us: u16,
-    /// TPDO event timer [ms] (0: off).
+    /// TPDO event timer \[ms\] (0: off).
     pub event_ms: u16,
     /// The mapping.
     pub map: PdoMap,

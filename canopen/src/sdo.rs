@@ -28,7 +28,7 @@ use crate::od::Data;
 use crate::Abort;
 
 /// A segmented transfer silent for this long is aborted
-/// ([`Abort::Timeout`]) [µs].
+/// ([`Abort::Timeout`]) \[µs\].
 pub const TIMEOUT_US: u64 = 1_000_000;
 
 /// The dictionary as the SDO server sees it.

@@ -3,7 +3,7 @@
 //! adapter written here. The profile is updated every 1 ms (as the node
 //! does at every SYNC / tick); the plant steps the PWM periods in between.
 //!
-//! Run with `--nocapture` for the figures (README, CiA 402 section).
+//! Run with `--nocapture` for the figures (the book's CANopen chapter).
 // Test support outside `#[test]` functions: unwrapping and indexing a
 // fixture is the test failing, which is what it should do.
 #![allow(
@@ -160,7 +160,7 @@ impl Bench {
         assert_eq!(self.p.state(), State::OperationEnabled);
     }
 
-    /// Run until bit 10 (or `max_ms`): the time it took [ms].
+    /// Run until bit 10 (or `max_ms`): the time it took \[ms\].
     fn until_reached(&mut self, max_ms: usize) -> Option<usize> {
         (1..=max_ms).find(|_| {
             self.ms(1);
@@ -238,7 +238,7 @@ fn pp_moves_to_the_target_within_the_window() {
 }
 
 /// csp along `p0 + A (1 - cos(2 pi t / T)) / 2` (1 rev peak to peak over
-/// 1 s), a target every 1 ms: the max |following error| [inc].
+/// 1 s), a target every 1 ms: the max |following error| \[inc\].
 fn csp_sinusoid(f: Follower) -> i32 {
     let mut b = Bench::new();
     b.p.set_follower(f);
@@ -278,8 +278,8 @@ fn csp_follows_a_sinusoid_and_each_follower_is_measured() {
     assert!(default <= BOUND_INC, "{default} inc");
 }
 
-/// The bound asserted on the default follower's max following error [inc]
-/// (measured, with margin: see the README).
+/// The bound asserted on the default follower's max following error \[inc\]
+/// (measured, with margin: see the book's CANopen chapter).
 const BOUND_INC: i32 = 400;
 
 #[test]

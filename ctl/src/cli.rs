@@ -23,14 +23,14 @@ pub(super) struct Cli {
     /// Serial baud rate.
     #[arg(long, default_value_t = 115_200, global = true)]
     pub(super) baud: u32,
-    /// Reply timeout per attempt [ms].
+    /// Reply timeout per attempt \[ms\].
     #[arg(long, default_value_t = 250, global = true)]
     pub(super) timeout_ms: u64,
     /// Retransmissions after the first attempt.
     #[arg(long, default_value_t = 3, global = true)]
     pub(super) retries: u32,
     /// Reply timeout per attempt of flash operations (`config save|load|erase|import`,
-    /// reads of the stored record) [ms]: an erase stalls a board for seconds.
+    /// reads of the stored record) \[ms\]: an erase stalls a board for seconds.
     #[arg(long, default_value_t = 10000, global = true)]
     pub(super) store_timeout_ms: u64,
     #[command(subcommand)]
@@ -57,10 +57,10 @@ pub(super) enum Cmd {
     },
     /// Send keep-alives (feeds the device's watchdog) for a while.
     KeepAlive {
-        /// Interval [ms].
+        /// Interval \[ms\].
         #[arg(long, default_value_t = 100)]
         interval_ms: u64,
-        /// How long [s].
+        /// How long \[s\].
         #[arg(long, default_value_t = 10.0)]
         duration: f64,
     },
@@ -77,13 +77,13 @@ pub(super) enum Cmd {
     },
     /// Stream telemetry.
     Telemetry {
-        /// Rate [Hz] (converted by the device to whole current-loop periods).
+        /// Rate \[Hz\] (converted by the device to whole current-loop periods).
         #[arg(long, default_value_t = 100.0, conflicts_with = "every")]
         rate: f64,
         /// Instead of a rate: one sample every K current-loop periods.
         #[arg(long, value_name = "K")]
         every: Option<u32>,
-        /// How long [s].
+        /// How long \[s\].
         #[arg(long, default_value_t = 5.0)]
         duration: f64,
         /// Write the samples to a CSV file.
@@ -98,19 +98,19 @@ pub(super) enum Cmd {
     },
     /// Set the motor's command limits (all eight; rotor frame).
     Limits {
-        /// Current limit [A].
+        /// Current limit \[A\].
         #[arg(long)]
         max_current: f32,
         /// Velocity limit [rad/s].
         #[arg(long)]
         max_velocity: f32,
-        /// Lowest position [rad].
+        /// Lowest position \[rad\].
         #[arg(long, allow_hyphen_values = true)]
         min_position: f32,
-        /// Highest position [rad].
+        /// Highest position \[rad\].
         #[arg(long, allow_hyphen_values = true)]
         max_position: f32,
-        /// Open-loop voltage limit [V].
+        /// Open-loop voltage limit \[V\].
         #[arg(long)]
         max_ol_voltage: f32,
         /// Open-loop electrical speed limit [rad/s].
@@ -223,14 +223,14 @@ pub(super) enum HomeCmd {
         /// Search velocity [rad/s, output]; its sign is the direction.
         #[arg(long, allow_hyphen_values = true)]
         velocity: f32,
-        /// Homing current [A]: the most the stop is pressed with.
+        /// Homing current \[A\]: the most the stop is pressed with.
         #[arg(long, allow_hyphen_values = true)]
         current: f32,
         /// Share of the homing current, held with the joint still, that
         /// means the stop is reached.
         #[arg(long, allow_hyphen_values = true, default_value_t = 0.7)]
         detect: f32,
-        /// How long the stop must be held [s].
+        /// How long the stop must be held \[s\].
         #[arg(long, allow_hyphen_values = true, default_value_t = 0.05)]
         confirm: f32,
         /// Distance to back off from the stop [rad, output].
@@ -242,14 +242,14 @@ pub(super) enum HomeCmd {
         /// The output position the stop reads [rad, output].
         #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
         at: f32,
-        /// Longest wait for the result [s].
+        /// Longest wait for the result \[s\].
         #[arg(long, default_value_t = 60.0)]
         timeout: f64,
     },
 }
 
 impl HomeCmd {
-    /// The request (output frame) and the longest wait for its result [s].
+    /// The request (output frame) and the longest wait for its result \[s\].
     pub(super) fn request(self) -> (HomingStart, f64) {
         match self {
             HomeCmd::Present { at } => (
@@ -290,7 +290,7 @@ impl HomeCmd {
 pub(super) enum ModeCmd {
     /// Bridge off.
     Disable,
-    /// Torque: q current [A].
+    /// Torque: q current \[A\].
     Torque {
         #[arg(allow_hyphen_values = true)]
         iq_a: f32,
@@ -327,13 +327,13 @@ pub(super) enum ModeCmd {
         #[arg(long, allow_hyphen_values = true, default_value_t = f32::INFINITY)]
         torque_limit: f32,
     },
-    /// Open-loop dq voltage [V] at an electrical angle, rotating at omega_e.
+    /// Open-loop dq voltage \[V\] at an electrical angle, rotating at omega_e.
     OpenLoop {
         #[arg(allow_hyphen_values = true)]
         v_d: f32,
         #[arg(allow_hyphen_values = true)]
         v_q: f32,
-        /// Starting electrical angle [deg].
+        /// Starting electrical angle \[deg\].
         #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
         theta_deg: f32,
         /// Electrical speed [rad/s].

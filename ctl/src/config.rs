@@ -39,14 +39,14 @@ pub const DEFAULT_STORE_TIMEOUT: Duration = Duration::from_secs(10);
 pub enum TransferError {
     /// The device announced a record longer than [`MAX_RECORD`] bytes.
     TooLong {
-        /// Announced length [bytes].
+        /// Announced length \[bytes\].
         total: u16,
     },
     /// The device changed the record's length between two chunks.
     TotalChanged {
-        /// Length announced by the first chunk [bytes].
+        /// Length announced by the first chunk \[bytes\].
         first: u16,
-        /// Length announced now [bytes].
+        /// Length announced now \[bytes\].
         now: u16,
     },
     /// The device answered with a chunk at another offset than asked.
@@ -69,7 +69,7 @@ pub enum TransferError {
     /// (Host side) the record to write is empty or longer than
     /// [`MAX_RECORD`] bytes.
     RecordSize {
-        /// Its length [bytes].
+        /// Its length \[bytes\].
         len: usize,
     },
 }

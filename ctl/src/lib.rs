@@ -26,6 +26,12 @@
 //! println!("{pp} pole pairs, {} samples", samples.len());
 //! # Ok::<(), foc_ctl::ClientError>(())
 //! ```
+//!
+//! # Where to start reading
+//!
+//! [`Client`] (typed requests over a [`Transport`]), then [`sim`] (the
+//! simulated drive `foc-ctl simulate` serves) and the `foc-ctl` binary's
+//! commands in `src/main.rs`.
 #![forbid(unsafe_code)]
 #![warn(missing_docs)]
 

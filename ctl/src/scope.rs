@@ -59,7 +59,7 @@ impl ScopeCapture {
         )
     }
 
-    /// Sample times [s] relative to the trigger sample.
+    /// Sample times \[s\] relative to the trigger sample.
     pub fn time_s(&self) -> Vec<f64> {
         let dt = f64::from(self.report.sample_period_s);
         let t0 = f64::from(self.report.status.trigger_index);

@@ -72,7 +72,7 @@ pub struct SetArgs {
 /// `scope read`.
 #[derive(Args)]
 pub struct ReadArgs {
-    /// Wait at most this long for the capture [s] (host time).
+    /// Wait at most this long for the capture \[s\] (host time).
     #[arg(long, default_value_t = 10.0)]
     wait: f64,
     /// Write the capture as CSV.

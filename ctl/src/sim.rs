@@ -55,17 +55,17 @@ use std::time::{Duration, Instant};
 
 /// Motor constants of the simulated drive.
 pub const POLE_PAIRS: u8 = 7;
-/// Phase resistance [ohm].
+/// Phase resistance \[ohm\].
 pub const R_OHM: f32 = 0.1;
-/// Inductance [H].
+/// Inductance \[H\].
 pub const L_H: f32 = 40e-6;
-/// Flux linkage [Wb].
+/// Flux linkage \[Wb\].
 pub const PSI_WB: f32 = 0.004;
-/// PWM frequency [Hz].
+/// PWM frequency \[Hz\].
 pub const PWM_HZ: f32 = 20_000.0;
-/// PWM frequency as the configuration record carries it [Hz].
+/// PWM frequency as the configuration record carries it \[Hz\].
 pub const PWM_HZ_RECORD: u32 = 20_000;
-/// Current limit of the default configuration [A].
+/// Current limit of the default configuration \[A\].
 pub const MAX_CURRENT_A: f32 = 10.0;
 /// Label of the default configuration.
 pub const DEFAULT_LABEL: &str = "simulated drive";
@@ -73,9 +73,9 @@ pub const DEFAULT_LABEL: &str = "simulated drive";
 pub const J_KG_M2: f32 = 1e-5;
 /// Viscous friction [N m s].
 pub const B_NM_S: f32 = 1e-5;
-/// Time constant of velocity tracking [s].
+/// Time constant of velocity tracking \[s\].
 pub const TAU_S: f32 = 0.02;
-/// Time a calibration routine keeps the simulated drive busy [s].
+/// Time a calibration routine keeps the simulated drive busy \[s\].
 pub const CALIBRATION_S: f32 = 0.05;
 
 /// The simulated configuration flash: 4 pages of 1 KiB, 4-byte words.
@@ -132,7 +132,7 @@ pub fn sim_board() -> Board {
 /// Version the simulated drive reports.
 pub const FIRMWARE_VERSION: [u8; 3] = [0, 1, 0];
 
-/// The kinematic drive model, a [`DeviceContext`] through the service's
+/// The kinematic drive model, a [`DeviceContext`](foc_protocol::DeviceContext) through the service's
 /// link ([`foc_service::Link`], the firmware's rules): each request sees
 /// the model now and its outbox is committed at once (a command re-checked
 /// by the model as the drive re-checks its mailbox, a calibration started,
@@ -154,19 +154,19 @@ pub struct SimDrive {
     /// The configuration store; `None`: a device without one (the `config`
     /// requests answer `Unsupported`).
     pub store: Option<Store<SimFlash>>,
-    /// Remaining calibration time [s] and routine.
+    /// Remaining calibration time \[s\] and routine.
     pub calibrating: Option<(f32, Calibration)>,
     /// Identifications finished.
     identifications: u32,
-    /// Mechanical position [rad].
+    /// Mechanical position \[rad\].
     pub position_rad: f32,
     /// Mechanical velocity [rad/s].
     pub velocity_rad_s: f32,
-    /// q current [A].
+    /// q current \[A\].
     pub iq_a: f32,
     /// Period counter.
     pub period: u32,
-    /// Bus voltage [V].
+    /// Bus voltage \[V\].
     pub v_bus_v: f32,
     /// The impedance law's position reference [rad, rotor] (advanced with
     /// the command's velocity).
@@ -466,7 +466,7 @@ impl SimDrive {
         fb
     }
 
-    /// The q current after `dt` towards `iq_ref` [A]: the current loop as
+    /// The q current after `dt` towards `iq_ref` \[A\]: the current loop as
     /// a first-order lag of time constant `L / kp` (a PI whose zero
     /// cancels the winding's pole, design §11).
     fn current_lag(&self, iq_ref: f32, dt: f32) -> f32 {

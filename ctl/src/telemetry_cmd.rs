@@ -172,7 +172,7 @@ pub(super) fn plot_tail(out: &mut impl Write, samples: &[StreamSample], s: &Stre
     );
 }
 
-/// The bus power of a sample [W]: the dq power `1.5 (v_d i_d + v_q i_q)`
+/// The bus power of a sample \[W\]: the dq power `1.5 (v_d i_d + v_q i_q)`
 /// of the commanded voltages and measured currents (inverter losses not
 /// included; > 0 motoring, < 0 regenerating).
 pub(super) fn bus_power_w(t: &foc_protocol::message::Telemetry) -> f32 {

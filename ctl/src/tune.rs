@@ -120,16 +120,16 @@ pub struct StepFigures {
     pub target: f64,
     /// Overshoot past the target [% of the step].
     pub overshoot_pct: f64,
-    /// 10-90 % rise time [s].
+    /// 10-90 % rise time \[s\].
     pub rise_s: Option<f64>,
-    /// Time from the step into the 5 % band for good [s] (`None`: not
+    /// Time from the step into the 5 % band for good \[s\] (`None`: not
     /// within the capture).
     pub settling_s: Option<f64>,
     /// The same in PWM periods.
     pub settling_periods: Option<u32>,
-    /// Bandwidth the rise time implies (first order) [Hz].
+    /// Bandwidth the rise time implies (first order) \[Hz\].
     pub bandwidth_hz: Option<f64>,
-    /// Time between samples [s].
+    /// Time between samples \[s\].
     pub sample_period_s: f64,
 }
 

@@ -13,7 +13,7 @@ use std::net::{SocketAddr, TcpListener};
 use std::process::Output;
 use std::time::{Duration, Instant};
 
-/// A calibrated simulated drive, with end stops at `stops_rad` [rotor].
+/// A calibrated simulated drive, with end stops at `stops_rad` \[rotor\].
 fn server(stops_rad: (f32, f32)) -> SimServer {
     let mut dev = SimDevice::default();
     dev.drive.identify_now();

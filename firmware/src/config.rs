@@ -202,7 +202,7 @@ pub fn cascade(pwm_frequency_hz: f32) -> CascadeConfig {
 /// (regen ramp below the over-voltage threshold, winding-temperature
 /// derating, stage derating where the board measures its temperature; no
 /// supply-current or power limit: those depend on the supply, see the
-/// README), with the brake chopper where the board has a brake output
+/// book's Power limits chapter), with the brake chopper where the board has a brake output
 /// (`BRAKE_OUTPUT`; on the emulated board a run-time option,
 /// `board::brake_output()`: semihosting `brake=OHMS`).
 pub fn power_limits(c: &CascadeConfig) -> PowerLimitsConfig {

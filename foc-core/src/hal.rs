@@ -64,15 +64,15 @@ pub trait PwmDriver {
     fn release_fault_latch(&mut self) {}
 }
 
-/// One phase-current sample [A], as a board measures it.
+/// One phase-current sample \[A\], as a board measures it.
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum PhaseCurrents {
     /// Two shunts (phases A and B); the third is derived as `c = -a - b`.
     TwoPhase {
-        /// Phase A current [A].
+        /// Phase A current \[A\].
         a_a: f32,
-        /// Phase B current [A].
+        /// Phase B current \[A\].
         b_a: f32,
     },
     /// Three shunts; `a + b + c` is a plausibility check (design §2).
@@ -106,11 +106,11 @@ pub trait CurrentSense {
     /// The latest sample in amperes, offsets already subtracted.
     fn read_currents(&mut self) -> Result<PhaseCurrents, Self::Error>;
 
-    /// Offsets [A] currently subtracted from the raw readings (A, B, C; C is 0
+    /// Offsets \[A\] currently subtracted from the raw readings (A, B, C; C is 0
     /// with two shunts).
     fn offsets_a(&self) -> Abc;
 
-    /// Replace the offsets [A] subtracted from the raw readings. Offset
+    /// Replace the offsets \[A\] subtracted from the raw readings. Offset
     /// calibration reads with the bridge off, averages, and calls this.
     fn set_offsets_a(&mut self, offsets: Abc);
 }
@@ -135,7 +135,7 @@ pub trait BusVoltage {
     /// Error reported by the measurement.
     type Error;
 
-    /// The latest bus voltage [V].
+    /// The latest bus voltage \[V\].
     fn read_bus_voltage_v(&mut self) -> Result<f32, Self::Error>;
 
     /// Power-stage temperature [deg C] (e.g. a FET thermistor) if the board

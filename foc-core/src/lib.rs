@@ -8,7 +8,7 @@
 //! beta axis 90 electrical degrees *ahead* of phase A (positive rotation
 //! A -> B -> C), and Park with `d` along the rotor flux (`theta_e`) and `q`
 //! 90 degrees ahead. The source design (`MC_FOC_DRIVE.c`, see
-//! `docs/design.md`) writes its beta axis reversed; the
+//! `docs/src/design/`) writes its beta axis reversed; the
 //! mapping is documented and tested in [`transforms`].
 //!
 //! Module map (design section in brackets):
@@ -42,6 +42,15 @@
 //!    hand out permits;
 //! 5. [`drive`] (the lifecycle, the rules of the link, the cascade that
 //!    assembles the loops), [`scope`], [`response`].
+//!
+//! # Where to start reading
+//!
+//! The math first: [`transforms`] (Clarke, Park) and [`svpwm`], then one
+//! current-loop period in [`control::stage::CurrentStage`], the loops it
+//! feeds in [`drive::cascade::Cascade`], and the whole drive's period, with
+//! its faults and identification, in [`drive::lifecycle::Lifecycle`]. The
+//! book's design chapters (`docs/src/design/`) explain each, cited here as
+//! "design §N".
 #![no_std]
 #![forbid(unsafe_code)]
 // The no-panic lints and `missing_docs`: `[workspace.lints]` (Cargo.toml).

@@ -119,7 +119,7 @@ pub struct PiConfig {
     pub kp: f32,
     /// Continuous-time integral gain [output unit / (input unit * s)].
     pub ki_per_s: f32,
-    /// Sample period [s].
+    /// Sample period \[s\].
     pub ts_s: f32,
     /// Lower output limit.
     pub out_min: f32,

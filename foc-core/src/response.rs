@@ -64,7 +64,7 @@ pub fn rise_time(y: &[f64], initial: f64, target: f64, lo: f64, hi: f64) -> Opti
     Some(crossing(hi)? - crossing(lo)?)
 }
 
-/// Bandwidth [Hz] a 10-90 % rise time of `rise_s` [s] implies for a
+/// Bandwidth \[Hz\] a 10-90 % rise time of `rise_s` \[s\] implies for a
 /// first-order response (`0.35 / t_r`: `t_r = ln 9 tau`, `f = 1 / (2 pi tau)`).
 pub fn bandwidth_hz_from_rise(rise_s: f64) -> Option<f64> {
     (rise_s > 0.0 && rise_s.is_finite()).then(|| LN_9 / (2.0 * core::f64::consts::PI * rise_s))

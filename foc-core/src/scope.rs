@@ -94,23 +94,23 @@ macro_rules! signals {
 }
 
 signals! {
-    /// Measured d current [A].
+    /// Measured d current \[A\].
     IdA = 0, "id", "A";
-    /// Measured q current [A].
+    /// Measured q current \[A\].
     IqA = 1, "iq", "A";
-    /// d current reference [A].
+    /// d current reference \[A\].
     IdRefA = 2, "id_ref", "A";
-    /// q current reference [A].
+    /// q current reference \[A\].
     IqRefA = 3, "iq_ref", "A";
-    /// Commanded d voltage [V].
+    /// Commanded d voltage \[V\].
     VdV = 4, "vd", "V";
-    /// Commanded q voltage [V].
+    /// Commanded q voltage \[V\].
     VqV = 5, "vq", "V";
     /// Estimated velocity [rad/s] (rotor, mechanical).
     VelocityRadS = 6, "velocity", "rad/s";
-    /// Multi-turn position [rad] (rotor, mechanical).
+    /// Multi-turn position \[rad\] (rotor, mechanical).
     PositionRad = 7, "position", "rad";
-    /// Bus voltage [V].
+    /// Bus voltage \[V\].
     BusV = 8, "vbus", "V";
     /// Phase A duty (0..1).
     DutyA = 9, "duty_a", "1";
@@ -118,10 +118,10 @@ signals! {
     DutyB = 10, "duty_b", "1";
     /// Phase C duty (0..1).
     DutyC = 11, "duty_c", "1";
-    /// Electrical angle [rad] (0..2 pi).
+    /// Electrical angle \[rad\] (0..2 pi).
     ThetaERad = 12, "theta_e", "rad";
-    /// The active command's set-point: torque iq [A], velocity [rad/s],
-    /// position [rad], impedance position [rad] (rotor); 0 otherwise.
+    /// The active command's set-point: torque iq \[A\], velocity [rad/s],
+    /// position \[rad\], impedance position \[rad\] (rotor); 0 otherwise.
     Target = 13, "target", "A | rad/s | rad";
     /// Mode code (0 disabled .. 5 impedance).
     ModeCode = 14, "mode", "code";

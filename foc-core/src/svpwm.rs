@@ -139,7 +139,7 @@ impl Sector {
         }
     }
 
-    /// Start angle of the sector in our frame [deg] (it spans 60 deg).
+    /// Start angle of the sector in our frame \[deg\] (it spans 60 deg).
     pub const fn start_degrees(self) -> u16 {
         (self.number() as u16 - 1) * 60
     }
@@ -211,7 +211,7 @@ pub fn projections(v_ab: AlphaBeta) -> [f32; 3] {
 }
 
 /// Alpha/beta position of switching state `n` (0..=7, bits A B C) on a bus
-/// of `v_bus_v` [V]: length `2 Udc / 3` for the six active vectors, zero for
+/// of `v_bus_v` \[V\]: length `2 Udc / 3` for the six active vectors, zero for
 /// U0 and U7 (design §8). Bits above the lowest three are ignored.
 pub fn space_vector(n: u8, v_bus_v: f32) -> AlphaBeta {
     let pole = |bit: u8| if n & bit != 0 { v_bus_v } else { 0.0 };
@@ -276,7 +276,7 @@ pub fn max_linear_voltage_v(v_bus_v: f32) -> f32 {
     v_bus_v * crate::FRAC_1_SQRT_3
 }
 
-/// Modulate `v_ab` [V] (our frame) on a bus of `v_bus_v` [V] with the
+/// Modulate `v_ab` \[V\] (our frame) on a bus of `v_bus_v` \[V\] with the
 /// seven-segment sector method of design §8 (see the module docs).
 ///
 /// Never panics; every duty is in `[0, 1]` for any input.

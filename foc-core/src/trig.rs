@@ -93,12 +93,12 @@ pub fn sin_cos_bits(bits: u32) -> (f32, f32) {
     )
 }
 
-/// Largest `|delta|` [rad] that [`rotate_small`] accepts: its truncation
+/// Largest `|delta|` \[rad\] that [`rotate_small`] accepts: its truncation
 /// error there is below `1.3e-8` (see [`rotate_small`]).
 pub const SMALL_ROTATION_MAX_RAD: f32 = 0.25;
 
 /// `(sin(theta + delta), cos(theta + delta))` from `(sin(theta),
-/// cos(theta))` and a small `delta` [rad], `|delta| <=`
+/// cos(theta))` and a small `delta` \[rad\], `|delta| <=`
 /// [`SMALL_ROTATION_MAX_RAD`], without a second [`sin_cos`]: the angle-sum
 /// formulas with Taylor polynomials of `sin(delta)` (to `delta^5`) and
 /// `cos(delta)` (to `delta^6`). Truncation error below `|delta|^7 / 5040`

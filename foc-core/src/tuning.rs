@@ -44,13 +44,13 @@ pub struct CurrentPiGains {
 }
 
 impl CurrentPiGains {
-    /// Integral time `tau_i = Kp / Ki` [s] (equals `L / R` for both rules).
+    /// Integral time `tau_i = Kp / Ki` \[s\] (equals `L / R` for both rules).
     pub const fn integral_time_s(&self) -> f32 {
         self.kp_v_per_a / self.ki_v_per_a_s
     }
 
-    /// A [`PiConfig`] with these gains, sample period `ts_s` [s] and a
-    /// symmetric output limit `+-limit_v` [V].
+    /// A [`PiConfig`] with these gains, sample period `ts_s` \[s\] and a
+    /// symmetric output limit `+-limit_v` \[V\].
     pub const fn pi_config(self, ts_s: f32, limit_v: f32, anti_windup: AntiWindup) -> PiConfig {
         PiConfig {
             kp: self.kp_v_per_a,
@@ -94,7 +94,7 @@ pub struct DqPiGains {
 /// damping `1/sqrt(2)`, about 4.3 % step overshoot, so
 /// `Kp = L / (2 T) = L / (3 Ts)` and `Ki = Kp / tau_i = R / (3 Ts)`.
 ///
-/// `l_h` [H], `r_ohm` [ohm], `ts_s` = PWM / current-loop period [s].
+/// `l_h` \[H\], `r_ohm` \[ohm\], `ts_s` = PWM / current-loop period \[s\].
 pub const fn technical_optimum(l_h: f32, r_ohm: f32, ts_s: f32) -> CurrentPiGains {
     CurrentPiGains {
         kp_v_per_a: l_h / (3.0 * ts_s),

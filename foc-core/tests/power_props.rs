@@ -107,7 +107,7 @@ fn inputs() -> impl Strategy<Value = PowerInputs> {
         })
 }
 
-/// Independent steady-state power [W] and the size of its largest term.
+/// Independent steady-state power \[W\] and the size of its largest term.
 fn power(c: &PowerLimitsConfig, inp: &PowerInputs, iq: f32) -> (f64, f64) {
     let m = &c.motor;
     let t = inp.winding_temperature_c.unwrap() as f64;
@@ -132,7 +132,7 @@ fn tol(scale: f64) -> f64 {
     1e-4 * scale + 1e-3
 }
 
-/// The power limits `(P_mot, P_regen)` [W] of a configuration at a voltage.
+/// The power limits `(P_mot, P_regen)` \[W\] of a configuration at a voltage.
 fn power_limits(c: &PowerLimitsConfig, v: f32) -> (f64, f64) {
     let v = v as f64;
     let mot = (c.power_motoring_max_w as f64).min(v * c.bus_current_motoring_max_a as f64);

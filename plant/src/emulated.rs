@@ -6,11 +6,11 @@
 
 use crate::plant::{BenchConfig, MotorParams, PwmMode, SensorConfig, Shunts};
 
-/// PWM frequency of the emulated board [Hz].
+/// PWM frequency of the emulated board \[Hz\].
 pub const PWM_FREQUENCY_HZ: u32 = 20_000;
-/// Simulated dead time [ns].
+/// Simulated dead time \[ns\].
 pub const DEAD_TIME_NS: u32 = 200;
-/// Current ADC range [A].
+/// Current ADC range \[A\].
 pub const MAX_MEASURABLE_CURRENT_A: f32 = 40.0;
 
 /// The simulated motor (a small 7-pole-pair outrunner).

@@ -31,6 +31,12 @@
 //! }
 //! assert!(plant.iq_a().is_finite());
 //! ```
+//!
+//! # Where to start reading
+//!
+//! [`plant::Plant`] (one PWM period of the motor, inverter and supply),
+//! then its configuration and fault injection in [`plant`]'s submodules,
+//! and [`emulated`] (the plant behind the emulated board).
 #![no_std]
 #![forbid(unsafe_code)]
 #![warn(missing_docs)]

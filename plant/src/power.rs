@@ -153,22 +153,22 @@ pub enum SourceKind {
 /// DC link: bulk capacitor, source, optional brake resistor.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct DcLinkConfig {
-    /// Bulk capacitance [F].
+    /// Bulk capacitance \[F\].
     pub c_f: Real,
-    /// Equivalent series resistance of the bulk capacitance [ohm] (0: none).
+    /// Equivalent series resistance of the bulk capacitance \[ohm\] (0: none).
     pub esr_ohm: Real,
-    /// Source open-circuit voltage [V] (the injected `Faults::bus_sag_v`
+    /// Source open-circuit voltage \[V\] (the injected `Faults::bus_sag_v`
     /// is subtracted from it).
     pub v_source_v: Real,
-    /// Source resistance (internal, cables) [ohm], > 0.
+    /// Source resistance (internal, cables) \[ohm\], > 0.
     pub r_source_ohm: Real,
-    /// Source current limit [A] (a bench supply's current limit; the source
+    /// Source current limit \[A\] (a bench supply's current limit; the source
     /// current saturates there, in both directions for a sinking source).
     /// `Real::INFINITY` for none.
     pub i_source_max_a: Real,
     /// Sinking or not.
     pub source: SourceKind,
-    /// Brake (chopper) resistor across the bus [ohm], if fitted.
+    /// Brake (chopper) resistor across the bus \[ohm\], if fitted.
     pub brake_resistor_ohm: Option<Real>,
 }
 
@@ -243,7 +243,7 @@ impl DcLinkConfig {
         }
     }
 
-    /// Source current limits `(lo, hi)` [A].
+    /// Source current limits `(lo, hi)` \[A\].
     pub fn source_current_limits(&self) -> (Real, Real) {
         let hi = self.i_source_max_a;
         match self.source {
@@ -252,7 +252,7 @@ impl DcLinkConfig {
         }
     }
 
-    /// Energy stored at capacitor voltage `v_c` [J].
+    /// Energy stored at capacitor voltage `v_c` \[J\].
     pub fn capacitor_energy_j(&self, v_c: Real) -> Real {
         0.5 * self.c_f * v_c * v_c
     }
@@ -261,15 +261,15 @@ impl DcLinkConfig {
 /// The bus at one instant.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub(crate) struct BusSolution {
-    /// Bus (terminal) voltage [V].
+    /// Bus (terminal) voltage \[V\].
     pub v_bus: Real,
-    /// Source current into the bus [A].
+    /// Source current into the bus \[A\].
     pub i_source: Real,
-    /// Brake-resistor current [A].
+    /// Brake-resistor current \[A\].
     pub i_brake: Real,
-    /// Capacitor current (charging) [A].
+    /// Capacitor current (charging) \[A\].
     pub i_cap: Real,
-    /// Inverter DC current (legs + short) [A].
+    /// Inverter DC current (legs + short) \[A\].
     pub i_inv: Real,
 }
 
@@ -311,7 +311,7 @@ pub(crate) fn solve_bus(
 pub struct WindingThermal {
     /// Thermal resistance winding to ambient [K/W].
     pub r_th_k_per_w: Real,
-    /// Thermal time constant `R_th C_th` [s].
+    /// Thermal time constant `R_th C_th` \[s\].
     pub tau_s: Real,
     /// Ambient temperature [deg C].
     pub ambient_c: Real,
@@ -351,16 +351,16 @@ impl WindingThermal {
 pub struct StageThermal {
     /// Thermal resistance switches (sensor) to ambient [K/W].
     pub r_th_k_per_w: Real,
-    /// Thermal time constant [s].
+    /// Thermal time constant \[s\].
     pub tau_s: Real,
     /// Ambient temperature [deg C].
     pub ambient_c: Real,
-    /// On resistance of one switch [ohm].
+    /// On resistance of one switch \[ohm\].
     pub r_ds_on_ohm: Real,
-    /// Switching-loss coefficient `k_sw = (t_rise + t_fall) / 2` [s]:
+    /// Switching-loss coefficient `k_sw = (t_rise + t_fall) / 2` \[s\]:
     /// `P_sw = k_sw V_bus |i| f_pwm` per phase.
     pub k_sw_s: Real,
-    /// Body-diode forward drop while the bridge is off [V].
+    /// Body-diode forward drop while the bridge is off \[V\].
     pub diode_drop_v: Real,
 }
 
@@ -399,7 +399,7 @@ impl StageThermal {
         non_negative(self.diode_drop_v, "diode_drop_v")
     }
 
-    /// Stage loss [W] at phase currents `i_abc`, bus `v_bus`, PWM frequency
+    /// Stage loss \[W\] at phase currents `i_abc`, bus `v_bus`, PWM frequency
     /// `f_pwm_hz`, bridge on (`enabled`) or off (body diodes).
     pub fn loss_w(&self, i_abc: [Real; 3], v_bus: Real, f_pwm_hz: Real, enabled: bool) -> Real {
         let mut p = 0.0;

@@ -12,7 +12,7 @@ use foc_plant::plant::{BenchConfig, Mechanics, MotorParams, Plant};
 use foc_plant::power::{DcLinkConfig, SourceKind, StageThermal, WindingThermal};
 use foc_plant::real::{self, Real, TWO_PI_3};
 
-/// Duties that put `(vd, vq)` [V] on the rotor, one period ahead (the
+/// Duties that put `(vd, vq)` \[V\] on the rotor, one period ahead (the
 /// plant applies duties one period late and holds them for a period).
 fn dq_duties(plant: &Plant, vd: Real, vq: Real) -> [f32; 3] {
     let t = plant.config().period_s();
@@ -24,7 +24,7 @@ fn dq_duties(plant: &Plant, vd: Real, vq: Real) -> [f32; 3] {
     })
 }
 
-/// Back-EMF amplitude `w_e psi` [V].
+/// Back-EMF amplitude `w_e psi` \[V\].
 fn back_emf(plant: &Plant) -> Real {
     plant.omega_e_rad_s() * plant.motor().flux_linkage_wb
 }

@@ -36,6 +36,10 @@
 //! };
 //! write_svg(std::path::Path::new("out/step.svg"), &fig).unwrap();
 //! ```
+//!
+//! # Where to start reading
+//!
+//! The example above, then [`Figure`] and [`fit_range`].
 #![warn(missing_docs)]
 
 use plotters::coord::Shift;
@@ -49,7 +53,7 @@ use std::path::Path;
 pub struct Series<'a> {
     /// Legend text.
     pub name: &'a str,
-    /// Abscissae (e.g. time [s]).
+    /// Abscissae (e.g. time \[s\]).
     pub x: &'a [f64],
     /// Ordinates, in the panel's unit.
     pub y: &'a [f64],

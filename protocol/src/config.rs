@@ -24,7 +24,7 @@ use crate::message::ErrorCode;
 /// and the bytes: 53 of the 57 a frame carries after tag, seq and CRC).
 pub const CHUNK_BYTES: usize = 48;
 
-/// Largest record the link moves [bytes] (`foc_store::MAX_RECORD_BYTES`,
+/// Largest record the link moves \[bytes\] (`foc_store::MAX_RECORD_BYTES`,
 /// which the firmware checks at build time).
 pub const MAX_RECORD: usize = 320;
 

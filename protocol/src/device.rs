@@ -380,7 +380,7 @@ pub fn stream_frame_bytes() -> usize {
     encode(1, &Response::Stream(Telemetry::ZERO), &mut buf).unwrap_or(MAX_FRAME)
 }
 
-/// The highest sustained stream rate [Hz] a UART at `baud` (8N1: 10 bits
+/// The highest sustained stream rate \[Hz\] a UART at `baud` (8N1: 10 bits
 /// a byte) carries, leaving a tenth of the link for replies.
 pub fn max_stream_hz(baud: u32) -> f32 {
     0.9 * baud as f32 / (10.0 * stream_frame_bytes() as f32)

@@ -41,13 +41,13 @@ use crc::{Crc, CRC_32_ISO_HDLC};
 /// xor-out 0xFFFFFFFF; check value of `"123456789"` is 0xCBF43926).
 pub const CRC: Crc<u32> = Crc::<u32>::new(&CRC_32_ISO_HDLC);
 
-/// Largest un-stuffed payload (tag + seq + body + CRC) [bytes].
+/// Largest un-stuffed payload (tag + seq + body + CRC) \[bytes\].
 pub const MAX_PAYLOAD: usize = 64;
 
 /// Bytes of a payload that are not body: tag (1) + seq (2) + CRC (4).
 pub const OVERHEAD: usize = 7;
 
-/// Largest body of a message [bytes].
+/// Largest body of a message \[bytes\].
 pub const MAX_BODY: usize = MAX_PAYLOAD - OVERHEAD;
 
 /// Worst-case COBS size of `n` payload bytes (without the delimiter).
@@ -55,7 +55,7 @@ pub const fn cobs_max_len(n: usize) -> usize {
     n.saturating_add(n / 254).saturating_add(1)
 }
 
-/// Largest frame on the wire, delimiter included [bytes]: a transmit
+/// Largest frame on the wire, delimiter included \[bytes\]: a transmit
 /// buffer of this size always suffices.
 pub const MAX_FRAME: usize = cobs_max_len(MAX_PAYLOAD) + 1;
 

@@ -262,7 +262,7 @@ pub fn impedance_field(i: &Impedance, e: CommandError) -> u8 {
 
 /// A homing request (`StartHoming`), **output frame**: an end stop's
 /// search velocity, back-off and longest travel are output-frame values
-/// here (the device converts them); its current [A], detection fraction
+/// here (the device converts them); its current \[A\], detection fraction
 /// and confirmation time have no frame.
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -458,7 +458,7 @@ pub fn feedback_of(t: &Telemetry) -> Feedback {
 
 /// The damping-only command of an impedance timeout (design §21): no
 /// spring, no feed-forward, the active command's damping (at least
-/// `min_kd`) and torque limit, at `position_rad` [rotor] (unused with
+/// `min_kd`) and torque limit, at `position_rad` \[rotor\] (unused with
 /// `kp = 0`, kept inside the range).
 pub fn damping_only(active: Option<Impedance>, min_kd: f32, position_rad: f32) -> Command {
     let (kd, limit) = active.map_or((0.0, f32::INFINITY), |i| {

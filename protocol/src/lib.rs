@@ -44,6 +44,13 @@
 //! assert_eq!(packet.seq, 7);
 //! assert_eq!(packet.msg, Request::SetCommand(Command::Velocity { rad_s: 10.0 }));
 //! ```
+//!
+//! # Where to start reading
+//!
+//! [`frame`] (COBS frames and their checksum), then [`message`] (every
+//! request and response and its layout), then [`DeviceContext`] and
+//! [`device`] (what a drive must implement to answer them). The book's
+//! reference chapter on the command channel lists the messages.
 #![no_std]
 #![forbid(unsafe_code)]
 // The no-panic lints and `missing_docs`: `[workspace.lints]` (Cargo.toml);

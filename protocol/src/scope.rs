@@ -56,7 +56,7 @@ pub mod fields {
 pub struct ScopeReport {
     /// State, configuration, extent of the capture.
     pub status: ScopeStatus,
-    /// Time between samples [s] (`divider` PWM periods).
+    /// Time between samples \[s\] (`divider` PWM periods).
     pub sample_period_s: f32,
 }
 

@@ -377,8 +377,8 @@ fn start_end_stop(dev: &mut DeviceState, ctx: &mut RecordingContext, home_out: f
 }
 
 /// A point rotor (1e-3 kg m^2) on the impedance law of the posted
-/// command (50 us steps), a stiff stop above `stop_rad` [rotor]; the
-/// device polled every millisecond. Returns the peak q current [A].
+/// command (50 us steps), a stiff stop above `stop_rad` \[rotor\]; the
+/// device polled every millisecond. Returns the peak q current \[A\].
 fn run_plant(dev: &mut DeviceState, ctx: &mut RecordingContext, stop_rad: f32, ms: u32) -> f32 {
     let kt = ctx.kt_nm_per_a;
     let (mut p, mut v, mut peak) = (ctx.sample.position_rad, 0.0f32, 0.0f32);

@@ -8,9 +8,9 @@ use foc_store::Settings;
 /// The board's facts (see the module docs).
 #[derive(Clone, Copy, Debug)]
 pub struct Board {
-    /// PWM frequency [Hz]: a record's gains must have been made for it.
+    /// PWM frequency \[Hz\]: a record's gains must have been made for it.
     pub pwm_hz: u32,
-    /// The hardware's current limit [A]: no configuration goes above it.
+    /// The hardware's current limit \[A\]: no configuration goes above it.
     pub max_current_a: f32,
     /// True when a stored electrical zero is still right after a reset
     /// (an absolute sensor or halls; not an incremental encoder).
@@ -21,7 +21,7 @@ pub struct Board {
     pub identifies: bool,
     /// Firmware version reported in `Hello` and as a parameter.
     pub firmware_version: [u8; 3],
-    /// Highest telemetry rate the link carries [Hz] (`None`: no limit).
+    /// Highest telemetry rate the link carries \[Hz\] (`None`: no limit).
     pub max_stream_hz: Option<f32>,
     /// Values the drive's scope holds (0: no scope).
     pub scope_values: u32,
@@ -64,7 +64,7 @@ impl Board {
         }
     }
 
-    /// The bus voltage at which the drive trips `BusOverVoltage` [V]: the
+    /// The bus voltage at which the drive trips `BusOverVoltage` \[V\]: the
     /// regen limit and the brake must act below it.
     pub fn bus_over_voltage_v(&self) -> f32 {
         self.cascade.current.supervisor.bus_over_voltage_v

@@ -37,6 +37,13 @@
 //!   (`Unsupported`), in a simulation as on a board.
 //!
 //! `no_std`, no alloc, no unsafe, no panics.
+//!
+//! # Where to start reading
+//!
+//! [`Service`] (the settings in force and boot from the store), then
+//! [`Link`] (what a frame may change, and when) and [`ConfigMailbox`] (how
+//! a change reaches the loop that owns it). The rules are tested once for
+//! every user in `service/tests/rules.rs`.
 
 #![no_std]
 #![forbid(unsafe_code)]

@@ -34,7 +34,7 @@ pub struct Pending {
 pub struct Snapshot {
     /// Latest feedback of the current loop.
     pub feedback: Feedback,
-    /// Longest current-loop run [cycles] (0 where not measured).
+    /// Longest current-loop run \[cycles\] (0 where not measured).
     pub max_loop_cycles: u32,
     /// The drive's status (started, mode, faulted, calibrated).
     pub status: Status,

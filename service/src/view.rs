@@ -95,7 +95,7 @@ impl View<'_> {
     pub fn firmware_version(&self) -> [u8; 3] {
         self.service.board().firmware_version
     }
-    /// Highest telemetry rate the link carries [Hz].
+    /// Highest telemetry rate the link carries \[Hz\].
     pub fn max_stream_hz(&self) -> Option<f32> {
         self.service.board().max_stream_hz
     }

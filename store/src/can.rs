@@ -35,7 +35,7 @@ use crate::record::{Invalid, RecordError};
 /// and decode the old one in [`CanRecord::decode`].
 pub const CAN_SCHEMA_VERSION: u16 = 1;
 
-/// Largest envelope [bytes]: header 4, payload at most 11 (postcard
+/// Largest envelope \[bytes\]: header 4, payload at most 11 (postcard
 /// varints: `u8` 1, `u16` up to 3), CRC 4 = 19; the rest is room for a
 /// later layout.
 pub const MAX_CAN_RECORD_BYTES: usize = 32;
@@ -54,12 +54,12 @@ pub struct CanRecord {
     pub node_id: u8,
     /// Bit rate [kbit/s], one of [`BITRATES_KBIT`].
     pub bitrate_kbit: u16,
-    /// Producer heartbeat period [ms] (`0x1017`; 0 = no heartbeat).
+    /// Producer heartbeat period \[ms\] (`0x1017`; 0 = no heartbeat).
     pub heartbeat_ms: u16,
     /// Node whose heartbeat this node watches (`0x1016:01`), `1..=127`
     /// and not this node; 0 = none.
     pub consumer_node: u8,
-    /// Longest wait for that heartbeat [ms] (`> 0` with a consumer node,
+    /// Longest wait for that heartbeat \[ms\] (`> 0` with a consumer node,
     /// 0 without: one way to say "none").
     pub consumer_ms: u16,
 }

@@ -92,7 +92,7 @@ impl<const PAGES: usize, const PAGE_BYTES: usize, const WORD: usize>
         f
     }
 
-    /// Size [bytes].
+    /// Size \[bytes\].
     pub const fn size() -> usize {
         PAGES * PAGE_BYTES
     }

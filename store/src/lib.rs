@@ -22,6 +22,11 @@
 //! let loaded: Option<DriveRecord> = store.load().unwrap();
 //! assert_eq!(loaded, Some(record));
 //! ```
+//!
+//! # Where to start reading
+//!
+//! [`DriveRecord`] (what is stored), [`record`] (its versions and
+//! validation), then [`Store`] (how a record reaches flash, all or nothing).
 #![no_std]
 #![forbid(unsafe_code)]
 // The no-panic lints and `missing_docs`: `[workspace.lints]` (Cargo.toml).

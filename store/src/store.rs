@@ -78,7 +78,7 @@ pub const RECORD_KEY: u8 = 1;
 /// The map key of the CAN node settings ([`CanRecord`]).
 pub const CAN_RECORD_KEY: u8 = 2;
 
-/// Largest flash word sequential-storage supports [bytes].
+/// Largest flash word sequential-storage supports \[bytes\].
 const MAX_WORD_BYTES: usize = 32;
 
 // The CAN envelope fits where the drive record's does.
@@ -87,7 +87,7 @@ const _: () = assert!(MAX_CAN_RECORD_BYTES <= MAX_RECORD_BYTES);
 /// Work buffer: key, envelope, and rounding up to the flash word.
 const BUFFER_BYTES: usize = 1 + MAX_RECORD_BYTES + MAX_WORD_BYTES;
 
-/// Item header of sequential-storage [bytes] (before rounding to words).
+/// Item header of sequential-storage \[bytes\] (before rounding to words).
 const ITEM_HEADER_BYTES: usize = 8;
 
 /// Why a store operation failed.

@@ -71,7 +71,7 @@ pub struct DynoRun {
     pub rows: Vec<DynoRow>,
     /// Faults latched during the run (names).
     pub faults: Vec<String>,
-    /// The set points (load [N m], supply [V], speed command [rad/s]) per row.
+    /// The set points (load [N m], supply \[V\], speed command [rad/s]) per row.
     pub set_points: Vec<(f64, f64, f64)>,
 }
 

@@ -46,7 +46,7 @@ pub const OFFSET_SAMPLES: u32 = 1000;
 /// Good angle readings the start-up sensor check needs.
 pub const SENSOR_CHECK_READS: u32 = 64;
 
-/// Simulated-time limit of the identification [s].
+/// Simulated-time limit of the identification \[s\].
 pub const TIME_LIMIT_S: f32 = 60.0;
 
 /// Fewer than 64 encoder counts per electrical turn (e.g. the hub motor's
@@ -114,7 +114,7 @@ pub struct Outcome {
     pub step: CalStep<Identified>,
     /// The stage it ended in (the failing one after `Failed`).
     pub stage: Step,
-    /// Current offsets found and installed [A].
+    /// Current offsets found and installed \[A\].
     pub offsets: Abc,
     /// PWM periods of the offset calibration.
     pub offset_periods: usize,

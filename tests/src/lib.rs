@@ -40,6 +40,12 @@
 //! }
 //! assert!(plant.iq_a().is_finite());
 //! ```
+//!
+//! # Where to start reading
+//!
+//! [`mission::run_mission`] (what `cargo xtask sim` runs) and its
+//! [`mission::MissionResult`], then [`motor_file`] (the motor files in
+//! `tests/motors/`) and [`sil`] (the controller driven by an outside plant).
 #![cfg_attr(not(feature = "std"), no_std)]
 #![forbid(unsafe_code)]
 #![warn(missing_docs)]

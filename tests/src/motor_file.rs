@@ -51,13 +51,13 @@ pub struct MotorFile {
     pub assumed: Vec<String>,
     /// Pole pairs.
     pub pole_pairs: u8,
-    /// Phase resistance [ohm].
+    /// Phase resistance \[ohm\].
     pub r_ohm: f64,
-    /// d-axis inductance [H].
+    /// d-axis inductance \[H\].
     pub ld_h: f64,
-    /// q-axis inductance [H].
+    /// q-axis inductance \[H\].
     pub lq_h: f64,
-    /// Flux linkage [Wb] (or give `kv_rpm_per_v`).
+    /// Flux linkage \[Wb\] (or give `kv_rpm_per_v`).
     pub flux_linkage_wb: Option<f64>,
     /// Line-to-line speed constant [rpm/V] (or give `flux_linkage_wb`).
     pub kv_rpm_per_v: Option<f64>,
@@ -67,13 +67,13 @@ pub struct MotorFile {
     pub viscous_friction_nm_s_per_rad: f64,
     /// Coulomb friction [N m].
     pub coulomb_friction_nm: f64,
-    /// Rated (continuous) current [A].
+    /// Rated (continuous) current \[A\].
     pub rated_current_a: f64,
-    /// Maximum current [A].
+    /// Maximum current \[A\].
     pub max_current_a: f64,
-    /// Bus voltage [V].
+    /// Bus voltage \[V\].
     pub bus_voltage_v: f64,
-    /// PWM frequency [Hz].
+    /// PWM frequency \[Hz\].
     pub pwm_frequency_hz: f64,
     /// Encoder counts per mechanical revolution.
     pub encoder_counts_per_rev: u32,
@@ -113,7 +113,7 @@ impl std::fmt::Display for MotorFileError {
 
 impl std::error::Error for MotorFileError {}
 
-/// Flux linkage [Wb] from a line-to-line KV [rpm/V]: `60 / (sqrt3 2 pi KV p)`.
+/// Flux linkage \[Wb\] from a line-to-line KV [rpm/V]: `60 / (sqrt3 2 pi KV p)`.
 pub fn flux_linkage_from_kv(kv_rpm_per_v: f64, pole_pairs: u8) -> f64 {
     60.0 / (3f64.sqrt() * std::f64::consts::TAU * kv_rpm_per_v * pole_pairs as f64)
 }
@@ -197,7 +197,7 @@ impl MotorFile {
         Ok(f)
     }
 
-    /// Flux linkage [Wb], converted from KV when the file gives KV.
+    /// Flux linkage \[Wb\], converted from KV when the file gives KV.
     pub fn flux_linkage_wb(&self) -> f64 {
         match (self.flux_linkage_wb, self.kv_rpm_per_v) {
             (Some(psi), _) => psi,

@@ -17,7 +17,7 @@ fn other(e: impl std::fmt::Display) -> io::Error {
     io::Error::other(e.to_string())
 }
 
-/// Time series: a time column [s] and named signal columns.
+/// Time series: a time column \[s\] and named signal columns.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Trace {
     names: Vec<String>,
@@ -45,7 +45,7 @@ impl Trace {
     pub fn names(&self) -> &[String] {
         &self.names
     }
-    /// Time column [s].
+    /// Time column \[s\].
     pub fn time_s(&self) -> &[f64] {
         &self.time_s
     }
@@ -157,7 +157,7 @@ impl Panel {
     }
 }
 
-/// SVG with one panel per [`Panel`], stacked, all against time [s], drawn
+/// SVG with one panel per [`Panel`], stacked, all against time \[s\], drawn
 /// by [`foc_plot`] (axes fitted to the data: time from the first to the
 /// last row, each panel's y from its minimum to its maximum with a small
 /// margin, NaN rows left as gaps). Unknown signal names are an error.
@@ -261,26 +261,26 @@ impl DynoHeader {
 /// One operating point of a dynamometer run.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct DynoRow {
-    /// Supply voltage [V].
+    /// Supply voltage \[V\].
     pub supply_voltage_v: f64,
-    /// Supply current [A].
+    /// Supply current \[A\].
     pub supply_current_a: f64,
-    /// Input power [W].
+    /// Input power \[W\].
     pub input_power_w: f64,
-    /// Speed [rpm].
+    /// Speed \[rpm\].
     pub speed_rpm: f64,
     /// Shaft torque [N m].
     pub torque_nm: f64,
-    /// Mechanical output power [W].
+    /// Mechanical output power \[W\].
     pub mechanical_power_w: f64,
     /// Efficiency [%]: mechanical / input while motoring; electrical out /
     /// mechanical in while generating (both powers negative).
     pub efficiency_percent: f64,
-    /// Mean current at the source's terminals [A] (negative: returned to
+    /// Mean current at the source's terminals \[A\] (negative: returned to
     /// it). `None`: not measured (the column is left out of the report
     /// when no row has it).
     pub bus_current_a: Option<f64>,
-    /// Energy returned to the source over the measurement window [J]
+    /// Energy returned to the source over the measurement window \[J\]
     /// (`None`: not measured, as above).
     pub regen_energy_j: Option<f64>,
 }
@@ -317,8 +317,8 @@ impl DynoRow {
         }
     }
 
-    /// With the bus figures: the mean source current [A] and the energy
-    /// returned to the source [J].
+    /// With the bus figures: the mean source current \[A\] and the energy
+    /// returned to the source \[J\].
     pub fn with_bus(self, bus_current_a: f64, regen_energy_j: f64) -> Self {
         Self {
             bus_current_a: Some(bus_current_a),

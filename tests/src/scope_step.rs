@@ -11,7 +11,7 @@ use foc_core::drive::cascade::CascadeConfig;
 use foc_core::scope::{Scope, ScopeConfig, ScopeStatus, Signal, State, TriggerKind};
 use foc_plant::emulated;
 
-/// Current limit of the emulated board's configuration [A].
+/// Current limit of the emulated board's configuration \[A\].
 pub const MAX_CURRENT_A: f32 = 10.0;
 
 /// The emulated board on the bench: its motor and inverter, the encoder's

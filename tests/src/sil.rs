@@ -12,18 +12,18 @@
 //!  "cmd": {"mode": "torque", "target": 2.0}, "clear_faults": false}
 //! ```
 //!
-//! - `t` [s]: sample time (echoed back; not used by the controller, which
+//! - `t` \[s\]: sample time (echoed back; not used by the controller, which
 //!   counts periods).
-//! - `i_abc` [A]: phase currents into the motor, two (A, B: C derived) or
+//! - `i_abc` \[A\]: phase currents into the motor, two (A, B: C derived) or
 //!   three values.
-//! - `v_bus` [V]: measured bus voltage.
-//! - `theta_m` [rad]: mechanical angle as the encoder reports it (any value,
+//! - `v_bus` \[V\]: measured bus voltage.
+//! - `theta_m` \[rad\]: mechanical angle as the encoder reports it (any value,
 //!   wrapped to one turn; the calibration `--zero-offset-deg`/`--reversed`
 //!   maps it to the rotor's d axis).
-//! - `cmd` (optional): `mode` one of `disable`, `torque` (`target` = iq [A]),
+//! - `cmd` (optional): `mode` one of `disable`, `torque` (`target` = iq \[A\]),
 //!   `velocity` (`target` = mechanical rad/s), `position` (`target` =
-//!   mechanical rad, multi-turn), `open_loop` (`v_d`, `v_q` [V], `theta_e`
-//!   [rad], `omega_e` [rad/s], each default 0), `impedance` (`target` =
+//!   mechanical rad, multi-turn), `open_loop` (`v_d`, `v_q` \[V\], `theta_e`
+//!   \[rad\], `omega_e` [rad/s], each default 0), `impedance` (`target` =
 //!   position [rad, rotor, mechanical], `velocity` [rad/s], `kp` [N m/rad],
 //!   `kd` [N m s/rad], `torque_ff` [N m], each default 0, `torque_limit`
 //!   [N m], default none; design §21).
@@ -43,7 +43,7 @@
 //! - `mode`: `disabled`, `torque`, `velocity`, `position`, `open_loop`,
 //!   `impedance`.
 //! - `fault`: `null` or the first latched fault (`OverCurrentPhase`, ...).
-//! - `id`, `iq` [A], `theta_e` [rad, `[0, 2 pi)`], `speed` [rad/s,
+//! - `id`, `iq` \[A\], `theta_e` [rad, `[0, 2 pi)`], `speed` [rad/s,
 //!   mechanical, estimated], `position` [rad, multi-turn].
 //! - `error`: `null`, or why the line or its command was refused.
 //!
@@ -95,7 +95,7 @@ use serde::Deserialize;
 use serde_json::json;
 use std::io::{self, BufRead};
 
-/// Longest input line [bytes], without its newline: 64 KiB.
+/// Longest input line \[bytes\], without its newline: 64 KiB.
 pub const MAX_LINE: usize = 64 * 1024;
 
 /// What [`read_line_bounded`] read.

@@ -197,7 +197,7 @@ fn position_move_reaches_target() {
 /// The speed and position figures before issue 18 (`cargo xtask sim --all`
 /// on main at 5b20272, the PLL-fed one-degree-of-freedom PI): motor file,
 /// speed dip after the load step and rise after its release [rad/s],
-/// position 2 % settling [ms].
+/// position 2 % settling \[ms\].
 const BEFORE_ISSUE_18: [(&str, f64, f64, f64); 5] = [
     ("cute-q85sx-hub", 27.708, 27.386, 115.2),
     ("dji-m2006", 22.494, 22.499, 90.5),
@@ -347,7 +347,7 @@ fn unidentified_drive_is_stable_with_too_large_a_guessed_inertia() {
 /// Runs the M2006 (7 pole pairs, 20 kHz) up a ramp to half its no-load
 /// speed (1417 rad/s: w_e Ts = 0.50 rad, 12.6 periods per electrical turn,
 /// the 1.5-period delay is 42 deg electrical), holds it, then takes a load
-/// step of 40 % of the rated torque. Returns (peak |id| [A] of the true
+/// step of 40 % of the rated torque. Returns (peak |id| \[A\] of the true
 /// current, the first fault if any).
 fn high_speed_run(delay_compensation_periods: f32) -> (f64, Option<Fault>) {
     let s = setup("dji-m2006.toml");

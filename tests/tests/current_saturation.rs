@@ -68,9 +68,9 @@ fn config(s: &Setup, aw: Option<AntiWindup>) -> CascadeConfig {
 /// The figures of one q-current step.
 #[derive(Clone, Copy, Debug, PartialEq)]
 struct StepFigures {
-    /// Step [A].
+    /// Step \[A\].
     step_a: f64,
-    /// Bus [V].
+    /// Bus \[V\].
     bus_v: f64,
     /// Consecutive periods on the voltage limit from the step on.
     saturated: usize,
@@ -81,7 +81,7 @@ struct StepFigures {
     settling: Option<usize>,
     /// The same into 1 % (printed only: it shows the slow tail).
     settling_1pct: Option<usize>,
-    /// Largest true d current [A].
+    /// Largest true d current \[A\].
     id_max_a: f64,
 }
 

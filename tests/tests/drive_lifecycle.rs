@@ -524,7 +524,7 @@ mod stored_calibration {
     use foc_core::calibration::Calibrated;
     use foc_core::drive::AngleKind;
 
-    /// The emulated AS5047P's mounting offset [rad].
+    /// The emulated AS5047P's mounting offset \[rad\].
     const MOUNTING_RAD: f32 = 0.9;
 
     fn absolute_plant(s: &Setup, rotor_rad: f32) -> Plant {

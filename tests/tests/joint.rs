@@ -44,7 +44,7 @@ fn torque_max(s: &Setup) -> f32 {
     s.kt() * s.max_current_a
 }
 
-/// One encoder count [rad].
+/// One encoder count \[rad\].
 fn count_rad(s: &Setup) -> f32 {
     std::f32::consts::TAU / s.bench.sensors.encoder_counts_per_rev as f32
 }
@@ -87,13 +87,13 @@ fn joint_sim(s: &Setup) -> Sim {
     sim
 }
 
-/// The drive's position minus the plant's true one [rad] (the encoder's
+/// The drive's position minus the plant's true one \[rad\] (the encoder's
 /// frame and the first reading's turn; constant up to the resolution).
 fn frame_offset(sim: &Sim) -> f64 {
     sim.cascade.feedback().position_rad as f64 - sim.true_position_rad()
 }
 
-/// Mean motor torque [N m] and true position [rad] over `n` periods.
+/// Mean motor torque [N m] and true position \[rad\] over `n` periods.
 fn mean_torque_and_position(sim: &mut Sim, n: usize) -> (f64, f64) {
     let (mut t, mut p) = (0.0, 0.0);
     for _ in 0..n {

@@ -29,7 +29,7 @@ fn motor_files() -> Vec<PathBuf> {
     v
 }
 
-/// Simulated time a stage may take [s].
+/// Simulated time a stage may take \[s\].
 const STAGE_TIME_LIMIT_S: f64 = 2.0;
 
 #[test]

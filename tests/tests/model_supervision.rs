@@ -209,7 +209,7 @@ fn corrupt(c: PhaseCurrents, ph: usize, fault: ChannelFault, held: f32) -> Phase
 }
 
 /// What a channel fault did: periods to the fault (None: never), the fault,
-/// the largest true phase current from the break to the trip [A].
+/// the largest true phase current from the break to the trip \[A\].
 struct Detection {
     periods: Option<usize>,
     fault: Option<Fault>,

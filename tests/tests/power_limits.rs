@@ -38,9 +38,9 @@ fn cheetah() -> Setup {
 /// What a stop did.
 #[derive(Debug)]
 struct Stop {
-    /// Highest bus voltage [V].
+    /// Highest bus voltage \[V\].
     peak_bus_v: f64,
-    /// Time to |speed| < 2 rad/s [s] (None: not within the run).
+    /// Time to |speed| < 2 rad/s \[s\] (None: not within the run).
     stop_s: Option<f64>,
     /// Faults latched.
     faults: Vec<Fault>,
@@ -217,13 +217,13 @@ fn non_sinking(sim: &mut Sim, brake_ohm: Option<f64>) {
 /// What a run after a speed command did.
 #[derive(Debug, Default)]
 struct Run {
-    /// Highest bus voltage [V].
+    /// Highest bus voltage \[V\].
     peak_bus_v: f64,
-    /// First time the speed was within 2 rad/s of 0 [s].
+    /// First time the speed was within 2 rad/s of 0 \[s\].
     zero_s: Option<f64>,
-    /// First time the speed was within 5 % of the target [s] (reversal).
+    /// First time the speed was within 5 % of the target \[s\] (reversal).
     reached_s: Option<f64>,
-    /// First time a fault was latched [s].
+    /// First time a fault was latched \[s\].
     fault_s: Option<f64>,
     /// Faults latched at the end.
     faults: Vec<Fault>,
@@ -339,7 +339,7 @@ fn a_reversal_into_a_non_sinking_supply_stays_below_the_over_voltage_threshold()
 
 // ----- b. the stop with a brake resistor -----
 
-/// Energy figures of a stop, from the plant's ledger [J].
+/// Energy figures of a stop, from the plant's ledger \[J\].
 #[derive(Debug, Default)]
 struct StopEnergy {
     /// Kinetic energy removed, `J (w0^2 - w1^2) / 2`.
@@ -677,12 +677,12 @@ struct Overload {
     winding_max_c: f64,
     /// Highest plant stage temperature [deg C] (its thermal model).
     stage_max_c: f64,
-    /// Largest change of the window's upper end in one period [A].
+    /// Largest change of the window's upper end in one period \[A\].
     max_step_a: f64,
-    /// Window's upper end and the true q current at the end [A].
+    /// Window's upper end and the true q current at the end \[A\].
     final_window_a: f64,
     final_iq_a: f64,
-    /// Lowest window end seen [A] (derating reached).
+    /// Lowest window end seen \[A\] (derating reached).
     min_window_a: f64,
     /// The active limit at the end.
     active: Option<ActiveLimit>,
@@ -835,14 +835,14 @@ enum Reaction {
     /// Bridge on, no q current allowed in the commanded direction (the
     /// window's end), for this reason.
     NoCurrent(ActiveLimit),
-    /// Not safe: this much q current [A] still allowed.
+    /// Not safe: this much q current \[A\] still allowed.
     Allowed(f32, ActiveLimit),
 }
 
 /// Torque `iq_a` at 50 rad/s (dynamometer) with the board's limits plus
 /// stage derating (the plant's stage model feeds the sensor), then `b` for
 /// 20 ms. Returns the reaction and the largest |true q current| after the
-/// first millisecond of it [A].
+/// first millisecond of it \[A\].
 fn break_it(s: &Setup, b: Break, iq_a: f32) -> (Reaction, f64, f64) {
     let pwm = s.pwm_hz() as f64;
     let mut sim = on_battery(s, Mechanics::ConstantSpeed(50.0));

@@ -28,7 +28,7 @@ fn motor_files() -> Vec<PathBuf> {
 
 /// Offsets (bridge off), then only the resistance routine of the
 /// identification configuration on `plant`, with the rotor at `start_rad`.
-/// The outcome and the routine's duration [s].
+/// The outcome and the routine's duration \[s\].
 fn measure(s: &Setup, plant: Plant, start_rad: f64) -> (CalStep<ResistanceResult>, f32) {
     let mut sim = Sim::with_plant(s, plant, s.cascade_config(), false);
     sim.set_rotor_angle(start_rad);

@@ -2,7 +2,7 @@
 //!
 //! Runs the `bench` binary of the emulated board under QEMU with
 //! `-icount shift=10,align=off`, where SysTick advances exactly 172.032
-//! ticks per executed instruction (checked with a 100-nop self-check, see the README), and
+//! ticks per executed instruction (checked with a 100-nop self-check, see the book's Instruction counts chapter), and
 //! prints a table of instructions per item with the loop rate each would
 //! allow at 168 MHz if one instruction took one cycle (a lower bound on
 //! time: loads, branches and FP divides take more). The worst case of
@@ -100,6 +100,20 @@ fn run_bench() -> Result<(Vec<Row>, Vec<String>)> {
     Ok((rows, info))
 }
 
+/// The measured rows as the book's table.
+fn figures_table(rows: &[Row]) -> String {
+    let mut s = String::from(
+        "| item (exact instruction counts, Cortex-M4F under QEMU) | min | max | mean | median |\n|---|---:|---:|---:|---:|\n",
+    );
+    for r in rows {
+        s += &format!(
+            "| {} | {} | {} | {:.1} | {} |\n",
+            r.name, r.min, r.max, r.mean, r.median
+        );
+    }
+    s
+}
+
 fn print_rows(rows: &[Row]) {
     println!(
         "{:<76} {:>6} {:>6} {:>8} {:>6} {:>10}",
@@ -163,6 +177,7 @@ pub fn run_cmd(args: &BenchArgs) -> Result {
     check_self_check(&rows)?;
     print_rows(&rows);
     print_goals(&rows);
+    crate::figures::write("bench.md", "`cargo xtask bench`", &figures_table(&rows))?;
     for l in &info {
         println!("{l}");
     }

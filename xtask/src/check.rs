@@ -47,16 +47,25 @@ fn strings(args: &[&str]) -> Vec<String> {
 
 /// The steps of `cargo xtask test`, in order.
 pub fn steps() -> Vec<Step> {
-    let mut steps = vec![Step::cargo(
-        "rustfmt (cargo fmt --all --check)",
-        strings(&["fmt", "--all", "--check"]),
-    )];
+    let mut steps = lint_steps();
+    steps.extend(host_steps());
+    steps.extend(build_steps());
+    steps.extend(emulation_steps());
+    steps
+}
 
-    steps.push(Step::cargo(
-        "clippy, host crates (the workspace's default members)",
-        strings(&["clippy", "--all-targets", "--", "-D", "warnings"]),
-    ));
-
+/// Formatting, then clippy on the host crates and the firmware per board.
+fn lint_steps() -> Vec<Step> {
+    let mut steps = vec![
+        Step::cargo(
+            "rustfmt (cargo fmt --all --check)",
+            strings(&["fmt", "--all", "--check"]),
+        ),
+        Step::cargo(
+            "clippy, host crates (the workspace's default members)",
+            strings(&["clippy", "--all-targets", "--", "-D", "warnings"]),
+        ),
+    ];
     for board in &BOARDS {
         steps.push(Step::cargo(
             format!("clippy, firmware for {}", board.name),
@@ -74,51 +83,68 @@ pub fn steps() -> Vec<Step> {
             ]),
         ));
     }
+    steps
+}
 
-    steps.push(Step::cargo(
-        "tests, host crates (the workspace's default members)",
-        strings(&["test"]),
-    ));
+/// What runs on the host: the crates' tests, the docs, the Python package,
+/// the CANopen master on the host bus, the simulation.
+fn host_steps() -> Vec<Step> {
+    vec![
+        Step::cargo(
+            "tests, host crates (the workspace's default members)",
+            strings(&["test"]),
+        ),
+        Step::new(
+            "API docs of the library crates, rustdoc warnings denied (cargo xtask doc)",
+            crate::book::api_docs,
+        ),
+        Step::new(
+            "the book: its tables against the code, mdBook build, every internal link (cargo xtask book)",
+            || crate::book::run_cmd(&crate::book::BookArgs::default()),
+        ),
+        // The Python package (python/): installed into a virtual
+        // environment, its tests against `foc-ctl simulate`.
+        Step::new(
+            "Python package foc-drive: install, tests against foc-ctl simulate",
+            crate::python::run_tests,
+        ),
+        // CANopen (issue 22): the Python canopen master against three drives
+        // on the host test bus, then the emulated firmware on the bus.
+        Step::new(
+            "CANopen: python-canopen master, three drives on the host test bus, then the emulated firmware joined to it",
+            crate::canopen::run_tests,
+        ),
+        Step::new("simulation smoke run (cargo xtask sim)", sim_smoke),
+    ]
+}
 
-    // The Python package (python/): installed into a virtual environment,
-    // its tests against `foc-ctl simulate`.
-    steps.push(Step::new(
-        "Python package foc-drive: install, tests against foc-ctl simulate",
-        crate::python::run_tests,
-    ));
+/// Smoke run of the closed-loop simulation (the default motor's mission, a
+/// few seconds): it must pass its criteria and write its reports. Then the
+/// same mission started from the configuration the first one saved (its
+/// calibration restored at start-up, no identification).
+fn sim_smoke() -> Result {
+    let saved = crate::util::root().join("out/sim/drive.toml");
+    sim::run_cmd(&sim::SimArgs {
+        motor: None,
+        all: false,
+        out: None,
+        bench: false,
+        config: None,
+        save_config: Some(saved.clone()),
+    })?;
+    sim::run_cmd(&sim::SimArgs {
+        motor: None,
+        all: false,
+        out: Some(crate::util::root().join("out/sim-restored")),
+        bench: false,
+        config: Some(saved),
+        save_config: None,
+    })
+}
 
-    // CANopen (issue 22): the Python canopen master against three drives
-    // on the host test bus, then the emulated firmware on the bus.
-    steps.push(Step::new(
-        "CANopen: python-canopen master, three drives on the host test bus, then the emulated firmware joined to it",
-        crate::canopen::run_tests,
-    ));
-
-    // Smoke run of the closed-loop simulation (the default motor's mission,
-    // a few seconds): it must pass its criteria and write its reports.
-    // Then the same mission started from the configuration the first one
-    // saved (its calibration restored at start-up, no identification).
-    steps.push(Step::new("simulation smoke run (cargo xtask sim)", || {
-        let saved = crate::util::root().join("out/sim/drive.toml");
-        sim::run_cmd(&sim::SimArgs {
-            motor: None,
-            all: false,
-            out: None,
-            bench: false,
-            config: None,
-            save_config: Some(saved.clone()),
-        })?;
-        sim::run_cmd(&sim::SimArgs {
-            motor: None,
-            all: false,
-            out: Some(crate::util::root().join("out/sim-restored")),
-            bench: false,
-            config: Some(saved),
-            save_config: None,
-        })
-    }));
-
-    steps.push(Step::cargo(
+/// The bare-metal build of foc-core and a release build of every board.
+fn build_steps() -> Vec<Step> {
+    let mut steps = vec![Step::cargo(
         format!("foc-core bare-metal build ({THUMB_TARGET}, no default features)"),
         strings(&[
             "build",
@@ -128,36 +154,45 @@ pub fn steps() -> Vec<Step> {
             "--target",
             THUMB_TARGET,
         ]),
-    ));
-
+    )];
     for board in &BOARDS {
         steps.push(Step::new(
             format!("firmware build for {} (release)", board.name),
             move || build::build_board(board, Profile::Release).map(|_| ()),
         ));
     }
-
-    // The real firmware binary on an emulated Cortex-M4F against the plant:
-    // scripted mission, then a forced panic that must leave the bridge safe.
-    steps.push(Step::new(
-        "firmware in the loop under QEMU (cargo xtask qemu)",
-        || qemu::run_cmd(&qemu::QemuArgs::default()),
-    ));
-    // The command channel end to end: QEMU's USART2 on a loopback socket,
-    // driven by foc-ctl's client (ping, velocity, position, bad frames,
-    // refused commands, faults).
-    steps.push(Step::new(
-        "command channel end to end under QEMU (cargo xtask e2e)",
-        || e2e::run_cmd(&e2e::E2eArgs::default()),
-    ));
-    // Exact instruction counts, each item's worst case checked against the
-    // committed budget (xtask/bench-budget.txt).
-    steps.push(Step::new(
-        "instruction counts under QEMU, against the budget (cargo xtask bench)",
-        || bench::run_cmd(&bench::BenchArgs::default()),
-    ));
-
     steps
+}
+
+/// The firmware under QEMU.
+fn emulation_steps() -> Vec<Step> {
+    vec![
+        // The real firmware binary on an emulated Cortex-M4F against the
+        // plant, driven from the host: scenario, forced panic (the bridge
+        // must be left safe), braking and store runs.
+        Step::new("firmware in the loop under QEMU (cargo xtask qemu)", || {
+            qemu::run_cmd(&qemu::QemuArgs::default())
+        }),
+        // The command channel end to end: QEMU's USART2 on a loopback
+        // socket, driven by foc-ctl's client (ping, velocity, position, bad
+        // frames, refused commands, faults).
+        Step::new(
+            "command channel end to end under QEMU (cargo xtask e2e)",
+            || e2e::run_cmd(&e2e::E2eArgs::default()),
+        ),
+        // Exact instruction counts, each item's worst case checked against
+        // the committed budget (xtask/bench-budget.txt).
+        Step::new(
+            "instruction counts under QEMU, against the budget (cargo xtask bench)",
+            || bench::run_cmd(&bench::BenchArgs::default()),
+        ),
+        // The simulation and the bench above rewrote the book's figures:
+        // they must be the committed ones.
+        Step::new(
+            "the book's figures are this run's (git status docs/src/figures)",
+            crate::figures::check_committed,
+        ),
+    ]
 }
 
 /// Runs the steps in order, stopping at the first failure.

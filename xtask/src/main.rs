@@ -6,13 +6,16 @@
 
 mod bench;
 mod boards;
+mod book;
 mod budget;
 mod build;
 mod canopen;
 mod check;
+mod doctables;
 mod dyno;
 mod e2e;
 mod e2e_scope;
+mod figures;
 mod fil;
 mod fuzz;
 mod python;
@@ -29,7 +32,7 @@ use clap::{Parser, Subcommand};
 /// Tasks of the Rust FOC project: build, size, test, ci.
 #[derive(Debug, Parser)]
 #[command(name = "cargo xtask", bin_name = "cargo xtask")]
-struct Cli {
+pub(crate) struct Cli {
     #[command(subcommand)]
     command: Command,
 }
@@ -60,7 +63,9 @@ enum Command {
     /// Simulated dynamometer sweep: Performance Curve Report (CSV, Markdown,
     /// SVG) in out/dyno.
     Dyno(dyno::DynoArgs),
-    /// Firmware in the loop under QEMU: scripted mission + forced-panic run.
+    /// Firmware in the loop under QEMU: the product's firmware with the
+    /// emulated board, driven from the host (scenario, panic, braking and
+    /// store runs).
     Qemu(qemu::QemuArgs),
     /// Exact instruction counts of the control code under QEMU, checked
     /// against the committed budget (xtask/bench-budget.txt).
@@ -76,6 +81,12 @@ enum Command {
     /// several drives on the host test bus (foc-canbus), then against the
     /// emulated firmware (QEMU, CAN as SLCAN on USART3) joined to the bus.
     Canopen,
+    /// The book (mdBook, docs/) into target/book, every internal link and
+    /// anchor checked; mdBook is installed into target/tools when missing.
+    Book(book::BookArgs),
+    /// The library crates' API docs (`cargo doc --no-deps`), rustdoc
+    /// warnings denied.
+    Doc,
     /// Fuzz foc-protocol (cargo-fuzz targets in fuzz/; nightly + cargo-fuzz),
     /// or `--replay` the corpus through the same checks on stable.
     Fuzz(fuzz::FuzzArgs),
@@ -98,6 +109,8 @@ fn main() -> ExitCode {
         Command::Fuzz(args) => fuzz::run_cmd(args),
         Command::Python => python::run_tests(),
         Command::Canopen => canopen::run_tests(),
+        Command::Book(args) => book::run_cmd(args),
+        Command::Doc => book::api_docs(),
         Command::Boards => {
             list_boards();
             Ok(())

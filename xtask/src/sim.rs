@@ -110,7 +110,8 @@ fn read_config(path: &Path) -> Result<foc_store::DriveRecord> {
     foc_store::text::from_toml(&text).map_err(|e| Error(format!("{}: {e}", path.display())))
 }
 
-fn run_one(motor: &Path, out: &Path, args: &SimArgs) -> Result<bool> {
+/// One mission; whether it passed, and its summary.
+fn run_one(motor: &Path, out: &Path, args: &SimArgs) -> Result<(bool, String)> {
     let setup = Setup::load(motor).map_err(|e| Error(e.to_string()))?;
     banner(&format!("sim: {}", setup.name));
     let stored = args.config.as_deref().map(read_config).transpose()?;
@@ -134,7 +135,22 @@ fn run_one(motor: &Path, out: &Path, args: &SimArgs) -> Result<bool> {
     }
     let bench = args.bench;
     let files = result.write(out)?;
-    print!("{}", result.summary.to_markdown());
+    let summary = result.summary.to_markdown();
+    print!("{summary}");
+    // A motor file of this repository, identified (not restored): its
+    // figures in the book.
+    let in_repo = |p: &Path| p.canonicalize().ok();
+    let dir = motor.parent().and_then(in_repo);
+    if args.config.is_none() && dir.is_some() && dir == in_repo(&root().join("tests/motors")) {
+        crate::figures::write(
+            &format!("sim-{}.md", stem(motor)),
+            &format!(
+                "`cargo xtask sim --motor tests/motors/{}.toml`",
+                stem(motor)
+            ),
+            &crate::figures::without_wall_time(&summary),
+        )?;
+    }
     println!(
         "(mission {:.2} s wall time, this build)",
         t.elapsed().as_secs_f64()
@@ -160,7 +176,7 @@ fn run_one(motor: &Path, out: &Path, args: &SimArgs) -> Result<bool> {
     if !fails.is_empty() {
         println!("FAILED: {}", fails.join("; "));
     }
-    Ok(fails.is_empty())
+    Ok((fails.is_empty(), summary))
 }
 
 /// `cargo xtask sim`.
@@ -177,15 +193,22 @@ pub fn run_cmd(args: &SimArgs) -> Result {
         )]
     };
     let mut failed = Vec::new();
+    let mut summaries = Vec::new();
     for m in &motors {
         let dir = if args.all {
             out.join(stem(m))
         } else {
             out.clone()
         };
-        if !run_one(m, &dir, args)? {
+        let (passed, summary) = run_one(m, &dir, args)?;
+        if !passed {
             failed.push(stem(m));
         }
+        summaries.push((stem(m), summary));
+    }
+    if args.all {
+        let table = crate::figures::side_by_side(&summaries);
+        crate::figures::write("sim-all.md", "`cargo xtask sim --all`", &table)?;
     }
     if failed.is_empty() {
         Ok(())

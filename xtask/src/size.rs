@@ -129,7 +129,28 @@ pub fn run_cmd(args: &SizeArgs) -> Result {
     }
     let rows = measure_all(&built)?;
     print_table(&rows, profile);
+    if profile == Profile::Release && rows.len() == crate::boards::BOARDS.len() {
+        crate::figures::write(
+            "sizes.md",
+            "`cargo xtask size --board all`",
+            &figures_table(&rows),
+        )?;
+    }
     print_all_groups(&built, &rows)
+}
+
+/// Every board's release sizes as the book's table.
+fn figures_table(rows: &[(&Board, Size)]) -> String {
+    let mut s = String::from("| board (release build) | flash | static RAM |\n|---|---:|---:|\n");
+    for (board, size) in rows {
+        s += &format!(
+            "| `{}` | {:.1} KiB | {:.1} KiB |\n",
+            board.name,
+            size.flash() as f64 / 1024.0,
+            size.ram() as f64 / 1024.0
+        );
+    }
+    s
 }
 
 /// Prints the flash per feature group of each measured board.

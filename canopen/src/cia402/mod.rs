@@ -9,7 +9,7 @@
 //! of [`Targets`], [`Params`] and [`Actuals`] (already range-checked against
 //! the object dictionary's limits) and calls the `Cia402` methods below.
 //!
-//! Units (the factors, documented in the README and the EDS):
+//! Units (the factors, documented in the book's CANopen chapter and the EDS):
 //! - position: increments, [`INC_PER_REV`] per motor (rotor) mechanical
 //!   revolution (0x608F); velocity: increments/s; acceleration:
 //!   increments/s^2;
@@ -112,7 +112,7 @@ impl OpMode {
 /// (synchronous RPDOs are applied at the SYNC, before the update).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Targets {
-    /// 0x607A target position [inc].
+    /// 0x607A target position \[inc\].
     pub position_inc: i32,
     /// 0x60FF target velocity [inc/s].
     pub velocity_inc_s: i32,
@@ -128,17 +128,17 @@ pub struct Targets {
 /// dictionary, then by [`Cia402::check_params`] as a whole).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Params {
-    /// 0x6065 following error window [inc] (0xFFFFFFFF: off).
+    /// 0x6065 following error window \[inc\] (0xFFFFFFFF: off).
     pub following_error_window_inc: u32,
-    /// 0x6066 following error time out [ms].
+    /// 0x6066 following error time out \[ms\].
     pub following_error_timeout_ms: u16,
-    /// 0x6067 position window [inc] (target reached, pp).
+    /// 0x6067 position window \[inc\] (target reached, pp).
     pub position_window_inc: u32,
-    /// 0x6068 position window time [ms].
+    /// 0x6068 position window time \[ms\].
     pub position_window_time_ms: u16,
     /// 0x606D velocity window [inc/s] (target reached, pv).
     pub velocity_window_inc_s: u16,
-    /// 0x606E velocity window time [ms].
+    /// 0x606E velocity window time \[ms\].
     pub velocity_window_time_ms: u16,
     /// 0x6072 max torque [per mille of rated torque].
     pub max_torque_permille: u16,
@@ -168,9 +168,9 @@ pub struct Actuals {
     pub statusword: u16,
     /// 0x6061 modes of operation display.
     pub mode_display: i8,
-    /// 0x6064 position actual value [inc].
+    /// 0x6064 position actual value \[inc\].
     pub position_inc: i32,
-    /// 0x6062 position demand value [inc].
+    /// 0x6062 position demand value \[inc\].
     pub position_demand_inc: i32,
     /// 0x606C velocity actual value [inc/s].
     pub velocity_inc_s: i32,
@@ -180,11 +180,11 @@ pub struct Actuals {
     pub torque_permille: i16,
     /// 0x6078 current actual value [per mille of rated current].
     pub current_permille: i16,
-    /// 0x60F4 following error actual value [inc].
+    /// 0x60F4 following error actual value \[inc\].
     pub following_error_inc: i32,
     /// 0x603F error code (the last fault's EMCY code, 0 when none).
     pub error_code: u16,
-    /// 0x6079 DC link circuit voltage [mV].
+    /// 0x6079 DC link circuit voltage \[mV\].
     pub dc_link_mv: u32,
 }
 
@@ -259,17 +259,17 @@ pub const FOLLOWING_ERROR_CODE: u16 = 0x8611;
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 struct Stop {
     option: i16,
-    /// When the ramp reached 0 [us].
+    /// When the ramp reached 0 \[us\].
     ramp_done_us: Option<u64>,
 }
 
 /// Options 1 / 2: after the ramp, the longest wait for standstill
-/// (|velocity| within 0x606D) before the bridge is switched off [us].
+/// (|velocity| within 0x606D) before the bridge is switched off \[us\].
 pub const STANDSTILL_TIMEOUT_US: u64 = 200_000;
 
 /// The profile: state machine, mode and values of one axis.
 ///
-/// Behaviour beyond the standard's text (see also the README):
+/// Behaviour beyond the standard's text (see also the book's CANopen chapter):
 /// - enabling operation (transition 4) while the drive is not calibrated,
 ///   faulted, starting, or with no mode selected is refused: the state stays
 ///   (or becomes, from ready to switch on with `0x000F`) switched on and the

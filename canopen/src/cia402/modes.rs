@@ -81,13 +81,13 @@ pub struct Inputs<'a> {
     pub params: &'a Params,
     /// Limits in force (rotor frame).
     pub limits: &'a Limits,
-    /// Rated current [A].
+    /// Rated current \[A\].
     pub rated_a: f32,
     /// The drive's feedback.
     pub fb: &'a Feedback,
-    /// Time since the last update [s].
+    /// Time since the last update \[s\].
     pub dt_s: f32,
-    /// Now [us].
+    /// Now \[us\].
     pub now_us: u64,
     /// Controlword bit 8.
     pub halt: bool,
@@ -96,11 +96,11 @@ pub struct Inputs<'a> {
 /// The demand: what the profile asks of the drive, SI, rotor frame.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Demand {
-    /// Position [rad].
+    /// Position \[rad\].
     pub pos_rad: f32,
     /// Velocity [rad/s].
     pub vel_rad_s: f32,
-    /// q current [A].
+    /// q current \[A\].
     pub iq_a: f32,
     /// Feed-forward torque of the impedance follower [N m]: the integral
     /// of the position error (the drive's speed-loop integral, moved here).
@@ -132,15 +132,15 @@ pub struct Generator {
     pub demand: Demand,
     traj: Trapezoid,
     t_s: f32,
-    /// pp: the target in force [rad] (the last set-point taken).
+    /// pp: the target in force \[rad\] (the last set-point taken).
     pub target_rad: f32,
-    /// pp: the target in force [inc] (base of relative set-points).
+    /// pp: the target in force \[inc\] (base of relative set-points).
     pub target_inc: i32,
     pending: Option<i32>,
     halted: bool,
     /// A target or demand was clamped to the limits (statusword bit 11).
     pub limited: bool,
-    /// pv / tq: the (clamped) target the ramp runs to [rad/s] / [A].
+    /// pv / tq: the (clamped) target the ramp runs to [rad/s] / \[A\].
     pub ramp_target: f32,
     last_target_inc: i32,
     /// csp: a target written after the start is followed (bit 12).
@@ -248,7 +248,7 @@ impl Generator {
         self.integrate(i.dt_s);
     }
 
-    /// The largest q current [A]: 0x6072 of the rated current, within the
+    /// The largest q current \[A\]: 0x6072 of the rated current, within the
     /// current limit.
     fn iq_max(i: &Inputs) -> f32 {
         let a = permille_to_amps(f32::from(i.params.max_torque_permille), i.rated_a);

@@ -66,7 +66,7 @@ pub fn rad_to_inc(rad: f32) -> i32 {
     sat_i32(rad * INC_PER_RAD)
 }
 
-/// The rated current [A]: the drive's current limit (0 when not a finite
+/// The rated current \[A\]: the drive's current limit (0 when not a finite
 /// positive value: every torque then converts to 0 A).
 pub fn rated_current_a(limits: &Limits) -> f32 {
     let i = limits.max_current_a;
@@ -87,7 +87,7 @@ pub fn rated_torque_mnm(kt_nm_per_a: f32, limits: &Limits) -> u32 {
     }
 }
 
-/// The rated current [mA] (0x6075).
+/// The rated current \[mA\] (0x6075).
 pub fn rated_current_ma(limits: &Limits) -> u32 {
     (rated_current_a(limits) * 1000.0) as u32
 }

@@ -142,11 +142,11 @@ impl CommSettings {
     pub const fn bitrate_kbit(&self) -> u16 {
         self.bitrate_kbit
     }
-    /// Heartbeat producer time [ms] (0: off).
+    /// Heartbeat producer time \[ms\] (0: off).
     pub const fn heartbeat_ms(&self) -> u16 {
         self.heartbeat_ms
     }
-    /// Consumed heartbeat: the master's node id and time [ms].
+    /// Consumed heartbeat: the master's node id and time \[ms\].
     pub const fn consumer(&self) -> Option<(u8, u16)> {
         self.consumer
     }
@@ -176,7 +176,7 @@ pub trait CanDevice: DeviceContext {
 struct TpdoRun {
     /// Data last sent.
     last: Option<([u8; 8], u8)>,
-    /// When it was last sent [µs].
+    /// When it was last sent \[µs\].
     sent_us: Option<u64>,
     /// SYNCs counted (types 1..=240).
     syncs: u8,

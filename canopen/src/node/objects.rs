@@ -28,11 +28,11 @@ pub(crate) struct Dict<P> {
     pub node_id: u8,
     /// 0x1005.
     pub sync_cob_id: u32,
-    /// 0x1006 [µs].
+    /// 0x1006 \[µs\].
     pub cycle_us: u32,
     /// 0x1016 sub 1.
     pub consumer_entry: u32,
-    /// 0x1017 [ms].
+    /// 0x1017 \[ms\].
     pub heartbeat_ms: u16,
     /// 0x1400.. / 0x1600..
     pub rpdo: [PdoConfig; COUNT],

@@ -34,12 +34,12 @@ pub const MAX_MODULATION: f32 = 0.95;
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum CalStep<T> {
-    /// Apply this open-loop voltage [V] in the dq frame of `theta_e` (e.g.
+    /// Apply this open-loop voltage \[V\] in the dq frame of `theta_e` (e.g.
     /// through `CurrentLoop::step_voltage` or `Command::OpenLoop` with
     /// `omega_e_rad_s = 0`). Already limited to the routine's voltage limit
     /// and to the voltage circle of the measured bus.
     Apply {
-        /// dq voltage [V].
+        /// dq voltage \[V\].
         v_dq: Dq,
         /// Electrical angle of the d axis of `v_dq`.
         theta_e: ElectricalAngle,
@@ -51,11 +51,11 @@ pub enum CalStep<T> {
         /// Mechanical velocity reference [rad/s].
         rad_s: f32,
     },
-    /// Run the closed-loop current (torque) mode at this q current [A]
+    /// Run the closed-loop current (torque) mode at this q current \[A\]
     /// with `id = 0` (as `Command::Torque`) and pass back
     /// [`CalInput::closed_loop`] every period.
     Torque {
-        /// q-axis current reference [A].
+        /// q-axis current reference \[A\].
         iq_a: f32,
     },
     /// Finished with this result.
@@ -175,9 +175,9 @@ pub enum CalError {
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct ClosedLoopFeedback {
-    /// Commanded dq voltage of the current loop [V] (`Feedback::v_dq_v`).
+    /// Commanded dq voltage of the current loop \[V\] (`Feedback::v_dq_v`).
     pub v_dq_v: Dq,
-    /// Measured dq current [A] (`Feedback::i_dq_a`).
+    /// Measured dq current \[A\] (`Feedback::i_dq_a`).
     pub i_dq_a: Dq,
     /// Measured mechanical velocity [rad/s] (`Feedback::velocity_rad_s`).
     pub velocity_rad_s: f32,
@@ -187,11 +187,11 @@ pub struct ClosedLoopFeedback {
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct CalInput {
-    /// Measured phase currents [A] (offsets removed).
+    /// Measured phase currents \[A\] (offsets removed).
     pub i_abc_a: Abc,
     /// Raw angle-sensor reading (no direction, pole-pair or offset applied).
     pub angle: MechanicalAngle,
-    /// Measured bus voltage [V].
+    /// Measured bus voltage \[V\].
     pub v_bus_v: f32,
     /// Closed-loop feedback while answering a [`CalStep::Velocity`] or
     /// [`CalStep::Torque`] request; `None` otherwise.
@@ -224,7 +224,7 @@ pub(crate) fn latch<T: Copy>(
     out
 }
 
-/// Usable open-loop voltage magnitude [V]: the configured limit or the
+/// Usable open-loop voltage magnitude \[V\]: the configured limit or the
 /// voltage circle of the bus, whichever is smaller.
 #[inline]
 pub(crate) fn voltage_limit_v(max_voltage_v: f32, v_bus_v: f32) -> f32 {
@@ -253,7 +253,7 @@ pub(crate) fn check_input(inp: &CalInput, max_current_a: f32) -> Result<(), CalE
     Ok(())
 }
 
-/// Measured currents in the dq frame of `theta_e` [A].
+/// Measured currents in the dq frame of `theta_e` \[A\].
 #[inline]
 pub(crate) fn current_dq(i_abc_a: Abc, theta_e: ElectricalAngle) -> Dq {
     let (s, c) = trig::sin_cos(theta_e);

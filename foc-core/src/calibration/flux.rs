@@ -40,13 +40,13 @@ use core::f32::consts::TAU;
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct FluxConfig {
-    /// PWM (step) period [s].
+    /// PWM (step) period \[s\].
     pub ts_s: f32,
     /// Pole pairs.
     pub pole_pairs: u8,
-    /// Phase resistance [ohm].
+    /// Phase resistance \[ohm\].
     pub r_ohm: f32,
-    /// d inductance [H] (for the `w_e Ld i_d` term; 0 to ignore).
+    /// d inductance \[H\] (for the `w_e Ld i_d` term; 0 to ignore).
     pub ld_h: f32,
     /// First speed [rad/s, mechanical].
     pub first_speed_rad_s: f32,
@@ -58,13 +58,13 @@ pub struct FluxConfig {
     pub max_modulation: f32,
     /// Speed band around the request, relative.
     pub speed_tolerance: f32,
-    /// Time inside the band before averaging [s].
+    /// Time inside the band before averaging \[s\].
     pub settle_s: f32,
-    /// Averaging time [s].
+    /// Averaging time \[s\].
     pub average_s: f32,
-    /// Time limit to settle at each speed [s].
+    /// Time limit to settle at each speed \[s\].
     pub speed_timeout_s: f32,
-    /// Current vector that aborts the routine [A].
+    /// Current vector that aborts the routine \[A\].
     pub max_current_a: f32,
 }
 
@@ -115,7 +115,7 @@ impl FluxConfig {
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct FluxResult {
-    /// Flux linkage [Wb] (peak, per phase).
+    /// Flux linkage \[Wb\] (peak, per phase).
     pub flux_linkage_wb: f32,
     /// The two speeds measured at [rad/s, mechanical].
     pub speeds_rad_s: [f32; 2],
@@ -188,7 +188,7 @@ impl FluxLinkage {
         }
     }
 
-    /// `v_q - R i_q - w_e Ld i_d` [V] and `w_e` [rad/s] of one sample.
+    /// `v_q - R i_q - w_e Ld i_d` \[V\] and `w_e` [rad/s] of one sample.
     fn point(&self, f: &ClosedLoopFeedback) -> (f32, f32) {
         let w_e = f32::from(self.cfg.pole_pairs) * f.velocity_rad_s;
         (

@@ -19,7 +19,7 @@ use crate::control::current::{
 use crate::control::MotorParams;
 use crate::tuning;
 
-/// A [`CurrentLoopConfig`] for `motor` at loop period `ts_s` [s]: technical
+/// A [`CurrentLoopConfig`] for `motor` at loop period `ts_s` \[s\]: technical
 /// optimum on both axes, decoupling on, 95 % of the linear range, matched
 /// back-calculation anti-windup (the same choices as
 /// [`CurrentLoopConfig::technical_optimum`]).

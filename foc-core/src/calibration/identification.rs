@@ -19,7 +19,7 @@
 //! measured torque constant); otherwise their results are 0 / `None`.
 //!
 //! A stage that finishes hands over in the same period, so every call
-//! returns a command until `Done` or `Failed`. [`Identification::stage`]
+//! returns a command until `Done` or `Failed`. [`Identification::current_step`]
 //! tells where a failure happened.
 //!
 //! **Driving it.** Every PWM period build a [`CalInput`] from the
@@ -33,7 +33,7 @@
 //!   [`CalInput::closed_loop`] from its feedback;
 //! - `Done(Identified { result, permit })`: store `result`, build the
 //!   closed-loop drive from `permit`;
-//! - `Failed(reason)`: bridge off, report `reason` and [`Identification::stage`].
+//! - `Failed(reason)`: bridge off, report `reason` and [`Identification::current_step`].
 //!
 //! ```
 //! use foc_core::calibration::identification::{Identification, IdentificationConfig, Step};
@@ -61,7 +61,7 @@ use crate::control::MotorParams;
 /// Configuration of the whole identification.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct IdentificationConfig {
-    /// PWM (step) frequency [Hz].
+    /// PWM (step) frequency \[Hz\].
     pub pwm_frequency_hz: f32,
     /// Configured pole pairs (checked by the alignment, never changed).
     pub pole_pairs: u8,
@@ -73,7 +73,7 @@ pub struct IdentificationConfig {
     /// `R * alignment_current_a + dead-time drop` (bounded by its
     /// `max_voltage_v`).
     pub alignment: AlignmentConfig,
-    /// d current the alignment voltage is sized for [A].
+    /// d current the alignment voltage is sized for \[A\].
     pub alignment_current_a: f32,
     /// Flux step; its `r_ohm` and `ld_h` are replaced by the measured values.
     pub flux: FluxConfig,
@@ -90,9 +90,9 @@ pub struct IdentificationConfig {
 }
 
 impl IdentificationConfig {
-    /// Defaults of every step for `pole_pairs`, a PWM frequency [Hz], a test
-    /// current [A] (resistance, inductance bias and alignment) and an
-    /// open-loop voltage limit [V]. The direction of the sensor is detected;
+    /// Defaults of every step for `pole_pairs`, a PWM frequency \[Hz\], a test
+    /// current \[A\] (resistance, inductance bias and alignment) and an
+    /// open-loop voltage limit \[V\]. The direction of the sensor is detected;
     /// set `alignment.expected_reversed` to enforce one.
     pub fn new(
         pole_pairs: u8,
@@ -130,13 +130,13 @@ impl IdentificationConfig {
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct IdentificationResult {
-    /// Phase resistance [ohm].
+    /// Phase resistance \[ohm\].
     pub r_ohm: f32,
-    /// d-axis inductance [H].
+    /// d-axis inductance \[H\].
     pub ld_h: f32,
-    /// q-axis inductance [H].
+    /// q-axis inductance \[H\].
     pub lq_h: f32,
-    /// Flux linkage [Wb] (0 when not measured).
+    /// Flux linkage \[Wb\] (0 when not measured).
     pub flux_linkage_wb: f32,
     /// Inertia and friction (`None` when not measured).
     pub mechanics: Option<MechanicsResult>,
@@ -209,7 +209,7 @@ pub struct Identification {
     current: Option<CurrentLoopConfig>,
     angle: Option<AngleCalibration>,
     permit: Option<Calibrated>,
-    /// Measured flux linkage [Wb] (0 until measured).
+    /// Measured flux linkage \[Wb\] (0 until measured).
     flux_linkage_wb: f32,
     finished: Option<CalStep<Identified>>,
 }

@@ -107,25 +107,25 @@ const MAX_DELAY_PERIODS: usize = 3;
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct InductanceConfig {
-    /// PWM (step) period [s].
+    /// PWM (step) period \[s\].
     pub ts_s: f32,
-    /// DC d current holding the rotor [A].
+    /// DC d current holding the rotor \[A\].
     pub bias_current_a: f32,
     /// Target ripple (peak to peak) as a fraction of the bias (e.g. 0.3).
     pub ripple_fraction: f32,
-    /// Largest open-loop voltage [V] (also limited by the bus).
+    /// Largest open-loop voltage \[V\] (also limited by the bus).
     pub max_voltage_v: f32,
-    /// Current vector that aborts the routine [A].
+    /// Current vector that aborts the routine \[A\].
     pub max_current_a: f32,
     /// Approach rate of the bias current [rad/s].
     pub loop_bandwidth_rad_s: f32,
     /// Fastest change of the bias voltage [V/s].
     pub ramp_v_per_s: f32,
-    /// Time the bias must stay within 3 % before injecting [s].
+    /// Time the bias must stay within 3 % before injecting \[s\].
     pub settle_s: f32,
-    /// Time limit for the bias to settle [s].
+    /// Time limit for the bias to settle \[s\].
     pub bias_timeout_s: f32,
-    /// First square-wave amplitude [V].
+    /// First square-wave amplitude \[V\].
     pub start_voltage_v: f32,
     /// Periods ignored after every change of the wave (on top of the
     /// transition half-wave).
@@ -140,14 +140,14 @@ pub struct InductanceConfig {
     /// Longest half-wave [PWM periods] (at least 1).
     pub max_half_wave_periods: u32,
     /// Longest half-wave as a fraction of the winding time constant `L / R`
-    /// (with `R = V_bias / i`) [1].
+    /// (with `R = V_bias / i`) \[1\].
     pub max_half_wave_tau_fraction: f32,
     /// Depth of the amplitude sweep during the measurement, as a fraction
     /// of the amplitude (0: none, below 1).
     pub sweep_depth: f32,
     /// Half-waves from the top of the amplitude sweep to its bottom.
     pub sweep_half_waves: u32,
-    /// Phase resistance [ohm] for the correction of the exponential current
+    /// Phase resistance \[ohm\] for the correction of the exponential current
     /// response and the half-wave limit (the sequencer sets the resistance
     /// step's result). 0: unknown, no correction (the half-wave limit then
     /// takes `V_bias / i`, which the dead-time drop only raises).
@@ -155,8 +155,8 @@ pub struct InductanceConfig {
 }
 
 impl InductanceConfig {
-    /// Defaults for a PWM frequency, a bias current [A] and a voltage limit
-    /// [V]: 30 % ripple, 50 ms settle, start at 2 % of the voltage limit,
+    /// Defaults for a PWM frequency, a bias current \[A\] and a voltage limit
+    /// \[V\]: 30 % ripple, 50 ms settle, start at 2 % of the voltage limit,
     /// 32 periods skipped, 64-period probes, 4000-period measurement,
     /// half-waves of at most 64 periods and 0.2 `L / R`, amplitude swept by
     /// 50 % over 32 half-waves, resistance unknown.
@@ -213,9 +213,9 @@ impl InductanceConfig {
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct InductanceResult {
-    /// d-axis inductance [H].
+    /// d-axis inductance \[H\].
     pub ld_h: f32,
-    /// q-axis inductance [H].
+    /// q-axis inductance \[H\].
     pub lq_h: f32,
 }
 
@@ -243,13 +243,13 @@ enum State {
 struct Wave {
     /// Sign of the running half-wave.
     sign: f32,
-    /// Amplitude of the running half-wave [V].
+    /// Amplitude of the running half-wave \[V\].
     volts: f32,
     /// Periods left in the running half-wave (0: at a boundary).
     left: u32,
     /// Volt-periods the previous half-wave aimed at [V periods].
     last_v_periods: f32,
-    /// Length the previous half-wave aimed at [periods].
+    /// Length the previous half-wave aimed at \[periods\].
     last_len: u32,
     /// Half-waves started (wrapping).
     count: u32,
@@ -299,7 +299,7 @@ impl Wave {
 /// no correction). The corners of the exact (exponential) steady-state
 /// triangle are `+-(V / R) tanh(a / 2)` with `a = R half / L`, so
 /// `l_est = (R half / 2) / tanh(a / 2)` and
-/// `L = R half / (2 atanh(R half / (2 l_est)))` [H]. `None` for a
+/// `L = R half / (2 atanh(R half / (2 l_est)))` \[H\]. `None` for a
 /// non-positive or non-finite estimate, or one below what `r_ohm` allows.
 fn exponential_corrected_h(l_est_h: f32, r_ohm: f32, half_s: f32) -> Option<f32> {
     if !(l_est_h.is_finite() && l_est_h > 0.0) {
@@ -322,13 +322,13 @@ pub struct Inductance {
     cfg: InductanceConfig,
     state: State,
     v_bias: f32,
-    /// Aimed amplitude [V] and half-wave length [periods] of the wave.
+    /// Aimed amplitude \[V\] and half-wave length \[periods\] of the wave.
     amp_v: f32,
     half_periods: u32,
     /// The target changed: restart the fit at the next half-wave.
     changed: bool,
     wave: Wave,
-    /// Wave voltage commanded 1, 2, 3 periods ago [V].
+    /// Wave voltage commanded 1, 2, 3 periods ago \[V\].
     past_u_v: [f32; MAX_DELAY_PERIODS],
     /// Least-squares sums per loop delay: `sum(u delta_i)` [V A] and
     /// `sum(u^2)` [V^2].
@@ -340,7 +340,7 @@ pub struct Inductance {
     /// Half-waves started in the measurement (for the sweep).
     sweep_count: u32,
     prev_i: Dq,
-    /// The d current without the injected ripple [A], and the running sum
+    /// The d current without the injected ripple \[A\], and the running sum
     /// over the wave cycle (two half-waves) that gives it.
     i_d_dc_a: f32,
     cycle_sum_a: f32,
@@ -683,7 +683,7 @@ impl Inductance {
     }
 
     /// The wave: a new half-wave at a boundary (swept in the measurement),
-    /// then this period's share of it [V], remembered for the fit.
+    /// then this period's share of it \[V\], remembered for the fit.
     fn wave_volts(&mut self, headroom: f32) -> f32 {
         let c = self.cfg;
         if self.wave.left == 0 {
@@ -857,9 +857,9 @@ mod tests {
     /// Sensors and timing of the test bench.
     #[derive(Clone, Copy, Debug)]
     struct Bench {
-        /// Current ADC resolution [bits] over `+-2 max_current_a`.
+        /// Current ADC resolution \[bits\] over `+-2 max_current_a`.
         adc_bits: u8,
-        /// Current ADC noise, RMS [LSB].
+        /// Current ADC noise, RMS \[LSB\].
         noise_lsb: f64,
         /// Periods from the command to the first current difference it
         /// causes: 2 (the duties apply in the next period) or 1.
@@ -882,7 +882,7 @@ mod tests {
         iq_a: f64,
         theta_e_rad: f64,
         omega_m_rad_s: f64,
-        /// Voltage applied in the next period (alpha, beta) [V].
+        /// Voltage applied in the next period (alpha, beta) \[V\].
         pending_v: (f64, f64),
         rng: u64,
     }

@@ -117,45 +117,45 @@ pub const MIN_DETERMINANT: f32 = 1.0e-4;
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct MechanicsConfig {
-    /// PWM (step) period [s].
+    /// PWM (step) period \[s\].
     pub ts_s: f32,
     /// Torque constant `1.5 p psi` [N m / A] (the sequencer replaces it
     /// with the measured flux linkage's).
     pub torque_constant_nm_per_a: f32,
-    /// q current of the probe pulse [A], the largest the routine asks for
+    /// q current of the probe pulse \[A\], the largest the routine asks for
     /// (keep it within the drive's current limit).
     pub current_a: f32,
     /// Smallest q current of the pulses after the probe, as a fraction of
     /// `current_a` (their current is sized for `accel_time_s`).
     pub min_current_fraction: f32,
-    /// Current vector that aborts the routine [A].
+    /// Current vector that aborts the routine \[A\].
     pub max_current_a: f32,
     /// Speed the pulses accelerate to [rad/s, mechanical]. `None`: the
     /// sequencer uses the flux step's second speed (back-EMF at its
     /// `emf_fraction` of the voltage limit); the routine alone refuses to
     /// start without one ([`CalError::InvalidConfig`]).
     pub speed_target_rad_s: Option<f32>,
-    /// Wanted time from standstill to the target speed [s] (sets the
+    /// Wanted time from standstill to the target speed \[s\] (sets the
     /// current of the pulses after the probe), also the probe's ramp time.
     pub accel_time_s: f32,
-    /// Time after each current change before a run starts [s]: the speed
+    /// Time after each current change before a run starts \[s\]: the speed
     /// estimate's lag settles to the new acceleration (many time constants
     /// of the speed estimate, plus the filter's delay).
     pub settle_s: f32,
-    /// A run adds one row every `window_s` [s].
+    /// A run adds one row every `window_s` \[s\].
     pub window_s: f32,
     /// Time constant of each of the two first-order low-passes the q
-    /// current and the speed go through [s]: smooths the quantisation
+    /// current and the speed go through \[s\]: smooths the quantisation
     /// ripple of the speed estimate of a coarse sensor; a run starts only
     /// after about six of them at speed (0: no filter).
     pub filter_s: f32,
     /// Runs only above this fraction of the target speed; pulse 3 ends
     /// there.
     pub min_speed_fraction: f32,
-    /// Time limit of pulse 3 and of the probe after its ramp [s] (pulses
+    /// Time limit of pulse 3 and of the probe after its ramp \[s\] (pulses
     /// 1 and 2, through zero speed, get twice that).
     pub pulse_timeout_s: f32,
-    /// Time limit of the final stop [s] (then `Done` anyway).
+    /// Time limit of the final stop \[s\] (then `Done` anyway).
     pub stop_timeout_s: f32,
     /// Plausible inertia [kg m^2]: `(min, max)`.
     pub inertia_range_kg_m2: (f32, f32),
@@ -166,8 +166,8 @@ pub struct MechanicsConfig {
 }
 
 impl MechanicsConfig {
-    /// Defaults for a PWM frequency [Hz], a torque constant [N m / A], a
-    /// probe current and an abort current [A] and a target speed [rad/s]:
+    /// Defaults for a PWM frequency \[Hz\], a torque constant [N m / A], a
+    /// probe current and an abort current \[A\] and a target speed [rad/s]:
     /// 120 ms to the target speed, 25 ms settling (about 12
     /// time constants of an 80 Hz speed estimate), a 2 ms filter, a row
     /// every 4 ms above 20 % of the target speed, 0.6 s per pulse, 0.5 s to
@@ -426,7 +426,7 @@ pub struct MechanicalId {
     n: u32,
     /// A closed-loop feedback has been seen.
     started: bool,
-    /// q current of the pulse running (1 to 3) [A].
+    /// q current of the pulse running (1 to 3) \[A\].
     i1_a: f32,
     /// Probe: period the speed first passed half the target.
     half_at: Option<u32>,
@@ -939,7 +939,7 @@ mod tests {
         panic!("routine did not finish");
     }
 
-    /// (body, probe current [A], target speed [rad/s]): a light fast
+    /// (body, probe current \[A\], target speed [rad/s]): a light fast
     /// rotor, a heavy one with large friction, and a light one that the
     /// test current accelerates in a few milliseconds.
     fn motors() -> [(Body, f32, f32); 3] {

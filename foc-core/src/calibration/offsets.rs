@@ -31,9 +31,9 @@ use crate::sqrtf;
 pub struct OffsetLimits {
     /// Samples to average (e.g. 1024 PWM periods); at least 1.
     pub samples: u32,
-    /// Largest acceptable offset [A] per phase (finite, `> 0`).
+    /// Largest acceptable offset \[A\] per phase (finite, `> 0`).
     pub max_offset_a: f32,
-    /// Largest acceptable standard deviation [A] per phase (finite, `> 0`).
+    /// Largest acceptable standard deviation \[A\] per phase (finite, `> 0`).
     pub max_noise_a: f32,
 }
 
@@ -71,7 +71,7 @@ pub enum OffsetError {
 pub enum OffsetStep {
     /// More samples needed.
     InProgress,
-    /// Offsets [A] to pass to `CurrentSense::set_offsets_a` (always
+    /// Offsets \[A\] to pass to `CurrentSense::set_offsets_a` (always
     /// finite, each within `max_offset_a`).
     Done(Abc),
     /// Rejected.
@@ -100,7 +100,7 @@ impl OffsetCalibrator {
         }
     }
 
-    /// Feed one reading [A] (taken with zero offsets, bridge off). Once
+    /// Feed one reading \[A\] (taken with zero offsets, bridge off). Once
     /// done or failed, the same result is returned for every later call.
     pub fn step(&mut self, reading: Abc) -> OffsetStep {
         if let Some(d) = self.done {

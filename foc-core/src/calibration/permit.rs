@@ -15,8 +15,8 @@
 //! counts them as rejected) and allows only `Disable` and `OpenLoop`, which
 //! the calibration itself needs. The only way to unlock the closed-loop
 //! modes is to hand the stage a `Calibrated`:
-//! [`CurrentStage::set_calibration`], [`Cascade::set_calibration`],
-//! [`Calibrated::apply_to`] or [`CalibratedCascade::new`]. Overwriting the
+//! [`CurrentStage::set_calibration`](crate::control::stage::CurrentStage::set_calibration), [`Cascade::set_calibration`](crate::drive::cascade::Cascade::set_calibration),
+//! [`Calibrated::apply_to`] or [`CalibratedCascade::new`](crate::drive::cascade::CalibratedCascade::new). Overwriting the
 //! angle calibration or the current-loop configuration by hand
 //! (`set_angle_calibration`, `set_current_config`) locks them again.
 //!

@@ -80,35 +80,35 @@ use crate::frames::Dq;
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct ResistanceConfig {
-    /// PWM (step) period [s].
+    /// PWM (step) period \[s\].
     pub ts_s: f32,
-    /// High test current [A] (the d current at the second level).
+    /// High test current \[A\] (the d current at the second level).
     pub current_a: f32,
     /// Low level as a fraction of `current_a` (e.g. 0.5).
     pub low_fraction: f32,
-    /// Largest open-loop voltage [V] (also limited by the bus).
+    /// Largest open-loop voltage \[V\] (also limited by the bus).
     pub max_voltage_v: f32,
-    /// Current vector that aborts the routine [A].
+    /// Current vector that aborts the routine \[A\].
     pub max_current_a: f32,
     /// Approach rate of the current to its target [rad/s].
     pub loop_bandwidth_rad_s: f32,
     /// Fastest voltage change [V/s] (and the ramp before current flows).
     pub ramp_v_per_s: f32,
-    /// Time inside the 3 % band before averaging [s].
+    /// Time inside the 3 % band before averaging \[s\].
     pub settle_s: f32,
-    /// Averaging time per level [s].
+    /// Averaging time per level \[s\].
     pub average_s: f32,
-    /// Time limit per level (and per rest) [s].
+    /// Time limit per level (and per rest) \[s\].
     pub level_timeout_s: f32,
     /// Largest spread of the three resistances, as a fraction of their mean.
     pub imbalance_tolerance: f32,
-    /// Largest angle between measured current and commanded angle [rad].
+    /// Largest angle between measured current and commanded angle \[rad\].
     pub max_angle_error_rad: f32,
 }
 
 impl ResistanceConfig {
-    /// Defaults for a PWM frequency, a test current [A] and a voltage
-    /// limit [V]: low level at half the current, 30 rad/s approach, 10 V/s
+    /// Defaults for a PWM frequency, a test current \[A\] and a voltage
+    /// limit \[V\]: low level at half the current, 30 rad/s approach, 10 V/s
     /// ramp, 50 ms settle, 50 ms averaging, 2 s per level, 10 % imbalance,
     /// 40 degree angle tolerance, abort at 1.5 times the test current.
     pub fn new(pwm_frequency_hz: f32, current_a: f32, max_voltage_v: f32) -> Self {
@@ -151,18 +151,18 @@ impl ResistanceConfig {
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct ResistanceResult {
-    /// Phase resistance [ohm] (mean of the three angles).
+    /// Phase resistance \[ohm\] (mean of the three angles).
     pub r_ohm: f32,
-    /// Resistance at 0, 120 and 240 electrical degrees [ohm].
+    /// Resistance at 0, 120 and 240 electrical degrees \[ohm\].
     pub r_per_angle_ohm: [f32; 3],
-    /// Mean intercept `v - R i` at the test currents [V] (dead-time drop).
+    /// Mean intercept `v - R i` at the test currents \[V\] (dead-time drop).
     pub v_offset_v: f32,
 }
 
 /// Weight of a new sample in the decision filter (16-period time constant).
 const FILTER: f32 = 1.0 / 16.0;
 
-/// Largest change of the sensor reading [turns] over a level's settling and
+/// Largest change of the sensor reading \[turns\] over a level's settling and
 /// averaging (1/2048 turn: two counts of a 4096-count encoder, eight of a
 /// 16384-count one, so a count of jitter or noise does not restart it).
 pub const STILL_TURNS: f32 = 1.0 / 2048.0;

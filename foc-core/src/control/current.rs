@@ -96,7 +96,7 @@ use crate::{sqrtf, transforms, trig, FRAC_1_SQRT_3};
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct CurrentLoopConfig {
-    /// Loop period = PWM period [s].
+    /// Loop period = PWM period \[s\].
     pub ts_s: f32,
     /// d-axis PI gains.
     pub d_gains: CurrentPiGains,
@@ -154,15 +154,15 @@ impl CurrentLoopConfig {
 /// Inputs of one current-loop step.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct CurrentLoopInput {
-    /// Phase currents [A].
+    /// Phase currents \[A\].
     pub i_abc_a: Abc,
     /// Electrical angle of the rotor d axis.
     pub theta_e: ElectricalAngle,
     /// Electrical angular velocity [rad/s] (for decoupling).
     pub omega_e_rad_s: f32,
-    /// Measured bus voltage [V].
+    /// Measured bus voltage \[V\].
     pub v_bus_v: f32,
-    /// Current reference [A].
+    /// Current reference \[A\].
     pub i_dq_ref_a: Dq,
 }
 
@@ -171,11 +171,11 @@ pub struct CurrentLoopInput {
 pub struct CurrentLoopOutput {
     /// Duties for phases A, B, C in `[0, 1]`.
     pub duties: [f32; 3],
-    /// Measured currents in the dq frame [A].
+    /// Measured currents in the dq frame \[A\].
     pub i_dq_a: Dq,
-    /// Commanded dq voltage [V] (after the circle limit).
+    /// Commanded dq voltage \[V\] (after the circle limit).
     pub v_dq_v: Dq,
-    /// Commanded alpha/beta voltage [V].
+    /// Commanded alpha/beta voltage \[V\].
     pub v_ab_v: AlphaBeta,
     /// Modulator report (sector, times, saturation, validity).
     pub svpwm: SvpwmOutput,
@@ -194,7 +194,7 @@ pub struct CurrentLoop {
     config: CurrentLoopConfig,
     pi_d: Pi,
     pi_q: Pi,
-    /// `delay_compensation_periods * ts_s` [s] (0 when that is not finite):
+    /// `delay_compensation_periods * ts_s` \[s\] (0 when that is not finite):
     /// the voltage angle's advance per rad/s of `w_e`.
     advance_s: f32,
     /// `ki * ts` of the d and q PIs (see [`Pi::ki_ts`]).
@@ -293,7 +293,7 @@ impl CurrentLoop {
         self.pi_q.preload(v_dq_v.q - ff.q);
     }
 
-    /// Integrator values [V] (d, q).
+    /// Integrator values \[V\] (d, q).
     pub fn integrators(&self) -> Dq {
         Dq::new(self.pi_d.state.integral, self.pi_q.state.integral)
     }
@@ -634,11 +634,11 @@ mod tests {
     struct StepFigures {
         /// Periods on the voltage limit from the step on.
         saturated: usize,
-        /// 2 % settling of the stepped axis [periods].
+        /// 2 % settling of the stepped axis \[periods\].
         settling: usize,
         /// Overshoot of the stepped axis [% of the step].
         overshoot_pct: f32,
-        /// Largest current on the other axis [A].
+        /// Largest current on the other axis \[A\].
         other_max_a: f32,
     }
 

@@ -65,7 +65,7 @@ pub const OBSERVER_DISTURBANCE_POLE_RAD_S: f32 = 2.0 * core::f32::consts::PI * 2
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct AngleTrackerConfig {
-    /// Update period [s].
+    /// Update period \[s\].
     pub ts_s: f32,
     /// Proportional gain [1/s].
     pub kp_per_s: f32,
@@ -127,7 +127,7 @@ impl AngleTracker {
     }
 
     /// Feed one reading. Returns the signed innovation
-    /// `theta_meas - theta_pred` [rad] (0 for the first reading).
+    /// `theta_meas - theta_pred` \[rad\] (0 for the first reading).
     pub fn update(&mut self, theta_meas: MechanicalAngle) -> f32 {
         if !self.primed {
             self.theta_est = theta_meas;
@@ -176,7 +176,7 @@ impl AngleTracker {
         self.position
     }
 
-    /// Last innovation magnitude [rad].
+    /// Last innovation magnitude \[rad\].
     pub fn innovation_rad(&self) -> f32 {
         self.innovation_rad
     }
@@ -186,7 +186,7 @@ impl AngleTracker {
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct SpeedObserverConfig {
-    /// Update period [s].
+    /// Update period \[s\].
     pub ts_s: f32,
     /// Angle gain [1/s].
     pub k1_per_s: f32,
@@ -342,7 +342,7 @@ impl SpeedObserver {
         self.config = config;
     }
 
-    /// Feed one reading [rad, mechanical] and the q current [A] that drove
+    /// Feed one reading [rad, mechanical] and the q current \[A\] that drove
     /// the rotor over the last period (a non-finite value counts as 0).
     #[inline]
     pub fn update(&mut self, theta_meas: MechanicalAngle, iq_a: f32) {

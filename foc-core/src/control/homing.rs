@@ -48,18 +48,18 @@ pub enum HomingMethod {
 pub struct EndStop {
     /// Search velocity [rad/s]: its sign is the direction (non-zero).
     pub velocity_rad_s: f32,
-    /// Homing current [A] (> 0, at most the current limit): the most the
+    /// Homing current \[A\] (> 0, at most the current limit): the most the
     /// stop is pressed with.
     pub current_a: f32,
     /// Fraction of the homing current that, held with the rotor still,
     /// means the stop is reached (in (0, 1)); it must be well above the
     /// friction's share of the homing current.
     pub detect_fraction: f32,
-    /// How long the stop must be held to count [s] (>= 0).
+    /// How long the stop must be held to count \[s\] (>= 0).
     pub confirm_s: f32,
-    /// Distance to back off from the stop [rad] (> 0).
+    /// Distance to back off from the stop \[rad\] (> 0).
     pub backoff_rad: f32,
-    /// Longest search [rad] before giving up (> 0).
+    /// Longest search \[rad\] before giving up (> 0).
     pub max_travel_rad: f32,
 }
 
@@ -84,7 +84,7 @@ pub enum HomingStep {
     Post(Command),
     /// Keep going.
     Running,
-    /// Homed: the rotor position [rad] that is home (the stop, or the
+    /// Homed: the rotor position \[rad\] that is home (the stop, or the
     /// present position); the last command posted holds the rotor.
     Done {
         /// Rotor position of the home point [rad, rotor].
@@ -115,18 +115,18 @@ enum Sequence {
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Homing {
     method: HomingMethod,
-    /// Current-loop period [s].
+    /// Current-loop period \[s\].
     period_s: f32,
     kt_nm_per_a: f32,
     phase: Sequence,
     /// `Feedback::period` of the last step.
     last_period: Option<u32>,
-    /// Time since the last step [s].
+    /// Time since the last step \[s\].
     dt_s: f32,
 }
 
 impl EndStop {
-    /// Longest search [s].
+    /// Longest search \[s\].
     fn max_search_s(&self) -> f32 {
         2.0 * self.max_travel_rad / self.velocity_rad_s.abs() + 2.0
     }
@@ -186,7 +186,7 @@ impl EndStop {
 
 impl Homing {
     /// A sequencer for a motor of torque constant `kt` [N m/A] and a
-    /// current-loop period `period_s` [s] (the unit of
+    /// current-loop period `period_s` \[s\] (the unit of
     /// [`Feedback::period`]), its settings checked against `limits`.
     pub fn new(
         method: HomingMethod,

@@ -102,11 +102,11 @@ impl OutputFrame {
         Self::new(self.gear_ratio, rotor_rad - self.gear_ratio * output_rad)
     }
 
-    /// Rotor position [rad] -> output position [rad].
+    /// Rotor position \[rad\] -> output position \[rad\].
     pub fn position_to_output(&self, rotor_rad: f32) -> f32 {
         (rotor_rad - self.rotor_at_zero_rad) / self.gear_ratio
     }
-    /// Output position [rad] -> rotor position [rad].
+    /// Output position \[rad\] -> rotor position \[rad\].
     pub fn position_to_rotor(&self, output_rad: f32) -> f32 {
         self.rotor_at_zero_rad + self.gear_ratio * output_rad
     }
@@ -134,7 +134,7 @@ impl OutputFrame {
     pub fn stiffness_to_output(&self, rotor_nm_per_rad: f32) -> f32 {
         rotor_nm_per_rad * self.gear_ratio * self.gear_ratio
     }
-    /// An output range `[lo, hi]` [rad] as a rotor range, ordered.
+    /// An output range `[lo, hi]` \[rad\] as a rotor range, ordered.
     pub fn range_to_rotor(&self, lo_out: f32, hi_out: f32) -> (f32, f32) {
         let (a, b) = (
             self.position_to_rotor(lo_out),
@@ -244,7 +244,7 @@ impl From<Impedance> for Command {
 pub struct ImpedanceLaw {
     /// Position reference [rad, rotor], advanced by `v_ref * ts` each period.
     pub p_ref_rad: f32,
-    /// Its advance per period [rad].
+    /// Its advance per period \[rad\].
     pub p_step_rad: f32,
     /// Velocity reference [rad/s, rotor].
     pub v_ref_rad_s: f32,
@@ -252,9 +252,9 @@ pub struct ImpedanceLaw {
     pub kp_a_per_rad: f32,
     /// `kd / kt` [A s/rad].
     pub kd_a_s_per_rad: f32,
-    /// `T_ff / kt` [A].
+    /// `T_ff / kt` \[A\].
     pub iq_ff_a: f32,
-    /// `T_max / kt` [A].
+    /// `T_max / kt` \[A\].
     pub iq_max_a: f32,
     /// Position range the reference stays in [rad, rotor].
     pub p_min_rad: f32,
@@ -284,7 +284,7 @@ impl ImpedanceLaw {
         }
     }
 
-    /// One period: the q current [A] for the measured position and velocity
+    /// One period: the q current \[A\] for the measured position and velocity
     /// (within the law's torque limit), then the reference advanced (kept
     /// in the range).
     #[inline(always)]
@@ -304,7 +304,7 @@ impl ImpedanceLaw {
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct TravelConfig {
-    /// Beyond the range by more than this [rad]: [`Fault::TravelLimit`](super::Fault::TravelLimit).
+    /// Beyond the range by more than this \[rad\]: [`Fault::TravelLimit`](super::Fault::TravelLimit).
     pub fault_margin_rad: f32,
     /// Deceleration the soft stop brakes with [rad/s^2] (> 0).
     pub brake_accel_rad_s2: f32,
@@ -348,7 +348,7 @@ impl TravelConfig {
             && pos(self.kv_a_per_rad_s)
     }
 
-    /// The q-current window [A] that brakes the rotor to the range's ends:
+    /// The q-current window \[A\] that brakes the rotor to the range's ends:
     /// towards an end at distance `d` the velocity allowed is
     /// `sqrt(2 a d)` (negative beyond it: back inside), and the current
     /// may not push harder than `kv (v_allowed - v)` asks, less the
@@ -428,7 +428,7 @@ impl JointConfig {
         }
     }
 
-    /// Longest entry blend [periods] (about a minute at 20 kHz): beyond
+    /// Longest entry blend \[periods\] (about a minute at 20 kHz): beyond
     /// 2^24 the f32 weight's step would round to nothing and the blend
     /// would never end.
     pub const MAX_ENTRY_BLEND_PERIODS: u32 = 1 << 20;

@@ -12,7 +12,7 @@
 //!
 //! Everything that crosses between stages is a small `Copy` value, so the
 //! firmware can run the stages as separate prioritised tasks sharing those
-//! values, and the simulator can step them deterministically ([`cascade::Cascade`]
+//! values, and the simulator can step them deterministically ([`Cascade`](crate::drive::cascade::Cascade)
 //! does exactly what the firmware does, in the same order: current stage,
 //! then the speed stage, then the position stage).
 //!
@@ -138,13 +138,13 @@ pub enum Refusal {
 pub struct MotorParams {
     /// Pole pairs `p` (`theta_e = p theta_m`).
     pub pole_pairs: u8,
-    /// Phase resistance [ohm].
+    /// Phase resistance \[ohm\].
     pub r_ohm: f32,
-    /// d-axis inductance [H].
+    /// d-axis inductance \[H\].
     pub ld_h: f32,
-    /// q-axis inductance [H].
+    /// q-axis inductance \[H\].
     pub lq_h: f32,
-    /// Permanent-magnet flux linkage `psi` [Wb] (peak, per phase).
+    /// Permanent-magnet flux linkage `psi` \[Wb\] (peak, per phase).
     pub flux_linkage_wb: f32,
 }
 
@@ -160,7 +160,7 @@ impl MotorParams {
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Rates {
-    /// PWM (= current-loop) frequency [Hz].
+    /// PWM (= current-loop) frequency \[Hz\].
     pub pwm_frequency_hz: f32,
     /// Speed loop every N current-loop periods (>= 1).
     pub speed_divider: u16,
@@ -185,15 +185,15 @@ impl Rates {
             position_divider: div(1_000.0),
         }
     }
-    /// Current-loop period [s].
+    /// Current-loop period \[s\].
     pub fn current_ts_s(&self) -> f32 {
         1.0 / self.pwm_frequency_hz
     }
-    /// Speed-loop period [s].
+    /// Speed-loop period \[s\].
     pub fn speed_ts_s(&self) -> f32 {
         self.speed_divider.max(1) as f32 / self.pwm_frequency_hz
     }
-    /// Position-loop period [s].
+    /// Position-loop period \[s\].
     pub fn position_ts_s(&self) -> f32 {
         self.position_divider.max(1) as f32 / self.pwm_frequency_hz
     }
@@ -224,9 +224,9 @@ pub enum Mode {
 pub enum Command {
     /// Bridge off.
     Disable,
-    /// q-current reference [A] with `id = 0` (design §6).
+    /// q-current reference \[A\] with `id = 0` (design §6).
     Torque {
-        /// q-axis current [A].
+        /// q-axis current \[A\].
         iq_a: f32,
     },
     /// Velocity reference [rad/s].
@@ -234,16 +234,16 @@ pub enum Command {
         /// Mechanical velocity [rad/s].
         rad_s: f32,
     },
-    /// Move to an absolute mechanical position [rad] along a trapezoid.
+    /// Move to an absolute mechanical position \[rad\] along a trapezoid.
     Position {
-        /// Target position [rad].
+        /// Target position \[rad\].
         rad: f32,
     },
     /// Open-loop dq voltage at `theta_e`, rotating at `omega_e_rad_s`.
     OpenLoop {
-        /// d-axis voltage [V].
+        /// d-axis voltage \[V\].
         v_d_v: f32,
-        /// q-axis voltage [V].
+        /// q-axis voltage \[V\].
         v_q_v: f32,
         /// Starting electrical angle.
         theta_e: ElectricalAngle,
@@ -343,7 +343,7 @@ fn within(x: f32, limit: f32) -> bool {
 }
 
 /// Whether the current stage takes `cmd` now: the one rule every command
-/// path applies (the stage itself, [`cascade::Cascade::command`] and the
+/// path applies (the stage itself, [`Cascade::command`](crate::drive::cascade::Cascade::command) and the
 /// command protocol, through `drive::Status::check_command`).
 ///
 /// In order: the values against `limits` ([`Command::validate`]); while a
@@ -399,7 +399,7 @@ pub enum CommandError {
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Limits {
-    /// Largest q-current reference [A] (also the speed loop's output limit).
+    /// Largest q-current reference \[A\] (also the speed loop's output limit).
     pub max_current_a: f32,
     /// Largest velocity [rad/s, mechanical].
     pub max_velocity_rad_s: f32,
@@ -407,7 +407,7 @@ pub struct Limits {
     pub min_position_rad: f32,
     /// Position range [rad, mechanical].
     pub max_position_rad: f32,
-    /// Largest open-loop voltage magnitude [V].
+    /// Largest open-loop voltage magnitude \[V\].
     pub max_open_loop_voltage_v: f32,
     /// Largest open-loop electrical speed [rad/s].
     pub max_open_loop_omega_e_rad_s: f32,
@@ -523,7 +523,7 @@ pub struct Feedback {
     pub mode: Mode,
     /// Active command (after validation, timeout reaction and faults).
     pub active: Command,
-    /// Multi-turn mechanical position [rad].
+    /// Multi-turn mechanical position \[rad\].
     pub position_rad: f32,
     /// Estimated mechanical velocity [rad/s] (the speed observer's, design
     /// §19).
@@ -534,13 +534,13 @@ pub struct Feedback {
     pub disturbance_rad_s2: f32,
     /// Electrical angle used this period.
     pub theta_e: ElectricalAngle,
-    /// Measured dq currents [A].
+    /// Measured dq currents \[A\].
     pub i_dq_a: Dq,
-    /// dq current reference [A].
+    /// dq current reference \[A\].
     pub i_dq_ref_a: Dq,
-    /// Commanded dq voltage [V].
+    /// Commanded dq voltage \[V\].
     pub v_dq_v: Dq,
-    /// Bus voltage [V].
+    /// Bus voltage \[V\].
     pub v_bus_v: f32,
     /// Duties applied (centred when in the safe state).
     pub duties: [f32; 3],
@@ -550,7 +550,7 @@ pub struct Feedback {
     pub first_fault: Option<Fault>,
     /// Voltage limit active.
     pub voltage_limited: bool,
-    /// The current stage's q-current limit in force [A] (the command
+    /// The current stage's q-current limit in force \[A\] (the command
     /// limit; lower during an identification): the speed stage keeps its
     /// output, and so its anti-windup, within it.
     pub current_limit_a: f32,

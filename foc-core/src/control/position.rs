@@ -22,7 +22,7 @@ use crate::clamp;
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct PositionLoopConfig {
-    /// Loop period [s].
+    /// Loop period \[s\].
     pub ts_s: f32,
     /// Proportional gain [(rad/s) / rad].
     pub kp_per_s: f32,
@@ -85,12 +85,12 @@ impl PositionLoop {
         self.start_move(r.position, r.velocity, target);
     }
 
-    /// Current target [rad].
+    /// Current target \[rad\].
     pub fn target(&self) -> f32 {
         self.traj.target()
     }
 
-    /// q-current feed-forward [A] for the last reference's acceleration.
+    /// q-current feed-forward \[A\] for the last reference's acceleration.
     pub fn current_feed_forward_a(&self) -> f32 {
         let ff = self.config.accel_ff_a_per_rad_s2 * self.last_ref.acceleration;
         if ff.is_finite() {
@@ -110,7 +110,7 @@ impl PositionLoop {
         self.t_s >= self.traj.duration_s()
     }
 
-    /// One step: measured position [rad] in, velocity reference [rad/s] out.
+    /// One step: measured position \[rad\] in, velocity reference [rad/s] out.
     /// A non-finite measurement gives the feed-forward alone.
     pub fn step(&mut self, p_meas_rad: f32) -> f32 {
         let r = self.traj.sample(self.t_s);

@@ -51,13 +51,13 @@ pub const REFERENCE_BANDWIDTH_RATIO: f32 = 1.0;
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct SpeedLoopConfig {
-    /// Loop period [s] (PWM period times the speed divider).
+    /// Loop period \[s\] (PWM period times the speed divider).
     pub ts_s: f32,
     /// Proportional gain [A / (rad/s)].
     pub kp_a_per_rad_s: f32,
     /// Integral gain [A / rad].
     pub ki_a_per_rad: f32,
-    /// q-current limit [A] (symmetric).
+    /// q-current limit \[A\] (symmetric).
     pub current_limit_a: f32,
     /// Anti-windup strategy.
     pub anti_windup: AntiWindup,
@@ -172,7 +172,7 @@ impl SpeedLoop {
 
     /// One step with the reference model (module docs): the reference
     /// `w_ref_rad_s` and the estimate [rad/s, mechanical], the model's
-    /// acceleration within what `limit_a` [A] gives (and the configured
+    /// acceleration within what `limit_a` \[A\] gives (and the configured
     /// limit), the output held within `[min_a, max_a]` as in
     /// [`Self::step_in`]. Without a model configured it is
     /// [`Self::step_in`] with no feed-forward. A non-finite reference
@@ -238,7 +238,7 @@ impl SpeedLoop {
         out
     }
 
-    /// The current that cancels the observer's disturbance [A]: `-J/kt d`
+    /// The current that cancels the observer's disturbance \[A\]: `-J/kt d`
     /// (a load torque `T_L` shows as `d = -T_L / J`: `T_L / kt`); 0 when
     /// not finite or without a feed-forward gain.
     #[inline]
@@ -270,14 +270,14 @@ impl SpeedLoop {
     }
 
     /// One step: speed reference and estimate [rad/s, mechanical], torque
-    /// feed-forward as a q current [A]. Returns the q-current reference [A]
+    /// feed-forward as a q current \[A\]. Returns the q-current reference \[A\]
     /// within the current limit; non-finite inputs give the last integrator
     /// value (state unchanged).
     pub fn step(&mut self, w_ref_rad_s: f32, w_est_rad_s: f32, iq_ff_a: f32) -> f32 {
         self.step_within(w_ref_rad_s, w_est_rad_s, iq_ff_a, f32::INFINITY)
     }
 
-    /// As [`Self::step`] with the output held within `limit_a` [A] as well
+    /// As [`Self::step`] with the output held within `limit_a` \[A\] as well
     /// as the configured limit (the smaller wins; the integrator's
     /// anti-windup works against it). A NaN `limit_a` is ignored.
     pub fn step_within(
@@ -290,7 +290,7 @@ impl SpeedLoop {
         self.step_in(w_ref_rad_s, w_est_rad_s, iq_ff_a, -limit_a, limit_a)
     }
 
-    /// As [`Self::step`] with the output held within `[min_a, max_a]` [A]
+    /// As [`Self::step`] with the output held within `[min_a, max_a]` \[A\]
     /// (an asymmetric window: the power limits of design §18 may cut
     /// regeneration and not motoring) as well as the configured limit;
     /// the integrator's anti-windup works against it. `min_a` above 0,
@@ -359,7 +359,7 @@ mod tests {
 
     /// A rigid rotor with Coulomb friction behind a current loop of a few
     /// periods' lag, the speed measured exactly: (largest speed [rad/s],
-    /// largest output [A]).
+    /// largest output \[A\]).
     fn step_response(limit_a: f32, w_ref: f32) -> (f32, f32) {
         let (j, kt, ts) = (2e-5f32, 0.05f32, 1e-3f32);
         let mut s = SpeedLoop::new(SpeedLoopConfig::from_bandwidth(j, kt, 150.0, ts, limit_a));

@@ -173,18 +173,18 @@ impl FaultSet {
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct SupervisorConfig {
-    /// Per-phase current limit [A].
+    /// Per-phase current limit \[A\].
     pub max_phase_current_a: f32,
-    /// Current-vector magnitude limit (`|i_alpha_beta|`) [A].
+    /// Current-vector magnitude limit (`|i_alpha_beta|`) \[A\].
     pub max_vector_current_a: f32,
-    /// Bus over-voltage threshold [V].
+    /// Bus over-voltage threshold \[V\].
     pub bus_over_voltage_v: f32,
-    /// Bus under-voltage threshold [V].
+    /// Bus under-voltage threshold \[V\].
     pub bus_under_voltage_v: f32,
-    /// Largest tolerated `|ia + ib + ic|` with three shunts [A].
+    /// Largest tolerated `|ia + ib + ic|` with three shunts \[A\].
     pub max_current_sum_a: f32,
     /// Largest tolerated difference between the angle reading and the
-    /// tracked (predicted) mechanical angle [rad].
+    /// tracked (predicted) mechanical angle \[rad\].
     pub max_angle_innovation_rad: f32,
     /// Largest tolerated change of that difference from one period to the
     /// next, in *electrical* radians: a slipping or jumping sensor moves it
@@ -202,7 +202,7 @@ pub struct SupervisorConfig {
     /// Over-speed limit [rad/s, mechanical] on the tracked speed
     /// ([`Fault::OverSpeed`]).
     pub max_speed_rad_s: f32,
-    /// Runaway window [periods] ([`Fault::SpeedRunaway`]); 0 disables.
+    /// Runaway window \[periods\] ([`Fault::SpeedRunaway`]); 0 disables.
     pub runaway_periods: u32,
     /// Runaway band [rad/s]: speed errors below it never count.
     pub runaway_band_rad_s: f32,
@@ -211,7 +211,7 @@ pub struct SupervisorConfig {
     /// identified model may be from the motor, and the trip count.
     pub model: ModelTolerances,
     /// The slower back-up ([`Fault::CurrentSenseError`]): the current
-    /// loop's tracking error `|i_dq_ref - i_dq|` [A] above which a period
+    /// loop's tracking error `|i_dq_ref - i_dq|` \[A\] above which a period
     /// counts. Periods on the voltage limit never count: there the loop
     /// cannot follow its reference (the back-EMF, or the `L di/dt` a large
     /// inductance needs while it slews, takes the voltage).
@@ -228,7 +228,7 @@ pub struct SupervisorConfig {
     /// (`sqrt(2 count J / (kt I))`), and than one count at
     /// [`Self::stuck_min_speed_rad_s`] for coarse sensors (halls).
     pub stuck_periods: u32,
-    /// q-current demand [A] (magnitude) above which a still reading counts.
+    /// q-current demand \[A\] (magnitude) above which a still reading counts.
     pub stuck_current_a: f32,
     /// Velocity mode: smallest commanded speed [rad/s, mechanical] that
     /// counts as commanded motion.
@@ -302,13 +302,13 @@ impl SupervisorConfig {
 /// Measurements the supervisor checks in one current-loop period.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Checks {
-    /// Phase currents [A] (third derived with two shunts).
+    /// Phase currents \[A\] (third derived with two shunts).
     pub i_abc_a: Abc,
     /// Measured `ia + ib + ic` with three shunts, `None` with two.
     pub measured_sum_a: Option<f32>,
-    /// `|i_alpha_beta|` [A].
+    /// `|i_alpha_beta|` \[A\].
     pub vector_current_a: f32,
-    /// Bus voltage [V].
+    /// Bus voltage \[V\].
     pub v_bus_v: f32,
     /// `|theta_measured - theta_predicted|` [rad, mechanical].
     pub angle_innovation_rad: f32,

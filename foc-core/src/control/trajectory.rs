@@ -21,7 +21,7 @@ use crate::{clamp, sqrtf};
 /// A point of the profile.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct TrajectoryPoint {
-    /// Position [rad].
+    /// Position \[rad\].
     pub position: f32,
     /// Velocity [rad/s].
     pub velocity: f32,
@@ -118,12 +118,12 @@ impl Trapezoid {
         }
     }
 
-    /// Total duration [s].
+    /// Total duration \[s\].
     pub fn duration_s(&self) -> f32 {
         self.t_end
     }
 
-    /// Target position [rad].
+    /// Target position \[rad\].
     pub fn target(&self) -> f32 {
         self.target
     }

@@ -48,7 +48,7 @@
 
 use crate::frames::Dq;
 
-/// Time constant of the averages [s]: the detection takes a few of them.
+/// Time constant of the averages \[s\]: the detection takes a few of them.
 pub const TIME_CONSTANT_S: f32 = 0.05;
 
 /// Share of the voltage an unbalanced current needs (`(R + w L) |i|`)
@@ -60,7 +60,7 @@ pub const TOLERANCE: f32 = 0.1;
 /// Consecutive periods over the threshold that trip.
 pub const TRIP_PERIODS: u16 = 16;
 
-/// This period's bounds, all [V].
+/// This period's bounds, all \[V\].
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Limits {
     /// Largest balanced (steady in dq) voltage error a healthy drive has:
@@ -83,23 +83,23 @@ pub struct Limits {
 pub struct Unbalance {
     gamma: f32,
     ts_s: f32,
-    /// Average of the error turned by `theta` (the stationary frame) [V].
+    /// Average of the error turned by `theta` (the stationary frame) \[V\].
     z1: Dq,
-    /// Average of the error turned by `2 theta` [V].
+    /// Average of the error turned by `2 theta` \[V\].
     z2: Dq,
     count: u16,
     /// Mean square of the innovation [V^2] (None: not started).
     var_v2: Option<f32>,
     /// The thresholds, held: each is this period's or the last one's
     /// decayed at the averages' own rate, whichever is larger (an average
-    /// forgets a slow period's balanced error only at that rate) [V].
+    /// forgets a slow period's balanced error only at that rate) \[V\].
     th: (f32, f32),
     /// Largest `|z| / threshold` seen, squared.
     peak_sq: f32,
 }
 
 impl Unbalance {
-    /// For a control period of `ts_s` [s].
+    /// For a control period of `ts_s` \[s\].
     pub fn new(ts_s: f32) -> Self {
         let g = ts_s / TIME_CONSTANT_S;
         Self {

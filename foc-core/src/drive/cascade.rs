@@ -430,7 +430,7 @@ impl Cascade {
         self.output.as_ref()
     }
 
-    /// Offsets [A] the last step asked to install in the current sensing.
+    /// Offsets \[A\] the last step asked to install in the current sensing.
     pub fn take_offsets(&mut self) -> Option<Abc> {
         self.output.as_mut().and_then(|o| o.offsets_a.take())
     }
@@ -489,7 +489,7 @@ impl Cascade {
         &self.feedback
     }
 
-    /// The q-current reference from the speed stage [A].
+    /// The q-current reference from the speed stage \[A\].
     pub fn iq_ref_a(&self) -> f32 {
         self.iq_ref_a
     }

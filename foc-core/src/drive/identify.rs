@@ -51,7 +51,7 @@ pub struct Identifier {
     /// The stage's command limits before the identification (restored at
     /// the end); `None` until the first step.
     saved_limits: Option<Limits>,
-    /// Current limit during the identification [A]: inside the routines'
+    /// Current limit during the identification \[A\]: inside the routines'
     /// own over-current bound (twice the test current).
     current_limit_a: f32,
     /// This identification's provisional permit is installed (flux and

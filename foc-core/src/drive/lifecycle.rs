@@ -79,7 +79,7 @@ pub struct LifecycleConfig {
 pub struct Inputs<'a> {
     /// The operator's command mailbox.
     pub command: CommandSlot,
-    /// q-current reference from the speed stage [A].
+    /// q-current reference from the speed stage \[A\].
     pub iq_ref_a: f32,
     /// A configuration change to apply at this period's start.
     pub change: Option<&'a ConfigChange>,
@@ -103,7 +103,7 @@ impl Inputs<'_> {
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum Event {
-    /// Offsets measured and installed [A].
+    /// Offsets measured and installed \[A\].
     OffsetsDone(Abc),
     /// The offset calibration rejected the readings (fault latched).
     OffsetsFailed(OffsetError),
@@ -131,7 +131,7 @@ pub enum Event {
 pub struct Output {
     /// What the bridge must do.
     pub bridge: BridgeCommand,
-    /// Install these current-sense offsets [A] now.
+    /// Install these current-sense offsets \[A\] now.
     pub offsets_a: Option<Abc>,
     /// Run the speed stage after this period.
     pub run_speed: bool,
@@ -258,7 +258,7 @@ impl Lifecycle {
         self.phase
     }
 
-    /// The speed and position dividers in force [periods].
+    /// The speed and position dividers in force \[periods\].
     pub fn dividers(&self) -> (u32, u32) {
         (self.speed.divider, self.position.divider)
     }

@@ -19,7 +19,7 @@ use crate::hal::{AngleSensor, BrakeOutput, BusVoltage, CurrentSense, PwmDriver};
 pub struct Mail<'a> {
     /// The operator's command mailbox.
     pub command: CommandSlot,
-    /// q-current reference from the speed stage [A].
+    /// q-current reference from the speed stage \[A\].
     pub iq_ref_a: f32,
     /// The current stage's part of the configuration mailbox: emptied when
     /// it held a change (applied or refused this period).

@@ -92,7 +92,7 @@ pub struct ConfigChange {
     /// calibrated and the values pass the permit's check; otherwise it
     /// revokes the calibration.
     pub current: Option<CurrentLoopConfig>,
-    /// New speed / position dividers [periods] (0 is taken as 1).
+    /// New speed / position dividers \[periods\] (0 is taken as 1).
     pub dividers: Option<(u16, u16)>,
     /// New power limits (design §18): `Some(Some(cfg))` installs them
     /// (sanitized; their motor model is the current loop's; the winding

@@ -23,23 +23,23 @@ pub enum Shunts {
 /// Sensor models.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct SensorConfig {
-    /// ADC resolution [bits] (12 on an STM32F4).
+    /// ADC resolution \[bits\] (12 on an STM32F4).
     pub adc_bits: u8,
-    /// Current ADC range: `-fs .. +fs` maps to `0 .. 2^bits - 1` [A].
+    /// Current ADC range: `-fs .. +fs` maps to `0 .. 2^bits - 1` \[A\].
     pub current_full_scale_a: Real,
-    /// Current-ADC noise, RMS [LSB].
+    /// Current-ADC noise, RMS \[LSB\].
     pub current_noise_lsb_rms: Real,
-    /// Hardware offset of each current channel [A] (what calibration removes).
+    /// Hardware offset of each current channel \[A\] (what calibration removes).
     pub current_offset_a: [Real; 3],
     /// Shunt arrangement.
     pub shunts: Shunts,
     /// Encoder counts per mechanical revolution.
     pub encoder_counts_per_rev: u32,
-    /// Encoder zero relative to the rotor d axis (mechanical) [rad].
+    /// Encoder zero relative to the rotor d axis (mechanical) \[rad\].
     pub encoder_offset_rad: Real,
-    /// Bus-voltage ADC range `0 .. fs` [V].
+    /// Bus-voltage ADC range `0 .. fs` \[V\].
     pub bus_full_scale_v: Real,
-    /// Bus-voltage ADC noise, RMS [LSB].
+    /// Bus-voltage ADC noise, RMS \[LSB\].
     pub bus_noise_lsb_rms: Real,
     /// Seed of the noise generator.
     pub seed: u64,
@@ -87,7 +87,7 @@ pub enum AngleSensorKind {
     /// An absolute sensor (AS5047P-like): reads the true mechanical angle
     /// minus a fixed mounting offset from the first sample.
     Absolute {
-        /// Mechanical angle of the rotor at which the sensor reads 0 [rad].
+        /// Mechanical angle of the rotor at which the sensor reads 0 \[rad\].
         mounting_offset_rad: Real,
     },
 }
@@ -95,15 +95,15 @@ pub enum AngleSensorKind {
 /// Inverter, supply and timing configuration.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct BenchConfig {
-    /// PWM frequency [Hz] (one control period per PWM period).
+    /// PWM frequency \[Hz\] (one control period per PWM period).
     pub pwm_frequency_hz: Real,
     /// RK4 sub-steps per PWM period (8..32 typical).
     pub substeps: u32,
-    /// DC source open-circuit voltage [V].
+    /// DC source open-circuit voltage \[V\].
     pub bus_voltage_v: Real,
-    /// DC source internal resistance [ohm] (the bus sags under load).
+    /// DC source internal resistance \[ohm\] (the bus sags under load).
     pub source_resistance_ohm: Real,
-    /// Dead time per switching edge [s].
+    /// Dead time per switching edge \[s\].
     pub dead_time_s: Real,
     /// Inverter model.
     pub pwm_mode: PwmMode,
@@ -129,7 +129,7 @@ impl Default for BenchConfig {
 }
 
 impl BenchConfig {
-    /// PWM period [s].
+    /// PWM period \[s\].
     pub fn period_s(&self) -> Real {
         1.0 / self.pwm_frequency_hz
     }

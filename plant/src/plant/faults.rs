@@ -32,7 +32,7 @@ pub struct PhaseShort {
     pub a: Phase,
     /// Second phase.
     pub b: Phase,
-    /// Resistance of the short [ohm].
+    /// Resistance of the short \[ohm\].
     pub r_ohm: Real,
 }
 
@@ -58,7 +58,7 @@ pub struct Faults {
     pub phase_short: Option<PhaseShort>,
     /// A phase lead disconnected (its current is zero; the others carry all).
     pub disconnected_phase: Option<Phase>,
-    /// Drop of the source voltage [V].
+    /// Drop of the source voltage \[V\].
     pub bus_sag_v: Real,
     /// Encoder fault.
     pub encoder: EncoderFault,
@@ -68,6 +68,6 @@ pub struct Faults {
     pub nan_current: Option<Phase>,
     /// This current channel is wired with the wrong sign.
     pub current_reversed: Option<Phase>,
-    /// Extra offset on each current channel, e.g. after calibration [A].
+    /// Extra offset on each current channel, e.g. after calibration \[A\].
     pub current_offset_error_a: [Real; 3],
 }

@@ -171,7 +171,7 @@ impl Plant {
         }
     }
 
-    /// Current in the short from leg `a` to leg `b` [A] (0 without a short).
+    /// Current in the short from leg `a` to leg `b` \[A\] (0 without a short).
     pub(super) fn short_current(&self, drives: &[Leg; 3], v_bus: Real) -> Real {
         match self.faults.phase_short {
             Some(s) if s.r_ohm > 0.0 => match (drives[s.a.index()], drives[s.b.index()]) {

@@ -114,32 +114,32 @@ use foc_core::hal::PhaseCurrents;
 /// Axis angles of phases A, B, C.
 const PHASE_AXIS: [Real; 3] = [0.0, TWO_PI_3, -TWO_PI_3];
 
-/// A current below this is zero for the diode model [A].
+/// A current below this is zero for the diode model \[A\].
 const I_ZERO_A: Real = 1e-9;
 
 /// What the controller samples at the period boundary (centre of the zero
 /// vector 000).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Measurements {
-    /// Phase currents [A] as the ADC reads them (quantised, noisy, with the
+    /// Phase currents \[A\] as the ADC reads them (quantised, noisy, with the
     /// hardware offsets: offset calibration is the controller's job).
     pub currents: PhaseCurrents,
     /// Encoder reading.
     pub angle: MechanicalAngle,
-    /// Bus voltage [V] as the ADC reads it.
+    /// Bus voltage \[V\] as the ADC reads it.
     pub v_bus_v: f32,
     /// Power-stage temperature [deg C] as the board's sensor reads it: `Some`
     /// only with the stage thermal model ([`Plant::set_stage_thermal`]).
     /// The bench feeds it to the drive as `Sample::temperature_c` (the bench
     /// adapter's `BusVoltage::read_temperature_c` returns it).
     pub stage_temperature_c: Option<f32>,
-    /// Time of the sample [s].
+    /// Time of the sample \[s\].
     pub time_s: f64,
     /// Index of the period that just ended (0 for the first).
     pub period: u64,
 }
 
-/// Energy integrals since construction (or [`Plant::reset_energy`]) [J].
+/// Energy integrals since construction (or [`Plant::reset_energy`]) \[J\].
 #[derive(Clone, Copy, Debug, PartialEq, Default)]
 pub struct EnergyAccount {
     /// Delivered by the DC bus to the inverter (`V_bus i_dc`).
@@ -213,7 +213,7 @@ pub struct Plant {
     /// Sensor model.
     angle_sensor: AngleSensorKind,
     /// Mechanical angle at which the sensor reads 0 (before
-    /// `encoder_offset_rad`) [rad]: the power-on angle of an incremental
+    /// `encoder_offset_rad`) \[rad\]: the power-on angle of an incremental
     /// encoder, the mounting offset of an absolute sensor.
     sensor_zero_m_rad: Real,
     time_s: f64,
@@ -221,7 +221,7 @@ pub struct Plant {
     energy: EnergyAccount,
     // Power stage (all optional, off by default).
     dc_link: Option<DcLinkConfig>,
-    /// Capacitor voltage [V] (the state; the bus when there is no DC link
+    /// Capacitor voltage \[V\] (the state; the bus when there is no DC link
     /// is not a state).
     v_cap: Real,
     brake_on: bool,
@@ -307,7 +307,7 @@ impl Plant {
             Mechanics::ConstantSpeed(w) => self.omega_m = w,
         }
     }
-    /// Start the rotor at mechanical angle `theta_m_rad` [rad] as at
+    /// Start the rotor at mechanical angle `theta_m_rad` \[rad\] as at
     /// power-on: position counted from here (no turns), and an incremental
     /// encoder reads 0 here. An absolute sensor keeps its mounting offset.
     pub fn start_rotor_at(&mut self, theta_m_rad: Real) {
@@ -334,7 +334,7 @@ impl Plant {
     pub fn angle_sensor(&self) -> AngleSensorKind {
         self.angle_sensor
     }
-    /// Put the rotor at mechanical angle `theta_m` [rad] (a jump: an
+    /// Put the rotor at mechanical angle `theta_m` \[rad\] (a jump: an
     /// incremental encoder counts it, see [`Plant::start_rotor_at`]).
     pub fn set_rotor_angle(&mut self, theta_m_rad: Real) {
         let (r, _) = real::wrap_tau(theta_m_rad);
@@ -344,7 +344,7 @@ impl Plant {
     pub fn set_speed(&mut self, omega_m_rad_s: Real) {
         self.omega_m = omega_m_rad_s;
     }
-    /// Set the dq currents directly [A] (initial conditions for tests).
+    /// Set the dq currents directly \[A\] (initial conditions for tests).
     pub fn set_currents_dq(&mut self, id_a: Real, iq_a: Real) {
         self.id = id_a;
         self.iq = iq_a;
@@ -352,21 +352,21 @@ impl Plant {
 
     // ----- true state -----
 
-    /// True d-axis current [A].
+    /// True d-axis current \[A\].
     pub fn id_a(&self) -> Real {
         self.id
     }
-    /// True q-axis current [A].
+    /// True q-axis current \[A\].
     pub fn iq_a(&self) -> Real {
         self.iq
     }
-    /// True phase currents [A] (into the motor).
+    /// True phase currents \[A\] (into the motor).
     pub fn phase_currents_a(&self) -> [Real; 3] {
         let th = self.theta_e_rad();
         let (id, iq) = (self.id, self.iq);
         PHASE_AXIS.map(|phi| id * real::cos(th - phi) - iq * real::sin(th - phi))
     }
-    /// True electrical angle [rad] in `[0, 2 pi)`.
+    /// True electrical angle \[rad\] in `[0, 2 pi)`.
     pub fn theta_e_rad(&self) -> Real {
         real::wrap_tau(self.theta_m * self.motor.pole_pairs as Real).0
     }
@@ -374,11 +374,11 @@ impl Plant {
     pub fn theta_e(&self) -> ElectricalAngle {
         ElectricalAngle::from_radians(self.theta_e_rad() as f32)
     }
-    /// True mechanical angle [rad] in `[0, 2 pi)`.
+    /// True mechanical angle \[rad\] in `[0, 2 pi)`.
     pub fn theta_m_rad(&self) -> Real {
         self.theta_m
     }
-    /// True mechanical position over many turns [rad].
+    /// True mechanical position over many turns \[rad\].
     pub fn position_rad(&self) -> Real {
         self.turns as Real * TAU + self.theta_m
     }
@@ -394,11 +394,11 @@ impl Plant {
     pub fn torque_nm(&self) -> Real {
         self.motor.torque_nm(self.id, self.iq)
     }
-    /// Bus voltage at the end of the last sub-step [V].
+    /// Bus voltage at the end of the last sub-step \[V\].
     pub fn v_bus_v(&self) -> Real {
         self.v_bus
     }
-    /// Bus voltage averaged over the sub-steps of the last period [V].
+    /// Bus voltage averaged over the sub-steps of the last period \[V\].
     ///
     /// Without a DC link ([`Plant::set_dc_link`]) there is no capacitor: with
     /// a source resistance and carrier-compared PWM the instantaneous bus
@@ -406,19 +406,19 @@ impl Plant {
     pub fn v_bus_avg_v(&self) -> Real {
         self.v_bus_avg
     }
-    /// Supply (DC) current averaged over the last period [A]: the
+    /// Supply (DC) current averaged over the last period \[A\]: the
     /// inverter's DC input (legs and an injected short), see
     /// [`Plant::inverter_current_a`].
     pub fn supply_current_a(&self) -> Real {
         self.i_dc_avg
     }
-    /// Inverter DC input current averaged over the last period [A]
+    /// Inverter DC input current averaged over the last period \[A\]
     /// (`sum_k h_k i_k` plus an injected short's; negative while
     /// regenerating). The same as [`Plant::supply_current_a`].
     pub fn inverter_current_a(&self) -> Real {
         self.i_dc_avg
     }
-    /// Source current into the bus averaged over the last period [A]. With
+    /// Source current into the bus averaged over the last period \[A\]. With
     /// a DC link it differs from the inverter's by the capacitor and brake
     /// currents; without, it is the inverter's.
     pub fn source_current_a(&self) -> Real {
@@ -427,27 +427,27 @@ impl Plant {
             None => self.i_dc_avg,
         }
     }
-    /// Brake-resistor current averaged over the last period [A].
+    /// Brake-resistor current averaged over the last period \[A\].
     pub fn brake_current_a(&self) -> Real {
         self.i_brake_avg
     }
-    /// Input power `V_bus i_dc` averaged over the last period [W].
+    /// Input power `V_bus i_dc` averaged over the last period \[W\].
     pub fn input_power_w(&self) -> Real {
         self.p_in_avg
     }
-    /// Mechanical output power at the shaft `Te w` [W] (before friction).
+    /// Mechanical output power at the shaft `Te w` \[W\] (before friction).
     pub fn shaft_power_w(&self) -> Real {
         self.torque_nm() * self.omega_m
     }
-    /// Terminal voltages (to the bus minus rail) averaged over the last period [V].
+    /// Terminal voltages (to the bus minus rail) averaged over the last period \[V\].
     pub fn terminal_voltages_avg_v(&self) -> [Real; 3] {
         self.v_terminal_avg
     }
-    /// Magnetic energy stored in the windings, `0.75 (Ld id^2 + Lq iq^2)` [J].
+    /// Magnetic energy stored in the windings, `0.75 (Ld id^2 + Lq iq^2)` \[J\].
     pub fn magnetic_energy_j(&self) -> Real {
         0.75 * (self.motor.ld_h * self.id * self.id + self.motor.lq_h * self.iq * self.iq)
     }
-    /// Kinetic energy `J w^2 / 2` [J].
+    /// Kinetic energy `J w^2 / 2` \[J\].
     pub fn kinetic_energy_j(&self) -> Real {
         0.5 * self.motor.inertia_kg_m2 * self.omega_m * self.omega_m
     }
@@ -459,7 +459,7 @@ impl Plant {
     pub fn reset_energy(&mut self) {
         self.energy = EnergyAccount::default();
     }
-    /// Simulated time [s].
+    /// Simulated time \[s\].
     pub fn time_s(&self) -> f64 {
         self.time_s
     }
@@ -503,20 +503,20 @@ impl Plant {
     pub fn dc_link_mut(&mut self) -> Option<&mut DcLinkConfig> {
         self.dc_link.as_mut()
     }
-    /// Set the capacitor voltage [V] (an initial condition; DC link only).
+    /// Set the capacitor voltage \[V\] (an initial condition; DC link only).
     pub fn set_capacitor_voltage(&mut self, v: Real) {
         if self.dc_link.is_some() {
             self.v_cap = v;
         }
     }
-    /// Capacitor voltage [V] (DC link only; without, the source voltage).
+    /// Capacitor voltage \[V\] (DC link only; without, the source voltage).
     pub fn capacitor_voltage_v(&self) -> Real {
         match self.dc_link {
             Some(_) => self.v_cap,
             None => self.source_v(),
         }
     }
-    /// Energy stored in the capacitor `C v_C^2 / 2` [J] (0 without a DC link).
+    /// Energy stored in the capacitor `C v_C^2 / 2` \[J\] (0 without a DC link).
     pub fn capacitor_energy_j(&self) -> Real {
         match &self.dc_link {
             Some(d) => d.capacitor_energy_j(self.v_cap),
@@ -532,7 +532,7 @@ impl Plant {
     pub fn brake_on(&self) -> bool {
         self.brake_on
     }
-    /// Energy dissipated in the brake resistor [J] (also in [`Plant::energy`]).
+    /// Energy dissipated in the brake resistor \[J\] (also in [`Plant::energy`]).
     pub fn brake_energy_j(&self) -> Real {
         self.energy.brake_j
     }
@@ -557,7 +557,7 @@ impl Plant {
     pub fn winding_temperature_c(&self) -> Option<Real> {
         self.winding_thermal.map(|_| self.t_winding_c)
     }
-    /// Phase resistance in use [ohm]: [`MotorParams::r_ohm`], or its value
+    /// Phase resistance in use \[ohm\]: [`MotorParams::r_ohm`], or its value
     /// at the winding temperature when the model's `copper_tempco` is on.
     pub fn winding_resistance_ohm(&self) -> Real {
         match self.winding_thermal {
@@ -611,14 +611,14 @@ mod tests {
     }
 
     /// One period with the bridge off and the rotor at rest: what the
-    /// sensor reads [rad], and one encoder count [rad].
+    /// sensor reads \[rad\], and one encoder count \[rad\].
     fn first_reading(plant: &mut Plant) -> (f32, f32) {
         let m = plant.step_period([0.5; 3], false, 0.0);
         let count = TAU as f32 / plant.config().sensors.encoder_counts_per_rev as f32;
         (m.angle.to_radians(), count)
     }
 
-    /// Distance between two angles on the circle [rad].
+    /// Distance between two angles on the circle \[rad\].
     fn circle_distance(a: f32, b: f32) -> f32 {
         let d = (a - b).rem_euclid(TAU as f32);
         d.min(TAU as f32 - d)

@@ -7,13 +7,13 @@ use super::*;
 pub struct MotorParams {
     /// Pole pairs `p`.
     pub pole_pairs: u8,
-    /// Phase resistance [ohm].
+    /// Phase resistance \[ohm\].
     pub r_ohm: Real,
-    /// d-axis inductance [H].
+    /// d-axis inductance \[H\].
     pub ld_h: Real,
-    /// q-axis inductance [H].
+    /// q-axis inductance \[H\].
     pub lq_h: Real,
-    /// Permanent-magnet flux linkage `psi` [Wb] (peak phase back-EMF over `w_e`).
+    /// Permanent-magnet flux linkage `psi` \[Wb\] (peak phase back-EMF over `w_e`).
     pub flux_linkage_wb: Real,
     /// Rotor (plus load) inertia [kg m^2].
     pub inertia_kg_m2: Real,

@@ -117,7 +117,7 @@ pub trait DeviceContext {
     /// Firmware version `[major, minor, patch]`.
     fn firmware_version(&self) -> [u8; 3];
 
-    /// The highest telemetry stream rate the link carries [Hz] (`None`: no
+    /// The highest telemetry stream rate the link carries \[Hz\] (`None`: no
     /// limit, e.g. a socket): `StartTelemetry` above it is refused
     /// (out of range, field 1). A UART's: [`max_stream_hz`].
     fn max_stream_hz(&self) -> Option<f32> {

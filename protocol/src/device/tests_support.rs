@@ -38,7 +38,7 @@ pub struct RecordingContext {
     pub calibrated: bool,
     /// Answer to `start_calibration` etc. when set.
     pub refuse: Option<Refusal>,
-    /// PWM frequency [Hz].
+    /// PWM frequency \[Hz\].
     pub pwm_hz: f32,
     /// Telemetry sample returned.
     pub sample: Telemetry,
@@ -59,7 +59,7 @@ pub struct RecordingContext {
     pub joint: JointSetup,
     /// Torque constant [N m/A].
     pub kt_nm_per_a: f32,
-    /// The link's stream-rate limit it reports [Hz].
+    /// The link's stream-rate limit it reports \[Hz\].
     pub max_stream_hz: Option<f32>,
     /// The scope (64 values; `None`: the device has none).
     pub scope: Option<foc_core::scope::Scope<[f32; 64]>>,

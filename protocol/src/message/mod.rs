@@ -213,7 +213,7 @@ impl Calibration {
 pub enum TelemetryRate {
     /// One sample every K current-loop periods (K >= 1).
     EveryPeriods(u32),
-    /// A rate [Hz] (converted with the PWM frequency; at most that).
+    /// A rate \[Hz\] (converted with the PWM frequency; at most that).
     Hz(f32),
 }
 
@@ -246,15 +246,15 @@ macro_rules! param_ids {
 param_ids! {
     /// Pole pairs.
     PolePairs = 0, "pole-pairs";
-    /// Phase resistance [ohm].
+    /// Phase resistance \[ohm\].
     ResistanceOhm = 1, "r";
-    /// d-axis inductance [H].
+    /// d-axis inductance \[H\].
     LdH = 2, "ld";
-    /// q-axis inductance [H].
+    /// q-axis inductance \[H\].
     LqH = 3, "lq";
-    /// Flux linkage [Wb].
+    /// Flux linkage \[Wb\].
     FluxLinkageWb = 4, "psi";
-    /// PWM = current-loop frequency [Hz].
+    /// PWM = current-loop frequency \[Hz\].
     PwmFrequencyHz = 5, "pwm-frequency";
     /// Speed loop every N periods.
     SpeedDivider = 6, "speed-divider";
@@ -264,7 +264,7 @@ param_ids! {
     FirmwareVersion = 8, "firmware-version";
     /// Protocol version ([`crate::PROTOCOL_VERSION`]; answered by the protocol layer).
     ProtocolVersion = 9, "protocol-version";
-    /// Bus voltage [V].
+    /// Bus voltage \[V\].
     BusVoltageV = 10, "bus-voltage";
     /// 1 when calibrated, else 0.
     Calibrated = 11, "calibrated";
@@ -272,7 +272,7 @@ param_ids! {
     MaxLoopCycles = 12, "max-loop-cycles";
     /// Telemetry divider in force (periods; 0 = streaming off; answered by the protocol layer).
     TelemetryDivider = 13, "telemetry-divider";
-    /// Watchdog timeout [periods] (0 = off; answered by the protocol layer).
+    /// Watchdog timeout \[periods\] (0 = off; answered by the protocol layer).
     WatchdogTimeout = 14, "watchdog-timeout";
     /// Current-loop proportional gain, q axis [V/A].
     CurrentKp = 15, "current-kp";
@@ -376,7 +376,7 @@ pub struct Hello {
     pub protocol_version: u8,
     /// Firmware version `[major, minor, patch]`.
     pub firmware_version: [u8; 3],
-    /// Largest payload the device accepts [bytes].
+    /// Largest payload the device accepts \[bytes\].
     pub max_payload: u8,
 }
 

@@ -10,19 +10,19 @@ use super::*;
 pub struct Telemetry {
     /// Current-loop period counter (wraps).
     pub period: u32,
-    /// Measured d current [A].
+    /// Measured d current \[A\].
     pub i_d_a: f32,
-    /// Measured q current [A].
+    /// Measured q current \[A\].
     pub i_q_a: f32,
-    /// Commanded d voltage [V].
+    /// Commanded d voltage \[V\].
     pub v_d_v: f32,
-    /// Commanded q voltage [V].
+    /// Commanded q voltage \[V\].
     pub v_q_v: f32,
     /// Mechanical velocity [rad/s]: the drive's (rotor frame) from
     /// [`Self::from_feedback`]; on the wire the output frame's (the
     /// device converts, see [`crate::joint`]).
     pub velocity_rad_s: f32,
-    /// Multi-turn mechanical position [rad]: rotor frame from
+    /// Multi-turn mechanical position \[rad\]: rotor frame from
     /// [`Self::from_feedback`], output frame on the wire.
     pub position_rad: f32,
     /// Active mode.
@@ -31,7 +31,7 @@ pub struct Telemetry {
     pub fault_code: u8,
     /// Longest current-loop run [CPU cycles].
     pub max_loop_cycles: u32,
-    /// Bus voltage [V].
+    /// Bus voltage \[V\].
     pub v_bus_v: f32,
     /// The power limit that cut the q-current window the most (design
     /// §18; `None` while nothing is cut).

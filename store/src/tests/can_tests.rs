@@ -394,3 +394,21 @@ fn power_cut_during_save_can_keeps_the_old_settings() {
     assert!(cuts > 1000, "{cuts} cuts");
     assert!(with_erase > 0, "no save erased a page");
 }
+
+/// The envelope of `can_a()` as this build (CAN schema version 1) writes
+/// it, captured when the golden was added: a layout change must bump
+/// `CAN_SCHEMA_VERSION` and keep this one decoding.
+const CAN_V1_GOLDEN: [u8; 15] = [
+    0x01, 0x00, 0x07, 0x00, 0x05, 0xf4, 0x03, 0x64, 0x01, 0xde, 0x02, 0x43, 0x8e, 0xc0, 0x11,
+];
+
+#[test]
+fn the_can_record_writes_and_reads_its_golden_envelope() {
+    assert_eq!(envelope(&can_a()), CAN_V1_GOLDEN);
+    assert_eq!(CanRecord::decode(&CAN_V1_GOLDEN), Ok(can_a()));
+    assert_eq!(
+        crate::can::CAN_SCHEMA_VERSION,
+        1,
+        "a new version freezes CAN_V1_GOLDEN"
+    );
+}

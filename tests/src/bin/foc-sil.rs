@@ -39,22 +39,22 @@ struct Args {
     /// Pole pairs.
     #[arg(long)]
     pole_pairs: Option<u8>,
-    /// Phase resistance [ohm].
+    /// Phase resistance \[ohm\].
     #[arg(long)]
     r_ohm: Option<f64>,
-    /// d-axis inductance [H].
+    /// d-axis inductance \[H\].
     #[arg(long)]
     ld_h: Option<f64>,
-    /// q-axis inductance [H].
+    /// q-axis inductance \[H\].
     #[arg(long)]
     lq_h: Option<f64>,
-    /// Flux linkage [Wb].
+    /// Flux linkage \[Wb\].
     #[arg(long)]
     flux_wb: Option<f64>,
     /// Rotor + load inertia [kg m^2] (speed-loop tuning).
     #[arg(long)]
     inertia: Option<f64>,
-    /// PWM (= current-loop, = one input line) frequency [Hz].
+    /// PWM (= current-loop, = one input line) frequency \[Hz\].
     #[arg(long)]
     pwm_hz: Option<f64>,
     /// Speed loop every N periods (default: near 2 kHz).
@@ -63,13 +63,13 @@ struct Args {
     /// Position loop every M periods (default: near 1 kHz).
     #[arg(long)]
     position_div: Option<u16>,
-    /// Current limit [A] (over-current trips at 1.5x).
+    /// Current limit \[A\] (over-current trips at 1.5x).
     #[arg(long)]
     max_current_a: Option<f32>,
-    /// Nominal bus voltage [V] (under/over-voltage at 60 % / 125 %).
+    /// Nominal bus voltage \[V\] (under/over-voltage at 60 % / 125 %).
     #[arg(long)]
     bus_v: Option<f64>,
-    /// Electrical angle the encoder reads with the d axis on phase A [deg].
+    /// Electrical angle the encoder reads with the d axis on phase A \[deg\].
     #[arg(long, default_value_t = 0.0)]
     zero_offset_deg: f32,
     /// The encoder counts against A -> B -> C.

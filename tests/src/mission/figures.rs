@@ -35,13 +35,13 @@ pub(super) fn estimate_error_accelerating(trace: &Trace, seg: &Segment, step: f6
         .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()))
 }
 
-/// `n` PWM periods of `ts` seconds [ms].
+/// `n` PWM periods of `ts` seconds \[ms\].
 pub(super) fn ms(n: usize, ts: f64) -> f64 {
     n as f64 * ts * 1e3
 }
 
-/// Current step `cs` of `i_step` [A]: (figures of the magnitude?, overshoot
-/// [%], 2 % settling [periods], d-current peak [A]).
+/// Current step `cs` of `i_step` \[A\]: (figures of the magnitude?, overshoot
+/// [%], 2 % settling \[periods\], d-current peak \[A\]).
 pub(super) fn current_step_figures(
     setup: &Setup,
     trace: &Trace,
@@ -71,7 +71,7 @@ pub(super) fn current_step_figures(
     )
 }
 
-/// Speed step `ss` to `w1` [rad/s]: (overshoot [%], 2 % settling [ms]).
+/// Speed step `ss` to `w1` [rad/s]: (overshoot [%], 2 % settling \[ms\]).
 pub(super) fn speed_step_figures(
     trace: &Trace,
     ss: &Segment,
@@ -86,7 +86,7 @@ pub(super) fn speed_step_figures(
 }
 
 /// Load step `ls` at `w2d` [rad/s]: (largest dip [rad/s], steady error
-/// [rad/s], recovery into +-2 % [ms]).
+/// [rad/s], recovery into +-2 % \[ms\]).
 pub(super) fn load_step_figures(
     setup: &Setup,
     trace: &Trace,
@@ -110,8 +110,8 @@ pub(super) fn load_step_figures(
     (load_dip_rad_s, load_steady_error_rad_s, load_recovery_ms)
 }
 
-/// Position move `ps` of `move_d` [rad] from the true position `p0_true`:
-/// (2 % settling [ms], final error [rad]).
+/// Position move `ps` of `move_d` \[rad\] from the true position `p0_true`:
+/// (2 % settling \[ms\], final error \[rad\]).
 pub(super) fn position_figures(
     setup: &Setup,
     trace: &Trace,

@@ -197,7 +197,7 @@ pub(super) fn auto_link(setup: &Setup) -> foc_store::record::WatchdogRecord {
     }
 }
 
-/// The setup's PWM frequency as a record states it [Hz].
+/// The setup's PWM frequency as a record states it \[Hz\].
 pub(super) fn pwm_hz_u32(setup: &Setup) -> u32 {
     setup.pwm_hz().round() as u32
 }
@@ -211,21 +211,21 @@ pub(super) struct MissionPlan {
     pub(super) w1: f32,
     /// Speed at the end of the ramp [rad/s].
     pub(super) w2: f32,
-    /// Duration of the ramp (and of the stop) [s].
+    /// Duration of the ramp (and of the stop) \[s\].
     pub(super) t_ramp: f64,
-    /// Duration of the current-limited step [s].
+    /// Duration of the current-limited step \[s\].
     pub(super) t_sat: f64,
-    /// Its current limit [A].
+    /// Its current limit \[A\].
     pub(super) i_sat: f32,
-    /// Position move [rad].
+    /// Position move \[rad\].
     pub(super) move_rad: f32,
-    /// Duration of the position move [s].
+    /// Duration of the position move \[s\].
     pub(super) t_move: f64,
     /// Speed-loop divider of the initial configuration.
     pub(super) speed_div: usize,
     /// The identification's configuration.
     pub(super) id_cfg: foc_core::calibration::identification::IdentificationConfig,
-    /// Expected duration of the whole mission, for the progress bar [s].
+    /// Expected duration of the whole mission, for the progress bar \[s\].
     pub(super) expected_s: f64,
 }
 
@@ -294,10 +294,10 @@ impl MissionPlan {
     }
 }
 
-/// The braking segment's longest spin-up before each stop [s].
+/// The braking segment's longest spin-up before each stop \[s\].
 pub(super) const BRAKE_SPIN_S: f64 = 1.0;
 
-/// The braking segment's time after each stop command [s].
+/// The braking segment's time after each stop command \[s\].
 pub(super) const BRAKE_STOP_S: f64 = 0.4;
 
 /// The progress callback and the expected number of periods.

@@ -4,7 +4,7 @@
 use super::*;
 
 impl Mission<'_> {
-    /// Segment 2, q-current step with the rotor locked. Returns the step [A].
+    /// Segment 2, q-current step with the rotor locked. Returns the step \[A\].
     pub(super) fn current_step(&mut self, config: &CascadeConfig) -> f32 {
         let setup = self.setup;
         let sim = &mut self.sim;
@@ -130,7 +130,7 @@ impl Mission<'_> {
     }
 
     /// Segment 5c, position move of one turn. Returns the true position at
-    /// its start [rad].
+    /// its start \[rad\].
     pub(super) fn position_move(&mut self) -> f64 {
         let start = self.sim.rows();
         let p0_est = self.sim.cascade.feedback().position_rad;

@@ -23,9 +23,9 @@ pub struct Setup {
     pub motor: plant::MotorParams,
     /// Inverter, supply and sensors.
     pub bench: BenchConfig,
-    /// Rated (continuous) current [A].
+    /// Rated (continuous) current \[A\].
     pub rated_current_a: f32,
-    /// Maximum current [A] (the controller's current limit).
+    /// Maximum current \[A\] (the controller's current limit).
     pub max_current_a: f32,
 }
 
@@ -49,7 +49,7 @@ impl Setup {
         MotorFile::load(path).map(|f| Self::from_file(&f))
     }
 
-    /// PWM frequency [Hz].
+    /// PWM frequency \[Hz\].
     pub fn pwm_hz(&self) -> f32 {
         self.bench.pwm_frequency_hz as f32
     }
@@ -170,7 +170,7 @@ pub fn sample_of(m: &Measurements) -> Sample {
     }
 }
 
-/// `c` with the offsets `o` [A] removed.
+/// `c` with the offsets `o` \[A\] removed.
 pub fn remove_offsets(c: PhaseCurrents, o: Abc) -> PhaseCurrents {
     match c {
         PhaseCurrents::TwoPhase { a_a, b_a } => PhaseCurrents::TwoPhase {

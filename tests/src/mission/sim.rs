@@ -42,9 +42,9 @@ pub struct Sim {
     pub(super) last: Measurements,
     pub(super) last_bridge: BridgeCommand,
     pub(super) trace: Option<Trace>,
-    /// Encoder-frame position of the plant's true position 0 [rad]: `est = true - offset`.
+    /// Encoder-frame position of the plant's true position 0 \[rad\]: `est = true - offset`.
     pub(super) encoder_offset_rad: f64,
-    /// Current-sense offsets removed from every sample [A] (once calibrated).
+    /// Current-sense offsets removed from every sample \[A\] (once calibrated).
     pub(super) current_offsets: Option<Abc>,
     /// The position stage has run since position mode was entered: its
     /// reference is this move's (before that it is the last move's, or 0).
@@ -90,7 +90,7 @@ impl Sim {
         }
     }
 
-    /// Put the rotor at `theta_m` [rad] before the controller starts, and
+    /// Put the rotor at `theta_m` \[rad\] before the controller starts, and
     /// take a fresh sample there (one period with the bridge off).
     pub fn set_rotor_angle(&mut self, theta_m_rad: f64) {
         self.plant.set_rotor_angle(theta_m_rad as _);
@@ -112,14 +112,14 @@ impl Sim {
         s
     }
 
-    /// Remove these current-sense offsets [A] from every later sample (what
+    /// Remove these current-sense offsets \[A\] from every later sample (what
     /// the firmware's `CurrentSense::set_offsets_a` does after the offset
     /// calibration).
     pub fn set_current_offsets(&mut self, offsets: Abc) {
         self.current_offsets = Some(offsets);
     }
 
-    /// The installed current-sense offsets [A].
+    /// The installed current-sense offsets \[A\].
     pub fn current_offsets(&self) -> Option<Abc> {
         self.current_offsets
     }
@@ -179,7 +179,7 @@ impl Sim {
         }
     }
 
-    /// True position in the encoder's frame (unwrapped) [rad].
+    /// True position in the encoder's frame (unwrapped) \[rad\].
     pub fn true_position_rad(&self) -> f64 {
         self.plant.position_rad() as f64 - self.encoder_offset_rad
     }

@@ -3,13 +3,13 @@
 /// What the identification segment measured, against the plant's truth.
 #[derive(Clone, Debug, PartialEq)]
 pub struct IdentificationSummary {
-    /// Phase resistance [ohm] and its error [%].
+    /// Phase resistance \[ohm\] and its error [%].
     pub r_ohm: (f64, f64),
-    /// d-axis inductance [H] and its error [%].
+    /// d-axis inductance \[H\] and its error [%].
     pub ld_h: (f64, f64),
-    /// q-axis inductance [H] and its error [%].
+    /// q-axis inductance \[H\] and its error [%].
     pub lq_h: (f64, f64),
-    /// Flux linkage [Wb] and its error [%] (None: not measured).
+    /// Flux linkage \[Wb\] and its error [%] (None: not measured).
     pub flux_linkage_wb: Option<(f64, f64)>,
     /// Mechanics (design §19): inertia [kg m^2] and its error [%], and the
     /// friction torque `Fc + B |w|` at the identification's low and high
@@ -19,13 +19,13 @@ pub struct IdentificationSummary {
     pub pole_pairs: (u8, u8),
     /// Sensor reversed: found and the plant's.
     pub reversed: (bool, bool),
-    /// Current-sense offsets found [A] (phases a, b, c).
+    /// Current-sense offsets found \[A\] (phases a, b, c).
     pub offsets_a: [f64; 3],
     /// Offset calibration time [s, simulated].
     pub offset_time_s: f64,
     /// Identification time after the offsets [s, simulated].
     pub time_s: f64,
-    /// Wall time of the segment [s].
+    /// Wall time of the segment \[s\].
     pub wall_time_s: f64,
 }
 
@@ -56,7 +56,7 @@ pub struct ImpedanceFigures {
     pub kp_sine: f64,
     /// Damping from the sinusoidal load [N m s/rad].
     pub kd_sine: f64,
-    /// The sinusoidal load's frequency [Hz].
+    /// The sinusoidal load's frequency \[Hz\].
     pub sine_hz: f64,
 }
 
@@ -101,28 +101,28 @@ impl ImpedanceFigures {
 /// One stop of the braking segment.
 #[derive(Clone, Debug, PartialEq)]
 pub struct StopFigures {
-    /// The speed command's ramp to 0 [s] (0: a hard stop, 0 rad/s at once).
+    /// The speed command's ramp to 0 \[s\] (0: a hard stop, 0 rad/s at once).
     pub ramp_s: f64,
-    /// Highest bus voltage [V] (the plant's, at the capacitor's terminals).
+    /// Highest bus voltage \[V\] (the plant's, at the capacitor's terminals).
     pub peak_bus_v: f64,
     /// Speed at the stop command [rad/s].
     pub from_rad_s: f64,
-    /// Time from the stop command to |speed| < 2 % of the commanded speed [s]
+    /// Time from the stop command to |speed| < 2 % of the commanded speed \[s\]
     /// (None: not within the segment).
     pub stop_s: Option<f64>,
     /// Speed at the end of the segment [rad/s].
     pub end_rad_s: f64,
-    /// Kinetic energy removed [J].
+    /// Kinetic energy removed \[J\].
     pub kinetic_j: f64,
-    /// Into the bus capacitor (change of `C v^2 / 2`) [J].
+    /// Into the bus capacitor (change of `C v^2 / 2`) \[J\].
     pub capacitor_j: f64,
-    /// Into the brake resistor [J].
+    /// Into the brake resistor \[J\].
     pub resistor_j: f64,
-    /// Copper loss of the winding [J].
+    /// Copper loss of the winding \[J\].
     pub copper_j: f64,
-    /// Friction [J].
+    /// Friction \[J\].
     pub friction_j: f64,
-    /// Delivered by the supply [J].
+    /// Delivered by the supply \[J\].
     pub source_j: f64,
     /// PWM periods with the regen limit active.
     pub regen_limited_periods: usize,
@@ -135,15 +135,15 @@ pub struct StopFigures {
 /// The braking segment's figures (design §18).
 #[derive(Clone, Debug, PartialEq)]
 pub struct BrakingSummary {
-    /// The DC link: its name and capacitance [F].
+    /// The DC link: its name and capacitance \[F\].
     pub link: &'static str,
-    /// Bus capacitance [F].
+    /// Bus capacitance \[F\].
     pub c_f: f64,
-    /// Supply voltage [V].
+    /// Supply voltage \[V\].
     pub v_source_v: f64,
-    /// The supervisor's over-voltage threshold [V].
+    /// The supervisor's over-voltage threshold \[V\].
     pub over_voltage_v: f64,
-    /// The regen ramp [V] (start, end).
+    /// The regen ramp \[V\] (start, end).
     pub regen_v: (f64, f64),
     /// Speed commanded before the stops [rad/s].
     pub from_rad_s: f64,
@@ -153,7 +153,7 @@ pub struct BrakingSummary {
     /// A hard stop with the brake resistor (chopper on at the regen ramp's
     /// start).
     pub resistor: StopFigures,
-    /// Its resistance [ohm].
+    /// Its resistance \[ohm\].
     pub resistor_ohm: f64,
 }
 
@@ -167,17 +167,17 @@ pub struct SpeedFigures {
     pub estimate_error: (f64, f64),
     /// Largest rise above the speed after the load is released [rad/s].
     pub release_rise_rad_s: f64,
-    /// Recovery into +-2 % after the load release [ms].
+    /// Recovery into +-2 % after the load release \[ms\].
     pub release_recovery_ms: Option<f64>,
     /// The current-limited step: its target from rest [rad/s].
     pub sat_step_rad_s: f64,
-    /// Its current limit [A].
+    /// Its current limit \[A\].
     pub sat_limit_a: f64,
     /// Its overshoot [%].
     pub sat_overshoot_percent: f64,
-    /// Its 2 % settling time [ms].
+    /// Its 2 % settling time \[ms\].
     pub sat_settling_ms: Option<f64>,
-    /// How long the q-current reference was on the current limit [ms].
+    /// How long the q-current reference was on the current limit \[ms\].
     pub sat_limited_ms: f64,
     /// Largest |estimate - true speed| while it accelerates [rad/s] and as
     /// a percentage of the step.
@@ -206,7 +206,7 @@ impl SpeedFigures {
 pub struct MissionSummary {
     /// Motor name.
     pub motor: String,
-    /// PWM frequency [Hz].
+    /// PWM frequency \[Hz\].
     pub pwm_hz: f32,
     /// Speed and position loop dividers.
     pub dividers: (u16, u16),
@@ -218,11 +218,11 @@ pub struct MissionSummary {
     /// Why the identification failed (the mission then runs on the
     /// supplied calibration and fails).
     pub identification_failure: Option<String>,
-    /// Alignment: electrical zero found [deg].
+    /// Alignment: electrical zero found \[deg\].
     pub align_found_deg: f64,
     /// Alignment error against the plant's true encoder offset [deg, electrical].
     pub align_error_deg: f64,
-    /// Current-step size [A].
+    /// Current-step size \[A\].
     pub current_step_a: f64,
     /// The current-step figures are of the true current's magnitude (hall-class
     /// sensor), not of its q component.
@@ -231,13 +231,13 @@ pub struct MissionSummary {
     pub current_overshoot_percent: f64,
     /// q-current 2 % settling time [PWM periods] (None: did not settle).
     pub current_settling_periods: Option<usize>,
-    /// d-current peak during the q step [A].
+    /// d-current peak during the q step \[A\].
     pub current_id_peak_a: f64,
     /// Speed step target [rad/s].
     pub speed_step_rad_s: f64,
     /// Speed-step overshoot [%].
     pub speed_overshoot_percent: f64,
-    /// Speed-step 2 % settling time [ms].
+    /// Speed-step 2 % settling time \[ms\].
     pub speed_settling_ms: Option<f64>,
     /// Speed after the ramp [rad/s].
     pub speed_high_rad_s: f64,
@@ -247,17 +247,17 @@ pub struct MissionSummary {
     pub load_dip_rad_s: f64,
     /// Steady speed error at the end of the load segment [rad/s] (ref - mean).
     pub load_steady_error_rad_s: f64,
-    /// Recovery into +-2 % of the speed after the load step [ms].
+    /// Recovery into +-2 % of the speed after the load step \[ms\].
     pub load_recovery_ms: Option<f64>,
     /// The speed loop's further figures (design §19).
     pub speed: SpeedFigures,
-    /// Position move [rad].
+    /// Position move \[rad\].
     pub move_rad: f64,
-    /// Position 2 % settling time from the move command [ms].
+    /// Position 2 % settling time from the move command \[ms\].
     pub position_settling_ms: Option<f64>,
-    /// Final position error [rad] (true displacement vs commanded).
+    /// Final position error \[rad\] (true displacement vs commanded).
     pub position_final_error_rad: f64,
-    /// One encoder count [rad].
+    /// One encoder count \[rad\].
     pub encoder_count_rad: f64,
     /// The braking segment (None: not run).
     pub braking: Option<BrakingSummary>,
@@ -272,9 +272,9 @@ pub struct MissionSummary {
     pub model_disturbance_margin: f64,
     /// PWM periods simulated.
     pub periods: usize,
-    /// Simulated time [s].
+    /// Simulated time \[s\].
     pub sim_time_s: f64,
-    /// Wall-clock time [s].
+    /// Wall-clock time \[s\].
     pub wall_time_s: f64,
 }
 

@@ -3,7 +3,7 @@
 //!
 //! QEMU runs with `-icount shift=10,align=off`: every instruction advances
 //! virtual time by exactly 1024 ns, and SysTick (core clock, reload
-//! 0xFFFFFF) by exactly 172.032 ticks (see the README, Instruction counts).
+//! 0xFFFFFF) by exactly 172.032 ticks (see the book, docs/src/reference/instruction-counts.md).
 //! Each item is measured between two reads of `SYST_CVR`, minus the cost
 //! of an empty measurement, over several inputs; a block of 100 `nop`s is
 //! measured first as a self-check (the difference of a call with and

@@ -40,7 +40,7 @@ use super::*;
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct BrakeChopper {
     pub(super) on: bool,
-    /// Leaky count of the time on while the motor did not regenerate [s].
+    /// Leaky count of the time on while the motor did not regenerate \[s\].
     pub(super) on_s: f32,
     /// Locked out by the guard until the bus falls below `brake_off_v`.
     pub(super) locked: bool,
@@ -73,7 +73,7 @@ impl BrakeChopper {
         self.locked
     }
 
-    /// One bus reading [V] after `dt_s`, and whether the motor
+    /// One bus reading \[V\] after `dt_s`, and whether the motor
     /// regenerates (its electrical power is negative: the chopper then
     /// takes the motor's energy, not the supply's); returns whether the
     /// chopper is on.

@@ -8,12 +8,12 @@ use super::*;
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct PowerReport {
-    /// Lowest q-current allowed this period [A] (the current limit's
+    /// Lowest q-current allowed this period \[A\] (the current limit's
     /// `-max_current_a` when no power limits are configured).
     pub iq_min_a: f32,
-    /// Highest q-current allowed this period [A].
+    /// Highest q-current allowed this period \[A\].
     pub iq_max_a: f32,
-    /// The d-current reference of this period [A] (`<= 0`: d-axis braking
+    /// The d-current reference of this period \[A\] (`<= 0`: d-axis braking
     /// while the bus is in the regen ramp; 0 otherwise).
     pub id_ref_a: f32,
     /// The limit that cut the window the most.
@@ -75,7 +75,7 @@ pub struct PowerLimiter {
     pub(super) thermal: ThermalEstimate,
     pub(super) chopper: BrakeChopper,
     /// The bus voltage the regen ramp (and its d-axis braking) follows,
-    /// filtered [V] (NaN: none yet).
+    /// filtered \[V\] (NaN: none yet).
     pub(super) v_ramp_v: f32,
     /// `WindowPlan::of(&cfg)`, kept with `cfg`.
     pub(super) plan: WindowPlan,

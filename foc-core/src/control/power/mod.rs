@@ -16,7 +16,7 @@
 //!
 //! **Power balance.** With an ideal (lossless) inverter the bus power equals
 //! the electrical power into the motor, in the amplitude-invariant dq frame
-//! `P = 1.5 (v_d i_d + v_q i_q)` [W]. In steady state (no `L di/dt`)
+//! `P = 1.5 (v_d i_d + v_q i_q)` \[W\]. In steady state (no `L di/dt`)
 //!
 //! ```text
 //! v_d = R i_d - w_e L_q i_q
@@ -155,13 +155,13 @@ pub struct PowerLimitsConfig {
     /// Keep it equal to the current loop's motor (update both after an
     /// identification).
     pub motor: MotorParams,
-    /// Bus voltage [V] above which regenerative current is reduced
+    /// Bus voltage \[V\] above which regenerative current is reduced
     /// (linearly, to 0 at [`Self::regen_end_v`]).
     pub regen_start_v: f32,
-    /// Bus voltage [V] at and above which no regenerative current is
+    /// Bus voltage \[V\] at and above which no regenerative current is
     /// allowed; below the supervisor's `bus_over_voltage_v`. `+inf`: off.
     pub regen_end_v: f32,
-    /// d-axis braking [A] (magnitude): while the drive brakes (the
+    /// d-axis braking \[A\] (magnitude): while the drive brakes (the
     /// requested q-current opposes the speed) and the bus voltage is in the
     /// regen ramp, a negative d-current of `(1 - s(V_bus))` times this (at
     /// most the derated current limit) dissipates braking energy in the
@@ -172,25 +172,25 @@ pub struct PowerLimitsConfig {
     /// (counted by the winding model). `+inf`: up to the current limit; 0:
     /// off.
     pub regen_id_max_a: f32,
-    /// Largest current drawn from the supply [A] (`P / V_bus`, averaged
+    /// Largest current drawn from the supply \[A\] (`P / V_bus`, averaged
     /// over a PWM period). Size: the supply's or battery's discharge limit
     /// (or its fuse). `+inf`: off.
     pub bus_current_motoring_max_a: f32,
-    /// Largest current returned to the supply [A] (magnitude, `>= 0`).
+    /// Largest current returned to the supply \[A\] (magnitude, `>= 0`).
     /// Size: what the supply can sink, a battery's (BMS) charge-current
     /// limit. A diode-fed bench supply sinks nothing, but the bus
     /// capacitor does: leave this off there and let the bus-voltage ramp
     /// ([`Self::regen_start_v`]) hold the bus; 0 forbids regenerative
     /// braking altogether (only copper-loss braking remains). `+inf`: off.
     pub bus_current_regen_max_a: f32,
-    /// Largest power drawn from the supply [W]. `+inf`: off.
+    /// Largest power drawn from the supply \[W\]. `+inf`: off.
     pub power_motoring_max_w: f32,
-    /// Largest power returned to the supply [W] (magnitude). `+inf`: off.
+    /// Largest power returned to the supply \[W\] (magnitude). `+inf`: off.
     pub power_regen_max_w: f32,
     /// Winding-to-ambient thermal resistance [K/W]: the steady temperature
     /// rise per watt of copper loss.
     pub thermal_resistance_k_per_w: f32,
-    /// Winding thermal time constant [s] (63 % of a step's final rise).
+    /// Winding thermal time constant \[s\] (63 % of a step's final rise).
     pub thermal_time_constant_s: f32,
     /// Ambient temperature of the winding model [deg C] (also its start).
     pub ambient_c: f32,
@@ -205,16 +205,16 @@ pub struct PowerLimitsConfig {
     /// reaches 0 (below the supervisor's `max_temperature_c`). `+inf`:
     /// stage derating off (and no stage sensor needed).
     pub stage_derate_end_c: f32,
-    /// Bus voltage [V] at which the brake chopper switches on. `+inf`: no
+    /// Bus voltage \[V\] at which the brake chopper switches on. `+inf`: no
     /// brake resistor.
     pub brake_on_v: f32,
-    /// Bus voltage [V] at which the brake chopper switches off again
+    /// Bus voltage \[V\] at which the brake chopper switches off again
     /// (`<= brake_on_v`: the hysteresis). Above the supply's highest
     /// voltage, or the supply feeds the resistor (see
     /// [`Self::brake_max_on_s`]).
     pub brake_off_v: f32,
     /// Longest the chopper may conduct while the motor does not
-    /// regenerate [s] (a leaky count: it runs down at a tenth of the rate
+    /// regenerate \[s\] (a leaky count: it runs down at a tenth of the rate
     /// while the chopper is off or the motor regenerates): then it locks
     /// out until the bus falls below `brake_off_v`. What it catches: a
     /// supply that feeds the resistor (held above `brake_off_v`, or
@@ -412,7 +412,7 @@ impl PowerLimitsConfig {
         }
     }
 
-    /// Phase resistance at winding temperature `t_c` [ohm]:
+    /// Phase resistance at winding temperature `t_c` \[ohm\]:
     /// `R_20 (1 + 0.00393 (T - 20))`, never below 0; `t_c` is clamped to
     /// `[THERMAL_MIN_C, THERMAL_MAX_C]` (NaN reads as [`THERMAL_MAX_C`]).
     #[inline]

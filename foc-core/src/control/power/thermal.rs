@@ -66,14 +66,14 @@ impl ThermalEstimate {
         *self = Self::at_ambient(cfg);
     }
 
-    /// Copper loss [W] at dq current `i_dq_a` and winding temperature
+    /// Copper loss \[W\] at dq current `i_dq_a` and winding temperature
     /// `t_c`: `1.5 R(T) (i_d^2 + i_q^2)`.
     #[inline]
     pub fn copper_loss_w(cfg: &PowerLimitsConfig, i_dq_a: Dq, t_c: f32) -> f32 {
         1.5 * cfg.r_at_ohm(t_c) * (i_dq_a.d * i_dq_a.d + i_dq_a.q * i_dq_a.q)
     }
 
-    /// Advance by `dt_s` [s] with the dq current `i_dq_a` [A] (measured);
+    /// Advance by `dt_s` \[s\] with the dq current `i_dq_a` \[A\] (measured);
     /// returns the new estimate [deg C].
     pub fn step(&mut self, cfg: &PowerLimitsConfig, i_dq_a: Dq, dt_s: f32) -> f32 {
         self.step_planned(cfg, &mut ThermalPlan::of(cfg), i_dq_a, dt_s)
@@ -157,7 +157,7 @@ pub(super) struct ThermalPlan {
     /// a NaN, zero or negative `R_th` is `+inf`, a NaN ambient the
     /// maximum).
     pub(super) model_ok: bool,
-    /// The step length the gain is for [s] (NaN: none yet).
+    /// The step length the gain is for \[s\] (NaN: none yet).
     pub(super) dt_s: f32,
     /// `h / (1 + h)` for `dt_s` (only used when `tau > 0`).
     pub(super) gain: f32,

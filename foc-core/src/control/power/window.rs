@@ -37,9 +37,9 @@ pub enum ActiveLimit {
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct IqWindow {
-    /// Lowest allowed q-current [A] (`<= 0`).
+    /// Lowest allowed q-current \[A\] (`<= 0`).
     pub min_a: f32,
-    /// Highest allowed q-current [A] (`>= 0`).
+    /// Highest allowed q-current \[A\] (`>= 0`).
     pub max_a: f32,
     /// The limit that set `min_a` ([`ActiveLimit::None`]: the current limit).
     pub min_by: ActiveLimit,
@@ -52,7 +52,7 @@ pub struct IqWindow {
     /// in `[0, 1]`: `min(max_a, -min_a) / current_limit_a` (1 with a zero
     /// current limit; 0 for the safe window).
     pub factor: f32,
-    /// The d-current reference [A]: [`PowerInputs::i_d_a`] plus the d-axis
+    /// The d-current reference \[A\]: [`PowerInputs::i_d_a`] plus the d-axis
     /// braking current (`<= 0`, see [`PowerLimitsConfig::regen_id_max_a`]).
     pub id_a: f32,
 }
@@ -96,19 +96,19 @@ impl IqWindow {
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct PowerInputs {
-    /// Measured bus voltage [V] (`None`: the read failed).
+    /// Measured bus voltage \[V\] (`None`: the read failed).
     pub v_bus_v: Option<f32>,
     /// Electrical angular velocity [rad/s] (the tracker's speed times the
     /// pole pairs).
     pub omega_e_rad_s: f32,
-    /// d-axis current [A] (the reference, or the measurement), without the
+    /// d-axis current \[A\] (the reference, or the measurement), without the
     /// d-axis braking this module adds.
     pub i_d_a: f32,
-    /// The q-current the controller asks for before the window [A]: only
+    /// The q-current the controller asks for before the window \[A\]: only
     /// its direction against the speed matters (braking or not, for the
     /// d-axis braking).
     pub iq_request_a: f32,
-    /// The q-current limit before this module [A] (`Limits::max_current_a`
+    /// The q-current limit before this module \[A\] (`Limits::max_current_a`
     /// or the stage's limit in force), finite and `>= 0`.
     pub current_limit_a: f32,
     /// Winding temperature [deg C] ([`ThermalEstimate::checked_temperature_c`]):
@@ -119,7 +119,7 @@ pub struct PowerInputs {
     pub stage_temperature_c: Option<f32>,
 }
 
-/// The steady-state bus power [W] at q-current `iq_a` (the model of this
+/// The steady-state bus power \[W\] at q-current `iq_a` (the model of this
 /// module: `1.5 R(T) (i_d^2 + i_q^2) + 1.5 w_e (psi + (L_d - L_q) i_d) i_q`);
 /// `None` for the inputs [`iq_window`] refuses.
 pub fn bus_power_w(cfg: &PowerLimitsConfig, inputs: &PowerInputs, iq_a: f32) -> Option<f32> {
@@ -132,7 +132,7 @@ pub fn bus_power_w(cfg: &PowerLimitsConfig, inputs: &PowerInputs, iq_a: f32) -> 
     }
 }
 
-/// `(a, b, c)` of `P(i_q) = a i_q^2 + b i_q + c` [W], `None` when an
+/// `(a, b, c)` of `P(i_q) = a i_q^2 + b i_q + c` \[W\], `None` when an
 /// input or the model is not valid.
 pub(super) fn coefficients(
     cfg: &PowerLimitsConfig,
@@ -499,7 +499,7 @@ fn window_of(lo: End, hi: End, i_lim: f32, i_d: f32) -> IqWindow {
     }
 }
 
-/// The d-axis braking current [A] (`<= 0`): `-(1 - s) min(regen_id_max_a,
+/// The d-axis braking current \[A\] (`<= 0`): `-(1 - s) min(regen_id_max_a,
 /// limit)` while `s < 1` and the requested q-current regenerates (it
 /// opposes the speed, and the back-EMF's power exceeds the copper loss of
 /// the q-current the ramp admits, `|w_e psi| > R min(|i_q|, s I)`; below

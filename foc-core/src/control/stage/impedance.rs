@@ -53,7 +53,7 @@ impl CurrentStage {
         }
     }
 
-    /// The impedance law's q current this period [A] (before the limits),
+    /// The impedance law's q current this period \[A\] (before the limits),
     /// blended from the current in force while the mode is being entered.
     #[inline(always)]
     pub(super) fn impedance_iq(&mut self) -> f32 {

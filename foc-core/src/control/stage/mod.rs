@@ -71,11 +71,11 @@ pub struct CurrentStageConfig {
 /// One period's measurements; `None` where the read failed.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Sample {
-    /// Phase currents [A].
+    /// Phase currents \[A\].
     pub currents: Option<PhaseCurrents>,
     /// Raw mechanical angle from the sensor.
     pub angle: Option<MechanicalAngle>,
-    /// Bus voltage [V].
+    /// Bus voltage \[V\].
     pub v_bus_v: Option<f32>,
     /// Temperature [deg C] if measured.
     pub temperature_c: Option<f32>,
@@ -96,9 +96,9 @@ pub struct CurrentStageState {
     pub age_periods: u32,
     /// Open-loop angle of the next period.
     pub ol_theta: ElectricalAngle,
-    /// dq voltage of the last period [V] (bumpless open -> closed loop).
+    /// dq voltage of the last period \[V\] (bumpless open -> closed loop).
     pub last_out_v_dq: Dq,
-    /// dq current of the last period [A].
+    /// dq current of the last period \[A\].
     pub last_i_dq: Dq,
     /// Periods stepped (wraps).
     pub period: u32,
@@ -120,11 +120,11 @@ pub struct CurrentStageState {
     /// (names a model-check trip with a frozen reading, design §24).
     pub speed_at_change_rad_s: f32,
     /// The speed stage's q-current reference as the current loop uses it,
-    /// interpolated over the speed-loop period [A] (design §19).
+    /// interpolated over the speed-loop period \[A\] (design §19).
     pub iq_interp_a: f32,
-    /// Its change per period towards `iq_target_a` [A].
+    /// Its change per period towards `iq_target_a` \[A\].
     pub iq_step_a: f32,
-    /// The speed stage's last output [A].
+    /// The speed stage's last output \[A\].
     pub iq_target_a: f32,
     /// `1 / N`, N the periods per speed-loop step
     /// ([`CurrentStage::set_speed_periods`]).
@@ -134,7 +134,7 @@ pub struct CurrentStageState {
     /// The impedance law of the active impedance command (design §21).
     pub impedance: ImpedanceLaw,
     /// Bumpless entry into impedance mode: the current the blend starts
-    /// from [A] ...
+    /// from \[A\] ...
     pub blend_from_a: f32,
     /// ... its weight now (1 -> 0) ...
     pub blend_weight: f32,
@@ -143,7 +143,7 @@ pub struct CurrentStageState {
     /// A command timeout in impedance mode switched to damping only; the
     /// next one disables.
     pub timeout_damping: bool,
-    /// The travel limits' q-current window of this period [A], when they
+    /// The travel limits' q-current window of this period \[A\], when they
     /// are configured and a closed-loop mode is active.
     pub travel_window_a: Option<(f32, f32)>,
 }

@@ -9,7 +9,7 @@ use super::*;
 pub struct VelocityRef {
     /// Velocity reference [rad/s, mechanical].
     pub rad_s: f32,
-    /// Torque feed-forward as a q current [A].
+    /// Torque feed-forward as a q current \[A\].
     pub iq_ff_a: f32,
 }
 
@@ -34,7 +34,7 @@ impl SpeedStage {
     pub fn speed_loop(&mut self) -> &mut SpeedLoop {
         &mut self.speed
     }
-    /// One step: returns the q-current reference [A] for the current stage.
+    /// One step: returns the q-current reference \[A\] for the current stage.
     /// Outside velocity/position modes it tracks the active current
     /// reference so that entering those modes is bumpless.
     pub fn step(&mut self, fb: &Feedback, from_position: VelocityRef) -> f32 {
