@@ -177,7 +177,12 @@ pub fn run_cmd(args: &BenchArgs) -> Result {
     check_self_check(&rows)?;
     print_rows(&rows);
     print_goals(&rows);
-    crate::figures::write("bench.md", "`cargo xtask bench`", &figures_table(&rows))?;
+    let rustc = crate::util::output(crate::util::command("rustc", ["--version"]))?;
+    crate::figures::write(
+        "bench.md",
+        &format!("`cargo xtask bench`, {}", rustc.trim()),
+        &figures_table(&rows),
+    )?;
     for l in &info {
         println!("{l}");
     }

@@ -219,45 +219,82 @@ fn xtask_commands() -> Result<Vec<String>> {
     })
 }
 
-/// One row per RTIC task of firmware/src/main.rs, with its priority.
+/// One row per RTIC task of firmware/src/main.rs, with its priority, and
+/// no row for a task that is not there.
 fn firmware_tasks() -> Result<Vec<String>> {
     let table = read(&tables().join("firmware-tasks.md"))?;
     let main = read(&root().join("firmware/src/main.rs"))?;
     let mut problems = Vec::new();
-    for (name, priority) in rtic_tasks(&main) {
+    let tasks = rtic_tasks(&main);
+    for (name, priority) in &tasks {
+        let Some(priority) = priority else {
+            problems.push(format!(
+                "firmware/src/main.rs: task `{name}` has no priority this check can read"
+            ));
+            continue;
+        };
         let row = rows(&table).find(|r| r.first().is_some_and(|c| *c == format!("`{name}`")));
         match row {
             None => problems.push(format!("firmware-tasks.md has no row for task `{name}`")),
-            Some(r) if !r.get(2).is_some_and(|p| p.starts_with(&priority)) => problems.push(
-                format!("firmware-tasks.md: `{name}` runs at priority {priority}"),
-            ),
+            Some(r) if !r.get(2).is_some_and(|p| p.starts_with(priority.as_str())) => problems
+                .push(format!(
+                    "firmware-tasks.md: `{name}` runs at priority {priority}"
+                )),
             Some(_) => {}
+        }
+    }
+    // Rows naming a task (in backticks) that the firmware does not have;
+    // a row in parentheses describes what is not an RTIC task.
+    for cell in first_cells_raw(&table) {
+        let Some(name) = cell.strip_prefix('`').and_then(|c| c.strip_suffix('`')) else {
+            continue;
+        };
+        if !tasks.iter().any(|(t, _)| t == name) {
+            problems.push(format!(
+                "firmware-tasks.md has a row for `{name}`, which is not a task"
+            ));
         }
     }
     Ok(problems)
 }
 
-/// `(name, priority)` of each `#[task(.. priority = N ..)]`, and `idle`.
-fn rtic_tasks(main: &str) -> Vec<(String, String)> {
+/// The table rows' first cells as written.
+fn first_cells_raw(table: &str) -> Vec<String> {
+    rows(table).filter_map(|c| c.first().cloned()).collect()
+}
+
+/// `(name, priority)` of each `#[task(..)]` (its attribute may span several
+/// lines), and `idle` at priority 0.
+fn rtic_tasks(main: &str) -> Vec<(String, Option<String>)> {
     let mut out = Vec::new();
     let mut lines = main.lines().map(str::trim);
     while let Some(line) = lines.next() {
         if line.starts_with("#[idle") {
-            out.push(("idle".to_string(), "0".to_string()));
+            out.push(("idle".to_string(), Some("0".to_string())));
         }
-        let Some(args) = line.strip_prefix("#[task(") else {
+        if !line.starts_with("#[task(") {
             continue;
-        };
-        let priority = args
-            .split(',')
-            .find_map(|a| a.trim().strip_prefix("priority = "))
-            .map(|p| p.trim_end_matches(")]").trim().to_string());
+        }
+        let mut attr = line.to_string();
+        while !attr.trim_end().ends_with(")]") {
+            match lines.next() {
+                Some(l) => attr.push_str(l),
+                None => break,
+            }
+        }
+        let priority = attr.split(',').find_map(|a| {
+            let p = a
+                .trim()
+                .trim_start_matches("#[task(")
+                .strip_prefix("priority = ")?;
+            Some(p.trim_end_matches(")]").trim().to_string())
+        });
         let name = lines
             .by_ref()
             .find_map(|l| l.split("fn ").nth(1))
             .and_then(|l| l.split('(').next());
-        if let (Some(p), Some(n)) = (priority, name) {
-            out.push((n.to_string(), p));
+        if let Some(n) = name {
+            out.push((n.to_string(), priority));
         }
     }
     out
@@ -296,4 +333,22 @@ fn config_fields() -> Result<Vec<String>> {
         }
     }
     Ok(problems)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn tasks_with_attributes_over_several_lines() {
+        let main = "#[idle(local = [x])]\nfn idle(cx: idle::Context) -> ! {\n#[task(binds = A, priority = 5, shared = [b])]\nfn brk(cx: brk::Context) {\n#[task(\n    binds = ADC,\n    priority = 4,\n    shared = [c]\n)]\nfn current_loop(cx: current_loop::Context) {\n";
+        assert_eq!(
+            rtic_tasks(main),
+            vec![
+                ("idle".to_string(), Some("0".to_string())),
+                ("brk".to_string(), Some("5".to_string())),
+                ("current_loop".to_string(), Some("4".to_string())),
+            ]
+        );
+    }
 }

@@ -49,7 +49,7 @@ pub(super) struct SubstepOut {
 struct PeriodSums {
     /// Energy from the supply \[J\].
     e_in: Real,
-    /// Charge through the DC link [C].
+    /// Charge through the DC link \[C\].
     q_dc: Real,
     /// Terminal voltages, each sub-step's divided by their number \[V\].
     v_term: [Real; 3],
@@ -57,9 +57,9 @@ struct PeriodSums {
     v_bus_sum: Real,
     /// Energy into the winding's copper \[J\].
     e_copper: Real,
-    /// Charge from the source [C].
+    /// Charge from the source \[C\].
     q_source: Real,
-    /// Charge through the brake resistor [C].
+    /// Charge through the brake resistor \[C\].
     q_brake: Real,
     /// The power stage's losses at each sub-step's end, summed \[W\].
     p_stage_sum: Real,
