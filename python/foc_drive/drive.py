@@ -17,7 +17,6 @@ import dataclasses
 import math
 import numbers
 import os
-import struct
 import time
 from dataclasses import dataclass
 from typing import Any, Callable, Deque, Dict, List, Optional, Sequence, Union
@@ -467,18 +466,20 @@ class Drive:
                 ("max_kd_nm_s_per_rad", max_kd_nm_s_per_rad),
             )
         ]
-        self._ack(Tag.SET_LIMITS, m.pack_f32s(*vals))
+        self._ack(Tag.SET_LIMITS, m.body_limits(*vals))
 
     def set_current_gains(self, kp_d: float, ki_d: float, kp_q: float, ki_q: float) -> None:
         """Current-loop PI gains of both axes [V/A, V/(A s)]."""
         vals = [_real(n, v) for n, v in (("kp_d", kp_d), ("ki_d", ki_d), ("kp_q", kp_q), ("ki_q", ki_q))]
-        self._ack(Tag.SET_CURRENT_GAINS, m.pack_f32s(*vals))
+        self._ack(Tag.SET_CURRENT_GAINS, m.body_current_gains(*vals))
 
     def set_speed_gains(self, kp_a_per_rad_s: float, ki_a_per_rad: float) -> None:
         """Speed-loop PI gains (rotor frame)."""
         self._ack(
             Tag.SET_SPEED_GAINS,
-            m.pack_f32s(_real("kp_a_per_rad_s", kp_a_per_rad_s), _real("ki_a_per_rad", ki_a_per_rad)),
+            m.body_speed_gains(
+                _real("kp_a_per_rad_s", kp_a_per_rad_s), _real("ki_a_per_rad", ki_a_per_rad)
+            ),
         )
 
     def set_position_gains(
@@ -487,7 +488,7 @@ class Drive:
         """Position-loop gain and trajectory limits (rotor frame)."""
         self._ack(
             Tag.SET_POSITION_GAINS,
-            m.pack_f32s(
+            m.body_position_gains(
                 _real("kp_per_s", kp_per_s),
                 _real("max_velocity_rad_s", max_velocity_rad_s),
                 _real("max_acceleration_rad_s2", max_acceleration_rad_s2),
@@ -499,7 +500,7 @@ class Drive:
         ``position`` current-loop periods (only while disabled)."""
         self._ack(
             Tag.SET_DIVIDERS,
-            struct.pack("<HH", _uint("speed", speed, 16), _uint("position", position, 16)),
+            m.body_dividers(_uint("speed", speed, 16), _uint("position", position, 16)),
         )
 
     def set_watchdog(self, timeout_periods: int, reaction: Union[str, int] = "disable") -> None:
@@ -509,14 +510,14 @@ class Drive:
         r = _choice("reaction", reaction, m.TimeoutReaction)
         self._ack(
             Tag.SET_WATCHDOG,
-            struct.pack("<IB", _uint("timeout_periods", timeout_periods, 32), r),
+            m.body_watchdog(_uint("timeout_periods", timeout_periods, 32), r),
         )
 
     def calibrate(self, routine: Union[str, int]) -> None:
         """Start a calibration routine (``"offsets"``, ``"identification"``,
         ``"alignment"``); returns once started (only while disabled)."""
         r = _choice("routine", routine, m.Calibration)
-        self._ack(Tag.RUN_CALIBRATION, bytes([r]))
+        self._ack(Tag.RUN_CALIBRATION, m.body_calibration(r))
 
     # --------------------------------------------------------------- reads
 
@@ -543,7 +544,7 @@ class Drive:
     def param(self, name_or_id: Union[str, int, ParamId]) -> float:
         """One parameter by ``foc-ctl`` name (``"pole-pairs"``), :class:`ParamId` name or id."""
         pid = self._param_id(name_or_id)
-        got, value = m.decode_param(self._expect(Tag.READ_PARAM, bytes([pid]), Tag.PARAM))
+        got, value = m.decode_param(self._expect(Tag.READ_PARAM, m.body_read_param(pid), Tag.PARAM))
         if got != pid:
             raise ProtocolError(f"asked for parameter {int(pid)}, got {got}")
         return value
@@ -578,9 +579,11 @@ class Drive:
         if (rate_hz is None) == (every_periods is None):
             raise ValueError("give exactly one of rate_hz and every_periods")
         if rate_hz is not None:
-            body = b"\x01" + m.f32_bits(_real("rate_hz", rate_hz))
+            body = m.body_start_telemetry(_real("rate_hz", rate_hz))
         else:
-            body = b"\x00" + struct.pack("<I", _uint("every_periods", every_periods, 32))
+            body = m.body_start_telemetry(
+                every_periods=_uint("every_periods", every_periods, 32)
+            )
         self._last_stream_seq = None
         self._ack(Tag.START_TELEMETRY, body)
 
@@ -681,7 +684,7 @@ class Drive:
         for _ in range(m.MAX_RECORD + 1):
             offset = len(record)
             body = self._expect(
-                Tag.READ_CONFIG, struct.pack("<BH", src, offset), Tag.CONFIG_CHUNK, timeout
+                Tag.READ_CONFIG, m.body_read_config(src, offset), Tag.CONFIG_CHUNK, timeout
             )
             c = m.decode_chunk(body)
             if c.total > m.MAX_RECORD:
@@ -720,7 +723,7 @@ class Drive:
         ``"apply"``, ``"apply_and_save"``; only while disabled), waiting
         up to ``store_timeout`` per attempt."""
         o = _choice("op", op, m.StoreOp)
-        self._ack(Tag.STORE, bytes([o]), self._flash_timeout())
+        self._ack(Tag.STORE, m.body_store(o), self._flash_timeout())
 
     def write_config(self, record: bytes, op: Union[str, int] = "apply") -> None:
         """Send ``record`` (chunked ``WriteConfig``), then apply it
@@ -855,7 +858,7 @@ class Drive:
         offset = 0
         while True:
             body = self._expect(
-                Tag.READ_SCOPE_DATA, struct.pack("<H", offset), Tag.SCOPE_DATA
+                Tag.READ_SCOPE_DATA, m.body_read_scope_data(offset), Tag.SCOPE_DATA
             )
             got, vals = m.decode_scope_data(body)
             if got != offset:
