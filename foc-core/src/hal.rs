@@ -96,6 +96,15 @@ impl PhaseCurrents {
             PhaseCurrents::ThreePhase(abc) => Some(abc.sum()),
         }
     }
+    /// The readings as measured, per phase (a, b, c): `None` for the
+    /// phase a two-shunt board derives.
+    #[inline]
+    pub fn channels(&self) -> [Option<f32>; 3] {
+        match *self {
+            PhaseCurrents::TwoPhase { a_a, b_a } => [Some(a_a), Some(b_a), None],
+            PhaseCurrents::ThreePhase(abc) => [Some(abc.a), Some(abc.b), Some(abc.c)],
+        }
+    }
 }
 
 /// Phase-current measurement, sampled in step with the PWM.

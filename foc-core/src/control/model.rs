@@ -82,6 +82,7 @@
 //! assert_eq!(v, Verdict::CurrentSense);
 //! ```
 
+use super::frozen::{FrozenChannels, Readings};
 use super::unbalance::{Limits, Unbalance};
 use super::MotorParams;
 use crate::angle::ElectricalAngle;
@@ -395,6 +396,7 @@ pub struct ModelCheck {
     tol: ModelTolerances,
     k: Derived,
     state: ModelState,
+    frozen: FrozenChannels,
 }
 
 /// `exp(-x)` for `x >= 0` at configuration time: the (2,2) Pade
@@ -482,6 +484,7 @@ impl ModelCheck {
                 unbalance: Unbalance::new(ts_s),
                 ..ModelState::default()
             },
+            frozen: FrozenChannels::new(tol.floor_a),
         }
     }
 
@@ -501,6 +504,9 @@ impl ModelCheck {
             // Nothing recorded since the last reset (the bridge-off periods).
             return;
         }
+        // (The frozen-channel check runs only in periods that record, or
+        // trip after seven that did: it has nothing to forget either.)
+        self.frozen.reset();
         let (peak, peak_dist) = (self.state.peak_ratio_sq, self.state.peak_dist_ratio_sq);
         let mut unbalance = self.state.unbalance;
         unbalance.reset();
@@ -530,19 +536,22 @@ impl ModelCheck {
 
     /// The margins, squared (residual, disturbance, unbalance), to carry
     /// over to a check that replaces this one ([`Self::keep_peaks`]).
-    pub fn peaks_sq(&self) -> [f32; 3] {
+    pub fn peaks_sq(&self) -> [f32; 4] {
+        let frozen = self.frozen.peak_ratio();
         [
             self.state.peak_ratio_sq,
             self.state.peak_dist_ratio_sq,
             self.state.unbalance.peak_sq(),
+            frozen * frozen,
         ]
     }
 
     /// Carry the margins over from a check this one replaces.
-    pub fn keep_peaks(&mut self, [residual_sq, disturbance_sq, unbalance_sq]: [f32; 3]) {
+    pub fn keep_peaks(&mut self, [residual_sq, disturbance_sq, unbalance_sq, frozen_sq]: [f32; 4]) {
         self.state.peak_ratio_sq = residual_sq;
         self.state.peak_dist_ratio_sq = disturbance_sq;
         self.state.unbalance.set_peak_sq(unbalance_sq);
+        self.frozen.keep_peak(crate::sqrtf(frozen_sq));
     }
 
     /// Forget the largest ratio seen.
@@ -550,6 +559,7 @@ impl ModelCheck {
         self.state.peak_ratio_sq = 0.0;
         self.state.peak_dist_ratio_sq = 0.0;
         self.state.unbalance.set_peak_sq(0.0);
+        self.frozen.reset_peak();
     }
 
     /// Largest `|residual| / bound` seen in a judged period (the margin:
@@ -642,6 +652,19 @@ impl ModelCheck {
         let unbalanced = self.unbalance(p, &s, env);
         self.correct(p, Dq::new(s.pred_d, s.pred_q), s.r, s.err_pred, s.x0, w);
         self.judge(&s, env, unbalanced)
+    }
+
+    /// The frozen-channel check ([`super::frozen`]): its margin.
+    pub fn frozen(&self) -> &FrozenChannels {
+        &self.frozen
+    }
+
+    /// The frozen-channel check ([`super::frozen`]) on this period's
+    /// readings: true when one is frozen. Call in every period the bridge
+    /// is driven, with [`Self::check`].
+    #[inline(always)]
+    pub fn frozen_channel(&mut self, readings: &Readings) -> bool {
+        self.frozen.check(readings)
     }
 
     /// This period's prediction from the last one's current and voltage,

@@ -10,6 +10,7 @@ use core::hint::black_box;
 use foc_core::angle::{ElectricalAngle, MechanicalAngle};
 use foc_core::control::current::{CurrentLoop, CurrentLoopInput, CurrentLoopOutput};
 use foc_core::control::estimator::{AngleTracker, SpeedObserver};
+use foc_core::control::frozen::Readings;
 use foc_core::control::model::{ModelCheck, Period, Verdict};
 use foc_core::control::power::{PowerInputs, PowerLimiter, PowerReport};
 use foc_core::control::stage::Sample;
@@ -122,6 +123,31 @@ pub fn measure_pieces(rig: &mut Rig, baseline: u32, currents: &dyn Fn(u32) -> Ab
             black_box(model_part(&mut model, &p));
         }),
     );
+    // Two channels frozen (the repeat path, the longer one), one turning.
+    let mut frozen = ModelCheck::new(
+        cfg.current.motor,
+        cfg.current.ts_s,
+        cfg.supervisor.model,
+        false,
+    );
+    let readings = |k: u32| {
+        let p = period(k);
+        Readings {
+            channels_a: [Some(p.i_ab_a.alpha), Some(1.5), Some(-1.0)],
+            i_dq_a: p.i_dq_a,
+            i_ref_a: Dq::new(0.0, 2.0),
+            sin_cos: p.sin_cos,
+            voltage_limited: false,
+        }
+    };
+    let next = core::cell::Cell::new(readings(0));
+    add(
+        "  part: frozen-channel check (ModelCheck::frozen_channel)",
+        measure(baseline, n, &mut |k| next.set(readings(1 + k)), &mut |_| {
+            let r = black_box(next.get());
+            black_box(frozen_part(&mut frozen, &r));
+        }),
+    );
     if let Some(p) = cfg.power {
         let mut power = PowerLimiter::new(p);
         let mut report = PowerReport::unlimited(0.0);
@@ -215,6 +241,11 @@ fn model_part(m: &mut ModelCheck, p: &Period) -> Verdict {
     let v = m.check(p);
     m.record(p, [0.52, 0.49, 0.49], 24.0);
     v
+}
+
+#[inline(never)]
+fn frozen_part(m: &mut ModelCheck, r: &Readings) -> bool {
+    m.frozen_channel(r)
 }
 
 #[inline(never)]

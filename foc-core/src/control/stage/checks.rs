@@ -2,6 +2,7 @@
 //! tracking back-up.
 
 use super::*;
+use crate::control::frozen::Readings;
 
 impl CurrentStage {
     /// The model check for the present motor, period and angle sensor (its
@@ -31,6 +32,7 @@ impl CurrentStage {
         &mut self,
         out: Option<&CurrentLoopOutput>,
         sensed: &Sensed,
+        i_ref: Dq,
         w_e_rad_s: f32,
     ) -> bool {
         let Some(o) = out.filter(|o| !o.invalid) else {
@@ -48,9 +50,19 @@ impl CurrentStage {
             omega_e_rad_s: w_e_rad_s,
             unchanged_periods: self.state.unchanged_periods,
         };
-        let fault = match self.model.check(&p) {
+        let verdict = self.model.check(&p);
+        let frozen = self.model.frozen_channel(&Readings {
+            channels_a: sensed.channels,
+            i_dq_a: o.i_dq_a,
+            i_ref_a: i_ref,
+            sin_cos: o.sin_cos,
+            voltage_limited: o.voltage_limited,
+        });
+        let fault = match verdict {
             Verdict::CurrentSense if self.angle_frozen() => Some(Fault::AngleSensorStuck),
             Verdict::CurrentSense => Some(Fault::CurrentSenseError),
+            // A reading that stood while the angle turned the current.
+            Verdict::Quiet if frozen => Some(Fault::CurrentSenseError),
             // A fine sensor only: a coarse one (halls) legitimately stands
             // still through a reversal inside one of its wide counts.
             Verdict::Quiet

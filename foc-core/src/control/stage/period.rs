@@ -76,6 +76,7 @@ impl CurrentStage {
         let mut sensed = Sensed {
             theta_e: ElectricalAngle::ZERO,
             i_abc: crate::frames::Abc::default(),
+            channels: [None; 3],
             i_ab: crate::frames::AlphaBeta::new(0.0, 0.0),
             v_bus_v: s.v_bus_v.unwrap_or(0.0),
             v_bus_read_v: s.v_bus_v,
@@ -105,6 +106,7 @@ impl CurrentStage {
                 self.observer.update(used, self.state.last_i_dq.q);
                 sensed.theta_e = self.config.angle.electrical(used);
                 sensed.i_abc = cur.to_abc();
+                sensed.channels = cur.channels();
                 // |i_ab|^2 against the squared limit: no square root (see
                 // `Supervisor::check_vector_sq`).
                 sensed.i_ab = transforms::clarke(sensed.i_abc);
@@ -166,7 +168,7 @@ impl CurrentStage {
         // acceleration between the edges (design §19).
         let w_observer = self.observer.velocity_rad_s() * pp;
         if closed.is_some()
-            && !(self.sensors_plausible(out.as_ref(), sensed, w_observer)
+            && !(self.sensors_plausible(out.as_ref(), sensed, i_ref, w_observer)
                 && self.currents_track(out.as_ref(), i_ref, w_e))
         {
             // The bridge goes off: nothing recorded this period was applied.
@@ -341,6 +343,8 @@ pub(super) struct Sensed {
     pub(super) theta_e: ElectricalAngle,
     /// Phase currents \[A\].
     pub(super) i_abc: crate::frames::Abc,
+    /// The channels as read (the frozen-channel check).
+    pub(super) channels: [Option<f32>; 3],
     /// `clarke(i_abc)` \[A\].
     pub(super) i_ab: crate::frames::AlphaBeta,
     /// Bus voltage \[V\] (0 when the read failed).
