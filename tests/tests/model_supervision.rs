@@ -10,10 +10,11 @@
 //! - (b) a current channel dead, frozen, with a 0.6 gain or a 20 % offset,
 //!   two and three shunts: a dead or frozen channel caught before the true
 //!   current passes the over-current trip by 10 % (phase B dead with two
-//!   shunts within 5 periods), a gain or an offset at steady speed within
-//!   0.3 s above the unbalance check's stated speed; asserted on every file
-//!   with a fine angle sensor, the hall hub motor's figures printed;
-//! - (c) the angle frozen in torque mode at speed.
+//!   shunts within 5 periods), on every file; a gain or an offset at
+//!   steady speed within 0.3 s above the unbalance check's stated speed
+//!   (every file but the M153, whose top speed is below it);
+//! - (c) the angle frozen in torque mode at speed, every file whose top
+//!   speed reaches the stated one, the hall hub motor included.
 //!
 //! Each test prints its figures per motor: the margin (largest healthy
 //! residual / bound), detection delays and peak true currents.
@@ -407,9 +408,8 @@ fn wrong_gain_or_offset_is_caught_at_steady_speed() {
                     )),
                 );
                 println!("{line}");
-                let hall = foc_bench::identify::hall_class(&s);
                 let w_e = speed * s.motor.pole_pairs as f32;
-                if hall || w_e < UNBALANCE_STATED_SPEED_E_RAD_S {
+                if w_e < UNBALANCE_STATED_SPEED_E_RAD_S {
                     continue;
                 }
                 asserted += 1;
@@ -421,9 +421,10 @@ fn wrong_gain_or_offset_is_caught_at_steady_speed() {
         }
     }
     assert!(failures.is_empty(), "{failures:#?}");
-    // Four files (DJI, GL80, Cheetah, the 2.2 kW IPM), two phases, two faults.
+    // Five files (the hub, DJI, GL80, Cheetah, the 2.2 kW IPM), two phases,
+    // two faults.
     assert!(
-        asserted >= 16,
+        asserted >= 20,
         "only {asserted} cases above the stated speed"
     );
 }
@@ -464,9 +465,11 @@ fn stated_speed(s: &Setup) -> f32 {
 /// rated current against an equal load), at the larger of a third of the
 /// top speed and 1.5 times the stated speed ([`stated_speed`]) where the
 /// motor reaches that: the drive must latch `AngleSensorStuck` within
-/// 5 ms there. Motors whose top speed is below it, and the hall-sensor
-/// hub motor, are run at a third of the top speed and their figures
-/// printed (issue 32 stays open for them).
+/// 5 ms there (with halls, within four counts at that speed and 2 ms:
+/// the reading stands still for a count between edges). Motors whose top
+/// speed is below it are run at a third of the top speed and their
+/// figures printed (the 2.2 kW motor and the M153: detected all the
+/// same).
 #[test]
 fn frozen_angle_in_torque_mode_is_caught_at_speed() {
     let mut failures = Vec::new();
@@ -475,10 +478,10 @@ fn frozen_angle_in_torque_mode_is_caught_at_speed() {
         let mut sim = sim_with_plant(&s, s.motor);
         let f = s.pwm_hz();
         let stated = stated_speed(&s);
-        // Fine sensors only: with halls the stage interpolates inside a
-        // count, and the check is not claimed for them yet.
+        // With halls the reading stands still for a count between edges:
+        // the stage waits four counts' worth at the last edge's speed.
         let hall = foc_bench::identify::hall_class(&s);
-        let above = !hall && 1.5 * stated <= 0.9 * top_speed(&s);
+        let above = 1.5 * stated <= 0.9 * top_speed(&s);
         let w = if above {
             (0.3 * top_speed(&s)).max(1.5 * stated)
         } else {
@@ -510,15 +513,22 @@ fn frozen_angle_in_torque_mode_is_caught_at_speed() {
         println!("{line}");
         if above {
             asserted += 1;
+            let limit_s = if hall {
+                let count_rad =
+                    std::f32::consts::TAU / s.bench.sensors.encoder_counts_per_rev as f32;
+                4.0 * count_rad / speed + 0.002
+            } else {
+                0.005
+            };
             match got {
-                Some((k, Fault::AngleSensorStuck)) if (k as f32) <= 0.005 * f => {}
+                Some((k, Fault::AngleSensorStuck)) if (k as f32) <= limit_s * f => {}
                 _ => failures.push(line),
             }
         }
     }
     assert!(failures.is_empty(), "{failures:#?}");
     assert!(
-        asserted >= 3,
+        asserted >= 4,
         "only {asserted} motor files reach their stated speed"
     );
 }

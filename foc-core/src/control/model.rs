@@ -750,11 +750,11 @@ impl ModelCheck {
             k.inv_b_d
         };
         let volts = t.resistance * k.r_ohm * s.x0n + s.wabs * t.inductance * k.l_max_h * s.x0n;
+        // The back-EMF's size does not depend on the frame's direction:
+        // of the angle's share only the speed's (lag, spread) counts.
+        let speed_v = s.angle_v - s.wabs * t.angle_e_rad * k.psi_wb;
         let min_emf = 2.0
-            * ((t.floor_a + t.inductance * s.step) * inv_b_max
-                + volts
-                + s.angle_v
-                + 2.0 * s.dead_v);
+            * ((t.floor_a + t.inductance * s.step) * inv_b_max + volts + speed_v + 2.0 * s.dead_v);
         self.state.last = Residual {
             r_dq_a: r,
             bound_a: s.bound,
@@ -802,7 +802,7 @@ impl ModelCheck {
         } else {
             0.0
         };
-        !k.coarse_angle && self.state.unbalance.update(missed, p.sin_cos, w_min, &lim)
+        self.state.unbalance.update(missed, p.sin_cos, w_min, &lim)
     }
 
     /// The verdict: the peaks for the margin report, the slow check (the

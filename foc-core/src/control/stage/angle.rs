@@ -163,6 +163,14 @@ impl CurrentStage {
         // for at most 50 ms (longer, the rotor has likely stopped: then it
         // is the currents).
         let still_s = ts * self.state.unchanged_periods as f32;
+        if self.state.interpolation.is_some() {
+            // A coarse sensor (halls): a speed that moves a count within
+            // 10 ms, four counts' worth and more. A rotor that reverses
+            // inside one count at constant deceleration is back at half
+            // the speed it entered with (what `emf_shows_motion` asks)
+            // within three counts' worth of that speed.
+            return speed * 0.01 > count_rad && moved_rad > 4.0 * count_rad && still_s < 0.05;
+        }
         speed * ts * 20.0 > 2.0 * count_rad && moved_rad > 2.0 * count_rad && still_s < 0.05
     }
 

@@ -63,13 +63,10 @@ impl CurrentStage {
             Verdict::CurrentSense => Some(Fault::CurrentSenseError),
             // A reading that stood while the angle turned the current.
             Verdict::Quiet if frozen => Some(Fault::CurrentSenseError),
-            // A fine sensor only: a coarse one (halls) legitimately stands
-            // still through a reversal inside one of its wide counts.
-            Verdict::Quiet
-                if self.state.interpolation.is_none() && self.still_while_emf_moves() =>
-            {
-                Some(Fault::AngleSensorStuck)
-            }
+            // (A coarse sensor, halls, legitimately stands still through a
+            // reversal inside one of its wide counts: `angle_frozen` asks
+            // it for four counts' worth.)
+            Verdict::Quiet if self.still_while_emf_moves() => Some(Fault::AngleSensorStuck),
             Verdict::Quiet => None,
         };
         match fault {
