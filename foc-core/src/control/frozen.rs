@@ -97,6 +97,44 @@ impl Default for Channel {
     }
 }
 
+impl Channel {
+    /// One period of this channel (`read`: its reading, `None` without
+    /// one; `(pa, pb)`: its phase's unit vector); the periods it has been
+    /// off by more than `span` (module docs).
+    #[inline(always)]
+    fn step(&mut self, read: Option<f32>, (pa, pb): (f32, f32), p: &Readings, span: f32) -> u16 {
+        let Some(read) = read else {
+            return 0;
+        };
+        let (sin, cos) = p.sin_cos;
+        let bits = read.to_bits();
+        if self.bits != bits {
+            // The phase's current at angle theta from this dq current:
+            // pa alpha + pb beta, alpha = d cos - q sin, beta = d sin + q cos.
+            let Dq { d, q } = p.i_dq_a;
+            let (cos_a, sin_a) = (pa * d + pb * q, pb * d - pa * q);
+            *self = Channel {
+                bits,
+                cos_a,
+                sin_a,
+                start_a: cos_a * cos + sin_a * sin,
+                start_ref_a: p.i_ref_a,
+                over: 0,
+            };
+            return 0;
+        }
+        let turned = self.cos_a * cos + self.sin_a * sin;
+        let r = p.i_ref_a;
+        let moved = (r.d - self.start_ref_a.d).abs() + (r.q - self.start_ref_a.q).abs();
+        self.over = if (turned - self.start_a).abs() > span + moved {
+            self.over.saturating_add(1)
+        } else {
+            0
+        };
+        self.over
+    }
+}
+
 /// The phases' unit vectors in alpha-beta (a, b, c).
 const PHASES: [(f32, f32); 3] = [
     (1.0, 0.0),
@@ -179,39 +217,13 @@ impl FrozenChannels {
             self.reset();
             return false;
         }
-        let (sin, cos) = p.sin_cos;
+        let [a, b, c] = &mut self.channels;
+        let [ra, rb, rc] = p.channels_a;
+        let [pa, pb, pc] = PHASES;
         let span = self.span_a;
-        let mut longest = 0u16;
-        for ((ch, read), (pa, pb)) in self.channels.iter_mut().zip(p.channels_a).zip(PHASES) {
-            let Some(read) = read else {
-                continue;
-            };
-            let bits = read.to_bits();
-            if ch.bits != bits {
-                // The phase's current at angle theta from this dq current:
-                // pa alpha + pb beta, alpha = d cos - q sin, beta = d sin + q cos.
-                let Dq { d, q } = p.i_dq_a;
-                let (cos_a, sin_a) = (pa * d + pb * q, pb * d - pa * q);
-                *ch = Channel {
-                    bits,
-                    cos_a,
-                    sin_a,
-                    start_a: cos_a * cos + sin_a * sin,
-                    start_ref_a: p.i_ref_a,
-                    over: 0,
-                };
-                continue;
-            }
-            let turned = ch.cos_a * cos + ch.sin_a * sin;
-            let r = p.i_ref_a;
-            let moved = (r.d - ch.start_ref_a.d).abs() + (r.q - ch.start_ref_a.q).abs();
-            ch.over = if (turned - ch.start_a).abs() > span + moved {
-                ch.over.saturating_add(1)
-            } else {
-                0
-            };
-            longest = if ch.over > longest { ch.over } else { longest };
-        }
+        let longest = a.step(ra, pa, p, span);
+        let longest = longest.max(b.step(rb, pb, p, span));
+        let longest = longest.max(c.step(rc, pc, p, span));
         if longest > self.peak_over {
             self.peak_over = longest;
         }
