@@ -63,6 +63,7 @@
 
 pub mod current;
 pub mod estimator;
+pub mod flux_observer;
 pub mod frozen;
 pub mod homing;
 pub mod io;

@@ -10,6 +10,7 @@ use core::hint::black_box;
 use foc_core::angle::{ElectricalAngle, MechanicalAngle};
 use foc_core::control::current::{CurrentLoop, CurrentLoopInput, CurrentLoopOutput};
 use foc_core::control::estimator::{AngleTracker, SpeedObserver};
+use foc_core::control::flux_observer::{FluxObserver, ObserverConfig};
 use foc_core::control::frozen::Readings;
 use foc_core::control::model::{ModelCheck, Period, Verdict};
 use foc_core::control::power::{PowerInputs, PowerLimiter, PowerReport};
@@ -148,6 +149,23 @@ pub fn measure_pieces(rig: &mut Rig, baseline: u32, currents: &dyn Fn(u32) -> Ab
             black_box(frozen_part(&mut frozen, &r));
         }),
     );
+    let mut observer = FluxObserver::new(ObserverConfig {
+        motor: cfg.current.motor,
+        ts_s: cfg.current.ts_s,
+        dead_time_s: cfg.supervisor.model.dead_time_s,
+        current_floor_a: cfg.supervisor.model.floor_a,
+    });
+    for k in 0..4 {
+        black_box(observer_part(&mut observer, period(k).i_ab_a));
+    }
+    let next = core::cell::Cell::new(period(4));
+    add(
+        "  part: flux observer (FluxObserver::update + record)",
+        measure(baseline, n, &mut |k| next.set(period(4 + k)), &mut |_| {
+            let p = black_box(next.get());
+            black_box(observer_part(&mut observer, p.i_ab_a));
+        }),
+    );
     if let Some(p) = cfg.power {
         let mut power = PowerLimiter::new(p);
         let mut report = PowerReport::unlimited(0.0);
@@ -241,6 +259,14 @@ fn model_part(m: &mut ModelCheck, p: &Period) -> Verdict {
     let v = m.check(p);
     m.record(p, [0.52, 0.49, 0.49], 24.0);
     v
+}
+
+#[inline(never)]
+fn observer_part(o: &mut FluxObserver, i_ab: foc_core::frames::AlphaBeta) -> (u32, f32) {
+    let o = black_box(o);
+    o.update(i_ab);
+    o.record([0.52, 0.49, 0.49], 24.0);
+    (o.angle().to_bits(), o.speed_rad_s())
 }
 
 #[inline(never)]
