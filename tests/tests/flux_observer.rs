@@ -9,7 +9,7 @@
 //! speed, down to 0.05 and 0.02, up to 0.2, 0.5 and 0.9, a reversal to
 //! -0.5 and a rated load step there. It prints the angle error at steady
 //! speed per step (the segment's last fifth), the largest error while the
-//! speed changes, the speed error, and the flux linkage tracked.
+//! speed changes, the speed error, and the flux linkage in use.
 //! Asserted with the resistance as identified: at steady speed from 0.1
 //! of the top speed up, the angle
 //! within [`STEADY_LIMIT_RAD`] and the speed within 2 %; while the speed

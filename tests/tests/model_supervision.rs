@@ -479,7 +479,8 @@ fn frozen_angle_in_torque_mode_is_caught_at_speed() {
         let f = s.pwm_hz();
         let stated = stated_speed(&s);
         // With halls the reading stands still for a count between edges:
-        // the stage waits four counts' worth at the last edge's speed.
+        // the stage waits four counts' worth at the last edge's speed, and
+        // for the back-EMF to have turned two counts.
         let hall = foc_bench::identify::hall_class(&s);
         let above = 1.5 * stated <= 0.9 * top_speed(&s);
         let w = if above {
@@ -531,6 +532,42 @@ fn frozen_angle_in_torque_mode_is_caught_at_speed() {
         asserted >= 4,
         "only {asserted} motor files reach their stated speed"
     );
+}
+
+/// Hall sensors: hard reversals at the current limit from low speeds, so
+/// that some turn round inside one hall count (where the reading stands
+/// still while the rotor slows, stops and comes back): no fault.
+#[test]
+fn hall_reversals_inside_a_count_do_not_trip() {
+    let mut reversals = 0;
+    for (stem, s) in setups() {
+        if !foc_bench::identify::hall_class(&s) {
+            continue;
+        }
+        let count_rad = std::f32::consts::TAU / s.bench.sensors.encoder_counts_per_rev as f32;
+        // Speeds whose stopping distance at the current limit is a
+        // fraction of a count up to a few counts.
+        let accel = s.kt() * s.max_current_a / s.motor.inertia_kg_m2 as f32;
+        for stop_counts in [0.3f32, 0.5, 0.7, 0.9, 1.5, 3.0] {
+            let w = (2.0 * accel * stop_counts * count_rad).sqrt();
+            for settle_ms in [20.0f32, 23.0, 27.0] {
+                let mut sim = sim_with_plant(&s, s.motor);
+                sim.cascade.command(Command::Velocity { rad_s: w }).unwrap();
+                assert_eq!(
+                    run_clean(&mut sim, (settle_ms * 1e-3 * s.pwm_hz()) as usize),
+                    None,
+                    "{stem} up to {w:.1} rad/s"
+                );
+                sim.cascade
+                    .command(Command::Velocity { rad_s: -w })
+                    .unwrap();
+                let fault = run_clean(&mut sim, (0.05 * s.pwm_hz()) as usize);
+                assert_eq!(fault, None, "{stem}: reversal from {w:.1} rad/s");
+                reversals += 1;
+            }
+        }
+    }
+    assert!(reversals >= 18, "{reversals}");
 }
 
 /// Prints the disturbance estimate against its envelope through a healthy

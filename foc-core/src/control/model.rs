@@ -27,9 +27,13 @@
 //! ([`SPEED_WINDOW_PERIODS`]); for a coarse sensor (halls) the caller's
 //! estimate.
 //!
-//! Three checks, none of which looks at the reference (a current
+//! Three checks here, none of which looks at the reference (a current
 //! slewing at the voltage limit, a current limit, the power windows,
-//! impedance mode all leave a healthy drive quiet, whatever its size):
+//! impedance mode all leave a healthy drive quiet, whatever its size),
+//! and a fourth it hosts, the frozen-channel check
+//! ([`super::frozen`], [`ModelCheck::frozen_channel`]), which reads the
+//! reference only to excuse a reading that stands while the current
+//! falls:
 //!
 //! - fast: `|r|` against a bound carried along with the estimate: what an
 //!   inductance off by [`ModelTolerances::inductance`] does to this
@@ -664,7 +668,8 @@ impl ModelCheck {
     /// is driven, with [`Self::check`].
     #[inline(always)]
     pub fn frozen_channel(&mut self, readings: &Readings) -> bool {
-        self.frozen.check(readings)
+        // (Trip periods 0 disable the model's checks, this one too.)
+        self.frozen.check(readings) && self.tol.trip_periods != 0
     }
 
     /// This period's prediction from the last one's current and voltage,
@@ -784,8 +789,8 @@ impl ModelCheck {
     }
 
     /// The unbalance check on the voltage the model misses this period
-    /// (the disturbance and what the residual adds to it); not with a
-    /// coarse angle.
+    /// (the disturbance and what the residual adds to it); with a coarse
+    /// angle (halls) too.
     #[inline(always)]
     fn unbalance(&mut self, p: &Period, s: &Step, env: f32) -> bool {
         let k = &self.k;

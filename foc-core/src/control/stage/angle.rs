@@ -165,10 +165,9 @@ impl CurrentStage {
         let still_s = ts * self.state.unchanged_periods as f32;
         if self.state.interpolation.is_some() {
             // A coarse sensor (halls): a speed that moves a count within
-            // 10 ms, four counts' worth and more. A rotor that reverses
-            // inside one count at constant deceleration is back at half
-            // the speed it entered with (what `emf_shows_motion` asks)
-            // within three counts' worth of that speed.
+            // 10 ms, four counts' worth and more (a rotor that reverses
+            // inside one count stands that long too: `still_while_emf_moves`
+            // asks the back-EMF to have turned two counts' worth as well).
             return speed * 0.01 > count_rad && moved_rad > 4.0 * count_rad && still_s < 0.05;
         }
         speed * ts * 20.0 > 2.0 * count_rad && moved_rad > 2.0 * count_rad && still_s < 0.05
@@ -179,7 +178,51 @@ impl CurrentStage {
     /// says the rotor turns.
     #[inline(always)]
     pub(super) fn still_while_emf_moves(&self) -> bool {
-        self.angle_frozen() && self.emf_shows_motion()
+        self.angle_frozen() && self.emf_shows_motion() && self.emf_turned_on()
+    }
+
+    /// For a coarse sensor: the back-EMF has turned, in the direction of
+    /// the last speed, by more than two counts (electrical) since the
+    /// reading last changed. Its direction in the frame of the angle used
+    /// is the rotor's against that frame, so a rotor that reverses inside
+    /// one count turns it back; a rotor that turns on under a frozen
+    /// reading turns it on. (A fine sensor: always.)
+    #[inline(always)]
+    fn emf_turned_on(&self) -> bool {
+        if self.state.interpolation.is_none() {
+            return true;
+        }
+        let cpr = self.config.angle.sensor_counts_per_rev.max(1);
+        let count_e_rad = core::f32::consts::TAU * self.config.angle.pole_pairs as f32 / cpr as f32;
+        let turned = if self.state.speed_at_change_rad_s < 0.0 {
+            -self.state.emf_turned_rad
+        } else {
+            self.state.emf_turned_rad
+        };
+        turned > 2.0 * count_e_rad
+    }
+
+    /// Accumulates how far the measured back-EMF turned this period (a
+    /// coarse sensor only; where it is above the check's uncertainty).
+    #[inline(always)]
+    pub(super) fn follow_emf(&mut self) {
+        if self.state.interpolation.is_none() {
+            return;
+        }
+        let r = self.model.last();
+        let e = r.emf_dq_v;
+        let e_sq = e.d * e.d + e.q * e.q;
+        let strong = e_sq > r.min_emf_v * r.min_emf_v;
+        if let (Some(p), true) = (self.state.last_emf_v, strong) {
+            let cross = p.d * e.q - p.q * e.d;
+            let dot = p.d * e.d + p.q * e.q;
+            if dot > 0.0 {
+                // The angle between the two, as its tangent (a period turns
+                // it by far less than a radian).
+                self.state.emf_turned_rad += cross / dot;
+            }
+        }
+        self.state.last_emf_v = if strong { Some(e) } else { None };
     }
 
     /// The back-EMF the model check measured (independent of the angle)

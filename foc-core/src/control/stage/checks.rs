@@ -51,6 +51,7 @@ impl CurrentStage {
             unchanged_periods: self.state.unchanged_periods,
         };
         let verdict = self.model.check(&p);
+        self.follow_emf();
         let frozen = self.model.frozen_channel(&Readings {
             channels_a: sensed.channels,
             i_dq_a: o.i_dq_a,

@@ -119,6 +119,12 @@ pub struct CurrentStageState {
     /// The tracked speed [rad/s, mechanical] when the reading last changed
     /// (names a model-check trip with a frozen reading, design §24).
     pub speed_at_change_rad_s: f32,
+    /// How far the measured back-EMF has turned in the dq frame since the
+    /// reading last changed [rad, electrical] (a coarse sensor's frozen
+    /// reading under a turning rotor, design §24), and its last value.
+    pub emf_turned_rad: f32,
+    /// See `emf_turned_rad`.
+    pub last_emf_v: Option<Dq>,
     /// The speed stage's q-current reference as the current loop uses it,
     /// interpolated over the speed-loop period \[A\] (design §19).
     pub iq_interp_a: f32,
@@ -168,6 +174,8 @@ impl CurrentStageState {
             last_innovation_rad: 0.0,
             unchanged_periods: 0,
             speed_at_change_rad_s: 0.0,
+            emf_turned_rad: 0.0,
+            last_emf_v: None,
             iq_interp_a: 0.0,
             iq_step_a: 0.0,
             iq_target_a: 0.0,

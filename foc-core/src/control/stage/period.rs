@@ -94,6 +94,7 @@ impl CurrentStage {
                 let changed = self.state.last_raw != Some(raw);
                 self.state.unchanged_periods = if changed {
                     self.state.speed_at_change_rad_s = self.tracker.velocity_rad_s();
+                    self.state.emf_turned_rad = 0.0;
                     0
                 } else {
                     self.state.unchanged_periods.saturating_add(1)
