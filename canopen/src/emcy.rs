@@ -30,6 +30,7 @@
 //! | OverSpeed | 0x8400 | velocity / speed controller |
 //! | SpeedRunaway | 0x8400 | speed controller (shared: byte 3 tells) |
 //! | TravelLimit | 0x8612 | positioning controller, reference limit |
+//! | ObserverLostLock | 0x7300 | sensor (the sensorless observer) |
 //!
 //! The node's own errors: following error 0x8611 (from the profile),
 //! heartbeat consumer timeout 0x8130, bus-off recovered 0x8140, PDO
@@ -79,6 +80,7 @@ pub const fn fault_code(f: Fault) -> u16 {
         Fault::CommandTimeout => 0x8100,
         Fault::OverSpeed | Fault::SpeedRunaway => 0x8400,
         Fault::TravelLimit => 0x8612,
+        Fault::ObserverLostLock => 0x7300,
     }
 }
 

@@ -165,6 +165,7 @@ class Fault(enum.IntEnum):
     OverSpeed = 19
     SpeedRunaway = 20
     TravelLimit = 21
+    ObserverLostLock = 22
 
 
 class ActiveLimit(enum.IntEnum):

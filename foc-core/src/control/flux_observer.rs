@@ -178,6 +178,28 @@ impl FluxObserver {
         }
     }
 
+    /// Place the estimate on a rotor known to stand at `theta` (after an
+    /// alignment): the stator flux is the active flux there plus `Lq i`
+    /// with the last current taken, the speed zero. At standstill the
+    /// angle is not observable; without this the estimate keeps its old
+    /// angle until the rotor has turned about a radian.
+    pub fn place(&mut self, theta: ElectricalAngle) {
+        let m = self.cfg.motor;
+        let i = self.prev_i.unwrap_or(AlphaBeta::new(0.0, 0.0));
+        let (sin, cos) = crate::trig::sin_cos(theta);
+        let i_d = i.alpha * cos + i.beta * sin;
+        let psi_a = (self.psi_wb + (m.ld_h - m.lq_h) * i_d).max(0.1 * self.psi_wb);
+        let psi_s = AlphaBeta::new(
+            psi_a * cos + m.lq_h * i.alpha,
+            psi_a * sin + m.lq_h * i.beta,
+        );
+        if crate::all_finite([psi_s.alpha, psi_s.beta]) {
+            self.psi_s = psi_s;
+            self.theta = theta;
+            self.omega_rad_s = 0.0;
+        }
+    }
+
     /// The gains in use (`None`: the motor is not usable).
     pub fn gains(&self) -> Option<ObserverGains> {
         self.gains

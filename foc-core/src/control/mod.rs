@@ -72,6 +72,7 @@ pub mod model;
 pub mod permit;
 pub mod position;
 pub mod power;
+pub mod sensorless;
 pub mod speed;
 pub mod stage;
 pub mod supervisor;

@@ -72,11 +72,15 @@ pub enum Fault {
     /// The position went beyond the travel limits by more than their
     /// margin (design §21) while the bridge was on.
     TravelLimit = 21,
+    /// Sensorless (design §27): the flux observer did not follow the field
+    /// of a start in time, or lost the rotor: a locked or stalled rotor, a
+    /// load beyond the start current, or a speed it cannot see.
+    ObserverLostLock = 22,
 }
 
 impl Fault {
     /// Every fault, in code order.
-    pub const ALL: [Fault; 21] = [
+    pub const ALL: [Fault; 22] = [
         Fault::OverCurrentPhase,
         Fault::OverCurrentVector,
         Fault::BusOverVoltage,
@@ -98,6 +102,7 @@ impl Fault {
         Fault::OverSpeed,
         Fault::SpeedRunaway,
         Fault::TravelLimit,
+        Fault::ObserverLostLock,
     ];
 
     /// Stable numeric code (1..).
@@ -134,6 +139,7 @@ impl Fault {
             Fault::OverSpeed => "over-speed",
             Fault::SpeedRunaway => "speed runaway / persistent speed error",
             Fault::TravelLimit => "travel limit exceeded",
+            Fault::ObserverLostLock => "sensorless observer lost the rotor",
         }
     }
 

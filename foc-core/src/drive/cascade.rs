@@ -149,6 +149,7 @@ impl CascadeConfig {
                 timeout_reaction: TimeoutReaction::Disable,
                 power: None,
                 joint: JointConfig::for_pwm(pwm_frequency_hz),
+                sensorless: None,
             },
             speed: SpeedLoopConfig::from_bandwidth(
                 inertia_kg_m2,

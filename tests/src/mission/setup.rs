@@ -112,6 +112,28 @@ impl Setup {
         c
     }
 
+    /// [`Self::cascade_config`] running without its angle sensor (design
+    /// §27): the flux observer from the motor, the board's dead time and
+    /// the model check's current floor; the start at the rated current.
+    pub fn sensorless_config(&self) -> CascadeConfig {
+        use foc_core::control::flux_observer::ObserverConfig;
+        use foc_core::control::sensorless::SensorlessConfig;
+        let mut c = self.cascade_config();
+        let observer = ObserverConfig {
+            motor: c.current.current.motor,
+            ts_s: c.current.current.ts_s,
+            dead_time_s: c.current.supervisor.model.dead_time_s,
+            current_floor_a: c.current.supervisor.model.floor_a,
+        };
+        c.current.sensorless = SensorlessConfig::for_motor(
+            observer,
+            self.rated_current_a.min(self.max_current_a),
+            self.motor.inertia_kg_m2 as f32,
+            self.bench.bus_voltage_v as f32,
+        );
+        c
+    }
+
     /// [`Self::cascade_config`] as a drive starts before its first
     /// identification: the rotor's mechanics not known (the speed
     /// observer without a model, no speed feed-forward). The

@@ -60,6 +60,9 @@ impl CurrentStage {
             voltage_limited: o.voltage_limited,
         });
         let fault = match verdict {
+            // Sensorless, the angle is the observer's: the check cannot
+            // tell a wrong angle from wrong readings (design §27).
+            Verdict::CurrentSense if self.sensorless.is_some() => Some(Fault::ObserverLostLock),
             Verdict::CurrentSense if self.angle_frozen() => Some(Fault::AngleSensorStuck),
             Verdict::CurrentSense => Some(Fault::CurrentSenseError),
             // A reading that stood while the angle turned the current.

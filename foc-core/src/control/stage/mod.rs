@@ -12,6 +12,7 @@ mod commands;
 mod impedance;
 mod outer;
 mod period;
+mod sensorless;
 mod window;
 
 pub use angle::{AngleCalibration, INTERPOLATE_BELOW_COUNTS_PER_E_TURN};
@@ -28,6 +29,7 @@ use super::model::{ModelCheck, Period, Verdict};
 use super::permit::Calibrated;
 use super::position::{PositionLoop, PositionLoopConfig};
 use super::power::{PowerInputs, PowerLimiter, PowerLimitsConfig, PowerReport};
+use super::sensorless::{Sensorless, SensorlessConfig};
 use super::speed::{SpeedLoop, SpeedLoopConfig};
 use super::supervisor::{Checks, Fault, Supervisor, SupervisorConfig};
 use super::Refusal;
@@ -66,6 +68,9 @@ pub struct CurrentStageConfig {
     /// Robot-joint settings: travel limits, impedance entry and timeout
     /// (design §21).
     pub joint: JointConfig,
+    /// Run without the angle sensor (design §27): the flux observer and
+    /// the start's field give the angle; `None`: the angle sensor does.
+    pub sensorless: Option<SensorlessConfig>,
 }
 
 /// One period's measurements; `None` where the read failed.
@@ -100,6 +105,11 @@ pub struct CurrentStageState {
     pub last_out_v_dq: Dq,
     /// dq current of the last period \[A\].
     pub last_i_dq: Dq,
+    /// Sensorless (design §27): the q current of the last period in the
+    /// observer's frame \[A\] (on a start's field the loop's frame is the
+    /// field's): the torque the speed observer takes. (With a sensor the
+    /// observer takes `last_i_dq.q`.)
+    pub torque_iq_a: f32,
     /// Periods stepped (wraps).
     pub period: u32,
     /// Commands refused so far.
@@ -165,6 +175,7 @@ impl CurrentStageState {
             ol_theta: ElectricalAngle::ZERO,
             last_out_v_dq: Dq::ZERO,
             last_i_dq: Dq::ZERO,
+            torque_iq_a: 0.0,
             period: 0,
             rejected: 0,
             calibrated: false,
@@ -236,6 +247,8 @@ pub struct CurrentStage {
     power: Option<PowerLimiter>,
     /// Their report of this period.
     power_report: PowerReport,
+    /// The sensorless angle source, when configured (design §27).
+    sensorless: Option<Sensorless>,
 }
 
 impl CurrentStage {
@@ -263,6 +276,7 @@ impl CurrentStage {
             state: CurrentStageState::new(config.angle.interpolation_half_count()),
             power: config.power.map(PowerLimiter::new),
             power_report: PowerReport::unlimited(config.limits.max_current_a),
+            sensorless: config.sensorless.map(Sensorless::new),
         }
     }
 
@@ -304,12 +318,25 @@ impl CurrentStage {
         let cur = c.current_config();
         self.config.current = cur;
         self.current.set_config(cur);
+        self.sensorless_motor(cur.motor);
         if let Some(p) = self.power.as_mut() {
             p.set_motor(cur.motor);
         }
         self.state.calibrated = true;
         self.rederive_mechanics();
         self.rebuild_model();
+    }
+
+    /// The sensorless observer restarts with a new motor.
+    fn sensorless_motor(&mut self, motor: super::MotorParams) {
+        if let Some(sl) = self.sensorless.as_mut() {
+            if sl.config().observer.motor != motor {
+                sl.set_motor(motor);
+            }
+        }
+        if let Some(c) = self.config.sensorless.as_mut() {
+            c.observer.motor = motor;
+        }
     }
 
     /// The observer's `kt / J` after the motor changed.
@@ -331,6 +358,7 @@ impl CurrentStage {
     pub fn set_current_config(&mut self, c: CurrentLoopConfig) {
         self.config.current = c;
         self.current.set_config(c);
+        self.sensorless_motor(c.motor);
         if let Some(p) = self.power.as_mut() {
             p.set_motor(c.motor);
         }

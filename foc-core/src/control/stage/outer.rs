@@ -38,9 +38,13 @@ impl SpeedStage {
     /// Outside velocity/position modes it tracks the active current
     /// reference so that entering those modes is bumpless.
     pub fn step(&mut self, fb: &Feedback, from_position: VelocityRef) -> f32 {
+        // (A sensorless start runs its own field and reports open loop
+        // under a velocity or position command: the loop waits, design §27.)
         let (w_ref, ff) = match fb.active {
-            Command::Velocity { rad_s } => (Some(rad_s), 0.0),
-            Command::Position { .. } => (Some(from_position.rad_s), from_position.iq_ff_a),
+            Command::Velocity { rad_s } if fb.mode == Mode::Velocity => (Some(rad_s), 0.0),
+            Command::Position { .. } if fb.mode == Mode::Position => {
+                (Some(from_position.rad_s), from_position.iq_ff_a)
+            }
             _ => (None, 0.0),
         };
         let entering = !matches!(self.last_mode, Mode::Velocity | Mode::Position);
@@ -124,7 +128,11 @@ impl PositionStage {
     /// feed-forward) for the speed stage. Outside position mode it returns
     /// the measured velocity and no feed-forward.
     pub fn step(&mut self, fb: &Feedback) -> VelocityRef {
-        let w = if let Command::Position { rad } = fb.active {
+        let position = match fb.active {
+            Command::Position { rad } if fb.mode == Mode::Position => Some(rad),
+            _ => None,
+        };
+        let w = if let Some(rad) = position {
             if self.last_mode != Mode::Position {
                 self.pos.start_move(fb.position_rad, fb.velocity_rad_s, rad);
             } else if rad != self.last_target {

@@ -73,15 +73,10 @@ impl CurrentStage {
     /// its fault and leaves zeros.
     #[inline(always)]
     pub(super) fn sense(&mut self, s: &Sample, iq_ref_from_speed_a: f32) -> Sensed {
-        let mut sensed = Sensed {
-            theta_e: ElectricalAngle::ZERO,
-            i_abc: crate::frames::Abc::default(),
-            channels: [None; 3],
-            i_ab: crate::frames::AlphaBeta::new(0.0, 0.0),
-            v_bus_v: s.v_bus_v.unwrap_or(0.0),
-            v_bus_read_v: s.v_bus_v,
-            temperature_c: s.temperature_c,
-        };
+        if self.sensorless.is_some() {
+            return self.sense_sensorless(s);
+        }
+        let mut sensed = Sensed::unread(s);
         match (s.currents, s.angle, s.v_bus_v) {
             (None, _, _) => self.supervisor.trip(Fault::CurrentSenseError),
             (_, None, _) => self.supervisor.trip(Fault::AngleSensorError),
@@ -163,6 +158,15 @@ impl CurrentStage {
                 Dq::new(0.0, iq)
             }
         });
+        let closed = if self.sensorless.is_some() {
+            // Sensorless (design §27): on a start's field the loop runs here.
+            match self.sensorless_field(closed, sensed, w_e, iq_ref_from_speed_a) {
+                Ok(field) => return field,
+                Err(closed) => closed,
+            }
+        } else {
+            closed
+        };
         let (out, i_ref, theta_e) = self.current_loop(closed, sensed, w_e);
         // The model takes its speed from the angle's change; for a coarse
         // sensor (halls) from the torque-fed observer, which knows the
@@ -332,7 +336,26 @@ impl CurrentStage {
             power: self.published_window(),
             period: self.state.period,
         };
+        if self.sensorless.is_some() {
+            self.publish_sensorless(out.map(|o| o.duties), v_bus, fb);
+        }
         bridge
+    }
+}
+
+impl Sensed {
+    /// Nothing read yet: zeros, the bus and the temperature as read.
+    #[inline(always)]
+    pub(super) fn unread(s: &Sample) -> Self {
+        Self {
+            theta_e: ElectricalAngle::ZERO,
+            i_abc: crate::frames::Abc::default(),
+            channels: [None; 3],
+            i_ab: crate::frames::AlphaBeta::new(0.0, 0.0),
+            v_bus_v: s.v_bus_v.unwrap_or(0.0),
+            v_bus_read_v: s.v_bus_v,
+            temperature_c: s.temperature_c,
+        }
     }
 }
 

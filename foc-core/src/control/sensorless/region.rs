@@ -1,0 +1,202 @@
+//! Which angle the current loop uses this period: the regions and their
+//! changes (see the module docs of [`super`]).
+
+use super::Sensorless;
+use crate::frames::Dq;
+
+/// Where a sensorless drive runs (module docs of [`super`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Region {
+    /// Bridge off or no closed-loop command.
+    Idle,
+    /// The current is ramped up along a held angle: the rotor turns onto
+    /// it.
+    Align,
+    /// The current loop runs on the field's angle, which the drive turns
+    /// (I/f).
+    Field,
+    /// The current loop runs on the observer's angle (closed loop).
+    Observer,
+}
+
+/// A change of the current loop's frame this period.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Switch {
+    /// None.
+    Stay,
+    /// To a frame `old - new` \[rad\] behind the old one: a dq vector of
+    /// the old frame is turned by this angle to read in the new one.
+    Turn {
+        /// `old - new` \[rad, electrical\].
+        rotate_rad: f32,
+        /// True: to the observer's frame; false: to the field's.
+        to_observer: bool,
+    },
+}
+
+/// The observer did not agree with the field in time (module docs of
+/// [`super`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct LostLock;
+
+impl Sensorless {
+    /// Decide this period's region. `closed`: a closed-loop command is
+    /// active; `target_rad_s`: the field's target speed [rad/s,
+    /// electrical] (the velocity command; 0 in the other modes); `i_ref`:
+    /// the closed loop's current reference of the last period \[A\] (the
+    /// field is placed on it when the observer lets go).
+    pub fn step(&mut self, closed: bool, target_rad_s: f32, i_ref: Dq) -> Result<Switch, LostLock> {
+        if !closed {
+            self.region = Region::Idle;
+            return Ok(Switch::Stay);
+        }
+        let switch = match self.region {
+            Region::Idle => {
+                self.start_align();
+                Ok(Switch::Stay)
+            }
+            Region::Align => {
+                self.align();
+                Ok(Switch::Stay)
+            }
+            Region::Field => self.turn_field(target_rad_s),
+            Region::Observer => Ok(self.follow_observer(i_ref)),
+        };
+        self.damp();
+        switch
+    }
+
+    /// The damping's lead: the field's speed less the rotor's, as the
+    /// observer sees it, times the damping time (bounded).
+    fn damp(&mut self) {
+        let slip = self.field_rad_s - self.observer.speed_rad_s();
+        // On the turning field the observer's speed is worth little until
+        // the field nears the hand-over speed: the damping grows with it.
+        let weight = match self.region {
+            Region::Field => (self.field_rad_s.abs() / self.cfg.handover_rad_s).min(1.0),
+            _ => 1.0,
+        };
+        let lead = self.cfg.damping_s * weight * slip;
+        self.lead_rad = if lead.is_finite() {
+            crate::clamp(lead, -super::DAMPING_MAX_RAD, super::DAMPING_MAX_RAD)
+        } else {
+            0.0
+        };
+    }
+
+    /// The alignment starts at the observer's angle (where the rotor was
+    /// when the drive last ran; zero after a reset).
+    fn start_align(&mut self) {
+        self.region = Region::Align;
+        self.field = self.observer.angle();
+        self.field_rad_s = 0.0;
+        self.field_a = 0.0;
+        self.periods = 0;
+        self.agree = 0;
+        self.waited = 0;
+        self.blend_a = 0.0;
+    }
+
+    /// The current up in a straight line over the rise, then held.
+    fn align(&mut self) {
+        self.periods += 1;
+        let rise = self.cfg.rise_periods.max(1) as f32;
+        self.field_a = self.cfg.current_a * (self.periods as f32 / rise).min(1.0);
+        if self.periods >= self.cfg.align_periods {
+            // The rotor stands on the field (less a load's angle): the
+            // observer starts from there.
+            self.observer.place(self.field);
+            self.region = Region::Field;
+        }
+    }
+
+    /// The field's speed towards the target, its angle on; the hand-over
+    /// when the observer agrees long enough.
+    fn turn_field(&mut self, target_rad_s: f32) -> Result<Switch, LostLock> {
+        let c = &self.cfg;
+        let ts = c.observer.ts_s;
+        let up = c.current_a / c.rise_periods.max(1) as f32;
+        self.field_a = (self.field_a + up).min(c.current_a);
+        let dv = c.accel_rad_s2 * ts;
+        // The field goes no faster than a quarter above the hand-over
+        // speed: the observer takes over a rotor at a steady speed,
+        // carrying its load (not accelerating), and the speed loop
+        // takes it on from there.
+        let top = 1.25 * c.handover_rad_s;
+        let target = if target_rad_s.is_finite() {
+            crate::clamp(target_rad_s, -top, top)
+        } else {
+            0.0
+        };
+        self.field_rad_s += crate::clamp(target - self.field_rad_s, -dv, dv);
+        let steady = self.field_rad_s == target;
+        self.field = self.field.add_radians(self.field_rad_s * ts);
+        let w = self.field_rad_s;
+        let w_obs = self.observer.speed_rad_s();
+        // Against the field (or under a field at rest) faster than the
+        // release speed: the rotor does not follow, whatever the field's
+        // speed (a load that drives it backwards).
+        let against = w_obs.abs() >= c.release_rad_s && w_obs * w <= 0.0;
+        if w.abs() < c.handover_rad_s && !against {
+            self.agree = 0;
+            self.waited = 0;
+            return Ok(Switch::Stay);
+        }
+        let agrees = steady && (w_obs - w).abs() <= 0.2 * w.abs();
+        self.agree = if agrees { self.agree + 1 } else { 0 };
+        self.waited += 1;
+        // Against the field: given only the time to agree.
+        if against && self.waited > c.lock_periods {
+            return Err(LostLock);
+        }
+        if self.agree >= c.lock_periods {
+            let rotate_rad = self.current_angle().diff_radians(self.observer.angle());
+            self.region = Region::Observer;
+            self.waited = 0;
+            // The field's d current, taken down over the blend.
+            self.blend_a = self.field_a * libm::cosf(rotate_rad);
+            self.blend_step_a = self.blend_a / c.blend_periods.max(1) as f32;
+            return Ok(Switch::Turn {
+                rotate_rad,
+                to_observer: true,
+            });
+        }
+        if self.waited > c.lock_timeout_periods {
+            return Err(LostLock);
+        }
+        Ok(Switch::Stay)
+    }
+
+    /// The observer's angle while it sees the rotor; below the release
+    /// speed the field takes over on the current vector in force.
+    fn follow_observer(&mut self, i_ref: Dq) -> Switch {
+        let w = self.observer.speed_rad_s();
+        if w.abs() >= self.cfg.release_rad_s {
+            return Switch::Stay;
+        }
+        let obs = self.observer.angle();
+        let size = libm::sqrtf(i_ref.d * i_ref.d + i_ref.q * i_ref.q);
+        let at = if size > 0.05 * self.cfg.current_a {
+            libm::atan2f(i_ref.q, i_ref.d)
+        } else {
+            0.0
+        };
+        self.field = obs.add_radians(at);
+        self.field_rad_s = w;
+        self.field_a = size.min(self.cfg.current_a);
+        self.region = Region::Field;
+        self.agree = 0;
+        self.waited = 0;
+        self.blend_a = 0.0;
+        Switch::Turn {
+            rotate_rad: obs.diff_radians(self.field),
+            to_observer: false,
+        }
+    }
+
+    /// The field's current \[A\] (along the field's angle).
+    pub fn field_current_a(&self) -> f32 {
+        self.field_a
+    }
+}

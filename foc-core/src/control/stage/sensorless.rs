@@ -1,0 +1,186 @@
+//! Sensorless (design §27): the angle the current loop uses, the field of
+//! a start, and the hand-overs between the field and the observer.
+
+use super::*;
+use crate::control::sensorless::{Region, Switch};
+
+/// A dq vector of a frame read in a frame `rotate_rad` behind it.
+fn turned(v: Dq, rotate_rad: f32) -> Dq {
+    let (s, c) = libm::sincosf(rotate_rad);
+    let ab = transforms::inverse_park(v, s, c);
+    Dq::new(ab.alpha, ab.beta)
+}
+
+impl CurrentStage {
+    /// The sensorless angle source, when configured.
+    pub fn sensorless(&self) -> Option<&Sensorless> {
+        self.sensorless.as_ref()
+    }
+
+    /// The region in force (`None`: the drive runs on its angle sensor).
+    pub fn sensorless_region(&self) -> Option<Region> {
+        self.sensorless.as_ref().map(|s| s.region())
+    }
+
+    /// Sensorless period start: the observer takes the currents, its
+    /// angle is the one used, the tracker and the speed observer follow
+    /// the mechanical angle made from it; the supervisor's checks as with a
+    /// sensor, less the reading's (there is none).
+    #[inline(never)]
+    pub(super) fn sense_sensorless(&mut self, s: &Sample) -> Sensed {
+        let mut sensed = Sensed::unread(s);
+        let pp = self.config.angle.pole_pairs;
+        let (Some(cur), Some(v_bus_v), Some(sl)) =
+            (s.currents, s.v_bus_v, self.sensorless.as_mut())
+        else {
+            let f = if s.currents.is_none() {
+                Fault::CurrentSenseError
+            } else {
+                Fault::BusSenseError
+            };
+            self.supervisor.trip(f);
+            return sensed;
+        };
+        sensed.i_abc = cur.to_abc();
+        sensed.channels = cur.channels();
+        sensed.i_ab = transforms::clarke(sensed.i_abc);
+        let mech = sl.sense(sensed.i_ab, pp);
+        sensed.theta_e = sl.observer().angle();
+        self.tracker.update(mech);
+        self.observer.update(mech, self.state.torque_iq_a);
+        let i_ab = sensed.i_ab;
+        let vector_sq = i_ab.alpha * i_ab.alpha + i_ab.beta * i_ab.beta;
+        self.supervisor.check_vector_sq(
+            &Checks {
+                i_abc_a: sensed.i_abc,
+                measured_sum_a: cur.measured_sum_a(),
+                vector_current_a: 0.0,
+                v_bus_v,
+                angle_innovation_rad: 0.0,
+                angle_step_rad: 0.0,
+                speed_rad_s: self.tracker.velocity_rad_s(),
+                temperature_c: s.temperature_c,
+            },
+            vector_sq,
+        );
+        sensed
+    }
+
+    /// Sensorless: decides the region. In `Align` and `Field` it runs the
+    /// current loop on the field and returns its output, reference and
+    /// angle (`Ok`); in `Observer` the closed loop's reference `closed`
+    /// after a hand-over's turn of the loop's frame, with the field's d
+    /// current still added and the q current held until the speed stage's
+    /// next step (`Err`: the closed loop runs on the observer's angle).
+    /// A lost lock latches [`Fault::ObserverLostLock`] (bridge off).
+    #[inline(never)]
+    pub(super) fn sensorless_field(
+        &mut self,
+        closed: Option<Dq>,
+        sensed: &Sensed,
+        w_e: f32,
+        from_speed_a: f32,
+    ) -> Result<(Option<CurrentLoopOutput>, Dq, ElectricalAngle), Option<Dq>> {
+        let pp = f32::from(self.config.angle.pole_pairs);
+        let Some(sl) = self.sensorless.as_mut() else {
+            return Err(closed);
+        };
+        let target = match self.state.active {
+            Command::Velocity { rad_s } => rad_s * pp,
+            _ => 0.0,
+        };
+        match sl.step(closed.is_some(), target, self.state.last_i_dq) {
+            Err(_) => {
+                self.supervisor.trip(Fault::ObserverLostLock);
+                self.state.active = Command::Disable;
+                self.model.reset();
+                return Ok((None, Dq::ZERO, sensed.theta_e));
+            }
+            Ok(Switch::Turn {
+                rotate_rad,
+                to_observer,
+            }) => {
+                let i = turned(self.state.last_i_dq, rotate_rad);
+                let v = turned(self.state.last_out_v_dq, rotate_rad);
+                self.current.preload(v, i, w_e);
+                if to_observer {
+                    // The q current that carried the rotor is held until
+                    // the speed stage's next step, which starts from it.
+                    self.state.iq_interp_a = i.q;
+                    self.state.iq_target_a = from_speed_a;
+                    self.state.iq_step_a = 0.0;
+                    sl.hold_iq(i.q, from_speed_a);
+                }
+            }
+            Ok(Switch::Stay) => {}
+        }
+        if !matches!(sl.region(), Region::Align | Region::Field) {
+            let Some(i) = closed else {
+                return Err(None);
+            };
+            let blend = sl.take_blend_a();
+            let q = match sl.held_iq(from_speed_a) {
+                Some(held) => {
+                    self.state.iq_interp_a = held;
+                    held
+                }
+                None => i.q,
+            };
+            return Err(Some(Dq::new(i.d + blend, q)));
+        }
+        let field = sl.current_angle();
+        let i_ref = Dq::new(sl.field_current_a(), 0.0);
+        let out = self.current.step_inline_ab(
+            &CurrentLoopInput {
+                i_abc_a: sensed.i_abc,
+                theta_e: field,
+                omega_e_rad_s: sl.field_speed_rad_s(),
+                v_bus_v: sensed.v_bus_v,
+                i_dq_ref_a: i_ref,
+            },
+            sensed.i_ab,
+        );
+        // The speed stage tracks the q current the field gives the rotor
+        // as the observer sees it (bumpless hand-over).
+        let to_rotor = field.diff_radians(sensed.theta_e);
+        self.state.iq_interp_a = turned(out.i_dq_a, to_rotor).q;
+        self.state.iq_target_a = from_speed_a;
+        self.state.iq_step_a = 0.0;
+        // The field is not the rotor's angle: the model check waits.
+        self.model.idle(sensed.theta_e);
+        Ok((Some(out), i_ref, field))
+    }
+
+    /// Sensorless end of period: the observer records the duties (or
+    /// pauses with the bridge off); on a start's field the feedback
+    /// reports open loop (the outer loops wait) and the speed observer
+    /// takes the q current in the observer's frame; the published speed
+    /// is the flux observer's PLL (its bandwidth is ten times the speed
+    /// observer's, which a start's field feeds with a torque known too
+    /// roughly) and no disturbance (the speed loop's integrator takes the
+    /// load).
+    #[inline(never)]
+    pub(super) fn publish_sensorless(
+        &mut self,
+        duties: Option<[f32; 3]>,
+        v_bus_v: f32,
+        fb: &mut Feedback,
+    ) {
+        let pp = f32::from(self.config.angle.pole_pairs.max(1));
+        let Some(sl) = self.sensorless.as_mut() else {
+            return;
+        };
+        let on_field = matches!(sl.region(), Region::Align | Region::Field) && duties.is_some();
+        sl.record(duties, v_bus_v);
+        self.state.torque_iq_a = if on_field {
+            self.state.iq_interp_a
+        } else {
+            fb.i_dq_a.q
+        };
+        if on_field {
+            fb.mode = Mode::OpenLoop;
+        }
+        fb.velocity_rad_s = sl.observer().speed_rad_s() / pp;
+        fb.disturbance_rad_s2 = 0.0;
+    }
+}
