@@ -73,7 +73,7 @@ pub struct SensorlessConfig {
     pub align_periods: u32,
     /// Periods over which the current rises at the alignment's start.
     pub rise_periods: u32,
-    /// The field's damping [s]: the current's angle leads the field by this
+    /// The field's damping \[s\]: the current's angle leads the field by this
     /// times the field's speed less the observer's (bounded to
     /// [`DAMPING_MAX_RAD`]). A rotor left to a turning field swings about
     /// it like a pendulum with almost nothing to damp it; this is the
