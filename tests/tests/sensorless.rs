@@ -13,9 +13,9 @@
 //!   starts from beside the alignment's unstable point trip its
 //!   over-current) and none moves backwards by more than 200 electrical
 //!   degrees (the alignment's half turn). The loaded figures are printed:
-//!   starts near the alignment's unstable point, and on the interior-PM
-//!   and M153 files most loaded starts, latch `ObserverLostLock` (design
-//!   §27, not met yet).
+//!   starts near the alignment's unstable point latch `ObserverLostLock`,
+//!   and on the interior-PM file all but one start against an active load
+//!   (design §27, not met yet).
 //! - A locked rotor during a start and at speed latches
 //!   `ObserverLostLock` within the bound the configuration gives, bridge
 //!   off.

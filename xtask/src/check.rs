@@ -115,7 +115,28 @@ fn host_steps() -> Vec<Step> {
             crate::canopen::run_tests,
         ),
         Step::new("simulation smoke run (cargo xtask sim)", sim_smoke),
+        Step::new(
+            "sensorless mission (cargo xtask sim --sensorless): the default motor and the 2.2 kW interior-PM file",
+            sim_sensorless,
+        ),
     ]
+}
+
+/// The sensorless mission (design §27) on the default motor and on the
+/// interior-PM file: each segment reached without a fault.
+fn sim_sensorless() -> Result {
+    for motor in [None, Some("tests/motors/ipm-2k2-540v.toml")] {
+        sim::run_cmd(&sim::SimArgs {
+            motor: motor.map(std::path::PathBuf::from),
+            all: false,
+            out: Some(crate::util::root().join("out/sim-sensorless")),
+            bench: false,
+            config: None,
+            save_config: None,
+            sensorless: true,
+        })?;
+    }
+    Ok(())
 }
 
 /// Smoke run of the closed-loop simulation (the default motor's mission, a
@@ -131,6 +152,7 @@ fn sim_smoke() -> Result {
         bench: false,
         config: None,
         save_config: Some(saved.clone()),
+        sensorless: false,
     })?;
     sim::run_cmd(&sim::SimArgs {
         motor: None,
@@ -139,6 +161,7 @@ fn sim_smoke() -> Result {
         bench: false,
         config: Some(saved),
         save_config: None,
+        sensorless: false,
     })
 }
 

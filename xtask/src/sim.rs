@@ -62,6 +62,11 @@ pub struct SimArgs {
     /// restored) to FILE.toml.
     #[arg(long, value_name = "FILE.toml", conflicts_with = "all")]
     pub save_config: Option<PathBuf>,
+    /// Run the sensorless mission instead (design §27): no angle sensor,
+    /// a start from standstill, a speed step, a load step, a reversal
+    /// through zero; on the motor file's values.
+    #[arg(long, conflicts_with_all = ["config", "save_config", "bench"])]
+    pub sensorless: bool,
 }
 
 /// `path` as given if absolute or existing from the current directory, else
@@ -110,9 +115,32 @@ fn read_config(path: &Path) -> Result<foc_store::DriveRecord> {
     foc_store::text::from_toml(&text).map_err(|e| Error(format!("{}: {e}", path.display())))
 }
 
+/// The sensorless mission; whether it passed, and its summary.
+fn run_sensorless(setup: &Setup, motor: &Path, out: &Path) -> Result<(bool, String)> {
+    let pb = progress_bar(&stem(motor));
+    let result =
+        mission::run_sensorless_mission(setup, &mut |f| pb.set_position((f * 1000.0) as u64));
+    pb.finish_and_clear();
+    let summary = result.to_markdown();
+    print!("{summary}");
+    std::fs::create_dir_all(out).map_err(|e| Error(format!("{}: {e}", out.display())))?;
+    let file = out.join("sensorless-summary.md");
+    std::fs::write(&file, &summary).map_err(|e| Error(format!("{}: {e}", file.display())))?;
+    println!("  wrote {}", file.display());
+    let fails = result.failures();
+    if !fails.is_empty() {
+        println!("FAILED: {}", fails.join("; "));
+    }
+    Ok((fails.is_empty(), summary))
+}
+
 /// One mission; whether it passed, and its summary.
 fn run_one(motor: &Path, out: &Path, args: &SimArgs) -> Result<(bool, String)> {
     let setup = Setup::load(motor).map_err(|e| Error(e.to_string()))?;
+    if args.sensorless {
+        banner(&format!("sim --sensorless: {}", setup.name));
+        return run_sensorless(&setup, motor, out);
+    }
     banner(&format!("sim: {}", setup.name));
     let stored = args.config.as_deref().map(read_config).transpose()?;
     if let Some(p) = &args.config {
@@ -206,7 +234,7 @@ pub fn run_cmd(args: &SimArgs) -> Result {
         }
         summaries.push((stem(m), summary));
     }
-    if args.all {
+    if args.all && !args.sensorless {
         let table = crate::figures::side_by_side(&summaries);
         crate::figures::write("sim-all.md", "`cargo xtask sim --all`", &table)?;
     }

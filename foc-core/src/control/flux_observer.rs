@@ -155,6 +155,8 @@ pub struct FluxObserver {
     /// \[V\].
     v_newer: Option<(AlphaBeta, f32)>,
     v_older: Option<(AlphaBeta, f32)>,
+    /// The magnitude correction held to twice the speed at low speed.
+    slow_scaling: bool,
 }
 
 impl FluxObserver {
@@ -175,7 +177,17 @@ impl FluxObserver {
             prev_i: None,
             v_newer: None,
             v_older: None,
+            slow_scaling: false,
         }
+    }
+
+    /// Hold the magnitude correction's rate to twice the speed at low
+    /// speed (down to a twentieth of its own): a size error (an interior-PM
+    /// rotor's active flux under a d current the angle error put there)
+    /// then costs less angle. On while the drive runs on the observer
+    /// (design §27); off it corrects at full rate.
+    pub fn set_low_speed_scaling(&mut self, on: bool) {
+        self.slow_scaling = on;
     }
 
     /// Place the estimate on a rotor known to stand at `theta` (after an
@@ -319,7 +331,22 @@ impl FluxObserver {
         let eta_sq = eta.alpha * eta.alpha + eta.beta * eta.beta;
         // Bounded to half the estimate a period: the Euler step of the
         // cubic correction would overshoot far from the circle.
-        let pull = crate::clamp(0.5 * g.gamma * (psi_a * psi_a - eta_sq) * ts, -0.5, 0.5) / ts;
+        // At low speed a size error turns into an angle error of about
+        // `e gamma psi^2 / |w|` (module docs): when asked, the correction's
+        // rate is held to twice the speed there, down to a twentieth of
+        // its own.
+        let gamma = if self.slow_scaling {
+            let rate = g.gamma * psi_a * psi_a;
+            let slow = (2.0 * libm::fabsf(self.omega_rad_s)).max(0.05 * rate);
+            if slow < rate {
+                g.gamma * slow / rate
+            } else {
+                g.gamma
+            }
+        } else {
+            g.gamma
+        };
+        let pull = crate::clamp(0.5 * gamma * (psi_a * psi_a - eta_sq) * ts, -0.5, 0.5) / ts;
         // What the resistance leaves of the voltage: the stator flux's
         // change over the period.
         let e = AlphaBeta::new(

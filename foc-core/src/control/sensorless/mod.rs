@@ -13,9 +13,17 @@
 //! | region | angle of the current loop | current | leaves when |
 //! |---|---|---|---|
 //! | `Idle` | none (bridge off) | none | a closed-loop command arrives |
-//! | `Align` | held at the observer's last angle | ramped up along it, then held | its time is over |
-//! | `Field` | turned at a speed ramped towards the command | along that angle, fixed size | the observer agrees with the field for [`SensorlessConfig::lock_periods`] above the hand-over speed |
+//! | `Align` | held at the observer's last angle, plus the damper's lead | ramped up along it, then held | its time is over |
+//! | `Field` | turned at a speed ramped towards the command (at most 1.25 times the hand-over speed), plus the damper's lead | along that angle, fixed size | at its speed, the observer agrees with the field for [`SensorlessConfig::lock_periods`] above the hand-over speed |
 //! | `Observer` | the observer's | the closed loop's | the observer's speed falls below the release speed: back to `Field` from where the rotor is |
+//!
+//! The damper (design §27): the current's angle leads the field by
+//! [`SensorlessConfig::damping_s`] times the field's speed less the
+//! observer's; on the turning field its weight grows with the field's
+//! speed up to the hand-over speed. At the alignment's end the observer is
+//! placed on the current's angle ([`FluxObserver::place`]); while the drive
+//! runs on it, its magnitude correction is held to twice the speed at low
+//! speed ([`FluxObserver::set_low_speed_scaling`]).
 //!
 //! Hand-over to the observer: the current loop's frame turns from the
 //! field's angle to the observer's at the same current (its integrators
@@ -34,8 +42,9 @@
 //! back to `Field`, where the same rule applies: a locked rotor at speed
 //! latches the fault after the field has come back up to the hand-over
 //! speed plus the timeout. At any field speed, a rotor the observer sees
-//! turning against the field faster than the release speed (a load that
-//! drives it backwards) latches the fault after
+//! turning against the commanded direction (the field's without a
+//! velocity command) faster than the release speed (a load that drives it
+//! backwards) latches the fault after
 //! [`SensorlessConfig::lock_periods`]. In `Observer` the motor-model check
 //! (design §24) keeps running on the observer's angle; a model mismatch
 //! there latches the same fault (the check cannot tell a wrong angle from
@@ -90,8 +99,8 @@ pub struct SensorlessConfig {
     pub lock_periods: u32,
     /// Periods above the hand-over speed without agreement before
     /// [`Fault::ObserverLostLock`](super::Fault::ObserverLostLock); a
-    /// rotor the observer sees turn against the field faster than the
-    /// release speed gets [`Self::lock_periods`] only.
+    /// rotor the observer sees turn against the commanded direction faster
+    /// than the release speed gets [`Self::lock_periods`] only.
     pub lock_timeout_periods: u32,
     /// Periods over which the field's d current is taken down after the
     /// hand-over.
@@ -137,7 +146,7 @@ impl SensorlessConfig {
         let kt = m.torque_constant_nm_per_a();
         let accel = RAMP_SHARE * kt * start_current_a / inertia_kg_m2 * pp;
         // The alignment's spring: pp * kt * I [N m / rad, mechanical].
-        let swing_rad_s = libm::sqrtf(pp * kt * start_current_a / inertia_kg_m2);
+        let swing_rad_s = crate::sqrtf(pp * kt * start_current_a / inertia_kg_m2);
         let align_s = (4.0 * core::f32::consts::TAU / swing_rad_s).max(0.05);
         let v_err = v_bus_v * observer.dead_time_s / ts + 0.3 * m.r_ohm * start_current_a;
         let emf = (HANDOVER_EMF_MARGIN * v_err).max(0.01 * v_bus_v);

@@ -43,10 +43,10 @@ pub struct LostLock;
 impl Sensorless {
     /// Decide this period's region. `closed`: a closed-loop command is
     /// active; `target_rad_s`: the field's target speed [rad/s,
-    /// electrical] (the velocity command; 0 in the other modes); `i_ref`:
-    /// the closed loop's current reference of the last period \[A\] (the
-    /// field is placed on it when the observer lets go).
-    pub fn step(&mut self, closed: bool, target_rad_s: f32, i_ref: Dq) -> Result<Switch, LostLock> {
+    /// electrical] (the velocity command; 0 in the other modes); `i_now`:
+    /// the current measured in the last period, in the loop's frame \[A\]
+    /// (the field is placed on it when the observer lets go).
+    pub fn step(&mut self, closed: bool, target_rad_s: f32, i_now: Dq) -> Result<Switch, LostLock> {
         if !closed {
             self.region = Region::Idle;
             return Ok(Switch::Stay);
@@ -61,9 +61,11 @@ impl Sensorless {
                 Ok(Switch::Stay)
             }
             Region::Field => self.turn_field(target_rad_s),
-            Region::Observer => Ok(self.follow_observer(i_ref)),
+            Region::Observer => Ok(self.follow_observer(i_now)),
         };
         self.damp();
+        self.observer
+            .set_low_speed_scaling(self.region == Region::Observer);
         switch
     }
 
@@ -100,13 +102,15 @@ impl Sensorless {
 
     /// The current up in a straight line over the rise, then held.
     fn align(&mut self) {
-        self.periods += 1;
+        self.periods = self.periods.saturating_add(1);
         let rise = self.cfg.rise_periods.max(1) as f32;
         self.field_a = self.cfg.current_a * (self.periods as f32 / rise).min(1.0);
         if self.periods >= self.cfg.align_periods {
-            // The rotor stands on the field (less a load's angle): the
+            // The rotor stands on the current (less a load's angle): the
             // observer starts from there.
-            self.observer.place(self.field);
+            self.observer.place(self.current_angle());
+            // (Not a motion: the mechanical angle does not take the jump.)
+            self.last_angle = self.observer.angle();
             self.region = Region::Field;
         }
     }
@@ -134,23 +138,31 @@ impl Sensorless {
         self.field = self.field.add_radians(self.field_rad_s * ts);
         let w = self.field_rad_s;
         let w_obs = self.observer.speed_rad_s();
-        // Against the field (or under a field at rest) faster than the
-        // release speed: the rotor does not follow, whatever the field's
-        // speed (a load that drives it backwards).
-        let against = w_obs.abs() >= c.release_rad_s && w_obs * w <= 0.0;
+        // Against the commanded direction (the field's without a command,
+        // or under a field at rest) faster than the release speed: the
+        // rotor does not follow, whatever the field's speed (a load that
+        // drives it backwards). (Not against the field: in a reversal the
+        // rotor braked by the speed loop crosses zero ahead of the field
+        // it is handed back to.)
+        let way = if target != 0.0 { target } else { w };
+        let against = w_obs.abs() >= c.release_rad_s && w_obs * way <= 0.0;
         if w.abs() < c.handover_rad_s && !against {
             self.agree = 0;
             self.waited = 0;
             return Ok(Switch::Stay);
         }
         let agrees = steady && (w_obs - w).abs() <= 0.2 * w.abs();
-        self.agree = if agrees { self.agree + 1 } else { 0 };
-        self.waited += 1;
+        self.agree = if agrees {
+            self.agree.saturating_add(1)
+        } else {
+            0
+        };
+        self.waited = self.waited.saturating_add(1);
         // Against the field: given only the time to agree.
-        if against && self.waited > c.lock_periods {
+        if against && self.waited > c.lock_periods.max(1) {
             return Err(LostLock);
         }
-        if self.agree >= c.lock_periods {
+        if self.agree >= c.lock_periods.max(1) {
             let rotate_rad = self.current_angle().diff_radians(self.observer.angle());
             self.region = Region::Observer;
             self.waited = 0;
@@ -162,7 +174,7 @@ impl Sensorless {
                 to_observer: true,
             });
         }
-        if self.waited > c.lock_timeout_periods {
+        if self.waited > c.lock_timeout_periods.min(u32::MAX - 1) {
             return Err(LostLock);
         }
         Ok(Switch::Stay)
@@ -170,15 +182,15 @@ impl Sensorless {
 
     /// The observer's angle while it sees the rotor; below the release
     /// speed the field takes over on the current vector in force.
-    fn follow_observer(&mut self, i_ref: Dq) -> Switch {
+    fn follow_observer(&mut self, i_now: Dq) -> Switch {
         let w = self.observer.speed_rad_s();
         if w.abs() >= self.cfg.release_rad_s {
             return Switch::Stay;
         }
         let obs = self.observer.angle();
-        let size = libm::sqrtf(i_ref.d * i_ref.d + i_ref.q * i_ref.q);
+        let size = crate::sqrtf(i_now.d * i_now.d + i_now.q * i_now.q);
         let at = if size > 0.05 * self.cfg.current_a {
-            libm::atan2f(i_ref.q, i_ref.d)
+            libm::atan2f(i_now.q, i_now.d)
         } else {
             0.0
         };

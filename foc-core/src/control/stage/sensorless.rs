@@ -102,7 +102,13 @@ impl CurrentStage {
             }) => {
                 let i = turned(self.state.last_i_dq, rotate_rad);
                 let v = turned(self.state.last_out_v_dq, rotate_rad);
-                self.current.preload(v, i, w_e);
+                // At the speed the loop's next step decouples with.
+                let w = if to_observer {
+                    w_e
+                } else {
+                    sl.field_speed_rad_s()
+                };
+                self.current.preload(v, i, w);
                 if to_observer {
                     // The q current that carried the rotor is held until
                     // the speed stage's next step, which starts from it.
@@ -121,6 +127,8 @@ impl CurrentStage {
             let blend = sl.take_blend_a();
             let q = match sl.held_iq(from_speed_a) {
                 Some(held) => {
+                    let lim = self.config.limits.max_current_a;
+                    let held = crate::clamp(held, -lim, lim);
                     self.state.iq_interp_a = held;
                     held
                 }
@@ -129,7 +137,10 @@ impl CurrentStage {
             return Err(Some(Dq::new(i.d + blend, q)));
         }
         let field = sl.current_angle();
-        let i_ref = Dq::new(sl.field_current_a(), 0.0);
+        // Within the current limit in force (a start current configured
+        // above it, an identification's lower limit).
+        let lim = self.config.limits.max_current_a;
+        let i_ref = Dq::new(sl.field_current_a().min(lim), 0.0);
         let out = self.current.step_inline_ab(
             &CurrentLoopInput {
                 i_abc_a: sensed.i_abc,
@@ -182,5 +193,21 @@ impl CurrentStage {
         }
         fb.velocity_rad_s = sl.observer().speed_rad_s() / pp;
         fb.disturbance_rad_s2 = 0.0;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A vector read in a frame 0.4 rad behind reads 0.4 rad further on;
+    /// turning back restores it.
+    #[test]
+    fn turned_reads_a_vector_in_a_frame_behind() {
+        let v = Dq::new(1.0, 0.0);
+        let t = turned(v, 0.4);
+        assert!((t.d - libm::cosf(0.4)).abs() < 1e-6 && (t.q - libm::sinf(0.4)).abs() < 1e-6);
+        let back = turned(t, -0.4);
+        assert!((back.d - 1.0).abs() < 1e-6 && back.q.abs() < 1e-6);
     }
 }

@@ -1,0 +1,194 @@
+//! The sensorless mission (`cargo xtask sim --sensorless`, design §27):
+//! the cascade runs without its angle sensor (the plant's encoder is read
+//! and ignored) on the motor file's values (the identification still needs
+//! the encoder: a later part), through a start from standstill, a speed
+//! step, a load step, a reversal through zero and a stop. Each segment
+//! must reach its speed (within 10 %, in the commanded direction) without
+//! a fault; the flux observer's angle against the plant's true one is
+//! reported.
+
+use super::{Command, Setup, Sim};
+use foc_core::control::sensorless::Region;
+
+/// One segment's figures.
+#[derive(Clone, Debug)]
+pub struct SensorlessSegment {
+    /// What it does.
+    pub name: String,
+    /// The speed commanded [rad/s, mechanical].
+    pub target_rad_s: f32,
+    /// First time the speed stayed within 10 % of the command \[s\] from
+    /// the segment's start (`None`: not reached).
+    pub reached_s: Option<f32>,
+    /// The speed at the segment's end [rad/s, mechanical].
+    pub end_rad_s: f32,
+    /// The observer's largest angle error while it drove the current loop
+    /// over the segment's last fifth [rad, electrical].
+    pub steady_angle_rad: f32,
+    /// ... and over the whole segment.
+    pub worst_angle_rad: f32,
+    /// The largest motion against the commanded direction [rad,
+    /// mechanical]: a start's backward motion; a reversal's includes the
+    /// turns it takes to brake.
+    pub backward_rad: f32,
+    /// A fault that latched.
+    pub fault: Option<foc_core::control::Fault>,
+}
+
+/// The mission's result.
+#[derive(Clone, Debug)]
+pub struct SensorlessResult {
+    /// The motor's name.
+    pub motor: String,
+    /// The segments in order.
+    pub segments: Vec<SensorlessSegment>,
+    /// The hand-over speed [rad/s, mechanical].
+    pub handover_rad_s: f32,
+}
+
+impl SensorlessResult {
+    /// What failed (empty: passed).
+    pub fn failures(&self) -> Vec<String> {
+        self.segments
+            .iter()
+            .filter_map(|s| match (s.fault, s.reached_s) {
+                (Some(f), _) => Some(format!("{}: fault {f:?}", s.name)),
+                (None, None) => Some(format!(
+                    "{}: {:.1} rad/s not reached (ended at {:.1})",
+                    s.name, s.target_rad_s, s.end_rad_s
+                )),
+                _ => None,
+            })
+            .collect()
+    }
+
+    /// The summary as a Markdown table.
+    pub fn to_markdown(&self) -> String {
+        let mut s = format!(
+            "### Sensorless mission: {}\n\nThe observer takes over above {:.1} rad/s.\n\n| segment | command rad/s | reached after s | at the end rad/s | angle error, last fifth rad(e) | angle error, worst rad(e) | against the command rad | fault |\n|---|---:|---:|---:|---:|---:|---:|---|\n",
+            self.motor, self.handover_rad_s
+        );
+        for g in &self.segments {
+            s += &format!(
+                "| {} | {:.1} | {} | {:.1} | {:.3} | {:.3} | {:.3} | {} |\n",
+                g.name,
+                g.target_rad_s,
+                g.reached_s
+                    .map_or("not reached".into(), |t| format!("{t:.3}")),
+                g.end_rad_s,
+                g.steady_angle_rad,
+                g.worst_angle_rad,
+                g.backward_rad,
+                g.fault.map_or("none".into(), |f| format!("{f:?}"))
+            );
+        }
+        let fails = self.failures();
+        s += &format!(
+            "\nResult: {}\n",
+            if fails.is_empty() {
+                "PASS".into()
+            } else {
+                format!("FAIL ({})", fails.join("; "))
+            }
+        );
+        s
+    }
+}
+
+/// Runs the sensorless mission on `setup`.
+pub fn run_sensorless_mission(setup: &Setup, progress: &mut dyn FnMut(f64)) -> SensorlessResult {
+    let config = setup.sensorless_config();
+    let handover = config.current.sensorless.map_or(f32::NAN, |c| {
+        c.handover_rad_s / f32::from(setup.motor.pole_pairs)
+    });
+    let mut sim = Sim::new_calibrated(setup, config, false);
+    let top = setup.max_speed_rad_s().min(setup.max_mission_speed_rad_s());
+    let rated_nm = setup.kt() * setup.rated_current_a;
+    // (name, speed as a share of the top speed, load as a share of the
+    // rated torque, seconds)
+    let plan = [
+        ("start from standstill", 0.3, 0.0, 1.0),
+        ("speed step", 0.6, 0.0, 0.6),
+        ("load step (40 % rated)", 0.6, 0.4, 0.6),
+        ("reversal through zero", -0.3, 0.0, 1.5),
+        ("back to forward", 0.3, 0.0, 1.5),
+    ];
+    let total: f64 = plan.iter().map(|p| p.3).sum();
+    let mut done = 0.0;
+    let mut segments = Vec::new();
+    for (name, share, load, secs) in plan {
+        let target = share * top;
+        let g = segment(&mut sim, setup, name, target, load * rated_nm, secs as f32);
+        let fault = g.fault.is_some();
+        segments.push(g);
+        done += secs;
+        progress(done / total);
+        if fault {
+            break;
+        }
+    }
+    SensorlessResult {
+        motor: setup.name.clone(),
+        segments,
+        handover_rad_s: handover,
+    }
+}
+
+/// One segment: the command, the load, `secs` of simulation.
+fn segment(
+    sim: &mut Sim,
+    setup: &Setup,
+    name: &str,
+    target: f32,
+    load_nm: f32,
+    secs: f32,
+) -> SensorlessSegment {
+    let hz = setup.pwm_hz();
+    let n = (secs * hz) as usize;
+    let dir = target.signum();
+    let _ = sim.cascade.command(Command::Velocity { rad_s: target });
+    sim.load_nm = load_nm;
+    let x0 = sim.plant.position_rad() as f32;
+    let mut g = SensorlessSegment {
+        name: name.into(),
+        target_rad_s: target,
+        reached_s: None,
+        end_rad_s: 0.0,
+        steady_angle_rad: 0.0,
+        worst_angle_rad: 0.0,
+        backward_rad: 0.0,
+        fault: None,
+    };
+    for k in 0..n {
+        sim.step();
+        let fb = *sim.cascade.feedback();
+        if let Some(f) = fb.first_fault {
+            g.fault = Some(f);
+            break;
+        }
+        let w = sim.plant.omega_m_rad_s() as f32;
+        if (w - target).abs() <= 0.1 * target.abs() {
+            g.reached_s.get_or_insert(k as f32 / hz);
+        } else {
+            g.reached_s = None;
+        }
+        let x = sim.plant.position_rad() as f32 - x0;
+        g.backward_rad = g.backward_rad.max(-x * dir);
+        let stage = &sim.cascade.current;
+        if stage.sensorless_region() == Some(Region::Observer) {
+            if let Some(sl) = stage.sensorless() {
+                let e = sl
+                    .observer()
+                    .angle()
+                    .diff_radians(sim.plant.theta_e())
+                    .abs();
+                g.worst_angle_rad = g.worst_angle_rad.max(e);
+                if k * 5 >= n * 4 {
+                    g.steady_angle_rad = g.steady_angle_rad.max(e);
+                }
+            }
+        }
+    }
+    g.end_rad_s = sim.plant.omega_m_rad_s() as f32;
+    g
+}
