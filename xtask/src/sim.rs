@@ -124,7 +124,7 @@ fn run_sensorless(setup: &Setup, motor: &Path, out: &Path) -> Result<(bool, Stri
     let summary = result.to_markdown();
     print!("{summary}");
     std::fs::create_dir_all(out).map_err(|e| Error(format!("{}: {e}", out.display())))?;
-    let file = out.join("sensorless-summary.md");
+    let file = out.join(format!("sensorless-{}.md", stem(motor)));
     std::fs::write(&file, &summary).map_err(|e| Error(format!("{}: {e}", file.display())))?;
     println!("  wrote {}", file.display());
     let fails = result.failures();
