@@ -726,6 +726,10 @@ fn manufacturer_objects_read_the_drive_and_write_gains_through_it() {
     assert_eq!(f32::from_bits(b.read_u32(0x2001, 0)), 0.12);
     assert_eq!(b.read(0x2002, 0), Err(0x0800_0024), "the device has no Ld");
     assert_eq!(b.read_u32(0x2006, 0), 10_203);
+    assert_eq!(b.read_u32(0x2007, 0), 0, "on the angle sensor");
+    b.dev.sensorless = true;
+    assert_eq!(b.read_u32(0x2007, 0), 1, "sensorless");
+    b.dev.sensorless = false;
     assert_eq!(b.read_u32(0x6075, 0), 10_000);
     assert_eq!(b.read_u32(0x6076, 0), 1000);
     b.write_u32(0x2012, 0, 1.5f32.to_bits()).unwrap();

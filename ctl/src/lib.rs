@@ -115,6 +115,9 @@ pub fn describe_error(e: ErrorCode) -> String {
         ErrorCode::ScopeState => {
             "the scope is not in the state this needs (trigger: armed; data: capture done)".into()
         }
+        ErrorCode::NeedsAngleSensor => {
+            "the drive runs sensorless: torque, position and impedance need the angle sensor (velocity and open loop are taken)".into()
+        }
         ErrorCode::Other(c) => format!("error code {c}"),
     }
 }

@@ -276,6 +276,7 @@ impl SimDrive {
                 mode: feedback.mode,
                 faulted: !self.faults.is_empty(),
                 calibrated: self.settings().calibrated,
+                sensorless: self.settings().sensorless.is_some(),
             },
             identified: None,
             pending: Pending {

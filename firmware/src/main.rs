@@ -111,6 +111,7 @@ mod app {
         mode: Mode::Disabled,
         faulted: false,
         calibrated: false,
+        sensorless: false,
     };
 
     #[shared]

@@ -798,6 +798,7 @@ fn error_code_name(e: ErrorCode) -> Option<&'static str> {
         ErrorCode::BadRecord => "BadRecord",
         ErrorCode::NothingStored => "NothingStored",
         ErrorCode::ScopeState => "ScopeState",
+        ErrorCode::NeedsAngleSensor => "NeedsAngleSensor",
         ErrorCode::Other(_) => return None,
     })
 }
@@ -871,6 +872,7 @@ fn responses() -> Vec<Response> {
         (ParamId::FirmwareVersion, 10203.0),
         (ParamId::SpeedKi, -4.5e-5),
         (ParamId::ScopeCapacity, 4096.0),
+        (ParamId::AngleSource, 1.0),
     ] {
         v.push(Response::Param { id, value });
     }

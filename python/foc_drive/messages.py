@@ -108,6 +108,7 @@ class ErrorCode(enum.IntEnum):
     BadRecord = 11
     NothingStored = 12
     ScopeState = 13
+    NeedsAngleSensor = 14
 
 
 ERROR_TEXT: Dict[int, str] = {
@@ -127,6 +128,10 @@ ERROR_TEXT: Dict[int, str] = {
     ),
     ErrorCode.NothingStored: "nothing is stored",
     ErrorCode.ScopeState: "the scope is not in the state this needs",
+    ErrorCode.NeedsAngleSensor: (
+        "the drive runs sensorless: torque, position and impedance need the "
+        "angle sensor (velocity and open loop are taken)"
+    ),
 }
 
 
@@ -250,6 +255,7 @@ class ParamId(enum.IntEnum):
     SpeedKi = 18
     PositionKp = 19
     ScopeCapacity = 20
+    AngleSource = 21
 
 
 #: Parameter names as ``foc-ctl param NAME`` spells them.
@@ -275,6 +281,7 @@ PARAM_NAMES: Dict[ParamId, str] = {
     ParamId.SpeedKi: "speed-ki",
     ParamId.PositionKp: "position-kp",
     ParamId.ScopeCapacity: "scope-capacity",
+    ParamId.AngleSource: "angle-source",
 }
 PARAM_BY_NAME: Dict[str, ParamId] = {v: k for k, v in PARAM_NAMES.items()}
 

@@ -142,6 +142,7 @@ impl Service {
                     s.joint
                         .rotor_change((s.limits.min_position_rad, s.limits.max_position_rad)),
                 ),
+                sensorless: Some(self.cascade().current.sensorless),
                 ..ConfigChange::default()
             }),
             speed: Some(s.speed),

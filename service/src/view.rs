@@ -81,6 +81,7 @@ impl View<'_> {
             ParamId::SpeedKi => s.speed.ki_a_per_rad,
             ParamId::PositionKp => s.position.kp_per_s,
             ParamId::ScopeCapacity => board.scope_values as f32,
+            ParamId::AngleSource => f32::from(u8::from(self.snap.status.sensorless)),
             // Answered by the protocol layer itself.
             ParamId::ProtocolVersion | ParamId::TelemetryDivider | ParamId::WatchdogTimeout => {
                 return None

@@ -45,6 +45,7 @@ fn quiet_snapshot() -> Snapshot {
             mode: Mode::Disabled,
             faulted: false,
             calibrated: true,
+            sensorless: false,
         },
         identified: None,
         pending: Pending {
@@ -276,4 +277,61 @@ fn a_keep_alive_posts_nothing_and_a_clear_comes_before_the_command() {
     l.out.apply_command(&mut slot);
     assert_eq!(slot.command, Command::Velocity { rad_s: 3.0 });
     assert_eq!((slot.seq, slot.clear_seq), (1, 1));
+}
+
+/// A record that runs sensorless (design §27) is applied whole: the
+/// settings keep it, the change for the drive carries the configuration
+/// derived from it; without the rotor's mechanics (this board's build has
+/// none) it is refused and nothing changes.
+#[test]
+fn a_sensorless_record_reaches_the_drive_and_needs_mechanics() {
+    use foc_core::control::Mechanics;
+    use foc_store::record::SensorlessRecord;
+    let mut s = Service::new(board(true));
+    assert_eq!(s.board().cascade.mechanics, None);
+    let mut st = store();
+    let sensorless = SensorlessRecord {
+        start_current_a: 4.0,
+        bus_voltage_v: 24.0,
+    };
+    let mut set = *s.settings();
+    set.sensorless = Some(sensorless);
+    let bare = DriveRecord::from_settings(&Label::new(), PWM_HZ, &set);
+    let mut buf = [0u8; foc_protocol::config::MAX_RECORD];
+    let n = bare.encode(&mut buf).unwrap();
+    let before = *s.settings();
+    let mut l = link(&mut s, quiet_snapshot(), &mut st);
+    assert_eq!(
+        l.store(StoreOp::Apply, &buf[..n], WatchdogConfig::OFF),
+        Err(ErrorCode::BadRecord)
+    );
+    assert!(!l.out.touches_config());
+    assert_eq!(*s.settings(), before);
+    // With mechanics it applies; the drive's change carries the derived
+    // configuration.
+    assert!(set.set_mechanics(&Mechanics {
+        inertia_kg_m2: 2e-5,
+        viscous_friction_nm_s_per_rad: 0.0,
+        coulomb_friction_nm: 0.0,
+    }));
+    let rec = DriveRecord::from_settings(&Label::new(), PWM_HZ, &set);
+    let n = rec.encode(&mut buf).unwrap();
+    let mut l = link(&mut s, quiet_snapshot(), &mut st);
+    assert!(l
+        .store(StoreOp::Apply, &buf[..n], WatchdogConfig::OFF)
+        .is_ok());
+    assert!(l.out.touches_config());
+    assert_eq!(s.settings().sensorless, Some(sensorless));
+    let change = s.full_change().current.unwrap();
+    let derived = change.sensorless.unwrap().expect("sensorless");
+    assert_eq!((derived.current_a, derived.bus_voltage_v), (4.0, 24.0));
+    assert_eq!(derived.observer.motor, s.settings().current.motor);
+    // The angle source the drive reports.
+    let mut snap = quiet_snapshot();
+    snap.status.sensorless = true;
+    let l = link(&mut s, snap, &mut st);
+    assert_eq!(
+        l.param(foc_protocol::message::ParamId::AngleSource),
+        Some(1.0)
+    );
 }

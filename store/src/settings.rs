@@ -35,9 +35,11 @@ use foc_core::drive::cascade::CascadeConfig;
 
 use crate::record::{
     AngleRecord, CurrentGainsRecord, DividersRecord, DriveRecord, Invalid, JointRecord, Label,
-    LimitsRecord, MechanicsRecord, MotorRecord, PositionRecord, PowerRecord, SpeedRecord,
-    WatchdogReaction, WatchdogRecord,
+    LimitsRecord, MechanicsRecord, MotorRecord, PositionRecord, PowerRecord, SensorlessRecord,
+    SpeedRecord, WatchdogReaction, WatchdogRecord,
 };
+use foc_core::control::flux_observer::ObserverConfig;
+use foc_core::control::sensorless::SensorlessConfig;
 
 /// The configuration in force on the drive.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -72,6 +74,9 @@ pub struct Settings {
     /// timeout. With a travel range, the position range in force is that
     /// range in the rotor frame (`limits`' own range without one).
     pub joint: JointSetup,
+    /// Run without the angle sensor (design §27; [`sensorless_config`]
+    /// derives the rest); `None`: on the angle sensor.
+    pub sensorless: Option<SensorlessRecord>,
 }
 
 impl Settings {
@@ -97,6 +102,10 @@ impl Settings {
                 travel: c.default_travel(),
                 joint: c.current.joint,
             },
+            sensorless: c.current.sensorless.map(|sl| SensorlessRecord {
+                start_current_a: sl.current_a,
+                bus_voltage_v: sl.bus_voltage_v,
+            }),
         }
     }
 
@@ -114,7 +123,9 @@ impl Settings {
     /// the ones derived from the inertia), all but those two
     /// feed-forwards. Mechanics foc-core refuses (not usable, no torque
     /// constant) change nothing: the loops are these settings' and the
-    /// mechanics `base`'s.
+    /// mechanics `base`'s. Last, the sensorless configuration is derived
+    /// ([`sensorless_config`]; none when these settings run on the angle
+    /// sensor or it cannot be derived).
     pub fn apply_to(&self, base: &CascadeConfig) -> CascadeConfig {
         let mut c = *base;
         c.current.limits = self.limits;
@@ -146,6 +157,7 @@ impl Settings {
                 };
             }
         }
+        c.current.sensorless = self.sensorless.and_then(|sl| sensorless_config(&c, &sl));
         c
     }
 
@@ -190,6 +202,26 @@ impl Settings {
             None
         }
     }
+}
+
+/// The sensorless configuration (design §27) of `sl` on the cascade
+/// configuration `c`: foc-core's `SensorlessConfig::for_motor` with the
+/// current loop's motor and period, the model check's dead time and
+/// current floor, `c`'s inertia, and `sl`'s start current and bus. `None`
+/// when `c` has no mechanics or the values are not usable.
+pub fn sensorless_config(c: &CascadeConfig, sl: &SensorlessRecord) -> Option<SensorlessConfig> {
+    let observer = ObserverConfig {
+        motor: c.current.current.motor,
+        ts_s: c.current.current.ts_s,
+        dead_time_s: c.current.supervisor.model.dead_time_s,
+        current_floor_a: c.current.supervisor.model.floor_a,
+    };
+    SensorlessConfig::for_motor(
+        observer,
+        sl.start_current_a,
+        c.mechanics?.inertia_kg_m2,
+        sl.bus_voltage_v,
+    )
 }
 
 /// The record's form of foc-core's timeout reaction.
@@ -243,6 +275,7 @@ impl DriveRecord {
             power: s.power.as_ref().map(PowerRecord::from_config),
             mechanics: s.mechanics.as_ref().map(MechanicsRecord::from_mechanics),
             joint: Some(JointRecord::from_setup(&s.joint, &s.limits)),
+            sensorless: s.sensorless,
         }
     }
 
@@ -257,7 +290,9 @@ impl DriveRecord {
     /// record has no calibration, base's power limits when it has none,
     /// base's mechanics when it has none, and base's joint and impedance
     /// maxima when it has no joint (else the record's:
-    /// [`JointRecord::to_setup`], [`JointRecord::limits`]). With mechanics
+    /// [`JointRecord::to_setup`], [`JointRecord::limits`]); the record's
+    /// angle source always (`sensorless`; refused as
+    /// `Invalid { field: "sensorless" }` without mechanics). With mechanics
     /// (the record's or base's), the acceleration feed-forwards are derived
     /// from them for the record's motor ([`Settings::set_mechanics`]);
     /// without, they are base's.
@@ -320,6 +355,14 @@ impl DriveRecord {
         // period; the validated record's mechanics are always accepted.
         if let Some(m) = s.mechanics {
             s.set_mechanics(&m);
+        }
+        // Sensorless needs the rotor's inertia (its start is derived from
+        // it): the record's or base's mechanics.
+        s.sensorless = self.sensorless;
+        if s.sensorless.is_some() && s.mechanics.is_none() {
+            return Err(Invalid {
+                field: "sensorless",
+            });
         }
         Ok(s)
     }

@@ -7,7 +7,7 @@
 //! use foc_store::text::{from_toml, to_toml};
 //! # let r = foc_store::record::example();
 //! let text = to_toml(&r);
-//! assert!(text.contains("schema_version = 4"));
+//! assert!(text.contains("schema_version = 5"));
 //! assert!(text.contains("[joint]"));
 //! assert!(text.contains("[motor]"));
 //! assert_eq!(from_toml(&text), Ok(r));
@@ -22,8 +22,8 @@ use serde::{Deserialize, Serialize};
 
 use crate::record::{
     AngleRecord, CurrentGainsRecord, DividersRecord, DriveRecord, JointRecord, Label, LimitsRecord,
-    MechanicsRecord, MotorRecord, PositionRecord, PowerRecord, SpeedRecord, WatchdogRecord,
-    SCHEMA_VERSION,
+    MechanicsRecord, MotorRecord, PositionRecord, PowerRecord, SensorlessRecord, SpeedRecord,
+    WatchdogRecord, SCHEMA_VERSION,
 };
 
 /// The file layout: the record's fields with the schema version first.
@@ -48,10 +48,13 @@ struct TomlFile {
     mechanics: Option<MechanicsRecord>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     joint: Option<JointRecord>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    sensorless: Option<SensorlessRecord>,
 }
 
 /// The record as a TOML document (no `[calibration]`, `[power]`,
-/// `[mechanics]` or `[joint]` table when the record has none; no
+/// `[mechanics]`, `[joint]` or `[sensorless]` table when the record has
+/// none; no
 /// `travel_out_rad` key in `[joint]` without a travel range).
 pub fn to_toml(r: &DriveRecord) -> String {
     let file = TomlFile {
@@ -69,6 +72,7 @@ pub fn to_toml(r: &DriveRecord) -> String {
         power: r.power,
         mechanics: r.mechanics,
         joint: r.joint,
+        sensorless: r.sensorless,
     };
     match toml::to_string(&file) {
         Ok(s) => s,
@@ -84,9 +88,10 @@ pub fn from_toml(s: &str) -> Result<DriveRecord, String> {
     let table: toml::Table = toml::from_str(s).map_err(|e| e.to_string())?;
     match table.get("schema_version") {
         None => return Err("missing top-level key `schema_version`".to_string()),
-        // Version 1 is version 4 without the `[power]`, `[mechanics]` and
-        // `[joint]` tables, version 2 without `[mechanics]` and `[joint]`,
-        // version 3 without `[joint]`.
+        // Version 1 is version 5 without the `[power]`, `[mechanics]`,
+        // `[joint]` and `[sensorless]` tables, version 2 without
+        // `[mechanics]` and what follows, and so on; version 4 has no
+        // `[sensorless]`.
         Some(toml::Value::Integer(v)) if (1..=i64::from(SCHEMA_VERSION)).contains(v) => {}
         Some(v) => {
             return Err(format!(
@@ -109,6 +114,7 @@ pub fn from_toml(s: &str) -> Result<DriveRecord, String> {
         power: f.power,
         mechanics: f.mechanics,
         joint: f.joint,
+        sensorless: f.sensorless,
     };
     r.validate().map_err(|e| e.to_string())?;
     Ok(r)

@@ -19,7 +19,10 @@
 //! - `v_bus` \[V\]: measured bus voltage.
 //! - `theta_m` \[rad\]: mechanical angle as the encoder reports it (any value,
 //!   wrapped to one turn; the calibration `--zero-offset-deg`/`--reversed`
-//!   maps it to the rotor's d axis).
+//!   maps it to the rotor's d axis). A controller running sensorless
+//!   (`foc-sil --sensor sensorless`, design §27) ignores it and takes lines
+//!   without it; it then takes only `disable`, `velocity` and `open_loop`
+//!   commands (the others are refused with `NeedsAngleSensor`).
 //! - `cmd` (optional): `mode` one of `disable`, `torque` (`target` = iq \[A\]),
 //!   `velocity` (`target` = mechanical rad/s), `position` (`target` =
 //!   mechanical rad, multi-turn), `open_loop` (`v_d`, `v_q` \[V\], `theta_e`
@@ -173,7 +176,8 @@ struct InLine {
     t: Option<f64>,
     i_abc: Vec<f32>,
     v_bus: f32,
-    theta_m: f32,
+    #[serde(default)]
+    theta_m: Option<f32>,
     #[serde(default)]
     cmd: Option<InCmd>,
     #[serde(default)]
@@ -331,10 +335,17 @@ impl SilRunner {
             [a, b, c] => PhaseCurrents::ThreePhase(Abc::new(a, b, c)),
             _ => PhaseCurrents::TwoPhase { a_a: 0.0, b_a: 0.0 }, // excluded above
         };
+        let sensorless = self.cascade.current.sensorless().is_some();
+        let angle = match l.theta_m {
+            // A non-finite angle is a failed read (angle-sensor error).
+            Some(theta_m) => MechanicalAngle::try_from_radians(theta_m),
+            // Not read: the observer gives the angle.
+            None if sensorless => None,
+            None => return self.refuse("bad input line: missing field `theta_m`"),
+        };
         let sample = Sample {
             currents: Some(currents),
-            // A non-finite angle is a failed read (angle-sensor error).
-            angle: MechanicalAngle::try_from_radians(l.theta_m),
+            angle,
             v_bus_v: Some(l.v_bus),
             temperature_c: None,
         };

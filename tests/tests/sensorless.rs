@@ -24,7 +24,10 @@ use foc_bench::mission::{Setup, Sim};
 use foc_bench::motor_file::all_motor_files;
 use foc_bench::plant::Mechanics;
 use foc_core::control::sensorless::Region;
-use foc_core::control::{BridgeCommand, Command, Fault};
+use foc_core::control::{BridgeCommand, Command, CommandError, Fault, Mode};
+use foc_core::drive::ConfigChange;
+use foc_store::record::SensorlessRecord;
+use foc_store::Settings;
 
 /// The load during a start.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -271,7 +274,12 @@ fn locked_rotor_latches_a_named_fault() {
 /// A sensorless drive started without load from rotor angle 0 and run
 /// until it holds `target` [rad/s].
 fn sim_at_speed(s: &Setup, target: f32) -> Sim {
-    let mut sim = sim(s);
+    run_to_speed(sim(s), s, target)
+}
+
+/// `sim` started without load from rotor angle 0 and run until it holds
+/// `target` [rad/s].
+fn run_to_speed(mut sim: Sim, s: &Setup, target: f32) -> Sim {
     sim.set_rotor_angle(0.0);
     sim.cascade
         .command(Command::Velocity { rad_s: target })
@@ -291,4 +299,89 @@ fn sim_at_speed(s: &Setup, target: f32) -> Sim {
         }
     }
     panic!("{}: did not reach {target} rad/s", s.name);
+}
+
+/// The stored setting (design §27): a drive built on its angle sensor is
+/// switched to sensorless by a configuration change made from the
+/// settings (the record's start current and bus, the rest derived as the
+/// bench derives it), refuses torque, position and impedance commands,
+/// starts and reaches a speed on the observer, then goes back to its
+/// sensor. Every motor file.
+#[test]
+fn a_setting_switches_the_drive_to_sensorless_and_back() {
+    for p in all_motor_files() {
+        let s = Setup::load(&p).unwrap();
+        let base = s.cascade_config();
+        let mut settings = Settings::from_cascade(&base);
+        assert_eq!(settings.sensorless, None, "{}", s.name);
+        settings.sensorless = Some(SensorlessRecord {
+            start_current_a: s.rated_current_a.min(s.max_current_a),
+            bus_voltage_v: s.bench.bus_voltage_v as f32,
+        });
+        let derived = settings.apply_to(&base).current.sensorless;
+        assert!(derived.is_some(), "{}", s.name);
+        assert_eq!(
+            derived,
+            s.sensorless_config().current.sensorless,
+            "{}",
+            s.name
+        );
+        let mut sim = Sim::new_calibrated(&s, base, false);
+        assert!(!sim.cascade.status().sensorless);
+        sim.cascade.request(ConfigChange {
+            sensorless: Some(derived),
+            ..ConfigChange::default()
+        });
+        sim.step();
+        assert!(sim.cascade.status().sensorless, "{}", s.name);
+        for cmd in [
+            Command::Torque { iq_a: 0.1 },
+            Command::Position { rad: 0.0 },
+        ] {
+            assert_eq!(
+                sim.cascade.command(cmd),
+                Err(CommandError::NeedsAngleSensor),
+                "{}",
+                s.name
+            );
+        }
+        let target = 0.3 * s.max_speed_rad_s().min(s.max_mission_speed_rad_s());
+        let mut sim = run_to_speed(sim, &s, target);
+        assert_eq!(
+            sim.cascade.current.sensorless_region(),
+            Some(Region::Observer),
+            "{}",
+            s.name
+        );
+        // Disabled, back on its sensor: it takes a torque command.
+        sim.cascade.command(Command::Disable).unwrap();
+        sim.run(10);
+        sim.cascade.request(ConfigChange {
+            sensorless: Some(None),
+            ..ConfigChange::default()
+        });
+        // The angle tracker takes up the coasting rotor's speed again.
+        sim.run((0.05 * s.pwm_hz()) as usize);
+        assert_eq!(sim.cascade.feedback().mode, Mode::Disabled);
+        assert!(!sim.cascade.status().sensorless, "{}", s.name);
+        assert_eq!(sim.cascade.current.sensorless_region(), None);
+        let fb = *sim.cascade.feedback();
+        assert_eq!(fb.first_fault, None, "{}: {:?}", s.name, fb.faults);
+        sim.cascade.command(Command::Torque { iq_a: 0.1 }).unwrap();
+        sim.run(10);
+        let fb = *sim.cascade.feedback();
+        assert_eq!(
+            fb.mode,
+            Mode::Torque,
+            "{}: {:?}, {} refused, {:?}",
+            s.name,
+            fb.faults,
+            sim.cascade.current.rejected_commands(),
+            sim.cascade.status()
+        );
+        println!(
+            "{}: sensorless by a setting, {target:.1} rad/s reached",
+            s.name
+        );
+    }
 }

@@ -147,6 +147,117 @@ fn sil_runner_needs_a_calibration_for_closed_loop() {
     assert!(err.is_none() && out.contains(r#""mode":"torque""#), "{out}");
 }
 
+/// `foc-sil --sensor sensorless` (design §27): lines without an angle,
+/// a torque command refused (`NeedsAngleSensor`), a velocity command that
+/// starts the free plant from standstill and brings it to 0.3 of the top
+/// speed in the commanded direction, the angle a line still carries
+/// ignored (a frozen encoder here), and a line without an angle on a
+/// controller that needs one refused.
+#[test]
+fn sil_binary_runs_sensorless_without_the_angle() {
+    use foc_bench::mission::Setup;
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/motors/dji-m2006.toml");
+    let setup = Setup::load(path).unwrap();
+    let file = MotorFile::load(path).unwrap();
+    let mut child = Command::new(env!("CARGO_BIN_EXE_foc-sil"))
+        .args(["--motor", path, "--sensor", "sensorless"])
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut stdin = child.stdin.take().unwrap();
+    let mut stdout = BufReader::new(child.stdout.take().unwrap());
+    let mut exchange = |line: &str| -> Value {
+        writeln!(stdin, "{line}").unwrap();
+        stdin.flush().unwrap();
+        let mut reply = String::new();
+        stdout.read_line(&mut reply).unwrap();
+        serde_json::from_str(&reply).unwrap_or_else(|e| panic!("{e}: {reply}"))
+    };
+    let no_angle = |m: &Measurements, extra: &str| {
+        let i = m.currents.to_abc();
+        format!(
+            r#"{{"t":{},"i_abc":[{},{},{}],"v_bus":{}{extra}}}"#,
+            m.time_s, i.a, i.b, i.c, m.v_bus_v
+        )
+    };
+    let mut plant = Plant::new(file.motor_params(), file.bench_config());
+    plant.set_rotor_angle(1.0);
+    let mut m = plant.step_period([0.5; 3], false, 0.0);
+    let out = exchange(&no_angle(&m, r#","cmd":{"mode":"torque","target":1}"#));
+    assert!(
+        out["error"].as_str().unwrap().contains("NeedsAngleSensor"),
+        "{out}"
+    );
+    assert_eq!(out["mode"], "disabled");
+    let target = -0.3 * setup.max_speed_rad_s().min(setup.max_mission_speed_rad_s());
+    let hz = setup.pwm_hz();
+    let mut held = 0;
+    let mut reached = None;
+    let mut backward = 0.0f64;
+    let x0 = plant.position_rad();
+    for k in 0..(2.0 * hz) as usize {
+        let extra = if k == 0 {
+            format!(r#","cmd":{{"mode":"velocity","target":{target}}}"#)
+        } else if k % 2 == 0 {
+            // Every other line carries a frozen encoder reading: ignored.
+            r#","theta_m":0.0"#.to_string()
+        } else {
+            String::new()
+        };
+        let out = exchange(&no_angle(&m, &extra));
+        assert!(
+            out["fault"].is_null() && out["error"].is_null(),
+            "{k}: {out}"
+        );
+        let d: Vec<f32> = out["duties"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|x| x.as_f64().unwrap() as f32)
+            .collect();
+        m = plant.step_period([d[0], d[1], d[2]], out["bridge"].as_bool().unwrap(), 0.0);
+        backward = backward.max(plant.position_rad() - x0);
+        let w = plant.omega_m_rad_s() as f32;
+        held = if (w - target).abs() <= 0.05 * target.abs() {
+            held + 1
+        } else {
+            0
+        };
+        if held as f32 > 0.1 * hz {
+            reached = Some(k as f32 / hz);
+            break;
+        }
+    }
+    let pp = f64::from(setup.motor.pole_pairs);
+    println!(
+        "foc-sil sensorless: {target:.1} rad/s held from {reached:?} s, backward {:.0} deg(e)",
+        backward * pp * 180.0 / std::f64::consts::PI
+    );
+    assert!(reached.is_some(), "{target} rad/s not reached");
+    assert!(
+        backward * pp <= 200f64.to_radians(),
+        "backward {backward} rad"
+    );
+    drop(stdin);
+    assert!(child.wait().unwrap().success());
+    let mut err = String::new();
+    child
+        .stderr
+        .take()
+        .unwrap()
+        .read_to_string(&mut err)
+        .unwrap();
+    assert!(err.contains("sensorless: start at"), "{err}");
+
+    // The same line on a controller that reads its angle: refused.
+    let config = setup.cascade_config();
+    let mut sil = foc_bench::sil::SilRunner::new(config);
+    let (out, err) = sil.line(r#"{"t":0,"i_abc":[0,0,0],"v_bus":24}"#);
+    assert!(err.unwrap().contains("missing field `theta_m`"), "{out}");
+}
+
 /// A line over the 64 KiB bound (here 1 MB) is refused with one error
 /// reply in the safe state (bridge off, `CurrentSenseError` latched, like
 /// any invalid line), and the next line is read and answered normally.

@@ -309,7 +309,14 @@ fn config_fields() -> Result<Vec<String>> {
         .iter()
         .flat_map(|c| c.split(", ").map(str::to_string).collect::<Vec<_>>())
         .collect();
-    let toml = foc_store::text::to_toml(&foc_store::record::example());
+    // The example record with every optional table (it runs on its
+    // angle sensor: add the sensorless one).
+    let mut record = foc_store::record::example();
+    record.sensorless = Some(foc_store::record::SensorlessRecord {
+        start_current_a: 1.0,
+        bus_voltage_v: 24.0,
+    });
+    let toml = foc_store::text::to_toml(&record);
     let mut section = String::new();
     let mut problems = Vec::new();
     let mut actual = Vec::new();

@@ -518,11 +518,14 @@ impl Cia402 {
         let _ = ctx.post(Command::Disable);
     }
 
-    /// Post `cmd` if the drive's rules admit it: false when refused.
+    /// Post `cmd` if the drive's rules admit it (a sensorless drive takes
+    /// no torque or position command): false when refused.
     fn post<C: DeviceContext>(&mut self, cmd: Command, ctx: &mut C) -> bool {
         let limits = limits_in_force(&ctx.limits(), &ctx.joint());
         let st = ctx.status();
-        admit(&cmd, &limits, st.faulted, st.calibrated).is_ok() && ctx.post(cmd).is_ok()
+        admit(&cmd, &limits, st.faulted, st.calibrated).is_ok()
+            && !(st.sensorless && cmd.mode().needs_angle_sensor())
+            && ctx.post(cmd).is_ok()
     }
 
     /// Fault reset (rising edge of bit 7): only in Fault; switch on disabled

@@ -102,6 +102,7 @@ impl DeviceContext for Fake {
             mode: self.fb.mode,
             faulted: !self.faults.is_empty(),
             calibrated: self.calibrated,
+            sensorless: false,
         }
     }
     fn set_current_gains(&mut self, _: CurrentGains) -> Result<(), Refusal> {

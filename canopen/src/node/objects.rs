@@ -285,6 +285,10 @@ impl<P: Profile> Dict<P> {
                 let [a, b, c] = ctx.firmware_version();
                 int(u32::from(a) * 10_000 + u32::from(b) * 100 + u32::from(c))
             }
+            (0x2007, 0) => {
+                let s = ctx.param(ParamId::AngleSource).ok_or(Abort::NoData)?;
+                int(u8::from(s == 1.0))
+            }
             (0x2010, 0) => real(ctx.param(ParamId::CurrentKp)),
             (0x2011, 0) => real(ctx.param(ParamId::CurrentKi)),
             (0x2012, 0) => real(ctx.param(ParamId::SpeedKp)),

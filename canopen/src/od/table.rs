@@ -516,6 +516,14 @@ const fn build() -> Builder {
         .p(0x2004, "Motor flux linkage [Wb]", Real32, Ro, false, d)
         .p(0x2005, "Drive calibrated", Boolean, Ro, false, d)
         .p(0x2006, "Firmware version", Unsigned32, Ro, false, d)
+        .p(
+            0x2007,
+            "Angle source (0 sensor, 1 sensorless)",
+            Unsigned8,
+            Ro,
+            false,
+            d,
+        )
         .p(0x2010, "Current loop kp [V per A]", Real32, Ro, false, d)
         .p(0x2011, "Current loop ki [V per A s]", Real32, Ro, false, d)
         .p(

@@ -159,6 +159,8 @@ pub struct FakeDevice {
     pub save_comm_fails: bool,
     pub store_fails: bool,
     pub stores: Vec<StoreOp>,
+    /// The drive runs without its angle sensor (`ParamId::AngleSource`).
+    pub sensorless: bool,
 }
 
 impl FakeDevice {
@@ -169,6 +171,7 @@ impl FakeDevice {
             save_comm_fails: false,
             store_fails: false,
             stores: Vec::new(),
+            sensorless: false,
         }
     }
     pub fn set_faults(&mut self, faults: &[Fault]) {
@@ -236,6 +239,7 @@ impl DeviceContext for FakeDevice {
             ),
             ParamId::SpeedKi => Some(self.ctx.speed_gains.map(|g| g.ki_a_per_rad).unwrap_or(2.0)),
             ParamId::ResistanceOhm => Some(0.12),
+            ParamId::AngleSource => Some(f32::from(u8::from(self.sensorless))),
             _ => self.ctx.param(id),
         }
     }

@@ -270,6 +270,16 @@ impl Mode {
             Mode::Torque | Mode::Velocity | Mode::Position | Mode::Impedance
         )
     }
+
+    /// True for the modes that need the angle sensor: a drive running
+    /// sensorless (design §27) takes only `Disabled`, `OpenLoop` and
+    /// `Velocity` (its start turns a field at a rate of its own, and the
+    /// observer's angle is only known once the rotor turns, so torque,
+    /// position and impedance commands are refused with
+    /// [`CommandError::NeedsAngleSensor`]).
+    pub const fn needs_angle_sensor(self) -> bool {
+        matches!(self, Mode::Torque | Mode::Position | Mode::Impedance)
+    }
 }
 
 impl Command {
@@ -396,6 +406,9 @@ pub enum CommandError {
     StiffnessOutOfRange,
     /// Impedance damping negative or above `Limits::max_kd_nm_s_per_rad`.
     DampingOutOfRange,
+    /// A torque, position or impedance command while the drive runs
+    /// without its angle sensor ([`Mode::needs_angle_sensor`]).
+    NeedsAngleSensor,
 }
 
 /// Limits that commands are checked against.

@@ -490,6 +490,11 @@ impl Cascade {
         &self.feedback
     }
 
+    /// The drive's status as its rules judge commands and changes.
+    pub fn status(&self) -> super::Status {
+        self.life.status(&self.current)
+    }
+
     /// The q-current reference from the speed stage \[A\].
     pub fn iq_ref_a(&self) -> f32 {
         self.iq_ref_a

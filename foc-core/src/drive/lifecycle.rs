@@ -281,6 +281,7 @@ impl Lifecycle {
             mode: stage.active().mode(),
             faulted: stage.supervisor().is_faulted(),
             calibrated: running && self.offsets_ok && stage.is_calibrated(),
+            sensorless: stage.sensorless().is_some(),
         }
     }
 
@@ -448,6 +449,9 @@ impl Lifecycle {
         }
         if let Some(m) = ch.mechanics {
             stage.set_mechanics(&m);
+        }
+        if let Some(s) = ch.sensorless {
+            stage.set_sensorless(s);
         }
     }
 

@@ -7,7 +7,7 @@
 //! ```
 //! use foc_core::drive::{Refusal, Status};
 //! use foc_core::control::{Command, CommandError, Mode};
-//! let running = Status { running: true, mode: Mode::Torque, faulted: false, calibrated: true };
+//! let running = Status { running: true, mode: Mode::Torque, faulted: false, calibrated: true, sensorless: false };
 //! assert_eq!(running.check_config(), Err(Refusal::NotDisabled));
 //! let starting = Status { running: false, mode: Mode::Disabled, ..running };
 //! assert_eq!(starting.check_config(), Err(Refusal::Busy));
@@ -17,12 +17,17 @@
 //! #     foc_core::control::MotorParams { pole_pairs: 7, r_ohm: 0.1, ld_h: 1e-4, lq_h: 1e-4, flux_linkage_wb: 0.01 },
 //! #     20_000.0, 5.0).current.limits;
 //! assert_eq!(idle.check_command(&Command::Torque { iq_a: 1.0 }, &limits), Err(CommandError::NotCalibrated));
+//! // Without the angle sensor: velocity only (and open loop).
+//! let sensorless = Status { mode: Mode::Disabled, sensorless: true, ..running };
+//! assert_eq!(sensorless.check_command(&Command::Torque { iq_a: 1.0 }, &limits), Err(CommandError::NeedsAngleSensor));
+//! assert_eq!(sensorless.check_command(&Command::Velocity { rad_s: 10.0 }, &limits), Ok(()));
 //! ```
 
 use crate::control::current::CurrentLoopConfig;
 pub use crate::control::joint::JointChange;
 use crate::control::permit::Calibrated;
 use crate::control::power::PowerLimitsConfig;
+use crate::control::sensorless::SensorlessConfig;
 pub use crate::control::Refusal;
 use crate::control::{admit, Command, CommandError, Fault, Limits, Mechanics, Mode};
 
@@ -38,6 +43,9 @@ pub struct Status {
     pub faulted: bool,
     /// Offsets calibrated and a calibration permit installed.
     pub calibrated: bool,
+    /// The drive runs without its angle sensor (design §27): torque,
+    /// position and impedance commands are refused.
+    pub sensorless: bool,
 }
 
 impl Status {
@@ -64,11 +72,15 @@ impl Status {
         Ok(())
     }
 
-    /// A command: [`admit`] (values, latched fault, calibration), and
-    /// while start-up or an identification runs only `Disable`
+    /// A command: [`admit`] (values, latched fault, calibration), no
+    /// torque, position or impedance command while sensorless
+    /// ([`CommandError::NeedsAngleSensor`]), and while start-up or an identification runs only `Disable`
     /// ([`CommandError::Busy`]: the drive would take it only later).
     pub fn check_command(&self, cmd: &Command, limits: &Limits) -> Result<(), CommandError> {
         admit(cmd, limits, self.faulted, self.calibrated)?;
+        if self.sensorless && cmd.mode().needs_angle_sensor() {
+            return Err(CommandError::NeedsAngleSensor);
+        }
         if !self.running && *cmd != Command::Disable {
             return Err(CommandError::Busy);
         }
@@ -117,6 +129,10 @@ pub struct ConfigChange {
     /// New travel range and joint settings (design §21): taken while
     /// running as well (homing moves the range), judged on its own.
     pub joint: Option<JointChange>,
+    /// The angle source (design §27): `Some(Some(cfg))` runs without the
+    /// angle sensor from the next enable, `Some(None)` on the sensor
+    /// again. Applied after `current` (its motor is the current loop's).
+    pub sensorless: Option<Option<SensorlessConfig>>,
 }
 
 impl ConfigChange {
@@ -132,6 +148,7 @@ impl ConfigChange {
         self.fault = self.fault.or(newer.fault);
         self.mechanics = newer.mechanics.or(self.mechanics);
         self.joint = newer.joint.or(self.joint);
+        self.sensorless = newer.sensorless.or(self.sensorless);
     }
 
     /// True when it carries settings (limits, current loop, dividers,
@@ -143,5 +160,6 @@ impl ConfigChange {
             || self.power.is_some()
             || self.permit.is_some()
             || self.mechanics.is_some()
+            || self.sensorless.is_some()
     }
 }

@@ -98,8 +98,8 @@ pub trait DeviceContext {
     fn is_calibrated(&self) -> bool;
     /// The drive's status, which the drive's own rules
     /// ([`foc_core::drive::Status`]) are applied to before anything is
-    /// handed on. Default: started, with [`Self::mode`], [`Self::faults`]
-    /// and [`Self::is_calibrated`]; a device with a start-up phase
+    /// handed on. Default: started, with [`Self::mode`], [`Self::faults`],
+    /// [`Self::is_calibrated`] and [`ParamId::AngleSource`]; a device with a start-up phase
     /// overrides it.
     fn status(&self) -> Status {
         Status {
@@ -107,6 +107,7 @@ pub trait DeviceContext {
             mode: self.mode(),
             faulted: !self.faults().0.is_empty(),
             calibrated: self.is_calibrated(),
+            sensorless: self.param(ParamId::AngleSource) == Some(1.0),
         }
     }
     /// A parameter value, `None` if this device does not have it.

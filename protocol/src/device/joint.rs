@@ -257,6 +257,7 @@ fn command_refusal(h: &HomingStart, e: CommandError) -> ErrorCode {
         (CommandError::Faulted, _) => ErrorCode::Faulted,
         (CommandError::Busy, _) => ErrorCode::Busy,
         (CommandError::NotCalibrated, _) => ErrorCode::NotCalibrated,
+        (CommandError::NeedsAngleSensor, _) => ErrorCode::NeedsAngleSensor,
         (e, HomingMethod::EndStop(stop)) => ErrorCode::OutOfRange {
             field: end_stop_field(&stop, e),
         },

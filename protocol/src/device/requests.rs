@@ -25,6 +25,7 @@ pub(super) fn command_field(cmd: &Command, e: CommandError) -> ErrorCode {
         (_, CommandError::Faulted) => ErrorCode::Faulted,
         (_, CommandError::Busy) => ErrorCode::Busy,
         (_, CommandError::NotCalibrated) => ErrorCode::NotCalibrated,
+        (_, CommandError::NeedsAngleSensor) => ErrorCode::NeedsAngleSensor,
         (Command::Impedance(i), e) => ErrorCode::OutOfRange {
             field: crate::joint::impedance_field(i, e),
         },

@@ -286,6 +286,10 @@ param_ids! {
     PositionKp = 19, "position-kp";
     /// Values the scope buffer holds (0: no scope).
     ScopeCapacity = 20, "scope-capacity";
+    /// The angle source in force: 0 the angle sensor, 1 sensorless (the
+    /// flux observer, design §27; torque, position and impedance
+    /// commands are then refused).
+    AngleSource = 21, "angle-source";
 }
 
 /// A Nack's reason.
@@ -323,6 +327,9 @@ pub enum ErrorCode {
     /// The scope is not in the state the request needs (trigger: armed;
     /// data: done).
     ScopeState,
+    /// The drive runs without its angle sensor: torque, position and
+    /// impedance commands need it (velocity and open loop are taken).
+    NeedsAngleSensor,
     /// A code this version does not know (decoding only).
     Other(u8),
 }
@@ -344,6 +351,7 @@ impl ErrorCode {
             Self::BadRecord => (11, 0),
             Self::NothingStored => (12, 0),
             Self::ScopeState => (13, 0),
+            Self::NeedsAngleSensor => (14, 0),
             Self::Other(c) => (c, 0),
         }
     }
@@ -363,6 +371,7 @@ impl ErrorCode {
             11 => Self::BadRecord,
             12 => Self::NothingStored,
             13 => Self::ScopeState,
+            14 => Self::NeedsAngleSensor,
             c => Self::Other(c),
         }
     }

@@ -128,6 +128,26 @@ impl PowerRecord {
     }
 }
 
+impl SensorlessRecord {
+    /// The plausible nominal bus voltages \[V\].
+    pub const BUS_RANGE_V: core::ops::RangeInclusive<f32> = 1.0..=1000.0;
+
+    /// Check every value (see the field docs) against the record's
+    /// `limits`.
+    pub fn validate(&self, limits: &LimitsRecord) -> Result<(), Invalid> {
+        check(
+            self.start_current_a.is_finite()
+                && self.start_current_a > 0.0
+                && self.start_current_a <= limits.max_current_a,
+            "sensorless.start_current_a",
+        )?;
+        check(
+            self.bus_voltage_v.is_finite() && Self::BUS_RANGE_V.contains(&self.bus_voltage_v),
+            "sensorless.bus_voltage_v",
+        )
+    }
+}
+
 impl MechanicsRecord {
     /// The plausible inertias [kg m^2]: from a small gimbal motor's rotor
     /// alone to a large servo with its load.

@@ -9,21 +9,27 @@ use super::*;
 /// [`v1::DriveRecordV1`]) gets `power: None` (the build's defaults),
 /// version 2 (before the mechanics, [`v2::DriveRecordV2`]) gets
 /// `mechanics: None`, version 3 (before the joint, [`v3::DriveRecordV3`])
-/// gets `joint: None`; a version-1 record goes `1 -> 2 -> 3 -> 4`. A
+/// gets `joint: None`, version 4 (before the sensorless setting,
+/// [`v4::DriveRecordV4`]) gets `sensorless: None` (the angle sensor); a
+/// version-1 record goes `1 -> 2 -> 3 -> 4 -> 5`. A
 /// migrated record is validated by the caller like any other; version 0
 /// and unknown versions are refused.
 pub(super) fn migrate(found: u16, payload: &[u8]) -> Result<DriveRecord, RecordError> {
     match found {
         1 => match postcard::take_from_bytes::<v1::DriveRecordV1>(payload) {
-            Ok((r, [])) => Ok(r.into_v2().into_v3().into_v4()),
+            Ok((r, [])) => Ok(r.into_v2().into_v3().into_v4().into_v5()),
             _ => Err(RecordError::Malformed),
         },
         2 => match postcard::take_from_bytes::<v2::DriveRecordV2>(payload) {
-            Ok((r, [])) => Ok(r.into_v3().into_v4()),
+            Ok((r, [])) => Ok(r.into_v3().into_v4().into_v5()),
             _ => Err(RecordError::Malformed),
         },
         3 => match postcard::take_from_bytes::<v3::DriveRecordV3>(payload) {
-            Ok((r, [])) => Ok(r.into_v4()),
+            Ok((r, [])) => Ok(r.into_v4().into_v5()),
+            _ => Err(RecordError::Malformed),
+        },
+        4 => match postcard::take_from_bytes::<v4::DriveRecordV4>(payload) {
+            Ok((r, [])) => Ok(r.into_v5()),
             _ => Err(RecordError::Malformed),
         },
         _ => Err(RecordError::UnsupportedVersion {
@@ -177,8 +183,8 @@ pub mod v3 {
 
     impl DriveRecordV3 {
         /// Version 4: the same values, the joint the build's.
-        pub fn into_v4(self) -> DriveRecord {
-            DriveRecord {
+        pub fn into_v4(self) -> super::v4::DriveRecordV4 {
+            super::v4::DriveRecordV4 {
                 label: self.label,
                 pwm_frequency_hz: self.pwm_frequency_hz,
                 motor: self.motor,
@@ -192,6 +198,66 @@ pub mod v3 {
                 power: self.power,
                 mechanics: self.mechanics,
                 joint: None,
+            }
+        }
+    }
+}
+
+/// Schema version 4: [`DriveRecord`] without `sensorless`.
+pub mod v4 {
+    use super::*;
+
+    /// The version-4 layout (field for field [`DriveRecord`] up to
+    /// `joint`). Frozen: never change it.
+    #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    pub struct DriveRecordV4 {
+        /// See [`DriveRecord::label`].
+        pub label: Label,
+        /// See [`DriveRecord::pwm_frequency_hz`].
+        pub pwm_frequency_hz: u32,
+        /// See [`DriveRecord::motor`].
+        pub motor: MotorRecord,
+        /// See [`DriveRecord::current_gains`].
+        pub current_gains: CurrentGainsRecord,
+        /// See [`DriveRecord::calibration`].
+        pub calibration: Option<AngleRecord>,
+        /// See [`DriveRecord::limits`].
+        pub limits: LimitsRecord,
+        /// See [`DriveRecord::speed`].
+        pub speed: SpeedRecord,
+        /// See [`DriveRecord::position`].
+        pub position: PositionRecord,
+        /// See [`DriveRecord::dividers`].
+        pub dividers: DividersRecord,
+        /// See [`DriveRecord::watchdog`].
+        pub watchdog: WatchdogRecord,
+        /// See [`DriveRecord::power`].
+        pub power: Option<PowerRecord>,
+        /// See [`DriveRecord::mechanics`].
+        pub mechanics: Option<MechanicsRecord>,
+        /// See [`DriveRecord::joint`].
+        pub joint: Option<JointRecord>,
+    }
+
+    impl DriveRecordV4 {
+        /// Version 5: the same values, on the angle sensor.
+        pub fn into_v5(self) -> DriveRecord {
+            DriveRecord {
+                label: self.label,
+                pwm_frequency_hz: self.pwm_frequency_hz,
+                motor: self.motor,
+                current_gains: self.current_gains,
+                calibration: self.calibration,
+                limits: self.limits,
+                speed: self.speed,
+                position: self.position,
+                dividers: self.dividers,
+                watchdog: self.watchdog,
+                power: self.power,
+                mechanics: self.mechanics,
+                joint: self.joint,
+                sensorless: None,
             }
         }
     }

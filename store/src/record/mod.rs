@@ -34,7 +34,7 @@ mod migrate;
 
 pub use fields::*;
 use migrate::migrate;
-pub use migrate::{v1, v2, v3};
+pub use migrate::{v1, v2, v3, v4};
 
 use core::f32::consts::TAU;
 use core::fmt;
@@ -52,11 +52,11 @@ use serde::{Deserialize, Serialize};
 /// Version of the schema written by this build ([`DriveRecord`]'s postcard
 /// layout). Bump it on any change of the layout and add a migration step in
 /// `migrate` for the old version.
-pub const SCHEMA_VERSION: u16 = 4;
+pub const SCHEMA_VERSION: u16 = 5;
 
 /// Largest envelope (header, payload and CRC) in bytes. The largest record
-/// of schema 4 (32-character label, every option `Some`, every varint at
-/// its widest) takes 276; the rest is room for a later schema. The link
+/// of schema 5 (32-character label, every option `Some`, every varint at
+/// its widest) takes 285; the rest is room for a later schema. The link
 /// must move records this long (`foc_protocol::config::MAX_RECORD`).
 pub const MAX_RECORD_BYTES: usize = 320;
 
@@ -241,6 +241,24 @@ pub struct MechanicsRecord {
     pub coulomb_friction_nm: f32,
 }
 
+/// Running without the angle sensor (design §27): the start's current and
+/// the bus it runs on; the rest (the flux observer's gains, the alignment,
+/// the field, the hand-over speed) is derived from the motor, the rotor's
+/// mechanics, the PWM rate and the board's dead time, so a record with
+/// it needs mechanics (its own or the build's).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SensorlessRecord {
+    /// Current of the start's alignment and field \[A\] (finite, `> 0`,
+    /// at most `limits.max_current_a`): the torque the start has against a
+    /// load.
+    pub start_current_a: f32,
+    /// Nominal bus voltage \[V\] (finite, in
+    /// [`Self::BUS_RANGE_V`]): the hand-over speed's back-EMF is kept well
+    /// above the voltage error the dead time makes on this bus.
+    pub bus_voltage_v: f32,
+}
+
 /// The robot joint (design §21; foc-core's `JointSetup`) and the impedance
 /// maxima of the command limits.
 ///
@@ -320,6 +338,9 @@ pub struct DriveRecord {
     /// settings and maxima); `None`: the build's (what a version-1, -2 or
     /// -3 record, from before it was stored, becomes).
     pub joint: Option<JointRecord>,
+    /// Run without the angle sensor (design §27); `None`: on the angle
+    /// sensor (what a record from before schema 5 becomes).
+    pub sensorless: Option<SensorlessRecord>,
 }
 
 /// Why bytes are not a record (see [`DriveRecord::decode`]).
@@ -386,9 +407,9 @@ impl DriveRecord {
 
     /// Read an envelope: length, then CRC, then version ([`SCHEMA_VERSION`]
     /// decodes; a newer one is [`RecordError::UnsupportedVersion`]; an older
-    /// one goes through the migration steps: version 1, 2 and 3 records
-    /// decode with `power`, `mechanics` and `joint` at `None` where they had
-    /// none).
+    /// one goes through the migration steps: version 1 to 4 records
+    /// decode with `power`, `mechanics`, `joint` and `sensorless` at `None`
+    /// where they had none).
     /// `bytes` must be exactly one envelope. Does not validate.
     pub fn decode(bytes: &[u8]) -> Result<DriveRecord, RecordError> {
         let (version, payload) = crate::envelope::open(bytes, MAX_RECORD_BYTES)?;
@@ -492,6 +513,11 @@ impl DriveRecord {
         }
         if let Some(j) = &self.joint {
             j.validate(&self.limits)?;
+        }
+        if let Some(sl) = &self.sensorless {
+            sl.validate(&self.limits)?;
+            // The observer follows the magnet's back-EMF.
+            check(self.motor.flux_linkage_wb > 0.0, "sensorless")?;
         }
         Ok(())
     }
@@ -611,5 +637,6 @@ pub fn example() -> DriveRecord {
             max_kp_nm_per_rad: 20.0,
             max_kd_nm_s_per_rad: 0.5,
         }),
+        sensorless: None,
     }
 }

@@ -12,8 +12,8 @@ mod store_tests;
 
 use crate::record::{
     example, AngleRecord, CurrentGainsRecord, DividersRecord, DriveRecord, JointRecord, Label,
-    LimitsRecord, MechanicsRecord, MotorRecord, PositionRecord, PowerRecord, SpeedRecord,
-    WatchdogReaction, WatchdogRecord,
+    LimitsRecord, MechanicsRecord, MotorRecord, PositionRecord, PowerRecord, SensorlessRecord,
+    SpeedRecord, WatchdogReaction, WatchdogRecord,
 };
 
 /// Record A of the tests.
@@ -132,6 +132,10 @@ pub(crate) fn largest_record() -> DriveRecord {
             timeout_kd_nm_s_per_rad: f32::MAX,
             max_kp_nm_per_rad: f32::MAX,
             max_kd_nm_s_per_rad: f32::MAX,
+        }),
+        sensorless: Some(SensorlessRecord {
+            start_current_a: f32::MAX,
+            bus_voltage_v: f32::MAX,
         }),
     }
 }

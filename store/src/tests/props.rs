@@ -4,8 +4,8 @@
 use crate::fake::FakeFlash;
 use crate::record::{
     AngleRecord, CurrentGainsRecord, DividersRecord, DriveRecord, JointRecord, Label, LimitsRecord,
-    MechanicsRecord, MotorRecord, PositionRecord, PowerRecord, SpeedRecord, WatchdogReaction,
-    WatchdogRecord, MAX_RECORD_BYTES,
+    MechanicsRecord, MotorRecord, PositionRecord, PowerRecord, SensorlessRecord, SpeedRecord,
+    WatchdogReaction, WatchdogRecord, MAX_RECORD_BYTES,
 };
 use crate::settings::Settings;
 use crate::store::Store;
@@ -145,7 +145,12 @@ prop_compose! {
         power in proptest::option::of(power()),
         mechanics in proptest::option::of(mechanics()),
         joint in proptest::option::of(joint()),
+        sensorless in proptest::option::of((0.0f32..=1.0, 1.0f32..=1000.0)),
     ) -> DriveRecord {
+        // Mechanics need a torque constant (flux > 0); sensorless needs
+        // them (the build's have none here).
+        let mechanics = mechanics.filter(|_| motor.3 > 0.0);
+        let sensorless = sensorless.filter(|_| mechanics.is_some());
         DriveRecord {
             label,
             pwm_frequency_hz: pwm,
@@ -171,9 +176,13 @@ prop_compose! {
             dividers: DividersRecord { speed: dividers.0, position: dividers.1 },
             watchdog: WatchdogRecord { timeout_periods: watchdog.0, reaction: watchdog.1 },
             power,
-            // Mechanics need a torque constant (flux > 0).
-            mechanics: mechanics.filter(|_| motor.3 > 0.0),
+            mechanics,
             joint,
+            // A share of the current limit (never 0).
+            sensorless: sensorless.map(|(share, bus)| SensorlessRecord {
+                start_current_a: (lim.0 * share).max(lim.0 * 1e-3),
+                bus_voltage_v: bus,
+            }),
         }
     }
 }

@@ -3,7 +3,7 @@
 use super::{largest_record, record_a, record_b};
 use crate::record::{
     angle_to_e_rad, e_rad_to_angle, DriveRecord, Invalid, JointRecord, MechanicsRecord,
-    RecordError, MAX_RECORD_BYTES, SCHEMA_VERSION,
+    RecordError, SensorlessRecord, MAX_RECORD_BYTES, SCHEMA_VERSION,
 };
 use core::f32::consts::TAU;
 use foc_core::angle::ElectricalAngle;
@@ -75,6 +75,13 @@ fn largest_record_fits() {
     j.entry_blend_periods = JointConfig::MAX_ENTRY_BLEND_PERIODS;
     j.rotor_at_zero_rad = -1e30;
     j.travel_out_rad = Some((-1e30, 1e30));
+    assert_eq!(
+        r.validate(),
+        Err(Invalid {
+            field: "sensorless.bus_voltage_v"
+        })
+    );
+    r.sensorless.as_mut().unwrap().bus_voltage_v = 1000.0;
     assert_eq!(r.validate(), Ok(()));
     assert!(encoded(&r).len() <= bytes.len());
 }
@@ -82,13 +89,16 @@ fn largest_record_fits() {
 #[test]
 fn the_joint_costs_its_size_and_no_more() {
     // Schema 4 adds at most 47 bytes (tag, 9 f32, range tag, u32 varint)
-    // to the largest version-3 record (229 bytes).
+    // to the largest version-3 record (229 bytes), schema 5 at most 9
+    // (tag, 2 f32).
     let mut r = largest_record();
     let with = encoded(&r).len();
+    assert_eq!(with, 229 + 47 + 9);
+    r.sensorless = None;
+    assert_eq!(encoded(&r).len(), 229 + 47 + 1);
     r.joint = None;
     // Without a joint: its `None` tag only.
-    assert_eq!(encoded(&r).len(), 229 + 1);
-    assert_eq!(with, 229 + 47);
+    assert_eq!(encoded(&r).len(), 229 + 1 + 1);
     assert!(with <= MAX_RECORD_BYTES);
     let mut buf = [0u8; MAX_RECORD_BYTES];
     let v3 = postcard::to_slice(&as_v3(&largest_record()), &mut buf).unwrap();
@@ -389,7 +399,10 @@ fn a_version_1_record_migrates_with_the_build_default_power_limits() {
         now
     );
     assert_eq!(migrated.validate(), Ok(()));
-    assert_eq!(as_v1(&now).into_v2().into_v3().into_v4(), migrated);
+    assert_eq!(
+        as_v1(&now).into_v2().into_v3().into_v4().into_v5(),
+        migrated
+    );
     // A version-2, -3 or -4 payload under version 1 is not a version-1
     // record.
     let p2 = postcard_of(&as_v2(&now));
@@ -420,7 +433,7 @@ fn a_version_2_record_migrates_without_mechanics() {
         );
         assert_eq!(migrated.validate(), Ok(()));
         // The frozen structs' own steps.
-        assert_eq!(as_v2(&now).into_v3().into_v4(), migrated);
+        assert_eq!(as_v2(&now).into_v3().into_v4().into_v5(), migrated);
         // A version-3 or -4 payload (with or without mechanics) under
         // version 2 is not a version-2 record, nor a version-1 one under
         // version 2.
@@ -464,7 +477,7 @@ fn a_version_3_record_migrates_without_the_joint() {
             now
         );
         assert_eq!(migrated.validate(), Ok(()));
-        assert_eq!(as_v3(&now).into_v4(), migrated);
+        assert_eq!(as_v3(&now).into_v4().into_v5(), migrated);
         // A version-4 payload (with or without the joint) under version 3
         // is not a version-3 record, nor a version-2 one.
         let mut none = now.clone();
@@ -504,13 +517,126 @@ fn a_migrated_record_applies_with_the_builds_joint() {
         (s.limits.max_kp_nm_per_rad, s.limits.max_kd_nm_s_per_rad),
         (7.0, base.limits.max_kd_nm_s_per_rad)
     );
-    // Saved again: with the joint, schema 4.
+    // Saved again: with the joint, schema 5.
     let again = DriveRecord::from_settings(&migrated.label, 20_000, &s);
     assert_eq!(
         again.joint,
         Some(JointRecord::from_setup(&base.joint, &base.limits))
     );
-    assert_eq!(encoded(&again)[0], 4);
+    assert_eq!(encoded(&again)[0], 5);
+}
+
+/// `r` in the version-4 layout (what it loses: `sensorless`).
+fn as_v4(r: &DriveRecord) -> crate::record::v4::DriveRecordV4 {
+    let v3 = as_v3(r);
+    crate::record::v4::DriveRecordV4 {
+        joint: r.joint,
+        ..v3.into_v4()
+    }
+}
+
+#[test]
+fn a_version_4_record_migrates_on_the_angle_sensor() {
+    let mut sensorless = record_a();
+    sensorless.sensorless = Some(SensorlessRecord {
+        start_current_a: 4.0,
+        bus_voltage_v: 24.0,
+    });
+    assert_eq!(sensorless.validate(), Ok(()));
+    for now in [record_a(), record_b(), sensorless.clone()] {
+        let p4 = postcard_of(&as_v4(&now));
+        let migrated = DriveRecord::decode(&envelope(4, &p4)).unwrap();
+        assert_eq!(migrated.sensorless, None);
+        assert_eq!(
+            DriveRecord {
+                sensorless: now.sensorless,
+                ..migrated.clone()
+            },
+            now
+        );
+        assert_eq!(as_v4(&now).into_v5(), migrated);
+        // A version-5 payload under version 4 is not a version-4 record,
+        // nor a version-4 payload one of version 5.
+        assert_eq!(
+            DriveRecord::decode(&envelope(4, payload(&encoded(&now)))),
+            Err(RecordError::Malformed)
+        );
+        assert_eq!(
+            DriveRecord::decode(&envelope(SCHEMA_VERSION, &p4)),
+            Err(RecordError::Malformed)
+        );
+    }
+}
+
+#[test]
+fn the_sensorless_setting_is_checked_and_needs_mechanics() {
+    use crate::Settings;
+    use foc_core::drive::cascade::CascadeConfig;
+    let mut r = record_a();
+    let ok = SensorlessRecord {
+        start_current_a: r.limits.max_current_a,
+        bus_voltage_v: 24.0,
+    };
+    type Spoil = fn(&mut SensorlessRecord);
+    let spoils: [(Spoil, &str); 5] = [
+        (|s| s.start_current_a = 0.0, "sensorless.start_current_a"),
+        (|s| s.start_current_a = 5.01, "sensorless.start_current_a"),
+        (
+            |s| s.start_current_a = f32::NAN,
+            "sensorless.start_current_a",
+        ),
+        (|s| s.bus_voltage_v = 0.5, "sensorless.bus_voltage_v"),
+        (
+            |s| s.bus_voltage_v = f32::INFINITY,
+            "sensorless.bus_voltage_v",
+        ),
+    ];
+    for (spoil, field) in spoils {
+        let mut bad = ok;
+        spoil(&mut bad);
+        r.sensorless = Some(bad);
+        assert_eq!(r.validate(), Err(Invalid { field }), "{bad:?}");
+    }
+    r.sensorless = Some(ok);
+    let mut no_flux = r.clone();
+    no_flux.motor.flux_linkage_wb = 0.0;
+    no_flux.mechanics = None;
+    assert_eq!(
+        no_flux.validate(),
+        Err(Invalid {
+            field: "sensorless"
+        })
+    );
+    // Applied: the cascade runs on the observer, derived from the motor,
+    // the record's inertia and bus.
+    let base_cascade = CascadeConfig::for_motor(r.motor.to_params(), 20_000.0, 5.0);
+    let base = Settings::from_cascade(&base_cascade);
+    assert_eq!(base.sensorless, None);
+    let s = r.apply(&base, 20_000).unwrap();
+    assert_eq!(s.sensorless, Some(ok));
+    let c = s.apply_to(&base_cascade);
+    let sl = c.current.sensorless.expect("derived");
+    assert_eq!((sl.current_a, sl.bus_voltage_v), (5.0, 24.0));
+    assert_eq!(sl.observer.motor, r.motor.to_params());
+    // Round trip through the settings.
+    assert_eq!(Settings::from_cascade(&c).sensorless, Some(ok));
+    assert_eq!(
+        DriveRecord::from_settings(&r.label, 20_000, &s).sensorless,
+        Some(ok)
+    );
+    // Without mechanics (the record's or the build's) it is refused whole.
+    let mut bare = r.clone();
+    bare.mechanics = None;
+    assert_eq!(
+        bare.apply(&base, 20_000),
+        Err(Invalid {
+            field: "sensorless"
+        })
+    );
+    // On the angle sensor again.
+    r.sensorless = None;
+    let back = r.apply(&s, 20_000).unwrap();
+    assert_eq!(back.apply_to(&c).current.sensorless, None);
 }
 
 #[test]
@@ -1001,11 +1127,8 @@ fn a_record_written_by_the_version_1_build_still_loads() {
     assert_eq!(envelope(1, &postcard_of(&as_v1(&record_a()))), V1_GOLDEN);
 }
 
-/// The envelope of `record_a()` as this build (schema version 4) writes it,
-/// captured when the golden was added. When the layout changes, the
-/// schema version goes up and this envelope becomes a frozen version's
-/// golden, decoded by its frozen struct; until then any change to
-/// `DriveRecord` or a sub-record's layout fails here.
+/// The envelope of `record_a()` as schema version 4 wrote it (frozen when
+/// schema 5 added `sensorless`).
 const V4_GOLDEN: [u8; 240] = [
     0x04, 0x00, 0xe8, 0x00, 0x0b, 0x62, 0x65, 0x6e, 0x63, 0x68, 0x20, 0x6d, 0x6f, 0x74, 0x6f, 0x72,
     0xa0, 0x9c, 0x01, 0x07, 0xcd, 0xcc, 0x4c, 0x3e, 0x82, 0xa8, 0x7b, 0x38, 0xf7, 0xcc, 0x92, 0x38,
@@ -1024,13 +1147,61 @@ const V4_GOLDEN: [u8; 240] = [
     0x6f, 0x12, 0x83, 0x3a, 0x00, 0x00, 0xa0, 0x41, 0x00, 0x00, 0x00, 0x3f, 0x58, 0x76, 0x36, 0xce,
 ];
 
+/// The envelope of `record_a()` with a sensorless setting (start 4 A, bus
+/// 24 V) as this build (schema version 5) writes it, captured when the
+/// golden was added. When the layout changes, the schema version goes up
+/// and this envelope becomes a frozen version's golden, decoded by its
+/// frozen struct; until then any change to `DriveRecord` or a
+/// sub-record's layout fails here.
+const V5_GOLDEN: [u8; 249] = [
+    0x05, 0x00, 0xf1, 0x00, 0x0b, 0x62, 0x65, 0x6e, 0x63, 0x68, 0x20, 0x6d, 0x6f, 0x74, 0x6f, 0x72,
+    0xa0, 0x9c, 0x01, 0x07, 0xcd, 0xcc, 0x4c, 0x3e, 0x82, 0xa8, 0x7b, 0x38, 0xf7, 0xcc, 0x92, 0x38,
+    0x6f, 0x12, 0x83, 0x3b, 0x9a, 0x99, 0x99, 0x3e, 0x00, 0x00, 0x7a, 0x44, 0x33, 0x33, 0xb3, 0x3e,
+    0x00, 0x00, 0x7a, 0x44, 0x01, 0x00, 0x00, 0xa0, 0x3f, 0x01, 0x07, 0x80, 0x20, 0x00, 0x00, 0xa0,
+    0x40, 0x00, 0x00, 0x96, 0x43, 0x00, 0x00, 0xc8, 0xc2, 0x00, 0x00, 0xc8, 0x42, 0x00, 0x00, 0x40,
+    0x40, 0x00, 0x00, 0xfa, 0x43, 0xcd, 0xcc, 0x4c, 0x3d, 0x00, 0x00, 0xc0, 0x3f, 0x00, 0x00, 0xf0,
+    0x41, 0x00, 0x00, 0xc8, 0x42, 0x00, 0x00, 0x7a, 0x44, 0x0a, 0x14, 0xd0, 0x0f, 0x01, 0x01, 0x00,
+    0x00, 0xcc, 0x41, 0x00, 0x00, 0xe4, 0x41, 0x00, 0x00, 0x80, 0x7f, 0x00, 0x00, 0x20, 0x41, 0x00,
+    0x00, 0x00, 0x40, 0x00, 0x00, 0x80, 0x7f, 0x00, 0x00, 0x80, 0x7f, 0x00, 0x00, 0x00, 0x40, 0x00,
+    0x00, 0x70, 0x42, 0x00, 0x00, 0x20, 0x42, 0x00, 0x00, 0xc8, 0x42, 0x00, 0x00, 0xf0, 0x42, 0x00,
+    0x00, 0x82, 0x42, 0x00, 0x00, 0xaa, 0x42, 0x00, 0x00, 0x80, 0x7f, 0x00, 0x00, 0x80, 0x7f, 0x00,
+    0x00, 0x80, 0x3f, 0x01, 0x17, 0xb7, 0xd1, 0x37, 0xac, 0xc5, 0x27, 0x37, 0x6f, 0x12, 0x03, 0x3b,
+    0x01, 0x00, 0x00, 0x10, 0xc1, 0x00, 0x00, 0xc0, 0x3f, 0x01, 0x00, 0x00, 0xc0, 0xbf, 0x00, 0x00,
+    0x00, 0x40, 0x00, 0x00, 0x80, 0x3e, 0x00, 0x00, 0xfa, 0x44, 0xcd, 0xcc, 0x4c, 0x3d, 0xc8, 0x01,
+    0x6f, 0x12, 0x83, 0x3a, 0x00, 0x00, 0xa0, 0x41, 0x00, 0x00, 0x00, 0x3f, 0x01, 0x00, 0x00, 0x80,
+    0x40, 0x00, 0x00, 0xc0, 0x41, 0x04, 0xb1, 0x13, 0xa8,
+];
+
+/// `record_a()` with the sensorless setting of [`V5_GOLDEN`].
+fn sensorless_record() -> DriveRecord {
+    let mut r = record_a();
+    r.sensorless = Some(SensorlessRecord {
+        start_current_a: 4.0,
+        bus_voltage_v: 24.0,
+    });
+    r
+}
+
 #[test]
 fn the_current_schema_writes_and_reads_its_golden_envelope() {
     let mut buf = [0u8; crate::MAX_RECORD_BYTES];
-    let n = record_a().encode(&mut buf).expect("encodes");
-    assert_eq!(&buf[..n], &V4_GOLDEN[..]);
-    let r = DriveRecord::decode(&V4_GOLDEN).expect("version 4 decodes");
-    assert_eq!(r, record_a());
+    let n = sensorless_record().encode(&mut buf).expect("encodes");
+    assert_eq!(&buf[..n], &V5_GOLDEN[..]);
+    let r = DriveRecord::decode(&V5_GOLDEN).expect("version 5 decodes");
+    assert_eq!(r, sensorless_record());
     assert_eq!(r.validate(), Ok(()));
-    assert_eq!(crate::SCHEMA_VERSION, 4, "a new version freezes V4_GOLDEN");
+    assert_eq!(crate::SCHEMA_VERSION, 5, "a new version freezes V5_GOLDEN");
+}
+
+#[test]
+fn the_version_4_golden_envelope_migrates() {
+    let r = DriveRecord::decode(&V4_GOLDEN).expect("version 4 migrates");
+    assert_eq!(r, record_a());
+    assert_eq!(r.sensorless, None);
+    // The frozen version-4 struct still writes exactly these bytes.
+    let mut buf = [0u8; crate::MAX_RECORD_BYTES];
+    let p = postcard::to_slice(&as_v4(&record_a()), &mut buf)
+        .unwrap()
+        .to_vec();
+    assert_eq!(envelope(4, &p), V4_GOLDEN);
 }

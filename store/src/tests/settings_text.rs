@@ -111,7 +111,7 @@ fn toml_is_readable_and_checked() {
     let text = to_toml(&r);
     std::eprintln!("{text}");
     for key in [
-        "schema_version = 4",
+        "schema_version = 5",
         "label = \"bench motor\"",
         "[motor]",
         "r_ohm = ",
@@ -160,6 +160,26 @@ fn toml_is_readable_and_checked() {
         "{t}"
     );
     assert_eq!(from_toml(&t), Ok(free));
+    // Sensorless: its table, read back; a version-4 file (before it) has
+    // none and reads as on the angle sensor.
+    let mut sl = r.clone();
+    sl.sensorless = Some(crate::record::SensorlessRecord {
+        start_current_a: 3.5,
+        bus_voltage_v: 48.0,
+    });
+    let t = to_toml(&sl);
+    assert!(
+        t.contains("[sensorless]\nstart_current_a = 3.5\nbus_voltage_v = 48.0"),
+        "{t}"
+    );
+    assert_eq!(from_toml(&t), Ok(sl));
+    assert!(!to_toml(&r).contains("[sensorless]"));
+    assert_eq!(
+        from_toml(&to_toml(&r).replace("schema_version = 5", "schema_version = 4")),
+        Ok(r.clone())
+    );
+    let e = from_toml(&t.replace("start_current_a = 3.5", "start_current_a = 50.0")).unwrap_err();
+    assert!(e.contains("sensorless.start_current_a"), "{e}");
     // No joint: no table, and back to None (the build's).
     let mut n = r.clone();
     n.joint = None;
@@ -168,7 +188,7 @@ fn toml_is_readable_and_checked() {
     assert_eq!(from_toml(&t), Ok(n.clone()));
     // A version-3 file (before the joint) reads as version 4 without it.
     assert_eq!(
-        from_toml(&t.replace("schema_version = 4", "schema_version = 3")),
+        from_toml(&t.replace("schema_version = 5", "schema_version = 3")),
         Ok(n.clone())
     );
     // No mechanics: no table, and back to None (not identified).
@@ -179,7 +199,7 @@ fn toml_is_readable_and_checked() {
     // A version-2 file (before the mechanics) reads as version 4 without
     // them.
     assert_eq!(
-        from_toml(&t.replace("schema_version = 4", "schema_version = 2")),
+        from_toml(&t.replace("schema_version = 5", "schema_version = 2")),
         Ok(n.clone())
     );
     // No power limits: no table, and back to None (the build's defaults).
@@ -190,13 +210,13 @@ fn toml_is_readable_and_checked() {
     // A version-1 file (before the power limits) reads as version 4
     // without them.
     assert_eq!(
-        from_toml(&t.replace("schema_version = 4", "schema_version = 1")),
+        from_toml(&t.replace("schema_version = 5", "schema_version = 1")),
         Ok(n)
     );
     // Another schema version.
-    for v in ["0", "5"] {
+    for v in ["0", "6"] {
         let e =
-            from_toml(&text.replace("schema_version = 4", &std::format!("schema_version = {v}")))
+            from_toml(&text.replace("schema_version = 5", &std::format!("schema_version = {v}")))
                 .unwrap_err();
         assert!(e.contains("schema_version") && e.contains(v), "{e}");
     }
@@ -325,7 +345,7 @@ fn toml_is_readable_and_checked() {
         e,
         "record value `power.bus_current_regen_max_a` is out of range"
     );
-    let e = from_toml(&text.replace("schema_version = 4\n", "")).unwrap_err();
+    let e = from_toml(&text.replace("schema_version = 5\n", "")).unwrap_err();
     assert!(e.contains("schema_version"), "{e}");
     // A bad value names the field.
     let e = from_toml(&text.replace("max_current_a = 5.0", "max_current_a = -5.0")).unwrap_err();
@@ -335,7 +355,7 @@ fn toml_is_readable_and_checked() {
     assert!(e.contains("r_ohm"), "{e}");
     let e = from_toml(&text.replace("lq_h", "# lq_h")).unwrap_err();
     assert!(e.contains("lq_h"), "{e}");
-    assert_eq!(SCHEMA_VERSION, 4);
+    assert_eq!(SCHEMA_VERSION, 5);
 }
 
 #[test]

@@ -11,7 +11,9 @@
 //! The controller starts calibrated with a *supplied* permit: the
 //! current-loop gains from the motor values, the angle calibration from
 //! `--zero-offset-deg` / `--reversed` (default: encoder zero on the d axis).
-//! `--uncalibrated` starts without one (open loop only).
+//! `--uncalibrated` starts without one (open loop only). `--sensor
+//! sensorless` runs on the flux observer (design §27): the lines' angle is
+//! ignored and may be left out.
 //!
 //! ```text
 //! foc-sil --motor tests/motors/dji-m2006.toml
@@ -79,6 +81,21 @@ struct Args {
     /// (closed-loop commands are refused with `NotCalibrated`).
     #[arg(long)]
     uncalibrated: bool,
+    /// Where the rotor angle comes from: `encoder` (each line's `theta_m`)
+    /// or `sensorless` (the flux observer, design §27: `theta_m` is
+    /// ignored and may be left out; the start at the rated current; only
+    /// `disable`, `velocity` and `open_loop` commands).
+    #[arg(long, value_enum, default_value_t = Sensor::Encoder)]
+    sensor: Sensor,
+}
+
+/// The angle source.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+enum Sensor {
+    /// The encoder reading on each line.
+    Encoder,
+    /// The flux observer; the lines' angle is ignored.
+    Sensorless,
 }
 
 fn setup(a: &Args) -> Result<Setup, String> {
@@ -120,7 +137,14 @@ fn main() -> ExitCode {
             return ExitCode::FAILURE;
         }
     };
-    let mut config = s.cascade_config();
+    let mut config = match args.sensor {
+        Sensor::Encoder => s.cascade_config(),
+        Sensor::Sensorless => s.sensorless_config(),
+    };
+    if args.sensor == Sensor::Sensorless && config.current.sensorless.is_none() {
+        eprintln!("foc-sil: cannot run sensorless: the motor needs a flux linkage > 0");
+        return ExitCode::FAILURE;
+    }
     if let Some(n) = args.speed_div {
         config.rates.speed_divider = n.max(1);
     }
@@ -132,7 +156,7 @@ fn main() -> ExitCode {
     config.current.angle.zero_offset = ElectricalAngle::from_degrees(args.zero_offset_deg);
     config.current.angle.reversed = args.reversed;
     eprintln!(
-        "foc-sil: {} | {} pole pairs, R {} ohm, Ld {} H, Lq {} H, psi {} Wb | PWM {} Hz, speed loop /{}, position loop /{} | {} | ready",
+        "foc-sil: {} | {} pole pairs, R {} ohm, Ld {} H, Lq {} H, psi {} Wb | PWM {} Hz, speed loop /{}, position loop /{} | {} | {} | ready",
         s.name,
         s.motor.pole_pairs,
         s.motor.r_ohm,
@@ -142,6 +166,13 @@ fn main() -> ExitCode {
         s.bench.pwm_frequency_hz,
         config.rates.speed_divider,
         config.rates.position_divider,
+        match config.current.sensorless {
+            None => "angle from theta_m".to_string(),
+            Some(c) => format!(
+                "sensorless: start at {:.2} A, hand-over at {:.0} rad/s (electrical)",
+                c.current_a, c.handover_rad_s
+            ),
+        },
         if args.uncalibrated {
             "uncalibrated (open loop only)".to_string()
         } else {

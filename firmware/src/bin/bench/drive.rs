@@ -102,6 +102,7 @@ impl Rig {
                 mode: Mode::Disabled,
                 faulted: false,
                 calibrated: false,
+                sensorless: false,
             },
             speed: SpeedStage::new(cfg.speed),
             position: PositionStage::new(cfg.position),

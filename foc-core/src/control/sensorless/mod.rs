@@ -78,6 +78,8 @@ pub struct SensorlessConfig {
     pub observer: ObserverConfig,
     /// The current of the alignment and the field \[A\].
     pub current_a: f32,
+    /// The bus voltage it was derived for \[V\].
+    pub bus_voltage_v: f32,
     /// Periods of the alignment.
     pub align_periods: u32,
     /// Periods over which the current rises at the alignment's start.
@@ -155,6 +157,7 @@ impl SensorlessConfig {
         let c = Self {
             observer,
             current_a: start_current_a,
+            bus_voltage_v: v_bus_v,
             align_periods: periods(align_s).max(2),
             rise_periods: periods(2e-3).max(1),
             damping_s: 2.0 / swing_rad_s,

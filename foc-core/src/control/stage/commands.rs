@@ -51,8 +51,9 @@ impl CurrentStage {
         false
     }
 
-    /// Commands refused so far (invalid, sent while faulted, or closed-loop
-    /// without a calibration).
+    /// Commands refused so far (invalid, sent while faulted, closed-loop
+    /// without a calibration, or needing the angle sensor while
+    /// sensorless).
     pub fn rejected_commands(&self) -> u32 {
         self.state.rejected
     }
@@ -67,6 +68,7 @@ impl CurrentStage {
         if faulted
             || crate::control::admit(&cmd, &self.config.limits, faulted, self.state.calibrated)
                 .is_err()
+            || (self.sensorless.is_some() && cmd.mode().needs_angle_sensor())
         {
             self.state.rejected = self.state.rejected.wrapping_add(1);
             return;

@@ -2,6 +2,7 @@
 //! a start, and the hand-overs between the field and the observer.
 
 use super::*;
+use crate::control::flux_observer::ObserverConfig;
 use crate::control::sensorless::{Region, Switch};
 
 /// A dq vector of a frame read in a frame `rotate_rad` behind it.
@@ -15,6 +16,41 @@ impl CurrentStage {
     /// The sensorless angle source, when configured.
     pub fn sensorless(&self) -> Option<&Sensorless> {
         self.sensorless.as_ref()
+    }
+
+    /// Run without the angle sensor with `cfg` (design §27), or on the
+    /// sensor again with `None`; its observer's motor is the current
+    /// loop's. The observer and the start restart (alignment at the next
+    /// enable), the angle tracker and the speed observer start again from
+    /// the new source's first angle; the same configuration again changes
+    /// nothing. Take it with
+    /// the bridge off: the drive's rules refuse a configuration change
+    /// while it runs. Torque, position and impedance commands are refused
+    /// while sensorless ([`Mode::needs_angle_sensor`]); an active one is
+    /// dropped to `Disable`.
+    pub fn set_sensorless(&mut self, cfg: Option<SensorlessConfig>) {
+        let motor = self.config.current.motor;
+        let cfg = cfg.map(|c| SensorlessConfig {
+            observer: ObserverConfig {
+                motor,
+                ..c.observer
+            },
+            ..c
+        });
+        if cfg == self.config.sensorless {
+            return;
+        }
+        self.config.sensorless = cfg;
+        self.sensorless = cfg.map(Sensorless::new);
+        // The angle comes from elsewhere now: the tracker and the speed
+        // observer start again from its first reading.
+        self.state.last_innovation_rad = 0.0;
+        self.tracker.reset();
+        self.observer.reset();
+        self.model.reset();
+        if cfg.is_some() && self.state.active.mode().needs_angle_sensor() {
+            self.state.active = Command::Disable;
+        }
     }
 
     /// The region in force (`None`: the drive runs on its angle sensor).
