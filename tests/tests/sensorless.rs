@@ -385,3 +385,51 @@ fn a_setting_switches_the_drive_to_sensorless_and_back() {
         );
     }
 }
+
+/// A stop from speed (velocity 0, what the watchdog's `Stop` and `Hold`
+/// reactions command without a sensor): the speed loop brakes on the
+/// observer, the field takes the rotor below the release speed and holds
+/// it; no fault, at rest within a second, the swing back bounded. Every
+/// motor file. (Found by the emulated board's sensorless run: the field
+/// at rest did not damp the rotor's swing, which ran back faster than the
+/// release speed and latched `ObserverLostLock`.)
+#[test]
+fn a_stop_from_speed_comes_to_rest_without_a_fault() {
+    let mut failures = Vec::new();
+    for p in all_motor_files() {
+        let s = Setup::load(&p).unwrap();
+        let target = 0.3 * s.max_speed_rad_s().min(s.max_mission_speed_rad_s());
+        let mut sim = sim_at_speed(&s, target);
+        sim.cascade
+            .command(Command::Velocity { rad_s: 0.0 })
+            .unwrap();
+        let hz = s.pwm_hz();
+        let x0 = sim.plant.position_rad() as f32;
+        let (mut x_max, mut back) = (0.0f32, 0.0f32);
+        let mut fault = None;
+        for _ in 0..(1.0 * hz) as usize {
+            sim.step();
+            let x = sim.plant.position_rad() as f32 - x0;
+            x_max = x_max.max(x);
+            back = back.max(x_max - x);
+            if let Some(f) = sim.cascade.feedback().first_fault {
+                fault = Some(f);
+                break;
+            }
+        }
+        let w = sim.plant.omega_m_rad_s() as f32;
+        let pp = f32::from(s.motor.pole_pairs);
+        println!(
+            "{}: stop from {target:.1} rad/s: {fault:?}, {w:.3} rad/s after 1 s, swing back {:.0} deg(e)",
+            s.name,
+            (back * pp).to_degrees()
+        );
+        if fault.is_some() || w.abs() > 0.02 * target || back * pp > std::f32::consts::TAU {
+            failures.push(format!(
+                "{}: {fault:?}, {w:.3} rad/s, back {back:.3} rad",
+                s.name
+            ));
+        }
+    }
+    assert!(failures.is_empty(), "{failures:#?}");
+}

@@ -26,6 +26,8 @@ use foc_store::DriveRecord;
 use crate::e2e::{check, client_err, connect, free_port, host_backstop, Emulator, Session};
 use crate::util::{Error, Result};
 
+mod sensorless;
+
 /// Host-time limit of one scenario (QEMU start to the last check).
 const RUN_LIMIT: Duration = Duration::from_secs(600);
 
@@ -313,7 +315,8 @@ fn identification(r: &mut Rig) -> Result {
 }
 
 /// The main scenario: identification, velocity, load step, position move,
-/// an encoder jump and its clear, the timer's break and its clear.
+/// an encoder jump and its clear, the timer's break and its clear, a run
+/// without the encoder ([`sensorless::sensorless_run`]).
 pub fn main_scenario(elf: &Path, verbose: bool) -> Result {
     println!("== main scenario (identification, loops, faults)");
     let mut r = Rig::start(elf, &[], verbose)?;
@@ -355,6 +358,7 @@ fn main_steps(r: &mut Rig) -> Result {
     position_move(r)?;
     encoder_fault(r)?;
     break_input(r)?;
+    sensorless::sensorless_run(r)?;
     check(
         r.first_fault()?.is_none(),
         "no fault (no overrun) at the end",

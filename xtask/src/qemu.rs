@@ -10,7 +10,9 @@
 //!
 //! 1. the main scenario: start-up identification checked against the
 //!    plant, velocity step, load step, position move, an encoder jump and
-//!    its clear, the timer's break input and its clear, no overrun;
+//!    its clear, the timer's break input and its clear, a run without the
+//!    encoder (a `[sensorless]` record applied over the link: start,
+//!    reversal, back on the encoder), no overrun;
 //! 2. a panic of the emulated hardware during a position move: the
 //!    firmware's panic handler must leave the bridge safe (exit status 3);
 //! 3. two braking runs (design §18) on a DC link fed by a supply that

@@ -72,11 +72,16 @@ impl Sensorless {
     /// The damping's lead: the field's speed less the rotor's, as the
     /// observer sees it, times the damping time (bounded).
     fn damp(&mut self) {
-        let slip = self.field_rad_s - self.observer.speed_rad_s();
+        let w_obs = self.observer.speed_rad_s();
+        let slip = self.field_rad_s - w_obs;
         // On the turning field the observer's speed is worth little until
-        // the field nears the hand-over speed: the damping grows with it.
+        // the field or the rotor nears the hand-over speed: the damping
+        // grows with the faster of the two (a rotor handed back to a field
+        // that stops swings about it as fast as it came).
         let weight = match self.region {
-            Region::Field => (self.field_rad_s.abs() / self.cfg.handover_rad_s).min(1.0),
+            Region::Field => {
+                (self.field_rad_s.abs().max(w_obs.abs()) / self.cfg.handover_rad_s).min(1.0)
+            }
             _ => 1.0,
         };
         let lead = self.cfg.damping_s * weight * slip;
@@ -158,8 +163,16 @@ impl Sensorless {
             0
         };
         self.waited = self.waited.saturating_add(1);
-        // Against the field: given only the time to agree.
-        if against && self.waited > c.lock_periods.max(1) {
+        // Against the field: given only the time to agree; a stop (no
+        // commanded direction) gives the rotor's swing about the field the
+        // time out to settle (it comes in as fast as the release speed, on
+        // the braking current's angle, and the damper takes it down).
+        let grace = if target == 0.0 {
+            c.lock_timeout_periods
+        } else {
+            c.lock_periods
+        };
+        if against && self.waited > grace.max(1) {
             return Err(LostLock);
         }
         if self.agree >= c.lock_periods.max(1) {

@@ -166,6 +166,10 @@ impl CurrentStage {
             TimeoutReaction::Disable => self.supervisor.trip(Fault::CommandTimeout),
             _ if !self.state.calibrated => self.supervisor.trip(Fault::CommandTimeout),
             TimeoutReaction::Stop => self.accept(Command::Velocity { rad_s: 0.0 }),
+            // Without the angle sensor there is no position to hold: stop.
+            TimeoutReaction::Hold if self.sensorless.is_some() => {
+                self.accept(Command::Velocity { rad_s: 0.0 })
+            }
             TimeoutReaction::Hold => {
                 let p = self.tracker.position().to_radians();
                 self.state.active = Command::Position { rad: p };
