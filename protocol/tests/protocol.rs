@@ -1156,6 +1156,44 @@ fn watchdog_reactions() {
     }
 }
 
+/// Sensorless (the device reports `angle-source` 1): a torque, position or
+/// impedance command is refused with `NeedsAngleSensor`; the link
+/// watchdog's `Hold` stops (velocity 0) instead of holding a position it
+/// cannot know, and latches nothing.
+#[test]
+fn a_sensorless_device_refuses_what_needs_the_sensor_and_stops_on_hold() {
+    let mut dev = DeviceState::with_watchdog(WatchdogConfig {
+        timeout_periods: 100,
+        reaction: TimeoutReaction::Hold,
+    });
+    let mut ctx = RecordingContext {
+        sensorless: true,
+        ..RecordingContext::default()
+    };
+    dev.poll(&mut ctx, 0);
+    for cmd in [
+        Command::Torque { iq_a: 1.0 },
+        Command::Position { rad: 1.0 },
+    ] {
+        assert_eq!(
+            handle(&mut dev, &mut ctx, 1, Request::SetCommand(cmd)),
+            Response::Nack(ErrorCode::NeedsAngleSensor)
+        );
+    }
+    assert_eq!(
+        handle(
+            &mut dev,
+            &mut ctx,
+            2,
+            Request::SetCommand(Command::Velocity { rad_s: 30.0 })
+        ),
+        Response::Ack
+    );
+    dev.poll(&mut ctx, 150);
+    assert_eq!(ctx.posted, Some(Command::Velocity { rad_s: 0.0 }));
+    assert!(ctx.faults.is_empty());
+}
+
 /// The firmware's default: a command that runs the motor arms the link
 /// watchdog
 /// (Stop, then Disable after a second timeout of silence); a keep-alive

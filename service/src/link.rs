@@ -188,6 +188,16 @@ impl<S: RecordStore> DeviceContext for Link<'_, S> {
         if limits.max_current_a > self.service.board().max_current_a {
             return Err(Refusal::Unsupported);
         }
+        // A sensorless start current above the new limit would leave the
+        // configuration unsaveable (the record checks it).
+        if self
+            .service
+            .settings()
+            .sensorless
+            .is_some_and(|sl| sl.start_current_a > limits.max_current_a)
+        {
+            return Err(Refusal::Unsupported);
+        }
         let s = self.service.settings_mut();
         s.limits = limits;
         s.speed.current_limit_a = limits.max_current_a;

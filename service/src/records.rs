@@ -48,6 +48,16 @@ pub fn admit(board: &Board, rec: &DriveRecord) -> Result<Settings, Invalid> {
             return invalid("power.brake_on_v");
         }
     }
+    // A sensorless setting this board's build cannot derive a start from
+    // (it would run on its sensor while the record says sensorless).
+    if s.sensorless.is_some() && board.cascade_of(&s).current.sensorless.is_none() {
+        return invalid("sensorless");
+    }
+    if s.sensorless
+        .is_some_and(|sl| sl.bus_voltage_v >= board.bus_over_voltage_v())
+    {
+        return invalid("sensorless.bus_voltage_v");
+    }
     if s.calibrated && !board.zero_survives_reset {
         crate::log_warn!("store: the stored electrical zero does not apply to an incremental encoder (its zero is where the rotor was at reset): motor model and gains kept, identification needed");
         s.calibrated = false;

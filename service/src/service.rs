@@ -166,8 +166,9 @@ impl Service {
     /// Take a new identification into the settings: from now on they
     /// carry its angle calibration, motor model and gains (and so a save
     /// stores them). Its measured mechanics re-derive the speed and
-    /// position loops, sent with the next [`Self::take_pending`] (the
-    /// current stage's observer took them already).
+    /// position loops, and a sensorless start is derived again, sent with
+    /// the next [`Self::take_pending`] (the current stage's observer took
+    /// them already).
     pub fn fold_identification(&mut self, id: Option<Identified>) {
         let Some(id) = id else {
             return;
@@ -189,6 +190,14 @@ impl Service {
                 self.pending.speed = Some(c.speed);
                 self.pending.position = Some(c.position);
             }
+        }
+        // A sensorless start is derived from the motor and the mechanics:
+        // again from the identified ones.
+        if self.settings.sensorless.is_some() {
+            self.pending.change(ConfigChange {
+                sensorless: Some(self.cascade().current.sensorless),
+                ..ConfigChange::default()
+            });
         }
     }
 

@@ -87,6 +87,12 @@ pub enum OpMode {
 }
 
 impl OpMode {
+    /// True for the velocity modes (pv, csv): the only ones a drive
+    /// running without its angle sensor takes (design §27).
+    pub const fn is_velocity(self) -> bool {
+        matches!(self, Self::ProfileVelocity | Self::CyclicVelocity)
+    }
+
     /// From the 0x6060 value; `None` for an unsupported mode.
     pub const fn from_i8(v: i8) -> Option<Self> {
         match v {
@@ -453,11 +459,13 @@ impl Cia402 {
         self.enter(to, now_us, ctx);
     }
 
-    /// Operation may be enabled: a mode, the drive started, calibrated and
+    /// Operation may be enabled: a mode (a velocity mode when the drive
+    /// runs without its angle sensor), the drive started, calibrated and
     /// not faulted.
     fn may_enable<C: DeviceContext>(&self, ctx: &C) -> bool {
         let st = ctx.status();
         self.mode != OpMode::NoMode
+            && (self.mode.is_velocity() || !st.sensorless)
             && st.running
             && ctx.is_calibrated()
             && ctx.faults().0.is_empty()
@@ -562,7 +570,9 @@ impl Cia402 {
         }
         self.mode = m;
         if self.state == State::OperationEnabled {
-            if m == OpMode::NoMode {
+            if m == OpMode::NoMode || (!m.is_velocity() && ctx.status().sensorless) {
+                // (Without the angle sensor: velocity modes only.)
+                self.warning = m != OpMode::NoMode;
                 self.enter(State::SwitchedOn, now_us, ctx);
             } else {
                 self.start_mode(now_us, ctx);

@@ -17,6 +17,8 @@ struct Fake {
     fb: Feedback,
     running: bool,
     calibrated: bool,
+    /// It runs without its angle sensor.
+    sensorless: bool,
     faults: FaultSet,
     first: Option<Fault>,
     posted: Option<Command>,
@@ -35,6 +37,7 @@ impl Fake {
             fb,
             running: true,
             calibrated: true,
+            sensorless: false,
             faults: FaultSet::EMPTY,
             first: None,
             posted: None,
@@ -102,7 +105,7 @@ impl DeviceContext for Fake {
             mode: self.fb.mode,
             faulted: !self.faults.is_empty(),
             calibrated: self.calibrated,
-            sensorless: false,
+            sensorless: self.sensorless,
         }
     }
     fn set_current_gains(&mut self, _: CurrentGains) -> Result<(), Refusal> {
@@ -355,6 +358,35 @@ fn enable_without_calibration_or_mode_warns_and_stays_switched_on() {
     let (mut p, mut ctx) = started(OpMode::NoMode);
     reach(&mut p, &mut ctx, State::SwitchedOn);
     assert_eq!(cw(&mut p, &mut ctx, ENABLE), State::SwitchedOn);
+    assert_ne!(p.actuals.statusword & STATUS_WARNING, 0);
+}
+
+/// Without the angle sensor only the velocity modes enable: a position or
+/// torque mode warns and stays switched on; switching to one while
+/// enabled leaves operation with the warning.
+#[test]
+fn a_sensorless_drive_enables_the_velocity_modes_only() {
+    for m in [
+        OpMode::ProfilePosition,
+        OpMode::CyclicPosition,
+        OpMode::ProfileTorque,
+        OpMode::CyclicTorque,
+    ] {
+        let (mut p, mut ctx) = started(m);
+        ctx.sensorless = true;
+        reach(&mut p, &mut ctx, State::SwitchedOn);
+        assert_eq!(cw(&mut p, &mut ctx, ENABLE), State::SwitchedOn, "{m:?}");
+        assert_ne!(p.actuals.statusword & STATUS_WARNING, 0);
+        assert_eq!(ctx.posts, 0);
+    }
+    let (mut p, mut ctx) = started(OpMode::ProfileVelocity);
+    ctx.sensorless = true;
+    reach(&mut p, &mut ctx, State::OperationEnabled);
+    assert_eq!(p.state(), State::OperationEnabled);
+    p.write_mode(OpMode::ProfilePosition as i8, 0, &mut ctx)
+        .unwrap();
+    assert_eq!(p.state(), State::SwitchedOn);
+    assert_eq!(ctx.posted, Some(Command::Disable));
     assert_ne!(p.actuals.statusword & STATUS_WARNING, 0);
 }
 

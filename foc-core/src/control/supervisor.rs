@@ -462,6 +462,23 @@ impl Supervisor {
         self.latched.insert(fault);
     }
 
+    /// Withdraw `fault` when it is the only fault latched since the set
+    /// `before` was read this period (a sensor fault a fall-back handles,
+    /// design §27): returns true when withdrawn. Any other new fault, or
+    /// one latched before, stays.
+    pub fn withdraw(&mut self, fault: Fault, before: FaultSet) -> bool {
+        let mut only = before;
+        only.insert(fault);
+        if before.contains(fault) || self.latched != only {
+            return false;
+        }
+        self.latched = before;
+        if before.is_empty() {
+            self.first = None;
+        }
+        true
+    }
+
     /// True while any fault is latched.
     pub fn is_faulted(&self) -> bool {
         !self.latched.is_empty()

@@ -150,6 +150,7 @@ impl CascadeConfig {
                 power: None,
                 joint: JointConfig::for_pwm(pwm_frequency_hz),
                 sensorless: None,
+                fallback: None,
             },
             speed: SpeedLoopConfig::from_bandwidth(
                 inertia_kg_m2,

@@ -521,7 +521,8 @@ impl Lifecycle {
         n: u32,
         out: &mut Output,
     ) {
-        if s.angle.is_none() {
+        // (A drive that runs sensorless does not read its angle sensor.)
+        if s.angle.is_none() && stage.sensorless().is_none() {
             stage.report_fault(Fault::AngleSensorError);
             self.enter_run(stage);
             out.event = Some(Event::SensorCheckFailed);

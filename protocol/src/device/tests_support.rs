@@ -63,6 +63,8 @@ pub struct RecordingContext {
     pub max_stream_hz: Option<f32>,
     /// The scope (64 values; `None`: the device has none).
     pub scope: Option<foc_core::scope::Scope<[f32; 64]>>,
+    /// It runs without its angle sensor (`ParamId::AngleSource` 1).
+    pub sensorless: bool,
 }
 
 /// Byte `i` of [`RecordingContext`]'s configuration record.
@@ -104,6 +106,7 @@ impl Default for RecordingContext {
             staged: [0; MAX_RECORD],
             staged_len: 0,
             max_stream_hz: None,
+            sensorless: false,
             scope: Some(foc_core::scope::Scope::new([0.0; 64])),
             link: None,
             applied_link: None,
@@ -214,6 +217,7 @@ impl DeviceContext for RecordingContext {
             ParamId::SpeedDivider => Some(f32::from(self.dividers.0)),
             ParamId::PositionDivider => Some(f32::from(self.dividers.1)),
             ParamId::Calibrated => Some(if self.calibrated { 1.0 } else { 0.0 }),
+            ParamId::AngleSource => Some(f32::from(u8::from(self.sensorless))),
             _ => None,
         }
     }

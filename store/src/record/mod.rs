@@ -516,8 +516,13 @@ impl DriveRecord {
         }
         if let Some(sl) = &self.sensorless {
             sl.validate(&self.limits)?;
-            // The observer follows the magnet's back-EMF.
+            // The observer follows the magnet's back-EMF; without the
+            // sensor the position has no fixed zero, so no travel range.
             check(self.motor.flux_linkage_wb > 0.0, "sensorless")?;
+            check(
+                self.joint.is_none_or(|j| j.travel_out_rad.is_none()),
+                "sensorless",
+            )?;
         }
         Ok(())
     }

@@ -150,7 +150,9 @@ prop_compose! {
         // Mechanics need a torque constant (flux > 0); sensorless needs
         // them (the build's have none here).
         let mechanics = mechanics.filter(|_| motor.3 > 0.0);
-        let sensorless = sensorless.filter(|_| mechanics.is_some());
+        let sensorless = sensorless.filter(|_| {
+            mechanics.is_some() && joint.is_none_or(|j: JointRecord| j.travel_out_rad.is_none())
+        });
         DriveRecord {
             label,
             pwm_frequency_hz: pwm,

@@ -297,6 +297,19 @@ impl Sensorless {
         }
     }
 
+    /// Take over a turning rotor the observer follows (it ran beside a
+    /// sensor that failed, design §27): straight to `Observer`, nothing
+    /// held or blended, the mechanical angle going on from `mech`.
+    pub fn take_over(&mut self, mech: MechanicalAngle) {
+        self.region = Region::Observer;
+        self.hold = None;
+        self.blend_a = 0.0;
+        self.agree = 0;
+        self.waited = 0;
+        self.mech = mech;
+        self.last_angle = self.observer.angle();
+    }
+
     /// Hold the q current `iq_a` \[A\] after a hand-over until the speed
     /// stage's output moves from `from_speed_a` (its next step, which
     /// starts from the held current).

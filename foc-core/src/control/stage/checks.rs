@@ -70,10 +70,18 @@ impl CurrentStage {
             // (A coarse sensor, halls, legitimately stands still through a
             // reversal inside one of its wide counts: `angle_frozen` asks
             // it for four counts' worth.)
-            Verdict::Quiet if self.still_while_emf_moves() => Some(Fault::AngleSensorStuck),
+            Verdict::Quiet if self.sensorless.is_none() && self.still_while_emf_moves() => {
+                Some(Fault::AngleSensorStuck)
+            }
             Verdict::Quiet => None,
         };
         match fault {
+            // Limp-home: the observer beside the sensor takes over.
+            Some(Fault::AngleSensorStuck) if self.fallback_ready() => {
+                self.take_over();
+                self.model.reset();
+                true
+            }
             Some(f) => {
                 self.supervisor.trip(f);
                 self.model.reset();

@@ -9,6 +9,7 @@
 mod angle;
 mod checks;
 mod commands;
+mod fallback;
 mod impedance;
 mod outer;
 mod period;
@@ -71,6 +72,11 @@ pub struct CurrentStageConfig {
     /// Run without the angle sensor (design §27): the flux observer and
     /// the start's field give the angle; `None`: the angle sensor does.
     pub sensorless: Option<SensorlessConfig>,
+    /// With the angle sensor: the flux observer runs beside it (design
+    /// §27, limp-home) and, under a velocity command, takes over when the
+    /// sensor fails above the hand-over speed instead of stopping the
+    /// drive; `None`: off (no observer beside the sensor).
+    pub fallback: Option<SensorlessConfig>,
 }
 
 /// One period's measurements; `None` where the read failed.
@@ -116,6 +122,9 @@ pub struct CurrentStageState {
     pub rejected: u32,
     /// A calibration permit is installed (closed-loop modes unlocked).
     pub calibrated: bool,
+    /// The drive runs on the observer because its angle sensor failed
+    /// (design §27, limp-home).
+    pub limp_home: bool,
     /// The last raw angle reading (stuck-sensor check, interpolation).
     pub last_raw: Option<MechanicalAngle>,
     /// `config.angle.interpolation_half_count()`, cached.
@@ -179,6 +188,7 @@ impl CurrentStageState {
             period: 0,
             rejected: 0,
             calibrated: false,
+            limp_home: false,
             last_raw: None,
             interpolation,
             last_interp: MechanicalAngle::ZERO,
@@ -222,6 +232,7 @@ impl CurrentStageState {
             period: self.period,
             rejected: self.rejected,
             calibrated: self.calibrated,
+            limp_home: self.limp_home,
             speed_inv_periods: self.speed_inv_periods,
             speed_periods: self.speed_periods,
             ..Self::new(self.interpolation)
@@ -230,7 +241,14 @@ impl CurrentStageState {
 }
 
 /// The current stage: runs every PWM period at the highest priority.
+///
+/// `repr(C)`: its fields stay in the order written, the hot ones first
+/// and the sensorless observers last. Left to the compiler, adding the
+/// fall-back observer (256 bytes) moved hot fields past the Cortex-M4's
+/// short load/store offsets and cost every period 60 to 100 instructions
+/// (`cargo xtask bench`).
 #[derive(Clone, Copy, Debug)]
+#[repr(C)]
 pub struct CurrentStage {
     config: CurrentStageConfig,
     current: CurrentLoop,
@@ -249,6 +267,8 @@ pub struct CurrentStage {
     power_report: PowerReport,
     /// The sensorless angle source, when configured (design §27).
     sensorless: Option<Sensorless>,
+    /// The observer beside the sensor, when a fallback is configured.
+    fallback: Option<fallback::Fallback>,
 }
 
 impl CurrentStage {
@@ -277,6 +297,10 @@ impl CurrentStage {
             power: config.power.map(PowerLimiter::new),
             power_report: PowerReport::unlimited(config.limits.max_current_a),
             sensorless: config.sensorless.map(Sensorless::new),
+            fallback: config
+                .fallback
+                .filter(|_| config.sensorless.is_none())
+                .map(fallback::Fallback::new),
         }
     }
 
@@ -336,6 +360,18 @@ impl CurrentStage {
         }
         if let Some(c) = self.config.sensorless.as_mut() {
             c.observer.motor = motor;
+        }
+        if let Some(c) = self.config.fallback.as_mut() {
+            c.observer.motor = motor;
+        }
+        if let Some(f) = self.fallback.as_mut() {
+            *f = fallback::Fallback::new(SensorlessConfig {
+                observer: super::flux_observer::ObserverConfig {
+                    motor,
+                    ..f.config().observer
+                },
+                ..*f.config()
+            });
         }
     }
 

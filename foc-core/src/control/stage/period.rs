@@ -76,6 +76,15 @@ impl CurrentStage {
         if self.sensorless.is_some() {
             return self.sense_sensorless(s);
         }
+        if self.fallback.is_some() {
+            return self.sense_with_fallback(s, iq_ref_from_speed_a);
+        }
+        self.sense_sensor(s, iq_ref_from_speed_a)
+    }
+
+    /// [`Self::sense`] on the angle sensor.
+    #[inline(always)]
+    pub(super) fn sense_sensor(&mut self, s: &Sample, iq_ref_from_speed_a: f32) -> Sensed {
         let mut sensed = Sensed::unread(s);
         match (s.currents, s.angle, s.v_bus_v) {
             (None, _, _) => self.supervisor.trip(Fault::CurrentSenseError),
@@ -338,6 +347,8 @@ impl CurrentStage {
         };
         if self.sensorless.is_some() {
             self.publish_sensorless(out.map(|o| o.duties), v_bus, fb);
+        } else if self.fallback.is_some() {
+            self.publish_beside(out.map(|o| o.duties), v_bus);
         }
         bridge
     }

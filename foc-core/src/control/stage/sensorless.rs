@@ -42,6 +42,13 @@ impl CurrentStage {
         }
         self.config.sensorless = cfg;
         self.sensorless = cfg.map(Sensorless::new);
+        // On the sensor again (or not): the observer beside it restarts.
+        self.state.limp_home = false;
+        self.fallback = self
+            .config
+            .fallback
+            .filter(|_| cfg.is_none())
+            .map(super::fallback::Fallback::new);
         // The angle comes from elsewhere now: the tracker and the speed
         // observer start again from its first reading.
         self.state.last_innovation_rad = 0.0;
