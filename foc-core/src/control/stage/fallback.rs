@@ -23,6 +23,9 @@ pub(super) struct Fallback {
     agree: u32,
     /// Consecutive periods of disagreement above it, after agreement.
     disagree: u32,
+    /// Consecutive periods with the bridge on (the observer is paused,
+    /// its angle and speed frozen, while it is off).
+    driven: u32,
 }
 
 impl Fallback {
@@ -31,6 +34,7 @@ impl Fallback {
             sl: Sensorless::new(cfg),
             agree: 0,
             disagree: 0,
+            driven: 0,
         }
     }
 
@@ -67,7 +71,8 @@ impl CurrentStage {
         f.sl.sense(i_ab, pp);
         let obs = f.sl.observer();
         let c = f.sl.config();
-        let observable = obs.speed_rad_s().abs() >= c.handover_rad_s;
+        // A paused observer (bridge off) or one just resumed says nothing.
+        let observable = f.driven >= 2 && obs.speed_rad_s().abs() >= c.handover_rad_s;
         let apart = theta_sensor.diff_radians(obs.angle()).abs() > AGREEMENT_RAD;
         match (observable, apart) {
             (false, _) => {
@@ -147,8 +152,9 @@ impl CurrentStage {
             return self.sense_sensorless(s);
         }
         let before = self.supervisor.faults();
+        let (tracker, observer) = (self.tracker, self.observer);
         let mut sensed = self.sense_sensor(s, iq_ref_from_speed_a);
-        if s.currents.is_none() || s.angle.is_none() {
+        if s.currents.is_none() || s.angle.is_none() || s.v_bus_v.is_none() {
             return sensed;
         }
         let new = crate::control::FaultSet(self.supervisor.faults().0 & !before.0);
@@ -156,10 +162,18 @@ impl CurrentStage {
             .into_iter()
             .find(|f| new.contains(*f));
         let disagrees = self.sense_beside(sensed.i_ab, sensed.theta_e);
-        let take = disagrees
-            || (found.is_some()
-                && self.fallback_ready()
-                && found.is_some_and(|f| self.supervisor.withdraw(f, before)));
+        // A sensor fault: only when it is this period's only new fault
+        // (withdrawn); a disagreement: only in a period without a new one.
+        let take = match found {
+            Some(f) => self.fallback_ready() && self.supervisor.withdraw(f, before),
+            None => disagrees && new.is_empty(),
+        };
+        if take && found.is_some() {
+            // The rejected reading moved neither the tracker nor the speed
+            // observer.
+            self.tracker = tracker;
+            self.observer = observer;
+        }
         if take {
             self.take_over();
             if let Some(sl) = self.sensorless.as_ref() {
@@ -188,6 +202,9 @@ impl CurrentStage {
         self.state.unchanged_periods = 0;
         self.state.speed_at_change_rad_s = 0.0;
         self.state.emf_turned_rad = 0.0;
+        // The speed observer's torque input from now on (what
+        // `publish_sensorless` keeps up to date).
+        self.state.torque_iq_a = self.state.last_i_dq.q;
         self.model.reset();
         self.state.limp_home = true;
     }
@@ -198,6 +215,14 @@ impl CurrentStage {
     pub(super) fn publish_beside(&mut self, duties: Option<[f32; 3]>, v_bus_v: f32) {
         if let Some(f) = self.fallback.as_mut() {
             f.sl.record(duties, v_bus_v);
+            if duties.is_some() {
+                f.driven = f.driven.saturating_add(1);
+            } else {
+                // Paused: its agreement starts again once it runs.
+                f.driven = 0;
+                f.agree = 0;
+                f.disagree = 0;
+            }
         }
     }
 }
