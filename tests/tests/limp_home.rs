@@ -8,6 +8,7 @@
 
 use foc_bench::mission::{Setup, Sim};
 use foc_bench::motor_file::all_motor_files;
+use foc_core::control::stage::BesideConfig;
 use foc_core::control::{BridgeCommand, Command, Fault};
 use foc_core::drive::cascade::CascadeConfig;
 
@@ -25,7 +26,11 @@ enum Failure {
 fn config(s: &Setup, fallback: bool) -> CascadeConfig {
     let mut c = s.cascade_config();
     if fallback {
-        c.current.fallback = s.sensorless_config().current.sensorless;
+        c.current.fallback = s
+            .sensorless_config()
+            .current
+            .sensorless
+            .map(BesideConfig::limp_home);
         assert!(c.current.fallback.is_some(), "{}", s.name);
     }
     c
@@ -146,5 +151,33 @@ fn the_observer_beside_a_healthy_sensor_never_trips() {
         assert_eq!(fb.first_fault, None, "{}: disabled at speed", s.name);
         to_speed(&mut sim, &s, 0.3 * top);
         assert!(!sim.cascade.current.is_limp_home(), "{}", s.name);
+    }
+}
+
+/// The observer as a plausibility check only (`limp_home: false`): an
+/// encoder that jumps at speed latches a fault and the bridge goes off; the
+/// observer never takes over.
+#[test]
+fn a_plausibility_check_only_stops_on_a_jump() {
+    for p in all_motor_files() {
+        let s = Setup::load(&p).unwrap();
+        let target = 0.3 * s.max_speed_rad_s().min(s.max_mission_speed_rad_s());
+        let mut c = config(&s, true);
+        if let Some(b) = c.current.fallback.as_mut() {
+            b.limp_home = false;
+        }
+        let mut sim = Sim::new_calibrated(&s, c, false);
+        to_speed(&mut sim, &s, target);
+        let (fault, _, _, off) = fail(&mut sim, &s, Failure::Jump);
+        println!("{}: jump, check only: {fault:?}", s.name);
+        assert!(
+            matches!(
+                fault,
+                Some(Fault::AngleSensorImplausible | Fault::AngleSensorStuck)
+            ),
+            "{}: {fault:?}",
+            s.name
+        );
+        assert!(off && !sim.cascade.current.is_limp_home(), "{}", s.name);
     }
 }

@@ -15,10 +15,70 @@ pub const AGREEMENT_RAD: f32 = 0.5;
 /// counts' worth of the observer's motion (a frozen sensor).
 pub const TAKE_OVER_PERIODS: u32 = 10;
 
+/// Halls + sensorless: the current loop goes back on the sensor's angle
+/// below this share of [`BesideConfig::observer_above_rad_s`] (hysteresis).
+pub const HYBRID_HYSTERESIS: f32 = 0.8;
+
+/// Halls + sensorless: the time over which the angle the current loop
+/// uses moves from the sensor's to the observer's and back \[s\] (a
+/// bumpless hand-over: the two agree within [`AGREEMENT_RAD`], and the
+/// difference is taken up gradually instead of in one step).
+pub const HYBRID_BLEND_S: f32 = 0.02;
+
+/// The flux observer beside the angle sensor (design §27).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BesideConfig {
+    /// The observer's configuration, as for running sensorless.
+    pub sensorless: SensorlessConfig,
+    /// Limp-home: under a velocity command the observer takes over when
+    /// the sensor fails above the hand-over speed. `false`: the observer is
+    /// a plausibility check only (a lasting disagreement latches
+    /// [`Fault::AngleSensorImplausible`], a failure the sensor's fault).
+    pub limp_home: bool,
+    /// Halls + sensorless: above this speed [rad/s, electrical], with the
+    /// observer agreeing, the current loop runs on the observer's angle
+    /// (the sensor still gives the position and the speed, and is still
+    /// checked); below [`HYBRID_HYSTERESIS`] times it on the sensor's. The
+    /// hand-over takes [`HYBRID_BLEND_S`] either way. `None`: always on
+    /// the sensor's angle.
+    pub observer_above_rad_s: Option<f32>,
+}
+
+impl BesideConfig {
+    /// The observer as a plausibility check that takes over when the
+    /// sensor fails (limp-home), never driving the loop otherwise.
+    pub const fn limp_home(sensorless: SensorlessConfig) -> Self {
+        Self {
+            sensorless,
+            limp_home: true,
+            observer_above_rad_s: None,
+        }
+    }
+
+    /// Halls + sensorless with limp-home: the observer's angle drives the
+    /// loop above twice the observer's hand-over speed (where it is locked
+    /// with margin; back on the sensor below 1.6 times it).
+    pub fn hybrid(sensorless: SensorlessConfig) -> Self {
+        Self {
+            observer_above_rad_s: Some(2.0 * sensorless.handover_rad_s),
+            ..Self::limp_home(sensorless)
+        }
+    }
+}
+
 /// The observer beside the sensor and what it has seen.
 #[derive(Clone, Copy, Debug)]
 pub(super) struct Fallback {
     sl: Sensorless,
+    limp_home: bool,
+    /// Halls + sensorless: the speed above which the observer's angle is
+    /// used [rad/s, electrical].
+    above_rad_s: Option<f32>,
+    /// The share of the observer's angle in the angle used (0 to 1), its
+    /// step per period, and whether it is moving towards 1.
+    weight: f32,
+    weight_step: f32,
+    on_observer: bool,
     /// Consecutive periods of agreement above the hand-over speed.
     agree: u32,
     /// Consecutive periods of disagreement above it, after agreement.
@@ -29,23 +89,43 @@ pub(super) struct Fallback {
 }
 
 impl Fallback {
-    pub(super) fn new(cfg: SensorlessConfig) -> Self {
+    pub(super) fn new(cfg: BesideConfig) -> Self {
+        let ts = cfg.sensorless.observer.ts_s;
+        let blend_periods = (HYBRID_BLEND_S / ts).max(1.0);
         Self {
-            sl: Sensorless::new(cfg),
+            sl: Sensorless::new(cfg.sensorless),
+            limp_home: cfg.limp_home,
+            above_rad_s: cfg.observer_above_rad_s,
+            weight: 0.0,
+            weight_step: 1.0 / blend_periods,
+            on_observer: false,
             agree: 0,
             disagree: 0,
             driven: 0,
         }
     }
 
-    /// The configuration.
-    pub(super) fn config(&self) -> &SensorlessConfig {
-        self.sl.config()
-    }
-
     /// Above the hand-over speed, agreeing for the lock time.
     fn locked(&self) -> bool {
         self.agree >= self.sl.config().lock_periods.max(1)
+    }
+
+    /// Halls + sensorless: the share of the observer's angle in this
+    /// period's angle (hysteresis on the speed; back to the sensor while
+    /// the two disagree or the observer is not locked), moved one step.
+    fn blend_weight(&mut self) -> f32 {
+        let Some(above) = self.above_rad_s else {
+            return 0.0;
+        };
+        let w = self.sl.observer().speed_rad_s().abs();
+        let fast = w >= above || (self.on_observer && w >= HYBRID_HYSTERESIS * above);
+        self.on_observer = fast && self.locked() && self.disagree == 0;
+        self.weight = if self.on_observer {
+            (self.weight + self.weight_step).min(1.0)
+        } else {
+            (self.weight - self.weight_step).max(0.0)
+        };
+        self.weight
     }
 }
 
@@ -54,6 +134,13 @@ impl CurrentStage {
     /// (limp-home). A configuration change to the sensor ends it.
     pub fn is_limp_home(&self) -> bool {
         self.state.limp_home
+    }
+
+    /// Halls + sensorless: the share (0 to 1) of the observer's angle in
+    /// the angle the current loop uses; 0 without an observer beside the
+    /// sensor.
+    pub fn observer_share(&self) -> f32 {
+        self.fallback.as_ref().map_or(0.0, |f| f.weight)
     }
 
     /// The observer beside the sensor takes this period's current and is
@@ -96,7 +183,7 @@ impl CurrentStage {
         // lock times for a sensor that moves but disagrees (a transient of
         // the observer's own settles sooner); otherwise the disagreement
         // is a fault after the lock time-out.
-        let velocity = matches!(self.state.active, Command::Velocity { .. });
+        let velocity = f.limp_home && matches!(self.state.active, Command::Velocity { .. });
         let wait = if frozen {
             TAKE_OVER_PERIODS
         } else {
@@ -135,7 +222,10 @@ impl CurrentStage {
     #[inline(never)]
     pub(super) fn fallback_ready(&self) -> bool {
         matches!(self.state.active, Command::Velocity { .. })
-            && self.fallback.as_ref().is_some_and(Fallback::locked)
+            && self
+                .fallback
+                .as_ref()
+                .is_some_and(|f| f.limp_home && f.locked())
     }
 
     /// [`Self::sense`] on the angle sensor with the observer beside it:
@@ -179,8 +269,24 @@ impl CurrentStage {
             if let Some(sl) = self.sensorless.as_ref() {
                 sensed.theta_e = sl.observer().angle();
             }
+        } else {
+            self.blend_observer_angle(&mut sensed);
         }
         sensed
+    }
+
+    /// Halls + sensorless: the angle the current loop uses moves towards
+    /// the observer's above the configured speed (and back below it).
+    #[inline(never)]
+    fn blend_observer_angle(&mut self, sensed: &mut Sensed) {
+        let Some(f) = self.fallback.as_mut() else {
+            return;
+        };
+        let share = f.blend_weight();
+        if share > 0.0 {
+            let apart = f.sl.observer().angle().diff_radians(sensed.theta_e);
+            sensed.theta_e = sensed.theta_e.add_radians(share * apart);
+        }
     }
 
     /// The observer beside the sensor takes over (limp-home): the drive

@@ -19,6 +19,7 @@ mod window;
 pub use angle::{AngleCalibration, INTERPOLATE_BELOW_COUNTS_PER_E_TURN};
 use checks::model_check;
 pub use commands::TimeoutReaction;
+pub use fallback::{BesideConfig, HYBRID_BLEND_S, HYBRID_HYSTERESIS};
 pub use outer::{PositionStage, SpeedStage, VelocityRef};
 use period::Sensed;
 
@@ -73,10 +74,11 @@ pub struct CurrentStageConfig {
     /// the start's field give the angle; `None`: the angle sensor does.
     pub sensorless: Option<SensorlessConfig>,
     /// With the angle sensor: the flux observer runs beside it (design
-    /// §27, limp-home) and, under a velocity command, takes over when the
-    /// sensor fails above the hand-over speed instead of stopping the
-    /// drive; `None`: off (no observer beside the sensor).
-    pub fallback: Option<SensorlessConfig>,
+    /// §27): a plausibility check, limp-home (under a velocity command it
+    /// takes over when the sensor fails above the hand-over speed instead
+    /// of stopping the drive) and halls + sensorless, as configured;
+    /// `None`: off (no observer beside the sensor).
+    pub fallback: Option<BesideConfig>,
 }
 
 /// One period's measurements; `None` where the read failed.
@@ -362,16 +364,10 @@ impl CurrentStage {
             c.observer.motor = motor;
         }
         if let Some(c) = self.config.fallback.as_mut() {
-            c.observer.motor = motor;
+            c.sensorless.observer.motor = motor;
         }
-        if let Some(f) = self.fallback.as_mut() {
-            *f = fallback::Fallback::new(SensorlessConfig {
-                observer: super::flux_observer::ObserverConfig {
-                    motor,
-                    ..f.config().observer
-                },
-                ..*f.config()
-            });
+        if let (Some(f), Some(c)) = (self.fallback.as_mut(), self.config.fallback) {
+            *f = fallback::Fallback::new(c);
         }
     }
 

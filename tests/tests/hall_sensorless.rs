@@ -1,0 +1,155 @@
+//! Halls + sensorless (design §27): with the observer beside the angle
+//! sensor and `observer_above_rad_s` configured, the current loop runs on
+//! the observer's angle above that speed and on the sensor's below it. The
+//! hand-over either way is bumpless: the torque changes no faster while
+//! the angle moves from one to the other than on the sensor alone, no
+//! fault. The figure that makes it worth having: the error of the angle
+//! the loop uses against the rotor's, on the sensor and on the observer
+//! (the hub motor's 48-count hall-class sensor). Every motor file.
+
+use foc_bench::mission::{Setup, Sim};
+use foc_bench::motor_file::all_motor_files;
+use foc_core::control::stage::{BesideConfig, HYBRID_HYSTERESIS};
+use foc_core::control::Command;
+use foc_core::drive::cascade::CascadeConfig;
+
+fn config(s: &Setup) -> (CascadeConfig, f32) {
+    let mut c = s.cascade_config();
+    let sl = s.sensorless_config().current.sensorless.unwrap();
+    let beside = BesideConfig::hybrid(sl);
+    c.current.fallback = Some(beside);
+    let pp = f32::from(c.current.angle.pole_pairs);
+    (c, beside.observer_above_rad_s.unwrap() / pp)
+}
+
+/// One period's record: the true torque [N m], the observer's share and
+/// the error of the angle used [rad, electrical].
+struct Row {
+    torque_nm: f32,
+    share: f32,
+    angle_err_rad: f32,
+}
+
+fn step(sim: &mut Sim, target: f32, rows: &mut Vec<Row>, name: &str) {
+    sim.cascade
+        .command(Command::Velocity { rad_s: target })
+        .unwrap();
+    sim.step();
+    let fb = *sim.cascade.feedback();
+    assert_eq!(fb.first_fault, None, "{name}");
+    rows.push(Row {
+        torque_nm: sim.plant.torque_nm() as f32,
+        share: sim.cascade.current.observer_share(),
+        angle_err_rad: fb.theta_e.diff_radians(sim.plant.theta_e()).abs(),
+    });
+}
+
+/// The largest change of the true torque from one period to the next
+/// over `rows` [N m].
+fn largest_step(rows: &[Row]) -> f32 {
+    rows.windows(2)
+        .map(|w| (w[1].torque_nm - w[0].torque_nm).abs())
+        .fold(0.0, f32::max)
+}
+
+fn rms_angle(rows: &[Row]) -> f32 {
+    let n = rows.len().max(1) as f32;
+    (rows.iter().map(|r| r.angle_err_rad.powi(2)).sum::<f32>() / n).sqrt()
+}
+
+#[test]
+fn halls_and_sensorless_hand_over_without_a_torque_step() {
+    let mut failures = Vec::new();
+    for p in all_motor_files() {
+        let s = Setup::load(&p).unwrap();
+        let (c, above) = config(&s);
+        let top = s.max_speed_rad_s().min(s.max_mission_speed_rad_s());
+        let (low, high) = (0.5 * above, (1.5 * above).min(0.9 * top));
+        let mut sim = Sim::new_calibrated(&s, c, false);
+        let hz = s.pwm_hz();
+        let mut rows = Vec::new();
+        // Settle below, ramp up over 0.5 s, hold, ramp down, hold.
+        let settle = (0.5 * hz) as usize;
+        let ramp = (0.5 * hz) as usize;
+        for _ in 0..settle {
+            step(&mut sim, low, &mut rows, &s.name);
+        }
+        let below = rows.split_off(0);
+        for k in 0..ramp {
+            let t = low + (high - low) * k as f32 / ramp as f32;
+            step(&mut sim, t, &mut rows, &s.name);
+        }
+        for _ in 0..settle {
+            step(&mut sim, high, &mut rows, &s.name);
+        }
+        let up = rows.split_off(0);
+        for k in 0..ramp {
+            let t = high + (low - high) * k as f32 / ramp as f32;
+            step(&mut sim, t, &mut rows, &s.name);
+        }
+        for _ in 0..settle {
+            step(&mut sim, low, &mut rows, &s.name);
+        }
+        let down = rows;
+        let on_observer = |r: &[Row]| r.iter().any(|r| r.share >= 1.0);
+        let blending = |r: &[Row]| -> Vec<usize> {
+            (0..r.len())
+                .filter(|&k| r[k].share > 0.0 && r[k].share < 1.0)
+                .collect()
+        };
+        let (bu, bd) = (blending(&up), blending(&down));
+        // The torque's steps over the blends against those over as many
+        // periods of the same ramp on the sensor just before.
+        let window = |r: &[Row], b: &[usize]| -> (f32, f32) {
+            let (Some(&first), Some(&last)) = (b.first(), b.last()) else {
+                return (f32::NAN, f32::NAN);
+            };
+            let n = last + 1 - first;
+            let before = first.saturating_sub(n + 1);
+            (
+                largest_step(&r[first.saturating_sub(1)..=last]),
+                largest_step(&r[before..first.saturating_sub(1)]),
+            )
+        };
+        let (up_blend, up_sensor) = window(&up, &bu);
+        let (down_blend, down_sensor) = window(&down, &bd);
+        let steady_sensor = rms_angle(&below[below.len() / 2..]);
+        let held = &up[up.len() - settle / 2..];
+        let steady_observer = rms_angle(held);
+        let end_share = down.last().map_or(1.0, |r| r.share);
+        // The same speed on the sensor alone.
+        let mut plain = Sim::new_calibrated(&s, s.cascade_config(), false);
+        let mut rows = Vec::new();
+        for _ in 0..2 * settle {
+            step(&mut plain, high, &mut rows, &s.name);
+        }
+        let sensor_high = rms_angle(&rows[rows.len() - settle / 2..]);
+        let pct = 100.0 / (s.kt() * s.rated_current_a);
+        println!(
+            "{}: observer above {above:.1} rad/s (back below {:.1}): largest torque step per period {:.2} % of rated over the blend up vs {:.2} % on the sensor, down {:.2} % vs {:.2} %; angle error rms at {high:.1} rad/s {:.3} rad(e) on the observer, {:.3} on the sensor alone ({:.3} at {low:.1} rad/s)",
+            s.name,
+            HYBRID_HYSTERESIS * above,
+            pct * up_blend,
+            pct * up_sensor,
+            pct * down_blend,
+            pct * down_sensor,
+            steady_observer,
+            sensor_high,
+            steady_sensor,
+        );
+        let bumpless = |blend: f32, sensor: f32| blend <= 1.5 * sensor + 1e-3;
+        if !on_observer(held)
+            || end_share != 0.0
+            || below.iter().any(|r| r.share > 0.0)
+            || !bumpless(up_blend, up_sensor)
+            || !bumpless(down_blend, down_sensor)
+        {
+            failures.push(format!(
+                "{}: held on observer {}, end share {end_share}, up {up_blend} vs {up_sensor}, down {down_blend} vs {down_sensor}",
+                s.name,
+                on_observer(held)
+            ));
+        }
+    }
+    assert!(failures.is_empty(), "{failures:#?}");
+}
