@@ -192,7 +192,20 @@ pub(super) fn power_text(t: &foc_protocol::message::Telemetry) -> String {
     if t.brake_locked {
         s += " brake-locked-out";
     }
-    s
+    s + angle_text(t.angle_in_use)
+}
+
+/// Where the angle came from, when not from the sensor: ` angle=sensorless`,
+/// ` angle=observer` (halls + sensorless above its speed) or
+/// ` angle=limp-home` (the sensor failed); empty on the sensor.
+pub(super) fn angle_text(a: foc_protocol::message::AngleInUse) -> &'static str {
+    use foc_protocol::message::AngleInUse;
+    match a {
+        AngleInUse::Sensor => "",
+        AngleInUse::Sensorless => " angle=sensorless",
+        AngleInUse::Observer => " angle=observer",
+        AngleInUse::LimpHome => " angle=limp-home",
+    }
 }
 
 /// One sample as a line on stdout.
@@ -204,4 +217,21 @@ pub(super) fn print_sample(s: &StreamSample) {
         t.v_d_v, t.v_q_v, t.v_bus_v, bus_power_w(t), t.winding_c, t.stage_c,
         t.fault_code, t.max_loop_cycles, power_text(t)
     );
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use foc_protocol::message::{AngleInUse, Telemetry};
+
+    #[test]
+    fn the_angle_in_use_is_shown_unless_it_is_the_sensor() {
+        let mut t = Telemetry::ZERO;
+        assert_eq!(power_text(&t), "");
+        t.angle_in_use = AngleInUse::LimpHome;
+        t.brake_on = true;
+        assert_eq!(power_text(&t), " brake angle=limp-home");
+        t.angle_in_use = AngleInUse::Observer;
+        assert!(power_text(&t).ends_with(" angle=observer"));
+    }
 }

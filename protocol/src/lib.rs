@@ -70,5 +70,7 @@ pub use frame::{encode, FrameDecoder, FrameError, Packet, MAX_FRAME, MAX_PAYLOAD
 pub use message::{ErrorCode, Message, Request, Response};
 
 /// Version of this protocol, reported in [`message::Hello`]. Bumped on any
-/// incompatible change of the frame or of a message layout.
-pub const PROTOCOL_VERSION: u8 = 4;
+/// incompatible change of the frame or of a message layout (5: the
+/// telemetry's flags byte carries the angle in use in bits 2 and 3, which
+/// a version-4 host refuses).
+pub const PROTOCOL_VERSION: u8 = 5;

@@ -40,7 +40,7 @@ use foc_core::control::homing::{EndStop, HomingMethod};
 use foc_core::control::joint::Impedance;
 use foc_core::control::power::ActiveLimit;
 use foc_core::control::stage::TimeoutReaction;
-use foc_core::control::{Command, Fault, FaultSet, Limits};
+use foc_core::control::{AngleInUse, Command, Fault, FaultSet, Limits};
 use foc_core::scope::{ScopeConfig, ScopeStatus, Signal, State, TriggerKind, MAX_CHANNELS};
 use foc_protocol::config::{Chunk, ConfigSource, StoreOp, CHUNK_BYTES, MAX_RECORD};
 use foc_protocol::frame::{
@@ -548,6 +548,7 @@ fn telemetry_fields(t: &Telemetry) -> Vec<(&'static str, Json)> {
         ("brake_locked", Json::Bool(t.brake_locked)),
         ("winding_c", f(t.winding_c)),
         ("stage_c", f(t.stage_c)),
+        ("angle_in_use", int(t.angle_in_use.code())),
     ]
 }
 
@@ -836,6 +837,7 @@ fn telemetry_samples() -> Vec<Response> {
                 brake_locked: i % 4 >= 2,
                 winding_c,
                 stage_c,
+                angle_in_use: AngleInUse::from_code((i % 4) as u8).unwrap(),
             };
             if i % 2 == 0 {
                 Response::Telemetry(t)
@@ -994,7 +996,11 @@ fn check_telemetry_layout(t: &Telemetry, body: &[u8]) {
             "v_bus_v" => f64::from(t.v_bus_v),
             "power_limit" => f64::from(t.power_limit as u8),
             "limit_left_pct" => f64::from(t.limit_left_pct),
-            "flags" => f64::from(u8::from(t.brake_on) | (u8::from(t.brake_locked) << 1)),
+            "flags" => f64::from(
+                u8::from(t.brake_on)
+                    | (u8::from(t.brake_locked) << 1)
+                    | (t.angle_in_use.code() << 2),
+            ),
             "winding_dC" => f64::from(temperature_to_wire(t.winding_c)),
             "stage_dC" => f64::from(temperature_to_wire(t.stage_c)),
             _ => panic!("field {name}"),

@@ -13,7 +13,7 @@ use foc_core::control::homing::{EndStop, HomingMethod};
 use foc_core::control::joint::Impedance;
 use foc_core::control::power::ActiveLimit;
 use foc_core::control::stage::TimeoutReaction;
-use foc_core::control::{Command, Fault, FaultSet, Limits, Mode};
+use foc_core::control::{AngleInUse, Command, Fault, FaultSet, Limits, Mode};
 use foc_core::scope::{ScopeConfig, ScopeStatus, Signal, State, TriggerKind};
 use foc_protocol::config::{Chunk, ConfigSource, StoreOp};
 use foc_protocol::device::tests_support::RecordingContext;
@@ -105,6 +105,7 @@ fn telemetry() -> Telemetry {
         brake_locked: false,
         winding_c: 81.3,
         stage_c: -12.5,
+        angle_in_use: AngleInUse::LimpHome,
     }
 }
 
@@ -542,6 +543,7 @@ fn tel() -> impl Strategy<Value = Telemetry> {
                 brake_locked: locked,
                 winding_c: f32::from(tw) / 10.0,
                 stage_c: f32::from(ts) / 10.0,
+                angle_in_use: AngleInUse::from_code((p % 4) as u8).unwrap(),
             },
         )
 }

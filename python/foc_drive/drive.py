@@ -106,6 +106,7 @@ _STREAM_DTYPES: Dict[str, Any] = {
     "limit_left_pct": np.uint8,
     "brake_on": np.bool_,
     "brake_locked": np.bool_,
+    "angle_in_use": np.uint8,
 }
 
 _MAX_QUEUED = 100_000

@@ -30,8 +30,9 @@ from typing import Dict, List, Optional, Sequence, Tuple
 
 from .errors import ProtocolError
 
-#: Protocol versions this package speaks (4 adds the scope).
-SUPPORTED_PROTOCOL_VERSIONS = (3, 4)
+#: Protocol versions this package speaks (4 adds the scope, 5 the angle in
+#: use in the telemetry's flags).
+SUPPORTED_PROTOCOL_VERSIONS = (3, 4, 5)
 #: First protocol version with the scope.
 SCOPE_PROTOCOL_VERSION = 4
 #: Record bytes per configuration chunk.
@@ -144,6 +145,19 @@ class Mode(enum.IntEnum):
     Position = 3
     OpenLoop = 4
     Impedance = 5
+
+
+class AngleInUse(enum.IntEnum):
+    """Where the current loop's angle came from (telemetry, protocol 5)."""
+
+    SENSOR = 0
+    """The angle sensor."""
+    SENSORLESS = 1
+    """The flux observer (or the start's field): configured sensorless."""
+    OBSERVER = 2
+    """Halls + sensorless: the observer beside the sensor, above its speed."""
+    LIMP_HOME = 3
+    """The observer, because the angle sensor failed."""
 
 
 class Fault(enum.IntEnum):
@@ -759,6 +773,9 @@ class Telemetry:
     """Estimated winding temperature [deg C] (NaN: none)."""
     stage_c: float
     """Power-stage temperature [deg C] (NaN: none)."""
+    angle_in_use: int = 0
+    """An :class:`AngleInUse` code: where the current loop's angle came from
+    (0 before protocol version 5)."""
 
     @property
     def mode_name(self) -> str:
@@ -787,7 +804,7 @@ def decode_telemetry(body: bytes, tag: int = Tag.TELEMETRY) -> Telemetry:
     if d["limit_left_pct"] > 100:
         raise ProtocolError(f"telemetry limit_left_pct {d['limit_left_pct']} > 100")
     flags = d.pop("flags")
-    if flags > 3:
+    if flags > 15:
         raise ProtocolError(f"telemetry flags 0x{flags:02x}")
     return Telemetry(
         period=d["period"],
@@ -807,6 +824,7 @@ def decode_telemetry(body: bytes, tag: int = Tag.TELEMETRY) -> Telemetry:
         brake_locked=bool(flags & 2),
         winding_c=_temperature(d["winding_dC"]),
         stage_c=_temperature(d["stage_dC"]),
+        angle_in_use=(flags >> 2) & 3,
     )
 
 

@@ -68,7 +68,7 @@ class SimTestCase(unittest.TestCase):
 class Basics(SimTestCase):
     def test_ping_and_params(self):
         h = self.d.ping()
-        self.assertIn(h.protocol_version, (3, 4))
+        self.assertIn(h.protocol_version, (3, 4, 5))
         self.assertEqual(h.max_payload, 64)
         p = self.d.params()
         self.assertEqual(p["pole-pairs"], 7.0)
@@ -268,7 +268,7 @@ class Scope(SimTestCase):
         self.configure_or_skip(
             signals=["iq_a", "iq_ref_a", "target", "mode"], divider=1, samples=200, pre_trigger=50, trigger="command"
         )
-        self.assertEqual(self.d.protocol_version, 4)
+        self.assertEqual(self.d.protocol_version, 5)
         st = self.d.scope_status()
         self.assertEqual(st.signal_names, ["iq_a", "iq_ref_a", "target", "mode"])
         self.assertEqual(st.state, m.ScopeState.idle)

@@ -50,7 +50,8 @@ pub fn admit(board: &Board, rec: &DriveRecord) -> Result<Settings, Invalid> {
     }
     // A sensorless setting this board's build cannot derive a start from
     // (it would run on its sensor while the record says sensorless).
-    if s.sensorless.is_some() && board.cascade_of(&s).current.sensorless.is_none() {
+    let derived = board.cascade_of(&s).current;
+    if s.sensorless.is_some() && derived.sensorless.is_none() && derived.fallback.is_none() {
         return invalid("sensorless");
     }
     if s.sensorless

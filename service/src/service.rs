@@ -143,6 +143,7 @@ impl Service {
                         .rotor_change((s.limits.min_position_rad, s.limits.max_position_rad)),
                 ),
                 sensorless: Some(self.cascade().current.sensorless),
+                beside: Some(self.cascade().current.fallback),
                 ..ConfigChange::default()
             }),
             speed: Some(s.speed),
@@ -194,8 +195,10 @@ impl Service {
         // A sensorless start is derived from the motor and the mechanics:
         // again from the identified ones.
         if self.settings.sensorless.is_some() {
+            let c = self.cascade();
             self.pending.change(ConfigChange {
-                sensorless: Some(self.cascade().current.sensorless),
+                sensorless: Some(c.current.sensorless),
+                beside: Some(c.current.fallback),
                 ..ConfigChange::default()
             });
         }

@@ -81,13 +81,26 @@ impl View<'_> {
             ParamId::SpeedKi => s.speed.ki_a_per_rad,
             ParamId::PositionKp => s.position.kp_per_s,
             ParamId::ScopeCapacity => board.scope_values as f32,
-            ParamId::AngleSource => f32::from(u8::from(self.snap.status.sensorless)),
+            ParamId::AngleSource => f32::from(self.angle_source()),
             // Answered by the protocol layer itself.
             ParamId::ProtocolVersion | ParamId::TelemetryDivider | ParamId::WatchdogTimeout => {
                 return None
             }
         })
     }
+    /// [`ParamId::AngleSource`]: the feedback's angle in use, consistent
+    /// with the status (without the sensor: sensorless or limp-home).
+    fn angle_source(&self) -> u8 {
+        use foc_core::control::AngleInUse;
+        let a = self.snap.feedback.angle_in_use;
+        match (self.snap.status.sensorless, a) {
+            (true, AngleInUse::LimpHome) => AngleInUse::LimpHome.code(),
+            (true, _) => AngleInUse::Sensorless.code(),
+            (false, AngleInUse::Observer) => AngleInUse::Observer.code(),
+            (false, _) => AngleInUse::Sensor.code(),
+        }
+    }
+
     /// One telemetry sample.
     pub fn telemetry(&self) -> Telemetry {
         Telemetry::from_feedback(&self.snap.feedback, self.snap.max_loop_cycles)

@@ -293,6 +293,8 @@ fn a_sensorless_record_reaches_the_drive_and_needs_mechanics() {
     let sensorless = SensorlessRecord {
         start_current_a: 4.0,
         bus_voltage_v: 24.0,
+        beside_sensor: None,
+        observer_above_rad_s: None,
     };
     let mut set = *s.settings();
     set.sensorless = Some(sensorless);
@@ -326,6 +328,32 @@ fn a_sensorless_record_reaches_the_drive_and_needs_mechanics() {
     let derived = change.sensorless.unwrap().expect("sensorless");
     assert_eq!((derived.current_a, derived.bus_voltage_v), (4.0, 24.0));
     assert_eq!(derived.observer.motor, s.settings().current.motor);
+    assert_eq!(change.beside, Some(None));
+    // Beside the sensor (limp-home): the drive stays on its sensor, the
+    // change carries the observer beside it.
+    set.sensorless = Some(SensorlessRecord {
+        beside_sensor: Some(foc_store::record::BesideRole::LimpHome),
+        ..sensorless
+    });
+    let rec = DriveRecord::from_settings(&Label::new(), PWM_HZ, &set);
+    let n = rec.encode(&mut buf).unwrap();
+    let mut l = link(&mut s, quiet_snapshot(), &mut st);
+    assert!(l
+        .store(StoreOp::Apply, &buf[..n], WatchdogConfig::OFF)
+        .is_ok());
+    let change = s.full_change().current.unwrap();
+    assert_eq!(change.sensorless, Some(None));
+    let beside = change.beside.unwrap().expect("beside");
+    assert!(beside.limp_home && beside.observer_above_rad_s.is_none());
+    assert_eq!(beside.sensorless, derived);
+    // Back to running sensorless for what follows.
+    set.sensorless = Some(sensorless);
+    let rec = DriveRecord::from_settings(&Label::new(), PWM_HZ, &set);
+    let n = rec.encode(&mut buf).unwrap();
+    let mut l = link(&mut s, quiet_snapshot(), &mut st);
+    assert!(l
+        .store(StoreOp::Apply, &buf[..n], WatchdogConfig::OFF)
+        .is_ok());
     // The angle source the drive reports.
     let mut snap = quiet_snapshot();
     snap.status.sensorless = true;
@@ -334,4 +362,21 @@ fn a_sensorless_record_reaches_the_drive_and_needs_mechanics() {
         l.param(foc_protocol::message::ParamId::AngleSource),
         Some(1.0)
     );
+    // Limp-home, and the observer beside the sensor driving the loop.
+    use foc_core::control::AngleInUse;
+    for (sensorless, in_use, code) in [
+        (true, AngleInUse::LimpHome, 3.0),
+        (false, AngleInUse::Observer, 2.0),
+        (false, AngleInUse::Sensor, 0.0),
+    ] {
+        let mut snap = quiet_snapshot();
+        snap.status.sensorless = sensorless;
+        snap.feedback.angle_in_use = in_use;
+        let l = link(&mut s, snap, &mut st);
+        assert_eq!(
+            l.param(foc_protocol::message::ParamId::AngleSource),
+            Some(code)
+        );
+        assert_eq!(l.telemetry().angle_in_use, in_use);
+    }
 }

@@ -34,12 +34,13 @@ use foc_core::control::{Limits, Mechanics};
 use foc_core::drive::cascade::CascadeConfig;
 
 use crate::record::{
-    AngleRecord, CurrentGainsRecord, DividersRecord, DriveRecord, Invalid, JointRecord, Label,
-    LimitsRecord, MechanicsRecord, MotorRecord, PositionRecord, PowerRecord, SensorlessRecord,
-    SpeedRecord, WatchdogReaction, WatchdogRecord,
+    AngleRecord, BesideRole, CurrentGainsRecord, DividersRecord, DriveRecord, Invalid, JointRecord,
+    Label, LimitsRecord, MechanicsRecord, MotorRecord, PositionRecord, PowerRecord,
+    SensorlessRecord, SpeedRecord, WatchdogReaction, WatchdogRecord,
 };
 use foc_core::control::flux_observer::ObserverConfig;
 use foc_core::control::sensorless::SensorlessConfig;
+use foc_core::control::stage::BesideConfig;
 
 /// The configuration in force on the drive.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -102,10 +103,7 @@ impl Settings {
                 travel: c.default_travel(),
                 joint: c.current.joint,
             },
-            sensorless: c.current.sensorless.map(|sl| SensorlessRecord {
-                start_current_a: sl.current_a,
-                bus_voltage_v: sl.bus_voltage_v,
-            }),
+            sensorless: sensorless_record(c),
         }
     }
 
@@ -157,7 +155,14 @@ impl Settings {
                 };
             }
         }
-        c.current.sensorless = self.sensorless.and_then(|sl| sensorless_config(&c, &sl));
+        let derived = self
+            .sensorless
+            .and_then(|sl| Some((sl, sensorless_config(&c, &sl)?)));
+        c.current.sensorless = derived
+            .filter(|(sl, _)| sl.replaces_sensor())
+            .map(|(_, cfg)| cfg);
+        let pp = f32::from(c.current.angle.pole_pairs.max(1));
+        c.current.fallback = derived.and_then(|(sl, cfg)| beside_config(&sl, cfg, pp));
         c
     }
 
@@ -222,6 +227,57 @@ pub fn sensorless_config(c: &CascadeConfig, sl: &SensorlessRecord) -> Option<Sen
         c.mechanics?.inertia_kg_m2,
         sl.bus_voltage_v,
     )
+}
+
+/// The record's sensorless table of a cascade configuration: running
+/// without the sensor, or the observer beside it (its role from the
+/// fall-back's: halls + sensorless with a speed, limp-home, a check).
+pub fn sensorless_record(c: &CascadeConfig) -> Option<SensorlessRecord> {
+    if let Some(sl) = c.current.sensorless {
+        return Some(SensorlessRecord {
+            start_current_a: sl.current_a,
+            bus_voltage_v: sl.bus_voltage_v,
+            beside_sensor: None,
+            observer_above_rad_s: None,
+        });
+    }
+    let b = c.current.fallback?;
+    let pp = f32::from(c.current.angle.pole_pairs.max(1));
+    let role = match (b.observer_above_rad_s, b.limp_home) {
+        (Some(_), _) => BesideRole::HallSensorless,
+        (None, true) => BesideRole::LimpHome,
+        (None, false) => BesideRole::Check,
+    };
+    Some(SensorlessRecord {
+        start_current_a: b.sensorless.current_a,
+        bus_voltage_v: b.sensorless.bus_voltage_v,
+        beside_sensor: Some(role),
+        observer_above_rad_s: b.observer_above_rad_s.map(|w| w / pp),
+    })
+}
+
+/// The observer beside the sensor of `sl` (`None` when `sl` replaces the
+/// sensor), on its derived configuration `cfg`, for `pole_pairs`.
+pub fn beside_config(
+    sl: &SensorlessRecord,
+    cfg: SensorlessConfig,
+    pole_pairs: f32,
+) -> Option<BesideConfig> {
+    let limp = BesideConfig::limp_home(cfg);
+    Some(match sl.beside_sensor? {
+        BesideRole::Check => BesideConfig {
+            limp_home: false,
+            ..limp
+        },
+        BesideRole::LimpHome => limp,
+        BesideRole::HallSensorless => match sl.observer_above_rad_s {
+            Some(w) => BesideConfig {
+                observer_above_rad_s: Some(w * pole_pairs),
+                ..limp
+            },
+            None => BesideConfig::hybrid(cfg),
+        },
+    })
 }
 
 /// The record's form of foc-core's timeout reaction.

@@ -7,7 +7,7 @@
 //! use foc_store::text::{from_toml, to_toml};
 //! # let r = foc_store::record::example();
 //! let text = to_toml(&r);
-//! assert!(text.contains("schema_version = 5"));
+//! assert!(text.contains("schema_version = 6"));
 //! assert!(text.contains("[joint]"));
 //! assert!(text.contains("[motor]"));
 //! assert_eq!(from_toml(&text), Ok(r));
@@ -88,10 +88,10 @@ pub fn from_toml(s: &str) -> Result<DriveRecord, String> {
     let table: toml::Table = toml::from_str(s).map_err(|e| e.to_string())?;
     match table.get("schema_version") {
         None => return Err("missing top-level key `schema_version`".to_string()),
-        // Version 1 is version 5 without the `[power]`, `[mechanics]`,
+        // Version 1 is version 6 without the `[power]`, `[mechanics]`,
         // `[joint]` and `[sensorless]` tables, version 2 without
         // `[mechanics]` and what follows, and so on; version 4 has no
-        // `[sensorless]`.
+        // `[sensorless]`; version 5 has no roles beside the sensor.
         Some(toml::Value::Integer(v)) if (1..=i64::from(SCHEMA_VERSION)).contains(v) => {}
         Some(v) => {
             return Err(format!(

@@ -10,16 +10,26 @@
 use foc_bench::mission::{Setup, Sim};
 use foc_bench::motor_file::all_motor_files;
 use foc_core::control::stage::{BesideConfig, HYBRID_HYSTERESIS};
-use foc_core::control::Command;
-use foc_core::drive::cascade::CascadeConfig;
+use foc_core::control::{AngleInUse, Command};
+use foc_core::drive::rules::ConfigChange;
 
-fn config(s: &Setup) -> (CascadeConfig, f32) {
-    let mut c = s.cascade_config();
+/// The drive on its sensor with the observer beside it as halls +
+/// sensorless, installed as a configuration change (as a stored record's
+/// `[sensorless]` table with `beside_sensor = "hall+sensorless"` reaches
+/// it); the speed above which the observer's angle is used [rad/s,
+/// mechanical].
+fn hybrid_sim(s: &Setup) -> (Sim, f32) {
+    let c = s.cascade_config();
     let sl = s.sensorless_config().current.sensorless.unwrap();
     let beside = BesideConfig::hybrid(sl);
-    c.current.fallback = Some(beside);
     let pp = f32::from(c.current.angle.pole_pairs);
-    (c, beside.observer_above_rad_s.unwrap() / pp)
+    let mut sim = Sim::new_calibrated(s, c, false);
+    sim.cascade.request(ConfigChange {
+        beside: Some(Some(beside)),
+        ..ConfigChange::default()
+    });
+    sim.step();
+    (sim, beside.observer_above_rad_s.unwrap() / pp)
 }
 
 /// One period's record: the true torque [N m], the observer's share and
@@ -28,6 +38,7 @@ struct Row {
     torque_nm: f32,
     share: f32,
     angle_err_rad: f32,
+    reported: AngleInUse,
 }
 
 fn step(sim: &mut Sim, target: f32, rows: &mut Vec<Row>, name: &str) {
@@ -41,6 +52,7 @@ fn step(sim: &mut Sim, target: f32, rows: &mut Vec<Row>, name: &str) {
         torque_nm: sim.plant.torque_nm() as f32,
         share: sim.cascade.current.observer_share(),
         angle_err_rad: fb.theta_e.diff_radians(sim.plant.theta_e()).abs(),
+        reported: fb.angle_in_use,
     });
 }
 
@@ -62,10 +74,9 @@ fn halls_and_sensorless_hand_over_without_a_torque_step() {
     let mut failures = Vec::new();
     for p in all_motor_files() {
         let s = Setup::load(&p).unwrap();
-        let (c, above) = config(&s);
+        let (mut sim, above) = hybrid_sim(&s);
         let top = s.max_speed_rad_s().min(s.max_mission_speed_rad_s());
         let (low, high) = (0.5 * above, (1.5 * above).min(0.9 * top));
-        let mut sim = Sim::new_calibrated(&s, c, false);
         let hz = s.pwm_hz();
         let mut rows = Vec::new();
         // Settle below, ramp up over 0.5 s, hold, ramp down, hold.
@@ -138,6 +149,17 @@ fn halls_and_sensorless_hand_over_without_a_torque_step() {
             steady_sensor,
         );
         let bumpless = |blend: f32, sensor: f32| blend <= 1.5 * sensor + 1e-3;
+        // Reported in the feedback (and so the telemetry): the observer
+        // from half its share on, the sensor below.
+        let reported_right = |r: &Row| {
+            (r.reported == AngleInUse::Observer) == (r.share >= 0.5)
+                && matches!(r.reported, AngleInUse::Observer | AngleInUse::Sensor)
+        };
+        assert!(
+            below.iter().chain(&up).chain(&down).all(reported_right),
+            "{}",
+            s.name
+        );
         if !on_observer(held)
             || end_share != 0.0
             || below.iter().any(|r| r.share > 0.0)

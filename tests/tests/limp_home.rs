@@ -9,7 +9,7 @@
 use foc_bench::mission::{Setup, Sim};
 use foc_bench::motor_file::all_motor_files;
 use foc_core::control::stage::BesideConfig;
-use foc_core::control::{BridgeCommand, Command, Fault};
+use foc_core::control::{AngleInUse, BridgeCommand, Command, Fault};
 use foc_core::drive::cascade::CascadeConfig;
 
 /// How the encoder fails.
@@ -96,7 +96,8 @@ fn a_failed_encoder_hands_over_to_the_observer() {
             to_speed(&mut sim, &s, target);
             let (fault, low, end, _) = fail(&mut sim, &s, how);
             let limp = sim.cascade.current.is_limp_home();
-            let reported = sim.cascade.status().sensorless;
+            let reported = sim.cascade.status().sensorless
+                && sim.cascade.feedback().angle_in_use == AngleInUse::LimpHome;
             println!(
                 "{}: encoder {how:?} at {target:.1} rad/s: fault {fault:?}, limp-home {limp}, lowest {low:.1}, after 1 s {end:.1} rad/s (dip {:.1} %)",
                 s.name,

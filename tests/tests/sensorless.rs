@@ -317,6 +317,8 @@ fn a_setting_switches_the_drive_to_sensorless_and_back() {
         settings.sensorless = Some(SensorlessRecord {
             start_current_a: s.rated_current_a.min(s.max_current_a),
             bus_voltage_v: s.bench.bus_voltage_v as f32,
+            beside_sensor: None,
+            observer_above_rad_s: None,
         });
         let derived = settings.apply_to(&base).current.sensorless;
         assert!(derived.is_some(), "{}", s.name);

@@ -309,12 +309,14 @@ fn config_fields() -> Result<Vec<String>> {
         .iter()
         .flat_map(|c| c.split(", ").map(str::to_string).collect::<Vec<_>>())
         .collect();
-    // The example record with every optional table (it runs on its
-    // angle sensor: add the sensorless one).
+    // The example record with every optional table and key (it runs on
+    // its angle sensor: add the sensorless table, with every key).
     let mut record = foc_store::record::example();
     record.sensorless = Some(foc_store::record::SensorlessRecord {
         start_current_a: 1.0,
         bus_voltage_v: 24.0,
+        beside_sensor: Some(foc_store::record::BesideRole::HallSensorless),
+        observer_above_rad_s: Some(40.0),
     });
     let toml = foc_store::text::to_toml(&record);
     let mut section = String::new();

@@ -287,7 +287,8 @@ impl<P: Profile> Dict<P> {
             }
             (0x2007, 0) => {
                 let s = ctx.param(ParamId::AngleSource).ok_or(Abort::NoData)?;
-                int(u8::from(s == 1.0))
+                // 0 to 3 (a value beyond is not one).
+                int(if (0.0..=3.0).contains(&s) { s as u8 } else { 0 })
             }
             (0x2010, 0) => real(ctx.param(ParamId::CurrentKp)),
             (0x2011, 0) => real(ctx.param(ParamId::CurrentKi)),

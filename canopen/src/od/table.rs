@@ -518,7 +518,7 @@ const fn build() -> Builder {
         .p(0x2006, "Firmware version", Unsigned32, Ro, false, d)
         .p(
             0x2007,
-            "Angle source (0 sensor, 1 sensorless)",
+            "Angle in use (0 sensor, 1 sensorless, 2 observer, 3 limp-home)",
             Unsigned8,
             Ro,
             false,

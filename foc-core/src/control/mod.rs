@@ -576,6 +576,43 @@ pub struct Feedback {
     pub power: power::PowerReport,
     /// Periods since start (wraps).
     pub period: u32,
+    /// Where the angle the current loop used came from (design §27).
+    pub angle_in_use: AngleInUse,
+}
+
+/// Where the current loop's angle comes from (design §27).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+#[repr(u8)]
+pub enum AngleInUse {
+    /// The angle sensor.
+    #[default]
+    Sensor = 0,
+    /// The flux observer (or the start's field): configured sensorless.
+    Sensorless = 1,
+    /// Halls + sensorless: the observer beside the sensor, above its
+    /// speed (the observer's share of the angle is one half or more).
+    Observer = 2,
+    /// Limp-home: the observer, because the angle sensor failed.
+    LimpHome = 3,
+}
+
+impl AngleInUse {
+    /// The wire code (the discriminant).
+    pub const fn code(self) -> u8 {
+        self as u8
+    }
+
+    /// The value of a wire code (`None` above 3).
+    pub const fn from_code(c: u8) -> Option<Self> {
+        match c {
+            0 => Some(Self::Sensor),
+            1 => Some(Self::Sensorless),
+            2 => Some(Self::Observer),
+            3 => Some(Self::LimpHome),
+            _ => None,
+        }
+    }
 }
 
 impl Feedback {
@@ -598,5 +635,6 @@ impl Feedback {
         current_limit_a: 0.0,
         power: power::PowerReport::INIT,
         period: 0,
+        angle_in_use: AngleInUse::Sensor,
     };
 }

@@ -453,6 +453,9 @@ impl Lifecycle {
         if let Some(s) = ch.sensorless {
             stage.set_sensorless(s);
         }
+        if let Some(b) = ch.beside {
+            stage.set_beside(b);
+        }
     }
 
     fn restart_offsets(&mut self, out: &mut Output) {

@@ -28,6 +28,7 @@ pub use crate::control::joint::JointChange;
 use crate::control::permit::Calibrated;
 use crate::control::power::PowerLimitsConfig;
 use crate::control::sensorless::SensorlessConfig;
+use crate::control::stage::BesideConfig;
 pub use crate::control::Refusal;
 use crate::control::{admit, Command, CommandError, Fault, Limits, Mechanics, Mode};
 
@@ -133,6 +134,11 @@ pub struct ConfigChange {
     /// angle sensor from the next enable, `Some(None)` on the sensor
     /// again. Applied after `current` (its motor is the current loop's).
     pub sensorless: Option<Option<SensorlessConfig>>,
+    /// The flux observer beside the angle sensor (design §27: a check,
+    /// limp-home, halls + sensorless): `Some(Some(cfg))` installs it (it
+    /// runs while the drive is on its sensor), `Some(None)` removes it.
+    /// Applied after `sensorless`.
+    pub beside: Option<Option<BesideConfig>>,
 }
 
 impl ConfigChange {
@@ -149,6 +155,7 @@ impl ConfigChange {
         self.mechanics = newer.mechanics.or(self.mechanics);
         self.joint = newer.joint.or(self.joint);
         self.sensorless = newer.sensorless.or(self.sensorless);
+        self.beside = newer.beside.or(self.beside);
     }
 
     /// True when it carries settings (limits, current loop, dividers,
@@ -161,5 +168,6 @@ impl ConfigChange {
             || self.permit.is_some()
             || self.mechanics.is_some()
             || self.sensorless.is_some()
+            || self.beside.is_some()
     }
 }

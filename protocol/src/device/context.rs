@@ -107,7 +107,7 @@ pub trait DeviceContext {
             mode: self.mode(),
             faulted: !self.faults().0.is_empty(),
             calibrated: self.is_calibrated(),
-            sensorless: self.param(ParamId::AngleSource) == Some(1.0),
+            sensorless: matches!(self.param(ParamId::AngleSource), Some(1.0 | 3.0)),
         }
     }
     /// A parameter value, `None` if this device does not have it.

@@ -23,7 +23,7 @@ pub(super) fn get_telemetry(r: &mut Reader<'_>) -> Result<Telemetry, DecodeError
         _ => return Err(DecodeError::BadField(12)),
     };
     let flags = match r.u8()? {
-        f @ 0..=3 => f,
+        f @ 0..=15 => f,
         _ => return Err(DecodeError::BadField(13)),
     };
     let winding_c = temperature_from_wire(r.u16()? as i16);
@@ -46,6 +46,8 @@ pub(super) fn get_telemetry(r: &mut Reader<'_>) -> Result<Telemetry, DecodeError
         brake_locked: flags & 2 != 0,
         winding_c,
         stage_c,
+        // Two bits: every value is a code.
+        angle_in_use: AngleInUse::from_code((flags >> 2) & 3).unwrap_or_default(),
     })
 }
 
@@ -480,7 +482,9 @@ impl Message for Response {
                 w.f32(t.v_bus_v);
                 w.u8(t.power_limit as u8);
                 w.u8(t.limit_left_pct.min(100));
-                w.u8(u8::from(t.brake_on) | (u8::from(t.brake_locked) << 1));
+                w.u8(u8::from(t.brake_on)
+                    | (u8::from(t.brake_locked) << 1)
+                    | (t.angle_in_use.code() << 2));
                 w.u16(temperature_to_wire(t.winding_c) as u16);
                 w.u16(temperature_to_wire(t.stage_c) as u16);
             }

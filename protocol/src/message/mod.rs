@@ -286,9 +286,11 @@ param_ids! {
     PositionKp = 19, "position-kp";
     /// Values the scope buffer holds (0: no scope).
     ScopeCapacity = 20, "scope-capacity";
-    /// The angle source in force: 0 the angle sensor, 1 sensorless (the
-    /// flux observer, design §27; torque, position and impedance
-    /// commands are then refused).
+    /// The angle in use (design §27; the telemetry's `angle_in_use`): 0
+    /// the angle sensor, 1 sensorless (the flux observer), 2 the observer
+    /// beside the sensor above its speed (halls + sensorless), 3
+    /// limp-home (the observer, the sensor having failed). At 1 and 3
+    /// torque, position and impedance commands are refused.
     AngleSource = 21, "angle-source";
 }
 

@@ -2,6 +2,7 @@
 //! fields (mode, active limit, temperatures, timeout reaction).
 
 use super::*;
+pub use foc_core::control::AngleInUse;
 
 /// One telemetry sample. Equality compares the temperatures as they
 /// travel (0.1 deg C, "none" equal to "none"), every other field exactly.
@@ -49,6 +50,10 @@ pub struct Telemetry {
     /// Measured power-stage temperature [deg C] (NaN: no sensor or no
     /// reading; 0.1 deg C on the wire).
     pub stage_c: f32,
+    /// Where the current loop's angle came from (design §27: the sensor,
+    /// sensorless, the observer beside the sensor above its speed, or
+    /// limp-home); bits 2 and 3 of the flags byte on the wire.
+    pub angle_in_use: AngleInUse,
 }
 
 impl PartialEq for Telemetry {
@@ -68,6 +73,7 @@ impl PartialEq for Telemetry {
             && self.limit_left_pct == o.limit_left_pct
             && self.brake_on == o.brake_on
             && self.brake_locked == o.brake_locked
+            && self.angle_in_use == o.angle_in_use
             && temperature_to_wire(self.winding_c) == temperature_to_wire(o.winding_c)
             && temperature_to_wire(self.stage_c) == temperature_to_wire(o.stage_c)
     }
@@ -93,6 +99,7 @@ impl Telemetry {
         brake_locked: false,
         winding_c: f32::NAN,
         stage_c: f32::NAN,
+        angle_in_use: AngleInUse::Sensor,
     };
 
     /// The sample of a current-stage [`Feedback`].
@@ -115,6 +122,7 @@ impl Telemetry {
             brake_locked: fb.power.brake_locked,
             winding_c: fb.power.winding_c,
             stage_c: fb.power.stage_c,
+            angle_in_use: fb.angle_in_use,
         }
     }
 }

@@ -131,6 +131,9 @@ impl PowerRecord {
 impl SensorlessRecord {
     /// The plausible nominal bus voltages \[V\].
     pub const BUS_RANGE_V: core::ops::RangeInclusive<f32> = 1.0..=1000.0;
+    /// The largest `observer_above_rad_s` [rad/s, mechanical] (about
+    /// 100 000 rpm).
+    pub const MAX_OBSERVER_ABOVE_RAD_S: f32 = 10_000.0;
 
     /// Check every value (see the field docs) against the record's
     /// `limits`.
@@ -144,7 +147,22 @@ impl SensorlessRecord {
         check(
             self.bus_voltage_v.is_finite() && Self::BUS_RANGE_V.contains(&self.bus_voltage_v),
             "sensorless.bus_voltage_v",
+        )?;
+        check(
+            self.observer_above_rad_s.is_none_or(|w| {
+                w.is_finite()
+                    && w > 0.0
+                    && w <= Self::MAX_OBSERVER_ABOVE_RAD_S
+                    && self.beside_sensor == Some(BesideRole::HallSensorless)
+            }),
+            "sensorless.observer_above_rad_s",
         )
+    }
+
+    /// True when the drive runs without its angle sensor (no role beside
+    /// it).
+    pub fn replaces_sensor(&self) -> bool {
+        self.beside_sensor.is_none()
     }
 }
 

@@ -10,26 +10,33 @@ use super::*;
 /// version 2 (before the mechanics, [`v2::DriveRecordV2`]) gets
 /// `mechanics: None`, version 3 (before the joint, [`v3::DriveRecordV3`])
 /// gets `joint: None`, version 4 (before the sensorless setting,
-/// [`v4::DriveRecordV4`]) gets `sensorless: None` (the angle sensor); a
-/// version-1 record goes `1 -> 2 -> 3 -> 4 -> 5`. A
+/// [`v4::DriveRecordV4`]) gets `sensorless: None` (the angle sensor),
+/// version 5 (before the observer's role beside the sensor,
+/// [`v5::DriveRecordV5`]) gets `beside_sensor: None` (a `[sensorless]`
+/// table replaces the sensor, as it did); a version-1 record goes
+/// `1 -> 2 -> 3 -> 4 -> 5 -> 6`. A
 /// migrated record is validated by the caller like any other; version 0
 /// and unknown versions are refused.
 pub(super) fn migrate(found: u16, payload: &[u8]) -> Result<DriveRecord, RecordError> {
     match found {
         1 => match postcard::take_from_bytes::<v1::DriveRecordV1>(payload) {
-            Ok((r, [])) => Ok(r.into_v2().into_v3().into_v4().into_v5()),
+            Ok((r, [])) => Ok(r.into_v2().into_v3().into_v4().into_v5().into_v6()),
             _ => Err(RecordError::Malformed),
         },
         2 => match postcard::take_from_bytes::<v2::DriveRecordV2>(payload) {
-            Ok((r, [])) => Ok(r.into_v3().into_v4().into_v5()),
+            Ok((r, [])) => Ok(r.into_v3().into_v4().into_v5().into_v6()),
             _ => Err(RecordError::Malformed),
         },
         3 => match postcard::take_from_bytes::<v3::DriveRecordV3>(payload) {
-            Ok((r, [])) => Ok(r.into_v4().into_v5()),
+            Ok((r, [])) => Ok(r.into_v4().into_v5().into_v6()),
             _ => Err(RecordError::Malformed),
         },
         4 => match postcard::take_from_bytes::<v4::DriveRecordV4>(payload) {
-            Ok((r, [])) => Ok(r.into_v5()),
+            Ok((r, [])) => Ok(r.into_v5().into_v6()),
+            _ => Err(RecordError::Malformed),
+        },
+        5 => match postcard::take_from_bytes::<v5::DriveRecordV5>(payload) {
+            Ok((r, [])) => Ok(r.into_v6()),
             _ => Err(RecordError::Malformed),
         },
         _ => Err(RecordError::UnsupportedVersion {
@@ -242,8 +249,8 @@ pub mod v4 {
 
     impl DriveRecordV4 {
         /// Version 5: the same values, on the angle sensor.
-        pub fn into_v5(self) -> DriveRecord {
-            DriveRecord {
+        pub fn into_v5(self) -> super::v5::DriveRecordV5 {
+            super::v5::DriveRecordV5 {
                 label: self.label,
                 pwm_frequency_hz: self.pwm_frequency_hz,
                 motor: self.motor,
@@ -258,6 +265,85 @@ pub mod v4 {
                 mechanics: self.mechanics,
                 joint: self.joint,
                 sensorless: None,
+            }
+        }
+    }
+}
+
+/// Schema version 5: [`DriveRecord`] with the sensorless table before the
+/// observer's role beside the sensor.
+pub mod v5 {
+    use super::*;
+
+    /// The version-5 sensorless table (`start_current_a`, `bus_voltage_v`
+    /// of [`SensorlessRecord`]). Frozen: never change it.
+    #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    pub struct SensorlessRecordV5 {
+        /// See [`SensorlessRecord::start_current_a`].
+        pub start_current_a: f32,
+        /// See [`SensorlessRecord::bus_voltage_v`].
+        pub bus_voltage_v: f32,
+    }
+
+    /// The version-5 layout. Frozen: never change it.
+    #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    pub struct DriveRecordV5 {
+        /// See [`DriveRecord::label`].
+        pub label: Label,
+        /// See [`DriveRecord::pwm_frequency_hz`].
+        pub pwm_frequency_hz: u32,
+        /// See [`DriveRecord::motor`].
+        pub motor: MotorRecord,
+        /// See [`DriveRecord::current_gains`].
+        pub current_gains: CurrentGainsRecord,
+        /// See [`DriveRecord::calibration`].
+        pub calibration: Option<AngleRecord>,
+        /// See [`DriveRecord::limits`].
+        pub limits: LimitsRecord,
+        /// See [`DriveRecord::speed`].
+        pub speed: SpeedRecord,
+        /// See [`DriveRecord::position`].
+        pub position: PositionRecord,
+        /// See [`DriveRecord::dividers`].
+        pub dividers: DividersRecord,
+        /// See [`DriveRecord::watchdog`].
+        pub watchdog: WatchdogRecord,
+        /// See [`DriveRecord::power`].
+        pub power: Option<PowerRecord>,
+        /// See [`DriveRecord::mechanics`].
+        pub mechanics: Option<MechanicsRecord>,
+        /// See [`DriveRecord::joint`].
+        pub joint: Option<JointRecord>,
+        /// See [`DriveRecord::sensorless`].
+        pub sensorless: Option<SensorlessRecordV5>,
+    }
+
+    impl DriveRecordV5 {
+        /// Version 6: the same values; a sensorless table replaces the
+        /// sensor, as it did.
+        pub fn into_v6(self) -> DriveRecord {
+            DriveRecord {
+                label: self.label,
+                pwm_frequency_hz: self.pwm_frequency_hz,
+                motor: self.motor,
+                current_gains: self.current_gains,
+                calibration: self.calibration,
+                limits: self.limits,
+                speed: self.speed,
+                position: self.position,
+                dividers: self.dividers,
+                watchdog: self.watchdog,
+                power: self.power,
+                mechanics: self.mechanics,
+                joint: self.joint,
+                sensorless: self.sensorless.map(|sl| SensorlessRecord {
+                    start_current_a: sl.start_current_a,
+                    bus_voltage_v: sl.bus_voltage_v,
+                    beside_sensor: None,
+                    observer_above_rad_s: None,
+                }),
             }
         }
     }

@@ -34,7 +34,7 @@ mod migrate;
 
 pub use fields::*;
 use migrate::migrate;
-pub use migrate::{v1, v2, v3, v4};
+pub use migrate::{v1, v2, v3, v4, v5};
 
 use core::f32::consts::TAU;
 use core::fmt;
@@ -52,7 +52,7 @@ use serde::{Deserialize, Serialize};
 /// Version of the schema written by this build ([`DriveRecord`]'s postcard
 /// layout). Bump it on any change of the layout and add a migration step in
 /// `migrate` for the old version.
-pub const SCHEMA_VERSION: u16 = 5;
+pub const SCHEMA_VERSION: u16 = 6;
 
 /// Largest envelope (header, payload and CRC) in bytes. The largest record
 /// of schema 5 (32-character label, every option `Some`, every varint at
@@ -257,6 +257,31 @@ pub struct SensorlessRecord {
     /// [`Self::BUS_RANGE_V`]): the hand-over speed's back-EMF is kept well
     /// above the voltage error the dead time makes on this bus.
     pub bus_voltage_v: f32,
+    /// `None` (absent): the drive runs without its angle sensor. Else the
+    /// observer runs beside the sensor in this role (schema 6).
+    pub beside_sensor: Option<BesideRole>,
+    /// With [`BesideRole::HallSensorless`]: the rotor speed above which the
+    /// current loop runs on the observer's angle [rad/s, mechanical]
+    /// (finite, `> 0`; absent: twice the observer's hand-over speed).
+    pub observer_above_rad_s: Option<f32>,
+}
+
+/// The flux observer's role beside the angle sensor (design §27).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum BesideRole {
+    /// A plausibility check: a lasting disagreement with the sensor above
+    /// the observer's hand-over speed latches `AngleSensorImplausible`.
+    #[serde(rename = "check")]
+    Check,
+    /// The check, and under a velocity command the observer takes over
+    /// when the sensor fails above that speed (limp-home).
+    #[serde(rename = "limp-home")]
+    LimpHome,
+    /// Limp-home, and above `observer_above_rad_s` the current loop runs
+    /// on the observer's angle (halls at low speed, the observer above).
+    #[serde(rename = "hall+sensorless")]
+    HallSensorless,
 }
 
 /// The robot joint (design §21; foc-core's `JointSetup`) and the impedance
@@ -520,7 +545,7 @@ impl DriveRecord {
             // sensor the position has no fixed zero, so no travel range.
             check(self.motor.flux_linkage_wb > 0.0, "sensorless")?;
             check(
-                self.joint.is_none_or(|j| j.travel_out_rad.is_none()),
+                !sl.replaces_sensor() || self.joint.is_none_or(|j| j.travel_out_rad.is_none()),
                 "sensorless",
             )?;
         }

@@ -136,6 +136,8 @@ pub(crate) fn largest_record() -> DriveRecord {
         sensorless: Some(SensorlessRecord {
             start_current_a: f32::MAX,
             bus_voltage_v: f32::MAX,
+            beside_sensor: Some(crate::record::BesideRole::HallSensorless),
+            observer_above_rad_s: Some(f32::MAX),
         }),
     }
 }

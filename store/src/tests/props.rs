@@ -184,6 +184,8 @@ prop_compose! {
             sensorless: sensorless.map(|(share, bus)| SensorlessRecord {
                 start_current_a: (lim.0 * share).max(lim.0 * 1e-3),
                 bus_voltage_v: bus,
+                beside_sensor: None,
+                observer_above_rad_s: None,
             }),
         }
     }

@@ -82,6 +82,18 @@ fn largest_record_fits() {
         })
     );
     r.sensorless.as_mut().unwrap().bus_voltage_v = 1000.0;
+    assert_eq!(
+        r.validate(),
+        Err(Invalid {
+            field: "sensorless.observer_above_rad_s"
+        })
+    );
+    r.sensorless.as_mut().unwrap().observer_above_rad_s =
+        Some(SensorlessRecord::MAX_OBSERVER_ABOVE_RAD_S);
+    // Beside the sensor, a travel range is fine.
+    assert_eq!(r.validate(), Ok(()));
+    r.sensorless.as_mut().unwrap().beside_sensor = None;
+    r.sensorless.as_mut().unwrap().observer_above_rad_s = None;
     // Sensorless with a travel range: refused (no fixed zero).
     assert_eq!(
         r.validate(),
@@ -98,10 +110,11 @@ fn largest_record_fits() {
 fn the_joint_costs_its_size_and_no_more() {
     // Schema 4 adds at most 47 bytes (tag, 9 f32, range tag, u32 varint)
     // to the largest version-3 record (229 bytes), schema 5 at most 9
-    // (tag, 2 f32).
+    // (tag, 2 f32), schema 6 at most 7 (role tag and variant, speed tag
+    // and f32).
     let mut r = largest_record();
     let with = encoded(&r).len();
-    assert_eq!(with, 229 + 47 + 9);
+    assert_eq!(with, 229 + 47 + 9 + 7);
     r.sensorless = None;
     assert_eq!(encoded(&r).len(), 229 + 47 + 1);
     r.joint = None;
@@ -408,7 +421,12 @@ fn a_version_1_record_migrates_with_the_build_default_power_limits() {
     );
     assert_eq!(migrated.validate(), Ok(()));
     assert_eq!(
-        as_v1(&now).into_v2().into_v3().into_v4().into_v5(),
+        as_v1(&now)
+            .into_v2()
+            .into_v3()
+            .into_v4()
+            .into_v5()
+            .into_v6(),
         migrated
     );
     // A version-2, -3 or -4 payload under version 1 is not a version-1
@@ -441,7 +459,10 @@ fn a_version_2_record_migrates_without_mechanics() {
         );
         assert_eq!(migrated.validate(), Ok(()));
         // The frozen structs' own steps.
-        assert_eq!(as_v2(&now).into_v3().into_v4().into_v5(), migrated);
+        assert_eq!(
+            as_v2(&now).into_v3().into_v4().into_v5().into_v6(),
+            migrated
+        );
         // A version-3 or -4 payload (with or without mechanics) under
         // version 2 is not a version-2 record, nor a version-1 one under
         // version 2.
@@ -485,7 +506,7 @@ fn a_version_3_record_migrates_without_the_joint() {
             now
         );
         assert_eq!(migrated.validate(), Ok(()));
-        assert_eq!(as_v3(&now).into_v4().into_v5(), migrated);
+        assert_eq!(as_v3(&now).into_v4().into_v5().into_v6(), migrated);
         // A version-4 payload (with or without the joint) under version 3
         // is not a version-3 record, nor a version-2 one.
         let mut none = now.clone();
@@ -525,13 +546,13 @@ fn a_migrated_record_applies_with_the_builds_joint() {
         (s.limits.max_kp_nm_per_rad, s.limits.max_kd_nm_s_per_rad),
         (7.0, base.limits.max_kd_nm_s_per_rad)
     );
-    // Saved again: with the joint, schema 5.
+    // Saved again: with the joint, schema 6.
     let again = DriveRecord::from_settings(&migrated.label, 20_000, &s);
     assert_eq!(
         again.joint,
         Some(JointRecord::from_setup(&base.joint, &base.limits))
     );
-    assert_eq!(encoded(&again)[0], 5);
+    assert_eq!(encoded(&again)[0], 6);
 }
 
 /// `r` in the version-4 layout (what it loses: `sensorless`).
@@ -558,7 +579,7 @@ fn a_version_4_record_migrates_on_the_angle_sensor() {
             },
             now
         );
-        assert_eq!(as_v4(&now).into_v5(), migrated);
+        assert_eq!(as_v4(&now).into_v5().into_v6(), migrated);
         // A version-5 payload under version 4 is not a version-4 record,
         // nor a version-4 payload one of version 5.
         assert_eq!(
@@ -580,6 +601,8 @@ fn the_sensorless_setting_is_checked_and_needs_mechanics() {
     let ok = SensorlessRecord {
         start_current_a: r.limits.max_current_a,
         bus_voltage_v: 24.0,
+        beside_sensor: None,
+        observer_above_rad_s: None,
     };
     type Spoil = fn(&mut SensorlessRecord);
     let spoils: [(Spoil, &str); 5] = [
@@ -652,6 +675,77 @@ fn the_sensorless_setting_is_checked_and_needs_mechanics() {
     r.sensorless = None;
     let back = r.apply(&s, 20_000).unwrap();
     assert_eq!(back.apply_to(&c).current.sensorless, None);
+}
+
+/// The observer beside the sensor (schema 6): each role reaches foc-core's
+/// `BesideConfig` (the drive stays on its sensor), round-trips through the
+/// settings, allows a travel range, and a speed only with
+/// `hall+sensorless`.
+#[test]
+fn the_observer_beside_the_sensor_is_stored_in_its_role() {
+    use crate::record::BesideRole;
+    use crate::Settings;
+    use foc_core::drive::cascade::CascadeConfig;
+    let mut r = record_a();
+    assert!(r.joint.is_some_and(|j| j.travel_out_rad.is_some()));
+    let base_cascade = CascadeConfig::for_motor(r.motor.to_params(), 20_000.0, 5.0);
+    let base = Settings::from_cascade(&base_cascade);
+    let pp = f32::from(r.motor.pole_pairs);
+    for (role, above) in [
+        (BesideRole::Check, None),
+        (BesideRole::LimpHome, None),
+        (BesideRole::HallSensorless, None),
+        (BesideRole::HallSensorless, Some(40.0)),
+    ] {
+        let sl = SensorlessRecord {
+            start_current_a: 4.0,
+            bus_voltage_v: 24.0,
+            beside_sensor: Some(role),
+            observer_above_rad_s: above,
+        };
+        r.sensorless = Some(sl);
+        assert_eq!(r.validate(), Ok(()), "{role:?}: a travel range is fine");
+        let s = r.apply(&base, 20_000).unwrap();
+        let c = s.apply_to(&base_cascade);
+        assert_eq!(c.current.sensorless, None, "{role:?}: on the sensor");
+        let b = c.current.fallback.expect("the observer beside the sensor");
+        assert_eq!(b.limp_home, role != BesideRole::Check);
+        let derived = crate::settings::sensorless_config(&c, &sl).unwrap();
+        assert_eq!(b.sensorless, derived);
+        let expect_above = match (role, above) {
+            (BesideRole::HallSensorless, Some(w)) => Some(w * pp),
+            (BesideRole::HallSensorless, None) => Some(2.0 * derived.handover_rad_s),
+            _ => None,
+        };
+        assert_eq!(b.observer_above_rad_s, expect_above, "{role:?}");
+        // Back to a record: the role and the speed (the default one
+        // written out).
+        let back = Settings::from_cascade(&c).sensorless.unwrap();
+        assert_eq!(back.beside_sensor, Some(role));
+        assert_eq!(back.observer_above_rad_s.map(|w| w * pp), expect_above);
+    }
+    // A speed without `hall+sensorless`, or one not usable, is refused.
+    for (role, above) in [
+        (None, 40.0),
+        (Some(BesideRole::LimpHome), 40.0),
+        (Some(BesideRole::HallSensorless), 0.0),
+        (Some(BesideRole::HallSensorless), f32::NAN),
+        (Some(BesideRole::HallSensorless), 1e6),
+    ] {
+        r.sensorless = Some(SensorlessRecord {
+            start_current_a: 4.0,
+            bus_voltage_v: 24.0,
+            beside_sensor: role,
+            observer_above_rad_s: Some(above),
+        });
+        assert_eq!(
+            r.validate(),
+            Err(Invalid {
+                field: "sensorless.observer_above_rad_s"
+            }),
+            "{role:?} {above}"
+        );
+    }
 }
 
 #[test]
@@ -1163,11 +1257,8 @@ const V4_GOLDEN: [u8; 240] = [
 ];
 
 /// The envelope of `record_a()` with a sensorless setting (start 4 A, bus
-/// 24 V, no travel range) as this build (schema version 5) writes it, captured when the
-/// golden was added. When the layout changes, the schema version goes up
-/// and this envelope becomes a frozen version's golden, decoded by its
-/// frozen struct; until then any change to `DriveRecord` or a
-/// sub-record's layout fails here.
+/// 24 V, no travel range) as schema version 5 wrote it (frozen: decoded by
+/// [`crate::record::v5::DriveRecordV5`] and migrated).
 const V5_GOLDEN: [u8; 241] = [
     0x05, 0x00, 0xe9, 0x00, 0x0b, 0x62, 0x65, 0x6e, 0x63, 0x68, 0x20, 0x6d, 0x6f, 0x74, 0x6f, 0x72,
     0xa0, 0x9c, 0x01, 0x07, 0xcd, 0xcc, 0x4c, 0x3e, 0x82, 0xa8, 0x7b, 0x38, 0xf7, 0xcc, 0x92, 0x38,
@@ -1197,19 +1288,88 @@ fn sensorless_record() -> DriveRecord {
     r.sensorless = Some(SensorlessRecord {
         start_current_a: 4.0,
         bus_voltage_v: 24.0,
+        beside_sensor: None,
+        observer_above_rad_s: None,
     });
     r
 }
 
+/// `record_a()` with the observer beside its sensor as halls +
+/// sensorless above 40 rad/s (start 4 A, bus 24 V; the travel range kept).
+fn hybrid_record() -> DriveRecord {
+    let mut r = record_a();
+    r.sensorless = Some(SensorlessRecord {
+        start_current_a: 4.0,
+        bus_voltage_v: 24.0,
+        beside_sensor: Some(crate::record::BesideRole::HallSensorless),
+        observer_above_rad_s: Some(40.0),
+    });
+    r
+}
+
+/// [`hybrid_record`] as this build (schema version 6) writes it, captured
+/// when the golden was added. When the layout changes, the schema version
+/// goes up and this envelope becomes a frozen version's golden; until then
+/// any change to `DriveRecord` or a sub-record's layout fails here.
+const V6_GOLDEN: [u8; 256] = [
+    0x06, 0x00, 0xf8, 0x00, 0x0b, 0x62, 0x65, 0x6e, 0x63, 0x68, 0x20, 0x6d, 0x6f, 0x74, 0x6f, 0x72,
+    0xa0, 0x9c, 0x01, 0x07, 0xcd, 0xcc, 0x4c, 0x3e, 0x82, 0xa8, 0x7b, 0x38, 0xf7, 0xcc, 0x92, 0x38,
+    0x6f, 0x12, 0x83, 0x3b, 0x9a, 0x99, 0x99, 0x3e, 0x00, 0x00, 0x7a, 0x44, 0x33, 0x33, 0xb3, 0x3e,
+    0x00, 0x00, 0x7a, 0x44, 0x01, 0x00, 0x00, 0xa0, 0x3f, 0x01, 0x07, 0x80, 0x20, 0x00, 0x00, 0xa0,
+    0x40, 0x00, 0x00, 0x96, 0x43, 0x00, 0x00, 0xc8, 0xc2, 0x00, 0x00, 0xc8, 0x42, 0x00, 0x00, 0x40,
+    0x40, 0x00, 0x00, 0xfa, 0x43, 0xcd, 0xcc, 0x4c, 0x3d, 0x00, 0x00, 0xc0, 0x3f, 0x00, 0x00, 0xf0,
+    0x41, 0x00, 0x00, 0xc8, 0x42, 0x00, 0x00, 0x7a, 0x44, 0x0a, 0x14, 0xd0, 0x0f, 0x01, 0x01, 0x00,
+    0x00, 0xcc, 0x41, 0x00, 0x00, 0xe4, 0x41, 0x00, 0x00, 0x80, 0x7f, 0x00, 0x00, 0x20, 0x41, 0x00,
+    0x00, 0x00, 0x40, 0x00, 0x00, 0x80, 0x7f, 0x00, 0x00, 0x80, 0x7f, 0x00, 0x00, 0x00, 0x40, 0x00,
+    0x00, 0x70, 0x42, 0x00, 0x00, 0x20, 0x42, 0x00, 0x00, 0xc8, 0x42, 0x00, 0x00, 0xf0, 0x42, 0x00,
+    0x00, 0x82, 0x42, 0x00, 0x00, 0xaa, 0x42, 0x00, 0x00, 0x80, 0x7f, 0x00, 0x00, 0x80, 0x7f, 0x00,
+    0x00, 0x80, 0x3f, 0x01, 0x17, 0xb7, 0xd1, 0x37, 0xac, 0xc5, 0x27, 0x37, 0x6f, 0x12, 0x03, 0x3b,
+    0x01, 0x00, 0x00, 0x10, 0xc1, 0x00, 0x00, 0xc0, 0x3f, 0x01, 0x00, 0x00, 0xc0, 0xbf, 0x00, 0x00,
+    0x00, 0x40, 0x00, 0x00, 0x80, 0x3e, 0x00, 0x00, 0xfa, 0x44, 0xcd, 0xcc, 0x4c, 0x3d, 0xc8, 0x01,
+    0x6f, 0x12, 0x83, 0x3a, 0x00, 0x00, 0xa0, 0x41, 0x00, 0x00, 0x00, 0x3f, 0x01, 0x00, 0x00, 0x80,
+    0x40, 0x00, 0x00, 0xc0, 0x41, 0x01, 0x02, 0x01, 0x00, 0x00, 0x20, 0x42, 0x4f, 0x22, 0x6f, 0x97,
+];
+
 #[test]
 fn the_current_schema_writes_and_reads_its_golden_envelope() {
     let mut buf = [0u8; crate::MAX_RECORD_BYTES];
-    let n = sensorless_record().encode(&mut buf).expect("encodes");
-    assert_eq!(&buf[..n], &V5_GOLDEN[..]);
-    let r = DriveRecord::decode(&V5_GOLDEN).expect("version 5 decodes");
+    let n = hybrid_record().encode(&mut buf).expect("encodes");
+    assert_eq!(&buf[..n], &V6_GOLDEN[..], "{:#04x?}", &buf[..n]);
+    let r = DriveRecord::decode(&V6_GOLDEN).expect("version 6 decodes");
+    assert_eq!(r, hybrid_record());
+    assert_eq!(r.validate(), Ok(()));
+    assert_eq!(crate::SCHEMA_VERSION, 6, "a new version freezes V6_GOLDEN");
+}
+
+/// The frozen version-5 layout of `r`.
+fn as_v5(r: &DriveRecord) -> crate::record::v5::DriveRecordV5 {
+    let v4 = as_v4(r);
+    crate::record::v5::DriveRecordV5 {
+        sensorless: r
+            .sensorless
+            .map(|sl| crate::record::v5::SensorlessRecordV5 {
+                start_current_a: sl.start_current_a,
+                bus_voltage_v: sl.bus_voltage_v,
+            }),
+        ..v4.into_v5()
+    }
+}
+
+#[test]
+fn the_version_5_golden_envelope_migrates() {
+    let r = DriveRecord::decode(&V5_GOLDEN).expect("version 5 migrates");
     assert_eq!(r, sensorless_record());
     assert_eq!(r.validate(), Ok(()));
-    assert_eq!(crate::SCHEMA_VERSION, 5, "a new version freezes V5_GOLDEN");
+    // It replaces the sensor, as it did.
+    assert!(r.sensorless.is_some_and(|sl| sl.replaces_sensor()));
+    // The frozen version-5 struct still writes exactly these bytes.
+    let p = postcard_of(&as_v5(&sensorless_record()));
+    assert_eq!(envelope(5, &p), V5_GOLDEN);
+    // A version-6 payload is not a version-5 record.
+    assert_eq!(
+        DriveRecord::decode(&envelope(5, payload(&encoded(&hybrid_record())))),
+        Err(RecordError::Malformed)
+    );
 }
 
 #[test]

@@ -111,7 +111,7 @@ fn toml_is_readable_and_checked() {
     let text = to_toml(&r);
     std::eprintln!("{text}");
     for key in [
-        "schema_version = 5",
+        "schema_version = 6",
         "label = \"bench motor\"",
         "[motor]",
         "r_ohm = ",
@@ -169,20 +169,49 @@ fn toml_is_readable_and_checked() {
     sl.sensorless = Some(crate::record::SensorlessRecord {
         start_current_a: 3.5,
         bus_voltage_v: 48.0,
+        beside_sensor: None,
+        observer_above_rad_s: None,
     });
     let t = to_toml(&sl);
     assert!(
         t.contains("[sensorless]\nstart_current_a = 3.5\nbus_voltage_v = 48.0"),
         "{t}"
     );
-    assert_eq!(from_toml(&t), Ok(sl));
+    assert_eq!(from_toml(&t), Ok(sl.clone()));
     assert!(!to_toml(&r).contains("[sensorless]"));
     assert_eq!(
-        from_toml(&to_toml(&r).replace("schema_version = 5", "schema_version = 4")),
+        from_toml(&to_toml(&r).replace("schema_version = 6", "schema_version = 4")),
         Ok(r.clone())
     );
     let e = from_toml(&t.replace("start_current_a = 3.5", "start_current_a = 50.0")).unwrap_err();
     assert!(e.contains("sensorless.start_current_a"), "{e}");
+    // Beside the sensor (schema 6): the role by name, the speed; a
+    // version-5 file's table (without them) replaces the sensor.
+    let mut beside = r.clone();
+    beside.sensorless = Some(crate::record::SensorlessRecord {
+        start_current_a: 3.5,
+        bus_voltage_v: 48.0,
+        beside_sensor: Some(crate::record::BesideRole::HallSensorless),
+        observer_above_rad_s: Some(40.0),
+    });
+    let tb = to_toml(&beside);
+    assert!(
+        tb.contains("beside_sensor = \"hall+sensorless\"\nobserver_above_rad_s = 40.0"),
+        "{tb}"
+    );
+    assert_eq!(from_toml(&tb), Ok(beside.clone()));
+    for role in ["check", "limp-home"] {
+        let t = tb
+            .replace("hall+sensorless", role)
+            .replace("observer_above_rad_s = 40.0\n", "");
+        assert!(from_toml(&t).is_ok(), "{role}: {t}");
+    }
+    let e = from_toml(&tb.replace("hall+sensorless", "halls")).unwrap_err();
+    assert!(e.contains("halls"), "{e}");
+    assert_eq!(
+        from_toml(&t.replace("schema_version = 6", "schema_version = 5")),
+        Ok(sl.clone())
+    );
     // No joint: no table, and back to None (the build's).
     let mut n = r.clone();
     n.joint = None;
@@ -191,7 +220,7 @@ fn toml_is_readable_and_checked() {
     assert_eq!(from_toml(&t), Ok(n.clone()));
     // A version-3 file (before the joint) reads as version 4 without it.
     assert_eq!(
-        from_toml(&t.replace("schema_version = 5", "schema_version = 3")),
+        from_toml(&t.replace("schema_version = 6", "schema_version = 3")),
         Ok(n.clone())
     );
     // No mechanics: no table, and back to None (not identified).
@@ -202,7 +231,7 @@ fn toml_is_readable_and_checked() {
     // A version-2 file (before the mechanics) reads as version 4 without
     // them.
     assert_eq!(
-        from_toml(&t.replace("schema_version = 5", "schema_version = 2")),
+        from_toml(&t.replace("schema_version = 6", "schema_version = 2")),
         Ok(n.clone())
     );
     // No power limits: no table, and back to None (the build's defaults).
@@ -213,13 +242,13 @@ fn toml_is_readable_and_checked() {
     // A version-1 file (before the power limits) reads as version 4
     // without them.
     assert_eq!(
-        from_toml(&t.replace("schema_version = 5", "schema_version = 1")),
+        from_toml(&t.replace("schema_version = 6", "schema_version = 1")),
         Ok(n)
     );
     // Another schema version.
-    for v in ["0", "6"] {
+    for v in ["0", "7"] {
         let e =
-            from_toml(&text.replace("schema_version = 5", &std::format!("schema_version = {v}")))
+            from_toml(&text.replace("schema_version = 6", &std::format!("schema_version = {v}")))
                 .unwrap_err();
         assert!(e.contains("schema_version") && e.contains(v), "{e}");
     }
@@ -348,7 +377,7 @@ fn toml_is_readable_and_checked() {
         e,
         "record value `power.bus_current_regen_max_a` is out of range"
     );
-    let e = from_toml(&text.replace("schema_version = 5\n", "")).unwrap_err();
+    let e = from_toml(&text.replace("schema_version = 6\n", "")).unwrap_err();
     assert!(e.contains("schema_version"), "{e}");
     // A bad value names the field.
     let e = from_toml(&text.replace("max_current_a = 5.0", "max_current_a = -5.0")).unwrap_err();
@@ -358,7 +387,7 @@ fn toml_is_readable_and_checked() {
     assert!(e.contains("r_ohm"), "{e}");
     let e = from_toml(&text.replace("lq_h", "# lq_h")).unwrap_err();
     assert!(e.contains("lq_h"), "{e}");
-    assert_eq!(SCHEMA_VERSION, 5);
+    assert_eq!(SCHEMA_VERSION, 6);
 }
 
 #[test]

@@ -43,6 +43,8 @@ pub(super) fn sensorless_run(r: &mut Rig) -> Result {
     rec.sensorless = Some(SensorlessRecord {
         start_current_a: (0.5 * rec.limits.max_current_a).min(5.0),
         bus_voltage_v: 24.0,
+        beside_sensor: None,
+        observer_above_rad_s: None,
     });
     apply(r, &rec)?;
     angle_source(r, 1.0)?;

@@ -318,8 +318,16 @@ impl CurrentStage {
     /// Sensor path, end of period: the observer beside the sensor records
     /// the duties (or pauses with the bridge off).
     #[inline(never)]
-    pub(super) fn publish_beside(&mut self, duties: Option<[f32; 3]>, v_bus_v: f32) {
+    pub(super) fn publish_beside(
+        &mut self,
+        duties: Option<[f32; 3]>,
+        v_bus_v: f32,
+        fb: &mut Feedback,
+    ) {
         if let Some(f) = self.fallback.as_mut() {
+            if f.weight >= 0.5 {
+                fb.angle_in_use = AngleInUse::Observer;
+            }
             f.sl.record(duties, v_bus_v);
             if duties.is_some() {
                 f.driven = f.driven.saturating_add(1);

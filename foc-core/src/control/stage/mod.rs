@@ -35,7 +35,7 @@ use super::sensorless::{Sensorless, SensorlessConfig};
 use super::speed::{SpeedLoop, SpeedLoopConfig};
 use super::supervisor::{Checks, Fault, Supervisor, SupervisorConfig};
 use super::Refusal;
-use super::{BridgeCommand, Command, CommandSlot, Feedback, Limits, Mechanics, Mode};
+use super::{AngleInUse, BridgeCommand, Command, CommandSlot, Feedback, Limits, Mechanics, Mode};
 use crate::angle::{ElectricalAngle, MechanicalAngle};
 use crate::clamp;
 use crate::frames::Dq;

@@ -344,11 +344,12 @@ impl CurrentStage {
             current_limit_a: self.config.limits.max_current_a,
             power: self.published_window(),
             period: self.state.period,
+            angle_in_use: AngleInUse::Sensor,
         };
         if self.sensorless.is_some() {
             self.publish_sensorless(out.map(|o| o.duties), v_bus, fb);
         } else if self.fallback.is_some() {
-            self.publish_beside(out.map(|o| o.duties), v_bus);
+            self.publish_beside(out.map(|o| o.duties), v_bus, fb);
         }
         bridge
     }

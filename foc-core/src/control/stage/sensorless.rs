@@ -18,6 +18,27 @@ impl CurrentStage {
         self.sensorless.as_ref()
     }
 
+    /// Install the flux observer beside the angle sensor (`None`: remove
+    /// it; design §27). Its motor is the current loop's. It restarts (it
+    /// must agree with the sensor again before it may take over). A drive
+    /// running on the observer (sensorless, or limp-home) keeps doing so:
+    /// the observer beside the sensor runs once it is on its sensor again
+    /// ([`Self::set_sensorless`]`(None)`).
+    pub fn set_beside(&mut self, cfg: Option<BesideConfig>) {
+        let motor = self.config.current.motor;
+        let cfg = cfg.map(|mut c| {
+            c.sensorless.observer.motor = motor;
+            c
+        });
+        if cfg == self.config.fallback {
+            return;
+        }
+        self.config.fallback = cfg;
+        self.fallback = cfg
+            .filter(|_| self.config.sensorless.is_none())
+            .map(super::fallback::Fallback::new);
+    }
+
     /// Run without the angle sensor with `cfg` (design §27), or on the
     /// sensor again with `None`; its observer's motor is the current
     /// loop's. The observer and the start restart (alignment at the next
@@ -236,6 +257,11 @@ impl CurrentStage {
         }
         fb.velocity_rad_s = sl.observer().speed_rad_s() / pp;
         fb.disturbance_rad_s2 = 0.0;
+        fb.angle_in_use = if self.state.limp_home {
+            AngleInUse::LimpHome
+        } else {
+            AngleInUse::Sensorless
+        };
     }
 }
 
