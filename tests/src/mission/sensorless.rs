@@ -160,6 +160,9 @@ fn segment(
         fault: None,
     };
     for k in 0..n {
+        // The observer's angle is of the period's sample: the rotor's angle
+        // then, not after the step (a period's turn later).
+        let theta_sampled = sim.plant.theta_e();
         sim.step();
         let fb = *sim.cascade.feedback();
         if let Some(f) = fb.first_fault {
@@ -177,11 +180,7 @@ fn segment(
         let stage = &sim.cascade.current;
         if stage.sensorless_region() == Some(Region::Observer) {
             if let Some(sl) = stage.sensorless() {
-                let e = sl
-                    .observer()
-                    .angle()
-                    .diff_radians(sim.plant.theta_e())
-                    .abs();
+                let e = sl.observer().angle().diff_radians(theta_sampled).abs();
                 g.worst_angle_rad = g.worst_angle_rad.max(e);
                 if k * 5 >= n * 4 {
                     g.steady_angle_rad = g.steady_angle_rad.max(e);

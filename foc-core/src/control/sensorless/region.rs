@@ -194,22 +194,30 @@ impl Sensorless {
     }
 
     /// The observer's angle while it sees the rotor; below the release
-    /// speed the field takes over on the current vector in force.
+    /// speed the field takes over at the start current, placed where it
+    /// gives the torque of the q current in force (`asin(iq / I)` ahead of
+    /// the rotor, at most a quarter turn): the torque carries on, and the
+    /// rotor sits on the field's spring inside its stable half. (Placed on
+    /// the current vector itself, a braking q current put the field a
+    /// quarter turn behind the rotor, and its current's rise to the start
+    /// current then multiplied the braking torque at the spring's edge:
+    /// the rotor swung backwards and latched `ObserverLostLock`.)
     fn follow_observer(&mut self, i_now: Dq) -> Switch {
         let w = self.observer.speed_rad_s();
         if w.abs() >= self.cfg.release_rad_s {
             return Switch::Stay;
         }
         let obs = self.observer.angle();
-        let size = crate::sqrtf(i_now.d * i_now.d + i_now.q * i_now.q);
-        let at = if size > 0.05 * self.cfg.current_a {
-            libm::atan2f(i_now.q, i_now.d)
+        let i = self.cfg.current_a;
+        let share = if i > 0.0 && i_now.q.is_finite() {
+            crate::clamp(i_now.q / i, -1.0, 1.0)
         } else {
             0.0
         };
+        let at = libm::asinf(share);
         self.field = obs.add_radians(at);
         self.field_rad_s = w;
-        self.field_a = size.min(self.cfg.current_a);
+        self.field_a = i;
         self.region = Region::Field;
         self.agree = 0;
         self.waited = 0;
