@@ -39,9 +39,21 @@
 //! is what the radial correction pulls to, and one that is `e` (relative)
 //! too small leaves the angle behind by about `e gamma psi^2 / |w|` (the
 //! balance of that pull against the rotation: at 20 kHz and 2000 rad/s
-//! electrical 1 % costs 0.01 rad, at 500 rad/s 0.04 rad), so online
-//! tracking (the magnet's temperature) matters at low speed; it is not
-//! done yet (design §26).
+//! electrical 1 % costs 0.01 rad, at 500 rad/s 0.04 rad), so it matters
+//! at low speed.
+//!
+//! **Online tracking of the flux linkage** (the magnet's temperature: NdFeB
+//! loses about 0.12 % a kelvin). In steady rotation the estimate settles
+//! where the rotation and the pull balance: `|eta| = psi_true cos(delta)`
+//! with the angle error `delta` (the pull turns the estimate, it does not
+//! size it). So the size of `eta` measures the rotor's flux, and the flux
+//! linkage in use moves towards it with the time constant
+//! [`FLUX_TRACKING_S`], while the estimate is known to follow the rotor
+//! ([`FluxObserver::set_locked`]), the back-EMF is at least
+//! [`FLUX_TRACKING_EMF_SHARE`] of the bus (below, the voltage errors the
+//! observer does not know of weigh too much), and within
+//! [`FLUX_TRACKING_RANGE`] of the identified value. The value tracked at
+//! speed carries the observer at low speed, where the error costs most.
 //!
 //! ```
 //! use foc_core::control::flux_observer::{FluxObserver, ObserverConfig};
@@ -79,6 +91,17 @@ pub const CORRECTION_PER_PERIOD: f32 = 0.1;
 
 /// The PLL's natural frequency per period rate (critically damped).
 pub const PLL_PER_PERIOD: f32 = 0.1;
+
+/// The flux linkage tracking's time constant \[s\] (module docs).
+pub const FLUX_TRACKING_S: f32 = 0.05;
+
+/// The flux linkage is tracked while the back-EMF is at least this share
+/// of the bus.
+pub const FLUX_TRACKING_EMF_SHARE: f32 = 0.1;
+
+/// The tracked flux linkage stays within this share of the identified one
+/// (a magnet 250 K hotter than identified loses about 30 %).
+pub const FLUX_TRACKING_RANGE: f32 = 0.3;
 
 /// What the observer is built from.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -135,6 +158,30 @@ impl ObserverGains {
     }
 }
 
+/// The flux linkage tracking's constants, from the identified value and
+/// the period.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct FluxTracking {
+    /// `ts / FLUX_TRACKING_S / (2 psi)` [1/Wb]: the step per period of a
+    /// squared size error.
+    step_per_wb2: f32,
+    /// The range [`FLUX_TRACKING_RANGE`] about the identified value \[Wb\].
+    lowest_wb: f32,
+    highest_wb: f32,
+}
+
+impl FluxTracking {
+    fn new(psi_wb: f32, ts_s: f32) -> Option<Self> {
+        let t = Self {
+            step_per_wb2: ts_s / FLUX_TRACKING_S / (2.0 * psi_wb),
+            lowest_wb: (1.0 - FLUX_TRACKING_RANGE) * psi_wb,
+            highest_wb: (1.0 + FLUX_TRACKING_RANGE) * psi_wb,
+        };
+        (psi_wb > 0.0 && crate::all_finite([t.step_per_wb2, t.lowest_wb, t.highest_wb]))
+            .then_some(t)
+    }
+}
+
 /// The observer (module docs).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct FluxObserver {
@@ -157,6 +204,12 @@ pub struct FluxObserver {
     v_older: Option<(AlphaBeta, f32)>,
     /// The magnitude correction held to twice the speed at low speed.
     slow_scaling: bool,
+    /// The flux linkage is tracked (module docs; on unless switched off).
+    tracking: bool,
+    /// The tracking's constants (`None`: the motor is not usable).
+    tracker: Option<FluxTracking>,
+    /// The estimate is known to follow the rotor (tracking needs it).
+    locked: bool,
 }
 
 impl FluxObserver {
@@ -178,6 +231,27 @@ impl FluxObserver {
             v_newer: None,
             v_older: None,
             slow_scaling: false,
+            tracking: true,
+            tracker: FluxTracking::new(psi, cfg.ts_s),
+            locked: true,
+        }
+    }
+
+    /// Whether the estimate is known to follow the rotor: the drive runs
+    /// on it, or it agrees with an angle sensor (design §27; true when
+    /// built). The flux linkage is tracked only then: the size of an
+    /// estimate that does not follow the rotor says nothing of its flux.
+    pub fn set_locked(&mut self, locked: bool) {
+        self.locked = locked;
+    }
+
+    /// Switch the flux linkage's tracking on (the default) or off (the
+    /// identified value is used as it is; the bench compares the two).
+    /// Off puts the identified value back.
+    pub fn set_flux_tracking(&mut self, on: bool) {
+        self.tracking = on;
+        if !on {
+            self.psi_wb = self.cfg.motor.flux_linkage_wb;
         }
     }
 
@@ -227,10 +301,31 @@ impl FluxObserver {
         self.omega_rad_s
     }
 
-    /// The flux linkage in use \[Wb\] (the identified one: online
-    /// tracking is not done yet, design §26).
+    /// The flux linkage in use \[Wb\]: the identified one, tracked online
+    /// (module docs).
     pub fn flux_linkage_wb(&self) -> f32 {
         self.psi_wb
+    }
+
+    /// The flux linkage moves towards the size of the active flux `eta`
+    /// (`eta_sq` its square, `psi_a` the size it should have) while the
+    /// back-EMF is large against the bus `v_bus_v` (module docs).
+    #[inline(always)]
+    fn track_flux(&mut self, eta_sq: f32, psi_a: f32, v_bus_v: f32) {
+        let Some(t) = self.tracker else {
+            return;
+        };
+        let emf = libm::fabsf(self.omega_rad_s) * self.psi_wb;
+        if !(self.tracking && self.locked && emf >= FLUX_TRACKING_EMF_SHARE * v_bus_v) {
+            return;
+        }
+        // |eta| - psi_a without a square root or a division: the two are
+        // close, and psi_a is near the identified value (an error in the
+        // rate only, not in where it settles).
+        let next = self.psi_wb + t.step_per_wb2 * (eta_sq - psi_a * psi_a);
+        if next.is_finite() {
+            self.psi_wb = crate::clamp(next, t.lowest_wb, t.highest_wb);
+        }
     }
 
     /// The active-flux vector `eta` \[Wb\] (its direction is the angle's).
@@ -329,6 +424,7 @@ impl FluxObserver {
         // estimate with last period's current.
         let eta = self.active_flux(i0);
         let eta_sq = eta.alpha * eta.alpha + eta.beta * eta.beta;
+        self.track_flux(eta_sq, psi_a, v_bus);
         // Bounded to half the estimate a period: the Euler step of the
         // cubic correction would overshoot far from the circle.
         // At low speed a size error turns into an angle error of about
@@ -401,12 +497,25 @@ mod tests {
     /// current `i` for `n` periods; the observer is built with `given`
     /// (the identified values). Returns the last angle error [rad].
     fn run(true_m: MotorParams, given: MotorParams, w: f32, i: Dq, n: u32) -> (FluxObserver, f32) {
+        run_tracking(true_m, given, w, i, n, true)
+    }
+
+    /// [`run`] with the flux linkage's tracking on or off.
+    fn run_tracking(
+        true_m: MotorParams,
+        given: MotorParams,
+        w: f32,
+        i: Dq,
+        n: u32,
+        tracking: bool,
+    ) -> (FluxObserver, f32) {
         let mut obs = FluxObserver::new(ObserverConfig {
             motor: given,
             ts_s: TS,
             dead_time_s: 0.0,
             current_floor_a: 0.1,
         });
+        obs.set_flux_tracking(tracking);
         // Steady state: v_dq = R i + w (-Lq i_q, Ld i_d + psi).
         let v = Dq::new(
             true_m.r_ohm * i.d - w * true_m.lq_h * i.q,
@@ -449,23 +558,58 @@ mod tests {
         assert!(err.abs() < 0.005, "{err}");
     }
 
-    /// A flux linkage identified 1 % low: the angle error the radial
-    /// correction leaves is about `0.01 gamma psi^2 / |w|` (module docs).
+    /// A flux linkage identified 1 % low, not tracked: the angle error the
+    /// radial correction leaves is about `0.01 gamma psi^2 / |w|` (module
+    /// docs). Tracked, the flux linkage in use reaches the rotor's and the
+    /// error goes (to a tenth of it or less).
     #[test]
-    fn a_flux_linkage_identified_low_leaves_an_angle_error() {
+    fn a_flux_linkage_identified_low_leaves_an_angle_error_until_tracked() {
         let given = MotorParams {
             flux_linkage_wb: 0.0099,
             ..ipm()
         };
         let gpsi2 = CORRECTION_PER_PERIOD / TS;
         for w in [2000.0f32, 500.0] {
-            let (_, err) = run(ipm(), given, w, Dq::new(0.0, 0.0), 40_000);
+            let (obs, err) = run_tracking(ipm(), given, w, Dq::new(0.0, 0.0), 40_000, false);
             let expected = 0.01 * gpsi2 / w;
             assert!(
                 (err.abs() - expected).abs() < 0.25 * expected,
                 "{w}: {err} vs {expected}"
             );
+            assert_eq!(obs.flux_linkage_wb(), 0.0099);
+            let (obs, err) = run_tracking(ipm(), given, w, Dq::new(0.0, 0.0), 40_000, true);
+            assert!(err.abs() < 0.1 * expected, "{w}: tracked {err}");
+            assert!(
+                (obs.flux_linkage_wb() - 0.01).abs() < 1e-5,
+                "{}",
+                obs.flux_linkage_wb()
+            );
         }
+    }
+
+    /// Tracking stays within its range of the identified value, and waits
+    /// at low speed (a back-EMF below a tenth of the bus).
+    #[test]
+    fn tracking_is_bounded_and_waits_at_low_speed() {
+        let given = MotorParams {
+            flux_linkage_wb: 0.005,
+            ..ipm()
+        };
+        // The rotor's flux is twice the identified one: held at +30 %.
+        let (obs, _) = run(ipm(), given, 2000.0, Dq::new(0.0, 0.0), 40_000);
+        let top = (1.0 + FLUX_TRACKING_RANGE) * 0.005;
+        assert!(
+            (obs.flux_linkage_wb() - top).abs() < 1e-7,
+            "{}",
+            obs.flux_linkage_wb()
+        );
+        // At 200 rad/s the back-EMF is 2 V against a 24 V bus: not tracked.
+        let given = MotorParams {
+            flux_linkage_wb: 0.0099,
+            ..ipm()
+        };
+        let (obs, _) = run(ipm(), given, 200.0, Dq::new(0.0, 0.0), 40_000);
+        assert_eq!(obs.flux_linkage_wb(), 0.0099);
     }
 
     /// A motor that is not usable (no flux linkage yet, NaN): the observer

@@ -205,9 +205,13 @@ pub struct Sensorless {
 impl Sensorless {
     /// Idle, the observer at angle zero.
     pub fn new(cfg: SensorlessConfig) -> Self {
+        let mut observer = FluxObserver::new(cfg.observer);
+        // Not known to follow the rotor until it drives (or agrees with a
+        // sensor beside it): the flux linkage is not tracked before.
+        observer.set_locked(false);
         Self {
             cfg,
-            observer: FluxObserver::new(cfg.observer),
+            observer,
             region: Region::Idle,
             field: ElectricalAngle::ZERO,
             field_rad_s: 0.0,
@@ -280,6 +284,15 @@ impl Sensorless {
         let pp = f32::from(pole_pairs.max(1));
         self.mech = self.mech.add_radians(step / pp);
         self.mech
+    }
+
+    /// Beside an angle sensor, each period: whether the observer agrees
+    /// with it (its flux linkage is tracked only then). Its magnitude
+    /// correction is held at low speed as when it drives the loop (a flux
+    /// linkage off by a warm magnet costs less angle).
+    pub fn set_agrees_with_sensor(&mut self, agrees: bool) {
+        self.observer.set_locked(agrees);
+        self.observer.set_low_speed_scaling(true);
     }
 
     /// Record the duties handed to the bridge and the bus they were

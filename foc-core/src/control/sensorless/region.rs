@@ -64,8 +64,9 @@ impl Sensorless {
             Region::Observer => Ok(self.follow_observer(i_now)),
         };
         self.damp();
-        self.observer
-            .set_low_speed_scaling(self.region == Region::Observer);
+        let on_observer = self.region == Region::Observer;
+        self.observer.set_low_speed_scaling(on_observer);
+        self.observer.set_locked(on_observer);
         switch
     }
 

@@ -157,7 +157,7 @@ impl CurrentStage {
         };
         f.sl.sense(i_ab, pp);
         let obs = f.sl.observer();
-        let c = f.sl.config();
+        let c = *f.sl.config();
         // A paused observer (bridge off) or one just resumed says nothing.
         let observable = f.driven >= 2 && obs.speed_rad_s().abs() >= c.handover_rad_s;
         let apart = theta_sensor.diff_radians(obs.angle()).abs() > AGREEMENT_RAD;
@@ -178,6 +178,8 @@ impl CurrentStage {
                 }
             }
         }
+        let locked = f.locked() && f.disagree == 0;
+        f.sl.set_agrees_with_sensor(locked);
         // Under a velocity command the observer takes over: at once for a
         // frozen reading (it drives the current off the rotor), after four
         // lock times for a sensor that moves but disagrees (a transient of
