@@ -12,7 +12,9 @@
 //!   least 34 of 36 reach it on every file (all 36 on five; the M153's two
 //!   starts from beside the alignment's unstable point trip its
 //!   over-current) and none moves backwards by more than 200 electrical
-//!   degrees (the alignment's half turn). The loaded figures are printed:
+//!   degrees (the alignment's half turn); with a load none by more than
+//!   900 (a slip past the alignment's field is caught after one and a half
+//!   turns, `ALIGN_SLIP_RAD`). The loaded figures are printed:
 //!   starts near the alignment's unstable point latch `ObserverLostLock`,
 //!   and on the interior-PM file all but one start against an active load
 //!   (design §27, not met yet).
@@ -179,6 +181,17 @@ fn file_grid(p: &std::path::Path) -> (String, Vec<String>) {
             failures.push(format!(
                 "{} {load:?}: starts {:?} neither reached nor faulted safely",
                 s.name, g.failed
+            ));
+        }
+        // With a load the rotor may slip past the alignment's field: the
+        // observer sees it turn back one and a half electrical turns and
+        // the fault latches (`ALIGN_SLIP_RAD`); what it coasts on after is
+        // within the bound (it was up to 46 rad, 8000 degrees, on the
+        // interior-PM file).
+        if load != Load::None && backward_deg_e > 900.0 {
+            failures.push(format!(
+                "{} {load:?}: {backward_deg_e:.0} deg electrical backwards",
+                s.name
             ));
         }
         if load == Load::None && (g.reached < 34 || backward_deg_e > 200.0) {

@@ -71,6 +71,13 @@ pub const DAMPING_MAX_RAD: f32 = core::f32::consts::FRAC_PI_2;
 /// start current).
 pub const HANDOVER_EMF_MARGIN: f32 = 2.5;
 
+/// During the alignment the rotor swings onto the held field by at most
+/// half an electrical turn; seen by the observer to turn against the
+/// commanded direction by more than this [rad, electrical] it slips past
+/// the field (a load stronger than the field's spring drives it):
+/// [`Fault::ObserverLostLock`](super::Fault::ObserverLostLock) at once.
+pub const ALIGN_SLIP_RAD: f32 = 3.0 * core::f32::consts::PI;
+
 /// How the drive runs without an angle sensor.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct SensorlessConfig {
@@ -200,6 +207,8 @@ pub struct Sensorless {
     /// speed tracking; its zero is arbitrary).
     mech: MechanicalAngle,
     last_angle: ElectricalAngle,
+    /// The observer's angle turned during the alignment [rad, electrical].
+    align_turned_rad: f32,
 }
 
 impl Sensorless {
@@ -225,6 +234,7 @@ impl Sensorless {
             blend_step_a: 0.0,
             mech: MechanicalAngle::ZERO,
             last_angle: ElectricalAngle::ZERO,
+            align_turned_rad: 0.0,
         }
     }
 
@@ -281,6 +291,9 @@ impl Sensorless {
         let a = self.observer.angle();
         let step = a.diff_radians(self.last_angle);
         self.last_angle = a;
+        if self.region == Region::Align {
+            self.align_turned_rad += step;
+        }
         let pp = f32::from(pole_pairs.max(1));
         self.mech = self.mech.add_radians(step / pp);
         self.mech

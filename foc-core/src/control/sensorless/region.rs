@@ -56,10 +56,7 @@ impl Sensorless {
                 self.start_align();
                 Ok(Switch::Stay)
             }
-            Region::Align => {
-                self.align();
-                Ok(Switch::Stay)
-            }
+            Region::Align => self.align(target_rad_s).map(|()| Switch::Stay),
             Region::Field => self.turn_field(target_rad_s),
             Region::Observer => Ok(self.follow_observer(i_now)),
         };
@@ -104,10 +101,18 @@ impl Sensorless {
         self.agree = 0;
         self.waited = 0;
         self.blend_a = 0.0;
+        self.align_turned_rad = 0.0;
     }
 
-    /// The current up in a straight line over the rise, then held.
-    fn align(&mut self) {
+    /// The current up in a straight line over the rise, then held. A rotor
+    /// the observer sees turn against the commanded direction by more than
+    /// [`super::ALIGN_SLIP_RAD`] slips past the field: lost.
+    fn align(&mut self, target_rad_s: f32) -> Result<(), LostLock> {
+        if target_rad_s != 0.0
+            && self.align_turned_rad * target_rad_s.signum() < -super::ALIGN_SLIP_RAD
+        {
+            return Err(LostLock);
+        }
         self.periods = self.periods.saturating_add(1);
         let rise = self.cfg.rise_periods.max(1) as f32;
         self.field_a = self.cfg.current_a * (self.periods as f32 / rise).min(1.0);
@@ -119,6 +124,7 @@ impl Sensorless {
             self.last_angle = self.observer.angle();
             self.region = Region::Field;
         }
+        Ok(())
     }
 
     /// The field's speed towards the target, its angle on; the hand-over
