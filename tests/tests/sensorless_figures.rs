@@ -133,20 +133,23 @@ fn the_lowest_steady_speed_on_the_observer_alone() {
 /// The lowest speed [rad/s] a drive holding `target` reaches in half a
 /// second after a load of `load_nm` against the motion comes on, and the
 /// fault that ended it, if any.
-fn load_dip(mut sim: Sim, s: &Setup, target: f32, load_nm: f32) -> (f32, Option<Fault>, Vec<Row>) {
+/// The fault comes with whether the bridge was off the period after.
+fn load_dip(
+    mut sim: Sim,
+    s: &Setup,
+    target: f32,
+    load_nm: f32,
+) -> (f32, Option<(Fault, bool)>, Vec<Row>) {
     run(&mut sim, s, target, 1.5).unwrap();
     sim.load_nm = load_nm;
+    let low = |rows: &[Row]| rows.iter().map(|r| r.0).fold(f32::INFINITY, f32::min);
     match run(&mut sim, s, target, 0.5) {
-        Ok(rows) => (
-            rows.iter().map(|r| r.0).fold(f32::INFINITY, f32::min),
-            None,
-            rows,
-        ),
-        Err((f, rows)) => (
-            rows.iter().map(|r| r.0).fold(f32::INFINITY, f32::min),
-            Some(f),
-            rows,
-        ),
+        Ok(rows) => (low(&rows), None, rows),
+        Err((f, rows)) => {
+            sim.step();
+            let off = sim.last_bridge() == foc_core::control::BridgeCommand::SafeState;
+            (low(&rows), Some((f, off)), rows)
+        }
     }
 }
 
@@ -182,14 +185,18 @@ fn a_load_step_at_low_speed() {
             "{}: {load:.3} N m at {target:.2} rad/s: sensorless lowest {low:.2} rad/s, {}, on the observer throughout {on_observer}; with the encoder lowest {sensor_low:.2} rad/s{}",
             s.name,
             match fault {
-                Some(f) => format!("{f:?} after {:.1} ms", 1e3 * rows.len() as f32 / s.pwm_hz()),
+                Some((f, off)) => format!(
+                    "{f:?} after {:.1} ms (bridge off {off})",
+                    1e3 * rows.len() as f32 / s.pwm_hz()
+                ),
                 None if recovered => format!("back within 5 % after {:.0} ms", 1e3 * back as f32 / s.pwm_hz()),
                 None => "not back within the half second".to_string(),
             },
-            sensor_fault.map_or(String::new(), |f| format!(", {f:?}"))
+            sensor_fault.map_or(String::new(), |(f, _)| format!(", {f:?}"))
         );
         let overpowered = sensor_low < 0.0;
-        if !(recovered || (fault.is_some() && overpowered)) {
+        let safe_fault = fault.is_some_and(|(_, off)| off);
+        if !(recovered || (safe_fault && overpowered)) {
             failures.push(format!("{}: {fault:?}, lowest {low}", s.name));
         }
     }
@@ -275,7 +282,13 @@ fn a_warm_magnet_is_tracked() {
                     sim.step();
                     let off = sim.last_bridge() == foc_core::control::BridgeCommand::SafeState;
                     line += &format!(" [{share}: {f:?}, bridge off {off}]");
-                    if k > 0 || !off {
+                    // A start may fail with a named fault, bridge off, on
+                    // a file whose start the warm magnet defeats (the GL80
+                    // and the Cheetah); the others must run.
+                    let may_fail = ["gl80", "cheetah"]
+                        .iter()
+                        .any(|n| s.name.to_lowercase().contains(n));
+                    if k > 0 || !off || !may_fail {
                         failures.push(format!("{}: {f:?} at {share}", s.name));
                     }
                     break;

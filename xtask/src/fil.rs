@@ -316,7 +316,8 @@ fn identification(r: &mut Rig) -> Result {
 
 /// The main scenario: identification, velocity, load step, position move,
 /// an encoder jump and its clear, the timer's break and its clear, a run
-/// without the encoder ([`sensorless::sensorless_run`]).
+/// without the encoder ([`sensorless::sensorless_run`]) and a limp-home
+/// ([`sensorless::limp_home_run`]).
 pub fn main_scenario(elf: &Path, verbose: bool) -> Result {
     println!("== main scenario (identification, loops, faults)");
     let mut r = Rig::start(elf, &[], verbose)?;
@@ -359,6 +360,7 @@ fn main_steps(r: &mut Rig) -> Result {
     encoder_fault(r)?;
     break_input(r)?;
     sensorless::sensorless_run(r)?;
+    sensorless::limp_home_run(r)?;
     check(
         r.first_fault()?.is_none(),
         "no fault (no overrun) at the end",

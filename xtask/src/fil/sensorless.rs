@@ -1,12 +1,14 @@
 //! The main scenario's sensorless part (design §27): the emulated board's
 //! firmware switched to its flux observer by a configuration record, as a
-//! user does it (`foc-ctl config import` of a `[sensorless]` table).
+//! user does it (`foc-ctl config import` of a `[sensorless]` table), and
+//! the observer beside the encoder taking over when the encoder jumps
+//! (limp-home).
 
-use foc_core::control::{Command as DriveCommand, Fault};
+use foc_core::control::{AngleInUse, Command as DriveCommand, Fault};
 use foc_ctl::ClientError;
 use foc_protocol::config::{ConfigSource, StoreOp};
 use foc_protocol::message::{ErrorCode, ParamId};
-use foc_store::record::{MechanicsRecord, SensorlessRecord};
+use foc_store::record::{BesideRole, MechanicsRecord, SensorlessRecord};
 use foc_store::DriveRecord;
 
 use super::{motor, near, Rig};
@@ -28,24 +30,7 @@ const SPEED_RAD_S: f32 = 100.0;
 /// runs at 50 rad/s again.
 pub(super) fn sensorless_run(r: &mut Rig) -> Result {
     to_rest(r)?;
-    let live =
-        r.s.client
-            .read_config(ConfigSource::Live)
-            .map_err(client_err("read the live configuration"))?;
-    let mut rec = DriveRecord::decode(&live).map_err(|e| Error(format!("live record: {e}")))?;
-    let sensor = rec.clone();
-    let m = motor();
-    rec.mechanics = rec.mechanics.or(Some(MechanicsRecord {
-        inertia_kg_m2: m.inertia_kg_m2 as f32,
-        viscous_friction_nm_s_per_rad: m.viscous_friction_nm_s_per_rad as f32,
-        coulomb_friction_nm: m.coulomb_friction_nm as f32,
-    }));
-    rec.sensorless = Some(SensorlessRecord {
-        start_current_a: (0.5 * rec.limits.max_current_a).min(5.0),
-        bus_voltage_v: 24.0,
-        beside_sensor: None,
-        observer_above_rad_s: None,
-    });
+    let (rec, sensor) = with_sensorless_table(r, None)?;
     apply(r, &rec)?;
     angle_source(r, 1.0)?;
     let refused = r.s.client.set_command(DriveCommand::Torque { iq_a: 0.5 });
@@ -89,6 +74,76 @@ pub(super) fn sensorless_run(r: &mut Rig) -> Result {
             tr.omega_rad_s
         ),
     )
+}
+
+/// Limp-home (design §27): the live record with a `[sensorless]` table
+/// whose `beside_sensor` is `"limp-home"` applied; the drive runs at
+/// +100 rad/s on its encoder (`angle-source` 0), the encoder jumps by a
+/// quarter turn, and the observer beside it takes over: no fault, the
+/// speed within 2 rad/s (the plant's true one), the telemetry's angle in
+/// use `LimpHome` and `angle-source` 3. Then stopped, the encoder restored
+/// and the record without the table applied (`angle-source` 0).
+pub(super) fn limp_home_run(r: &mut Rig) -> Result {
+    to_rest(r)?;
+    let (rec, sensor) = with_sensorless_table(r, Some(BesideRole::LimpHome))?;
+    apply(r, &rec)?;
+    angle_source(r, 0.0)?;
+    for _ in 0..2 {
+        r.command(DriveCommand::Velocity { rad_s: SPEED_RAD_S })?;
+        r.s.let_pass(0.3)?;
+    }
+    r.inst.act("jump 1024")?;
+    let mut t = None;
+    for _ in 0..2 {
+        r.command(DriveCommand::Velocity { rad_s: SPEED_RAD_S })?;
+        t = Some(r.s.let_pass(0.3)?);
+    }
+    let t = t.ok_or_else(|| Error("no telemetry".into()))?;
+    let tr = r.inst.truth()?;
+    check(
+        t.fault_code == 0
+            && t.angle_in_use == AngleInUse::LimpHome
+            && near(tr.omega_rad_s, SPEED_RAD_S, 2.0),
+        format!(
+            "limp-home: the encoder jumped at {SPEED_RAD_S} rad/s, the observer took over ({:?}), {:.2} rad/s true (fault {:?})",
+            t.angle_in_use,
+            tr.omega_rad_s,
+            Fault::from_code(t.fault_code)
+        ),
+    )?;
+    angle_source(r, 3.0)?;
+    to_rest(r)?;
+    r.inst.act("clear")?;
+    apply(r, &sensor)?;
+    angle_source(r, 0.0)
+}
+
+/// The live record with a `[sensorless]` table in the role `beside`
+/// (`None`: without the sensor) and the plant's mechanics when it has
+/// none, and the live record as it was.
+fn with_sensorless_table(
+    r: &mut Rig,
+    beside: Option<BesideRole>,
+) -> Result<(DriveRecord, DriveRecord)> {
+    let live =
+        r.s.client
+            .read_config(ConfigSource::Live)
+            .map_err(client_err("read the live configuration"))?;
+    let mut rec = DriveRecord::decode(&live).map_err(|e| Error(format!("live record: {e}")))?;
+    let sensor = rec.clone();
+    let m = motor();
+    rec.mechanics = rec.mechanics.or(Some(MechanicsRecord {
+        inertia_kg_m2: m.inertia_kg_m2 as f32,
+        viscous_friction_nm_s_per_rad: m.viscous_friction_nm_s_per_rad as f32,
+        coulomb_friction_nm: m.coulomb_friction_nm as f32,
+    }));
+    rec.sensorless = Some(SensorlessRecord {
+        start_current_a: (0.5 * rec.limits.max_current_a).min(5.0),
+        bus_voltage_v: 24.0,
+        beside_sensor: beside,
+        observer_above_rad_s: None,
+    });
+    Ok((rec, sensor))
 }
 
 /// Velocity 0 for 0.5 s, then disabled.

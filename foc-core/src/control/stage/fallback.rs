@@ -105,6 +105,17 @@ impl Fallback {
         }
     }
 
+    /// The bridge is off: the observer is paused (its angle frozen), its
+    /// agreement starts again once it runs, and the loop's angle is the
+    /// sensor's at once (a frozen angle must not reach a restart).
+    pub(super) fn pause(&mut self) {
+        self.driven = 0;
+        self.agree = 0;
+        self.disagree = 0;
+        self.weight = 0.0;
+        self.on_observer = false;
+    }
+
     /// Above the hand-over speed, agreeing for the lock time.
     fn locked(&self) -> bool {
         self.agree >= self.sl.config().lock_periods.max(1)
@@ -327,17 +338,14 @@ impl CurrentStage {
         fb: &mut Feedback,
     ) {
         if let Some(f) = self.fallback.as_mut() {
-            if f.weight >= 0.5 {
-                fb.angle_in_use = AngleInUse::Observer;
-            }
             f.sl.record(duties, v_bus_v);
             if duties.is_some() {
                 f.driven = f.driven.saturating_add(1);
+                if f.weight >= 0.5 {
+                    fb.angle_in_use = AngleInUse::Observer;
+                }
             } else {
-                // Paused: its agreement starts again once it runs.
-                f.driven = 0;
-                f.agree = 0;
-                f.disagree = 0;
+                f.pause();
             }
         }
     }

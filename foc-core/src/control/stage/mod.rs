@@ -321,6 +321,9 @@ impl CurrentStage {
         self.state.reset();
         self.state.last_innovation_rad = 0.0;
         self.model.reset();
+        if let Some(f) = self.fallback.as_mut() {
+            f.pause();
+        }
     }
 
     /// The configuration.
@@ -363,10 +366,17 @@ impl CurrentStage {
         if let Some(c) = self.config.sensorless.as_mut() {
             c.observer.motor = motor;
         }
-        if let Some(c) = self.config.fallback.as_mut() {
-            c.sensorless.observer.motor = motor;
+        // The observer beside the sensor restarts only with another motor
+        // (it keeps its agreement and its tracked flux linkage otherwise).
+        let Some(c) = self.config.fallback.as_mut() else {
+            return;
+        };
+        if c.sensorless.observer.motor == motor {
+            return;
         }
-        if let (Some(f), Some(c)) = (self.fallback.as_mut(), self.config.fallback) {
+        c.sensorless.observer.motor = motor;
+        let c = *c;
+        if let Some(f) = self.fallback.as_mut() {
             *f = fallback::Fallback::new(c);
         }
     }
