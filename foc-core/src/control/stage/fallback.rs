@@ -21,7 +21,7 @@ pub const HYBRID_HYSTERESIS: f32 = 0.8;
 
 /// Halls + sensorless: the time over which the angle the current loop
 /// uses moves from the sensor's to the observer's and back \[s\] (a
-/// bumpless hand-over: the two agree within [`AGREEMENT_RAD`], and the
+/// bumpless hand-over: the two agree within `AGREEMENT_RAD` (0.5 rad), and the
 /// difference is taken up gradually instead of in one step).
 pub const HYBRID_BLEND_S: f32 = 0.02;
 
