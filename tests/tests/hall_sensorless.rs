@@ -88,21 +88,18 @@ fn halls_and_sensorless_hand_over_without_a_torque_step() {
             step(&mut sim, low, &mut rows, &s.name);
         }
         let below = rows.split_off(0);
-        for k in 0..ramp {
-            let t = low + (high - low) * k as f32 / ramp as f32;
-            step(&mut sim, t, &mut rows, &s.name);
-        }
-        for _ in 0..settle {
-            step(&mut sim, high, &mut rows, &s.name);
-        }
+        let mut ramp_and_hold = |from: f32, to: f32, rows: &mut Vec<Row>| {
+            for k in 0..ramp {
+                let t = from + (to - from) * k as f32 / ramp as f32;
+                step(&mut sim, t, rows, &s.name);
+            }
+            for _ in 0..settle {
+                step(&mut sim, to, rows, &s.name);
+            }
+        };
+        ramp_and_hold(low, high, &mut rows);
         let up = rows.split_off(0);
-        for k in 0..ramp {
-            let t = high + (low - high) * k as f32 / ramp as f32;
-            step(&mut sim, t, &mut rows, &s.name);
-        }
-        for _ in 0..settle {
-            step(&mut sim, low, &mut rows, &s.name);
-        }
+        ramp_and_hold(high, low, &mut rows);
         let down = rows;
         let on_observer = |r: &[Row]| r.iter().any(|r| r.share >= 1.0);
         let blending = |r: &[Row]| -> Vec<usize> {
