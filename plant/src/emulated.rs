@@ -4,7 +4,7 @@
 //! with the emulated firmware's (`cargo xtask e2e`, the scope's current
 //! step).
 
-use crate::plant::{BenchConfig, MotorParams, PwmMode, SensorConfig, Shunts};
+use crate::plant::{BenchConfig, DSaturation, MotorParams, PwmMode, SensorConfig, Shunts};
 
 /// PWM frequency of the emulated board \[Hz\].
 pub const PWM_FREQUENCY_HZ: u32 = 20_000;
@@ -23,6 +23,7 @@ pub const MOTOR: MotorParams = MotorParams {
     inertia_kg_m2: 5e-5,
     viscous_friction_nm_s_per_rad: 1e-5,
     coulomb_friction_nm: 0.002,
+    d_saturation: DSaturation::NONE,
 };
 
 /// The simulated inverter and sensors: 24 V bus, 200 ns dead time,

@@ -18,7 +18,7 @@
 //! assert_eq!(params.pole_pairs, 4);
 //! ```
 
-use crate::plant::{BenchConfig, MotorParams, SensorConfig};
+use crate::plant::{BenchConfig, DSaturation, MotorParams, SensorConfig};
 use crate::real::Real;
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
@@ -77,6 +77,14 @@ pub struct MotorFile {
     pub pwm_frequency_hz: f64,
     /// Encoder counts per mechanical revolution.
     pub encoder_counts_per_rev: u32,
+    /// The d axis's saturation (optional, with `ld_saturation_current_a`):
+    /// the relative fall of its incremental inductance at that d current
+    /// (the plant's `DSaturation`; 0 to below 1).
+    #[serde(default)]
+    pub ld_saturation_fraction: Option<f64>,
+    /// The d current of `ld_saturation_fraction` \[A\].
+    #[serde(default)]
+    pub ld_saturation_current_a: Option<f64>,
 }
 
 /// Why a motor file could not be loaded.
@@ -194,6 +202,21 @@ impl MotorFile {
         if f.encoder_counts_per_rev == 0 {
             return Err(bad("encoder_counts_per_rev", "must be >= 1"));
         }
+        match (f.ld_saturation_fraction, f.ld_saturation_current_a) {
+            (None, None) => {}
+            (Some(fr), Some(c)) => {
+                if !(fr.is_finite() && (0.0..1.0).contains(&fr)) {
+                    return Err(bad("ld_saturation_fraction", "must be 0 to below 1"));
+                }
+                pos(c, "ld_saturation_current_a")?;
+            }
+            _ => {
+                return Err(bad(
+                    "ld_saturation_fraction",
+                    "and `ld_saturation_current_a` go together: give both or neither",
+                ))
+            }
+        }
         Ok(f)
     }
 
@@ -217,6 +240,13 @@ impl MotorFile {
             inertia_kg_m2: self.inertia_kg_m2 as Real,
             viscous_friction_nm_s_per_rad: self.viscous_friction_nm_s_per_rad as Real,
             coulomb_friction_nm: self.coulomb_friction_nm as Real,
+            d_saturation: match (self.ld_saturation_fraction, self.ld_saturation_current_a) {
+                (Some(fraction), Some(c)) => DSaturation {
+                    fraction: fraction as Real,
+                    current_a: c as Real,
+                },
+                _ => DSaturation::NONE,
+            },
         }
     }
 

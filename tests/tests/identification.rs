@@ -60,7 +60,10 @@ fn identifies_every_motor_file() {
             panic!("{}: {:?} in {:?}", s.name, out.step, out.stage)
         };
         let r = done.result;
-        let m = s.motor;
+        let mut m = s.motor;
+        // The d inductance is measured at the bias current (incremental):
+        // on a saturating motor (the salient files) that is the truth.
+        m.ld_h = m.ld_incremental_h(id_config(&s, m.pole_pairs).inductance.bias_current_a as _);
         let zero = zero_error_deg(&s, &r);
         // One encoder count in electrical degrees: the zero cannot be found
         // more finely than a fraction of it.

@@ -1,8 +1,8 @@
 //! Physics checks of the plant: each asserts a law the model could violate.
 
 use foc_bench::plant::{
-    BenchConfig, EncoderFault, Mechanics, MotorParams, Phase, PhaseShort, Plant, PwmMode,
-    SensorConfig, Shunts,
+    BenchConfig, DSaturation, EncoderFault, Mechanics, MotorParams, Phase, PhaseShort, Plant,
+    PwmMode, SensorConfig, Shunts,
 };
 use foc_bench::real::Real;
 use foc_core::angle::ElectricalAngle;
@@ -19,6 +19,7 @@ fn motor() -> MotorParams {
         inertia_kg_m2: 2e-4,
         viscous_friction_nm_s_per_rad: 0.0,
         coulomb_friction_nm: 0.0,
+        d_saturation: DSaturation::NONE,
     }
 }
 
@@ -225,8 +226,64 @@ fn constant_iq_accelerates_at_te_over_j() {
     );
 }
 
-fn energy_balance(mode: PwmMode, dead_time_s: Real) {
+/// A saturated d axis: from rest, a d voltage pulse reaches `+c` in
+/// `Ld (c - f c / 2) / V` and `-c` in `Ld (c + f c / 2) / V` (negligible
+/// R): the current along the magnet meets less inductance.
+#[test]
+fn d_saturation_lowers_the_inductance_along_the_magnet() {
     let mut m = motor();
+    m.r_ohm = 1e-4;
+    m.d_saturation = DSaturation {
+        fraction: 0.2,
+        current_a: 2.0,
+    };
+    let v = 0.2;
+    for sign in [1.0, -1.0] {
+        let mut p = Plant::new(m, cfg());
+        p.set_mechanics(Mechanics::Locked);
+        let t = p.config().period_s();
+        let mut periods = 0u32;
+        while sign * p.id_a() < 2.0 && periods < 10_000 {
+            p.step_period(duties_for(&p, sign * v, 0.0), true, 0.0);
+            periods += 1;
+        }
+        let expected_s = m.ld_h * (2.0 - sign * 0.2 * 2.0 / 2.0) / v;
+        let took_s = periods as Real * t;
+        assert!(
+            (took_s - expected_s).abs() < 0.02 * expected_s,
+            "{sign:+}: {took_s} s against {expected_s} s"
+        );
+        // The flux reached: the magnet's plus or minus 1.8 or 2.2 mWb.
+        let flux = m.d_flux_wb(p.id_a()) - m.flux_linkage_wb;
+        assert!(
+            (flux - v * took_s * sign).abs() < 0.03 * flux.abs(),
+            "{flux}"
+        );
+    }
+}
+
+#[test]
+fn energy_is_conserved_with_a_saturated_d_axis() {
+    energy_balance_of(
+        MotorParams {
+            d_saturation: DSaturation {
+                fraction: 0.3,
+                current_a: 1.5,
+            },
+            ..motor()
+        },
+        (4.0, 2.5),
+        PwmMode::Averaged,
+        0.0,
+    );
+}
+
+fn energy_balance(mode: PwmMode, dead_time_s: Real) {
+    energy_balance_of(motor(), (4.0, -1.0), mode, dead_time_s);
+}
+
+fn energy_balance_of(m: MotorParams, (iq, id): (Real, Real), mode: PwmMode, dead_time_s: Real) {
+    let mut m = m;
     m.viscous_friction_nm_s_per_rad = 2e-4;
     m.coulomb_friction_nm = 0.01;
     m.inertia_kg_m2 = 2e-3; // keeps the speed (and voltage) in the linear range
@@ -235,14 +292,13 @@ fn energy_balance(mode: PwmMode, dead_time_s: Real) {
     c.dead_time_s = dead_time_s;
     c.source_resistance_ohm = 0.2;
     let mut p = Plant::new(m, c);
-    let (iq, id) = (4.0, -1.0);
     let e0 = p.magnetic_energy_j() + p.kinetic_energy_j();
     for _ in 0..4000 {
         let we = p.omega_e_rad_s();
         let d = duties_for(
             &p,
             m.r_ohm * id - we * m.lq_h * iq,
-            m.r_ohm * iq + we * (m.flux_linkage_wb + m.ld_h * id),
+            m.r_ohm * iq + we * m.d_flux_wb(id),
         );
         p.step_period(d, true, 0.05);
     }

@@ -65,6 +65,7 @@ pub mod current;
 pub mod estimator;
 pub mod flux_observer;
 pub mod frozen;
+pub mod hfi;
 pub mod homing;
 pub mod io;
 pub mod joint;

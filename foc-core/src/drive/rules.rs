@@ -44,8 +44,10 @@ pub struct Status {
     pub faulted: bool,
     /// Offsets calibrated and a calibration permit installed.
     pub calibrated: bool,
-    /// The drive runs without its angle sensor (design §27): torque,
-    /// position and impedance commands are refused.
+    /// The drive runs without its angle sensor (design §27) and without
+    /// high-frequency injection (design §28): torque, position and
+    /// impedance commands are refused (with injection it holds torque at
+    /// standstill, and they are not).
     pub sensorless: bool,
 }
 

@@ -399,8 +399,8 @@ impl Plant {
                 vq -= (2.0 / 3.0) * v[k] * cs[k].1;
             }
         }
-        let mut did = (vd - r_ohm * id + we * m.lq_h * iq) / m.ld_h;
-        let mut diq = (vq - r_ohm * iq - we * m.ld_h * id - we * m.flux_linkage_wb) / m.lq_h;
+        let mut did = (vd - r_ohm * id + we * m.lq_h * iq) / m.ld_incremental_h(id);
+        let mut diq = (vq - r_ohm * iq - we * m.d_flux_wb(id)) / m.lq_h;
         if open >= 2 {
             did = 0.0;
             diq = 0.0;
@@ -458,7 +458,7 @@ impl Plant {
         if let Some(z) = drives.iter().position(|d| matches!(d, Leg::Open)) {
             let (c, s) = cs[z];
             let (ad, aq) = (c, -s);
-            let (gd, gq) = (ad / m.ld_h, aq / m.lq_h);
+            let (gd, gq) = (ad / m.ld_incremental_h(id), aq / m.lq_h);
             let (add, adq) = (-we * s, -we * c);
             let den = ad * gd + aq * gq;
             let mu = -(ad * did + aq * diq + add * id + adq * iq) / den;

@@ -230,7 +230,7 @@ impl Plant {
             real::sin(th_e - PHASE_AXIS[z]),
         );
         let (ad, aq) = (c, -s);
-        let (gd, gq) = (ad / m.ld_h, aq / m.lq_h);
+        let (gd, gq) = (ad / m.ld_incremental_h(self.id), aq / m.lq_h);
         let (add, adq) = (-we * s, -we * c);
         let den = ad * gd + aq * gq;
         let mu = -(ad * d.id + aq * d.iq + add * self.id + adq * self.iq) / den;

@@ -443,9 +443,10 @@ impl Plant {
     pub fn terminal_voltages_avg_v(&self) -> [Real; 3] {
         self.v_terminal_avg
     }
-    /// Magnetic energy stored in the windings, `0.75 (Ld id^2 + Lq iq^2)` \[J\].
+    /// Magnetic energy stored in the windings, `0.75 (Ld id^2 + Lq iq^2)` \[J\]
+    /// (the d part saturated as [`MotorParams::d_energy_j`]).
     pub fn magnetic_energy_j(&self) -> Real {
-        0.75 * (self.motor.ld_h * self.id * self.id + self.motor.lq_h * self.iq * self.iq)
+        self.motor.d_energy_j(self.id) + 0.75 * self.motor.lq_h * self.iq * self.iq
     }
     /// Kinetic energy `J w^2 / 2` \[J\].
     pub fn kinetic_energy_j(&self) -> Real {

@@ -70,7 +70,17 @@ pub(super) fn identification_summary(
     let ts = 1.0 / setup.bench.pwm_frequency_hz as f64;
     IdentificationSummary {
         r_ohm: with_err(r.r_ohm, m.r_ohm as f64),
-        ld_h: with_err(r.ld_h, m.ld_h as f64),
+        // The identification measures the incremental d inductance at its
+        // bias current (design §10): on a saturating motor that is the truth
+        // to compare with.
+        ld_h: with_err(
+            r.ld_h,
+            m.ld_incremental_h(
+                identify::config(setup, m.pole_pairs)
+                    .inductance
+                    .bias_current_a as _,
+            ) as f64,
+        ),
         lq_h: with_err(r.lq_h, m.lq_h as f64),
         flux_linkage_wb: identify::config(setup, m.pole_pairs)
             .measure_flux

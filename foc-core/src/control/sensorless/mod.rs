@@ -55,6 +55,7 @@ mod region;
 pub use region::{LostLock, Region, Switch};
 
 use super::flux_observer::{FluxObserver, ObserverConfig};
+use super::hfi::{Hfi, HfiConfig, Polarity};
 use super::MotorParams;
 use crate::angle::{ElectricalAngle, MechanicalAngle};
 use crate::frames::AlphaBeta;
@@ -114,6 +115,10 @@ pub struct SensorlessConfig {
     /// Periods over which the field's d current is taken down after the
     /// hand-over.
     pub blend_periods: u32,
+    /// High-frequency injection at standstill and low speed instead of
+    /// the alignment and the field (a salient motor only, design §28;
+    /// [`Self::with_hfi`]).
+    pub hfi: Option<HfiConfig>,
 }
 
 impl SensorlessConfig {
@@ -130,7 +135,11 @@ impl SensorlessConfig {
     ///   the dead time's voltage plus 30 % of the resistance's drop, and at
     ///   least 1 % of the bus; the release speed is half of it;
     /// - the observer must agree for 5 ms (at least 50 periods) and has
-    ///   0.5 s to do so; the d current goes down over 5 ms.
+    ///   0.5 s to do so; the d current goes down over 5 ms;
+    /// - on a salient motor (saliency at least
+    ///   [`super::hfi::SALIENCY_MIN`]) high-frequency injection replaces
+    ///   the alignment and the field ([`Self::with_hfi`]; off with
+    ///   [`Self::without_hfi`]).
     ///
     /// `None` when a value is not usable (not finite, not positive).
     pub fn for_motor(
@@ -174,8 +183,37 @@ impl SensorlessConfig {
             lock_periods: periods(5e-3).max(50),
             lock_timeout_periods: periods(0.5),
             blend_periods: periods(5e-3).max(1),
+            hfi: None,
+        };
+        let c = Self {
+            hfi: c.with_hfi().and_then(|h| h.hfi),
+            ..c
         };
         crate::all_finite([c.accel_rad_s2, c.handover_rad_s]).then_some(c)
+    }
+
+    /// Without injection: the alignment and the field start every motor.
+    pub fn without_hfi(self) -> Self {
+        Self { hfi: None, ..self }
+    }
+
+    /// With high-frequency injection below the hand-over speed, derived
+    /// from the same motor, period, start current and bus
+    /// ([`HfiConfig::for_motor`]); `None` when the motor is not salient
+    /// enough ([`super::hfi::SALIENCY_MIN`]). [`Self::for_motor`] includes
+    /// it where the motor allows it.
+    pub fn with_hfi(self) -> Option<Self> {
+        let hfi = HfiConfig::for_motor(
+            &self.observer.motor,
+            self.observer.ts_s,
+            self.current_a,
+            self.accel_rad_s2 / RAMP_SHARE,
+            self.bus_voltage_v,
+        )?;
+        Some(Self {
+            hfi: Some(hfi),
+            ..self
+        })
     }
 }
 
@@ -209,6 +247,9 @@ pub struct Sensorless {
     last_angle: ElectricalAngle,
     /// The observer's angle turned during the alignment [rad, electrical].
     align_turned_rad: f32,
+    /// The injection's estimator (when configured) and its polarity test.
+    hfi: Option<Hfi>,
+    polarity: Polarity,
 }
 
 impl Sensorless {
@@ -235,6 +276,8 @@ impl Sensorless {
             mech: MechanicalAngle::ZERO,
             last_angle: ElectricalAngle::ZERO,
             align_turned_rad: 0.0,
+            hfi: cfg.hfi.map(Hfi::new),
+            polarity: Polarity::default(),
         }
     }
 
@@ -247,7 +290,57 @@ impl Sensorless {
     /// again with it, the region is `Idle`.
     pub fn set_motor(&mut self, motor: MotorParams) {
         self.cfg.observer.motor = motor;
+        if self.cfg.hfi.is_some() {
+            // Derived again for the new motor (none if it is not salient).
+            self.cfg.hfi = None;
+            self.cfg = self.cfg.with_hfi().unwrap_or(self.cfg);
+        }
         *self = Self::new(self.cfg);
+    }
+
+    /// The injection's estimator, when configured.
+    pub fn hfi(&self) -> Option<&Hfi> {
+        self.hfi.as_ref()
+    }
+
+    /// True when the drive holds torque at standstill (injection
+    /// configured): torque, position and impedance commands are allowed.
+    pub fn holds_torque_at_standstill(&self) -> bool {
+        self.hfi.is_some()
+    }
+
+    /// The angle the current loop uses: the injection's in its regions,
+    /// else the observer's.
+    pub fn angle(&self) -> ElectricalAngle {
+        match (&self.hfi, self.region.injects()) {
+            (Some(h), true) => h.angle(),
+            _ => self.observer.angle(),
+        }
+    }
+
+    /// The speed of that angle [rad/s, electrical].
+    pub fn speed_rad_s(&self) -> f32 {
+        match (&self.hfi, self.region.injects()) {
+            (Some(h), true) => h.speed_rad_s(),
+            _ => self.observer.speed_rad_s(),
+        }
+    }
+
+    /// The injection's d voltage for the period ahead \[V\] (0 outside its
+    /// regions) and the mean current the current loop runs on there \[A\].
+    pub fn injection(&mut self, i_ab: AlphaBeta) -> (f32, AlphaBeta) {
+        match (self.hfi.as_mut(), self.region.injects()) {
+            (Some(h), true) => (h.inject_v(), h.mean_current()),
+            _ => (0.0, i_ab),
+        }
+    }
+
+    /// The d current of the polarity test this period \[A\] (0 outside it).
+    pub fn polarity_current_a(&self) -> f32 {
+        match (&self.hfi, self.region) {
+            (Some(h), Region::HfiPolarity) => self.polarity.current_a(h.config()),
+            _ => 0.0,
+        }
     }
 
     /// The observer.
@@ -288,7 +381,10 @@ impl Sensorless {
     #[inline(always)]
     pub fn sense(&mut self, i_ab: AlphaBeta, pole_pairs: u8) -> MechanicalAngle {
         self.observer.update(i_ab);
-        let a = self.observer.angle();
+        if let (Some(h), true) = (self.hfi.as_mut(), self.region.injects()) {
+            h.update(i_ab);
+        }
+        let a = self.angle();
         let step = a.diff_radians(self.last_angle);
         self.last_angle = a;
         if self.region == Region::Align {

@@ -18,6 +18,28 @@ pub enum Region {
     Field,
     /// The current loop runs on the observer's angle (closed loop).
     Observer,
+    /// Injection: the estimate settles, no current (design §28).
+    HfiSettle,
+    /// Injection: the polarity test's d pulses.
+    HfiPolarity,
+    /// Injection: the closed loop runs on its angle.
+    Hfi,
+}
+
+impl Region {
+    /// True in the injection's regions.
+    pub fn injects(self) -> bool {
+        matches!(self, Region::HfiSettle | Region::HfiPolarity | Region::Hfi)
+    }
+
+    /// True where the outer loops wait (the start: alignment, field,
+    /// injection's settling and polarity test).
+    pub fn starting(self) -> bool {
+        matches!(
+            self,
+            Region::Align | Region::Field | Region::HfiSettle | Region::HfiPolarity
+        )
+    }
 }
 
 /// A change of the current loop's frame this period.
@@ -52,13 +74,23 @@ impl Sensorless {
             return Ok(Switch::Stay);
         }
         let switch = match self.region {
+            Region::Idle if self.hfi.is_some() => {
+                self.start_hfi();
+                Ok(Switch::Stay)
+            }
             Region::Idle => {
                 self.start_align();
                 Ok(Switch::Stay)
             }
             Region::Align => self.align(target_rad_s).map(|()| Switch::Stay),
             Region::Field => self.turn_field(target_rad_s),
+            Region::Observer if self.hfi.is_some() => Ok(self.follow_observer_to_hfi()),
             Region::Observer => Ok(self.follow_observer(i_now)),
+            Region::HfiSettle | Region::HfiPolarity => {
+                self.settle_hfi();
+                Ok(Switch::Stay)
+            }
+            Region::Hfi => self.run_hfi(target_rad_s),
         };
         self.damp();
         let on_observer = self.region == Region::Observer;
@@ -233,6 +265,127 @@ impl Sensorless {
             rotate_rad: obs.diff_radians(self.field),
             to_observer: false,
         }
+    }
+
+    /// Injection starts from the observer's angle (where the rotor was
+    /// when the drive last ran), at rest.
+    fn start_hfi(&mut self) {
+        if let Some(h) = self.hfi.as_mut() {
+            h.place(self.observer.angle(), 0.0);
+        }
+        self.region = Region::HfiSettle;
+        self.periods = 0;
+        self.agree = 0;
+        self.waited = 0;
+        self.blend_a = 0.0;
+        self.polarity = super::Polarity::default();
+    }
+
+    /// The settling, then the polarity test; at its end the estimate is
+    /// turned if it sat on the south pole, the observer is placed on it
+    /// and the closed loop starts.
+    fn settle_hfi(&mut self) {
+        let Some(h) = self.hfi.as_mut() else {
+            return;
+        };
+        let c = *h.config();
+        if self.region == Region::HfiSettle {
+            self.periods = self.periods.saturating_add(1);
+            if self.periods >= c.settle_periods {
+                // On the q axis (a start exactly a quarter turn off): a
+                // quarter turn and the settling again, once.
+                if h.on_q_axis() && self.agree == 0 {
+                    h.turn_quarter();
+                    self.agree = 1;
+                    self.periods = 0;
+                    return;
+                }
+                self.agree = 0;
+                self.region = Region::HfiPolarity;
+            }
+            return;
+        }
+        if let Some(result) = self.polarity.step(&c, h.response_a()) {
+            if result == crate::control::hfi::PolarityResult::Flip {
+                h.flip();
+            }
+            self.observer.place(h.angle());
+            // (Not a motion: the mechanical angle does not take the turn.)
+            self.last_angle = h.angle();
+            self.region = Region::Hfi;
+            self.periods = 0;
+        }
+    }
+
+    /// The closed loop on the injection's angle; above the hand-over
+    /// speed, once the observer agrees (angle within 0.3 rad, speed within
+    /// a fifth) for [`SensorlessConfig::lock_periods`], on the observer's.
+    /// Above it for [`SensorlessConfig::lock_timeout_periods`] without
+    /// agreement: lost. A stall: a velocity command `target_rad_s` [rad/s,
+    /// electrical] at or above the hand-over speed while the rotor stays
+    /// below the release speed for as long (a locked rotor, a load beyond
+    /// the current limit): lost too.
+    fn run_hfi(&mut self, target_rad_s: f32) -> Result<Switch, LostLock> {
+        let Some(h) = self.hfi.as_ref() else {
+            return Ok(Switch::Stay);
+        };
+        let c = &self.cfg;
+        let w = h.speed_rad_s();
+        let stalled = target_rad_s.abs() >= c.handover_rad_s && w.abs() < c.release_rad_s;
+        self.periods = if stalled {
+            self.periods.saturating_add(1)
+        } else {
+            0
+        };
+        if self.periods > c.lock_timeout_periods {
+            return Err(LostLock);
+        }
+        if w.abs() < c.handover_rad_s {
+            self.agree = 0;
+            self.waited = 0;
+            return Ok(Switch::Stay);
+        }
+        let apart = h.angle().diff_radians(self.observer.angle());
+        let w_obs = self.observer.speed_rad_s();
+        let agrees = libm::fabsf(apart) < 0.3 && (w_obs - w).abs() <= 0.2 * w.abs();
+        self.agree = if agrees {
+            self.agree.saturating_add(1)
+        } else {
+            0
+        };
+        self.waited = self.waited.saturating_add(1);
+        if self.agree >= c.lock_periods.max(1) {
+            self.region = Region::Observer;
+            self.waited = 0;
+            self.last_angle = self.observer.angle();
+            return Ok(Switch::Turn {
+                rotate_rad: apart,
+                to_observer: true,
+            });
+        }
+        if self.waited > c.lock_timeout_periods.min(u32::MAX - 1) {
+            return Err(LostLock);
+        }
+        Ok(Switch::Stay)
+    }
+
+    /// On the observer with injection configured: below the release speed
+    /// the injection takes over from the observer's angle and speed (the
+    /// same frame: nothing turns).
+    fn follow_observer_to_hfi(&mut self) -> Switch {
+        let w = self.observer.speed_rad_s();
+        if w.abs() >= self.cfg.release_rad_s {
+            return Switch::Stay;
+        }
+        if let Some(h) = self.hfi.as_mut() {
+            h.place(self.observer.angle(), w);
+        }
+        self.region = Region::Hfi;
+        self.agree = 0;
+        self.waited = 0;
+        self.periods = 0;
+        self.blend_a = 0.0;
+        Switch::Stay
     }
 
     /// The field's current \[A\] (along the field's angle).

@@ -68,7 +68,7 @@ impl CurrentStage {
         if faulted
             || crate::control::admit(&cmd, &self.config.limits, faulted, self.state.calibrated)
                 .is_err()
-            || (self.sensorless.is_some() && cmd.mode().needs_angle_sensor())
+            || (self.sensorless_refuses(cmd.mode()))
         {
             self.state.rejected = self.state.rejected.wrapping_add(1);
             return;

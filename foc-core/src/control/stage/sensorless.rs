@@ -47,8 +47,9 @@ impl CurrentStage {
     /// nothing. Take it with
     /// the bridge off: the drive's rules refuse a configuration change
     /// while it runs. Torque, position and impedance commands are refused
-    /// while sensorless ([`Mode::needs_angle_sensor`]); an active one is
-    /// dropped to `Disable`.
+    /// while sensorless ([`Mode::needs_angle_sensor`]) unless injection
+    /// gives the angle at standstill; an active refused one is dropped to
+    /// `Disable`.
     pub fn set_sensorless(&mut self, cfg: Option<SensorlessConfig>) {
         let motor = self.config.current.motor;
         let cfg = cfg.map(|c| SensorlessConfig {
@@ -76,9 +77,19 @@ impl CurrentStage {
         self.tracker.reset();
         self.observer.reset();
         self.model.reset();
-        if cfg.is_some() && self.state.active.mode().needs_angle_sensor() {
+        if self.sensorless_refuses(self.state.active.mode()) {
             self.state.active = Command::Disable;
         }
+    }
+
+    /// True when `mode` is refused: it needs the angle at standstill
+    /// ([`Mode::needs_angle_sensor`]) and the drive runs sensorless without
+    /// injection (with it, design §28, it holds torque at standstill).
+    pub(super) fn sensorless_refuses(&self, mode: Mode) -> bool {
+        self.sensorless
+            .as_ref()
+            .is_some_and(|s| !s.holds_torque_at_standstill())
+            && mode.needs_angle_sensor()
     }
 
     /// The region in force (`None`: the drive runs on its angle sensor).
@@ -109,7 +120,7 @@ impl CurrentStage {
         sensed.channels = cur.channels();
         sensed.i_ab = transforms::clarke(sensed.i_abc);
         let mech = sl.sense(sensed.i_ab, pp);
-        sensed.theta_e = sl.observer().angle();
+        sensed.theta_e = sl.angle();
         self.tracker.update(mech);
         self.observer.update(mech, self.state.torque_iq_a);
         let i_ab = sensed.i_ab;
@@ -184,6 +195,9 @@ impl CurrentStage {
             }
             Ok(Switch::Stay) => {}
         }
+        if sl.region().injects() {
+            return Ok(self.hfi_period(closed, sensed, from_speed_a));
+        }
         if !matches!(sl.region(), Region::Align | Region::Field) {
             let Some(i) = closed else {
                 return Err(None);
@@ -226,6 +240,62 @@ impl CurrentStage {
         Ok((Some(out), i_ref, field))
     }
 
+    /// Injection (design §28): the current loop on the injection's angle
+    /// and speed, on the mean of the last two samples (the injection's
+    /// ripple cancels in it), with the injection's d voltage added to its
+    /// output. Its reference: none while the estimate settles, the
+    /// polarity test's d pulses, then the closed loop's `closed`. The
+    /// model check waits (its model has no injection).
+    #[inline(never)]
+    fn hfi_period(
+        &mut self,
+        closed: Option<Dq>,
+        sensed: &Sensed,
+        from_speed_a: f32,
+    ) -> (Option<CurrentLoopOutput>, Dq, ElectricalAngle) {
+        let Some(sl) = self.sensorless.as_mut() else {
+            return (None, Dq::ZERO, sensed.theta_e);
+        };
+        let starting = sl.region().starting();
+        let lim = self.config.limits.max_current_a;
+        let i_ref = if starting {
+            Dq::new(crate::clamp(sl.polarity_current_a(), -lim, lim), 0.0)
+        } else {
+            closed.unwrap_or(Dq::ZERO)
+        };
+        let angle = sl.angle();
+        let (v_inject, mean) = sl.injection(sensed.i_ab);
+        let mut out = self.current.step_inline_ab(
+            &CurrentLoopInput {
+                i_abc_a: sensed.i_abc,
+                theta_e: angle,
+                omega_e_rad_s: sl.speed_rad_s(),
+                v_bus_v: sensed.v_bus_v,
+                i_dq_ref_a: i_ref,
+            },
+            mean,
+        );
+        if !out.invalid {
+            let (s, c) = out.sin_cos;
+            let add = transforms::inverse_park(Dq::new(v_inject, 0.0), s, c);
+            out.v_ab_v = crate::frames::AlphaBeta::new(
+                out.v_ab_v.alpha + add.alpha,
+                out.v_ab_v.beta + add.beta,
+            );
+            out.svpwm = crate::svpwm::svpwm_inline(out.v_ab_v, sensed.v_bus_v);
+            out.duties = out.svpwm.duties;
+            out.invalid = out.svpwm.invalid;
+        }
+        if starting {
+            // The outer loops wait; the speed stage starts from no torque.
+            self.state.iq_interp_a = 0.0;
+            self.state.iq_target_a = from_speed_a;
+            self.state.iq_step_a = 0.0;
+        }
+        self.model.idle(sensed.theta_e);
+        (Some(out), i_ref, angle)
+    }
+
     /// Sensorless end of period: the observer records the duties (or
     /// pauses with the bridge off); on a start's field the feedback
     /// reports open loop (the outer loops wait) and the speed observer
@@ -245,7 +315,7 @@ impl CurrentStage {
         let Some(sl) = self.sensorless.as_mut() else {
             return;
         };
-        let on_field = matches!(sl.region(), Region::Align | Region::Field) && duties.is_some();
+        let on_field = sl.region().starting() && duties.is_some();
         sl.record(duties, v_bus_v);
         self.state.torque_iq_a = if on_field {
             self.state.iq_interp_a
@@ -255,8 +325,13 @@ impl CurrentStage {
         if on_field {
             fb.mode = Mode::OpenLoop;
         }
-        fb.velocity_rad_s = sl.observer().speed_rad_s() / pp;
-        fb.disturbance_rad_s2 = 0.0;
+        // On the injection's angle (the rotor's, from a PLL whose speed is
+        // noisy) the torque-fed speed observer's estimate, which fuses the
+        // torque in, stays the speed loop's feedback.
+        if !sl.region().injects() {
+            fb.velocity_rad_s = sl.speed_rad_s() / pp;
+            fb.disturbance_rad_s2 = 0.0;
+        }
         fb.angle_in_use = if self.state.limp_home {
             AngleInUse::LimpHome
         } else {
