@@ -197,7 +197,12 @@ fn file_grid(p: &std::path::Path) -> (String, Vec<String>) {
         // an active load turns the rotor back freely, then the current
         // limit's torque less the load brakes it. The bound is that, plus
         // half.
-        let limit_deg_e = match s.sensorless_config().current.sensorless.and_then(|c| c.hfi) {
+        let limit_deg_e = match s
+            .sensorless_config()
+            .current
+            .sensorless
+            .and_then(|c| c.hfi_config())
+        {
             Some(h) if load == Load::HalfRatedActive => {
                 let j = s.motor.inertia_kg_m2 as f32;
                 let t0 = (2 * h.settle_periods + 2 * h.pulse_periods) as f32 / s.pwm_hz();
@@ -370,7 +375,7 @@ fn a_setting_switches_the_drive_to_sensorless_and_back() {
         sim.step();
         // Torque, position and impedance are refused, unless injection
         // holds torque at standstill (a salient motor, design §28).
-        let injection = derived.is_some_and(|d| d.hfi.is_some());
+        let injection = derived.is_some_and(|d| d.hfi_config().is_some());
         assert_eq!(sim.cascade.status().sensorless, !injection, "{}", s.name);
         for cmd in [
             Command::Torque { iq_a: 0.1 },

@@ -117,8 +117,11 @@ pub struct SensorlessConfig {
     pub blend_periods: u32,
     /// High-frequency injection at standstill and low speed instead of
     /// the alignment and the field (a salient motor only, design §28;
-    /// [`Self::with_hfi`]).
-    pub hfi: Option<HfiConfig>,
+    /// [`Self::with_hfi`], its values [`Self::hfi_config`]). A flag, not
+    /// the values: the configuration sits in front of the current stage's
+    /// hot fields, and 40 more bytes there cost every period (`cargo xtask
+    /// bench`).
+    pub hfi: bool,
 }
 
 impl SensorlessConfig {
@@ -183,18 +186,32 @@ impl SensorlessConfig {
             lock_periods: periods(5e-3).max(50),
             lock_timeout_periods: periods(0.5),
             blend_periods: periods(5e-3).max(1),
-            hfi: None,
+            hfi: false,
         };
-        let c = Self {
-            hfi: c.with_hfi().and_then(|h| h.hfi),
-            ..c
-        };
+        let c = c.with_hfi().unwrap_or(c);
         crate::all_finite([c.accel_rad_s2, c.handover_rad_s]).then_some(c)
     }
 
     /// Without injection: the alignment and the field start every motor.
     pub fn without_hfi(self) -> Self {
-        Self { hfi: None, ..self }
+        Self { hfi: false, ..self }
+    }
+
+    /// The injection's values when it is on and the motor allows it
+    /// ([`HfiConfig::for_motor`] from this configuration's motor, period,
+    /// start current, the acceleration that current gives the bare rotor,
+    /// and bus).
+    pub fn hfi_config(&self) -> Option<HfiConfig> {
+        if !self.hfi {
+            return None;
+        }
+        HfiConfig::for_motor(
+            &self.observer.motor,
+            self.observer.ts_s,
+            self.current_a,
+            self.accel_rad_s2 / RAMP_SHARE,
+            self.bus_voltage_v,
+        )
     }
 
     /// With high-frequency injection below the hand-over speed, derived
@@ -203,17 +220,8 @@ impl SensorlessConfig {
     /// enough ([`super::hfi::SALIENCY_MIN`]). [`Self::for_motor`] includes
     /// it where the motor allows it.
     pub fn with_hfi(self) -> Option<Self> {
-        let hfi = HfiConfig::for_motor(
-            &self.observer.motor,
-            self.observer.ts_s,
-            self.current_a,
-            self.accel_rad_s2 / RAMP_SHARE,
-            self.bus_voltage_v,
-        )?;
-        Some(Self {
-            hfi: Some(hfi),
-            ..self
-        })
+        let c = Self { hfi: true, ..self };
+        c.hfi_config().map(|_| c)
     }
 }
 
@@ -276,7 +284,7 @@ impl Sensorless {
             mech: MechanicalAngle::ZERO,
             last_angle: ElectricalAngle::ZERO,
             align_turned_rad: 0.0,
-            hfi: cfg.hfi.map(Hfi::new),
+            hfi: cfg.hfi_config().map(Hfi::new),
             polarity: Polarity::default(),
         }
     }
@@ -290,11 +298,8 @@ impl Sensorless {
     /// again with it, the region is `Idle`.
     pub fn set_motor(&mut self, motor: MotorParams) {
         self.cfg.observer.motor = motor;
-        if self.cfg.hfi.is_some() {
-            // Derived again for the new motor (none if it is not salient).
-            self.cfg.hfi = None;
-            self.cfg = self.cfg.with_hfi().unwrap_or(self.cfg);
-        }
+        // The injection is derived again for the new motor (none if it is
+        // not salient).
         *self = Self::new(self.cfg);
     }
 
