@@ -12,6 +12,7 @@ use foc_core::control::current::{CurrentLoop, CurrentLoopInput, CurrentLoopOutpu
 use foc_core::control::estimator::{AngleTracker, SpeedObserver};
 use foc_core::control::flux_observer::{FluxObserver, ObserverConfig};
 use foc_core::control::frozen::Readings;
+use foc_core::control::hfi::{Hfi, HfiConfig};
 use foc_core::control::model::{ModelCheck, Period, Verdict};
 use foc_core::control::power::{PowerInputs, PowerLimiter, PowerReport};
 use foc_core::control::stage::Sample;
@@ -166,6 +167,26 @@ pub fn measure_pieces(rig: &mut Rig, baseline: u32, currents: &dyn Fn(u32) -> Ab
             black_box(observer_part(&mut observer, p.i_ab_a));
         }),
     );
+    // The injection (design §28) needs a salient motor: this board's with
+    // Lq = 1.5 Ld. Not on the sensor path: reported, not added to the sum.
+    let salient = foc_core::control::MotorParams {
+        lq_h: 1.5 * cfg.current.motor.ld_h,
+        ..cfg.current.motor
+    };
+    if let Some(hc) = HfiConfig::for_motor(&salient, cfg.current.ts_s, 5.0, 2e5, 24.0) {
+        let mut hfi = Hfi::new(hc);
+        for k in 0..4 {
+            black_box(hfi_part(&mut hfi, period(k).i_ab_a));
+        }
+        let next = core::cell::Cell::new(period(4));
+        report(
+            "  part: injection (Hfi::update + inject_v)",
+            measure(baseline, n, &mut |k| next.set(period(4 + k)), &mut |_| {
+                let p = black_box(next.get());
+                black_box(hfi_part(&mut hfi, p.i_ab_a));
+            }),
+        );
+    }
     if let Some(p) = cfg.power {
         let mut power = PowerLimiter::new(p);
         let mut report = PowerReport::unlimited(0.0);
@@ -267,6 +288,13 @@ fn observer_part(o: &mut FluxObserver, i_ab: foc_core::frames::AlphaBeta) -> (u3
     o.update(i_ab);
     o.record([0.52, 0.49, 0.49], 24.0);
     (o.angle().to_bits(), o.speed_rad_s())
+}
+
+#[inline(never)]
+fn hfi_part(h: &mut Hfi, i_ab: foc_core::frames::AlphaBeta) -> (u32, f32) {
+    let h = black_box(h);
+    h.update(i_ab);
+    (h.angle().to_bits(), h.inject_v())
 }
 
 #[inline(never)]
