@@ -277,6 +277,8 @@ impl SimDrive {
                 faulted: !self.faults.is_empty(),
                 calibrated: self.settings().calibrated,
                 sensorless: self.settings().sensorless.is_some(),
+                // The kinematic model has no saliency to inject on.
+                injection: false,
             },
             identified: None,
             pending: Pending {

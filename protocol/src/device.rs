@@ -298,7 +298,9 @@ impl DeviceState {
             LinkReaction::Disable => None,
             LinkReaction::Stop => Some(Command::Velocity { rad_s: 0.0 }),
             // Without the angle sensor there is no position to hold: stop.
-            LinkReaction::Hold if st.sensorless => Some(Command::Velocity { rad_s: 0.0 }),
+            LinkReaction::Hold if st.angle_only_in_motion() => {
+                Some(Command::Velocity { rad_s: 0.0 })
+            }
             LinkReaction::Hold => Some(Command::Position { rad: position_rad }),
             LinkReaction::Damp => Some(self.damping_only(ctx, position_rad)),
         };

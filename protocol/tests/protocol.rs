@@ -1196,6 +1196,38 @@ fn a_sensorless_device_refuses_what_needs_the_sensor_and_stops_on_hold() {
     assert!(ctx.faults.is_empty());
 }
 
+/// Sensorless with injection (a salient motor, design §28): torque and
+/// position commands are taken, and the watchdog's `Hold` holds the
+/// position.
+#[test]
+fn a_sensorless_device_with_injection_takes_torque_and_holds_on_hold() {
+    let mut dev = DeviceState::with_watchdog(WatchdogConfig {
+        timeout_periods: 100,
+        reaction: TimeoutReaction::Hold,
+    });
+    let mut ctx = RecordingContext {
+        sensorless: true,
+        injection: true,
+        ..RecordingContext::default()
+    };
+    dev.poll(&mut ctx, 0);
+    for cmd in [
+        Command::Torque { iq_a: 1.0 },
+        Command::Position { rad: 1.0 },
+    ] {
+        assert_eq!(
+            handle(&mut dev, &mut ctx, 1, Request::SetCommand(cmd)),
+            Response::Ack
+        );
+    }
+    dev.poll(&mut ctx, 150);
+    assert!(
+        matches!(ctx.posted, Some(Command::Position { .. })),
+        "{:?}",
+        ctx.posted
+    );
+}
+
 /// The firmware's default: a command that runs the motor arms the link
 /// watchdog
 /// (Stop, then Disable after a second timeout of silence); a keep-alive

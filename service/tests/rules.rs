@@ -46,6 +46,7 @@ fn quiet_snapshot() -> Snapshot {
             faulted: false,
             calibrated: true,
             sensorless: false,
+            injection: false,
         },
         identified: None,
         pending: Pending {

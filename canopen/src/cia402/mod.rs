@@ -465,7 +465,7 @@ impl Cia402 {
     fn may_enable<C: DeviceContext>(&self, ctx: &C) -> bool {
         let st = ctx.status();
         self.mode != OpMode::NoMode
-            && (self.mode.is_velocity() || !st.sensorless)
+            && (self.mode.is_velocity() || !st.angle_only_in_motion())
             && st.running
             && ctx.is_calibrated()
             && ctx.faults().0.is_empty()
@@ -532,7 +532,7 @@ impl Cia402 {
         let limits = limits_in_force(&ctx.limits(), &ctx.joint());
         let st = ctx.status();
         admit(&cmd, &limits, st.faulted, st.calibrated).is_ok()
-            && !(st.sensorless && cmd.mode().needs_angle_sensor())
+            && !(st.angle_only_in_motion() && cmd.mode().needs_angle_sensor())
             && ctx.post(cmd).is_ok()
     }
 
@@ -570,7 +570,7 @@ impl Cia402 {
         }
         self.mode = m;
         if self.state == State::OperationEnabled {
-            if m == OpMode::NoMode || (!m.is_velocity() && ctx.status().sensorless) {
+            if m == OpMode::NoMode || (!m.is_velocity() && ctx.status().angle_only_in_motion()) {
                 // (Without the angle sensor: velocity modes only.)
                 self.warning = m != OpMode::NoMode;
                 self.enter(State::SwitchedOn, now_us, ctx);

@@ -19,6 +19,7 @@ struct Fake {
     calibrated: bool,
     /// It runs without its angle sensor.
     sensorless: bool,
+    injection: bool,
     faults: FaultSet,
     first: Option<Fault>,
     posted: Option<Command>,
@@ -38,6 +39,7 @@ impl Fake {
             running: true,
             calibrated: true,
             sensorless: false,
+            injection: false,
             faults: FaultSet::EMPTY,
             first: None,
             posted: None,
@@ -106,6 +108,7 @@ impl DeviceContext for Fake {
             faulted: !self.faults.is_empty(),
             calibrated: self.calibrated,
             sensorless: self.sensorless,
+            injection: self.injection,
         }
     }
     fn set_current_gains(&mut self, _: CurrentGains) -> Result<(), Refusal> {
@@ -388,6 +391,29 @@ fn a_sensorless_drive_enables_the_velocity_modes_only() {
     assert_eq!(p.state(), State::SwitchedOn);
     assert_eq!(ctx.posted, Some(Command::Disable));
     assert_ne!(p.actuals.statusword & STATUS_WARNING, 0);
+}
+
+/// Sensorless with injection (a salient motor, design §28): the position
+/// and torque modes enable as with a sensor.
+#[test]
+fn a_sensorless_drive_with_injection_enables_every_mode() {
+    for m in [
+        OpMode::ProfilePosition,
+        OpMode::CyclicPosition,
+        OpMode::ProfileTorque,
+        OpMode::CyclicTorque,
+    ] {
+        let (mut p, mut ctx) = started(m);
+        ctx.sensorless = true;
+        ctx.injection = true;
+        reach(&mut p, &mut ctx, State::SwitchedOn);
+        assert_eq!(
+            cw(&mut p, &mut ctx, ENABLE),
+            State::OperationEnabled,
+            "{m:?}"
+        );
+        assert_eq!(p.actuals.statusword & STATUS_WARNING, 0, "{m:?}");
+    }
 }
 
 #[test]

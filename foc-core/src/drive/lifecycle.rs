@@ -281,9 +281,10 @@ impl Lifecycle {
             mode: stage.active().mode(),
             faulted: stage.supervisor().is_faulted(),
             calibrated: running && self.offsets_ok && stage.is_calibrated(),
-            sensorless: stage
+            sensorless: stage.sensorless().is_some(),
+            injection: stage
                 .sensorless()
-                .is_some_and(|s| !s.holds_torque_at_standstill()),
+                .is_some_and(|s| s.holds_torque_at_standstill()),
         }
     }
 

@@ -7,7 +7,7 @@
 //! ```
 //! use foc_core::drive::{Refusal, Status};
 //! use foc_core::control::{Command, CommandError, Mode};
-//! let running = Status { running: true, mode: Mode::Torque, faulted: false, calibrated: true, sensorless: false };
+//! let running = Status { running: true, mode: Mode::Torque, faulted: false, calibrated: true, sensorless: false, injection: false };
 //! assert_eq!(running.check_config(), Err(Refusal::NotDisabled));
 //! let starting = Status { running: false, mode: Mode::Disabled, ..running };
 //! assert_eq!(starting.check_config(), Err(Refusal::Busy));
@@ -21,6 +21,9 @@
 //! let sensorless = Status { mode: Mode::Disabled, sensorless: true, ..running };
 //! assert_eq!(sensorless.check_command(&Command::Torque { iq_a: 1.0 }, &limits), Err(CommandError::NeedsAngleSensor));
 //! assert_eq!(sensorless.check_command(&Command::Velocity { rad_s: 10.0 }, &limits), Ok(()));
+//! // With injection (a salient motor) it holds torque at standstill.
+//! let injection = Status { injection: true, ..sensorless };
+//! assert_eq!(injection.check_command(&Command::Torque { iq_a: 1.0 }, &limits), Ok(()));
 //! ```
 
 use crate::control::current::CurrentLoopConfig;
@@ -44,11 +47,11 @@ pub struct Status {
     pub faulted: bool,
     /// Offsets calibrated and a calibration permit installed.
     pub calibrated: bool,
-    /// The drive runs without its angle sensor (design §27) and without
-    /// high-frequency injection (design §28): torque, position and
-    /// impedance commands are refused (with injection it holds torque at
-    /// standstill, and they are not).
+    /// The drive runs without its angle sensor (design §27).
     pub sensorless: bool,
+    /// ... and holds torque at standstill with high-frequency injection
+    /// (design §28; a salient motor).
+    pub injection: bool,
 }
 
 impl Status {
@@ -75,13 +78,21 @@ impl Status {
         Ok(())
     }
 
+    /// True when the rotor's angle is known only once it turns
+    /// (sensorless without injection): torque, position and impedance
+    /// commands are refused.
+    pub fn angle_only_in_motion(&self) -> bool {
+        self.sensorless && !self.injection
+    }
+
     /// A command: [`admit`] (values, latched fault, calibration), no
-    /// torque, position or impedance command while sensorless
-    /// ([`CommandError::NeedsAngleSensor`]), and while start-up or an identification runs only `Disable`
+    /// torque, position or impedance command while the angle is known
+    /// only in motion ([`Self::angle_only_in_motion`],
+    /// [`CommandError::NeedsAngleSensor`]), and while start-up or an identification runs only `Disable`
     /// ([`CommandError::Busy`]: the drive would take it only later).
     pub fn check_command(&self, cmd: &Command, limits: &Limits) -> Result<(), CommandError> {
         admit(cmd, limits, self.faulted, self.calibrated)?;
-        if self.sensorless && cmd.mode().needs_angle_sensor() {
+        if self.angle_only_in_motion() && cmd.mode().needs_angle_sensor() {
             return Err(CommandError::NeedsAngleSensor);
         }
         if !self.running && *cmd != Command::Disable {

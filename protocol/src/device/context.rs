@@ -108,6 +108,8 @@ pub trait DeviceContext {
             faulted: !self.faults().0.is_empty(),
             calibrated: self.is_calibrated(),
             sensorless: matches!(self.param(ParamId::AngleSource), Some(1.0 | 3.0)),
+            // Not known from the parameters: refused as without injection.
+            injection: false,
         }
     }
     /// A parameter value, `None` if this device does not have it.

@@ -65,6 +65,8 @@ pub struct RecordingContext {
     pub scope: Option<foc_core::scope::Scope<[f32; 64]>>,
     /// It runs without its angle sensor (`ParamId::AngleSource` 1).
     pub sensorless: bool,
+    /// ... and holds torque at standstill (injection, design §28).
+    pub injection: bool,
 }
 
 /// Byte `i` of [`RecordingContext`]'s configuration record.
@@ -107,6 +109,7 @@ impl Default for RecordingContext {
             staged_len: 0,
             max_stream_hz: None,
             sensorless: false,
+            injection: false,
             scope: Some(foc_core::scope::Scope::new([0.0; 64])),
             link: None,
             applied_link: None,
@@ -206,6 +209,16 @@ impl DeviceContext for RecordingContext {
         self.mutate()?;
         self.calibration = Some(routine);
         Ok(())
+    }
+    fn status(&self) -> foc_core::drive::Status {
+        foc_core::drive::Status {
+            running: true,
+            mode: self.mode,
+            faulted: !self.faults.is_empty(),
+            calibrated: self.calibrated,
+            sensorless: self.sensorless,
+            injection: self.injection,
+        }
     }
     fn is_calibrated(&self) -> bool {
         self.calibrated

@@ -166,8 +166,9 @@ impl CurrentStage {
             TimeoutReaction::Disable => self.supervisor.trip(Fault::CommandTimeout),
             _ if !self.state.calibrated => self.supervisor.trip(Fault::CommandTimeout),
             TimeoutReaction::Stop => self.accept(Command::Velocity { rad_s: 0.0 }),
-            // Without the angle sensor there is no position to hold: stop.
-            TimeoutReaction::Hold if self.sensorless.is_some() => {
+            // Without the angle sensor (and without injection, which holds
+            // one) there is no position to hold: stop.
+            TimeoutReaction::Hold if self.sensorless_refuses(Mode::Position) => {
                 self.accept(Command::Velocity { rad_s: 0.0 })
             }
             TimeoutReaction::Hold => {
