@@ -193,6 +193,8 @@ pub struct Hfi {
     error_rad: f32,
     /// The mean of the last two samples \[A\].
     mean_i_ab: AlphaBeta,
+    /// Periods in a row whose response was below the floor.
+    silent: u32,
 }
 
 impl Hfi {
@@ -208,6 +210,7 @@ impl Hfi {
             response_a: 0.0,
             error_rad: 0.0,
             mean_i_ab: AlphaBeta::new(0.0, 0.0),
+            silent: 0,
         }
     }
 
@@ -230,6 +233,7 @@ impl Hfi {
         self.last_change = None;
         self.response_a = 0.0;
         self.error_rad = 0.0;
+        self.silent = 0;
     }
 
     /// Turn the estimate half a turn (the polarity test found it on the
@@ -278,19 +282,37 @@ impl Hfi {
     }
 
     /// The mean of the last two samples \[A\]: the current without the
-    /// injection's ripple (what the current loop runs on).
-    pub fn mean_current(&self) -> AlphaBeta {
-        self.mean_i_ab
+    /// injection's ripple (what the current loop runs on); `i_ab` itself
+    /// before the first sample since [`Self::place`] (a run's first
+    /// period: the mean of an earlier run would be stale).
+    pub fn mean_current(&self, i_ab: AlphaBeta) -> AlphaBeta {
+        if self.last_i_ab.is_some() {
+            self.mean_i_ab
+        } else {
+            i_ab
+        }
+    }
+
+    /// Periods in a row whose d response stayed below
+    /// [`RESPONSE_FLOOR_SHARE`] of the expected (no injection reaches the
+    /// motor: an open phase, a bridge that does not switch).
+    pub fn silent_periods(&self) -> u32 {
+        self.silent
     }
 
     /// Period start: the measured current \[A\]. Demodulates, steps the PLL
-    /// (holding it when the response is below [`RESPONSE_FLOOR_SHARE`] of
-    /// the expected) and forms the mean current.
+    /// (with no correction, coasting at its speed, when the response is
+    /// below [`RESPONSE_FLOOR_SHARE`] of the expected) and forms the mean
+    /// current.
     pub fn update(&mut self, i_ab: AlphaBeta) {
         if !crate::all_finite([i_ab.alpha, i_ab.beta]) {
             return;
         }
-        let last = self.last_i_ab.replace(i_ab).unwrap_or(i_ab);
+        let Some(last) = self.last_i_ab.replace(i_ab) else {
+            // The first sample: no change yet.
+            self.mean_i_ab = i_ab;
+            return;
+        };
         self.mean_i_ab = AlphaBeta::new(
             0.5 * (i_ab.alpha + last.alpha),
             0.5 * (i_ab.beta + last.beta),
@@ -308,6 +330,9 @@ impl Hfi {
             if libm::fabsf(dd.d) >= RESPONSE_FLOOR_SHARE * self.cfg.expected_response_a {
                 let e = dd.q / dd.d / self.cfg.saliency;
                 err = crate::clamp(e, -1.0, 1.0);
+                self.silent = 0;
+            } else {
+                self.silent = self.silent.saturating_add(1);
             }
         }
         self.last_change = Some(change);
@@ -345,13 +370,20 @@ pub enum PolarityResult {
     Right,
     /// The estimate is half a turn off: turn it.
     Flip,
+    /// The two responses are closer than [`POLARITY_MARGIN`]: the
+    /// direction is not known (a lost lock).
+    Unknown,
 }
+
+/// The least relative difference of the polarity test's two responses
+/// that decides.
+pub const POLARITY_MARGIN: f32 = 0.03;
 
 impl Polarity {
     /// The d current of this period \[A\] (`+I`, then `-I`, then 0 when
     /// done) given the pulse length and current.
     pub fn current_a(&self, cfg: &HfiConfig) -> f32 {
-        let p = cfg.pulse_periods.max(2);
+        let p = cfg.pulse_periods.clamp(2, u32::MAX / 4);
         if self.periods < p {
             cfg.polarity_current_a
         } else if self.periods < 2 * p {
@@ -364,7 +396,7 @@ impl Polarity {
     /// Count this period's response \[A\]; `Some` once both pulses are
     /// measured.
     pub fn step(&mut self, cfg: &HfiConfig, response_a: f32) -> Option<PolarityResult> {
-        let p = cfg.pulse_periods.max(2);
+        let p = cfg.pulse_periods.clamp(2, u32::MAX / 4);
         let k = self.periods;
         if (p / 2..p).contains(&k) {
             self.sum_pos_a += response_a;
@@ -379,11 +411,17 @@ impl Polarity {
         }
         let pos = self.sum_pos_a / self.n_pos.max(1) as f32;
         let neg = self.sum_neg_a / self.n_neg.max(1) as f32;
-        Some(if neg > pos {
-            PolarityResult::Flip
-        } else {
-            PolarityResult::Right
-        })
+        // Less than POLARITY_MARGIN apart: the motor does not saturate
+        // enough to tell (or the response is noise).
+        Some(
+            if (neg - pos).abs() < POLARITY_MARGIN * 0.5 * (neg + pos) || !(neg + pos > 0.0) {
+                PolarityResult::Unknown
+            } else if neg > pos {
+                PolarityResult::Flip
+            } else {
+                PolarityResult::Right
+            },
+        )
     }
 
     /// The mean responses so far, `(+I, -I)` \[A\].
@@ -483,9 +521,8 @@ mod tests {
         }
     }
 
-    /// The polarity test finds the magnet's direction from either half,
-    /// and a motor without saturation gives no reason to turn (the test
-    /// cannot tell; it keeps the estimate).
+    /// The polarity test finds the magnet's direction from either half;
+    /// on a motor without saturation it cannot tell and says so.
     #[test]
     fn the_polarity_test_finds_the_magnet() {
         let c = config();
@@ -494,6 +531,8 @@ mod tests {
             (core::f32::consts::PI, 0.015, PolarityResult::Flip),
             (0.1, 0.015, PolarityResult::Right),
             (core::f32::consts::PI - 0.1, 0.015, PolarityResult::Flip),
+            (0.0, 0.0, PolarityResult::Unknown),
+            (core::f32::consts::PI, 0.0, PolarityResult::Unknown),
         ] {
             let theta = 0.7;
             let mut h = Hfi::new(c);
@@ -508,7 +547,7 @@ mod tests {
             let got = loop {
                 // A crude d-current controller in the estimate's frame.
                 let (s, co) = crate::trig::sin_cos(h.angle());
-                let i = transforms::park(h.mean_current(), s, co);
+                let i = transforms::park(h.mean_current(r.current()), s, co);
                 let v = Dq::new(200.0 * (p.current_a(&c) - i.d), 0.0);
                 period(&mut h, &mut r, v);
                 if let Some(res) = p.step(&c, h.response_a()) {
@@ -555,10 +594,24 @@ mod tests {
             pending: AlphaBeta::new(0.0, 0.0),
             sat: 0.0,
         };
-        for _ in 0..3 {
+        // Four periods: a full second difference.
+        for _ in 0..4 {
             period(&mut h, &mut r, Dq::ZERO);
         }
         assert!(h.on_q_axis(), "{}", h.response_a());
+        // On the d axis it does not read as the q axis.
+        let mut d = Hfi::new(c);
+        d.place(ElectricalAngle::from_radians(theta), 0.0);
+        let mut rd = Rotor {
+            theta,
+            i_dq: Dq::ZERO,
+            pending: AlphaBeta::new(0.0, 0.0),
+            sat: 0.0,
+        };
+        for _ in 0..4 {
+            period(&mut d, &mut rd, Dq::ZERO);
+        }
+        assert!(!d.on_q_axis(), "{}", d.response_a());
         h.turn_quarter();
         for _ in 0..c.settle_periods {
             period(&mut h, &mut r, Dq::ZERO);

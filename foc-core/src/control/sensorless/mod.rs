@@ -116,8 +116,9 @@ pub struct SensorlessConfig {
     /// hand-over.
     pub blend_periods: u32,
     /// High-frequency injection at standstill and low speed instead of
-    /// the alignment and the field (a salient motor only, design §28;
-    /// [`Self::with_hfi`], its values [`Self::hfi_config`]). A flag, not
+    /// the alignment and the field, asked for: it runs where the motor in
+    /// force is salient enough (design §28; [`Self::with_hfi`], its values
+    /// [`Self::hfi_config`]). A flag, not
     /// the values: the configuration sits in front of the current stage's
     /// hot fields, and 40 more bytes there cost every period (`cargo xtask
     /// bench`).
@@ -186,9 +187,9 @@ impl SensorlessConfig {
             lock_periods: periods(5e-3).max(50),
             lock_timeout_periods: periods(0.5),
             blend_periods: periods(5e-3).max(1),
-            hfi: false,
+            // Asked for; it runs where the motor in force allows it.
+            hfi: true,
         };
-        let c = c.with_hfi().unwrap_or(c);
         crate::all_finite([c.accel_rad_s2, c.handover_rad_s]).then_some(c)
     }
 
@@ -335,7 +336,7 @@ impl Sensorless {
     /// regions) and the mean current the current loop runs on there \[A\].
     pub fn injection(&mut self, i_ab: AlphaBeta) -> (f32, AlphaBeta) {
         match (self.hfi.as_mut(), self.region.injects()) {
-            (Some(h), true) => (h.inject_v(), h.mean_current()),
+            (Some(h), true) => (h.inject_v(), h.mean_current(i_ab)),
             _ => (0.0, i_ab),
         }
     }
@@ -417,6 +418,12 @@ impl Sensorless {
         match duties {
             Some(d) => self.observer.record(d, v_bus_v),
             None => {
+                if let (Some(h), true) = (self.hfi.as_ref(), self.region.injects()) {
+                    // The best angle known: the next start begins there,
+                    // and the mechanical angle does not take a jump.
+                    self.observer.place(h.angle());
+                    self.last_angle = h.angle();
+                }
                 self.observer.pause();
                 self.region = Region::Idle;
                 self.blend_a = 0.0;

@@ -86,12 +86,16 @@ impl Sensorless {
             Region::Field => self.turn_field(target_rad_s),
             Region::Observer if self.hfi.is_some() => Ok(self.follow_observer_to_hfi()),
             Region::Observer => Ok(self.follow_observer(i_now)),
-            Region::HfiSettle | Region::HfiPolarity => {
-                self.settle_hfi();
-                Ok(Switch::Stay)
-            }
+            Region::HfiSettle | Region::HfiPolarity => self.settle_hfi(),
             Region::Hfi => self.run_hfi(target_rad_s),
         };
+        // No injection response for as long as the observer may take to
+        // agree: the injection does not reach the motor.
+        if let (Some(h), true) = (self.hfi.as_ref(), self.region.injects()) {
+            if h.silent_periods() > self.cfg.lock_periods.max(1) {
+                return Err(LostLock);
+            }
+        }
         self.damp();
         let on_observer = self.region == Region::Observer;
         self.observer.set_low_speed_scaling(on_observer);
@@ -282,39 +286,55 @@ impl Sensorless {
     }
 
     /// The settling, then the polarity test; at its end the estimate is
-    /// turned if it sat on the south pole, the observer is placed on it
-    /// and the closed loop starts.
-    fn settle_hfi(&mut self) {
+    /// turned if it sat on the south pole (the current loop's frame turns
+    /// with it), the observer is placed on it and the closed loop starts.
+    /// Responses too close to tell the polarity: lost.
+    fn settle_hfi(&mut self) -> Result<Switch, LostLock> {
+        use crate::control::hfi::PolarityResult;
         let Some(h) = self.hfi.as_mut() else {
-            return;
+            return Ok(Switch::Stay);
         };
         let c = *h.config();
         if self.region == Region::HfiSettle {
             self.periods = self.periods.saturating_add(1);
             if self.periods >= c.settle_periods {
                 // On the q axis (a start exactly a quarter turn off): a
-                // quarter turn and the settling again, once.
+                // quarter turn and the settling again, once (`agree`
+                // counts the turns here).
                 if h.on_q_axis() && self.agree == 0 {
                     h.turn_quarter();
+                    // (Not a motion.)
+                    self.last_angle = h.angle();
                     self.agree = 1;
                     self.periods = 0;
-                    return;
+                    return Ok(Switch::Stay);
                 }
                 self.agree = 0;
                 self.region = Region::HfiPolarity;
             }
-            return;
+            return Ok(Switch::Stay);
         }
-        if let Some(result) = self.polarity.step(&c, h.response_a()) {
-            if result == crate::control::hfi::PolarityResult::Flip {
+        let Some(result) = self.polarity.step(&c, h.response_a()) else {
+            return Ok(Switch::Stay);
+        };
+        let switch = match result {
+            PolarityResult::Unknown => return Err(LostLock),
+            PolarityResult::Flip => {
                 h.flip();
+                // The loop's frame turns half a turn (old - new = pi).
+                Switch::Turn {
+                    rotate_rad: core::f32::consts::PI,
+                    to_observer: false,
+                }
             }
-            self.observer.place(h.angle());
-            // (Not a motion: the mechanical angle does not take the turn.)
-            self.last_angle = h.angle();
-            self.region = Region::Hfi;
-            self.periods = 0;
-        }
+            PolarityResult::Right => Switch::Stay,
+        };
+        self.observer.place(h.angle());
+        // (Not a motion: the mechanical angle does not take the turn.)
+        self.last_angle = h.angle();
+        self.region = Region::Hfi;
+        self.periods = 0;
+        Ok(switch)
     }
 
     /// The closed loop on the injection's angle; above the hand-over

@@ -366,6 +366,11 @@ impl CurrentStage {
         if let Some(c) = self.config.sensorless.as_mut() {
             c.observer.motor = motor;
         }
+        // A motor without saliency has no injection: a command it allowed
+        // is dropped.
+        if self.sensorless_refuses(self.state.active.mode()) {
+            self.state.active = Command::Disable;
+        }
         // The observer beside the sensor restarts only with another motor
         // (it keeps its agreement and its tracked flux linkage otherwise).
         let Some(c) = self.config.fallback.as_mut() else {

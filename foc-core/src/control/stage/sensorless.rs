@@ -253,6 +253,7 @@ impl CurrentStage {
         sensed: &Sensed,
         from_speed_a: f32,
     ) -> (Option<CurrentLoopOutput>, Dq, ElectricalAngle) {
+        let pp = f32::from(self.config.angle.pole_pairs.max(1));
         let Some(sl) = self.sensorless.as_mut() else {
             return (None, Dq::ZERO, sensed.theta_e);
         };
@@ -293,6 +294,13 @@ impl CurrentStage {
             self.state.iq_step_a = 0.0;
         }
         self.model.idle(sensed.theta_e);
+        // In the closed loop the currents must follow their reference (the
+        // tracking check, design §16; the model check waits).
+        if !starting && !self.currents_track(Some(&out), i_ref, self.tracker.velocity_rad_s() * pp)
+        {
+            self.state.active = Command::Disable;
+            return (None, i_ref, angle);
+        }
         (Some(out), i_ref, angle)
     }
 
@@ -330,6 +338,13 @@ impl CurrentStage {
         // torque in, stays the speed loop's feedback.
         if !sl.region().injects() {
             fb.velocity_rad_s = sl.speed_rad_s() / pp;
+        }
+        // The speed observer's disturbance: with injection (it followed
+        // the rotor's true angle and torque from the start) in every
+        // region, so that a hand-over steps no feed-forward; without, none
+        // (a start's field fed it a torque known too roughly: the speed
+        // loop's integrator takes the load).
+        if !sl.holds_torque_at_standstill() {
             fb.disturbance_rad_s2 = 0.0;
         }
         fb.angle_in_use = if self.state.limp_home {
