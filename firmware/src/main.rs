@@ -112,6 +112,7 @@ mod app {
         faulted: false,
         calibrated: false,
         sensorless: false,
+        injection: false,
     };
 
     #[shared]

@@ -82,7 +82,7 @@ fn injection_only_on_salient_rotors() {
 /// the magnet (the estimate within 0.3 rad of the rotor, never half a
 /// turn off), then, under a velocity command of zero, a rated load torque
 /// stepped on is carried at zero speed: over the last 0.1 s of 0.8 s the
-/// rotor moves by less than a degree, the estimate stays within 0.3 rad
+/// rotor moves by less than a degree, the estimate stays within 0.5 rad
 /// throughout, no fault. The motion while the speed loop takes the step
 /// is printed (the position hold below bounds it).
 #[test]

@@ -413,15 +413,15 @@ impl Polarity {
         let neg = self.sum_neg_a / self.n_neg.max(1) as f32;
         // Less than POLARITY_MARGIN apart: the motor does not saturate
         // enough to tell (or the response is noise).
-        Some(
-            if (neg - pos).abs() < POLARITY_MARGIN * 0.5 * (neg + pos) || !(neg + pos > 0.0) {
-                PolarityResult::Unknown
-            } else if neg > pos {
-                PolarityResult::Flip
-            } else {
-                PolarityResult::Right
-            },
-        )
+        let mean = 0.5 * (neg + pos);
+        let decided = mean > 0.0 && (neg - pos).abs() >= POLARITY_MARGIN * mean;
+        Some(if !decided {
+            PolarityResult::Unknown
+        } else if neg > pos {
+            PolarityResult::Flip
+        } else {
+            PolarityResult::Right
+        })
     }
 
     /// The mean responses so far, `(+I, -I)` \[A\].

@@ -399,8 +399,19 @@ impl Plant {
                 vq -= (2.0 / 3.0) * v[k] * cs[k].1;
             }
         }
-        let mut did = (vd - r_ohm * id + we * m.lq_h * iq) / m.ld_incremental_h(id);
-        let mut diq = (vq - r_ohm * iq - we * m.d_flux_wb(id)) / m.lq_h;
+        let (mut did, mut diq) = if m.d_saturation.fraction == 0.0 {
+            // Without saturation, in the order it always was (the default
+            // plant stays bit for bit what it was).
+            (
+                (vd - r_ohm * id + we * m.lq_h * iq) / m.ld_h,
+                (vq - r_ohm * iq - we * m.ld_h * id - we * m.flux_linkage_wb) / m.lq_h,
+            )
+        } else {
+            (
+                (vd - r_ohm * id + we * m.lq_h * iq) / m.ld_incremental_h(id),
+                (vq - r_ohm * iq - we * m.d_flux_wb(id)) / m.lq_h,
+            )
+        };
         if open >= 2 {
             did = 0.0;
             diq = 0.0;

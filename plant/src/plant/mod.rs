@@ -446,7 +446,11 @@ impl Plant {
     /// Magnetic energy stored in the windings, `0.75 (Ld id^2 + Lq iq^2)` \[J\]
     /// (the d part saturated as [`MotorParams::d_energy_j`]).
     pub fn magnetic_energy_j(&self) -> Real {
-        self.motor.d_energy_j(self.id) + 0.75 * self.motor.lq_h * self.iq * self.iq
+        let m = &self.motor;
+        if m.d_saturation.fraction == 0.0 {
+            return 0.75 * (m.ld_h * self.id * self.id + m.lq_h * self.iq * self.iq);
+        }
+        m.d_energy_j(self.id) + 0.75 * m.lq_h * self.iq * self.iq
     }
     /// Kinetic energy `J w^2 / 2` \[J\].
     pub fn kinetic_energy_j(&self) -> Real {

@@ -169,12 +169,20 @@ impl MotorParams {
     /// The d axis's magnetic energy at `id_a` \[J\]: `0.75 Ld id^2` without
     /// saturation.
     pub fn d_energy_j(&self, id_a: Real) -> Real {
+        if self.d_saturation.fraction == 0.0 {
+            return 0.75 * self.ld_h * id_a * id_a;
+        }
         1.5 * self.ld_h * self.d_saturation.energy_per_h(id_a)
     }
 
     /// Torque `1.5 p (psi_d(id) iq - Lq id iq)` [N m]: `1.5 p (psi iq + (Ld -
     /// Lq) id iq)` without saturation.
     pub fn torque_nm(&self, id_a: Real, iq_a: Real) -> Real {
-        1.5 * self.pole_pairs as Real * (self.d_flux_wb(id_a) * iq_a - self.lq_h * id_a * iq_a)
+        let p = 1.5 * self.pole_pairs as Real;
+        if self.d_saturation.fraction == 0.0 {
+            // In the order it always was (bit for bit).
+            return p * (self.flux_linkage_wb * iq_a + (self.ld_h - self.lq_h) * id_a * iq_a);
+        }
+        p * (self.d_flux_wb(id_a) * iq_a - self.lq_h * id_a * iq_a)
     }
 }

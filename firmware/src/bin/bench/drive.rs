@@ -103,6 +103,7 @@ impl Rig {
                 faulted: false,
                 calibrated: false,
                 sensorless: false,
+                injection: false,
             },
             speed: SpeedStage::new(cfg.speed),
             position: PositionStage::new(cfg.position),

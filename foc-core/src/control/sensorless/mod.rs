@@ -15,7 +15,13 @@
 //! | `Idle` | none (bridge off) | none | a closed-loop command arrives |
 //! | `Align` | held at the observer's last angle, plus the damper's lead | ramped up along it, then held | its time is over |
 //! | `Field` | turned at a speed ramped towards the command (at most 1.25 times the hand-over speed), plus the damper's lead | along that angle, fixed size | at its speed, the observer agrees with the field for [`SensorlessConfig::lock_periods`] above the hand-over speed |
-//! | `Observer` | the observer's | the closed loop's | the observer's speed falls below the release speed: back to `Field` from where the rotor is |
+//! | `Observer` | the observer's | the closed loop's | the observer's speed falls below the release speed: back to `Field` from where the rotor is (with injection: to `Hfi`) |
+//!
+//! With high-frequency injection (a salient motor, design §28,
+//! [`super::hfi`]) `HfiSettle` (the estimate settles, no current),
+//! `HfiPolarity` (the saturation test's d pulses) and `Hfi` (the closed
+//! loop on the injection's angle, to `Observer` above the hand-over speed
+//! once the observer agrees) take the place of `Align` and `Field`.
 //!
 //! The damper (design §27): the current's angle leads the field by
 //! [`SensorlessConfig::damping_s`] times the field's speed less the

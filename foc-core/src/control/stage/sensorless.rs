@@ -143,7 +143,8 @@ impl CurrentStage {
 
     /// Sensorless: decides the region. In `Align` and `Field` it runs the
     /// current loop on the field and returns its output, reference and
-    /// angle (`Ok`); in `Observer` the closed loop's reference `closed`
+    /// angle (`Ok`); in the injection's regions likewise on the
+    /// injection's angle ([`Self::hfi_period`]); in `Observer` the closed loop's reference `closed`
     /// after a hand-over's turn of the loop's frame, with the field's d
     /// current still added and the q current held until the speed stage's
     /// next step (`Err`: the closed loop runs on the observer's angle).
