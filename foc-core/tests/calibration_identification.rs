@@ -663,6 +663,7 @@ fn flux_linkage_from_two_speeds() {
             zero_offset: foc_core::angle::ElectricalAngle::ZERO,
             reversed: false,
             sensor_counts_per_rev: 0,
+            sensorless_only: false,
         };
         let motor = MotorParams {
             pole_pairs: m.p,

@@ -7,7 +7,7 @@
 //! use foc_store::text::{from_toml, to_toml};
 //! # let r = foc_store::record::example();
 //! let text = to_toml(&r);
-//! assert!(text.contains("schema_version = 6"));
+//! assert!(text.contains("schema_version = 7"));
 //! assert!(text.contains("[joint]"));
 //! assert!(text.contains("[motor]"));
 //! assert_eq!(from_toml(&text), Ok(r));

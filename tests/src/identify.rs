@@ -198,6 +198,30 @@ pub fn run(
     cfg: IdentificationConfig,
     tick: &mut dyn FnMut(&Sim),
 ) -> Result<Outcome, Error> {
+    drive(sim, setup, cfg, false, tick)
+}
+
+/// [`run`] on a drive that runs sensorless (`sim`'s configuration has a
+/// `sensorless` start), with the angle withheld from every sample (a
+/// board without an angle input, design §29): the sensor check is skipped,
+/// the identification measures the flux linkage on a turning field and
+/// leaves a permit that holds only while the drive runs sensorless.
+pub fn run_without_angle(
+    sim: &mut Sim,
+    setup: &Setup,
+    cfg: IdentificationConfig,
+    tick: &mut dyn FnMut(&Sim),
+) -> Result<Outcome, Error> {
+    drive(sim, setup, cfg, true, tick)
+}
+
+fn drive(
+    sim: &mut Sim,
+    setup: &Setup,
+    cfg: IdentificationConfig,
+    withhold_angle: bool,
+    tick: &mut dyn FnMut(&Sim),
+) -> Result<Outcome, Error> {
     let life = lifecycle_config(sim, setup, cfg);
     // From reset: the current sensing's offsets are zeroed first.
     sim.set_current_offsets(Abc::default());
@@ -205,7 +229,11 @@ pub fn run(
     let limit = (TIME_LIMIT_S * setup.pwm_hz()) as usize;
     let mut offsets = None;
     for k in 0..limit {
-        sim.step();
+        let mut sample = sim.sample();
+        if withhold_angle {
+            sample.angle = None;
+        }
+        sim.step_with(&sample);
         tick(sim);
         let Some(event) = sim.cascade.last_output().and_then(|o| o.event) else {
             continue;

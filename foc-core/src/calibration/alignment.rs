@@ -159,6 +159,7 @@ impl Sweep {
             zero_offset: ElectricalAngle::ZERO,
             reversed: false,
             sensor_counts_per_rev: c.sensor_counts_per_rev,
+            sensorless_only: false,
         };
         let rev = AngleCalibration {
             reversed: true,
@@ -405,6 +406,7 @@ impl Alignment {
                 zero_offset: zero,
                 reversed,
                 sensor_counts_per_rev: c.sensor_counts_per_rev,
+                sensorless_only: false,
             },
             measured_pole_pairs_x100: measured_x100,
             lag_e_rad: 0.5 * zb.diff_radians(zf),

@@ -48,6 +48,7 @@
 
 use super::alignment::{Alignment, AlignmentConfig};
 use super::common::{CalError, CalInput, CalStep};
+use super::field_flux::{FieldFlux, FieldFluxConfig};
 use super::flux::{FluxConfig, FluxLinkage};
 use super::gains::current_loop_config;
 use super::inductance::{Inductance, InductanceConfig};
@@ -87,6 +88,17 @@ pub struct IdentificationConfig {
     /// Run the mechanical step after the flux step (only when the flux is
     /// measured; false: `mechanics` `None` in the result).
     pub measure_mechanics: bool,
+    /// The drive reads an angle sensor (true; the drive's lifecycle sets
+    /// it from whether the drive runs sensorless). Without one (design
+    /// §29) there is no alignment (the permit's angle calibration is
+    /// [`AngleCalibration::sensorless`]), the flux linkage is measured on
+    /// a turning field ([`Self::field_flux`]) and the mechanical step does
+    /// not run (its torque pulses brake through zero speed, where nothing
+    /// tells the rotor's angle): the inertia is the configuration's.
+    pub angle_sensor: bool,
+    /// The flux step without an angle sensor; its current and voltage
+    /// limit are the alignment's.
+    pub field_flux: FieldFluxConfig,
 }
 
 impl IdentificationConfig {
@@ -122,6 +134,8 @@ impl IdentificationConfig {
                 None,
             ),
             measure_mechanics: true,
+            angle_sensor: true,
+            field_flux: FieldFluxConfig::new(test_current_a, max_voltage_v),
         }
     }
 }
@@ -195,6 +209,7 @@ enum Running {
     Inductance(Inductance),
     Alignment(Alignment),
     Flux(FluxLinkage),
+    FieldFlux(FieldFlux),
     Mechanics(MechanicalId),
     Finished,
 }
@@ -284,6 +299,13 @@ impl Identification {
                     CalStep::Done(res) => self.after_flux(res.flux_linkage_wb, res.speeds_rad_s[1]),
                     other => return pass(other),
                 },
+                Running::FieldFlux(f) => match f.step(inp) {
+                    CalStep::Done(res) => {
+                        self.flux_linkage_wb = res.flux_linkage_wb;
+                        self.finish(None)
+                    }
+                    other => return pass(other),
+                },
                 Running::Mechanics(m) => match m.step(inp) {
                     CalStep::Done(res) => self.finish(Some(res)),
                     other => return pass(other),
@@ -309,6 +331,7 @@ impl Identification {
         // The measured resistance corrects the exponential current response.
         let mut l = self.cfg.inductance;
         l.r_ohm = res.r_ohm;
+        l.swing_from_current |= !self.cfg.angle_sensor;
         self.running = Running::Inductance(Inductance::new(l));
         Ok(None)
     }
@@ -323,7 +346,11 @@ impl Identification {
             lq_h,
             flux_linkage_wb: 0.0,
         };
-        self.current = Some(current_loop_config(motor, 1.0 / self.cfg.pwm_frequency_hz)?);
+        let current = current_loop_config(motor, 1.0 / self.cfg.pwm_frequency_hz)?;
+        self.current = Some(current);
+        if !self.cfg.angle_sensor {
+            return self.without_alignment(current);
+        }
         self.stage = Step::Alignment;
         let mut a = self.cfg.alignment;
         let offset = if r.v_offset_v > 0.0 {
@@ -338,6 +365,22 @@ impl Identification {
             a.max_voltage_v
         };
         self.running = Running::Alignment(Alignment::new(a));
+        Ok(None)
+    }
+
+    /// Without an angle sensor: no alignment; the flux on a turning field.
+    fn without_alignment(
+        &mut self,
+        current: CurrentLoopConfig,
+    ) -> Result<Option<Identified>, CalError> {
+        let angle = AngleCalibration::sensorless(self.cfg.pole_pairs);
+        self.angle = Some(angle);
+        self.permit = Some(super::permit::identified(angle, current)?);
+        if !self.cfg.measure_flux {
+            return self.finish(None);
+        }
+        self.stage = Step::Flux;
+        self.running = Running::FieldFlux(FieldFlux::new(self.cfg.field_flux, current));
         Ok(None)
     }
 

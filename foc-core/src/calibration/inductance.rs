@@ -155,7 +155,16 @@ pub struct InductanceConfig {
     /// step's result). 0: unknown, no correction (the half-wave limit then
     /// takes `V_bias / i`, which the dead-time drop only raises).
     pub r_ohm: f32,
+    /// Tell the rotor's swing onto the bias from the current instead of
+    /// the angle sensor (a drive without one, design §29): while no wave
+    /// runs, a q current above [`SWING_IQ_SHARE`] of the bias is a rotor
+    /// that still turns (its back-EMF drives it).
+    pub swing_from_current: bool,
 }
+
+/// With [`InductanceConfig::swing_from_current`]: a q current above this
+/// share of the bias current, while no wave runs, is a rotor that swings.
+pub const SWING_IQ_SHARE: f32 = 0.05;
 
 impl InductanceConfig {
     /// Defaults for a PWM frequency, a bias current \[A\] and a voltage limit
@@ -184,6 +193,7 @@ impl InductanceConfig {
             sweep_depth: 0.5,
             sweep_half_waves: 32,
             r_ohm: 0.0,
+            swing_from_current: false,
         }
     }
 
@@ -495,7 +505,10 @@ impl Inductance {
             self.cycle_n = 0;
         }
         let i_d_dc = self.i_d_dc_a;
-        let moving = self.motion.update(inp.angle);
+        let swinging = c.swing_from_current
+            && self.wave.idle()
+            && i.q.abs() > SWING_IQ_SHARE * c.bias_current_a;
+        let moving = self.motion.update(inp.angle) || swinging;
         let v_new = approach_v(
             self.v_bias,
             i_d_dc,

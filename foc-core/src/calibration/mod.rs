@@ -9,6 +9,8 @@
 //! - [`inductance`]: Ld and Lq from a square wave on a DC holding current.
 //! - [`alignment`]: sensor direction, electrical zero and pole-pair check.
 //! - [`flux`]: flux linkage from two closed-loop speeds.
+//! - [`field_flux`]: flux linkage from two speeds of a turning field,
+//!   without an angle sensor.
 //! - [`mechanics`]: inertia, viscous and Coulomb friction from torque pulses.
 //! - [`gains`]: current-loop gains from the measured values (technical optimum).
 //! - [`permit`]: [`Calibrated`], the proof that closed-loop modes may start.
@@ -36,6 +38,7 @@
 
 pub mod alignment;
 pub mod common;
+pub mod field_flux;
 pub mod flux;
 pub mod gains;
 pub mod identification;

@@ -27,7 +27,7 @@
 //! use foc_core::drive::cascade::{Cascade, CascadeConfig};
 //! use foc_core::angle::ElectricalAngle;
 //! let motor = MotorParams { pole_pairs: 7, r_ohm: 0.2, ld_h: 60e-6, lq_h: 60e-6, flux_linkage_wb: 0.004 };
-//! let angle = AngleCalibration { pole_pairs: 7, zero_offset: ElectricalAngle::from_degrees(42.0), reversed: true, sensor_counts_per_rev: 0 };
+//! let angle = AngleCalibration { pole_pairs: 7, zero_offset: ElectricalAngle::from_degrees(42.0), reversed: true, sensor_counts_per_rev: 0, sensorless_only: false };
 //! let permit = Calibrated::supplied(angle, CurrentLoopConfig::technical_optimum(motor, 20_000.0)).unwrap();
 //! let config = CascadeConfig::for_motor(motor, 20_000.0, 5.0);
 //! // Without a permit the closed-loop modes are locked.

@@ -10,7 +10,7 @@
 //! use foc_core::control::{current::CurrentLoopConfig, stage::AngleCalibration, MotorParams};
 //! use foc_core::angle::ElectricalAngle;
 //! let motor = MotorParams { pole_pairs: 7, r_ohm: 0.2, ld_h: 60e-6, lq_h: 60e-6, flux_linkage_wb: 0.004 };
-//! let angle = AngleCalibration { pole_pairs: 7, zero_offset: ElectricalAngle::ZERO, reversed: false, sensor_counts_per_rev: 0 };
+//! let angle = AngleCalibration { pole_pairs: 7, zero_offset: ElectricalAngle::ZERO, reversed: false, sensor_counts_per_rev: 0, sensorless_only: false };
 //! let gains = CurrentLoopConfig::technical_optimum(motor, 20_000.0);
 //! assert!(Calibrated::supplied(angle, gains).is_ok());
 //! let bad = AngleCalibration { pole_pairs: 0, ..angle };

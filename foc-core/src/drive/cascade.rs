@@ -144,6 +144,7 @@ impl CascadeConfig {
                     zero_offset: ElectricalAngle::ZERO,
                     reversed: false,
                     sensor_counts_per_rev: 0,
+                    sensorless_only: false,
                 },
                 command_timeout_periods: 0,
                 timeout_reaction: TimeoutReaction::Disable,

@@ -140,8 +140,9 @@ impl Identifier {
     /// caller does not step the routine on one).
     fn input(&self, s: &Sample) -> CalInput {
         let nan = Abc::new(f32::NAN, f32::NAN, f32::NAN);
-        let i_abc = match (s.currents, s.angle) {
-            (Some(c), Some(_)) => c.to_abc(),
+        let angle_ok = s.angle.is_some() || !self.id.config().angle_sensor;
+        let i_abc = match s.currents {
+            Some(c) if angle_ok => c.to_abc(),
             _ => nan,
         };
         let mut inp = CalInput::open_loop(
@@ -170,7 +171,8 @@ impl Identifier {
         self.limit_current(stage);
         // A failed read is the stage's fault (it trips on it below), not
         // the routine's: the routine is not stepped on it.
-        let reads_ok = s.currents.is_some() && s.angle.is_some() && s.v_bus_v.is_some();
+        let angle_ok = s.angle.is_some() || !self.id.config().angle_sensor;
+        let reads_ok = s.currents.is_some() && angle_ok && s.v_bus_v.is_some();
         let step = if reads_ok {
             Some(self.id.step(&self.input(s)))
         } else {

@@ -481,8 +481,13 @@ impl Lifecycle {
         let Some(cfg) = self.config.identification else {
             return;
         };
-        // A new identification never runs on the old calibration.
+        // A new identification never runs on the old calibration; on a
+        // drive that runs sensorless it does without the angle sensor.
         stage.revoke_calibration();
+        let cfg = IdentificationConfig {
+            angle_sensor: stage.sensorless().is_none(),
+            ..cfg
+        };
         self.identifier = Some(Identifier::new(cfg, operator));
         self.identify_seq = operator.seq;
         self.phase = LifePhase::Identify;
@@ -546,11 +551,13 @@ impl Lifecycle {
         }
     }
 
-    /// The stored permit, where the sensor's angle at boot makes it valid.
+    /// The stored permit, where the sensor's angle at boot makes it valid;
+    /// one made without a sensor always (it has no zero to lose; it
+    /// unlocks the closed loop only while the drive runs sensorless).
     fn stored_permit(&self) -> Option<Calibrated> {
         self.config
             .stored
-            .filter(|_| self.config.angle_kind.zero_survives_reset())
+            .filter(|p| self.config.angle_kind.zero_survives_reset() || p.angle().sensorless_only)
     }
 
     /// From the start-up phases (bridge off, stage not stepped) to `Run`:

@@ -469,6 +469,7 @@ impl AngleRecord {
             reversed: a.reversed,
             pole_pairs: a.pole_pairs,
             sensor_counts_per_rev: a.sensor_counts_per_rev,
+            sensorless_only: a.sensorless_only,
         }
     }
 
@@ -479,6 +480,7 @@ impl AngleRecord {
             zero_offset: e_rad_to_angle(self.zero_offset_e_rad),
             reversed: self.reversed,
             sensor_counts_per_rev: self.sensor_counts_per_rev,
+            sensorless_only: self.sensorless_only,
         }
     }
 }

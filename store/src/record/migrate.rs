@@ -13,36 +13,77 @@ use super::*;
 /// [`v4::DriveRecordV4`]) gets `sensorless: None` (the angle sensor),
 /// version 5 (before the observer's role beside the sensor,
 /// [`v5::DriveRecordV5`]) gets `beside_sensor: None` (a `[sensorless]`
-/// table replaces the sensor, as it did); a version-1 record goes
-/// `1 -> 2 -> 3 -> 4 -> 5 -> 6`. A
+/// table replaces the sensor, as it did), version 6 (before calibrations
+/// made without a sensor, [`v6::DriveRecordV6`]) gets
+/// `sensorless_only: false` in its calibration (every earlier one was
+/// made with the sensor); a version-1 record goes
+/// `1 -> 2 -> 3 -> 4 -> 5 -> 6 -> 7`. A
 /// migrated record is validated by the caller like any other; version 0
 /// and unknown versions are refused.
 pub(super) fn migrate(found: u16, payload: &[u8]) -> Result<DriveRecord, RecordError> {
     match found {
         1 => match postcard::take_from_bytes::<v1::DriveRecordV1>(payload) {
-            Ok((r, [])) => Ok(r.into_v2().into_v3().into_v4().into_v5().into_v6()),
+            Ok((r, [])) => Ok(r
+                .into_v2()
+                .into_v3()
+                .into_v4()
+                .into_v5()
+                .into_v6()
+                .into_v7()),
             _ => Err(RecordError::Malformed),
         },
         2 => match postcard::take_from_bytes::<v2::DriveRecordV2>(payload) {
-            Ok((r, [])) => Ok(r.into_v3().into_v4().into_v5().into_v6()),
+            Ok((r, [])) => Ok(r.into_v3().into_v4().into_v5().into_v6().into_v7()),
             _ => Err(RecordError::Malformed),
         },
         3 => match postcard::take_from_bytes::<v3::DriveRecordV3>(payload) {
-            Ok((r, [])) => Ok(r.into_v4().into_v5().into_v6()),
+            Ok((r, [])) => Ok(r.into_v4().into_v5().into_v6().into_v7()),
             _ => Err(RecordError::Malformed),
         },
         4 => match postcard::take_from_bytes::<v4::DriveRecordV4>(payload) {
-            Ok((r, [])) => Ok(r.into_v5().into_v6()),
+            Ok((r, [])) => Ok(r.into_v5().into_v6().into_v7()),
             _ => Err(RecordError::Malformed),
         },
         5 => match postcard::take_from_bytes::<v5::DriveRecordV5>(payload) {
-            Ok((r, [])) => Ok(r.into_v6()),
+            Ok((r, [])) => Ok(r.into_v6().into_v7()),
+            _ => Err(RecordError::Malformed),
+        },
+        6 => match postcard::take_from_bytes::<v6::DriveRecordV6>(payload) {
+            Ok((r, [])) => Ok(r.into_v7()),
             _ => Err(RecordError::Malformed),
         },
         _ => Err(RecordError::UnsupportedVersion {
             found,
             supported: SCHEMA_VERSION,
         }),
+    }
+}
+
+/// The angle calibration of versions 1 to 6 (without
+/// [`AngleRecord::sensorless_only`]). Frozen: never change it.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AngleRecordV6 {
+    /// See [`AngleRecord::zero_offset_e_rad`].
+    pub zero_offset_e_rad: f32,
+    /// See [`AngleRecord::reversed`].
+    pub reversed: bool,
+    /// See [`AngleRecord::pole_pairs`].
+    pub pole_pairs: u8,
+    /// See [`AngleRecord::sensor_counts_per_rev`].
+    pub sensor_counts_per_rev: u32,
+}
+
+impl AngleRecordV6 {
+    /// Version 7: made with the sensor.
+    pub fn into_v7(self) -> AngleRecord {
+        AngleRecord {
+            zero_offset_e_rad: self.zero_offset_e_rad,
+            reversed: self.reversed,
+            pole_pairs: self.pole_pairs,
+            sensor_counts_per_rev: self.sensor_counts_per_rev,
+            sensorless_only: false,
+        }
     }
 }
 
@@ -64,7 +105,7 @@ pub mod v1 {
         /// See [`DriveRecord::current_gains`].
         pub current_gains: CurrentGainsRecord,
         /// See [`DriveRecord::calibration`].
-        pub calibration: Option<AngleRecord>,
+        pub calibration: Option<super::AngleRecordV6>,
         /// See [`DriveRecord::limits`].
         pub limits: LimitsRecord,
         /// See [`DriveRecord::speed`].
@@ -116,7 +157,7 @@ pub mod v2 {
         /// See [`DriveRecord::current_gains`].
         pub current_gains: CurrentGainsRecord,
         /// See [`DriveRecord::calibration`].
-        pub calibration: Option<AngleRecord>,
+        pub calibration: Option<super::AngleRecordV6>,
         /// See [`DriveRecord::limits`].
         pub limits: LimitsRecord,
         /// See [`DriveRecord::speed`].
@@ -171,7 +212,7 @@ pub mod v3 {
         /// See [`DriveRecord::current_gains`].
         pub current_gains: CurrentGainsRecord,
         /// See [`DriveRecord::calibration`].
-        pub calibration: Option<AngleRecord>,
+        pub calibration: Option<super::AngleRecordV6>,
         /// See [`DriveRecord::limits`].
         pub limits: LimitsRecord,
         /// See [`DriveRecord::speed`].
@@ -228,7 +269,7 @@ pub mod v4 {
         /// See [`DriveRecord::current_gains`].
         pub current_gains: CurrentGainsRecord,
         /// See [`DriveRecord::calibration`].
-        pub calibration: Option<AngleRecord>,
+        pub calibration: Option<super::AngleRecordV6>,
         /// See [`DriveRecord::limits`].
         pub limits: LimitsRecord,
         /// See [`DriveRecord::speed`].
@@ -299,7 +340,7 @@ pub mod v5 {
         /// See [`DriveRecord::current_gains`].
         pub current_gains: CurrentGainsRecord,
         /// See [`DriveRecord::calibration`].
-        pub calibration: Option<AngleRecord>,
+        pub calibration: Option<super::AngleRecordV6>,
         /// See [`DriveRecord::limits`].
         pub limits: LimitsRecord,
         /// See [`DriveRecord::speed`].
@@ -323,8 +364,8 @@ pub mod v5 {
     impl DriveRecordV5 {
         /// Version 6: the same values; a sensorless table replaces the
         /// sensor, as it did.
-        pub fn into_v6(self) -> DriveRecord {
-            DriveRecord {
+        pub fn into_v6(self) -> super::v6::DriveRecordV6 {
+            super::v6::DriveRecordV6 {
                 label: self.label,
                 pwm_frequency_hz: self.pwm_frequency_hz,
                 motor: self.motor,
@@ -344,6 +385,69 @@ pub mod v5 {
                     beside_sensor: None,
                     observer_above_rad_s: None,
                 }),
+            }
+        }
+    }
+}
+
+/// Schema version 6: [`DriveRecord`] before calibrations made without a
+/// sensor.
+pub mod v6 {
+    use super::*;
+
+    /// The version-6 layout. Frozen: never change it.
+    #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    pub struct DriveRecordV6 {
+        /// See [`DriveRecord::label`].
+        pub label: Label,
+        /// See [`DriveRecord::pwm_frequency_hz`].
+        pub pwm_frequency_hz: u32,
+        /// See [`DriveRecord::motor`].
+        pub motor: MotorRecord,
+        /// See [`DriveRecord::current_gains`].
+        pub current_gains: CurrentGainsRecord,
+        /// See [`DriveRecord::calibration`].
+        pub calibration: Option<super::AngleRecordV6>,
+        /// See [`DriveRecord::limits`].
+        pub limits: LimitsRecord,
+        /// See [`DriveRecord::speed`].
+        pub speed: SpeedRecord,
+        /// See [`DriveRecord::position`].
+        pub position: PositionRecord,
+        /// See [`DriveRecord::dividers`].
+        pub dividers: DividersRecord,
+        /// See [`DriveRecord::watchdog`].
+        pub watchdog: WatchdogRecord,
+        /// See [`DriveRecord::power`].
+        pub power: Option<PowerRecord>,
+        /// See [`DriveRecord::mechanics`].
+        pub mechanics: Option<MechanicsRecord>,
+        /// See [`DriveRecord::joint`].
+        pub joint: Option<JointRecord>,
+        /// See [`DriveRecord::sensorless`].
+        pub sensorless: Option<SensorlessRecord>,
+    }
+
+    impl DriveRecordV6 {
+        /// Version 7: the same values; the calibration was made with the
+        /// sensor.
+        pub fn into_v7(self) -> DriveRecord {
+            DriveRecord {
+                label: self.label,
+                pwm_frequency_hz: self.pwm_frequency_hz,
+                motor: self.motor,
+                current_gains: self.current_gains,
+                calibration: self.calibration.map(super::AngleRecordV6::into_v7),
+                limits: self.limits,
+                speed: self.speed,
+                position: self.position,
+                dividers: self.dividers,
+                watchdog: self.watchdog,
+                power: self.power,
+                mechanics: self.mechanics,
+                joint: self.joint,
+                sensorless: self.sensorless,
             }
         }
     }

@@ -34,7 +34,7 @@ mod migrate;
 
 pub use fields::*;
 use migrate::migrate;
-pub use migrate::{v1, v2, v3, v4, v5};
+pub use migrate::{v1, v2, v3, v4, v5, v6, AngleRecordV6};
 
 use core::f32::consts::TAU;
 use core::fmt;
@@ -52,7 +52,7 @@ use serde::{Deserialize, Serialize};
 /// Version of the schema written by this build ([`DriveRecord`]'s postcard
 /// layout). Bump it on any change of the layout and add a migration step in
 /// `migrate` for the old version.
-pub const SCHEMA_VERSION: u16 = 6;
+pub const SCHEMA_VERSION: u16 = 7;
 
 /// Largest envelope (header, payload and CRC) in bytes. The largest record
 /// of schema 6 (32-character label, every option `Some`, every varint at
@@ -106,6 +106,11 @@ pub struct AngleRecord {
     pub pole_pairs: u8,
     /// Counts per mechanical turn of a counting sensor, 0 if unknown.
     pub sensor_counts_per_rev: u32,
+    /// Made without an angle sensor (design §29): it unlocks the closed
+    /// loop only while the drive runs sensorless. Absent in a text file:
+    /// false (schema 7; older records had none).
+    #[serde(default)]
+    pub sensorless_only: bool,
 }
 
 /// Command limits (checked by foc-core's `Limits::validate`).
@@ -605,6 +610,7 @@ pub fn example() -> DriveRecord {
             reversed: true,
             pole_pairs: 7,
             sensor_counts_per_rev: 4096,
+            sensorless_only: false,
         }),
         limits: LimitsRecord {
             max_current_a: 5.0,

@@ -35,6 +35,7 @@ pub(crate) fn record_b() -> DriveRecord {
         reversed: false,
         pole_pairs: 4,
         sensor_counts_per_rev: 16_384,
+        sensorless_only: false,
     });
     r.limits.max_current_a = 10.0;
     r.speed.ki_a_per_rad = 3.0;
@@ -71,6 +72,7 @@ pub(crate) fn largest_record() -> DriveRecord {
             reversed: true,
             pole_pairs: u8::MAX,
             sensor_counts_per_rev: u32::MAX,
+            sensorless_only: true,
         }),
         limits: LimitsRecord {
             max_current_a: f32::MAX,

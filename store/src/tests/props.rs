@@ -162,6 +162,7 @@ prop_compose! {
             },
             calibration: cal.map(|(z, reversed, counts)| AngleRecord {
                 zero_offset_e_rad: z, reversed, pole_pairs, sensor_counts_per_rev: counts,
+                sensorless_only: reversed && counts == 0,
             }),
             limits: LimitsRecord {
                 max_current_a: lim.0, max_velocity_rad_s: lim.1,

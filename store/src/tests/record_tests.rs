@@ -2,8 +2,8 @@
 
 use super::{largest_record, record_a, record_b};
 use crate::record::{
-    angle_to_e_rad, e_rad_to_angle, DriveRecord, Invalid, JointRecord, MechanicsRecord,
-    RecordError, SensorlessRecord, MAX_RECORD_BYTES, SCHEMA_VERSION,
+    angle_to_e_rad, e_rad_to_angle, AngleRecord, DriveRecord, Invalid, JointRecord,
+    MechanicsRecord, RecordError, SensorlessRecord, MAX_RECORD_BYTES, SCHEMA_VERSION,
 };
 use core::f32::consts::TAU;
 use foc_core::angle::ElectricalAngle;
@@ -111,15 +111,15 @@ fn the_joint_costs_its_size_and_no_more() {
     // Schema 4 adds at most 47 bytes (tag, 9 f32, range tag, u32 varint)
     // to the largest version-3 record (229 bytes), schema 5 at most 9
     // (tag, 2 f32), schema 6 at most 7 (role tag and variant, speed tag
-    // and f32).
+    // and f32), schema 7 one (the calibration's `sensorless_only`).
     let mut r = largest_record();
     let with = encoded(&r).len();
-    assert_eq!(with, 229 + 47 + 9 + 7);
+    assert_eq!(with, 229 + 47 + 9 + 7 + 1);
     r.sensorless = None;
-    assert_eq!(encoded(&r).len(), 229 + 47 + 1);
+    assert_eq!(encoded(&r).len(), 229 + 47 + 1 + 1);
     r.joint = None;
     // Without a joint: its `None` tag only.
-    assert_eq!(encoded(&r).len(), 229 + 1 + 1);
+    assert_eq!(encoded(&r).len(), 229 + 1 + 1 + 1);
     assert!(with <= MAX_RECORD_BYTES);
     let mut buf = [0u8; MAX_RECORD_BYTES];
     let v3 = postcard::to_slice(&as_v3(&largest_record()), &mut buf).unwrap();
@@ -344,7 +344,7 @@ fn as_v1(r: &DriveRecord) -> crate::record::v1::DriveRecordV1 {
         pwm_frequency_hz: r.pwm_frequency_hz,
         motor: r.motor,
         current_gains: r.current_gains,
-        calibration: r.calibration,
+        calibration: r.calibration.map(as_v6_angle),
         limits: r.limits,
         speed: r.speed,
         position: r.position,
@@ -360,7 +360,7 @@ fn as_v2(r: &DriveRecord) -> crate::record::v2::DriveRecordV2 {
         pwm_frequency_hz: r.pwm_frequency_hz,
         motor: r.motor,
         current_gains: r.current_gains,
-        calibration: r.calibration,
+        calibration: r.calibration.map(as_v6_angle),
         limits: r.limits,
         speed: r.speed,
         position: r.position,
@@ -377,7 +377,7 @@ fn as_v3(r: &DriveRecord) -> crate::record::v3::DriveRecordV3 {
         pwm_frequency_hz: r.pwm_frequency_hz,
         motor: r.motor,
         current_gains: r.current_gains,
-        calibration: r.calibration,
+        calibration: r.calibration.map(as_v6_angle),
         limits: r.limits,
         speed: r.speed,
         position: r.position,
@@ -385,6 +385,17 @@ fn as_v3(r: &DriveRecord) -> crate::record::v3::DriveRecordV3 {
         watchdog: r.watchdog,
         power: r.power,
         mechanics: r.mechanics,
+    }
+}
+
+/// `a` in the layout of versions 1 to 6 (what it loses:
+/// `sensorless_only`).
+fn as_v6_angle(a: crate::record::AngleRecord) -> crate::record::AngleRecordV6 {
+    crate::record::AngleRecordV6 {
+        zero_offset_e_rad: a.zero_offset_e_rad,
+        reversed: a.reversed,
+        pole_pairs: a.pole_pairs,
+        sensor_counts_per_rev: a.sensor_counts_per_rev,
     }
 }
 
@@ -426,7 +437,8 @@ fn a_version_1_record_migrates_with_the_build_default_power_limits() {
             .into_v3()
             .into_v4()
             .into_v5()
-            .into_v6(),
+            .into_v6()
+            .into_v7(),
         migrated
     );
     // A version-2, -3 or -4 payload under version 1 is not a version-1
@@ -460,7 +472,12 @@ fn a_version_2_record_migrates_without_mechanics() {
         assert_eq!(migrated.validate(), Ok(()));
         // The frozen structs' own steps.
         assert_eq!(
-            as_v2(&now).into_v3().into_v4().into_v5().into_v6(),
+            as_v2(&now)
+                .into_v3()
+                .into_v4()
+                .into_v5()
+                .into_v6()
+                .into_v7(),
             migrated
         );
         // A version-3 or -4 payload (with or without mechanics) under
@@ -506,7 +523,10 @@ fn a_version_3_record_migrates_without_the_joint() {
             now
         );
         assert_eq!(migrated.validate(), Ok(()));
-        assert_eq!(as_v3(&now).into_v4().into_v5().into_v6(), migrated);
+        assert_eq!(
+            as_v3(&now).into_v4().into_v5().into_v6().into_v7(),
+            migrated
+        );
         // A version-4 payload (with or without the joint) under version 3
         // is not a version-3 record, nor a version-2 one.
         let mut none = now.clone();
@@ -546,13 +566,13 @@ fn a_migrated_record_applies_with_the_builds_joint() {
         (s.limits.max_kp_nm_per_rad, s.limits.max_kd_nm_s_per_rad),
         (7.0, base.limits.max_kd_nm_s_per_rad)
     );
-    // Saved again: with the joint, schema 6.
+    // Saved again: with the joint, schema 7.
     let again = DriveRecord::from_settings(&migrated.label, 20_000, &s);
     assert_eq!(
         again.joint,
         Some(JointRecord::from_setup(&base.joint, &base.limits))
     );
-    assert_eq!(encoded(&again)[0], 6);
+    assert_eq!(encoded(&again)[0], 7);
 }
 
 /// `r` in the version-4 layout (what it loses: `sensorless`).
@@ -579,7 +599,7 @@ fn a_version_4_record_migrates_on_the_angle_sensor() {
             },
             now
         );
-        assert_eq!(as_v4(&now).into_v5().into_v6(), migrated);
+        assert_eq!(as_v4(&now).into_v5().into_v6().into_v7(), migrated);
         // A version-5 payload under version 4 is not a version-4 record,
         // nor a version-4 payload one of version 5.
         assert_eq!(
@@ -1307,10 +1327,7 @@ fn hybrid_record() -> DriveRecord {
     r
 }
 
-/// [`hybrid_record`] as this build (schema version 6) writes it, captured
-/// when the golden was added. When the layout changes, the schema version
-/// goes up and this envelope becomes a frozen version's golden; until then
-/// any change to `DriveRecord` or a sub-record's layout fails here.
+/// [`hybrid_record`] as schema version 6 wrote it (frozen).
 const V6_GOLDEN: [u8; 256] = [
     0x06, 0x00, 0xf8, 0x00, 0x0b, 0x62, 0x65, 0x6e, 0x63, 0x68, 0x20, 0x6d, 0x6f, 0x74, 0x6f, 0x72,
     0xa0, 0x9c, 0x01, 0x07, 0xcd, 0xcc, 0x4c, 0x3e, 0x82, 0xa8, 0x7b, 0x38, 0xf7, 0xcc, 0x92, 0x38,
@@ -1330,15 +1347,93 @@ const V6_GOLDEN: [u8; 256] = [
     0x40, 0x00, 0x00, 0xc0, 0x41, 0x01, 0x02, 0x01, 0x00, 0x00, 0x20, 0x42, 0x4f, 0x22, 0x6f, 0x97,
 ];
 
+/// [`hybrid_record`] as this build (schema version 7) writes it, captured
+/// when the golden was added. When the layout changes, the schema version
+/// goes up and this envelope becomes a frozen version's golden; until then
+/// any change to `DriveRecord` or a sub-record's layout fails here.
+const V7_GOLDEN: [u8; 257] = [
+    0x07, 0x00, 0xf9, 0x00, 0x0b, 0x62, 0x65, 0x6e, 0x63, 0x68, 0x20, 0x6d, 0x6f, 0x74, 0x6f, 0x72,
+    0xa0, 0x9c, 0x01, 0x07, 0xcd, 0xcc, 0x4c, 0x3e, 0x82, 0xa8, 0x7b, 0x38, 0xf7, 0xcc, 0x92, 0x38,
+    0x6f, 0x12, 0x83, 0x3b, 0x9a, 0x99, 0x99, 0x3e, 0x00, 0x00, 0x7a, 0x44, 0x33, 0x33, 0xb3, 0x3e,
+    0x00, 0x00, 0x7a, 0x44, 0x01, 0x00, 0x00, 0xa0, 0x3f, 0x01, 0x07, 0x80, 0x20, 0x00, 0x00, 0x00,
+    0xa0, 0x40, 0x00, 0x00, 0x96, 0x43, 0x00, 0x00, 0xc8, 0xc2, 0x00, 0x00, 0xc8, 0x42, 0x00, 0x00,
+    0x40, 0x40, 0x00, 0x00, 0xfa, 0x43, 0xcd, 0xcc, 0x4c, 0x3d, 0x00, 0x00, 0xc0, 0x3f, 0x00, 0x00,
+    0xf0, 0x41, 0x00, 0x00, 0xc8, 0x42, 0x00, 0x00, 0x7a, 0x44, 0x0a, 0x14, 0xd0, 0x0f, 0x01, 0x01,
+    0x00, 0x00, 0xcc, 0x41, 0x00, 0x00, 0xe4, 0x41, 0x00, 0x00, 0x80, 0x7f, 0x00, 0x00, 0x20, 0x41,
+    0x00, 0x00, 0x00, 0x40, 0x00, 0x00, 0x80, 0x7f, 0x00, 0x00, 0x80, 0x7f, 0x00, 0x00, 0x00, 0x40,
+    0x00, 0x00, 0x70, 0x42, 0x00, 0x00, 0x20, 0x42, 0x00, 0x00, 0xc8, 0x42, 0x00, 0x00, 0xf0, 0x42,
+    0x00, 0x00, 0x82, 0x42, 0x00, 0x00, 0xaa, 0x42, 0x00, 0x00, 0x80, 0x7f, 0x00, 0x00, 0x80, 0x7f,
+    0x00, 0x00, 0x80, 0x3f, 0x01, 0x17, 0xb7, 0xd1, 0x37, 0xac, 0xc5, 0x27, 0x37, 0x6f, 0x12, 0x03,
+    0x3b, 0x01, 0x00, 0x00, 0x10, 0xc1, 0x00, 0x00, 0xc0, 0x3f, 0x01, 0x00, 0x00, 0xc0, 0xbf, 0x00,
+    0x00, 0x00, 0x40, 0x00, 0x00, 0x80, 0x3e, 0x00, 0x00, 0xfa, 0x44, 0xcd, 0xcc, 0x4c, 0x3d, 0xc8,
+    0x01, 0x6f, 0x12, 0x83, 0x3a, 0x00, 0x00, 0xa0, 0x41, 0x00, 0x00, 0x00, 0x3f, 0x01, 0x00, 0x00,
+    0x80, 0x40, 0x00, 0x00, 0xc0, 0x41, 0x01, 0x02, 0x01, 0x00, 0x00, 0x20, 0x42, 0x0b, 0x6b, 0x3e,
+    0x8b,
+];
+
 #[test]
 fn the_current_schema_writes_and_reads_its_golden_envelope() {
     let mut buf = [0u8; crate::MAX_RECORD_BYTES];
     let n = hybrid_record().encode(&mut buf).expect("encodes");
-    assert_eq!(&buf[..n], &V6_GOLDEN[..], "{:#04x?}", &buf[..n]);
-    let r = DriveRecord::decode(&V6_GOLDEN).expect("version 6 decodes");
+    assert_eq!(&buf[..n], &V7_GOLDEN[..], "{:#04x?}", &buf[..n]);
+    let r = DriveRecord::decode(&V7_GOLDEN).expect("version 7 decodes");
     assert_eq!(r, hybrid_record());
     assert_eq!(r.validate(), Ok(()));
-    assert_eq!(crate::SCHEMA_VERSION, 6, "a new version freezes V6_GOLDEN");
+    assert_eq!(crate::SCHEMA_VERSION, 7, "a new version freezes V7_GOLDEN");
+}
+
+/// The frozen version-6 layout of `r`.
+fn as_v6(r: &DriveRecord) -> crate::record::v6::DriveRecordV6 {
+    crate::record::v6::DriveRecordV6 {
+        label: r.label.clone(),
+        pwm_frequency_hz: r.pwm_frequency_hz,
+        motor: r.motor,
+        current_gains: r.current_gains,
+        calibration: r.calibration.map(as_v6_angle),
+        limits: r.limits,
+        speed: r.speed,
+        position: r.position,
+        dividers: r.dividers,
+        watchdog: r.watchdog,
+        power: r.power,
+        mechanics: r.mechanics,
+        joint: r.joint,
+        sensorless: r.sensorless,
+    }
+}
+
+#[test]
+fn the_version_6_golden_envelope_migrates() {
+    let r = DriveRecord::decode(&V6_GOLDEN).expect("version 6 migrates");
+    assert_eq!(r, hybrid_record());
+    assert_eq!(r.validate(), Ok(()));
+    // Its calibration was made with the sensor.
+    assert!(r.calibration.is_some_and(|c| !c.sensorless_only));
+    // The frozen version-6 struct still writes exactly these bytes.
+    let p = postcard_of(&as_v6(&hybrid_record()));
+    assert_eq!(envelope(6, &p), V6_GOLDEN);
+    // A version-7 payload is not a version-6 record.
+    assert_eq!(
+        DriveRecord::decode(&envelope(6, payload(&encoded(&hybrid_record())))),
+        Err(RecordError::Malformed)
+    );
+}
+
+/// A calibration made without a sensor is stored as such.
+#[test]
+fn a_calibration_made_without_a_sensor_round_trips() {
+    let mut r = sensorless_record();
+    r.calibration = Some(AngleRecord {
+        zero_offset_e_rad: 0.0,
+        reversed: false,
+        pole_pairs: r.motor.pole_pairs,
+        sensor_counts_per_rev: 0,
+        sensorless_only: true,
+    });
+    assert_eq!(r.validate(), Ok(()));
+    let back = DriveRecord::decode(&encoded(&r)).unwrap();
+    assert_eq!(back, r);
+    assert!(back.calibration.unwrap().to_calibration().sensorless_only);
 }
 
 /// The frozen version-5 layout of `r`.

@@ -111,7 +111,7 @@ fn toml_is_readable_and_checked() {
     let text = to_toml(&r);
     std::eprintln!("{text}");
     for key in [
-        "schema_version = 6",
+        "schema_version = 7",
         "label = \"bench motor\"",
         "[motor]",
         "r_ohm = ",
@@ -180,7 +180,7 @@ fn toml_is_readable_and_checked() {
     assert_eq!(from_toml(&t), Ok(sl.clone()));
     assert!(!to_toml(&r).contains("[sensorless]"));
     assert_eq!(
-        from_toml(&to_toml(&r).replace("schema_version = 6", "schema_version = 4")),
+        from_toml(&to_toml(&r).replace("schema_version = 7", "schema_version = 4")),
         Ok(r.clone())
     );
     let e = from_toml(&t.replace("start_current_a = 3.5", "start_current_a = 50.0")).unwrap_err();
@@ -209,7 +209,7 @@ fn toml_is_readable_and_checked() {
     let e = from_toml(&tb.replace("hall+sensorless", "halls")).unwrap_err();
     assert!(e.contains("halls"), "{e}");
     assert_eq!(
-        from_toml(&t.replace("schema_version = 6", "schema_version = 5")),
+        from_toml(&t.replace("schema_version = 7", "schema_version = 5")),
         Ok(sl.clone())
     );
     // No joint: no table, and back to None (the build's).
@@ -220,7 +220,7 @@ fn toml_is_readable_and_checked() {
     assert_eq!(from_toml(&t), Ok(n.clone()));
     // A version-3 file (before the joint) reads as version 4 without it.
     assert_eq!(
-        from_toml(&t.replace("schema_version = 6", "schema_version = 3")),
+        from_toml(&t.replace("schema_version = 7", "schema_version = 3")),
         Ok(n.clone())
     );
     // No mechanics: no table, and back to None (not identified).
@@ -231,7 +231,7 @@ fn toml_is_readable_and_checked() {
     // A version-2 file (before the mechanics) reads as version 4 without
     // them.
     assert_eq!(
-        from_toml(&t.replace("schema_version = 6", "schema_version = 2")),
+        from_toml(&t.replace("schema_version = 7", "schema_version = 2")),
         Ok(n.clone())
     );
     // No power limits: no table, and back to None (the build's defaults).
@@ -242,13 +242,13 @@ fn toml_is_readable_and_checked() {
     // A version-1 file (before the power limits) reads as version 4
     // without them.
     assert_eq!(
-        from_toml(&t.replace("schema_version = 6", "schema_version = 1")),
+        from_toml(&t.replace("schema_version = 7", "schema_version = 1")),
         Ok(n)
     );
     // Another schema version.
-    for v in ["0", "7"] {
+    for v in ["0", "8"] {
         let e =
-            from_toml(&text.replace("schema_version = 6", &std::format!("schema_version = {v}")))
+            from_toml(&text.replace("schema_version = 7", &std::format!("schema_version = {v}")))
                 .unwrap_err();
         assert!(e.contains("schema_version") && e.contains(v), "{e}");
     }
@@ -377,7 +377,7 @@ fn toml_is_readable_and_checked() {
         e,
         "record value `power.bus_current_regen_max_a` is out of range"
     );
-    let e = from_toml(&text.replace("schema_version = 6\n", "")).unwrap_err();
+    let e = from_toml(&text.replace("schema_version = 7\n", "")).unwrap_err();
     assert!(e.contains("schema_version"), "{e}");
     // A bad value names the field.
     let e = from_toml(&text.replace("max_current_a = 5.0", "max_current_a = -5.0")).unwrap_err();
@@ -387,7 +387,14 @@ fn toml_is_readable_and_checked() {
     assert!(e.contains("r_ohm"), "{e}");
     let e = from_toml(&text.replace("lq_h", "# lq_h")).unwrap_err();
     assert!(e.contains("lq_h"), "{e}");
-    assert_eq!(SCHEMA_VERSION, 6);
+    // A calibration without `sensorless_only` (a file of schema 6 or
+    // older) was made with the sensor.
+    assert!(text.contains("sensorless_only = false\n"), "{text}");
+    assert_eq!(
+        from_toml(&text.replace("sensorless_only = false\n", "")),
+        from_toml(&text)
+    );
+    assert_eq!(SCHEMA_VERSION, 7);
 }
 
 #[test]

@@ -47,6 +47,7 @@ pub fn align(sim: &mut Sim, setup: &Setup) -> (ElectricalAngle, f64) {
         zero_offset: found,
         reversed: false,
         sensor_counts_per_rev: 0,
+        sensorless_only: false,
     };
     // The alignment result plus the configured current loop: the permit
     // for the closed-loop segments.

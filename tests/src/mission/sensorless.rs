@@ -1,7 +1,9 @@
-//! The sensorless mission (`cargo xtask sim --sensorless`, design §27):
-//! the cascade runs without its angle sensor (the plant's encoder is read
-//! and ignored) on the motor file's values (the identification still needs
-//! the encoder: a later part), through a start from standstill, a speed
+//! The sensorless mission (`cargo xtask sim --sensorless`, design §27 and
+//! §29): a board without an angle input (the angle is withheld from every
+//! sample) boots sensorless, identifies the motor (resistance,
+//! inductances, gains, the flux linkage on a turning field; the inertia is
+//! the configuration's), derives its start from what it measured, and
+//! runs through a start from standstill, a speed
 //! step, a load step, a reversal through zero and a stop; on a salient
 //! motor (high-frequency injection, design §28) also a hold at zero speed
 //! under the rated load. Each segment must reach its speed (within 10 %,
@@ -10,7 +12,11 @@
 //! the plant's true one is reported.
 
 use super::{Command, Setup, Sim};
-use foc_core::control::sensorless::Region;
+use crate::identify;
+use foc_core::calibration::identification::IdentificationResult;
+use foc_core::calibration::CalStep;
+use foc_core::control::flux_observer::ObserverConfig;
+use foc_core::control::sensorless::{Region, SensorlessConfig};
 
 /// One segment's figures.
 #[derive(Clone, Debug)]
@@ -38,11 +44,35 @@ pub struct SensorlessSegment {
     pub fault: Option<foc_core::control::Fault>,
 }
 
+/// What the identification without the angle found, against the motor
+/// file.
+#[derive(Clone, Copy, Debug)]
+pub struct SensorlessIdentification {
+    /// The measured values.
+    pub result: IdentificationResult,
+    /// The motor file's: R \[ohm\], the incremental Ld at the bias current
+    /// \[H\], Lq \[H\], flux linkage \[Wb\].
+    pub truth: [f32; 4],
+    /// Simulated time it took (after the current offsets) \[s\].
+    pub time_s: f32,
+}
+
+impl SensorlessIdentification {
+    /// The measured values in the order of [`Self::truth`].
+    pub fn measured(&self) -> [f32; 4] {
+        let r = &self.result;
+        [r.r_ohm, r.ld_h, r.lq_h, r.flux_linkage_wb]
+    }
+}
+
 /// The mission's result.
 #[derive(Clone, Debug)]
 pub struct SensorlessResult {
     /// The motor's name.
     pub motor: String,
+    /// The identification without the angle: its figures, or why it
+    /// failed (then no segment ran).
+    pub identification: Result<SensorlessIdentification, String>,
     /// The segments in order.
     pub segments: Vec<SensorlessSegment>,
     /// The hand-over speed [rad/s, mechanical].
@@ -55,24 +85,54 @@ pub struct SensorlessResult {
 impl SensorlessResult {
     /// What failed (empty: passed).
     pub fn failures(&self) -> Vec<String> {
-        self.segments
-            .iter()
-            .filter_map(|s| match (s.fault, s.reached_s) {
-                (Some(f), _) => Some(format!("{}: fault {f:?}", s.name)),
-                (None, None) => Some(format!(
-                    "{}: {:.1} rad/s not reached (ended at {:.1})",
-                    s.name, s.target_rad_s, s.end_rad_s
-                )),
-                _ => None,
-            })
+        let id = self
+            .identification
+            .as_ref()
+            .err()
+            .map(|e| format!("identification without the angle: {e}"));
+        id.into_iter()
+            .chain(
+                self.segments
+                    .iter()
+                    .filter_map(|s| match (s.fault, s.reached_s) {
+                        (Some(f), _) => Some(format!("{}: fault {f:?}", s.name)),
+                        (None, None) => Some(format!(
+                            "{}: {:.1} rad/s not reached (ended at {:.1})",
+                            s.name, s.target_rad_s, s.end_rad_s
+                        )),
+                        _ => None,
+                    }),
+            )
             .collect()
+    }
+
+    /// The identification's table (Markdown).
+    fn identification_markdown(&self) -> String {
+        let Ok(id) = &self.identification else {
+            return String::new();
+        };
+        let names = ["R ohm", "Ld H (at the bias)", "Lq H", "flux linkage Wb"];
+        let mut s = format!(
+            "Identified without the angle in {:.2} s (simulated; no alignment, the flux linkage on a turning field, design §29):\n\n| value | identified | motor file | error |\n|---|---:|---:|---:|\n",
+            id.time_s
+        );
+        for ((n, m), t) in names.iter().zip(id.measured()).zip(id.truth) {
+            s += &format!(
+                "| {n} | {} | {} | {:.1} % |\n",
+                significant(m),
+                significant(t),
+                100.0 * (m / t - 1.0)
+            );
+        }
+        s + "\n"
     }
 
     /// The summary as a Markdown table.
     pub fn to_markdown(&self) -> String {
         let mut s = format!(
-            "### Sensorless mission: {}\n\nThe observer takes over above {:.1} rad/s; below, {}.\n\n| segment | command rad/s | reached after s | at the end rad/s | angle error, last fifth rad(e) | angle error, worst rad(e) | against the command rad | fault |\n|---|---:|---:|---:|---:|---:|---:|---|\n",
+            "### Sensorless mission: {}\n\n{}The observer takes over above {:.1} rad/s; below, {}.\n\n| segment | command rad/s | reached after s | at the end rad/s | angle error, last fifth rad(e) | angle error, worst rad(e) | against the command rad | fault |\n|---|---:|---:|---:|---:|---:|---:|---|\n",
             self.motor,
+            self.identification_markdown(),
             self.handover_rad_s,
             if self.injection {
                 "high-frequency injection (design §28)"
@@ -107,22 +167,35 @@ impl SensorlessResult {
     }
 }
 
+/// `x` with four significant digits.
+fn significant(x: f32) -> String {
+    let decimals = 3 - x.abs().log10().floor() as i32;
+    format!("{x:.*}", decimals.clamp(0, 9) as usize)
+}
+
 /// Runs the sensorless mission on `setup`.
 pub fn run_sensorless_mission(setup: &Setup, progress: &mut dyn FnMut(f64)) -> SensorlessResult {
-    let config = setup.sensorless_config();
-    let handover = config.current.sensorless.map_or(f32::NAN, |c| {
+    let mut sim = Sim::new(setup, setup.sensorless_config(), false);
+    let identification = identify_without_angle(&mut sim, setup);
+    if identification.is_err() {
+        return SensorlessResult {
+            motor: setup.name.clone(),
+            identification,
+            segments: Vec::new(),
+            handover_rad_s: f32::NAN,
+            injection: false,
+        };
+    }
+    rederive_start(setup, &mut sim);
+    let config = *sim.cascade.current.config();
+    let handover = config.sensorless.map_or(f32::NAN, |c| {
         c.handover_rad_s / f32::from(setup.motor.pole_pairs)
     });
-    let mut sim = Sim::new_calibrated(setup, config, false);
     let top = setup.max_speed_rad_s().min(setup.max_mission_speed_rad_s());
     let rated_nm = setup.kt() * setup.rated_current_a;
     // (name, speed as a share of the top speed, load as a share of the
     // rated torque, seconds)
-    let injection = config
-        .current
-        .sensorless
-        .and_then(|c| c.hfi_config())
-        .is_some();
+    let injection = config.sensorless.and_then(|c| c.hfi_config()).is_some();
     let plan = [
         ("start from standstill", 0.3, 0.0, 1.0),
         ("speed step", 0.6, 0.0, 0.6),
@@ -156,10 +229,54 @@ pub fn run_sensorless_mission(setup: &Setup, progress: &mut dyn FnMut(f64)) -> S
     }
     SensorlessResult {
         motor: setup.name.clone(),
+        identification,
         segments,
         handover_rad_s: handover,
         injection,
     }
+}
+
+/// The identification of a drive that runs sensorless, with the angle
+/// withheld ([`identify::run_without_angle`]); its figures against the
+/// motor file, or why it failed.
+pub fn identify_without_angle(
+    sim: &mut Sim,
+    setup: &Setup,
+) -> Result<SensorlessIdentification, String> {
+    let cfg = identify::config(setup, setup.motor.pole_pairs);
+    let out =
+        identify::run_without_angle(sim, setup, cfg, &mut |_| {}).map_err(|e| e.to_string())?;
+    let CalStep::Done(done) = out.step else {
+        return Err(format!("{:?} in {:?}", out.step, out.stage));
+    };
+    let m = &setup.motor;
+    let ld = m.ld_incremental_h(cfg.inductance.bias_current_a as _);
+    Ok(SensorlessIdentification {
+        result: done.result,
+        truth: [m.r_ohm, ld, m.lq_h, m.flux_linkage_wb].map(|x| x as f32),
+        time_s: out.periods as f32 / setup.pwm_hz(),
+    })
+}
+
+/// The sensorless start derived again from the motor the drive holds now
+/// (an identification's), with the configuration's inertia, the rated
+/// current and the bench's bus (what the drive's service does after an
+/// identification: `foc_store::settings::sensorless_config`).
+pub fn rederive_start(setup: &Setup, sim: &mut Sim) {
+    let c = sim.cascade.current.config();
+    let observer = ObserverConfig {
+        motor: c.current.motor,
+        ts_s: c.current.ts_s,
+        dead_time_s: c.supervisor.model.dead_time_s,
+        current_floor_a: c.supervisor.model.floor_a,
+    };
+    let sl = SensorlessConfig::for_motor(
+        observer,
+        setup.rated_current_a.min(setup.max_current_a),
+        setup.motor.inertia_kg_m2 as f32,
+        setup.bench.bus_voltage_v as f32,
+    );
+    sim.cascade.current.set_sensorless(sl);
 }
 
 /// One segment: the command, the load, `secs` of simulation.
@@ -191,7 +308,9 @@ fn segment(
         // The observer's angle is of the period's sample: the rotor's angle
         // then, not after the step (a period's turn later).
         let theta_sampled = sim.plant.theta_e();
-        sim.step();
+        let mut sample = sim.sample();
+        sample.angle = None;
+        sim.step_with(&sample);
         let fb = *sim.cascade.feedback();
         if let Some(f) = fb.first_fault {
             g.fault = Some(f);

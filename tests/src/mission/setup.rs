@@ -170,6 +170,7 @@ impl Setup {
             // The bench's encoder reads floor counts: let the stage add
             // the half count (see `AngleCalibration::sensor_counts_per_rev`).
             sensor_counts_per_rev: self.bench.sensors.encoder_counts_per_rev,
+            sensorless_only: false,
         }
     }
 

@@ -30,9 +30,27 @@ pub struct AngleCalibration {
     /// turn the current stage also interpolates between the edges
     /// ([`Self::interpolation_half_count`]).
     pub sensor_counts_per_rev: u32,
+    /// Made without an angle sensor (an identification on a drive that
+    /// runs sensorless, design §29): the zero, direction and resolution
+    /// mean nothing, and the calibration unlocks the closed-loop modes only
+    /// while the drive runs without its sensor
+    /// ([`CurrentStage::is_calibrated`](super::CurrentStage::is_calibrated)).
+    pub sensorless_only: bool,
 }
 
 impl AngleCalibration {
+    /// The calibration of a drive without an angle sensor (design §29):
+    /// `pole_pairs`, and [`Self::sensorless_only`].
+    pub const fn sensorless(pole_pairs: u8) -> Self {
+        Self {
+            pole_pairs,
+            zero_offset: ElectricalAngle::ZERO,
+            reversed: false,
+            sensor_counts_per_rev: 0,
+            sensorless_only: true,
+        }
+    }
+
     /// Mechanical angle in the motor's positive direction (half a count
     /// added first when the sensor's resolution is known).
     #[inline]

@@ -66,7 +66,7 @@ impl CurrentStage {
     pub(super) fn accept(&mut self, cmd: Command) {
         let faulted = self.supervisor.is_faulted();
         if faulted
-            || crate::control::admit(&cmd, &self.config.limits, faulted, self.state.calibrated)
+            || crate::control::admit(&cmd, &self.config.limits, faulted, self.is_calibrated())
                 .is_err()
             || (self.sensorless_refuses(cmd.mode()))
         {
@@ -138,7 +138,7 @@ impl CurrentStage {
         self.state.age_periods = 0;
         if let Command::Impedance(i) = self.state.active {
             // Impedance (design §21): damping only, then disable.
-            if self.state.timeout_damping || !self.state.calibrated {
+            if self.state.timeout_damping || !self.is_calibrated() {
                 self.supervisor.trip(Fault::CommandTimeout);
             } else {
                 let kd_min = self.config.joint.timeout_kd_nm_s_per_rad;
@@ -164,7 +164,7 @@ impl CurrentStage {
             // Stop and Hold are closed-loop: without a calibration
             // (open loop) the timeout disables.
             TimeoutReaction::Disable => self.supervisor.trip(Fault::CommandTimeout),
-            _ if !self.state.calibrated => self.supervisor.trip(Fault::CommandTimeout),
+            _ if !self.is_calibrated() => self.supervisor.trip(Fault::CommandTimeout),
             TimeoutReaction::Stop => self.accept(Command::Velocity { rad_s: 0.0 }),
             // Without the angle sensor (and without injection, which holds
             // one) there is no position to hold: stop.

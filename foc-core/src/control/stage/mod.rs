@@ -394,9 +394,15 @@ impl CurrentStage {
     }
 
     /// True once a [`Calibrated`] permit is installed (and not revoked by
-    /// [`Self::set_current_config`] or [`Self::set_angle_calibration`]).
+    /// [`Self::set_current_config`] or [`Self::set_angle_calibration`]),
+    /// and, for a permit made without an angle sensor
+    /// ([`AngleCalibration::sensorless_only`]), while the drive runs
+    /// without its sensor: back on the sensor the closed-loop modes are
+    /// locked until an identification with the sensor (or a stored
+    /// calibration of it) is installed.
+    #[inline]
     pub fn is_calibrated(&self) -> bool {
-        self.state.calibrated
+        self.state.calibrated && (!self.config.angle.sensorless_only || self.sensorless.is_some())
     }
 
     /// Replace the current-loop configuration with values no permit vouches
@@ -513,6 +519,7 @@ mod tests {
             zero_offset: ElectricalAngle::ZERO,
             reversed: false,
             sensor_counts_per_rev: counts,
+            sensorless_only: false,
         };
         let mut st = CurrentStage::new(c);
         let permit = Calibrated::supplied(c.angle, c.current).unwrap();

@@ -77,7 +77,10 @@ impl CurrentStage {
         self.tracker.reset();
         self.observer.reset();
         self.model.reset();
-        if self.sensorless_refuses(self.state.active.mode()) {
+        // A refused mode, or a closed loop on a calibration made without
+        // the sensor now that the sensor is back: dropped.
+        let mode = self.state.active.mode();
+        if self.sensorless_refuses(mode) || (mode.is_closed_loop() && !self.is_calibrated()) {
             self.state.active = Command::Disable;
         }
     }
