@@ -275,7 +275,11 @@ impl SimDrive {
                 running: self.calibrating.is_none(),
                 mode: feedback.mode,
                 faulted: !self.faults.is_empty(),
-                calibrated: self.settings().calibrated,
+                // A calibration made without the sensor holds only while
+                // the drive runs sensorless (design §29).
+                calibrated: self.settings().calibrated
+                    && (!self.settings().angle.sensorless_only
+                        || self.settings().sensorless.is_some()),
                 sensorless: self.settings().sensorless.is_some(),
                 // The kinematic model has no saliency to inject on.
                 injection: false,

@@ -21,7 +21,9 @@ use foc_store::{CanRecord, DriveRecord, Invalid, Label, Settings, Store, StoreEr
 /// Where the sensor's zero does not survive a reset (an incremental
 /// encoder), the record's motor model and gains apply but not its
 /// calibration: the settings come back uncalibrated, with the board's
-/// angle configuration, until an identification.
+/// angle configuration, until an identification. A calibration made
+/// without the sensor (`sensorless_only`, design §29) applies on every
+/// board: it has no zero to lose.
 pub fn admit(board: &Board, rec: &DriveRecord) -> Result<Settings, Invalid> {
     let base = &board.base;
     let invalid = |field| Err(Invalid { field });
@@ -59,7 +61,8 @@ pub fn admit(board: &Board, rec: &DriveRecord) -> Result<Settings, Invalid> {
     {
         return invalid("sensorless.bus_voltage_v");
     }
-    if s.calibrated && !board.zero_survives_reset {
+    // (A calibration made without the sensor has no zero to lose.)
+    if s.calibrated && !board.zero_survives_reset && !s.angle.sensorless_only {
         crate::log_warn!("store: the stored electrical zero does not apply to an incremental encoder (its zero is where the rotor was at reset): motor model and gains kept, identification needed");
         s.calibrated = false;
         s.angle = base.angle;

@@ -126,10 +126,13 @@ impl Service {
     /// The drive's change that makes the settings in force its own:
     /// limits, current loop, dividers, power, mechanics, the joint's
     /// travel range, and the calibration where the sensor's zero survives
-    /// a reset.
+    /// a reset (or where it was made without the sensor).
     pub fn full_change(&self) -> ConfigMailbox {
         let s = &self.settings;
-        let permit = s.permit().filter(|_| self.board.zero_survives_reset);
+        // A calibration made without the sensor has no zero to lose.
+        let permit = s
+            .permit()
+            .filter(|p| self.board.zero_survives_reset || p.angle().sensorless_only);
         ConfigMailbox {
             current: Some(ConfigChange {
                 limits: Some(s.limits),

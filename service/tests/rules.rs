@@ -381,3 +381,42 @@ fn a_sensorless_record_reaches_the_drive_and_needs_mechanics() {
         assert_eq!(l.telemetry().angle_in_use, in_use);
     }
 }
+
+/// A calibration made without the sensor (design §29) on a board with a
+/// counting encoder (4096 counts, its zero lost at reset): saved, it boots
+/// calibrated and reaches the drive as a `sensorless_only` permit (it has
+/// no zero to lose); the drive's stage then unlocks the closed loop only
+/// while it runs sensorless (foc-core's `CurrentStage::is_calibrated`).
+#[test]
+fn a_calibration_made_without_the_sensor_boots_on_an_incremental_encoder_board() {
+    use foc_core::control::stage::AngleCalibration;
+    let encoder_board = || {
+        let mut b = board(false);
+        b.base.angle.sensor_counts_per_rev = 4096;
+        b
+    };
+    let s = Service::new(encoder_board());
+    let mut set = *s.settings();
+    set.angle = AngleCalibration::sensorless(7, 4096);
+    set.calibrated = true;
+    let rec = DriveRecord::from_settings(&Label::try_from("nosensor").unwrap(), PWM_HZ, &set);
+    assert!(rec.calibration.is_some_and(|c| c.sensorless_only));
+    let mut st = store();
+    st.save(&rec).unwrap();
+    let (booted, outcome) = Service::boot(encoder_board(), Some(&mut st));
+    assert_eq!(outcome, BootOutcome::Loaded { calibrated: true });
+    let permit = booted.full_change().current.unwrap().permit;
+    assert!(permit.is_some_and(|p| p.angle().sensorless_only));
+    // A calibration made with the encoder on the same board: its zero is
+    // lost at reset, so it is not installed (the rule this one is the
+    // exception to).
+    set.angle = AngleCalibration {
+        sensorless_only: false,
+        ..set.angle
+    };
+    let rec = DriveRecord::from_settings(&Label::try_from("encoder").unwrap(), PWM_HZ, &set);
+    st.save(&rec).unwrap();
+    let (booted, outcome) = Service::boot(encoder_board(), Some(&mut st));
+    assert_eq!(outcome, BootOutcome::Loaded { calibrated: false });
+    assert!(booted.full_change().current.unwrap().permit.is_none());
+}

@@ -61,7 +61,7 @@
 //! assert!(matches!(s, CalStep::Apply { .. }));
 //! ```
 
-use super::common::{check_input, latch, periods, voltage_limit_v, CalError, CalInput, CalStep};
+use super::common::{check_input, latch, periods, CalError, CalInput, CalStep};
 use crate::angle::ElectricalAngle;
 use crate::control::current::{CurrentLoop, CurrentLoopConfig, CurrentLoopInput};
 use crate::frames::Dq;
@@ -110,6 +110,11 @@ pub struct FieldFluxConfig {
     pub average_s: f32,
     /// Current vector that aborts the routine \[A\].
     pub max_current_a: f32,
+    /// Share of the bus's linear range `Udc / sqrt(3)` the voltage may
+    /// use: at most the modulation of the stage that applies it (it clips
+    /// there, and the EMF is computed from the voltage asked for). The
+    /// drive's lifecycle sets it from the current stage.
+    pub max_modulation: f32,
 }
 
 impl FieldFluxConfig {
@@ -132,6 +137,7 @@ impl FieldFluxConfig {
             settle_s: 0.5,
             average_s: 0.3,
             max_current_a: 2.0 * current_a,
+            max_modulation: super::common::MAX_MODULATION,
         }
     }
 
@@ -155,6 +161,18 @@ impl FieldFluxConfig {
             && pos(self.settle_s)
             && pos(self.average_s)
             && self.max_current_a >= self.current_a
+            && pos(self.max_modulation)
+            && self.max_modulation <= 1.0
+    }
+
+    /// The voltage the routine may ask for \[V\] on the bus `v_bus_v`.
+    fn voltage_limit_v(&self, v_bus_v: f32) -> f32 {
+        let bus = self.max_modulation * v_bus_v * FRAC_1_SQRT_3;
+        if bus < self.max_voltage_v {
+            bus
+        } else {
+            self.max_voltage_v
+        }
     }
 }
 
@@ -375,7 +393,7 @@ impl FieldFlux {
         let c = &self.cfg;
         let w1 = c.first_speed_rad_s;
         let psi_rough = e1.q.abs() / w1;
-        let v_lim = voltage_limit_v(c.max_voltage_v, v_bus_v);
+        let v_lim = c.voltage_limit_v(v_bus_v);
         let w2 = if psi_rough.is_finite() && psi_rough > 0.0 {
             c.emf_fraction * v_lim / psi_rough
         } else {
@@ -390,7 +408,7 @@ impl FieldFlux {
         let c = &self.cfg;
         // The loop's voltage circle is the open-loop limit: it is given
         // the bus whose circle that is.
-        let v_lim = voltage_limit_v(c.max_voltage_v, inp.v_bus_v);
+        let v_lim = c.voltage_limit_v(inp.v_bus_v);
         let bus = v_lim / (self.current.max_modulation * FRAC_1_SQRT_3);
         let out = self.loop_.step(&CurrentLoopInput {
             i_abc_a: inp.i_abc_a,

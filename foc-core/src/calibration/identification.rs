@@ -95,9 +95,13 @@ pub struct IdentificationConfig {
     /// a turning field ([`Self::field_flux`]) and the mechanical step does
     /// not run (its torque pulses brake through zero speed, where nothing
     /// tells the rotor's angle): the inertia is the configuration's.
+    /// [`Self::measure_flux`] must then be set (the observer runs on the
+    /// flux linkage): without it the sequencer fails with
+    /// [`CalError::InvalidConfig`] after the gains.
     pub angle_sensor: bool,
-    /// The flux step without an angle sensor; its current and voltage
-    /// limit are the alignment's.
+    /// The flux step without an angle sensor ([`Self::new`]: the test
+    /// current and the open-loop voltage limit; the drive's lifecycle
+    /// lowers its modulation to the current stage's).
     pub field_flux: FieldFluxConfig,
 }
 
@@ -373,12 +377,15 @@ impl Identification {
         &mut self,
         current: CurrentLoopConfig,
     ) -> Result<Option<Identified>, CalError> {
-        let angle = AngleCalibration::sensorless(self.cfg.pole_pairs);
+        // Without a flux linkage the observer has nothing to run on: a
+        // drive without a sensor must measure it.
+        if !self.cfg.measure_flux {
+            return Err(CalError::InvalidConfig);
+        }
+        let counts = self.cfg.alignment.sensor_counts_per_rev;
+        let angle = AngleCalibration::sensorless(self.cfg.pole_pairs, counts);
         self.angle = Some(angle);
         self.permit = Some(super::permit::identified(angle, current)?);
-        if !self.cfg.measure_flux {
-            return self.finish(None);
-        }
         self.stage = Step::Flux;
         self.running = Running::FieldFlux(FieldFlux::new(self.cfg.field_flux, current));
         Ok(None)

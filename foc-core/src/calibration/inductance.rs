@@ -157,8 +157,9 @@ pub struct InductanceConfig {
     pub r_ohm: f32,
     /// Tell the rotor's swing onto the bias from the current instead of
     /// the angle sensor (a drive without one, design §29): while no wave
-    /// runs, a q current above [`SWING_IQ_SHARE`] of the bias is a rotor
-    /// that still turns (its back-EMF drives it).
+    /// runs, a q current (low-passed over 16 periods) above
+    /// [`SWING_IQ_SHARE`] of the bias is a rotor that still turns (its
+    /// back-EMF drives it).
     pub swing_from_current: bool,
 }
 
@@ -360,6 +361,9 @@ pub struct Inductance {
     cycle_n: u32,
     bias_periods: u32,
     i_d_filt: f32,
+    /// The q current through the same low-pass (the swing seen without a
+    /// sensor: [`InductanceConfig::swing_from_current`]).
+    i_q_filt: f32,
     motion: Motion,
     ld_h: f32,
     ld_restart: (f32, u32),
@@ -389,6 +393,7 @@ impl Inductance {
             cycle_n: 0,
             bias_periods: 0,
             i_d_filt: 0.0,
+            i_q_filt: 0.0,
             motion: Motion::NEW,
             ld_h: 0.0,
             ld_restart: (0.0, 1),
@@ -505,9 +510,11 @@ impl Inductance {
             self.cycle_n = 0;
         }
         let i_d_dc = self.i_d_dc_a;
+        // Low-passed like the d current: one noisy sample is no swing.
+        self.i_q_filt += (i.q - self.i_q_filt) * (1.0 / 16.0);
         let swinging = c.swing_from_current
             && self.wave.idle()
-            && i.q.abs() > SWING_IQ_SHARE * c.bias_current_a;
+            && self.i_q_filt.abs() > SWING_IQ_SHARE * c.bias_current_a;
         let moving = self.motion.update(inp.angle) || swinging;
         let v_new = approach_v(
             self.v_bias,

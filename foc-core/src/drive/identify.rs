@@ -145,11 +145,13 @@ impl Identifier {
             Some(c) if angle_ok => c.to_abc(),
             _ => nan,
         };
-        let mut inp = CalInput::open_loop(
-            i_abc,
-            s.angle.unwrap_or(MechanicalAngle::ZERO),
-            s.v_bus_v.unwrap_or(f32::NAN),
-        );
+        // Without a sensor nothing reads it, even where a (broken) one
+        // still answers: the routines see a rotor that does not move.
+        let angle = s
+            .angle
+            .filter(|_| self.id.config().angle_sensor)
+            .unwrap_or(MechanicalAngle::ZERO);
+        let mut inp = CalInput::open_loop(i_abc, angle, s.v_bus_v.unwrap_or(f32::NAN));
         inp.closed_loop = self
             .last_fb
             .filter(|f| matches!(f.mode, Mode::Velocity | Mode::Torque))

@@ -435,7 +435,7 @@ impl Lifecycle {
             // Keep the closed-loop permit: the same angle calibration with
             // the new gains, if they pass the permit's check.
             match Calibrated::supplied(stage.config().angle, cur) {
-                Ok(p) if stage.is_calibrated() => stage.set_calibration(&p),
+                Ok(p) if stage.holds_permit() => stage.set_calibration(&p),
                 _ => stage.set_current_config(cur),
             }
         }
@@ -484,10 +484,15 @@ impl Lifecycle {
         // A new identification never runs on the old calibration; on a
         // drive that runs sensorless it does without the angle sensor.
         stage.revoke_calibration();
-        let cfg = IdentificationConfig {
+        let mut cfg = IdentificationConfig {
             angle_sensor: stage.sensorless().is_none(),
             ..cfg
         };
+        // The turning field's voltage clips at the stage's modulation.
+        let m = stage.config().current.max_modulation;
+        if m < cfg.field_flux.max_modulation {
+            cfg.field_flux.max_modulation = m;
+        }
         self.identifier = Some(Identifier::new(cfg, operator));
         self.identify_seq = operator.seq;
         self.phase = LifePhase::Identify;

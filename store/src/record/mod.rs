@@ -55,8 +55,8 @@ use serde::{Deserialize, Serialize};
 pub const SCHEMA_VERSION: u16 = 7;
 
 /// Largest envelope (header, payload and CRC) in bytes. The largest record
-/// of schema 6 (32-character label, every option `Some`, every varint at
-/// its widest) takes 292; the rest is room for a later schema. The link
+/// of schema 7 (32-character label, every option `Some`, every varint at
+/// its widest) takes 293; the rest is room for a later schema. The link
 /// must move records this long (`foc_protocol::config::MAX_RECORD`).
 pub const MAX_RECORD_BYTES: usize = 320;
 

@@ -362,7 +362,24 @@ impl Sensorless {
         }
         if w.abs() < c.handover_rad_s {
             self.agree = 0;
-            self.waited = 0;
+            // The injection says (nearly) still while the observer sees the
+            // rotor turn at twice the hand-over speed: the injection follows
+            // no rotor (an open phase leaves it a plausible response along
+            // the other two phases' axis, where it stays) and a load turns
+            // the rotor unopposed. The observer's voltage model is wrong
+            // then too and its speed erratic, so the count goes up in such
+            // periods and down in the others: lost after a net
+            // `lock_periods`.
+            let w_obs = self.observer.speed_rad_s();
+            let runaway = w.abs() < c.release_rad_s && w_obs.abs() >= 2.0 * c.handover_rad_s;
+            self.waited = if runaway {
+                self.waited.saturating_add(1)
+            } else {
+                self.waited.saturating_sub(1)
+            };
+            if self.waited > c.lock_periods.max(1) {
+                return Err(LostLock);
+            }
             return Ok(Switch::Stay);
         }
         let apart = h.angle().diff_radians(self.observer.angle());

@@ -39,14 +39,16 @@ pub struct AngleCalibration {
 }
 
 impl AngleCalibration {
-    /// The calibration of a drive without an angle sensor (design §29):
-    /// `pole_pairs`, and [`Self::sensorless_only`].
-    pub const fn sensorless(pole_pairs: u8) -> Self {
+    /// The calibration made without reading the angle sensor (design
+    /// §29): `pole_pairs`, the board's sensor resolution kept (the store
+    /// checks it against the board's; the supervisor's angle checks use it
+    /// on the sensor), and [`Self::sensorless_only`].
+    pub const fn sensorless(pole_pairs: u8, sensor_counts_per_rev: u32) -> Self {
         Self {
             pole_pairs,
             zero_offset: ElectricalAngle::ZERO,
             reversed: false,
-            sensor_counts_per_rev: 0,
+            sensor_counts_per_rev,
             sensorless_only: true,
         }
     }

@@ -95,16 +95,17 @@ impl CurrentStage {
     }
 
     /// The slower back-up of the model check: the loop's tracking error
-    /// against the supervisor's band, excused on the voltage limit (the
-    /// reference out of reach: back-EMF, or `L di/dt` while a large
-    /// inductance slews) and while the angle reading looks frozen (the
-    /// stuck check's to name). False when it trips.
+    /// against the supervisor's band, excused on the voltage limit when
+    /// `limit_excuses` (the reference out of reach: back-EMF, or `L di/dt`
+    /// while a large inductance slews) and while the angle reading looks
+    /// frozen (the stuck check's to name). False when it trips.
     #[inline(always)]
     pub(super) fn currents_track(
         &mut self,
         out: Option<&CurrentLoopOutput>,
         i_ref: Dq,
         w_e_rad_s: f32,
+        limit_excuses: bool,
     ) -> bool {
         let Some(o) = out else {
             return true;
@@ -128,7 +129,7 @@ impl CurrentStage {
             tracked_rad_s
         };
         let moved_rad = speed * self.config.current.ts_s * self.state.unchanged_periods as f32;
-        let excused = o.voltage_limited || moved_rad > 2.0 * count_rad;
+        let excused = (limit_excuses && o.voltage_limited) || moved_rad > 2.0 * count_rad;
         self.supervisor
             .check_tracking(ed * ed + eq * eq, excused)
             .is_none()

@@ -124,6 +124,9 @@ pub struct CurrentStageState {
     pub rejected: u32,
     /// A calibration permit is installed (closed-loop modes unlocked).
     pub calibrated: bool,
+    /// Injection (design §28): periods in a row on the voltage limit (a
+    /// slewing current is excused that long, an open winding not).
+    pub limited_periods: u32,
     /// The drive runs on the observer because its angle sensor failed
     /// (design §27, limp-home).
     pub limp_home: bool,
@@ -190,6 +193,7 @@ impl CurrentStageState {
             period: 0,
             rejected: 0,
             calibrated: false,
+            limited_periods: 0,
             limp_home: false,
             last_raw: None,
             interpolation,
@@ -402,7 +406,15 @@ impl CurrentStage {
     /// calibration of it) is installed.
     #[inline]
     pub fn is_calibrated(&self) -> bool {
-        self.state.calibrated && (!self.config.angle.sensorless_only || self.sensorless.is_some())
+        self.holds_permit() && (!self.config.angle.sensorless_only || self.sensorless.is_some())
+    }
+
+    /// A permit is installed, whether or not it unlocks the closed loop on
+    /// the angle source in force ([`Self::is_calibrated`]): a change of
+    /// gains keeps it.
+    #[inline]
+    pub fn holds_permit(&self) -> bool {
+        self.state.calibrated
     }
 
     /// Replace the current-loop configuration with values no permit vouches

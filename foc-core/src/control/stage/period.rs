@@ -183,7 +183,7 @@ impl CurrentStage {
         let w_observer = self.observer.velocity_rad_s() * pp;
         if closed.is_some()
             && !(self.sensors_plausible(out.as_ref(), sensed, i_ref, w_observer)
-                && self.currents_track(out.as_ref(), i_ref, w_e))
+                && self.currents_track(out.as_ref(), i_ref, w_e, true))
         {
             // The bridge goes off: nothing recorded this period was applied.
             self.model.reset();

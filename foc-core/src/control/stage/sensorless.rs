@@ -299,9 +299,23 @@ impl CurrentStage {
         }
         self.model.idle(sensed.theta_e);
         // In the closed loop the currents must follow their reference (the
-        // tracking check, design §16; the model check waits).
-        if !starting && !self.currents_track(Some(&out), i_ref, self.tracker.velocity_rad_s() * pp)
-        {
+        // tracking check, design §16; the model check waits). Below the
+        // hand-over speed there is no back-EMF to excuse a voltage limit,
+        // only the slewing of a large inductance: twice the current range
+        // at half the voltage. A winding that does not take the current
+        // (an open phase, where the injection locks onto the other two
+        // phases' axis) trips here instead of leaving a load to turn the
+        // rotor unopposed.
+        self.state.limited_periods = if out.voltage_limited {
+            self.state.limited_periods.saturating_add(1)
+        } else {
+            0
+        };
+        let v_max = self.config.current.max_modulation * sensed.v_bus_v * crate::FRAC_1_SQRT_3;
+        let slew_s = 4.0 * self.config.current.motor.lq_h * lim / v_max;
+        let slewing = (self.state.limited_periods as f32) * self.config.current.ts_s < slew_s;
+        let w_e = self.tracker.velocity_rad_s() * pp;
+        if !starting && !self.currents_track(Some(&out), i_ref, w_e, slewing) {
             self.state.active = Command::Disable;
             return (None, i_ref, angle);
         }
