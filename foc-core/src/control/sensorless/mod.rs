@@ -250,6 +250,10 @@ pub struct Sensorless {
     periods: u32,
     agree: u32,
     waited: u32,
+    /// In `Hfi` below the hand-over speed: the net count of periods the
+    /// observer saw a runaway the injection does not (its own counter: the
+    /// hand-over's wait is `waited`).
+    runaway: u32,
     /// The q current held from a hand-over until the speed stage's output
     /// changes, with that output at the hand-over \[A\].
     hold: Option<(f32, f32)>,
@@ -285,6 +289,7 @@ impl Sensorless {
             periods: 0,
             agree: 0,
             waited: 0,
+            runaway: 0,
             hold: None,
             blend_a: 0.0,
             blend_step_a: 0.0,

@@ -334,6 +334,7 @@ impl Sensorless {
         self.last_angle = h.angle();
         self.region = Region::Hfi;
         self.periods = 0;
+        self.runaway = 0;
         Ok(switch)
     }
 
@@ -370,18 +371,20 @@ impl Sensorless {
             // then too and its speed erratic, so the count goes up in such
             // periods and down in the others: lost after a net
             // `lock_periods`.
+            self.waited = 0;
             let w_obs = self.observer.speed_rad_s();
             let runaway = w.abs() < c.release_rad_s && w_obs.abs() >= 2.0 * c.handover_rad_s;
-            self.waited = if runaway {
-                self.waited.saturating_add(1)
+            self.runaway = if runaway {
+                self.runaway.saturating_add(1)
             } else {
-                self.waited.saturating_sub(1)
+                self.runaway.saturating_sub(1)
             };
-            if self.waited > c.lock_periods.max(1) {
+            if self.runaway > c.lock_periods.max(1) {
                 return Err(LostLock);
             }
             return Ok(Switch::Stay);
         }
+        self.runaway = 0;
         let apart = h.angle().diff_radians(self.observer.angle());
         let w_obs = self.observer.speed_rad_s();
         let agrees = libm::fabsf(apart) < 0.3 && (w_obs - w).abs() <= 0.2 * w.abs();
@@ -420,6 +423,7 @@ impl Sensorless {
         self.region = Region::Hfi;
         self.agree = 0;
         self.waited = 0;
+        self.runaway = 0;
         self.periods = 0;
         self.blend_a = 0.0;
         Switch::Stay

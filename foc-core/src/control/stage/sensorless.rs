@@ -299,10 +299,11 @@ impl CurrentStage {
         }
         self.model.idle(sensed.theta_e);
         // In the closed loop the currents must follow their reference (the
-        // tracking check, design §16; the model check waits). Below the
-        // hand-over speed there is no back-EMF to excuse a voltage limit,
-        // only the slewing of a large inductance: twice the current range
-        // at half the voltage. A winding that does not take the current
+        // tracking check, design §16; the model check waits). On the
+        // injection's angle (at low speed: the injection hands over to the
+        // observer once it agrees) there is little back-EMF to excuse a
+        // voltage limit, only the slewing of a large inductance: twice the
+        // current range at half the voltage. A winding that does not take the current
         // (an open phase, where the injection locks onto the other two
         // phases' axis) trips here instead of leaving a load to turn the
         // rotor unopposed.
