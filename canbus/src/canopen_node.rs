@@ -1,32 +1,20 @@
 //! The CANopen node ([`foc_canopen::node::Node`], CiA 301 + CiA 402) over
 //! the host drive: the protocol of the drives the bus hosts by default.
 //!
-//! [`HostDrive`] is the node's [`CanDevice`]: its identity is the emulated
+//! [`HostDrive`] is the node's [`CanDevice`](foc_canopen::node::CanDevice): its identity is the emulated
 //! board's, its link-watchdog setting the one loaded at boot, and the
 //! communication settings a 0x1010 "save" keeps live in the drive's flash
-//! next to its configuration record (`HostDrive::save_comm`), so a power
+//! next to its configuration record (`foc_simdrive::can`), so a power
 //! cycle (`reset <id>` on the control channel) boots the node with them.
 
 use crate::bus::BusState;
 use crate::drive_node::DriveProtocol;
 use crate::host_drive::HostDrive;
-use foc_canopen::eds::EdsInfo;
-use foc_canopen::node::{CanDevice, CommSettings, Identity, Node};
+use foc_canopen::node::{CommSettings, Node};
 use foc_canopen::CanFrame;
-use foc_protocol::device::WatchdogConfig;
-use foc_protocol::message::ErrorCode;
 
-/// The identity the hosted drives report (0x1018, 0x1008, 0x1009): the
-/// EDS's vendor, product and revision numbers (the project has no CiA
-/// vendor ID: 0, none assigned).
-pub const IDENTITY: Identity = Identity {
-    vendor_id: EdsInfo::FOC_DRIVE.vendor_number,
-    product_code: EdsInfo::FOC_DRIVE.product_number,
-    revision: EdsInfo::FOC_DRIVE.revision_number,
-    serial: 0,
-    device_name: "rust-foc drive (host test bus)",
-    hardware_version: "emulated board + plant",
-};
+/// The identity the hosted drives report (0x1018, 0x1008, 0x1009).
+pub use foc_simdrive::can::IDENTITY;
 
 /// Heartbeat producer time of a node at first boot \[ms\].
 pub const HEARTBEAT_MS: u16 = 100;
@@ -39,21 +27,6 @@ pub fn make(id: u8, drive: &HostDrive) -> Node {
         CommSettings::new(id, 1000, HEARTBEAT_MS, None).unwrap_or(CommSettings::DEFAULT)
     });
     Node::new(settings)
-}
-
-/// The service's rules (`foc_service::Link`'s `CanDevice`), as on a board.
-impl CanDevice for HostDrive {
-    fn identity(&self) -> Identity {
-        self.view_parts().1.board().can_identity
-    }
-    fn link_setting(&self) -> WatchdogConfig {
-        self.boot_link_setting().unwrap_or(WatchdogConfig::OFF)
-    }
-    fn save_comm(&mut self, s: &CommSettings) -> Result<(), ErrorCode> {
-        self.with_link(|l| l.save_comm(s))?;
-        self.comm_saved(*s);
-        Ok(())
-    }
 }
 
 impl DriveProtocol for Node {

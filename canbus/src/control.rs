@@ -2,7 +2,7 @@
 //!
 //! | line | effect | answer |
 //! |---|---|---|
-//! | `fault <node-id> <kind>` | inject a drive fault through its plant or sensors ([`crate::bus::BusNode::inject_fault`]; kinds of the real drive: [`crate::host_drive::FaultKind`]) | `ok <what>` |
+//! | `fault <node-id> <kind>` | inject a drive fault through its plant or sensors ([`crate::bus::BusNode::inject_fault`]; kinds of the real drive: [`foc_simdrive::FaultKind`]) | `ok <what>` |
 //! | `bus-off <node-id> <ms>` | that node's controller goes bus-off for `ms` of bus time ([`crate::bus::Bus::bus_off`]) | `ok bus-off <id> until <us>` |
 //! | `reset <node-id>` | power-cycle that drive (its flash kept) and boot it | `ok reset <id>` |
 //! | `time` | - | `ok <bus time us>` |

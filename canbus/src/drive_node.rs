@@ -17,10 +17,10 @@
 
 use crate::bus::{BusNode, BusState};
 use crate::fake::periods_between;
-use crate::host_drive::{FaultKind, HostDrive};
 use foc_canopen::CanFrame;
 use foc_core::control::Command;
 use foc_protocol::device::DeviceContext;
+use foc_simdrive::{FaultKind, HostDrive};
 
 /// A CAN protocol over the drive: the bus's calls, with the drive as the
 /// device context (see [`crate::bus::BusNode`] for when each is called).

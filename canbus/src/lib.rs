@@ -48,7 +48,9 @@ pub mod canopen_node;
 pub mod control;
 pub mod drive_node;
 pub mod fake;
-pub mod host_drive;
+/// The real drive on the host (moved to its own crate, `foc-simdrive`,
+/// which `foc-ctl simulate` serves too).
+pub use foc_simdrive::drive as host_drive;
 pub mod server;
 
 use bus::Bus;

@@ -3,12 +3,12 @@
 
 use foc_canbus::bus::{Bus, Origin, PortKind};
 use foc_canbus::drive_node::{DriveNode, MiniProtocol};
-use foc_canbus::host_drive::{FaultKind, HostDrive};
 use foc_canopen::CanFrame;
 use foc_core::control::{Command, Mode};
 use foc_protocol::config::StoreOp;
 use foc_protocol::device::{DeviceContext, WatchdogConfig};
 use foc_protocol::message::SpeedGains;
+use foc_simdrive::{FaultKind, HostDrive};
 
 const LINK: WatchdogConfig = WatchdogConfig {
     timeout_periods: 20_000,

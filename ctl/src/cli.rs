@@ -164,16 +164,35 @@ pub(super) enum Cmd {
         #[command(subcommand)]
         op: ConfigCmd,
     },
-    /// Serve a simulated device (kinematic model) on a TCP address, for trying the tool.
-    Simulate {
-        /// Address to listen on.
-        #[arg(long, default_value = "127.0.0.1:4444")]
-        listen: String,
-        /// Mechanical end stops of the simulated rotor [rad, rotor] (to try
-        /// `home end-stop`).
-        #[arg(long, num_args = 2, value_names = ["LOW", "HIGH"], allow_hyphen_values = true)]
-        end_stops: Option<Vec<f32>>,
-    },
+    /// Serve a simulated drive on a TCP address: the real drive (foc-core's
+    /// control, identification included) on the bench's motor and inverter
+    /// model, in real time; several clients at once. It starts as a board
+    /// powers up: uncalibrated until `calibrate identification`.
+    Simulate(SimulateArgs),
+}
+
+/// `simulate`'s options.
+#[derive(clap::Args)]
+pub(super) struct SimulateArgs {
+    /// Address to listen on.
+    #[arg(long, default_value = "127.0.0.1:4444")]
+    pub(super) listen: String,
+    /// Motor file (tests/motors/*.toml) to simulate (default: the
+    /// emulated board's motor, as in QEMU).
+    #[arg(long)]
+    pub(super) motor: Option<std::path::PathBuf>,
+    /// Simulated seconds per real second (default 1: real time; a
+    /// machine too slow for the pace slows the simulation down).
+    #[arg(long, default_value_t = 1.0)]
+    pub(super) time_scale: f64,
+    /// Start calibrated from the model's exact values, as after an
+    /// identification (skips its few seconds; for trying the tool).
+    #[arg(long)]
+    pub(super) calibrated: bool,
+    /// Mechanical end stops of the simulated rotor [rad, rotor] (to try
+    /// `home end-stop`).
+    #[arg(long, num_args = 2, value_names = ["LOW", "HIGH"], allow_hyphen_values = true)]
+    pub(super) end_stops: Option<Vec<f32>>,
 }
 
 #[derive(clap::Args)]

@@ -7,9 +7,10 @@
 //!   operations with a longer timeout for flash stalls).
 //! - [`joint`]: robot joints: the joint's settings, homing, and texts that
 //!   say which frame (output or rotor) a value is in.
-//! - [`sim`]: a simulated device (the real [`foc_protocol::DeviceState`]
-//!   over a kinematic drive model) served on a TCP socket, for tests and for
-//!   trying `foc-ctl` without hardware.
+//! - [`sim`]: the simulated drive (the real drive of [`foc_simdrive`]:
+//!   foc-core's control on the bench plant, behind the device service's
+//!   rules, one protocol session per client) served on a TCP socket in
+//!   real time, for tests and for trying `foc-ctl` without hardware.
 //!
 //! ```no_run
 //! use foc_ctl::Client;

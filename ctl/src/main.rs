@@ -68,8 +68,8 @@ fn fault_list(bits: u32) -> String {
 type CliResult = Result<(), Box<dyn std::error::Error>>;
 
 fn run(cli: Cli) -> CliResult {
-    if let Cmd::Simulate { listen, end_stops } = &cli.cmd {
-        return simulate(listen, end_stops.as_deref());
+    if let Cmd::Simulate(a) = &cli.cmd {
+        return simulate(a);
     }
     let mut c = connect(&cli)?;
     match cli.cmd {
@@ -106,14 +106,32 @@ fn run(cli: Cli) -> CliResult {
     }
 }
 
-/// `simulate`: serve the simulated device until killed.
-fn simulate(listen: &str, end_stops: Option<&[f32]>) -> CliResult {
-    let mut dev = foc_ctl::sim::SimDevice::default();
-    if let Some(&[lo, hi]) = end_stops {
-        dev.drive.stops_rad = (lo, hi);
+/// `simulate`: serve the simulated drive until killed.
+fn simulate(a: &SimulateArgs) -> CliResult {
+    let setup = match &a.motor {
+        Some(p) => foc_bench::mission::Setup::load(p)
+            .map_err(|e| format!("motor file {}: {e}", p.display()))?,
+        None => foc_bench::scope_step::emulated_setup(),
+    };
+    if !(a.time_scale > 0.0 && a.time_scale <= 100.0) {
+        return Err(format!("--time-scale {} is outside (0, 100]", a.time_scale).into());
     }
-    let server = SimServer::spawn_with(std::net::TcpListener::bind(listen)?, dev)?;
-    eprintln!("simulated device on {} (Ctrl-C to stop)", server.addr());
+    let mut opts = foc_ctl::sim::Options::simulator(setup);
+    if let Some(&[lo, hi]) = a.end_stops.as_deref() {
+        opts.end_stops_rad = (lo, hi);
+    }
+    let name = opts.setup.name.clone();
+    let mut dev = foc_ctl::sim::SimDevice::new(opts);
+    if a.calibrated && !dev.drive.calibrate_from_bench() {
+        return Err("the simulated drive refused its calibration".into());
+    }
+    let listener = std::net::TcpListener::bind(&a.listen)
+        .map_err(|e| format!("cannot listen on {}: {e}", a.listen))?;
+    let server = SimServer::spawn_scaled(listener, dev, a.time_scale)?;
+    eprintln!(
+        "simulated drive ({name}) on {} (Ctrl-C to stop)",
+        server.addr()
+    );
     server.wait();
     Ok(())
 }
@@ -330,7 +348,7 @@ fn configure(c: &mut Client, setting: Cmd) -> CliResult {
                 Reaction::Hold => TimeoutReaction::Hold,
             },
         })?,
-        Cmd::Simulate { .. }
+        Cmd::Simulate(_)
         | Cmd::Ping
         | Cmd::Mode { .. }
         | Cmd::KeepAlive { .. }
@@ -390,7 +408,28 @@ fn set_gains(c: &mut Client, which: GainsCmd) -> Result<(), ClientError> {
     }
 }
 
+/// A reader that closed the pipe (`foc-ctl status | head -1`) ends the
+/// program quietly: `print!` panics on a broken pipe, and this hook turns
+/// that one panic into a silent exit (status 0: the reader has what it
+/// wanted); every other panic is reported as usual.
+fn quiet_on_broken_pipe() {
+    let default = std::panic::take_hook();
+    std::panic::set_hook(Box::new(move |info| {
+        let msg = info
+            .payload()
+            .downcast_ref::<String>()
+            .map(String::as_str)
+            .or_else(|| info.payload().downcast_ref::<&str>().copied())
+            .unwrap_or("");
+        if msg.contains("Broken pipe") {
+            std::process::exit(0);
+        }
+        default(info);
+    }));
+}
+
 fn main() -> ExitCode {
+    quiet_on_broken_pipe();
     match run(Cli::parse()) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {

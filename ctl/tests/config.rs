@@ -2,10 +2,11 @@
 //! `foc-ctl` binary against the simulated device over TCP (its store is a
 //! RAM flash), and against a misbehaving fake device.
 
+use foc_bench::scope_step::emulated_setup;
 use foc_core::control::stage::TimeoutReaction;
 use foc_core::control::Command;
 use foc_ctl::config::TransferError;
-use foc_ctl::sim::{SimDevice, SimServer};
+use foc_ctl::sim::{HostDrive, Options, SimDevice, SimServer};
 use foc_ctl::{Client, ClientError};
 use foc_protocol::config::{Chunk, ConfigSource, StoreOp, CHUNK_BYTES};
 use foc_protocol::frame::{encode, FrameDecoder, MAX_FRAME};
@@ -21,7 +22,7 @@ use std::time::{Duration, Instant};
 fn server(calibrated: bool) -> SimServer {
     let mut dev = SimDevice::default();
     if calibrated {
-        dev.drive.identify_now();
+        assert!(dev.drive.calibrate_from_bench());
     }
     SimServer::spawn_with(TcpListener::bind("127.0.0.1:0").unwrap(), dev).unwrap()
 }
@@ -549,12 +550,13 @@ fn store_requests_wait_longer_than_others() {
 #[test]
 fn a_damaged_stored_record_is_refused_and_changes_nothing() {
     // A sim whose flash holds a saved record with one bit flipped in it.
-    let mut dev = SimDevice::default();
-    let mut store = dev.drive.store.take().unwrap();
-    let mut r = dev.drive.live_record(WatchdogConfig::OFF);
+    let mut drive =
+        HostDrive::with_options(Options::simulator(emulated_setup()), Default::default());
+    let mut r = drive.live_record(WatchdogConfig::OFF);
     r.label = foc_store::Label::try_from("to be damaged").unwrap();
+    let store = drive.store_mut().unwrap();
     store.save(&r).unwrap();
-    let mut flash = store.into_flash();
+    let mut flash = drive.flash_copy().unwrap();
     let image: Vec<u8> = flash.bytes_mut().map(|b| *b).collect();
     let at = image
         .windows(13)
@@ -564,7 +566,10 @@ fn a_damaged_stored_record_is_refused_and_changes_nothing() {
     // label's first byte.
     let byte = flash.bytes_mut().nth(at).unwrap();
     *byte &= *byte - 1;
-    dev.drive.store = Some(foc_store::Store::new(flash, 0..4096).unwrap());
+    let dev = SimDevice::with_drive(HostDrive::with_options(
+        Options::simulator(emulated_setup()),
+        flash,
+    ));
     let server = SimServer::spawn_with(TcpListener::bind("127.0.0.1:0").unwrap(), dev).unwrap();
 
     let mut c = client(server.addr());

@@ -3,10 +3,11 @@
 //! frame, impedance mode, the joint's settings, homing to an end stop and
 //! the link watchdog's impedance reaction.
 
+use foc_bench::scope_step::emulated_setup;
 use foc_core::control::joint::Impedance;
 use foc_core::control::stage::TimeoutReaction;
 use foc_core::control::{Command, Fault, Mode};
-use foc_ctl::sim::{SimDevice, SimServer};
+use foc_ctl::sim::{Options, SimDevice, SimServer};
 use foc_ctl::{Client, ClientError};
 use foc_protocol::message::{ErrorCode, HomingState, JointSettings, WatchdogConfig};
 use std::net::{SocketAddr, TcpListener};
@@ -15,9 +16,10 @@ use std::time::{Duration, Instant};
 
 /// A calibrated simulated drive, with end stops at `stops_rad` \[rotor\].
 fn server(stops_rad: (f32, f32)) -> SimServer {
-    let mut dev = SimDevice::default();
-    dev.drive.identify_now();
-    dev.drive.stops_rad = stops_rad;
+    let mut opts = Options::simulator(emulated_setup());
+    opts.end_stops_rad = stops_rad;
+    let mut dev = SimDevice::new(opts);
+    assert!(dev.drive.calibrate_from_bench());
     SimServer::spawn_with(TcpListener::bind("127.0.0.1:0").unwrap(), dev).unwrap()
 }
 
@@ -63,9 +65,10 @@ fn impedance_and_telemetry_in_the_output_frame() {
     let mut c = client(server.addr());
     let j = geared(&mut c);
     assert_eq!(c.joint().unwrap(), j);
-    // The rotor at 0 is the output at (0 - 3) / -20.
+    // The rotor at 0 is the output at (0 - 3) / -20 (the encoder reads
+    // the rotor within half a count, 0.77 mrad, 38 urad at the output).
     let t = c.read_telemetry().unwrap();
-    assert!(close(t.position_rad, 0.15), "{t:?}");
+    assert!((t.position_rad - 0.15).abs() < 4e-5, "{t:?}");
     // Hold the output at 0.1 (rotor 1.0): 2 N m/rad at the output is
     // 5e-3 at the rotor.
     let cmd = Impedance {
@@ -86,9 +89,9 @@ fn impedance_and_telemetry_in_the_output_frame() {
         assert!(Instant::now() < end, "{t:?}");
         std::thread::sleep(Duration::from_millis(10));
     }
-    // Above the rotor's stiffness limit (42 N m/rad there): refused.
+    // Far above the rotor's stiffness limit: refused.
     let stiff = Impedance {
-        kp_nm_per_rad: 20_000.0,
+        kp_nm_per_rad: 1.0e9,
         ..cmd
     };
     match c.set_command(Command::Impedance(stiff)) {
@@ -97,8 +100,9 @@ fn impedance_and_telemetry_in_the_output_frame() {
     }
     drop(c);
     let dev = server.stop().unwrap();
-    let Command::Impedance(rot) = dev.drive.command else {
-        panic!("{:?}", dev.drive.command)
+    let active = dev.drive.sim.cascade.feedback().active;
+    let Command::Impedance(rot) = active else {
+        panic!("{active:?}")
     };
     assert!(close(rot.position_rad, 1.0) && close(rot.kp_nm_per_rad, 5e-3));
     assert!(close(rot.kd_nm_s_per_rad, 5e-5));

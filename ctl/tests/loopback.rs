@@ -27,6 +27,7 @@ fn wait_for(
 
 #[test]
 fn velocity_and_position_over_tcp() {
+    // The drive's own identification (about 6 s, real time).
     let server = SimServer::spawn(TcpListener::bind("127.0.0.1:0").unwrap()).unwrap();
     let mut c = Client::connect_tcp(server.addr()).unwrap();
     c.set_timeout(Duration::from_millis(500));
@@ -42,7 +43,7 @@ fn velocity_and_position_over_tcp() {
         r => panic!("{r:?}"),
     }
     c.calibrate(Calibration::Identification).unwrap();
-    let end = Instant::now() + Duration::from_secs(5);
+    let end = Instant::now() + Duration::from_secs(60);
     while c.param(ParamId::Calibrated).unwrap() != 1.0 {
         assert!(Instant::now() < end, "calibration did not finish");
         std::thread::sleep(Duration::from_millis(10));
@@ -73,9 +74,11 @@ fn velocity_and_position_over_tcp() {
         .telemetry(TelemetryRate::Hz(200.0), Duration::from_millis(500))
         .unwrap();
     assert!(samples.len() >= 20, "{} samples", samples.len());
-    assert!(samples
-        .iter()
-        .all(|s| (s.sample.velocity_rad_s - 20.0).abs() < 0.5));
+    let v: Vec<f32> = samples.iter().map(|s| s.sample.velocity_rad_s).collect();
+    let mean = v.iter().sum::<f32>() / v.len() as f32;
+    let worst = v.iter().map(|x| (x - 20.0).abs()).fold(0.0, f32::max);
+    eprintln!("streamed velocity: mean {mean} rad/s, worst error {worst} rad/s");
+    assert!((mean - 20.0).abs() < 0.2 && worst < 2.0, "{v:?}");
     assert!(samples
         .windows(2)
         .all(|w| w[1].sample.period > w[0].sample.period));
@@ -101,7 +104,7 @@ fn velocity_and_position_over_tcp() {
 #[test]
 fn faults_and_watchdog_over_tcp() {
     let mut dev = SimDevice::default();
-    dev.drive.identify_now();
+    assert!(dev.drive.calibrate_from_bench());
     dev.drive.trip(Fault::BusOverVoltage);
     let server = SimServer::spawn_with(TcpListener::bind("127.0.0.1:0").unwrap(), dev).unwrap();
     let mut c = Client::connect_tcp(server.addr()).unwrap();
@@ -114,7 +117,8 @@ fn faults_and_watchdog_over_tcp() {
         Err(ClientError::Nack(ErrorCode::Faulted))
     ));
     c.clear_faults().unwrap();
-    assert!(c.faults().unwrap().set.is_empty());
+    let f = c.faults().unwrap();
+    assert!(f.set.is_empty(), "{f:?}");
 
     // Watchdog: 0.1 s (2000 periods at 20 kHz), reaction disable.
     c.set_watchdog(foc_protocol::WatchdogConfig {
@@ -176,15 +180,18 @@ fn garbage_on_the_line_and_timeouts() {
 
 #[test]
 fn limits_above_the_simulated_boards_hardware_are_refused() {
-    // The firmware's rule (foc-service), with the simulated board's 10 A.
-    let server = SimServer::spawn(TcpListener::bind("127.0.0.1:0").unwrap()).unwrap();
+    // The firmware's rule (foc-service), with the simulated board's
+    // hardware limit (the emulated board's 10 A).
+    let dev = SimDevice::default();
+    let mut l = dev.drive.settings().limits;
+    let server = SimServer::spawn_with(TcpListener::bind("127.0.0.1:0").unwrap(), dev).unwrap();
     let mut c = Client::connect_tcp(server.addr()).unwrap();
-    let mut l = foc_ctl::sim::default_settings().limits;
-    l.max_current_a = foc_ctl::sim::MAX_CURRENT_A * 2.0;
+    let board_max_a = foc_bench::scope_step::emulated_setup().max_current_a;
+    l.max_current_a = board_max_a * 2.0;
     match c.set_limits(l) {
         Err(ClientError::Nack(ErrorCode::Unsupported)) => {}
         r => panic!("{r:?}"),
     }
-    l.max_current_a = foc_ctl::sim::MAX_CURRENT_A;
+    l.max_current_a = board_max_a;
     c.set_limits(l).unwrap();
 }

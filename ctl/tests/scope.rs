@@ -1,26 +1,23 @@
 //! The scope and the tuning report against the simulated device: a manual
-//! capture read out whole, and `tune` on each loop, the current step's
-//! figures checked against the model's own first-order lag.
+//! capture read out whole, and `tune` on each loop of the real drive, the
+//! current step's figures checked against the loop's design.
 
 use foc_core::control::Command;
 use foc_core::scope::{ScopeConfig, Signal, TriggerKind};
-use foc_ctl::sim::SimServer;
+use foc_ctl::sim::{SimDevice, SimServer};
 use foc_ctl::tune::{self, Loop};
 use foc_ctl::{Client, ClientError};
-use foc_protocol::message::{Calibration, ErrorCode, ParamId};
+use foc_protocol::message::{ErrorCode, ParamId};
 use std::net::TcpListener;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 fn calibrated() -> (SimServer, Client) {
-    let server = SimServer::spawn(TcpListener::bind("127.0.0.1:0").unwrap()).unwrap();
+    let mut dev = SimDevice::default();
+    assert!(dev.drive.calibrate_from_bench());
+    let server = SimServer::spawn_with(TcpListener::bind("127.0.0.1:0").unwrap(), dev).unwrap();
     let mut c = Client::connect_tcp(server.addr()).unwrap();
     c.set_timeout(Duration::from_millis(500));
-    c.calibrate(Calibration::Identification).unwrap();
-    let end = Instant::now() + Duration::from_secs(5);
-    while c.param(ParamId::Calibrated).unwrap() != 1.0 {
-        assert!(Instant::now() < end, "calibration did not finish");
-        std::thread::sleep(Duration::from_millis(10));
-    }
+    assert_eq!(c.param(ParamId::Calibrated).unwrap(), 1.0);
     (server, c)
 }
 
@@ -55,14 +52,19 @@ fn a_forced_capture_is_read_out_whole() {
     assert_eq!(cap.samples(), 300);
     assert_eq!(cap.report.status.trigger_index, 100);
     assert!((cap.report.sample_period_s - 4.0 / 20_000.0).abs() < 1e-9);
-    // Position advances by velocity x 4 periods per sample, in velocity mode (2).
+    // Over the capture the position advances by the mean velocity times
+    // its length (4 periods per sample), in velocity mode (2); the real
+    // drive's estimate is noisy sample to sample, its mean is not.
     let p = cap.channel(Signal::PositionRad).unwrap();
     let w = cap.channel(Signal::VelocityRadS).unwrap();
     let dt = 4.0 / 20_000.0;
-    for k in 1..p.len() {
-        let want = 0.5 * (w[k] + w[k - 1]) * dt;
-        assert!((p[k] - p[k - 1] - want).abs() < 1e-4, "sample {k}");
-    }
+    let n = p.len();
+    let travelled = p[n - 1] - p[0];
+    let want: f64 = w.windows(2).map(|x| 0.5 * (x[0] + x[1]) * dt).sum();
+    assert!(
+        (travelled - want).abs() < 0.02 * want.abs() + 2e-3,
+        "travelled {travelled} rad, velocity integral {want} rad"
+    );
     assert!(cap
         .channel(Signal::ModeCode)
         .unwrap()
@@ -76,30 +78,33 @@ fn a_forced_capture_is_read_out_whole() {
 }
 
 #[test]
-fn current_tuning_measures_the_models_lag() {
+fn current_tuning_measures_the_real_loop_against_its_design() {
     let (_server, mut c) = calibrated();
     let r = tune::run(&mut c, Loop::Current, 2.0, Duration::from_secs(5)).unwrap();
-    // The model: first order, tau = L / kp.
+    // The design: the PI's zero cancels the winding's pole, a first order
+    // of tau = L / kp; the real loop adds the PWM's delay (a period and a
+    // half), so it is a little slower, never oscillating.
     let kp = c.param(ParamId::CurrentKp).unwrap() as f64;
     let l = c.param(ParamId::LqH).unwrap() as f64;
     let tau = l / kp;
     let f = r.figures;
-    assert!(f.initial.abs() < 1e-6, "{f:?}");
-    assert!(f.overshoot_pct < 0.5, "{f:?}");
+    eprintln!("current step on the real loop: {f:?}, tau {tau} s");
+    assert!(f.initial.abs() < 0.02 * 2.0, "{f:?}");
+    assert!(f.overshoot_pct < 5.0, "{f:?}");
     let rise = f.rise_s.unwrap();
     let want = tau * 9f64.ln();
-    // Sampled every period (50 us): within one period.
-    assert!((rise - want).abs() < 50e-6, "rise {rise} want {want}");
-    let settle = f.settling_s.unwrap();
+    // Sampled every period (50 us): slower by at most two periods.
     assert!(
-        (settle - tau * 20f64.ln()).abs() < 60e-6,
-        "settling {settle}"
+        rise > want - 50e-6 && rise < want + 100e-6,
+        "rise {rise} want {want}"
     );
+    let settle = f.settling_s.unwrap();
+    assert!(settle < 3.0 * tau * 20f64.ln(), "settling {settle}");
     assert_eq!(f.settling_periods, Some((settle / 50e-6).round() as u32));
     let bw = f.bandwidth_hz.unwrap();
     let designed = kp / (2.0 * std::f64::consts::PI * l);
     assert!(
-        (bw / designed - 1.0).abs() < 0.1,
+        (bw / designed - 1.0).abs() < 0.25,
         "bandwidth {bw} designed {designed}"
     );
     assert!(r.suggestions.iter().any(|s| s.contains("gains current")));

@@ -41,7 +41,7 @@ def main() -> int:
         if d.param("calibrated") != 1.0:
             print("not calibrated: running the identification")
             d.calibrate("identification")
-            if not wait_calibrated(d, 5.0):
+            if not wait_calibrated(d, 60.0):
                 print("the identification did not finish", file=sys.stderr)
                 return 1
         try:

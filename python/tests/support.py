@@ -46,14 +46,15 @@ def free_port() -> int:
 
 
 class Simulator:
-    """`foc-ctl simulate --listen 127.0.0.1:PORT` as a subprocess (in its
-    own process group, so a `cargo run` and its child both end)."""
+    """`foc-ctl simulate --listen 127.0.0.1:PORT [extra...]` as a
+    subprocess (in its own process group, so a `cargo run` and its child
+    both end)."""
 
-    def __init__(self, cmd: List[str]) -> None:
+    def __init__(self, cmd: List[str], extra: Optional[List[str]] = None) -> None:
         self.port = free_port()
         self._log = tempfile.TemporaryFile()
         self.proc = subprocess.Popen(
-            cmd + ["simulate", "--listen", f"127.0.0.1:{self.port}"],
+            cmd + ["simulate", "--listen", f"127.0.0.1:{self.port}"] + (extra or []),
             cwd=REPO_ROOT,
             stdout=subprocess.DEVNULL,
             stderr=self._log,

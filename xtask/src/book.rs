@@ -20,7 +20,7 @@ use crate::util::{self, Error, Result};
 const MDBOOK_VERSION: &str = "0.5.4";
 
 /// The library crates whose API docs `cargo xtask doc` builds.
-pub const DOC_CRATES: [&str; 10] = [
+pub const DOC_CRATES: [&str; 11] = [
     "foc-core",
     "foc-service",
     "foc-protocol",
@@ -29,6 +29,7 @@ pub const DOC_CRATES: [&str; 10] = [
     "foc-plant",
     "foc-plot",
     "foc-bench",
+    "foc-simdrive",
     "foc-canbus",
     "foc-ctl",
 ];

@@ -340,6 +340,14 @@ impl Plant {
         let (r, _) = real::wrap_tau(theta_m_rad);
         self.theta_m = r;
     }
+    /// Put the rotor at the unwrapped mechanical position `position_rad`
+    /// \[rad\] (see [`Plant::position_rad`]; a jump the angle sensor sees,
+    /// e.g. a rotor held back by a mechanical end stop).
+    pub fn set_position(&mut self, position_rad: Real) {
+        let (r, turns) = real::wrap_tau(position_rad);
+        self.theta_m = r;
+        self.turns = turns;
+    }
     /// Set the rotor speed [rad/s] (free mechanics keeps evolving from it).
     pub fn set_speed(&mut self, omega_m_rad_s: Real) {
         self.omega_m = omega_m_rad_s;

@@ -61,6 +61,16 @@ impl DeviceState {
         self.homing_state
     }
 
+    /// Another front end on the same drive homed it (or is homing it):
+    /// report its state from now on. A homing this state runs itself
+    /// keeps its own. For a host simulation that serves several clients,
+    /// each with its own protocol state, on one drive.
+    pub fn share_homing_state(&mut self, state: HomingState) {
+        if self.homing.is_none() {
+            self.homing_state = state;
+        }
+    }
+
     /// `SetJoint`: every value checked (field-exact), then the context
     /// takes it (the drive started; not while homing).
     pub(super) fn set_joint<C: DeviceContext>(

@@ -1,0 +1,155 @@
+//! `foc-ctl simulate` as a drive (issue 36): several clients at once, the
+//! link watchdog armed as on a board, the board's hardware limit on every
+//! path, telemetry at the rate asked with honest counts, a motor file.
+
+use foc_core::control::{Command, Mode};
+use foc_ctl::sim::{SimDevice, SimServer};
+use foc_ctl::{Client, ClientError};
+use foc_protocol::config::{ConfigSource, StoreOp};
+use foc_protocol::message::{ErrorCode, ParamId, TelemetryRate};
+use foc_store::DriveRecord;
+use std::net::{SocketAddr, TcpListener};
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+fn calibrated_server() -> SimServer {
+    let mut dev = SimDevice::default();
+    assert!(dev.drive.calibrate_from_bench());
+    SimServer::spawn_with(TcpListener::bind("127.0.0.1:0").unwrap(), dev).unwrap()
+}
+
+fn client(addr: SocketAddr) -> Client {
+    let mut c = Client::connect_tcp(addr).unwrap();
+    c.set_timeout(Duration::from_millis(500));
+    c
+}
+
+fn repo() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..")
+}
+
+#[test]
+fn a_second_client_is_answered_while_the_first_streams() {
+    let server = calibrated_server();
+    let mut a = client(server.addr());
+    a.set_command(Command::Velocity { rad_s: 30.0 }).unwrap();
+    let addr = server.addr();
+    // The second client asks while the first streams (0.4 s at 200 Hz).
+    let other = std::thread::spawn(move || {
+        std::thread::sleep(Duration::from_millis(100));
+        let mut b = client(addr);
+        let mut answered = 0;
+        for _ in 0..10 {
+            b.param(ParamId::PolePairs).unwrap();
+            b.read_telemetry().unwrap();
+            answered += 1;
+        }
+        (answered, b.stats().retransmissions)
+    });
+    let samples = a
+        .telemetry(TelemetryRate::Hz(200.0), Duration::from_millis(400))
+        .unwrap();
+    let (answered, retrans) = other.join().unwrap();
+    assert_eq!((answered, retrans), (10, 0));
+    // Every sample 100 periods after the last (200 Hz at 20 kHz), none
+    // lost, the stream counter without a gap.
+    assert!(samples.len() >= 40, "{} samples", samples.len());
+    for w in samples.windows(2) {
+        assert_eq!(w[1].sample.period.wrapping_sub(w[0].sample.period), 100);
+    }
+    assert_eq!(a.stats().stream_lost, 0);
+    a.set_command(Command::Disable).unwrap();
+}
+
+#[test]
+fn a_one_shot_command_stops_after_about_a_second() {
+    let server = calibrated_server();
+    let addr = server.addr();
+    {
+        let mut c = client(addr);
+        c.set_command(Command::Velocity { rad_s: 50.0 }).unwrap();
+        // The client leaves without a keep-alive.
+    }
+    let mut watcher = client(addr);
+    let t0 = watcher.read_telemetry().unwrap();
+    assert_eq!(t0.mode, Mode::Velocity);
+    let (mut reached, mut slowed, mut disabled) = (false, None, None);
+    let end = Instant::now() + Duration::from_secs(30);
+    while disabled.is_none() {
+        let t = watcher.read_telemetry().unwrap();
+        let since = t.period.wrapping_sub(t0.period);
+        reached |= t.velocity_rad_s > 45.0;
+        if reached && slowed.is_none() && t.velocity_rad_s < 25.0 {
+            slowed = Some(since);
+        }
+        if t.mode == Mode::Disabled {
+            disabled = Some((since, t.fault_code));
+        }
+        assert!(Instant::now() < end, "still running: {t:?}");
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    // The watcher's own requests did not keep it alive: the watchdog
+    // belongs to the client that commanded. After 1 s (20 000 periods)
+    // it stops the motor (velocity 0), after another second of silence
+    // it disables with `CommandTimeout`, as the firmware's does.
+    let slowed = slowed.unwrap();
+    assert!(
+        (20_000..=26_000).contains(&slowed),
+        "slowed after {slowed} periods"
+    );
+    let (off, code) = disabled.unwrap();
+    assert!(
+        (40_000..=42_000).contains(&off),
+        "disabled after {off} periods"
+    );
+    assert_eq!(code, foc_core::control::Fault::CommandTimeout.code());
+}
+
+#[test]
+fn a_record_above_the_boards_hardware_limit_is_refused_whole() {
+    let server = calibrated_server();
+    let mut c = client(server.addr());
+    let live = c.read_config(ConfigSource::Live).unwrap();
+    let mut r = DriveRecord::decode(&live).unwrap();
+    r.limits.max_current_a = 5000.0;
+    let mut buf = [0u8; foc_store::MAX_RECORD_BYTES];
+    let n = r.encode(&mut buf).unwrap();
+    c.write_config(&buf[..n]).unwrap();
+    match c.store(StoreOp::ApplyAndSave) {
+        Err(ClientError::Nack(ErrorCode::Unsupported | ErrorCode::BadRecord)) => {}
+        other => panic!("{other:?}"),
+    }
+    assert_eq!(c.read_config(ConfigSource::Live).unwrap(), live);
+    match c.read_config(ConfigSource::Stored) {
+        Err(ClientError::Nack(ErrorCode::NothingStored)) => {}
+        other => panic!("{other:?}"),
+    }
+}
+
+#[test]
+fn a_motor_file_is_simulated_and_identified() {
+    // The 2.2 kW interior-PM motor on its 540 V bus, identified by the
+    // drive itself (in simulated time here).
+    let path = repo().join("tests/motors/ipm-2k2-540v.toml");
+    let mut dev = SimDevice::from_motor_file(&path).unwrap();
+    let setup = dev.drive.setup().clone();
+    // About 40 s simulated (a slow alignment turn on 3 pole pairs), some
+    // seconds here.
+    assert!(dev.drive.identify(60.0), "not identified");
+    let m = dev.drive.settings().current.motor;
+    assert_eq!(m.pole_pairs, setup.motor.pole_pairs);
+    let rel = |a: f32, b: f64| (f64::from(a) / b - 1.0).abs();
+    assert!(rel(m.r_ohm, setup.motor.r_ohm) < 0.1, "{m:?}");
+    assert!(
+        rel(m.flux_linkage_wb, setup.motor.flux_linkage_wb) < 0.1,
+        "{m:?}"
+    );
+    let server = SimServer::spawn_with(TcpListener::bind("127.0.0.1:0").unwrap(), dev).unwrap();
+    let mut c = client(server.addr());
+    assert_eq!(c.param(ParamId::Calibrated).unwrap(), 1.0);
+    assert_eq!(
+        c.param(ParamId::PolePairs).unwrap(),
+        f32::from(setup.motor.pole_pairs)
+    );
+    assert!((c.param(ParamId::BusVoltageV).unwrap() - 540.0).abs() < 20.0);
+}
