@@ -96,33 +96,9 @@ pub(super) enum Cmd {
         #[arg(long, value_name = "FILE")]
         svg: Option<PathBuf>,
     },
-    /// Set the motor's command limits (all eight; rotor frame).
-    Limits {
-        /// Current limit \[A\].
-        #[arg(long)]
-        max_current: f32,
-        /// Velocity limit [rad/s].
-        #[arg(long)]
-        max_velocity: f32,
-        /// Lowest position \[rad\].
-        #[arg(long, allow_hyphen_values = true)]
-        min_position: f32,
-        /// Highest position \[rad\].
-        #[arg(long, allow_hyphen_values = true)]
-        max_position: f32,
-        /// Open-loop voltage limit \[V\].
-        #[arg(long)]
-        max_ol_voltage: f32,
-        /// Open-loop electrical speed limit [rad/s].
-        #[arg(long)]
-        max_ol_omega_e: f32,
-        /// Largest impedance stiffness [N m/rad, rotor].
-        #[arg(long, allow_hyphen_values = true)]
-        max_kp: f32,
-        /// Largest impedance damping [N m s/rad, rotor].
-        #[arg(long, allow_hyphen_values = true)]
-        max_kd: f32,
-    },
+    /// The motor's command limits (rotor frame): change the ones given,
+    /// keep the others; without options, show them.
+    Limits(LimitsArgs),
     /// The joint: output frame (gear, home offset), travel range, soft stop;
     /// shown after a change, or alone without options.
     Joint(JointArgs),
@@ -145,19 +121,30 @@ pub(super) enum Cmd {
         /// M.
         position: u16,
     },
-    /// Link watchdog: reaction after TIMEOUT periods without a command or keep-alive (0 = off).
+    /// Link watchdog: the reaction after TIMEOUT_MS without a request
+    /// (0 = off).
     Watchdog {
-        /// Timeout [current-loop periods].
-        timeout_periods: u32,
+        /// Timeout \[ms\] (converted to whole PWM periods).
+        #[arg(value_name = "TIMEOUT_MS")]
+        after_ms: f64,
         /// Reaction.
         #[arg(value_enum, default_value_t = Reaction::Disable)]
         reaction: Reaction,
     },
-    /// Start a calibration routine.
+    /// Run a calibration routine and wait for its end, showing each step
+    /// and the result (the identification: the motor's values and the
+    /// loops' gains; a failure: its reason and what to do).
     Calibrate {
         /// Routine.
         #[arg(value_enum)]
         routine: Routine,
+        /// Return once the drive has taken the request.
+        #[arg(long)]
+        no_wait: bool,
+        /// Longest wait \[s\] (the identification of a large motor takes a
+        /// minute).
+        #[arg(long, default_value_t = 180.0)]
+        timeout: f64,
     },
     /// The drive's configuration record: show, save, load, erase, export, import.
     Config {
@@ -169,6 +156,94 @@ pub(super) enum Cmd {
     /// model, in real time; several clients at once. It starts as a board
     /// powers up: uncalibrated until `calibrate identification`.
     Simulate(SimulateArgs),
+    /// A live web page for the drive: plots of any telemetry signal,
+    /// status and faults (what each means, what to do), a console for any
+    /// foc-ctl command, and a setup wizard (offsets, sensor check,
+    /// identification, tuning report, save). With `--simulate`, on the
+    /// simulated drive.
+    Dashboard(DashboardArgs),
+}
+
+/// `limits`' options: each one given replaces that limit.
+#[derive(clap::Args)]
+pub(super) struct LimitsArgs {
+    /// Current limit \[A\].
+    #[arg(long)]
+    pub(super) max_current: Option<f32>,
+    /// Velocity limit [rad/s].
+    #[arg(long)]
+    pub(super) max_velocity: Option<f32>,
+    /// Lowest position \[rad\].
+    #[arg(long, allow_hyphen_values = true)]
+    pub(super) min_position: Option<f32>,
+    /// Highest position \[rad\].
+    #[arg(long, allow_hyphen_values = true)]
+    pub(super) max_position: Option<f32>,
+    /// Open-loop voltage limit \[V\].
+    #[arg(long)]
+    pub(super) max_ol_voltage: Option<f32>,
+    /// Open-loop electrical speed limit [rad/s].
+    #[arg(long)]
+    pub(super) max_ol_omega_e: Option<f32>,
+    /// Largest impedance stiffness [N m/rad, rotor].
+    #[arg(long, allow_hyphen_values = true)]
+    pub(super) max_kp: Option<f32>,
+    /// Largest impedance damping [N m s/rad, rotor].
+    #[arg(long, allow_hyphen_values = true)]
+    pub(super) max_kd: Option<f32>,
+}
+
+impl LimitsArgs {
+    /// `l` with the given limits replaced; `None` when none is given.
+    pub(super) fn apply(&self, l: Limits) -> Option<Limits> {
+        let given = [
+            self.max_current,
+            self.max_velocity,
+            self.min_position,
+            self.max_position,
+            self.max_ol_voltage,
+            self.max_ol_omega_e,
+            self.max_kp,
+            self.max_kd,
+        ];
+        if given.iter().all(Option::is_none) {
+            return None;
+        }
+        Some(Limits {
+            max_current_a: self.max_current.unwrap_or(l.max_current_a),
+            max_velocity_rad_s: self.max_velocity.unwrap_or(l.max_velocity_rad_s),
+            min_position_rad: self.min_position.unwrap_or(l.min_position_rad),
+            max_position_rad: self.max_position.unwrap_or(l.max_position_rad),
+            max_open_loop_voltage_v: self.max_ol_voltage.unwrap_or(l.max_open_loop_voltage_v),
+            max_open_loop_omega_e_rad_s: self
+                .max_ol_omega_e
+                .unwrap_or(l.max_open_loop_omega_e_rad_s),
+            max_kp_nm_per_rad: self.max_kp.unwrap_or(l.max_kp_nm_per_rad),
+            max_kd_nm_s_per_rad: self.max_kd.unwrap_or(l.max_kd_nm_s_per_rad),
+        })
+    }
+}
+
+/// `dashboard`'s options.
+#[derive(clap::Args)]
+pub(super) struct DashboardArgs {
+    /// Address the page is served on (open it in a browser).
+    #[arg(long, default_value = "127.0.0.1:8080")]
+    pub(super) listen: String,
+    /// Run the simulated drive (as `foc-ctl simulate`) instead of
+    /// connecting with --tcp or --serial.
+    #[arg(long)]
+    pub(super) simulate: bool,
+    /// With --simulate: the motor file to simulate.
+    #[arg(long, requires = "simulate")]
+    pub(super) motor: Option<std::path::PathBuf>,
+    /// With --simulate: simulated seconds per real second.
+    #[arg(long, default_value_t = 1.0, requires = "simulate")]
+    pub(super) time_scale: f64,
+    /// Telemetry rate the page plots \[Hz\] (changeable on the page; a
+    /// board's 115200-baud UART carries at most 192 Hz).
+    #[arg(long, default_value_t = 100.0)]
+    pub(super) rate: f32,
 }
 
 /// `simulate`'s options.

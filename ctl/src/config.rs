@@ -152,6 +152,22 @@ impl Client {
         self.store_timeout.max(self.timeout)
     }
 
+    /// The command limits in force (the live configuration record's, with
+    /// the joint's impedance maxima where it has a joint).
+    pub fn limits(&mut self) -> Result<foc_core::control::Limits, ClientError> {
+        let bytes = self.read_config(ConfigSource::Live)?;
+        let r = foc_store::DriveRecord::decode(&bytes).map_err(|e| {
+            ClientError::Io(std::io::Error::new(
+                std::io::ErrorKind::InvalidData,
+                format!("the drive's live record does not decode: {e:?}"),
+            ))
+        })?;
+        Ok(match r.joint {
+            Some(j) => j.limits(&r.limits),
+            None => r.limits.to_limits(),
+        })
+    }
+
     /// The whole live or stored record (the foc-store envelope), read chunk
     /// by chunk. [`ClientError::Transfer`] when the device's chunks do not
     /// add up (the length changes midway, a chunk at the wrong offset, an

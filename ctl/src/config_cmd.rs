@@ -64,7 +64,7 @@ pub(super) fn read_record(
         )
     })?;
     if let Err(e) = r.validate() {
-        eprintln!(
+        say_err!(
             "warning: the {name} record has a value out of range ({e}); it would be refused on import"
         );
     }
@@ -83,28 +83,28 @@ pub(super) fn config(c: &mut Client, op: ConfigCmd) -> CliResult {
     match op {
         ConfigCmd::Show { stored } => {
             let r = read_record(c, source(stored))?;
-            print!("{}", to_toml(&r));
+            say_raw!("{}", to_toml(&r));
         }
         ConfigCmd::Export { file, stored } => {
             let r = read_record(c, source(stored))?;
             std::fs::write(&file, to_toml(&r))
                 .map_err(|e| format!("cannot write {}: {e}", file.display()))?;
-            println!("wrote {}", file.display());
+            say!("wrote {}", file.display());
         }
         ConfigCmd::Save => {
             c.store(StoreOp::Save)
                 .map_err(|e| config_error("config save", e))?;
-            println!("saved the configuration in force");
+            say!("saved the configuration in force");
         }
         ConfigCmd::Load => {
             c.store(StoreOp::Load)
                 .map_err(|e| config_error("config load", e))?;
-            println!("loaded and applied the stored record");
+            say!("loaded and applied the stored record");
         }
         ConfigCmd::Erase => {
             c.store(StoreOp::Erase)
                 .map_err(|e| config_error("config erase", e))?;
-            println!(
+            say!(
                 "erased the store (the configuration in force is kept; the next boot starts from the defaults)"
             );
         }
@@ -146,12 +146,12 @@ pub(super) fn import(c: &mut Client, file: &Path, no_save: bool) -> CliResult {
     };
     c.store(op).map_err(|e| config_error("config import", e))?;
     if no_save {
-        println!(
+        say!(
             "applied {} (not saved: `foc-ctl config save` keeps it)",
             file.display()
         );
     } else {
-        println!("applied and saved {}", file.display());
+        say!("applied and saved {}", file.display());
     }
     Ok(())
 }

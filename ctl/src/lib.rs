@@ -36,8 +36,10 @@
 #![forbid(unsafe_code)]
 #![warn(missing_docs)]
 
+pub mod calibration;
 pub mod config;
 pub mod joint;
+pub mod refusal;
 pub mod scope;
 pub mod sim;
 pub mod transport;
@@ -72,6 +74,9 @@ pub enum ClientError {
     Unexpected(Response),
     /// A configuration transfer that does not add up.
     Transfer(config::TransferError),
+    /// The device answers, but what was waited for did not happen (a
+    /// scope not triggered, a step response missing...): what and why.
+    NotReady(String),
 }
 
 impl fmt::Display for ClientError {
@@ -84,6 +89,7 @@ impl fmt::Display for ClientError {
             ClientError::Nack(e) => write!(f, "refused by the device: {}", describe_error(*e)),
             ClientError::Unexpected(r) => write!(f, "unexpected reply: {r:?}"),
             ClientError::Transfer(e) => write!(f, "configuration transfer failed: {e}"),
+            ClientError::NotReady(why) => write!(f, "{why}"),
         }
     }
 }
@@ -169,6 +175,23 @@ pub struct Client {
     epoch: Instant,
 }
 
+/// A random first sequence number. The device answers a repeated frame
+/// (same `seq`, same CRC) from its cache without running it again: a new
+/// connection that started at 1 as the last one did would have its first
+/// command taken for a retransmission of that connection's (two one-shot
+/// `foc-ctl mode velocity 50` in a row on one serial port, the second
+/// after the watchdog stopped the first: nothing would move).
+fn random_seq() -> u16 {
+    use std::hash::{BuildHasher, Hasher};
+    let mut h = std::collections::hash_map::RandomState::new().build_hasher();
+    h.write_u128(
+        std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_nanos()),
+    );
+    h.finish() as u16
+}
+
 impl Client {
     /// Client over any transport. Sends one 0x00 first so the device drops
     /// whatever it had half-received.
@@ -176,7 +199,7 @@ impl Client {
         let mut c = Self {
             transport,
             decoder: FrameDecoder::new(),
-            seq: 0,
+            seq: random_seq(),
             timeout: Duration::from_millis(250),
             store_timeout: config::DEFAULT_STORE_TIMEOUT,
             retries: 3,
@@ -302,6 +325,11 @@ impl Client {
             }
         }
         Err(ClientError::Timeout { attempts })
+    }
+
+    /// Send a request that answers `Ack` (any setting or command).
+    pub fn send(&mut self, req: &Request) -> Result<(), ClientError> {
+        self.expect_ack(req)
     }
 
     pub(crate) fn expect_ack(&mut self, req: &Request) -> Result<(), ClientError> {

@@ -6,12 +6,17 @@
 //! rotor's until `joint` sets a gear or homing an offset); the motor's
 //! limits (`limits`) and the joint's rotor-side settings are the **rotor**'s.
 
+#[macro_use]
+mod out;
 mod cli;
 mod config_cmd;
+mod dashboard;
+mod show;
 mod telemetry_cmd;
 
 use cli::*;
 use config_cmd::*;
+use show::{num, param_text};
 use telemetry_cmd::*;
 
 use clap::{Parser, Subcommand, ValueEnum};
@@ -21,7 +26,9 @@ use foc_core::control::joint::Impedance;
 use foc_core::control::power::ActiveLimit;
 use foc_core::control::stage::TimeoutReaction;
 use foc_core::control::{Command, Fault, Limits};
+use foc_ctl::calibration::{self, CalProgress, WaitEnd};
 use foc_ctl::joint::{error_text, homing_text, joint_text, JointEdit};
+use foc_ctl::refusal;
 use foc_ctl::{describe_error, sim::SimServer, Client, ClientError, StreamSample};
 use foc_protocol::config::{ConfigSource, StoreOp};
 use foc_protocol::message::{
@@ -39,9 +46,11 @@ mod scope_cmd;
 
 fn connect(cli: &Cli) -> Result<Client, Box<dyn std::error::Error>> {
     let mut c = match (&cli.tcp, &cli.serial) {
-        (Some(addr), _) => Client::connect_tcp(addr.as_str())?,
+        (Some(addr), _) => Client::connect_tcp(addr.as_str())
+            .map_err(|e| format!("cannot connect to {addr}: {e}"))?,
         #[cfg(feature = "serial")]
-        (None, Some(path)) => Client::open_serial(path, cli.baud)?,
+        (None, Some(path)) => Client::open_serial(path, cli.baud)
+            .map_err(|e| format!("cannot open serial port {path} at {} baud: {e}", cli.baud))?,
         #[cfg(not(feature = "serial"))]
         (None, Some(_)) => return Err("built without the `serial` feature".into()),
         (None, None) => return Err("give --tcp HOST:PORT or --serial PATH".into()),
@@ -68,21 +77,28 @@ fn fault_list(bits: u32) -> String {
 type CliResult = Result<(), Box<dyn std::error::Error>>;
 
 fn run(cli: Cli) -> CliResult {
-    if let Cmd::Simulate(a) = &cli.cmd {
-        return simulate(a);
+    match &cli.cmd {
+        Cmd::Simulate(a) => return simulate(a),
+        Cmd::Dashboard(a) => return dashboard::serve(&cli, a),
+        _ => {}
     }
     let mut c = connect(&cli)?;
-    match cli.cmd {
-        Cmd::Ping => ping(&mut c),
-        Cmd::Scope { op } => scope_cmd::scope(&mut c, op),
-        Cmd::Tune(args) => scope_cmd::tune(&mut c, args),
-        Cmd::Mode { mode } => set_mode(&mut c, mode),
+    dispatch(&mut c, cli.cmd)
+}
+
+/// Run one command on the link `c` (the dashboard's console does too).
+fn dispatch(c: &mut Client, cmd: Cmd) -> CliResult {
+    match cmd {
+        Cmd::Ping => ping(c),
+        Cmd::Scope { op } => scope_cmd::scope(c, op),
+        Cmd::Tune(args) => scope_cmd::tune(c, args),
+        Cmd::Mode { mode } => set_mode(c, mode),
         Cmd::KeepAlive {
             interval_ms,
             duration,
-        } => keep_alive(&mut c, interval_ms, duration),
-        Cmd::Faults => show_faults(&mut c),
-        Cmd::Param { name } => show_params(&mut c, &name),
+        } => keep_alive(c, interval_ms, duration),
+        Cmd::Faults => show_faults(c),
+        Cmd::Param { name } => show_params(c, &name),
         Cmd::Telemetry {
             rate,
             every,
@@ -95,14 +111,20 @@ fn run(cli: Cli) -> CliResult {
                 Some(k) => TelemetryRate::EveryPeriods(k),
                 None => TelemetryRate::Hz(rate as f32),
             };
-            stream_telemetry(&mut c, r, duration, csv, plot, svg)
+            stream_telemetry(c, r, duration, csv, plot, svg)
         }
-        Cmd::Calibrate { routine } => calibrate(&mut c, routine),
-        Cmd::Config { op } => config(&mut c, op),
-        Cmd::Joint(args) => joint(&mut c, &args),
-        Cmd::Home { method } => home(&mut c, method),
-        Cmd::Status => status(&mut c),
-        setting => configure(&mut c, setting),
+        Cmd::Calibrate {
+            routine,
+            no_wait,
+            timeout,
+        } => calibrate(c, routine, no_wait, timeout),
+        Cmd::Config { op } => config(c, op),
+        Cmd::Joint(args) => joint(c, &args),
+        Cmd::Home { method } => home(c, method),
+        Cmd::Status => status(c),
+        Cmd::Limits(a) => limits(c, &a),
+        Cmd::Watchdog { after_ms, reaction } => watchdog(c, after_ms, reaction),
+        setting => configure(c, setting),
     }
 }
 
@@ -128,7 +150,7 @@ fn simulate(a: &SimulateArgs) -> CliResult {
     let listener = std::net::TcpListener::bind(&a.listen)
         .map_err(|e| format!("cannot listen on {}: {e}", a.listen))?;
     let server = SimServer::spawn_scaled(listener, dev, a.time_scale)?;
-    eprintln!(
+    say_err!(
         "simulated drive ({name}) on {} (Ctrl-C to stop)",
         server.addr()
     );
@@ -140,7 +162,7 @@ fn simulate(a: &SimulateArgs) -> CliResult {
 fn ping(c: &mut Client) -> CliResult {
     let h = c.ping()?;
     let [a, b, p] = h.firmware_version;
-    println!(
+    say!(
         "protocol {} (host {}), firmware {a}.{b}.{p}, max payload {} bytes",
         h.protocol_version,
         foc_protocol::PROTOCOL_VERSION,
@@ -187,8 +209,8 @@ fn set_mode(c: &mut Client, mode: ModeCmd) -> CliResult {
         }),
     };
     c.set_command(cmd)
-        .map_err(|e| error_text(&Request::SetCommand(cmd), &e))?;
-    println!("ok: {cmd:?} (positions, velocities, torques: output frame)");
+        .map_err(|e| refusal::explain(c, &Request::SetCommand(cmd), &e))?;
+    say!("ok: {cmd:?} (positions, velocities, torques: output frame)");
     Ok(())
 }
 
@@ -212,9 +234,9 @@ fn joint(c: &mut Client, a: &JointArgs) -> CliResult {
     if !edit.is_empty() {
         let j = edit.apply(c.joint()?);
         c.set_joint(j)
-            .map_err(|e| error_text(&Request::SetJoint(j), &e))?;
+            .map_err(|e| refusal::explain(c, &Request::SetJoint(j), &e))?;
     }
-    println!("{}", joint_text(&c.joint()?));
+    say!("{}", joint_text(&c.joint()?));
     Ok(())
 }
 
@@ -224,16 +246,18 @@ fn home(c: &mut Client, method: HomeCmd) -> CliResult {
     let (h, timeout) = method.request();
     let state = c
         .home(h, Duration::from_secs_f64(timeout.max(0.0)), |t| {
-            println!(
+            say!(
                 "homing: p={:.4} rad w={:.3} rad/s (output) iq={:.3} A",
-                t.position_rad, t.velocity_rad_s, t.i_q_a
+                t.position_rad,
+                t.velocity_rad_s,
+                t.i_q_a
             )
         })
         .map_err(|e| error_text(&Request::StartHoming(h), &e))?;
     match state {
         HomingState::Done => {
-            println!("homed: {}", homing_text(state));
-            println!("{}", joint_text(&c.joint()?));
+            say!("homed: {}", homing_text(state));
+            say!("{}", joint_text(&c.joint()?));
             Ok(())
         }
         HomingState::Running => Err("homing: no result within the timeout (still running)".into()),
@@ -244,19 +268,92 @@ fn home(c: &mut Client, method: HomeCmd) -> CliResult {
 /// `status`: one sample (frames stated), the joint and homing.
 fn status(c: &mut Client) -> CliResult {
     let t = c.read_telemetry()?;
-    println!("mode           {:?}", t.mode);
-    println!("position       {} rad (output)", t.position_rad);
-    println!("velocity       {} rad/s (output)", t.velocity_rad_s);
-    println!("currents       id {} A, iq {} A", t.i_d_a, t.i_q_a);
-    println!("bus            {} V", t.v_bus_v);
+    say!("mode           {:?}", t.mode);
+    say!("position       {} rad (output)", num(t.position_rad));
+    say!("velocity       {} rad/s (output)", num(t.velocity_rad_s));
+    say!(
+        "currents       id {} A, iq {} A",
+        num(t.i_d_a),
+        num(t.i_q_a)
+    );
+    say!("bus            {} V", num(t.v_bus_v));
     let fault = match (t.fault_code, Fault::from_code(t.fault_code)) {
         (0, _) => "none".to_string(),
         (_, Some(f)) => format!("{} ({})", f.name(), f.code()),
         (code, None) => format!("code {code}"),
     };
-    println!("first fault    {fault}");
-    println!("homing         {}", homing_text(c.homing_state()?));
-    println!("{}", joint_text(&c.joint()?));
+    say!("first fault    {fault}");
+    say!("homing         {}", homing_text(c.homing_state()?));
+    say!("{}", joint_text(&c.joint()?));
+    Ok(())
+}
+
+/// `limits [...]`: change the limits given, keep the others; show them.
+fn limits(c: &mut Client, a: &LimitsArgs) -> CliResult {
+    if let Some(l) = a.apply(c.limits()?) {
+        c.set_limits(l)
+            .map_err(|e| refusal::explain(c, &Request::SetLimits(l), &e))?;
+    }
+    let l = c.limits()?;
+    say!("max current      {} A", num(l.max_current_a));
+    say!(
+        "max velocity     {} rad/s (rotor)",
+        num(l.max_velocity_rad_s)
+    );
+    say!(
+        "position range   {} .. {} rad (rotor)",
+        num(l.min_position_rad),
+        num(l.max_position_rad)
+    );
+    say!(
+        "open-loop        {} V, {} rad/s (electrical)",
+        num(l.max_open_loop_voltage_v),
+        num(l.max_open_loop_omega_e_rad_s)
+    );
+    say!(
+        "impedance        kp <= {} N m/rad, kd <= {} N m s/rad (rotor)",
+        num(l.max_kp_nm_per_rad),
+        num(l.max_kd_nm_s_per_rad)
+    );
+    Ok(())
+}
+
+/// `watchdog TIMEOUT_MS [REACTION]`: the link watchdog, converted to whole
+/// PWM periods at the drive's rate.
+fn watchdog(c: &mut Client, timeout_ms: f64, reaction: Reaction) -> CliResult {
+    let pwm_hz = f64::from(c.param(ParamId::PwmFrequencyHz)?);
+    if !(timeout_ms.is_finite() && timeout_ms >= 0.0) {
+        return Err(format!("timeout {timeout_ms} ms: give 0 (off) or a positive time").into());
+    }
+    let periods = (timeout_ms * 1e-3 * pwm_hz).round();
+    if periods > f64::from(u32::MAX) || (timeout_ms > 0.0 && periods < 1.0) {
+        return Err(format!(
+            "timeout {timeout_ms} ms is outside 0 (off) or {:.3} .. {:.0} ms at {pwm_hz} Hz",
+            1e3 / pwm_hz,
+            f64::from(u32::MAX) / pwm_hz * 1e3
+        )
+        .into());
+    }
+    let w = WatchdogConfig {
+        timeout_periods: periods as u32,
+        reaction: match reaction {
+            Reaction::Disable => TimeoutReaction::Disable,
+            Reaction::Stop => TimeoutReaction::Stop,
+            Reaction::Hold => TimeoutReaction::Hold,
+        },
+    };
+    c.set_watchdog(w)
+        .map_err(|e| refusal::explain(c, &Request::SetWatchdog(w), &e))?;
+    if w.timeout_periods == 0 {
+        say!("ok: link watchdog off");
+    } else {
+        say!(
+            "ok: {} ms ({} periods at {pwm_hz} Hz), then {:?}",
+            num((periods / pwm_hz * 1e3) as f32),
+            w.timeout_periods,
+            w.reaction
+        );
+    }
     Ok(())
 }
 
@@ -273,10 +370,10 @@ fn keep_alive(c: &mut Client, interval_ms: u64, duration: f64) -> CliResult {
 /// `faults`: the latched set and the first one.
 fn show_faults(c: &mut Client) -> CliResult {
     let f = c.faults()?;
-    println!("latched: {}", fault_list(f.set.0));
+    say!("latched: {}", fault_list(f.set.0));
     match f.first() {
-        Some(first) => println!("first:   {} ({})", first.name(), first.code()),
-        None if f.first_code != 0 => println!("first:   code {}", f.first_code),
+        Some(first) => say!("first:   {} ({})", first.name(), first.code()),
+        None if f.first_code != 0 => say!("first:   code {}", f.first_code),
         None => {}
     }
     Ok(())
@@ -297,9 +394,9 @@ fn show_params(c: &mut Client, name: &str) -> CliResult {
     };
     for id in ids {
         match c.param(id) {
-            Ok(v) => println!("{:<18} {v}", id.name()),
+            Ok(v) => say!("{:<18} {}", id.name(), param_text(id, v)),
             Err(ClientError::Nack(foc_protocol::ErrorCode::Unsupported)) => {
-                println!("{:<18} (not supported)", id.name())
+                say!("{:<18} (not supported)", id.name())
             }
             Err(e) => return Err(e.into()),
         }
@@ -312,43 +409,16 @@ fn show_params(c: &mut Client, name: &str) -> CliResult {
 fn configure(c: &mut Client, setting: Cmd) -> CliResult {
     match setting {
         Cmd::Clear => c.clear_faults()?,
-        Cmd::Limits {
-            max_current,
-            max_velocity,
-            min_position,
-            max_position,
-            max_ol_voltage,
-            max_ol_omega_e,
-            max_kp,
-            max_kd,
-        } => {
-            let l = Limits {
-                max_current_a: max_current,
-                max_velocity_rad_s: max_velocity,
-                min_position_rad: min_position,
-                max_position_rad: max_position,
-                max_open_loop_voltage_v: max_ol_voltage,
-                max_open_loop_omega_e_rad_s: max_ol_omega_e,
-                max_kp_nm_per_rad: max_kp,
-                max_kd_nm_s_per_rad: max_kd,
-            };
-            c.set_limits(l)
-                .map_err(|e| error_text(&Request::SetLimits(l), &e))?
+        Cmd::Gains { which } => {
+            let r = gains_request(which);
+            c.send(&r).map_err(|e| refusal::explain(c, &r, &e))?
         }
-        Cmd::Gains { which } => set_gains(c, which)?,
-        Cmd::Dividers { speed, position } => c.set_dividers(speed, position)?,
-        Cmd::Watchdog {
-            timeout_periods,
-            reaction,
-        } => c.set_watchdog(WatchdogConfig {
-            timeout_periods,
-            reaction: match reaction {
-                Reaction::Disable => TimeoutReaction::Disable,
-                Reaction::Stop => TimeoutReaction::Stop,
-                Reaction::Hold => TimeoutReaction::Hold,
-            },
-        })?,
+        Cmd::Dividers { speed, position } => {
+            let r = Request::SetDividers { speed, position };
+            c.send(&r).map_err(|e| refusal::explain(c, &r, &e))?
+        }
         Cmd::Simulate(_)
+        | Cmd::Dashboard(_)
         | Cmd::Ping
         | Cmd::Mode { .. }
         | Cmd::KeepAlive { .. }
@@ -361,38 +431,100 @@ fn configure(c: &mut Client, setting: Cmd) -> CliResult {
         | Cmd::Home { .. }
         | Cmd::Scope { .. }
         | Cmd::Tune(_)
+        | Cmd::Limits(_)
+        | Cmd::Watchdog { .. }
         | Cmd::Status => return Err("not a setting (handled by `run`)".into()),
     }
-    println!("ok");
+    say!("ok");
     Ok(())
 }
 
-/// `calibrate ROUTINE`: start it.
-fn calibrate(c: &mut Client, routine: Routine) -> CliResult {
-    c.calibrate(match routine {
+/// `calibrate ROUTINE [--no-wait]`: start it; unless told not to, show
+/// its steps as the drive reports them and the result.
+fn calibrate(c: &mut Client, routine: Routine, no_wait: bool, timeout_s: f64) -> CliResult {
+    let r = match routine {
         Routine::Offsets => Calibration::Offsets,
         Routine::Identification => Calibration::Identification,
         Routine::Alignment => Calibration::Alignment,
+    };
+    if no_wait {
+        c.calibrate(r)
+            .map_err(|e| refusal::explain(c, &Request::RunCalibration(r), &e))?;
+        say!("started (follow it: `foc-ctl param calibration-step`, `calibration-result`)");
+        return Ok(());
+    }
+    let before = CalProgress::read(c)?;
+    c.calibrate(r)
+        .map_err(|e| refusal::explain(c, &Request::RunCalibration(r), &e))?;
+    say!("{r:?}: started");
+    let timeout = Duration::from_secs_f64(timeout_s.clamp(0.0, 3600.0));
+    let end = calibration::wait(c, before, timeout, &mut |p, t| {
+        if p.running() {
+            say!("{:6.1} s  {}", t.as_secs_f64(), p.step_name());
+        }
     })?;
-    println!("started");
+    match end {
+        WaitEnd::TimedOut(p) => Err(format!(
+            "still running at {} after {timeout_s} s (`foc-ctl param calibration-step` follows it)",
+            p.step_name()
+        )
+        .into()),
+        WaitEnd::Ended(p) if p.done() => {
+            say!("done");
+            if r == Calibration::Identification {
+                print_identified(c)?;
+            }
+            Ok(())
+        }
+        WaitEnd::Ended(p) => Err(format!(
+            "{r:?} {} (at {}): {}",
+            p.result_text(),
+            p.step_name(),
+            p.advice()
+        )
+        .into()),
+    }
+}
+
+/// The identified motor and the gains derived from it.
+fn print_identified(c: &mut Client) -> CliResult {
+    let mut v = |id: ParamId| c.param(id);
+    let (r, ld, lq, psi) = (
+        v(ParamId::ResistanceOhm)?,
+        v(ParamId::LdH)?,
+        v(ParamId::LqH)?,
+        v(ParamId::FluxLinkageWb)?,
+    );
+    say!(
+        "motor          R {r:.4} ohm, Ld {:.4} mH, Lq {:.4} mH, psi {:.5} Wb",
+        ld * 1e3,
+        lq * 1e3,
+        psi
+    );
+    let (kp, ki) = (v(ParamId::CurrentKp)?, v(ParamId::CurrentKi)?);
+    say!("current loop   kp {kp:.4} V/A, ki {ki:.1} V/(A s)");
+    let (skp, ski) = (v(ParamId::SpeedKp)?, v(ParamId::SpeedKi)?);
+    say!("speed loop     kp {skp:.5} A/(rad/s), ki {ski:.4} A/rad");
+    say!("position loop  kp {:.3} 1/s", v(ParamId::PositionKp)?);
+    say!("keep it: `foc-ctl config save`");
     Ok(())
 }
 
-/// `gains current|speed|position`.
-fn set_gains(c: &mut Client, which: GainsCmd) -> Result<(), ClientError> {
+/// The request of `gains current|speed|position`.
+fn gains_request(which: GainsCmd) -> Request {
     match which {
         GainsCmd::Current {
             kp_d,
             ki_d,
             kp_q,
             ki_q,
-        } => c.set_current_gains(CurrentGains {
+        } => Request::SetCurrentGains(CurrentGains {
             kp_d,
             ki_d,
             kp_q,
             ki_q,
         }),
-        GainsCmd::Speed { kp, ki } => c.set_speed_gains(SpeedGains {
+        GainsCmd::Speed { kp, ki } => Request::SetSpeedGains(SpeedGains {
             kp_a_per_rad_s: kp,
             ki_a_per_rad: ki,
         }),
@@ -400,7 +532,7 @@ fn set_gains(c: &mut Client, which: GainsCmd) -> Result<(), ClientError> {
             kp,
             max_velocity,
             max_acceleration,
-        } => c.set_position_gains(PositionGains {
+        } => Request::SetPositionGains(PositionGains {
             kp_per_s: kp,
             max_velocity_rad_s: max_velocity,
             max_acceleration_rad_s2: max_acceleration,

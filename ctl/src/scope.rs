@@ -165,15 +165,18 @@ impl Client {
                 State::Armed | State::Triggered => {}
             }
             if Instant::now() >= deadline {
-                return Err(ClientError::Io(io::Error::new(
-                    io::ErrorKind::TimedOut,
-                    format!(
-                        "scope not done after {:.1} s ({:?}, {} samples)",
-                        timeout.as_secs_f32(),
-                        r.status.state,
+                let t = timeout.as_secs_f32();
+                return Err(ClientError::NotReady(match r.status.state {
+                    State::Armed => format!(
+                        "the scope is armed and waiting for its trigger ({:?}): nothing triggered it in {t:.1} s \
+                         (`foc-ctl scope trigger` forces it; `--wait` waits longer)",
+                        r.status.config.trigger
+                    ),
+                    _ => format!(
+                        "the scope triggered but is still recording after {t:.1} s ({} samples): wait longer (`--wait`)",
                         r.status.captured
                     ),
-                )));
+                }));
             }
             std::thread::sleep(Duration::from_millis(5));
         }

@@ -148,7 +148,7 @@ pub fn scope(c: &mut Client, cmd: ScopeCmd) -> CliResult {
             };
             cfg.pre_trigger = a.pre.unwrap_or((samples / 10) as u16);
             c.set_scope(&cfg)?;
-            println!(
+            say!(
                 "scope set: {samples} samples of {} signal(s) every {} period(s)",
                 sigs.len(),
                 a.every
@@ -161,7 +161,7 @@ pub fn scope(c: &mut Client, cmd: ScopeCmd) -> CliResult {
             let r = c.read_scope()?;
             let s = r.status;
             let names: Vec<&str> = s.config.used().iter().map(|x| x.name()).collect();
-            println!(
+            say!(
                 "{:?}: {} of {} samples, trigger at {} (period {}), {} every {} period(s) ({:.1} us), trigger {:?}",
                 s.state,
                 s.captured,
@@ -179,7 +179,7 @@ pub fn scope(c: &mut Client, cmd: ScopeCmd) -> CliResult {
             let wait = Duration::try_from_secs_f64(a.wait)
                 .map_err(|_| format!("--wait {}: not a time", a.wait))?;
             let cap = c.scope_capture(wait)?;
-            println!(
+            say!(
                 "{} samples of {} signal(s), trigger at sample {}",
                 cap.samples(),
                 cap.signals().len(),
@@ -203,7 +203,7 @@ pub fn tune(c: &mut Client, a: TuneArgs) -> CliResult {
         a.step.unwrap_or(default_step),
         Duration::from_secs(10),
     )?;
-    print!("{r}");
+    say_raw!("{r}");
     let title = format!("{:?} step", r.which);
     write_outputs(&r.capture, a.csv.as_deref(), a.svg.as_deref(), &title)
 }
@@ -218,11 +218,11 @@ fn write_outputs(
         let mut w = std::io::BufWriter::new(std::fs::File::create(p)?);
         cap.write_csv(&mut w)?;
         std::io::Write::flush(&mut w)?;
-        println!("wrote {}", p.display());
+        say!("wrote {}", p.display());
     }
     if let Some(p) = svg {
         foc_ctl::scope::plot(cap, p, title)?;
-        println!("wrote {}", p.display());
+        say!("wrote {}", p.display());
     }
     Ok(())
 }

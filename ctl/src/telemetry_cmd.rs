@@ -129,6 +129,9 @@ pub(super) fn stream_telemetry(
 ) -> CliResult {
     let mut samples: Vec<StreamSample> = Vec::new();
     let mut stderr = std::io::stderr();
+    let pwm_hz = c.param(ParamId::PwmFrequencyHz)?;
+    let req = Request::StartTelemetry(rate);
+    let t0 = std::time::Instant::now();
     c.telemetry_with(rate, Duration::from_secs_f64(duration.max(0.0)), |s| {
         samples.push(*s);
         if plot && samples.len().is_multiple_of(5) {
@@ -136,25 +139,60 @@ pub(super) fn stream_telemetry(
         } else if !plot && csv.is_none() {
             print_sample(s);
         }
-    })?;
+    })
+    .map_err(|e| foc_ctl::refusal::explain(c, &req, &e))?;
+    let wall_s = t0.elapsed().as_secs_f64();
     if plot {
-        eprintln!();
+        say_err!();
     }
     let st = c.stats();
-    eprintln!(
-        "{} samples, {} lost in the stream",
-        samples.len(),
-        st.stream_lost
+    say_err!(
+        "{}",
+        rate_text(rate, pwm_hz, &samples, wall_s, st.stream_lost)
     );
     if let Some(p) = csv {
         write_csv(&p, &samples)?;
-        eprintln!("wrote {}", p.display());
+        say_err!("wrote {}", p.display());
     }
     if let Some(p) = svg {
         write_svg(&p, &samples)?;
-        eprintln!("wrote {}", p.display());
+        say_err!("wrote {}", p.display());
     }
     Ok(())
+}
+
+/// The rate asked and the rate given (from the samples' period counter),
+/// what arrived and what was lost.
+fn rate_text(
+    rate: TelemetryRate,
+    pwm_hz: f32,
+    samples: &[StreamSample],
+    wall_s: f64,
+    lost: u64,
+) -> String {
+    let asked = match rate {
+        TelemetryRate::Hz(hz) => format!("asked {hz} Hz"),
+        TelemetryRate::EveryPeriods(k) => format!("asked every {k} periods"),
+    };
+    let every = match (samples.first(), samples.last()) {
+        (Some(a), Some(b)) if samples.len() > 1 => {
+            let span = b.sample.period.wrapping_sub(a.sample.period) as f64;
+            Some(span / (samples.len() as f64 - 1.0 + lost as f64))
+        }
+        _ => None,
+    };
+    let given = match every {
+        Some(k) if k > 0.0 => format!(
+            "given every {k:.0} periods = {:.1} Hz at {pwm_hz} Hz PWM",
+            f64::from(pwm_hz) / k
+        ),
+        _ => "too few samples to tell the rate given".into(),
+    };
+    format!(
+        "{asked}, {given}; {} samples in {wall_s:.2} s ({:.1}/s received), {lost} lost in the stream",
+        samples.len(),
+        samples.len() as f64 / wall_s.max(1e-9)
+    )
 }
 
 /// One live line of velocity and iq sparklines over the last 60 samples.
@@ -211,7 +249,7 @@ pub(super) fn angle_text(a: foc_protocol::message::AngleInUse) -> &'static str {
 /// One sample as a line on stdout.
 pub(super) fn print_sample(s: &StreamSample) {
     let t = &s.sample;
-    println!(
+    say!(
         "{:>10} {:?} w_out={:.3} p_out={:.4} id={:.3} iq={:.3} vd={:.3} vq={:.3} vbus={:.2} pbus={:.1} twind={:.1} tstage={:.1} fault={} cyc={}{}",
         t.period, t.mode, t.velocity_rad_s, t.position_rad, t.i_d_a, t.i_q_a,
         t.v_d_v, t.v_q_v, t.v_bus_v, bus_power_w(t), t.winding_c, t.stage_c,

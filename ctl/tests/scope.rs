@@ -93,9 +93,11 @@ fn current_tuning_measures_the_real_loop_against_its_design() {
     assert!(f.overshoot_pct < 5.0, "{f:?}");
     let rise = f.rise_s.unwrap();
     let want = tau * 9f64.ln();
-    // Sampled every period (50 us): slower by at most two periods.
+    // Sampled every period (50 us): slower by the PWM's and the
+    // sampling's delays, one to three periods (0.38 to 0.41 ms seen
+    // against 0.33 ms).
     assert!(
-        rise > want - 50e-6 && rise < want + 100e-6,
+        rise > want - 50e-6 && rise < want + 150e-6,
         "rise {rise} want {want}"
     );
     let settle = f.settling_s.unwrap();

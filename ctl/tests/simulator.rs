@@ -153,3 +153,70 @@ fn a_motor_file_is_simulated_and_identified() {
     );
     assert!((c.param(ParamId::BusVoltageV).unwrap() - 540.0).abs() < 20.0);
 }
+
+fn foc_ctl(addr: SocketAddr, args: &[&str]) -> std::process::Output {
+    std::process::Command::new(env!("CARGO_BIN_EXE_foc-ctl"))
+        .args(["--tcp", &addr.to_string()])
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+#[test]
+fn calibrate_waits_shows_the_steps_and_the_result() {
+    // The drive's own identification, at up to 4 times real time.
+    let server = SimServer::spawn_scaled(
+        TcpListener::bind("127.0.0.1:0").unwrap(),
+        SimDevice::default(),
+        4.0,
+    )
+    .unwrap();
+    let o = foc_ctl(server.addr(), &["calibrate", "identification"]);
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        o.status.success(),
+        "{out}\n{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    for step in [
+        "resistance",
+        "inductance",
+        "sensor alignment",
+        "flux linkage",
+        "done",
+    ] {
+        assert!(out.contains(step), "no `{step}` in:\n{out}");
+    }
+    assert!(out.contains("motor          R 0.2"), "{out}");
+    assert!(out.contains("keep it: `foc-ctl config save`"), "{out}");
+    let mut c = client(server.addr());
+    assert_eq!(c.param(ParamId::Calibrated).unwrap(), 1.0);
+    assert_eq!(c.param(ParamId::CalibrationResult).unwrap(), 2.0);
+}
+
+#[test]
+fn a_failed_identification_names_its_step_and_reason() {
+    // Phase C's lead disconnected: the resistance step finds no current.
+    let mut dev = SimDevice::default();
+    dev.drive.inject(foc_simdrive::FaultKind::OpenPhase);
+    let server =
+        SimServer::spawn_scaled(TcpListener::bind("127.0.0.1:0").unwrap(), dev, 4.0).unwrap();
+    let o = foc_ctl(server.addr(), &["calibrate", "identification"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    assert!(
+        err.contains("failed: OpenPhase(C)") && err.contains("(at resistance)"),
+        "{err}"
+    );
+    assert!(err.contains("check its wire"), "{err}");
+    // The failure latched `CalibrationFailed`: refused until cleared.
+    let o = foc_ctl(server.addr(), &["calibrate", "offsets", "--no-wait"]);
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("a fault is latched"), "{err}");
+    assert!(foc_ctl(server.addr(), &["clear"]).status.success());
+    // Without waiting: at once.
+    let o = foc_ctl(server.addr(), &["calibrate", "offsets", "--no-wait"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(String::from_utf8_lossy(&o.stdout).starts_with("started"));
+}

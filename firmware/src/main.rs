@@ -113,6 +113,7 @@ mod app {
         calibrated: false,
         sensorless: false,
         injection: false,
+        calibration: foc_core::drive::Progress::Idle,
     };
 
     #[shared]

@@ -17,6 +17,7 @@ import dataclasses
 import math
 import numbers
 import os
+import random
 import time
 from dataclasses import dataclass
 from typing import Any, Callable, Deque, Dict, List, Optional, Sequence, Union
@@ -25,7 +26,7 @@ import numpy as np
 
 from . import messages as m
 from .codec import FrameDecoder, FrameFault, RawFrame, encode_frame
-from .errors import NackError, ProtocolError, TimeoutError, TransferError
+from .errors import DriveError, NackError, ProtocolError, TimeoutError, TransferError
 from .messages import (
     ErrorCode,
     FaultReport,
@@ -176,7 +177,10 @@ class Drive:
         0x00 first so the device drops whatever it had half-received."""
         self._transport: Optional[Transport] = transport
         self._decoder = FrameDecoder()
-        self._seq = 0
+        # A random first sequence number: the device answers a repeated
+        # frame (same seq, same CRC) from its cache without running it, so a
+        # new connection must not start where the last one did.
+        self._seq = random.randrange(0x10000)
         self.timeout = float(timeout)
         self.retries = int(retries)
         self.store_timeout = float(store_timeout)
@@ -305,12 +309,49 @@ class Drive:
             ec = code
         fname = m.field_name(tag, body, field) if ec == ErrorCode.OutOfRange else None
         text = m.ERROR_TEXT.get(ec, f"error code {code}")
+        value = m.field_value(tag, body, field) if ec == ErrorCode.OutOfRange else None
         if ec == ErrorCode.OutOfRange:
-            text = f"field {field}{f' ({fname})' if fname else ''} out of range"
+            shown = f"{fname} = {value:g}" if fname and value is not None else fname
+            text = f"field {field}{f' ({shown})' if shown else ''} out of range"
+            allowed = self._allowed(tag, body, field)
+            if allowed:
+                text += f" (allowed: {allowed})"
+        elif ec == ErrorCode.Unsupported and tag == Tag.SET_LIMITS:
+            hw = self._quiet_param(ParamId.BoardMaxCurrentA)
+            asked = m.field_value(tag, body, 0)
+            if hw is not None and asked is not None and asked > hw:
+                text = f"max_current_a = {asked:g} A is above this board's hardware limit of {hw:g} A"
         elif ec == ErrorCode.UnknownMessage and tag >= Tag.SET_SCOPE:
             text += f" (the scope needs protocol version {m.SCOPE_PROTOCOL_VERSION})"
         name = Tag(tag).name if tag in Tag._value2member_map_ else f"0x{tag:02x}"
-        return NackError(ec, field, f"{name} refused by the device: {text}", fname)
+        return NackError(ec, field, f"{name} refused by the device: {text}; nothing changed", fname, value)
+
+    def _quiet_param(self, pid: ParamId) -> Optional[float]:
+        """A parameter, or ``None`` when it cannot be read (an older device)."""
+        try:
+            return self.param(pid)
+        except DriveError:
+            return None
+
+    def _allowed(self, tag: int, body: bytes, field: int) -> Optional[str]:
+        """The range an out-of-range command field is checked against, read
+        from the device's limits in force (``None`` where unknown)."""
+        r = m.range_params(tag, body, field)
+        if r is None:
+            return None
+        lo_spec, hi_spec, what = r
+        hi = self._quiet_param(hi_spec)
+        if hi is None:
+            return None
+        if isinstance(lo_spec, ParamId):
+            lo = self._quiet_param(lo_spec)
+            if lo is None:
+                return None
+        else:
+            lo = -hi if lo_spec == -1 else float(lo_spec)
+        unit = m.PARAM_UNITS.get(hi_spec, "")
+        return f"{lo:g} .. {hi:g} {unit}, {what}"
+
 
     def request(self, tag: int, body: bytes = b"", timeout: Optional[float] = None) -> RawFrame:
         """Send request ``tag`` with ``body`` and return its reply frame

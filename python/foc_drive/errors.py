@@ -21,14 +21,25 @@ class NackError(DriveError):
         field: the offending field (0-based, in body order) for
             ``OutOfRange``, else 0.
         field_name: the name of that field when known (``OutOfRange`` only).
-        message: a human-readable description.
+        value: the value that was sent in that field, when it is a number
+            (``OutOfRange`` only).
+        message: a human-readable description: the field, the value sent
+            and the range allowed where the device's limits give it.
     """
 
-    def __init__(self, code: int, field: int, message: str, field_name: Optional[str] = None):
+    def __init__(
+        self,
+        code: int,
+        field: int,
+        message: str,
+        field_name: Optional[str] = None,
+        value: Optional[float] = None,
+    ):
         super().__init__(message)
         self.code = code
         self.field = field
         self.field_name = field_name
+        self.value = value
         self.message = message
 
     @property

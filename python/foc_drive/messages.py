@@ -270,6 +270,19 @@ class ParamId(enum.IntEnum):
     PositionKp = 19
     ScopeCapacity = 20
     AngleSource = 21
+    CalibrationStep = 22
+    CalibrationResult = 23
+    BoardMaxCurrentA = 24
+    # The command limits in force (rotor frame; the joint's travel range
+    # replaces the position range where set):
+    MaxCurrentA = 25
+    MaxVelocityRadS = 26
+    MinPositionRad = 27
+    MaxPositionRad = 28
+    MaxOpenLoopVoltageV = 29
+    MaxOpenLoopOmegaERadS = 30
+    MaxImpedanceKp = 31
+    MaxImpedanceKd = 32
 
 
 #: Parameter names as ``foc-ctl param NAME`` spells them.
@@ -296,7 +309,106 @@ PARAM_NAMES: Dict[ParamId, str] = {
     ParamId.PositionKp: "position-kp",
     ParamId.ScopeCapacity: "scope-capacity",
     ParamId.AngleSource: "angle-source",
+    ParamId.CalibrationStep: "calibration-step",
+    ParamId.CalibrationResult: "calibration-result",
+    ParamId.BoardMaxCurrentA: "board-max-current",
+    ParamId.MaxCurrentA: "max-current",
+    ParamId.MaxVelocityRadS: "max-velocity",
+    ParamId.MinPositionRad: "min-position",
+    ParamId.MaxPositionRad: "max-position",
+    ParamId.MaxOpenLoopVoltageV: "max-open-loop-voltage",
+    ParamId.MaxOpenLoopOmegaERadS: "max-open-loop-omega-e",
+    ParamId.MaxImpedanceKp: "max-impedance-kp",
+    ParamId.MaxImpedanceKd: "max-impedance-kd",
 }
+
+#: Each parameter's unit ("" for a count or a code), as ``foc-ctl param``
+#: prints it.
+PARAM_UNITS: Dict[ParamId, str] = {
+    ParamId.ResistanceOhm: "ohm",
+    ParamId.LdH: "H",
+    ParamId.LqH: "H",
+    ParamId.FluxLinkageWb: "Wb",
+    ParamId.PwmFrequencyHz: "Hz",
+    ParamId.SpeedDivider: "periods",
+    ParamId.PositionDivider: "periods",
+    ParamId.BusVoltageV: "V",
+    ParamId.MaxLoopCycles: "CPU cycles",
+    ParamId.TelemetryDivider: "periods",
+    ParamId.WatchdogTimeout: "periods",
+    ParamId.CurrentKp: "V/A",
+    ParamId.CurrentKi: "V/(A s)",
+    ParamId.SpeedKp: "A/(rad/s)",
+    ParamId.SpeedKi: "A/rad",
+    ParamId.PositionKp: "1/s",
+    ParamId.ScopeCapacity: "values",
+    ParamId.BoardMaxCurrentA: "A",
+    ParamId.MaxCurrentA: "A",
+    ParamId.MaxVelocityRadS: "rad/s",
+    ParamId.MinPositionRad: "rad",
+    ParamId.MaxPositionRad: "rad",
+    ParamId.MaxOpenLoopVoltageV: "V",
+    ParamId.MaxOpenLoopOmegaERadS: "rad/s",
+    ParamId.MaxImpedanceKp: "N m/rad",
+    ParamId.MaxImpedanceKd: "N m s/rad",
+}
+
+#: ``calibration-step`` codes (the step running, or where the last run
+#: ended).
+CALIBRATION_STEPS = (
+    "none",
+    "current offsets",
+    "resistance",
+    "inductance",
+    "current-loop gains",
+    "sensor alignment",
+    "flux linkage",
+    "mechanics",
+    "finished",
+)
+
+#: ``calibration-result`` codes below :data:`CALIBRATION_FAILED_BASE`.
+CALIBRATION_RESULTS = ("none since reset", "running", "done", "aborted (a fault, or a Disable)", "offsets rejected")
+
+#: A failure's ``calibration-result`` is this plus the reason's index in
+#: :data:`CALIBRATION_FAILURES`.
+CALIBRATION_FAILED_BASE = 32
+
+#: Why an identification failed (the drive's ``CalError``).
+CALIBRATION_FAILURES = (
+    "InvalidInput",
+    "InvalidConfig",
+    "OverCurrent",
+    "Timeout",
+    "OpenPhase(A)",
+    "OpenPhase(B)",
+    "OpenPhase(C)",
+    "VoltageLimitReached",
+    "PhaseImbalance",
+    "CurrentSenseMismatch",
+    "NoCurrentResponse",
+    "PolePairMismatch",
+    "SensorReversed",
+    "RotorStuck",
+    "SensorNoMotion",
+    "SpeedNotReached",
+    "ImplausibleResult",
+    "NoAcceleration",
+    "InertiaOutOfRange",
+    "FrictionOutOfRange",
+    "MechanicsIllConditioned",
+)
+
+
+def calibration_result_text(code: int) -> str:
+    """Words for a ``calibration-result`` code."""
+    if 0 <= code < len(CALIBRATION_RESULTS):
+        return CALIBRATION_RESULTS[code]
+    n = code - CALIBRATION_FAILED_BASE
+    if 0 <= n < len(CALIBRATION_FAILURES):
+        return "failed: " + CALIBRATION_FAILURES[n]
+    return "unknown"
+
 PARAM_BY_NAME: Dict[str, ParamId] = {v: k for k, v in PARAM_NAMES.items()}
 
 
@@ -419,6 +531,52 @@ def field_name(tag: int, body: bytes, field: int) -> Optional[str]:
     else:
         names = REQUEST_FIELDS.get(tag, ())
     return names[field] if 0 <= field < len(names) else None
+
+
+#: Requests whose bodies are f32 fields only.
+_F32_REQUESTS = (Tag.SET_LIMITS, Tag.SET_CURRENT_GAINS, Tag.SET_SPEED_GAINS, Tag.SET_POSITION_GAINS)
+
+
+def field_value(tag: int, body: bytes, field: int) -> Optional[float]:
+    """The value of field ``field`` of request ``tag`` as sent in ``body``
+    (``None`` where it is not a number: a mode, a choice)."""
+    try:
+        if tag == Tag.SET_COMMAND:
+            if field < 1:
+                return None
+            off = 1 + 4 * (field - 1)
+            if body[0] == Mode.OpenLoop and field == 3:
+                return struct.unpack_from("<I", body, off)[0] / 2.0**32  # turns
+            return struct.unpack_from("<f", body, off)[0]
+        if tag in _F32_REQUESTS:
+            return struct.unpack_from("<f", body, 4 * field)[0]
+        if tag == Tag.SET_DIVIDERS:
+            return float(struct.unpack_from("<H", body, 2 * field)[0])
+        if tag == Tag.SET_WATCHDOG and field == 0:
+            return float(struct.unpack_from("<I", body, 0)[0])
+    except (struct.error, IndexError):
+        return None
+    return None
+
+
+def range_params(tag: int, body: bytes, field: int) -> Optional[tuple]:
+    """For a command's out-of-range field: ``(low, high, what)`` where
+    ``low`` and ``high`` are :class:`ParamId` s to read (or a number), the
+    limits in force that field is checked against; ``None`` otherwise."""
+    if tag != Tag.SET_COMMAND or not body:
+        return None
+    mode = body[0]
+    table = {
+        (Mode.Torque, 1): (-1, ParamId.MaxCurrentA, "the current limit"),
+        (Mode.Velocity, 1): (-1, ParamId.MaxVelocityRadS, "the velocity limit, rotor"),
+        (Mode.Position, 1): (ParamId.MinPositionRad, ParamId.MaxPositionRad, "the position range, rotor"),
+        (Mode.OpenLoop, 1): (-1, ParamId.MaxOpenLoopVoltageV, "the open-loop voltage limit"),
+        (Mode.OpenLoop, 2): (-1, ParamId.MaxOpenLoopVoltageV, "the open-loop voltage limit"),
+        (Mode.OpenLoop, 4): (-1, ParamId.MaxOpenLoopOmegaERadS, "the open-loop speed limit, electrical"),
+        (Mode.Impedance, 3): (0.0, ParamId.MaxImpedanceKp, "the stiffness limit, rotor"),
+        (Mode.Impedance, 4): (0.0, ParamId.MaxImpedanceKd, "the damping limit, rotor"),
+    }
+    return table.get((mode, field))
 
 
 # ---------------------------------------------------------------- requests

@@ -82,11 +82,41 @@ impl View<'_> {
             ParamId::PositionKp => s.position.kp_per_s,
             ParamId::ScopeCapacity => board.scope_values as f32,
             ParamId::AngleSource => f32::from(self.angle_source()),
+            ParamId::BoardMaxCurrentA => board.max_current_a,
+            ParamId::MaxCurrentA
+            | ParamId::MaxVelocityRadS
+            | ParamId::MinPositionRad
+            | ParamId::MaxPositionRad
+            | ParamId::MaxOpenLoopVoltageV
+            | ParamId::MaxOpenLoopOmegaERadS
+            | ParamId::MaxImpedanceKp
+            | ParamId::MaxImpedanceKd => self.limit_in_force(id),
+            ParamId::CalibrationStep => {
+                f32::from(foc_protocol::message::progress_codes(self.snap.status.calibration).0)
+            }
+            ParamId::CalibrationResult => {
+                f32::from(foc_protocol::message::progress_codes(self.snap.status.calibration).1)
+            }
             // Answered by the protocol layer itself.
             ParamId::ProtocolVersion | ParamId::TelemetryDivider | ParamId::WatchdogTimeout => {
                 return None
             }
         })
+    }
+    /// One of the limits in force (commands are checked against them).
+    fn limit_in_force(&self, id: ParamId) -> f32 {
+        let s = self.service.settings();
+        let l = foc_protocol::joint::limits_in_force(&s.limits, &s.joint);
+        match id {
+            ParamId::MaxCurrentA => l.max_current_a,
+            ParamId::MaxVelocityRadS => l.max_velocity_rad_s,
+            ParamId::MinPositionRad => l.min_position_rad,
+            ParamId::MaxPositionRad => l.max_position_rad,
+            ParamId::MaxOpenLoopVoltageV => l.max_open_loop_voltage_v,
+            ParamId::MaxOpenLoopOmegaERadS => l.max_open_loop_omega_e_rad_s,
+            ParamId::MaxImpedanceKp => l.max_kp_nm_per_rad,
+            _ => l.max_kd_nm_s_per_rad,
+        }
     }
     /// [`ParamId::AngleSource`]: the feedback's angle in use, consistent
     /// with the status (without the sensor: sensorless or limp-home).

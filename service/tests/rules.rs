@@ -47,6 +47,7 @@ fn quiet_snapshot() -> Snapshot {
             calibrated: true,
             sensorless: false,
             injection: false,
+            calibration: foc_core::drive::Progress::Idle,
         },
         identified: None,
         pending: Pending {

@@ -108,6 +108,10 @@ fn host_steps() -> Vec<Step> {
             "Python package foc-drive: install, tests against foc-ctl simulate",
             crate::python::run_tests,
         ),
+        Step::new(
+            "the dashboard in headless Chromium: live plot, console, refusal, setup wizard (cargo xtask dashboard)",
+            crate::dashboard::run_tests,
+        ),
         // CANopen (issue 22): the Python canopen master against three drives
         // on the host test bus, then the emulated firmware on the bus.
         Step::new(

@@ -11,6 +11,7 @@ mod budget;
 mod build;
 mod canopen;
 mod check;
+mod dashboard;
 mod doctables;
 mod dyno;
 mod e2e;
@@ -45,8 +46,15 @@ enum Command {
     /// Print flash (text+data) and static RAM (data+bss) of the firmware per
     /// board, against the default board's goals (building it if needed).
     Size(size::SizeArgs),
-    /// The full check: fmt, clippy (host crates and every board), host tests,
-    /// foc-core bare-metal build, release build of every board.
+    /// The full check, in order: rustfmt; clippy (host crates and every
+    /// board); the host crates' tests; the API docs and the book (tables
+    /// checked against the code, links); the Python package against `foc-ctl
+    /// simulate`; the dashboard in headless Chromium; CANopen (python-canopen on the host test bus, then the
+    /// emulated firmware); the simulation (`sim`) and the sensorless mission;
+    /// foc-core's bare-metal build; a release build of every board; QEMU
+    /// firmware-in-the-loop (`qemu`) and the command channel end to end
+    /// (`e2e`); instruction counts against the budget (`bench`); the book's
+    /// figures are this run's. Stops at the first failure.
     Test,
     /// What CI runs: toolchain set-up and versions, then exactly `test`.
     Ci,
@@ -77,6 +85,10 @@ enum Command {
     /// environment under the target directory and run its tests against
     /// `foc-ctl simulate`.
     Python,
+    /// foc-ctl's dashboard in a real headless browser (Debian's Chromium
+    /// over WebDriver): the page, a live plot, the console, a refusal, the
+    /// setup wizard; screenshots in out/dashboard.
+    Dashboard,
     /// CANopen (CiA 301 / CiA 402): a Python `canopen` master against
     /// several drives on the host test bus (foc-canbus), then against the
     /// emulated firmware (QEMU, CAN as SLCAN on USART3) joined to the bus.
@@ -108,6 +120,7 @@ fn main() -> ExitCode {
         Command::E2e(args) => e2e::run_cmd(args),
         Command::Fuzz(args) => fuzz::run_cmd(args),
         Command::Python => python::run_tests(),
+        Command::Dashboard => dashboard::run_tests(),
         Command::Canopen => canopen::run_tests(),
         Command::Book(args) => book::run_cmd(args),
         Command::Doc => book::api_docs(),

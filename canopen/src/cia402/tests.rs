@@ -109,6 +109,7 @@ impl DeviceContext for Fake {
             calibrated: self.calibrated,
             sensorless: self.sensorless,
             injection: self.injection,
+            calibration: foc_core::drive::Progress::Idle,
         }
     }
     fn set_current_gains(&mut self, _: CurrentGains) -> Result<(), Refusal> {

@@ -24,7 +24,7 @@
 
 use super::identify::{Identifier, Outcome};
 use super::rules::{ConfigChange, Refusal, Status};
-use super::AngleKind;
+use super::{AngleKind, Progress};
 use crate::calibration::identification::{IdentificationConfig, IdentificationResult, Step};
 use crate::calibration::offsets::{OffsetCalibrator, OffsetError, OffsetLimits, OffsetStep};
 use crate::calibration::CalError;
@@ -163,6 +163,9 @@ pub struct Lifecycle {
     /// The operator's command number when the identification started.
     identify_seq: u32,
     identified: Option<IdentificationResult>,
+    /// How the last calibration ended (the status reports a running one
+    /// from the phase).
+    report: Progress,
     /// When the speed and the position stages run.
     speed: Countdown,
     position: Countdown,
@@ -231,6 +234,7 @@ impl Lifecycle {
             identifier: None,
             identify_seq: 0,
             identified: None,
+            report: Progress::Idle,
             speed: Countdown::new(divider(config.speed_divider)),
             position: Countdown::new(divider(config.position_divider)),
             tick: 0,
@@ -285,6 +289,19 @@ impl Lifecycle {
             injection: stage
                 .sensorless()
                 .is_some_and(|s| s.holds_torque_at_standstill()),
+            calibration: self.progress(),
+        }
+    }
+
+    /// The calibration running (from the phase), or how the last one
+    /// ended.
+    pub fn progress(&self) -> Progress {
+        match self.phase {
+            LifePhase::OffsetCalibration => Progress::Offsets,
+            LifePhase::Identify => {
+                Progress::Running(self.identification_step().unwrap_or(Step::Resistance))
+            }
+            LifePhase::SensorCheck(_) | LifePhase::Run => self.report,
         }
     }
 
@@ -519,11 +536,13 @@ impl Lifecycle {
                 out.offsets_a = Some(o);
                 self.offsets_ok = true;
                 self.phase = LifePhase::SensorCheck(0);
+                self.report = Progress::Done;
                 out.event = Some(Event::OffsetsDone(o));
             }
             OffsetStep::Failed(e) => {
                 stage.report_fault(Fault::CalibrationFailed);
                 self.enter_run(stage);
+                self.report = Progress::OffsetsFailed;
                 out.event = Some(Event::OffsetsFailed(e));
             }
         }
@@ -602,6 +621,7 @@ impl Lifecycle {
         out.event = match outcome {
             Outcome::Running => return,
             Outcome::Done(r) => {
+                self.report = Progress::Done;
                 self.identified = Some(r);
                 // The measured inertia feeds the speed observer's torque
                 // model from now on (design §19).
@@ -610,8 +630,14 @@ impl Lifecycle {
                 }
                 Some(Event::Identified(r))
             }
-            Outcome::Failed(e, st) => Some(Event::IdentificationFailed(e, st)),
-            Outcome::Aborted(f, st) => Some(Event::IdentificationAborted(f, st)),
+            Outcome::Failed(e, st) => {
+                self.report = Progress::Failed(e, st);
+                Some(Event::IdentificationFailed(e, st))
+            }
+            Outcome::Aborted(f, st) => {
+                self.report = Progress::Aborted(f, st);
+                Some(Event::IdentificationAborted(f, st))
+            }
         };
         // Back to the operator's mailbox, with its last command taken as
         // seen: nothing sent before or during the identification starts

@@ -62,10 +62,12 @@ pub mod cascade;
 pub mod identify;
 pub mod lifecycle;
 pub mod period;
+pub mod progress;
 pub mod rules;
 
 pub use lifecycle::{Event, Inputs, LifePhase, Lifecycle, LifecycleConfig, Output};
 pub use period::Mail;
+pub use progress::Progress;
 
 /// What the angle sensor knows at power-up. It decides what a stored
 /// calibration is worth at boot (design §17): the stored electrical zero

@@ -5,9 +5,9 @@
 //! [`Status`] for an immediate Nack (so a refused request changes nothing).
 //!
 //! ```
-//! use foc_core::drive::{Refusal, Status};
+//! use foc_core::drive::{Progress, Refusal, Status};
 //! use foc_core::control::{Command, CommandError, Mode};
-//! let running = Status { running: true, mode: Mode::Torque, faulted: false, calibrated: true, sensorless: false, injection: false };
+//! let running = Status { running: true, mode: Mode::Torque, faulted: false, calibrated: true, sensorless: false, injection: false, calibration: Progress::Idle };
 //! assert_eq!(running.check_config(), Err(Refusal::NotDisabled));
 //! let starting = Status { running: false, mode: Mode::Disabled, ..running };
 //! assert_eq!(starting.check_config(), Err(Refusal::Busy));
@@ -52,6 +52,8 @@ pub struct Status {
     /// ... and holds torque at standstill with high-frequency injection
     /// (design §28; a salient motor).
     pub injection: bool,
+    /// The calibration running, or how the last one ended (for the host).
+    pub calibration: crate::drive::Progress,
 }
 
 impl Status {

@@ -110,6 +110,7 @@ pub trait DeviceContext {
             sensorless: matches!(self.param(ParamId::AngleSource), Some(1.0 | 3.0)),
             // Not known from the parameters: refused as without injection.
             injection: false,
+            calibration: foc_core::drive::Progress::Idle,
         }
     }
     /// A parameter value, `None` if this device does not have it.

@@ -218,6 +218,7 @@ impl DeviceContext for RecordingContext {
             calibrated: self.calibrated,
             sensorless: self.sensorless,
             injection: self.injection,
+            calibration: foc_core::drive::Progress::Idle,
         }
     }
     fn is_calibrated(&self) -> bool {

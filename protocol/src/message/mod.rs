@@ -63,8 +63,10 @@
 //! its wire codes; `codec` the encoding of requests and replies.
 
 mod codec;
+mod progress;
 mod telemetry;
 
+pub use progress::*;
 pub use telemetry::*;
 
 pub use crate::config::{Chunk, ConfigSource, StoreOp};
@@ -218,7 +220,7 @@ pub enum TelemetryRate {
 }
 
 macro_rules! param_ids {
-    ($( $(#[$doc:meta])* $name:ident = $code:expr, $text:expr; )*) => {
+    ($( $(#[$doc:meta])* $name:ident = $code:expr, $text:expr, $unit:expr; )*) => {
         /// A readable parameter.
         #[derive(Clone, Copy, Debug, PartialEq, Eq)]
         #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -235,6 +237,10 @@ macro_rules! param_ids {
             pub const fn name(self) -> &'static str {
                 match self { $( ParamId::$name => $text, )* }
             }
+            /// Its unit, for people (`""` for a count or a code).
+            pub const fn unit(self) -> &'static str {
+                match self { $( ParamId::$name => $unit, )* }
+            }
             /// The parameter with this command-line name.
             pub fn from_name(s: &str) -> Option<Self> {
                 Self::ALL.iter().copied().find(|p| p.name() == s)
@@ -245,53 +251,83 @@ macro_rules! param_ids {
 
 param_ids! {
     /// Pole pairs.
-    PolePairs = 0, "pole-pairs";
+    PolePairs = 0, "pole-pairs", "";
     /// Phase resistance \[ohm\].
-    ResistanceOhm = 1, "r";
+    ResistanceOhm = 1, "r", "ohm";
     /// d-axis inductance \[H\].
-    LdH = 2, "ld";
+    LdH = 2, "ld", "H";
     /// q-axis inductance \[H\].
-    LqH = 3, "lq";
+    LqH = 3, "lq", "H";
     /// Flux linkage \[Wb\].
-    FluxLinkageWb = 4, "psi";
+    FluxLinkageWb = 4, "psi", "Wb";
     /// PWM = current-loop frequency \[Hz\].
-    PwmFrequencyHz = 5, "pwm-frequency";
+    PwmFrequencyHz = 5, "pwm-frequency", "Hz";
     /// Speed loop every N periods.
-    SpeedDivider = 6, "speed-divider";
+    SpeedDivider = 6, "speed-divider", "periods";
     /// Position loop every M periods.
-    PositionDivider = 7, "position-divider";
+    PositionDivider = 7, "position-divider", "periods";
     /// Firmware version as `major * 10000 + minor * 100 + patch`.
-    FirmwareVersion = 8, "firmware-version";
+    FirmwareVersion = 8, "firmware-version", "";
     /// Protocol version ([`crate::PROTOCOL_VERSION`]; answered by the protocol layer).
-    ProtocolVersion = 9, "protocol-version";
+    ProtocolVersion = 9, "protocol-version", "";
     /// Bus voltage \[V\].
-    BusVoltageV = 10, "bus-voltage";
+    BusVoltageV = 10, "bus-voltage", "V";
     /// 1 when calibrated, else 0.
-    Calibrated = 11, "calibrated";
+    Calibrated = 11, "calibrated", "";
     /// Longest current-loop run so far [CPU cycles].
-    MaxLoopCycles = 12, "max-loop-cycles";
+    MaxLoopCycles = 12, "max-loop-cycles", "CPU cycles";
     /// Telemetry divider in force (periods; 0 = streaming off; answered by the protocol layer).
-    TelemetryDivider = 13, "telemetry-divider";
+    TelemetryDivider = 13, "telemetry-divider", "periods";
     /// Watchdog timeout \[periods\] (0 = off; answered by the protocol layer).
-    WatchdogTimeout = 14, "watchdog-timeout";
+    WatchdogTimeout = 14, "watchdog-timeout", "periods";
     /// Current-loop proportional gain, q axis [V/A].
-    CurrentKp = 15, "current-kp";
+    CurrentKp = 15, "current-kp", "V/A";
     /// Current-loop integral gain, q axis [V/(A s)].
-    CurrentKi = 16, "current-ki";
+    CurrentKi = 16, "current-ki", "V/(A s)";
     /// Speed-loop proportional gain [A/(rad/s)] (rotor).
-    SpeedKp = 17, "speed-kp";
+    SpeedKp = 17, "speed-kp", "A/(rad/s)";
     /// Speed-loop integral gain [A/rad] (rotor).
-    SpeedKi = 18, "speed-ki";
+    SpeedKi = 18, "speed-ki", "A/rad";
     /// Position-loop gain [(rad/s)/rad].
-    PositionKp = 19, "position-kp";
+    PositionKp = 19, "position-kp", "1/s";
     /// Values the scope buffer holds (0: no scope).
-    ScopeCapacity = 20, "scope-capacity";
+    ScopeCapacity = 20, "scope-capacity", "values";
     /// The angle in use (design §27; the telemetry's `angle_in_use`): 0
     /// the angle sensor, 1 sensorless (the flux observer), 2 the observer
     /// beside the sensor above its speed (halls + sensorless), 3
     /// limp-home (the observer, the sensor having failed). At 1 and 3
     /// torque, position and impedance commands are refused.
-    AngleSource = 21, "angle-source";
+    AngleSource = 21, "angle-source", "";
+    /// The calibration running or last run: its step
+    /// ([`progress_codes`]): 0 none, 1 current offsets, 2 resistance, 3
+    /// inductance, 4 current-loop gains, 5 sensor alignment, 6 flux
+    /// linkage, 7 mechanics, 8 finished.
+    CalibrationStep = 22, "calibration-step", "";
+    /// How it stands ([`progress_codes`]): 0 none since reset, 1 running,
+    /// 2 done, 3 aborted (by a fault or a `Disable`), 4 offsets rejected,
+    /// 32 + n failed for reason n ([`failure_name`]).
+    CalibrationResult = 23, "calibration-result", "";
+    /// The board's hardware current limit \[A\]: no limit or record goes
+    /// above it (a request that does is refused `Unsupported`).
+    BoardMaxCurrentA = 24, "board-max-current", "A";
+    /// The current limit in force \[A\] (commands are checked against the
+    /// limits in force: the motor's, rotor frame, with the joint's travel
+    /// range as the position range where it has one).
+    MaxCurrentA = 25, "max-current", "A";
+    /// The velocity limit in force [rad/s, rotor].
+    MaxVelocityRadS = 26, "max-velocity", "rad/s";
+    /// The lowest position in force \[rad, rotor\].
+    MinPositionRad = 27, "min-position", "rad";
+    /// The highest position in force \[rad, rotor\].
+    MaxPositionRad = 28, "max-position", "rad";
+    /// The open-loop voltage limit in force \[V\].
+    MaxOpenLoopVoltageV = 29, "max-open-loop-voltage", "V";
+    /// The open-loop speed limit in force [rad/s, electrical].
+    MaxOpenLoopOmegaERadS = 30, "max-open-loop-omega-e", "rad/s";
+    /// The largest impedance stiffness in force [N m/rad, rotor].
+    MaxImpedanceKp = 31, "max-impedance-kp", "N m/rad";
+    /// The largest impedance damping in force [N m s/rad, rotor].
+    MaxImpedanceKd = 32, "max-impedance-kd", "N m s/rad";
 }
 
 /// A Nack's reason.

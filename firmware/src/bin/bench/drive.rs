@@ -104,6 +104,7 @@ impl Rig {
                 calibrated: false,
                 sensorless: false,
                 injection: false,
+                calibration: foc_core::drive::Progress::Idle,
             },
             speed: SpeedStage::new(cfg.speed),
             position: PositionStage::new(cfg.position),

@@ -1,0 +1,208 @@
+//! A refusal in words: the field a Nack points at, the value that was sent
+//! and the range the device allows, read from the device itself (its
+//! limits in force, its hardware current limit) where the rule depends on
+//! them.
+//!
+//! ```no_run
+//! use foc_ctl::{refusal, Client};
+//! use foc_core::control::Command;
+//! use foc_protocol::message::Request;
+//! let mut c = Client::connect_tcp("127.0.0.1:4444")?;
+//! let cmd = Command::Torque { iq_a: 500.0 };
+//! if let Err(e) = c.set_command(cmd) {
+//!     // "refused by the device: `iq_a` = 500 A is out of range (allowed: -10 .. 10 A,
+//!     // the current limit); nothing changed"
+//!     println!("{}", refusal::explain(&mut c, &Request::SetCommand(cmd), &e));
+//! }
+//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
+
+use crate::joint::nack_text;
+use crate::{Client, ClientError};
+use foc_core::control::{Command, Limits};
+use foc_protocol::device::MAX_GAIN;
+use foc_protocol::message::{ErrorCode, ParamId, Request, TelemetryRate};
+
+/// The value of field `field` of `req` as sent, with its unit (`None`
+/// past the numeric fields).
+pub fn field_value(req: &Request, field: u8) -> Option<(f32, &'static str)> {
+    let vals: &[(f32, &str)] = &match req {
+        Request::SetCommand(c) => command_values(c),
+        Request::SetLimits(l) => vec![
+            (l.max_current_a, "A"),
+            (l.max_velocity_rad_s, "rad/s"),
+            (l.min_position_rad, "rad"),
+            (l.max_position_rad, "rad"),
+            (l.max_open_loop_voltage_v, "V"),
+            (l.max_open_loop_omega_e_rad_s, "rad/s"),
+            (l.max_kp_nm_per_rad, "N m/rad"),
+            (l.max_kd_nm_s_per_rad, "N m s/rad"),
+        ],
+        Request::SetCurrentGains(g) => vec![
+            (g.kp_d, "V/A"),
+            (g.ki_d, "V/(A s)"),
+            (g.kp_q, "V/A"),
+            (g.ki_q, "V/(A s)"),
+        ],
+        Request::SetSpeedGains(g) => {
+            vec![(g.kp_a_per_rad_s, "A/(rad/s)"), (g.ki_a_per_rad, "A/rad")]
+        }
+        Request::SetPositionGains(g) => vec![
+            (g.kp_per_s, "1/s"),
+            (g.max_velocity_rad_s, "rad/s"),
+            (g.max_acceleration_rad_s2, "rad/s^2"),
+        ],
+        Request::SetDividers { speed, position } => {
+            vec![
+                (f32::from(*speed), "periods"),
+                (f32::from(*position), "periods"),
+            ]
+        }
+        Request::SetWatchdog(w) => vec![(w.timeout_periods as f32, "periods")],
+        Request::StartTelemetry(TelemetryRate::Hz(hz)) => vec![(0.0, ""), (*hz, "Hz")],
+        Request::StartTelemetry(TelemetryRate::EveryPeriods(k)) => {
+            vec![(1.0, ""), (*k as f32, "periods")]
+        }
+        _ => Vec::new(),
+    };
+    vals.get(usize::from(field)).copied()
+}
+
+/// A command's values in body order (the mode first, as a code).
+fn command_values(c: &Command) -> Vec<(f32, &'static str)> {
+    let mode = (f32::from(c.mode() as u8), "");
+    match *c {
+        Command::Disable => vec![mode],
+        Command::Torque { iq_a } => vec![mode, (iq_a, "A")],
+        Command::Velocity { rad_s } => vec![mode, (rad_s, "rad/s")],
+        Command::Position { rad } => vec![mode, (rad, "rad")],
+        Command::OpenLoop {
+            v_d_v,
+            v_q_v,
+            theta_e,
+            omega_e_rad_s,
+        } => vec![
+            mode,
+            (v_d_v, "V"),
+            (v_q_v, "V"),
+            (theta_e.to_radians(), "rad"),
+            (omega_e_rad_s, "rad/s"),
+        ],
+        Command::Impedance(i) => vec![
+            mode,
+            (i.position_rad, "rad"),
+            (i.velocity_rad_s, "rad/s"),
+            (i.kp_nm_per_rad, "N m/rad"),
+            (i.kd_nm_s_per_rad, "N m s/rad"),
+            (i.torque_ff_nm, "N m"),
+            (i.torque_limit_nm, "N m"),
+        ],
+    }
+}
+
+/// The range the device allows for field `field` of `req`, in words, from
+/// the limits `l` in force (`None` where it is not a plain range).
+pub fn allowed_range(
+    req: &Request,
+    field: u8,
+    l: &Limits,
+    board_max_a: Option<f32>,
+) -> Option<String> {
+    let sym = |m: f32, u: &str, what: &str| Some(format!("-{m} .. {m} {u}, {what}"));
+    match (req, field) {
+        (Request::SetCommand(Command::Torque { .. }), 1) => sym(l.max_current_a, "A", "the current limit"),
+        (Request::SetCommand(Command::Velocity { .. }), 1) => {
+            sym(l.max_velocity_rad_s, "rad/s", "the velocity limit, rotor")
+        }
+        (Request::SetCommand(Command::Position { .. }), 1) => Some(format!(
+            "{} .. {} rad, the position range (rotor; the joint's travel range where set)",
+            l.min_position_rad, l.max_position_rad
+        )),
+        (Request::SetCommand(Command::OpenLoop { .. }), 1 | 2) => Some(format!(
+            "|v| <= {} V, the open-loop voltage limit",
+            l.max_open_loop_voltage_v
+        )),
+        (Request::SetCommand(Command::OpenLoop { .. }), 4) => {
+            sym(l.max_open_loop_omega_e_rad_s, "rad/s", "the open-loop speed limit, electrical")
+        }
+        (Request::SetCommand(Command::Impedance(_)), 3) => Some(format!(
+            "0 .. {} N m/rad, the stiffness limit (rotor)",
+            l.max_kp_nm_per_rad
+        )),
+        (Request::SetCommand(Command::Impedance(_)), 4) => Some(format!(
+            "0 .. {} N m s/rad, the damping limit (rotor)",
+            l.max_kd_nm_s_per_rad
+        )),
+        (Request::SetLimits(_), 0) => Some(match board_max_a {
+            Some(m) => format!("above 0, at most {m} A, this board's hardware limit"),
+            None => "above 0 and finite".into(),
+        }),
+        (Request::SetLimits(_), 2 | 3) => Some("finite, the lowest below the highest".into()),
+        (Request::SetLimits(_), _) => Some("finite and not negative".into()),
+        (
+            Request::SetCurrentGains(_) | Request::SetSpeedGains(_) | Request::SetPositionGains(_),
+            _,
+        ) => Some(format!("0 .. {MAX_GAIN:e}, finite")),
+        (Request::SetDividers { .. }, _) => Some("at least 1".into()),
+        (Request::StartTelemetry(_), 1) => Some(
+            "above 0, at most the PWM rate and what the link carries (a board's 115200-baud UART: 192 Hz)".into(),
+        ),
+        _ => None,
+    }
+}
+
+/// The limits in force, as the device reports them (`None` from a device
+/// that does not).
+pub fn limits_in_force(c: &mut Client) -> Option<Limits> {
+    let mut p = |id| c.param(id).ok();
+    Some(Limits {
+        max_current_a: p(ParamId::MaxCurrentA)?,
+        max_velocity_rad_s: p(ParamId::MaxVelocityRadS)?,
+        min_position_rad: p(ParamId::MinPositionRad)?,
+        max_position_rad: p(ParamId::MaxPositionRad)?,
+        max_open_loop_voltage_v: p(ParamId::MaxOpenLoopVoltageV)?,
+        max_open_loop_omega_e_rad_s: p(ParamId::MaxOpenLoopOmegaERadS)?,
+        max_kp_nm_per_rad: p(ParamId::MaxImpedanceKp)?,
+        max_kd_nm_s_per_rad: p(ParamId::MaxImpedanceKd)?,
+    })
+}
+
+/// `e`, an error of `req`, in words: for a Nack the field, the value sent
+/// and the range allowed (asked of the device: its limits in force and
+/// hardware limit), and that nothing changed.
+pub fn explain(c: &mut Client, req: &Request, e: &ClientError) -> String {
+    match e {
+        ClientError::Nack(code) => {
+            format!("refused by the device: {}", nack_explained(c, req, *code))
+        }
+        other => other.to_string(),
+    }
+}
+
+/// The Nack `code` of `req` in words (see [`explain`]).
+pub fn nack_explained(c: &mut Client, req: &Request, code: ErrorCode) -> String {
+    let board_max_a = c.param(ParamId::BoardMaxCurrentA).ok();
+    match (req, code) {
+        (Request::SetLimits(l), ErrorCode::Unsupported) => match board_max_a {
+            Some(m) if l.max_current_a > m => format!(
+                "`max_current_a` = {} A is above this board's hardware limit of {m} A; nothing changed",
+                l.max_current_a
+            ),
+            _ => format!("{}; nothing changed", crate::describe_error(code)),
+        },
+        (_, ErrorCode::OutOfRange { field }) => {
+            let Some(name) = req.field_name(field) else {
+                return nack_text(req, code);
+            };
+            let value = field_value(req, field)
+                .map(|(v, u)| format!(" = {v}{}{u}", if u.is_empty() { "" } else { " " }))
+                .unwrap_or_default();
+            let range = limits_in_force(c)
+                .and_then(|l| allowed_range(req, field, &l, board_max_a))
+                .map(|r| format!(" is out of range (allowed: {r})"))
+                .unwrap_or_else(|| " is invalid or out of range".into());
+            format!("`{name}`{value}{range}; nothing changed")
+        }
+        _ => nack_text(req, code),
+    }
+}

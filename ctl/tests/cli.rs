@@ -1,0 +1,185 @@
+//! The command line's behaviour (issue 36): refusals that name the field,
+//! the value and the range; partial limit changes; the watchdog in ms;
+//! values with units and without denormals; quiet broken pipes; errors
+//! that name the port; a scope read that says what it waits for; the
+//! telemetry's rate asked and given.
+
+use foc_ctl::sim::{SimDevice, SimServer};
+use foc_ctl::Client;
+use foc_protocol::message::ParamId;
+use std::net::{SocketAddr, TcpListener};
+use std::process::{Command, Output, Stdio};
+
+fn calibrated_server() -> SimServer {
+    let mut dev = SimDevice::default();
+    assert!(dev.drive.calibrate_from_bench());
+    SimServer::spawn_with(TcpListener::bind("127.0.0.1:0").unwrap(), dev).unwrap()
+}
+
+fn foc_ctl(addr: SocketAddr, args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_foc-ctl"))
+        .args(["--tcp", &addr.to_string()])
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+fn out(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stdout).into_owned()
+}
+
+fn err(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+#[test]
+fn refusals_name_the_field_the_value_and_the_range() {
+    let server = calibrated_server();
+    let a = server.addr();
+    let o = foc_ctl(a, &["mode", "torque", "500"]);
+    assert!(!o.status.success());
+    assert!(
+        err(&o).contains("`iq_a` = 500 A is out of range (allowed: -10 .. 10 A, the current limit); nothing changed"),
+        "{}",
+        err(&o)
+    );
+    let o = foc_ctl(a, &["limits", "--max-current", "50"]);
+    assert!(
+        err(&o).contains("`max_current_a` = 50 A is above this board's hardware limit of 10 A"),
+        "{}",
+        err(&o)
+    );
+    let o = foc_ctl(a, &["dividers", "0", "5"]);
+    assert!(
+        err(&o).contains("`speed` = 0 periods is out of range (allowed: at least 1)"),
+        "{}",
+        err(&o)
+    );
+    let o = foc_ctl(a, &["gains", "speed", "--kp", "NaN", "--ki", "0"]);
+    assert!(err(&o).contains("`kp_a_per_rad_s` = NaN"), "{}", err(&o));
+    // Nothing changed: the current limit is still the board's 10 A.
+    let mut c = Client::connect_tcp(a).unwrap();
+    assert_eq!(c.limits().unwrap().max_current_a, 10.0);
+}
+
+#[test]
+fn limits_change_only_what_is_given() {
+    let server = calibrated_server();
+    let a = server.addr();
+    let mut c = Client::connect_tcp(a).unwrap();
+    let before = c.limits().unwrap();
+    let o = foc_ctl(a, &["limits", "--max-current", "4"]);
+    assert!(o.status.success(), "{}", err(&o));
+    assert!(out(&o).contains("max current      4 A"), "{}", out(&o));
+    let after = c.limits().unwrap();
+    assert_eq!(after.max_current_a, 4.0);
+    assert_eq!(
+        foc_core::control::Limits {
+            max_current_a: before.max_current_a,
+            ..after
+        },
+        before
+    );
+    // Without options: shown, nothing sent.
+    let o = foc_ctl(a, &["limits"]);
+    assert!(o.status.success() && out(&o).contains("max current      4 A"));
+}
+
+#[test]
+fn the_watchdog_is_set_in_ms_and_params_have_units() {
+    let server = calibrated_server();
+    let a = server.addr();
+    let o = foc_ctl(a, &["watchdog", "100", "stop"]);
+    assert!(o.status.success(), "{}", err(&o));
+    assert!(
+        out(&o).contains("ok: 100 ms (2000 periods at 20000 Hz), then Stop"),
+        "{}",
+        out(&o)
+    );
+    let mut c = Client::connect_tcp(a).unwrap();
+    // This connection's own watchdog is its own: read the record's.
+    let o = foc_ctl(a, &["param", "all"]);
+    let text = out(&o);
+    for line in [
+        "r                  0.2 ohm",
+        "ld                 6e-5 H",
+        "pwm-frequency      20000 Hz",
+        "calibrated         1 (yes)",
+        "board-max-current  10 A",
+        "calibration-result 2 (done)",
+    ] {
+        assert!(text.contains(line), "no `{line}` in:\n{text}");
+    }
+    assert!(c.param(ParamId::PolePairs).is_ok());
+    let o = foc_ctl(a, &["watchdog", "0.01", "stop"]);
+    assert!(!o.status.success());
+    assert!(
+        err(&o).contains("is outside 0 (off) or 0.050"),
+        "{}",
+        err(&o)
+    );
+}
+
+#[test]
+fn status_prints_plain_numbers() {
+    let server = calibrated_server();
+    let o = foc_ctl(server.addr(), &["status"]);
+    assert!(o.status.success());
+    let text = out(&o);
+    for line in text.lines().take(5) {
+        assert!(!line.contains("e-"), "{line}");
+    }
+    assert!(
+        text.contains("bus            23.9") || text.contains("bus            24"),
+        "{text}"
+    );
+}
+
+#[test]
+fn a_closed_pipe_ends_quietly() {
+    let server = calibrated_server();
+    let mut child = Command::new(env!("CARGO_BIN_EXE_foc-ctl"))
+        .args(["--tcp", &server.addr().to_string(), "param", "all"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    drop(child.stdout.take());
+    let o = child.wait_with_output().unwrap();
+    assert!(o.status.success(), "{}", err(&o));
+    assert!(!err(&o).contains("panicked"), "{}", err(&o));
+}
+
+#[test]
+fn connection_errors_name_the_port() {
+    let o = Command::new(env!("CARGO_BIN_EXE_foc-ctl"))
+        .args(["--serial", "/dev/no-such-port", "status"])
+        .output()
+        .unwrap();
+    assert!(!o.status.success());
+    assert!(err(&o).contains("/dev/no-such-port"), "{}", err(&o));
+}
+
+#[test]
+fn a_scope_read_says_what_it_waits_for_and_telemetry_states_its_rate() {
+    let server = calibrated_server();
+    let a = server.addr();
+    let o = foc_ctl(a, &["scope", "arm"]);
+    assert!(o.status.success(), "{}", err(&o));
+    let o = foc_ctl(a, &["scope", "read", "--wait", "0.3"]);
+    assert!(!o.status.success());
+    assert!(
+        err(&o).contains("armed and waiting for its trigger"),
+        "{}",
+        err(&o)
+    );
+    assert!(!err(&o).contains("transport error"), "{}", err(&o));
+    let o = foc_ctl(a, &["telemetry", "--rate", "300", "--duration", "0.5"]);
+    assert!(o.status.success(), "{}", err(&o));
+    assert!(
+        err(&o).contains("asked 300 Hz, given every 67 periods = 298.5 Hz at 20000 Hz PWM"),
+        "{}",
+        err(&o)
+    );
+    assert!(err(&o).contains(", 0 lost in the stream"), "{}", err(&o));
+}

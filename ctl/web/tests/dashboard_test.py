@@ -1,0 +1,260 @@
+"""The dashboard in a real headless browser (issue 36).
+
+`foc-ctl dashboard --simulate` is started on a free port (the simulated
+drive at 4 times real time); Debian's Chromium is driven over WebDriver
+(chromedriver, W3C protocol, plain HTTP from the standard library). The
+test checks that the page loads, that a signal is plotted live, that a
+console command round-trips, that a refusal is shown with its reason, and
+that the setup wizard completes (offsets, sensor check, identification,
+tuning report, save). Screenshots go to $OUT (default out/dashboard) for a
+person to look at.
+
+Environment: FOC_CTL (the foc-ctl binary), CHROMIUM, CHROMEDRIVER, OUT.
+Run by `cargo xtask dashboard` and `cargo xtask test`.
+"""
+
+import base64
+import json
+import os
+import shutil
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+import unittest
+import urllib.error
+import urllib.request
+
+FOC_CTL = os.environ.get("FOC_CTL", "target/debug/foc-ctl")
+CHROMIUM = os.environ.get("CHROMIUM", "/usr/bin/chromium")
+CHROMEDRIVER = os.environ.get("CHROMEDRIVER", "/usr/bin/chromedriver")
+OUT = os.environ.get("OUT", "out/dashboard")
+ELEMENT = "element-6066-11e4-a52e-4f735466cecf"
+
+
+def free_port():
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def wait_port(port, proc, what, timeout_s=60):
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        if proc.poll() is not None:
+            raise RuntimeError(f"{what} exited ({proc.returncode})")
+        try:
+            with socket.create_connection(("127.0.0.1", port), timeout=0.5):
+                return
+        except OSError:
+            time.sleep(0.1)
+    raise RuntimeError(f"{what} did not listen within {timeout_s} s")
+
+
+class WebDriver:
+    """The few W3C WebDriver calls the test needs."""
+
+    def __init__(self, port):
+        self.base = f"http://127.0.0.1:{port}"
+        self.profile = tempfile.mkdtemp(prefix="foc-dash-chromium-")
+        caps = {
+            "capabilities": {
+                "alwaysMatch": {
+                    "browserName": "chrome",
+                    "goog:chromeOptions": {
+                        "binary": CHROMIUM,
+                        "args": [
+                            "--headless=new",
+                            "--no-sandbox",
+                            "--disable-gpu",
+                            "--disable-dev-shm-usage",
+                            "--disable-quic",
+                            "--no-first-run",
+                            "--disable-background-networking",
+                            "--disable-component-update",
+                            "--disable-sync",
+                            "--window-size=1500,1300",
+                            f"--user-data-dir={self.profile}",
+                        ],
+                    },
+                }
+            }
+        }
+        self.sid = self._call("POST", "/session", caps)["sessionId"]
+
+    def _call(self, method, path, body=None):
+        data = None if body is None else json.dumps(body).encode()
+        req = urllib.request.Request(self.base + path, data=data, method=method)
+        req.add_header("Content-Type", "application/json")
+        try:
+            with urllib.request.urlopen(req, timeout=120) as r:
+                return json.loads(r.read() or b"{}").get("value")
+        except urllib.error.HTTPError as e:
+            raise RuntimeError(f"WebDriver {method} {path}: {e.read()[:500]!r}") from e
+
+    def s(self, method, path, body=None):
+        return self._call(method, f"/session/{self.sid}{path}", body)
+
+    def get(self, url):
+        self.s("POST", "/url", {"url": url})
+
+    def js(self, script, *args):
+        return self.s("POST", "/execute/sync", {"script": script, "args": list(args)})
+
+    def find(self, css):
+        return self.s("POST", "/element", {"using": "css selector", "value": css})[ELEMENT]
+
+    def click(self, css):
+        self.s("POST", f"/element/{self.find(css)}/click", {})
+
+    def type(self, css, text):
+        el = self.find(css)
+        self.s("POST", f"/element/{el}/clear", {})
+        self.s("POST", f"/element/{el}/value", {"text": text})
+
+    def text(self, css):
+        return self.s("GET", f"/element/{self.find(css)}/text")
+
+    def screenshot(self, path):
+        png = base64.b64decode(self.s("GET", "/screenshot"))
+        with open(path, "wb") as f:
+            f.write(png)
+
+    def quit(self):
+        try:
+            self.s("DELETE", "")
+        finally:
+            shutil.rmtree(self.profile, ignore_errors=True)
+
+
+def until(pred, timeout_s, what, every_s=0.1):
+    end = time.monotonic() + timeout_s
+    last = None
+    while time.monotonic() < end:
+        last = pred()
+        if last:
+            return last
+        time.sleep(every_s)
+    raise AssertionError(f"{what}: not within {timeout_s} s (last: {last!r})")
+
+
+class Dashboard(unittest.TestCase):
+    @classmethod
+    def setUpClass(cls):
+        os.makedirs(OUT, exist_ok=True)
+        cls.port = free_port()
+        cls.log = open(os.path.join(OUT, "foc-ctl.log"), "w")
+        cls.dash = subprocess.Popen(
+            [FOC_CTL, "dashboard", "--simulate", "--time-scale", "4", "--listen", f"127.0.0.1:{cls.port}"],
+            stdout=cls.log,
+            stderr=cls.log,
+        )
+        wait_port(cls.port, cls.dash, "foc-ctl dashboard")
+        cls.dport = free_port()
+        cls.driver_proc = subprocess.Popen(
+            [CHROMEDRIVER, f"--port={cls.dport}"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+        )
+        wait_port(cls.dport, cls.driver_proc, "chromedriver")
+        cls.wd = WebDriver(cls.dport)
+        cls.wd.get(f"http://127.0.0.1:{cls.port}/")
+
+    @classmethod
+    def tearDownClass(cls):
+        try:
+            cls.wd.quit()
+        finally:
+            for p in (cls.driver_proc, cls.dash):
+                p.terminate()
+                try:
+                    p.wait(timeout=10)
+                except subprocess.TimeoutExpired:
+                    p.kill()
+            cls.log.close()
+
+    def console(self, line):
+        before = self.wd.js("return document.getElementById('console-out').children.length")
+        self.wd.type("#console-input", line)
+        self.wd.click("#console-form button")
+        until(
+            lambda: self.wd.js("return document.getElementById('console-out').children.length") >= before + 2,
+            30,
+            f"the console's answer to `{line}`",
+        )
+        return self.wd.js(
+            "const o = document.getElementById('console-out').children;"
+            "const t = o[o.length - 1]; return [t.textContent, t.className];"
+        )
+
+    def test_1_the_page_loads_and_plots_live(self):
+        until(lambda: self.wd.text("#mode") == "Disabled", 30, "the drive's mode on the page")
+        self.assertEqual(self.wd.text("#calibrated"), "no")
+        # Samples arrive and are drawn.
+        until(lambda: self.wd.js("return window.dash.plotted") > 100, 30, "samples plotted")
+        n0, f0 = self.wd.js("return [window.dash.plotted, window.dash.frames]")
+        time.sleep(1.0)
+        n1, f1 = self.wd.js("return [window.dash.plotted, window.dash.frames]")
+        # 100 Hz at 4 times real time: about 400 samples a second.
+        self.assertGreater(n1 - n0, 200, "samples plotted in 1 s")
+        self.assertGreater(f1 - f0, 5, "redraws in 1 s")
+        info = self.wd.text("#rate-info")
+        self.assertIn("every 200 periods", info)
+        self.assertIn(", 0 lost", info)
+        # Pick another signal: the plot gets its series.
+        self.wd.click("#signals input[value='bus']")
+        until(lambda: self.wd.js("return window.dash.plot.series.length") == 4, 10, "the bus series")
+        bus = self.wd.js("const c = window.dash.cols.bus; return c[c.length - 1]")
+        self.assertAlmostEqual(bus, 24.0, delta=0.5)
+        self.wd.screenshot(os.path.join(OUT, "1-live.png"))
+
+    def test_2_a_command_round_trips_and_a_refusal_shows_its_reason(self):
+        text, cls = self.console("param pole-pairs")
+        self.assertIn("pole-pairs         7", text)
+        self.assertNotIn("refused", cls)
+        text, cls = self.console("mode torque 500")
+        self.assertIn("`iq_a` = 500 A is out of range (allowed: -10 .. 10 A, the current limit)", text)
+        self.assertIn("refused", cls)
+        text, cls = self.console("mode velocity 20")
+        self.assertIn("refused by the device: not calibrated", text)
+        self.wd.screenshot(os.path.join(OUT, "2-console.png"))
+
+    def test_3_the_wizard_refuses_a_limit_then_completes(self):
+        # Above the board's 10 A: the motor step shows the refusal.
+        self.wd.type("#max-current", "50")
+        self.wd.click("#wizard-run")
+        until(lambda: "stopped" in self.wd.text("#wizard-done"), 30, "the wizard stopping")
+        motor = self.wd.text("#step-motor .result")
+        self.assertIn("above this board's hardware limit of 10 A", motor)
+        self.assertEqual(self.wd.text("#step-motor .state"), "failed")
+        self.wd.screenshot(os.path.join(OUT, "3-wizard-refused.png"))
+        # A good limit: every step to the end.
+        self.wd.type("#max-current", "8")
+        self.wd.click("#wizard-run")
+        # A step is seen running with its progress.
+        until(lambda: self.wd.text("#step-identification .state") == "running", 120, "the identification running")
+        until(lambda: self.wd.text("#wizard-done") != "", 300, "the wizard's end", every_s=0.5)
+        done = self.wd.text("#wizard-done")
+        states = {s: self.wd.text(f"#step-{s} .state") for s in ["motor", "offsets", "sensor", "identification", "tuning", "save"]}
+        results = {s: self.wd.text(f"#step-{s} .result") for s in states}
+        self.wd.screenshot(os.path.join(OUT, "4-wizard-done.png"))
+        self.assertIn("setup complete", done, f"{states}\n{results}")
+        self.assertEqual(set(states.values()), {"done"}, results)
+        self.assertIn("the sensor follows the field", results["sensor"])
+        self.assertIn("r ", results["identification"])
+        self.assertIn("overshoot", results["tuning"])
+        self.assertIn("max current      8 A", results["motor"])
+        until(lambda: self.wd.text("#calibrated") == "yes", 10, "calibrated on the page")
+        # Closed loop now: a velocity command runs, and is plotted.
+        text, _ = self.console("mode velocity 20")
+        self.assertIn("ok:", text)
+        until(
+            lambda: (self.wd.js("const c = window.dash.cols.velocity; return c[c.length - 1]") or 0) > 18,
+            20,
+            "the velocity on the plot",
+        )
+        self.wd.screenshot(os.path.join(OUT, "5-velocity.png"))
+        self.console("mode disable")
+
+
+if __name__ == "__main__":
+    unittest.main(verbosity=2)
