@@ -271,6 +271,92 @@ async function wizardSteps() {
   return true;
 }
 
+// ---------------------------------------------------------------- scope
+
+async function armScope() {
+  const v = (id) => $(id).value.trim();
+  const set = `scope set --signals ${v("scope-signals")} --every ${v("scope-every")} --samples ${v("scope-samples")} ` +
+    `--pre ${v("scope-pre")} --trigger ${v("scope-trigger")} --trigger-signal ${v("scope-tsig")} --level ${v("scope-level")}`;
+  const r = await runCommand(set);
+  if (!r.ok) { $("scope-state").textContent = "refused: see the console"; return; }
+  const a = await runCommand("scope arm");
+  if (!a.ok) { $("scope-state").textContent = "refused: see the console"; return; }
+  followScope();
+}
+
+async function followScope() {
+  for (let k = 0; k < 600; k++) {
+    const s = await getJson("/api/scope");
+    if (!s.ok) { $("scope-state").textContent = s.error; return; }
+    if (s.state === "Done") { plotScope(s); return; }
+    $("scope-state").textContent = `${s.state}: waiting for the trigger (${s.trigger}), ${s.captured} samples`;
+    await sleep(200);
+  }
+}
+
+function plotScope(s) {
+  dash.scope = s;
+  dash.scopePoints = s.t.length;
+  $("scope-state").textContent = `captured ${s.t.length} samples every ${(s.sample_period_s * 1e6).toFixed(0)} us, the trigger at 0`;
+  const el = $("scope-plot");
+  el.innerHTML = "";
+  const colors = ["#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#17becf"];
+  const series = [{ label: "time [ms]" }].concat(s.channels.map((c, k) => ({
+    label: c.name, stroke: colors[k % colors.length], width: 1.5, points: { show: false },
+  })));
+  const data = [s.t.map((x) => x * 1e3)].concat(s.channels.map((c) => c.values));
+  dash.scopePlot = new uPlot({
+    width: Math.max(560, el.clientWidth - 8), height: 260, series,
+    scales: { x: { time: false } }, axes: [{ label: "time from the trigger [ms]" }, {}],
+  }, data, el);
+}
+
+// ---------------------------------------------------------------- configuration
+
+async function loadConfig() {
+  const r = await getJson("/api/config");
+  const box = $("config-tree");
+  box.innerHTML = "";
+  if (!r.ok) { $("config-msg").textContent = r.error; return; }
+  const sections = new Map();
+  for (const row of r.rows) {
+    const sec = row.section || "(record)";
+    if (!sections.has(sec)) sections.set(sec, []);
+    sections.get(sec).push(row);
+  }
+  for (const [sec, rows] of sections) {
+    const d = document.createElement("details");
+    d.dataset.section = sec;
+    if (sec === "(record)" || sec === "limits") d.open = true;
+    const sm = document.createElement("summary");
+    sm.textContent = sec;
+    const t = document.createElement("table");
+    for (const row of rows) {
+      const tr = document.createElement("tr");
+      tr.innerHTML = "<td class='key'></td><td><input></td><td class='unit'></td><td class='range'></td><td class='what'></td>";
+      tr.querySelector(".key").textContent = row.key;
+      const inp = tr.querySelector("input");
+      inp.value = row.value;
+      inp.dataset.key = row.key;
+      inp.addEventListener("keydown", async (e) => {
+        if (e.key !== "Enter") return;
+        const res = await post("/api/config", JSON.stringify({ key: row.key, value: inp.value }));
+        const m = $("config-msg");
+        m.textContent = res.ok ? res.message : res.error;
+        m.className = res.ok ? "" : "refused";
+        if (res.ok) loadConfig(); else inp.value = row.value;
+      });
+      tr.querySelector(".unit").textContent = row.unit;
+      tr.querySelector(".range").textContent = row.range;
+      tr.querySelector(".what").textContent = row.what;
+      t.append(tr);
+    }
+    d.append(sm, t);
+    box.append(d);
+  }
+  dash.configRows = r.rows.length;
+}
+
 // ---------------------------------------------------------------- start
 
 window.addEventListener("load", async () => {
@@ -286,4 +372,8 @@ window.addEventListener("load", async () => {
   $("clear-faults").addEventListener("click", () => runCommand("clear"));
   $("disable").addEventListener("click", () => runCommand("mode disable"));
   $("wizard-run").addEventListener("click", runWizard);
+  $("scope-arm").addEventListener("click", armScope);
+  $("scope-force").addEventListener("click", async () => { await runCommand("scope trigger"); });
+  $("config-reload").addEventListener("click", loadConfig);
+  loadConfig();
 });

@@ -19,8 +19,14 @@ use std::time::{Duration, Instant};
 /// Samples kept for the page (about a minute at 200 Hz).
 const KEEP: usize = 12_000;
 
-/// How often the status is refreshed.
+/// How often the status is refreshed (and the link kept alive while a
+/// page is open).
 const STATUS_EVERY: Duration = Duration::from_millis(250);
+
+/// A page that has not asked for samples for this long is gone: the link
+/// watchdog is no longer fed, and the drive stops as it would without a
+/// host.
+const PAGE_GONE: Duration = Duration::from_secs(1);
 
 /// The telemetry columns the page can plot, with their units.
 pub(super) const SIGNALS: [(&str, &str); 12] = [
@@ -50,6 +56,12 @@ pub(super) enum Job {
     Tune,
     /// Stream at this rate \[Hz\].
     SetRate(f32),
+    /// The configuration tree.
+    ConfigTree,
+    /// One configuration key changed and applied.
+    ConfigSet(String, String),
+    /// The scope's state, and its capture when done.
+    ScopeData,
 }
 
 /// What the link thread shares with the server.
@@ -59,6 +71,8 @@ pub(super) struct Shared {
     pub samples: Mutex<Samples>,
     /// The last status (JSON).
     pub status: Mutex<Value>,
+    /// When a page last asked for samples.
+    pub page_seen: Mutex<Option<Instant>>,
 }
 
 /// The kept samples.
@@ -157,6 +171,18 @@ impl Link {
             self.pump(Duration::from_millis(20));
             if self.last_status.elapsed() >= STATUS_EVERY {
                 self.last_status = Instant::now();
+                // The page is the host: while it is open, the drive's link
+                // watchdog is fed, as a GUI that stays connected does.
+                let page_open = self
+                    .shared
+                    .page_seen
+                    .lock()
+                    .ok()
+                    .and_then(|g| *g)
+                    .is_some_and(|t| t.elapsed() < PAGE_GONE);
+                if page_open {
+                    let _ = self.c.keep_alive();
+                }
                 let s = self.status();
                 if let Ok(mut g) = self.shared.status.lock() {
                     *g = s;
@@ -279,6 +305,9 @@ impl Link {
             },
             Job::SensorCheck => wizard::sensor_check(&mut self.c),
             Job::Tune => wizard::tune_report(&mut self.c),
+            Job::ConfigTree => super::config::tree(&mut self.c),
+            Job::ConfigSet(key, value) => super::config::set(&mut self.c, &key, &value),
+            Job::ScopeData => scope_data(&mut self.c),
             Job::SetRate(hz) => {
                 let r = TelemetryRate::Hz(hz);
                 match self.c.start_telemetry(r) {
@@ -318,6 +347,39 @@ impl Link {
             Ok(()) => json!({"ok": true, "output": text}),
             Err(e) => json!({"ok": false, "output": format!("{text}foc-ctl: {e}\n")}),
         }
+    }
+}
+
+/// The scope's state; with a finished capture, its signals on the time
+/// axis of the trigger (0 at the trigger).
+fn scope_data(c: &mut Client) -> Value {
+    use foc_core::scope::State;
+    let r = match c.read_scope() {
+        Ok(r) => r,
+        Err(e) => return json!({"ok": false, "error": e.to_string()}),
+    };
+    let st = r.status;
+    if st.state != State::Done {
+        return json!({"ok": true, "state": format!("{:?}", st.state), "captured": st.captured,
+            "trigger": format!("{:?}", st.config.trigger)});
+    }
+    match c.read_scope_values() {
+        Ok(cap) => {
+            let channels: Vec<Value> = cap
+                .signals()
+                .iter()
+                .map(|&s| {
+                    json!({
+                        "name": foc_ctl::scope::column_name(s),
+                        "values": cap.channel(s).unwrap_or_default(),
+                    })
+                })
+                .collect();
+            json!({"ok": true, "state": "Done", "t": cap.time_s(), "channels": channels,
+                "trigger_index": cap.report.status.trigger_index,
+                "sample_period_s": cap.report.sample_period_s})
+        }
+        Err(e) => json!({"ok": false, "error": e.to_string()}),
     }
 }
 

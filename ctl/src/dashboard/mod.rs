@@ -16,7 +16,11 @@
 //! | `POST /api/calibrate` (`offsets` or `identification`) | started, or the refusal |
 //! | `POST /api/sensor-check`, `POST /api/tune` | the wizard's steps |
 //! | `POST /api/rate` (Hz) | the stream's rate, or the refusal |
+//! | `GET /api/config` | the configuration tree: each key's value, unit, range and meaning |
+//! | `POST /api/config` (`{"key", "value"}`) | the key changed and applied, or the refusal |
+//! | `GET /api/scope` | the scope's state, and its capture when done |
 
+mod config;
 mod faults;
 mod link;
 mod wizard;
@@ -109,6 +113,9 @@ fn answer(mut req: Request, shared: &Shared, jobs: &Sender<(Job, Sender<Value>)>
             json_response(&json!(s))
         }
         (Method::Get, "/api/samples") => {
+            if let Ok(mut g) = shared.page_seen.lock() {
+                *g = Some(std::time::Instant::now());
+            }
             let since = query
                 .split('&')
                 .find_map(|kv| kv.strip_prefix("since="))
@@ -135,6 +142,20 @@ fn answer(mut req: Request, shared: &Shared, jobs: &Sender<(Job, Sender<Value>)>
             "identification" => job(jobs, Job::Calibrate(Calibration::Identification)),
             other => json_response(&json!({"ok": false, "error": format!("no routine `{other}`")})),
         },
+        (Method::Get, "/api/config") => job(jobs, Job::ConfigTree),
+        (Method::Post, "/api/config") => match serde_json::from_str::<Value>(&body) {
+            Ok(v) => match (
+                v.get("key").and_then(Value::as_str),
+                v.get("value").and_then(Value::as_str),
+            ) {
+                (Some(k), Some(x)) => job(jobs, Job::ConfigSet(k.to_string(), x.to_string())),
+                _ => json_response(
+                    &json!({"ok": false, "error": "give {\"key\": ..., \"value\": ...}"}),
+                ),
+            },
+            Err(e) => json_response(&json!({"ok": false, "error": e.to_string()})),
+        },
+        (Method::Get, "/api/scope") => job(jobs, Job::ScopeData),
         (Method::Post, "/api/sensor-check") => job(jobs, Job::SensorCheck),
         (Method::Post, "/api/tune") => job(jobs, Job::Tune),
         (Method::Post, "/api/rate") => match body.trim().parse::<f32>() {

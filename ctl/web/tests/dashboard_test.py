@@ -6,7 +6,8 @@ drive at 4 times real time); Debian's Chromium is driven over WebDriver
 test checks that the page loads, that a signal is plotted live, that a
 console command round-trips, that a refusal is shown with its reason, and
 that the setup wizard completes (offsets, sensor check, identification,
-tuning report, save). Screenshots go to $OUT (default out/dashboard) for a
+tuning report, save), that the configuration tree refuses a bad value with
+its reason and applies a good one, and that a scope capture is plotted. Screenshots go to $OUT (default out/dashboard) for a
 person to look at.
 
 Environment: FOC_CTL (the foc-ctl binary), CHROMIUM, CHROMEDRIVER, OUT.
@@ -108,10 +109,10 @@ class WebDriver:
     def click(self, css):
         self.s("POST", f"/element/{self.find(css)}/click", {})
 
-    def type(self, css, text):
+    def type(self, css, text, enter=False):
         el = self.find(css)
         self.s("POST", f"/element/{el}/clear", {})
-        self.s("POST", f"/element/{el}/value", {"text": text})
+        self.s("POST", f"/element/{el}/value", {"text": text + ("\ue007" if enter else "")})
 
     def text(self, css):
         return self.s("GET", f"/element/{self.find(css)}/text")
@@ -253,6 +254,43 @@ class Dashboard(unittest.TestCase):
             "the velocity on the plot",
         )
         self.wd.screenshot(os.path.join(OUT, "5-velocity.png"))
+        self.console("mode disable")
+
+    def test_4_the_configuration_tree_and_a_scope_capture(self):
+        until(lambda: (self.wd.js("return window.dash.configRows") or 0) > 30, 30, "the configuration tree")
+        key = "input[data-key='limits.max_current_a']"
+        unit = self.wd.js(
+            "return document.querySelector(arguments[0]).closest('tr').querySelector('.unit').textContent", key
+        )
+        self.assertEqual(unit, "A")
+        # Above the board's limit: refused, with the reason; nothing changed.
+        self.wd.type(key, "50", enter=True)
+        until(lambda: "hardware limit of 10 A" in self.wd.text("#config-msg"), 30, "the refusal")
+        self.assertIn("refused", self.wd.js("return document.getElementById('config-msg').className"))
+        # A value the host's checks refuse, named by its key (its section
+        # opened first: the tree shows the limits open).
+        self.wd.click("details[data-section='motor'] summary")
+        self.wd.type("input[data-key='motor.r_ohm']", "-1", enter=True)
+        until(lambda: "motor.r_ohm" in self.wd.text("#config-msg"), 30, "the host's check")
+        self.assertIn("nothing was sent", self.wd.text("#config-msg"))
+        self.wd.js("document.getElementById('config').scrollIntoView()")
+        self.wd.screenshot(os.path.join(OUT, "6-config-refused.png"))
+        # A good one: applied, and in force.
+        self.wd.type(key, "9", enter=True)
+        until(lambda: "applied" in self.wd.text("#config-msg"), 30, "the change applied")
+        text, _ = self.console("limits")
+        self.assertIn("max current      9 A", text)
+        # A scope capture triggered by a command, plotted.
+        self.wd.click("#scope-arm")
+        until(lambda: "waiting for the trigger" in self.wd.text("#scope-state"), 30, "the scope armed")
+        text, _ = self.console("mode velocity 10")
+        self.assertIn("ok:", text, self.console("faults")[0])
+        until(lambda: self.wd.js("return window.dash.scopePoints || 0") == 400, 30, "the capture plotted")
+        names = self.wd.js("return window.dash.scope.channels.map(c => c.name)")
+        self.assertEqual(len(names), 4, names)
+        self.assertEqual(self.wd.js("return window.dash.scopePlot.series.length"), 5)
+        self.wd.js("document.getElementById('scope').scrollIntoView()")
+        self.wd.screenshot(os.path.join(OUT, "7-scope.png"))
         self.console("mode disable")
 
 

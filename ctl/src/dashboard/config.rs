@@ -1,0 +1,198 @@
+//! The configuration as a browsable tree (the live record's TOML, each key
+//! with its unit, range and meaning from the book's table
+//! `docs/src/tables/config-fields.md`), and one key changed: checked on
+//! the host as `config import` checks a file, then sent and applied, the
+//! device's own validation deciding.
+
+use foc_ctl::{describe_error, Client, ClientError};
+use foc_protocol::config::{ConfigSource, StoreOp};
+use foc_protocol::message::{ErrorCode, ParamId};
+use foc_store::text::{from_toml, to_toml};
+use foc_store::{DriveRecord, MAX_RECORD_BYTES};
+use serde_json::{json, Value};
+
+const FIELDS: &str = include_str!("../../../docs/src/tables/config-fields.md");
+
+/// The book's unit, range and meaning of TOML key `key`.
+fn field_doc(key: &str) -> Option<(String, String, String)> {
+    FIELDS
+        .lines()
+        .filter(|l| l.starts_with("| `"))
+        .find_map(|l| {
+            let cells: Vec<&str> = l
+                .trim()
+                .trim_matches('|')
+                .split(" | ")
+                .map(str::trim)
+                .collect();
+            let keys = cells.first()?;
+            keys.split(", ")
+                .any(|k| k.trim_matches('`') == key)
+                .then(|| {
+                    (
+                        cells.get(1).unwrap_or(&"").to_string(),
+                        cells.get(2).unwrap_or(&"").to_string(),
+                        cells.get(3).unwrap_or(&"").to_string(),
+                    )
+                })
+        })
+}
+
+/// The live record as TOML text.
+fn live_toml(c: &mut Client) -> Result<String, String> {
+    let bytes = c
+        .read_config(ConfigSource::Live)
+        .map_err(|e| e.to_string())?;
+    let r = DriveRecord::decode(&bytes)
+        .map_err(|e| format!("the live record does not decode: {e:?}"))?;
+    Ok(to_toml(&r))
+}
+
+/// The tree: one entry per key, in the record's order.
+pub(super) fn tree(c: &mut Client) -> Value {
+    let text = match live_toml(c) {
+        Ok(t) => t,
+        Err(e) => return json!({"ok": false, "error": e}),
+    };
+    let table: toml::Table = match toml::from_str(&text) {
+        Ok(t) => t,
+        Err(e) => return json!({"ok": false, "error": e.to_string()}),
+    };
+    // In the record's order: the keys as the TOML text lists them.
+    let mut rows = Vec::new();
+    let mut section: Option<&str> = None;
+    for line in text.lines().map(str::trim) {
+        if let Some(s) = line.strip_prefix('[').and_then(|l| l.strip_suffix(']')) {
+            section = Some(s);
+            continue;
+        }
+        let Some((k, _)) = line.split_once('=') else {
+            continue;
+        };
+        let k = k.trim();
+        let v = match section {
+            Some(s) => table.get(s).and_then(|t| t.get(k)),
+            None => table.get(k),
+        };
+        if let Some(v) = v {
+            let key = section.map_or_else(|| k.to_string(), |s| format!("{s}.{k}"));
+            rows.push(row(&key, v));
+        }
+    }
+    json!({"ok": true, "rows": rows})
+}
+
+fn row(key: &str, v: &toml::Value) -> Value {
+    let (unit, range, what) = field_doc(key).unwrap_or_default();
+    json!({
+        "key": key,
+        "section": key.split_once('.').map_or("", |(s, _)| s),
+        "value": v.to_string(),
+        "unit": unit,
+        "range": range,
+        "what": what,
+    })
+}
+
+/// Change `key` to `text` (as the TOML value of the key's type), check,
+/// send and apply (not saved).
+pub(super) fn set(c: &mut Client, key: &str, text: &str) -> Value {
+    match try_set(c, key, text) {
+        Ok(msg) => json!({"ok": true, "message": msg}),
+        Err(e) => json!({"ok": false, "error": e}),
+    }
+}
+
+fn try_set(c: &mut Client, key: &str, text: &str) -> Result<String, String> {
+    let mut table: toml::Table = toml::from_str(&live_toml(c)?).map_err(|e| e.to_string())?;
+    let (section, name) = key
+        .split_once('.')
+        .map_or((None, key), |(s, n)| (Some(s), n));
+    let slot = match section {
+        Some(s) => table
+            .get_mut(s)
+            .and_then(toml::Value::as_table_mut)
+            .and_then(|t| t.get_mut(name)),
+        None => table.get_mut(name),
+    }
+    .ok_or_else(|| format!("the record has no `{key}`"))?;
+    *slot = parse_like(slot, text)
+        .map_err(|why| format!("`{key}` = {text}: {why}; nothing was sent"))?;
+    let edited = toml::to_string(&table).map_err(|e| e.to_string())?;
+    // The host's checks first (the same as `config import`): the first
+    // bad value named by its key.
+    let r = from_toml(&edited).map_err(|e| format!("{e}; nothing was sent"))?;
+    let mut buf = [0u8; MAX_RECORD_BYTES];
+    let n = r
+        .encode(&mut buf)
+        .map_err(|e| format!("cannot encode the record: {e:?}"))?;
+    let bytes = buf.get(..n).unwrap_or_default();
+    c.write_config(bytes).map_err(|e| e.to_string())?;
+    match c.store(StoreOp::Apply) {
+        Ok(()) => Ok(format!(
+            "`{key}` = {text} applied (not saved: the wizard's Save, or `config save`, keeps it)"
+        )),
+        Err(ClientError::Nack(code)) => Err(refusal(c, key, text, code)),
+        Err(e) => Err(e.to_string()),
+    }
+}
+
+/// A refused record in words, with the board's rule where it is known.
+fn refusal(c: &mut Client, key: &str, text: &str, code: ErrorCode) -> String {
+    if key == "limits.max_current_a" {
+        if let (Ok(hw), Ok(v)) = (c.param(ParamId::BoardMaxCurrentA), text.parse::<f32>()) {
+            if v > hw {
+                return format!(
+                    "refused by the device: `{key}` = {v} A is above this board's hardware limit of {hw} A; nothing changed"
+                );
+            }
+        }
+    }
+    format!(
+        "refused by the device: {}; nothing changed",
+        describe_error(code)
+    )
+}
+
+/// `text` as a TOML value of `old`'s type.
+fn parse_like(old: &toml::Value, text: &str) -> Result<toml::Value, &'static str> {
+    let t = text.trim();
+    Ok(match old {
+        toml::Value::Integer(_) => {
+            toml::Value::Integer(t.parse().map_err(|_| "a whole number is needed")?)
+        }
+        toml::Value::Float(_) => toml::Value::Float(t.parse().map_err(|_| "a number is needed")?),
+        toml::Value::Boolean(_) => {
+            toml::Value::Boolean(t.parse().map_err(|_| "true or false is needed")?)
+        }
+        toml::Value::String(_) => toml::Value::String(t.trim_matches('"').to_string()),
+        _ => return Err("this key is not edited here: use `config export` and `config import`"),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn keys_find_their_units_and_ranges() {
+        let (unit, range, _) = field_doc("motor.lq_h").unwrap();
+        assert_eq!(unit, "H");
+        assert!(range.contains("> 0"), "{range}");
+        assert_eq!(field_doc("limits.max_current_a").unwrap().0, "A");
+        assert!(field_doc("no.such").is_none());
+    }
+
+    #[test]
+    fn values_keep_their_type() {
+        assert_eq!(
+            parse_like(&toml::Value::Float(1.0), " 2.5 ").unwrap(),
+            toml::Value::Float(2.5)
+        );
+        assert!(parse_like(&toml::Value::Integer(1), "2.5").is_err());
+        assert_eq!(
+            parse_like(&toml::Value::Boolean(false), "true").unwrap(),
+            toml::Value::Boolean(true)
+        );
+    }
+}
