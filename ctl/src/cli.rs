@@ -146,6 +146,16 @@ pub(super) enum Cmd {
         #[arg(long, default_value_t = 180.0)]
         timeout: f64,
     },
+    /// Identify the motor (as `calibrate identification`): wait for the end,
+    /// showing each step, then the motor's values and the loops' gains.
+    Identify {
+        /// Return once the drive has taken the request.
+        #[arg(long)]
+        no_wait: bool,
+        /// Longest wait \[s\].
+        #[arg(long, default_value_t = 180.0)]
+        timeout: f64,
+    },
     /// The drive's configuration record: show, save, load, erase, export, import.
     Config {
         #[command(subcommand)]

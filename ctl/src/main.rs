@@ -118,6 +118,9 @@ fn dispatch(c: &mut Client, cmd: Cmd) -> CliResult {
             no_wait,
             timeout,
         } => calibrate(c, routine, no_wait, timeout),
+        Cmd::Identify { no_wait, timeout } => {
+            calibrate(c, Routine::Identification, no_wait, timeout)
+        }
         Cmd::Config { op } => config(c, op),
         Cmd::Joint(args) => joint(c, &args),
         Cmd::Home { method } => home(c, method),
@@ -426,6 +429,7 @@ fn configure(c: &mut Client, setting: Cmd) -> CliResult {
         | Cmd::Param { .. }
         | Cmd::Telemetry { .. }
         | Cmd::Calibrate { .. }
+        | Cmd::Identify { .. }
         | Cmd::Config { .. }
         | Cmd::Joint(_)
         | Cmd::Home { .. }

@@ -171,7 +171,7 @@ fn calibrate_waits_shows_the_steps_and_the_result() {
         4.0,
     )
     .unwrap();
-    let o = foc_ctl(server.addr(), &["calibrate", "identification"]);
+    let o = foc_ctl(server.addr(), &["identify"]);
     let out = String::from_utf8_lossy(&o.stdout);
     assert!(
         o.status.success(),
