@@ -9,7 +9,9 @@
 //!   its first to its last sample), without margin;
 //! - y runs from each panel's smallest to its largest value with a 5 %
 //!   margin ([`fit_range`]); a constant series gets a small band around
-//!   its value (5 % of it, or +-1 around 0);
+//!   its value (5 % of it, or +-1 around 0); [`write_svg_min_spans`]
+//!   gives a panel a least span ([`MinSpan`]), so that a nearly constant
+//!   quantity is not autoscaled into a zig-zag;
 //! - non-finite values (NaN, +-inf) are skipped: a line stops at them and
 //!   starts again after them, it is not drawn across the gap;
 //! - the legend is drawn beside each panel, not over the data.
@@ -143,6 +145,63 @@ pub fn fit_range(values: impl IntoIterator<Item = f64>) -> Option<(f64, f64)> {
     finite_min_max(values).map(|(lo, hi)| pad(lo, hi))
 }
 
+/// The least span a y axis may have, before its margin: `relative` times
+/// the largest magnitude of the panel's data plus `absolute` (in the
+/// panel's unit). A panel whose data spread less is widened around their
+/// middle, so that a nearly constant quantity shows flat instead of its
+/// noise autoscaled across the whole panel. [`MinSpan::NONE`] (the
+/// default) keeps [`fit_range`]'s fit.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct MinSpan {
+    /// Fraction of the data's largest magnitude (e.g. 0.01 for 1 %).
+    pub relative: f64,
+    /// Floor in the panel's unit.
+    pub absolute: f64,
+}
+
+impl MinSpan {
+    /// No minimum: the axis fits the data ([`fit_range`]).
+    pub const NONE: Self = Self {
+        relative: 0.0,
+        absolute: 0.0,
+    };
+
+    /// The least span for data reaching magnitude `scale` (0 for a
+    /// non-finite or negative result).
+    fn span(&self, scale: f64) -> f64 {
+        let s = self.relative * scale + self.absolute;
+        if s.is_finite() && s > 0.0 {
+            s
+        } else {
+            0.0
+        }
+    }
+}
+
+/// As [`fit_range`], the data's span first widened to at least `min`'s
+/// (around the middle of the data), then the margin added.
+///
+/// ```
+/// use foc_plot::{fit_range_min, MinSpan};
+/// // 0.03 rpm of ripple on 137 rpm: at least 1 % of 137 plus 1 rpm.
+/// let min = MinSpan { relative: 0.01, absolute: 1.0 };
+/// let (lo, hi) = fit_range_min([137.00, 137.03], min).unwrap();
+/// assert!(hi - lo > 2.37 && lo < 137.0 && hi > 137.03);
+/// // Data wider than the minimum keep the plain fit.
+/// assert_eq!(fit_range_min([0.0, 10.0], min), foc_plot::fit_range([0.0, 10.0]));
+/// ```
+pub fn fit_range_min(values: impl IntoIterator<Item = f64>, min: MinSpan) -> Option<(f64, f64)> {
+    finite_min_max(values).map(|(lo, hi)| {
+        let need = min.span(lo.abs().max(hi.abs()));
+        if hi - lo < need {
+            let mid = 0.5 * lo + 0.5 * hi;
+            pad(mid - 0.5 * need, mid + 0.5 * need)
+        } else {
+            pad(lo, hi)
+        }
+    })
+}
+
 /// The x range: smallest to largest finite x of the points whose y is
 /// finite too, without margin (a single x gets [`fit_range`]'s band).
 fn x_range(fig: &Figure<'_>) -> Option<(f64, f64)> {
@@ -256,6 +315,7 @@ fn draw_panel(
     (x0, x1): (f64, f64),
     x_label: Option<&str>,
     marker: Option<(f64, &str)>,
+    min_span: MinSpan,
 ) -> io::Result<()> {
     let (w, _) = area.dim_in_pixel();
     let (head, body) = area.split_vertically(24);
@@ -266,12 +326,13 @@ fn draw_panel(
     )
     .map_err(other)?;
     let (plot, legend) = body.split_horizontally(w.saturating_sub(LEGEND_W));
-    let fitted = fit_range(
+    let fitted = fit_range_min(
         panel
             .series
             .iter()
             .flat_map(|s| s.x.iter().zip(s.y).filter(|(x, _)| x.is_finite()))
             .map(|(_, y)| *y),
+        min_span,
     );
     let (y0, y1) = fitted.unwrap_or((0.0, 1.0));
     let mut chart = ChartBuilder::on(&plot)
@@ -403,6 +464,12 @@ const TITLE_LINE_H: u32 = 26;
 
 /// The figure as SVG text (see [`write_svg`]).
 pub fn render_svg(fig: &Figure<'_>) -> io::Result<String> {
+    render_svg_min_spans(fig, &[])
+}
+
+/// As [`render_svg`], panel `k`'s y axis spanning at least `y_min[k]`
+/// ([`fit_range_min`]; panels beyond the slice get [`MinSpan::NONE`]).
+pub fn render_svg_min_spans(fig: &Figure<'_>, y_min: &[MinSpan]) -> io::Result<String> {
     validate(fig)?;
     let (x0, x1) = x_range(fig).unwrap_or((0.0, 1.0));
     let n = fig.panels.len() as u32;
@@ -430,6 +497,7 @@ pub fn render_svg(fig: &Figure<'_>) -> io::Result<String> {
                 (x0, x1),
                 last.then_some(fig.x_label),
                 fig.x_marker,
+                y_min.get(k).copied().unwrap_or(MinSpan::NONE),
             )?;
         }
         root.present().map_err(other)?;
@@ -441,7 +509,13 @@ pub fn render_svg(fig: &Figure<'_>) -> io::Result<String> {
 /// crate docs). Creates the parent directory. Errors: a series whose `x`
 /// and `y` lengths differ, a figure without panels, the file system.
 pub fn write_svg(path: &Path, fig: &Figure<'_>) -> io::Result<()> {
-    let svg = render_svg(fig)?;
+    write_svg_min_spans(path, fig, &[])
+}
+
+/// As [`write_svg`], with a least span per panel's y axis
+/// ([`render_svg_min_spans`]).
+pub fn write_svg_min_spans(path: &Path, fig: &Figure<'_>, y_min: &[MinSpan]) -> io::Result<()> {
+    let svg = render_svg_min_spans(fig, y_min)?;
     if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir)?;
     }
@@ -494,6 +568,42 @@ mod tests {
         ] {
             let (lo, hi) = fit_range(v).unwrap();
             assert!(lo.is_finite() && hi.is_finite() && lo < hi, "{v:?}");
+        }
+    }
+
+    #[test]
+    fn fit_range_min_widens_small_spans_only() {
+        let min = MinSpan {
+            relative: 0.01,
+            absolute: 1.0,
+        };
+        // 0.03 rpm on 137 rpm: widened to 2.37 rpm around the middle.
+        let (lo, hi) = fit_range_min([137.0, 137.03], min).unwrap();
+        let (mid, need) = (0.5 * 137.0 + 0.5 * 137.03, 0.01 * 137.03 + 1.0);
+        let want = (mid - 0.55 * need, mid + 0.55 * need);
+        assert!(close((lo, hi), want), "{lo} {hi}");
+        // Wide data and no minimum: the plain fit.
+        for v in [[0.0, 10.0], [24.0, 24.1], [-3.0, 3.0]] {
+            assert_eq!(
+                fit_range_min(
+                    v,
+                    MinSpan {
+                        relative: 0.0,
+                        absolute: 0.1
+                    }
+                ),
+                fit_range(v)
+            );
+            assert_eq!(fit_range_min(v, MinSpan::NONE), fit_range(v));
+        }
+        assert_eq!(fit_range_min([f64::NAN], min), None);
+        // Odd minimums are ignored, never a panic.
+        for bad in [f64::NAN, f64::INFINITY, -1.0] {
+            let m = MinSpan {
+                relative: bad,
+                absolute: bad,
+            };
+            assert_eq!(fit_range_min([1.0, 2.0], m), fit_range([1.0, 2.0]));
         }
     }
 

@@ -2,15 +2,18 @@
 //! mode on the plant, a brake (load torque) on the shaft, and the operating
 //! points measured in steady state.
 //!
-//! Three sweeps:
+//! Three sweeps ([`Sweep`]), each at a test
+//! speed ([`TestSpeed`]: the speed command at the nominal bus, rotor,
+//! mechanical; checked once against the motor's no-load speed):
 //!
-//! - [`Sweep::Load`]: speed command fixed (half the no-load speed, at most
-//!   [`Setup::max_mission_speed_rad_s`]), load
-//!   torque stepped from 0 to the rated torque (`kt * rated current`).
-//! - [`Sweep::Voltage`]: supply voltage stepped from the nominal bus down to
-//!   a tenth of it (as the source's report), speed command 80 % of the
-//!   no-load speed (capped as above) scaled by the voltage, load torque fixed at 30 % of rated. The
-//!   supervisor's under-voltage limit is lowered to 5 % of nominal for it.
+//! - [`Sweep::Load`]: speed command fixed (by default half the no-load
+//!   speed, at most [`Setup::max_mission_speed_rad_s`]), load torque
+//!   stepped from 0 to the rated torque (`kt * rated current`).
+//! - [`Sweep::Voltage`]: supply voltage stepped from the nominal bus down
+//!   to a tenth of it (as the source's report), speed command the test
+//!   speed (by default 80 % of the no-load speed, capped as above) scaled
+//!   by the voltage, load torque fixed at 30 % of rated. The supervisor's
+//!   under-voltage limit is lowered to 5 % of nominal for it.
 //! - [`Sweep::Regen`]: the load sweep's speed command, an *overhauling*
 //!   load (it drives the shaft forwards, as a vehicle downhill or a lowered
 //!   weight) stepped from 0 to the rated torque: the drive brakes and
@@ -21,50 +24,137 @@
 //! Every figure is *measured* on the plant over a window after settling:
 //! supply voltage and current are the plant's period averages, input power
 //! is the supply energy over the window, torque is the brake's absorbed
-//! energy over the shaft angle travelled, speed is the mean shaft speed.
-//! The bus columns: the bus current is the mean current at the source's
-//! terminals (the dyno's plain source: the same as the supply current; with
-//! a DC link, the source's side of the capacitor), and the regenerated
+//! energy over the shaft angle travelled, speed is the mean shaft speed
+//! (beside its command), the phase current is the mean amplitude `|i_dq|`
+//! of the plant's currents (peak), the modulation index the mean of
+//! `sqrt(3) |v| / v_bus` of the duties the bridge applied. The regenerated
 //! energy is what went back into the source over the window,
 //! `sum max(0, -P) T_pwm` with `P` each period's mean power at the source's
-//! terminals (0 at motoring points).
+//! terminals (0 at motoring points). The bus current (the source's side
+//! of a DC link) is recorded only with a DC link: the dyno's plain source
+//! has none, and its bus current is the supply current.
 //!
 //! ```no_run
 //! use foc_bench::{dyno, mission::Setup};
 //! let setup = Setup::load("tests/motors/m153-source.toml").unwrap();
-//! let run = dyno::run_dyno(&setup, dyno::Sweep::Load, 10, &mut |_| {});
+//! let speed = dyno::TestSpeed::new(&setup, 10.0).unwrap();
+//! let run = dyno::run_dyno(&setup, dyno::Sweep::Load, 10, speed, &mut |_| {});
 //! assert_eq!(run.rows.len(), 11);
+//! print!("{}", run.report().markdown());
 //! ```
 
 use crate::mission::{align, Setup, Sim};
-use crate::report::{DynoHeader, DynoRow};
+use crate::report::{DynoHeader, DynoReport, DynoRow};
 use foc_core::control::Command;
 
-/// Which quantity the sweep steps.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Sweep {
-    /// Load-torque steps at a fixed speed command.
-    Load,
-    /// Supply-voltage steps with a speed command proportional to the voltage.
-    Voltage,
-    /// Overhauling-load steps at a fixed speed command (regeneration).
-    Regen,
+/// Which quantity the sweep steps (the report's [`crate::report::DynoSweep`]).
+pub use crate::report::DynoSweep as Sweep;
+
+/// rad/s to rpm.
+const RPM_PER_RAD_S: f64 = 60.0 / std::f64::consts::TAU;
+
+/// The test speed: the speed command at the nominal bus [rad/s, rotor,
+/// mechanical], above zero and at most the motor's no-load speed
+/// ([`Setup::max_speed_rad_s`]) and the bench's highest
+/// ([`Setup::max_mission_speed_rad_s`]). Checked once, here.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TestSpeed(f32);
+
+/// Why a test speed is refused.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum SpeedError {
+    /// Not a number above 0 [rad/s] (the dyno turns forwards).
+    NotPositive(f32),
+    /// Above the no-load speed at the nominal bus: the drive cannot reach it.
+    AboveNoLoad {
+        /// The speed asked for [rad/s].
+        rad_s: f32,
+        /// The no-load speed [rad/s].
+        no_load_rad_s: f32,
+        /// The nominal bus \[V\].
+        bus_v: f32,
+    },
+    /// Above the bench's highest speed (one electrical turn per 10 PWM periods).
+    AboveBench {
+        /// The speed asked for [rad/s].
+        rad_s: f32,
+        /// The bench's highest speed [rad/s].
+        max_rad_s: f32,
+    },
 }
 
-impl Sweep {
-    /// `load` or `voltage`.
-    pub fn name(self) -> &'static str {
-        match self {
-            Sweep::Load => "load",
-            Sweep::Voltage => "voltage",
-            Sweep::Regen => "regen",
+impl std::fmt::Display for SpeedError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let rpm = |w: f32| w as f64 * RPM_PER_RAD_S;
+        match *self {
+            SpeedError::NotPositive(w) => write!(
+                f,
+                "test speed {w} rad/s: give a speed above 0 rad/s (rotor, mechanical)"
+            ),
+            SpeedError::AboveNoLoad {
+                rad_s,
+                no_load_rad_s,
+                bus_v,
+            } => write!(
+                f,
+                "test speed {rad_s} rad/s ({:.0} rpm) is above the motor's no-load speed, {no_load_rad_s:.2} rad/s ({:.0} rpm) at the nominal {bus_v} V bus (95 % of the linear range): the drive cannot reach it; give at most {no_load_rad_s:.2} rad/s",
+                rpm(rad_s),
+                rpm(no_load_rad_s)
+            ),
+            SpeedError::AboveBench { rad_s, max_rad_s } => write!(
+                f,
+                "test speed {rad_s} rad/s is above the bench's highest, {max_rad_s:.1} rad/s (one electrical turn per 10 PWM periods)"
+            ),
         }
+    }
+}
+
+impl std::error::Error for SpeedError {}
+
+impl TestSpeed {
+    /// `rad_s` [rad/s, rotor, mechanical] if the motor can reach it.
+    pub fn new(setup: &Setup, rad_s: f32) -> Result<Self, SpeedError> {
+        let no_load_rad_s = setup.max_speed_rad_s();
+        let max_rad_s = setup.max_mission_speed_rad_s();
+        if !(rad_s.is_finite() && rad_s > 0.0) {
+            Err(SpeedError::NotPositive(rad_s))
+        } else if rad_s > no_load_rad_s {
+            Err(SpeedError::AboveNoLoad {
+                rad_s,
+                no_load_rad_s,
+                bus_v: setup.bench.bus_voltage_v as f32,
+            })
+        } else if rad_s > max_rad_s {
+            Err(SpeedError::AboveBench { rad_s, max_rad_s })
+        } else {
+            Ok(Self(rad_s))
+        }
+    }
+
+    /// The sweep's default: half the no-load speed for the load and regen
+    /// sweeps, 80 % for the voltage sweep (at the nominal bus), at most
+    /// the bench's highest speed.
+    pub fn default_for(setup: &Setup, sweep: Sweep) -> Self {
+        let share = match sweep {
+            Sweep::Load | Sweep::Regen => 0.5,
+            Sweep::Voltage => 0.8,
+        };
+        Self((share * setup.max_speed_rad_s()).min(setup.max_mission_speed_rad_s()))
+    }
+
+    /// The speed [rad/s, rotor, mechanical].
+    pub fn rad_s(self) -> f32 {
+        self.0
     }
 }
 
 /// A finished dynamometer run.
 #[derive(Clone, Debug)]
 pub struct DynoRun {
+    /// What was swept.
+    pub sweep: Sweep,
+    /// The test speed (the speed command at the nominal bus).
+    pub speed: TestSpeed,
     /// Report header.
     pub header: DynoHeader,
     /// One row per operating point.
@@ -73,6 +163,17 @@ pub struct DynoRun {
     pub faults: Vec<String>,
     /// The set points (load [N m], supply \[V\], speed command [rad/s]) per row.
     pub set_points: Vec<(f64, f64, f64)>,
+}
+
+impl DynoRun {
+    /// The run's report (CSV, Markdown, SVG), titled by its sweep.
+    pub fn report(&self) -> DynoReport<'_> {
+        DynoReport {
+            header: &self.header,
+            sweep: Some(self.sweep),
+            rows: &self.rows,
+        }
+    }
 }
 
 /// Today's date (UTC) as `YYYY-MM-DD`, from the system clock.
@@ -93,8 +194,19 @@ pub fn today() -> String {
     format!("{y:04}-{m:02}-{d:02}")
 }
 
-/// Measure one operating point: settle, then average over `window_s`.
-fn measure(sim: &mut Sim, settle_s: f64, window_s: f64) -> DynoRow {
+/// The modulation index `sqrt(3) |v| / v_bus` of duties `d`: the
+/// amplitude-invariant Clarke transform of the duties (the common mode
+/// drops out), `|v| / v_bus = sqrt(alpha^2 + beta^2)`.
+pub fn modulation_index(d: [f32; 3]) -> f64 {
+    let [a, b, c] = d.map(f64::from);
+    let alpha = (2.0 * a - b - c) / 3.0;
+    let beta = (b - c) / 3f64.sqrt();
+    3f64.sqrt() * alpha.hypot(beta)
+}
+
+/// Measure one operating point at speed command `w_cmd_rad_s`: settle,
+/// then average over `window_s`.
+fn measure(sim: &mut Sim, w_cmd_rad_s: f32, settle_s: f64, window_s: f64) -> DynoRow {
     let f = sim.plant.config().pwm_frequency_hz as f64;
     sim.run((settle_s * f) as usize);
     let n = ((window_s * f) as usize).max(1);
@@ -102,11 +214,14 @@ fn measure(sim: &mut Sim, settle_s: f64, window_s: f64) -> DynoRow {
     let p0 = sim.plant.position_rad() as f64;
     let (mut v, mut i, mut w) = (0.0, 0.0, 0.0);
     let (mut i_bus, mut regen_j) = (0.0, 0.0);
+    let (mut i_phase, mut m) = (0.0, 0.0);
     for _ in 0..n {
         sim.step();
         v += sim.plant.v_bus_avg_v() as f64;
         i += sim.plant.supply_current_a() as f64;
         w += sim.plant.omega_m_rad_s() as f64;
+        i_phase += (sim.plant.id_a() as f64).hypot(sim.plant.iq_a() as f64);
+        m += modulation_index(sim.plant.applied_duties());
         let i_src = sim.plant.source_current_a() as f64;
         i_bus += i_src;
         // The period's mean power at the source's terminals: exact without
@@ -129,24 +244,34 @@ fn measure(sim: &mut Sim, settle_s: f64, window_s: f64) -> DynoRow {
     } else {
         0.0
     };
-    let w = w / n as f64;
-    DynoRow::new(
-        v / n as f64,
-        i / n as f64,
+    let mean = |x: f64| x / n as f64;
+    let row = DynoRow::new(
+        mean(v),
+        mean(i),
         e.supply_j as f64 / t,
-        w * 60.0 / std::f64::consts::TAU,
+        mean(w) * RPM_PER_RAD_S,
         torque,
     )
-    .with_bus(i_bus / n as f64, regen_j)
+    .with_speed_command(w_cmd_rad_s as f64 * RPM_PER_RAD_S)
+    .with_drive(mean(i_phase), mean(m));
+    // Without a DC link the source's current is the supply current: not
+    // repeated as a bus column.
+    if sim.plant.dc_link().is_some() {
+        row.with_bus(mean(i_bus), regen_j)
+    } else {
+        row.with_regen(regen_j)
+    }
 }
 
 /// Run a sweep of `steps` steps (`steps + 1` rows for the load and regen
-/// sweeps, `steps` rows for the voltage sweep). `progress` gets the
-/// fraction done.
+/// sweeps, `steps` rows for the voltage sweep) at the test speed `speed`
+/// (the voltage sweep's command at the nominal bus, scaled with the
+/// voltage). `progress` gets the fraction done.
 pub fn run_dyno(
     setup: &Setup,
     sweep: Sweep,
     steps: usize,
+    speed: TestSpeed,
     progress: &mut dyn FnMut(f64),
 ) -> DynoRun {
     let steps = steps.max(1);
@@ -181,14 +306,14 @@ pub fn run_dyno(
     let (settle, window) = (0.35, 0.1);
     match sweep {
         Sweep::Load | Sweep::Regen => {
-            let w_cmd = (0.5 * setup.max_speed_rad_s()).min(setup.max_mission_speed_rad_s());
+            let w_cmd = speed.rad_s();
             ramp(&mut sim, 0.0, w_cmd);
             // The load opposes positive rotation: negative, it drives it.
             let sign = if sweep == Sweep::Regen { -1.0 } else { 1.0 };
             for k in 0..=steps {
                 let load = sign * t_rated * k as f32 / steps as f32;
                 sim.load_nm = load;
-                rows.push(measure(&mut sim, settle, window));
+                rows.push(measure(&mut sim, w_cmd, settle, window));
                 set_points.push((load as f64, v_nom as f64, w_cmd as f64));
                 progress((k + 1) as f64 / (steps + 1) as f64);
             }
@@ -199,13 +324,11 @@ pub fn run_dyno(
             for k in 0..steps {
                 let v = v_nom * (steps - k) as f32 / steps as f32;
                 sim.plant.config_mut().bus_voltage_v = v as crate::real::Real;
-                let w_cmd = (0.8 * setup.max_speed_rad_s()).min(setup.max_mission_speed_rad_s())
-                    * v
-                    / v_nom;
+                let w_cmd = speed.rad_s() * v / v_nom;
                 ramp(&mut sim, w_prev, w_cmd);
                 w_prev = w_cmd;
                 sim.load_nm = load;
-                rows.push(measure(&mut sim, settle, window));
+                rows.push(measure(&mut sim, w_cmd, settle, window));
                 set_points.push((load as f64, v as f64, w_cmd as f64));
                 progress((k + 1) as f64 / steps as f64);
             }
@@ -223,6 +346,8 @@ pub fn run_dyno(
         approved_by: "not approved (simulation)".into(),
     };
     DynoRun {
+        sweep,
+        speed,
         header,
         rows,
         faults,

@@ -112,16 +112,14 @@ fn dyno_report_files() {
 
     let svg = std::fs::read_to_string(svg).unwrap();
     // Torque is either a plotted series or, for a load sweep, the x axis.
-    assert!(
-        svg.contains("torque_nm") || svg.contains("torque [N m]"),
-        "torque missing"
-    );
+    assert!(svg.contains("torque [N m]"), "torque missing");
+    // Legends in words with units (issue 36).
     for name in [
-        "speed_rpm",
-        "supply_current_a",
-        "input_power_w",
-        "mechanical_power_w",
-        "efficiency_percent",
+        "speed [rpm]",
+        "supply current [A]",
+        "input power [W]",
+        "mechanical power [W]",
+        "efficiency [%]",
         "M153",
     ] {
         assert!(svg.contains(name), "{name}");

@@ -257,9 +257,9 @@ impl MissionSummary {
             t.row(
                 "braking: DC link",
                 format!(
-                    "{} ({:.0} uF), {:.1} V supply that cannot sink current; over-voltage threshold {:.2} V, regen ramp {:.2} -> {:.2} V",
-                    b.link,
+                    "{:.1} uF ({}), {:.1} V supply that cannot sink current; over-voltage threshold {:.2} V, regen ramp {:.2} -> {:.2} V",
                     b.c_f * 1e6,
+                    b.link,
                     b.v_source_v,
                     b.over_voltage_v,
                     b.regen_v.0,
@@ -280,7 +280,7 @@ impl MissionSummary {
                 ),
                 (
                     format!(
-                        "braking with a {:.1} ohm brake resistor ({})",
+                        "braking with a {:.3} ohm brake resistor ({})",
                         b.resistor_ohm,
                         how(&b.resistor)
                     ),

@@ -31,18 +31,23 @@
 //!    natural frequency: the stiffness and damping measured as the motor's
 //!    torque against the true position and velocity. It fails beyond 5 %
 //!    (stiffness) or 10 % (damping).
-//! 7. **braking** (design §18): a DC link with the ODrive v3's bus capacitor
-//!    on a battery, a spin-up to the ramp's speed, then the supply made
-//!    non-sinking (a diode-fed bench supply) and a hard stop (0 rad/s at
-//!    once) with the board's power limits
-//!    ([`PowerLimitsConfig::for_board`]: regen ramp and d-axis braking):
-//!    the peak bus voltage against the over-voltage threshold, the
-//!    stopping time and where the kinetic energy went; then the same stop
-//!    with the ODrive's 2 ohm brake resistor switched by the drive's
-//!    chopper. It fails on a bus at or above the over-voltage threshold or
-//!    a fault; a stop that takes longer than the segment is reported, not
-//!    failed. The power limits and the DC link are only in this segment
-//!    (every earlier figure is unchanged).
+//! 7. **braking** (design §18): a DC link sized from the motor file
+//!    ([`braking_dc_link`]: a capacitance that gives the bus a time
+//!    constant of 10 PWM periods on the regen ramp at the maximum current
+//!    and takes the winding's energy at the maximum current between the
+//!    chopper's switch-on voltage and the over-voltage threshold, a brake
+//!    resistor that takes the rated
+//!    current at the chopper's switch-on voltage) on a battery, a spin-up
+//!    to the ramp's speed, then the supply made non-sinking (a diode-fed
+//!    bench supply) and a hard stop (0 rad/s at once) with the board's
+//!    power limits ([`PowerLimitsConfig::for_board`]: regen ramp and d-axis
+//!    braking): the peak bus voltage against the over-voltage threshold,
+//!    the stopping time and where the kinetic energy went; then the same
+//!    stop with the brake resistor switched by the drive's chopper. It
+//!    fails on a bus at or above the over-voltage threshold or a fault; a
+//!    stop that takes longer than the segment is reported, not failed. The
+//!    power limits and the DC link are only in this segment (every earlier
+//!    figure is unchanged).
 //!
 //! ```no_run
 //! use foc_bench::mission::{run_mission, Setup};
@@ -65,6 +70,9 @@ mod summary;
 use figures::*;
 pub use result::*;
 pub use run::*;
+pub use segments::{
+    braking_dc_link, BRAKING_ESR_TIME_CONSTANT_S, BRAKING_LINK_RULE, BRAKING_RAMP_PERIODS,
+};
 pub use sensorless::*;
 pub use setup::*;
 pub use sim::*;

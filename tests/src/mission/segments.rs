@@ -2,6 +2,98 @@
 //! position move, impedance mode and braking.
 
 use super::*;
+use crate::real::Real;
+use foc_core::control::supervisor::SupervisorConfig;
+
+/// The bus's least time constant on the regen ramp \[PWM periods\]
+/// ([`braking_dc_link`]): `C (V_end - V_start) / I_max`.
+pub const BRAKING_RAMP_PERIODS: f64 = 10.0;
+
+/// The ESR time constant `ESR C` of the braking segment's capacitor \[s\]:
+/// the ODrive v3's low-ESR aluminium electrolytics (4 x 470 uF, 15 mOhm),
+/// a property of the technology rather than of the size.
+pub const BRAKING_ESR_TIME_CONSTANT_S: f64 = 0.015 * 4.0 * 470e-6;
+
+/// How [`braking_dc_link`] sizes the link (the braking summary's words).
+pub const BRAKING_LINK_RULE: &str = "sized from the motor file: C the larger of a 10-period bus time constant on the regen ramp at the maximum current and the winding's energy at the maximum current taken between the chopper's switch-on voltage and the over-voltage threshold; brake resistor: the rated current at the switch-on voltage";
+
+/// The braking segment's DC link (design §18), sized from the motor file
+/// (which has no DC-link fields) and the supervisor's thresholds: `V_ov`
+/// the over-voltage threshold, `V_on` the brake chopper's switch-on
+/// voltage (`PowerLimitsConfig::with_brake_resistor`: the regen ramp's
+/// start, 0.85 `V_ov`), `V_end` the ramp's end (0.95 `V_ov`):
+///
+/// - capacitance: the larger of
+///   - `N T_pwm I_max / (V_end - V_on)`, `N` = [`BRAKING_RAMP_PERIODS`]:
+///     the regen ramp takes the current from `I_max` to 0 over
+///     `V_end - V_on`, a gain of `I_max / (V_end - V_on)` from the bus
+///     voltage to its current; against `C` that loop has the time constant
+///     `C (V_end - V_on) / I_max`, which must be long against the current
+///     loop's few periods of delay or the bus and the current oscillate
+///     (the DJI M2006 file on 260 uF: +-2 V, +-10 A, a 9-period cycle,
+///     then a current-sense fault);
+///   - `1.5 max(Ld, Lq) I_max^2 / (V_ov^2 - V_on^2)`: the winding's
+///     magnetic energy at the maximum current, `0.75 L I_max^2`, which
+///     reaches the bus when the current is dropped at once (a safe-state
+///     disable; turning the current vector onto the d axis releases
+///     `0.75 (Lq - Ld) I^2` of it), taken between `V_on` and `V_ov`;
+///
+///   either keeps the PWM ripple far below 1 % (`I_max / (8 f_pwm C)`:
+///   at most 0.16 % of the bus with the supervisor's 125 % threshold);
+/// - its ESR: [`BRAKING_ESR_TIME_CONSTANT_S`] / `C`;
+/// - brake resistor `R = V_on / I_rated`: switched on, it takes the rated
+///   phase current's worth, more than the bus current of a rated-current
+///   regeneration (at most `sqrt(3)/2 I_rated` at full modulation).
+///
+/// The source: a battery at the file's bus voltage, 20 mOhm (the segment
+/// makes it non-sinking for the stops). M153 (26 V, 60 A max, 42 A
+/// rated): 12.3 mF (the ramp; the winding's 1.35 J asks 9.2 mF), 0.66
+/// ohm, where the ODrive v3 it used before had 1880 uF (a 1.5-period
+/// time constant, 0.28 J between 27.6 and 32.5 V) and 2 ohm (14 A, a third
+/// of the rated current). The 540 V, 2.2 kW interior-PM file (Lq 51 mH,
+/// 18.2 A max, 6.08 A rated): 200 uF (the winding's 12.7 J), 94 ohm
+/// (3.5 kW at 574 V).
+pub fn braking_dc_link(setup: &Setup, supervisor: &SupervisorConfig) -> DcLinkConfig {
+    let v_bus = setup.bench.bus_voltage_v as f64;
+    let t_pwm = 1.0 / setup.bench.pwm_frequency_hz as f64;
+    let i_max = setup.max_current_a as f64;
+    let l_max = (setup.motor.ld_h as f64).max(setup.motor.lq_h as f64);
+    let v_ov = supervisor.bus_over_voltage_v as f64;
+    let limits = PowerLimitsConfig::for_board(supervisor, control_motor(&setup.motor), false)
+        .with_brake_resistor();
+    let (v_on, v_end) = (limits.brake_on_v as f64, limits.regen_end_v as f64);
+    // No (finite) thresholds: no ramp, no energy rule, the resistor sized
+    // at the motor file's bus.
+    let ramp_v = v_end - v_on;
+    let c_ramp = if ramp_v.is_finite() && ramp_v > 0.0 {
+        BRAKING_RAMP_PERIODS * t_pwm * i_max / ramp_v
+    } else {
+        0.0
+    };
+    let headroom_v2 = v_ov * v_ov - v_on * v_on;
+    let c_energy = if headroom_v2.is_finite() && headroom_v2 > 0.0 {
+        1.5 * l_max * i_max * i_max / headroom_v2
+    } else {
+        0.0
+    };
+    // At the least, 1 % ripple at the maximum current.
+    let c_ripple = i_max * t_pwm / (8.0 * 0.01 * v_bus);
+    let c_f = c_ramp.max(c_energy).max(c_ripple);
+    let v_on = if v_on.is_finite() && v_on > 0.0 {
+        v_on
+    } else {
+        v_bus
+    };
+    DcLinkConfig {
+        c_f: c_f as Real,
+        esr_ohm: (BRAKING_ESR_TIME_CONSTANT_S / c_f) as Real,
+        v_source_v: setup.bench.bus_voltage_v,
+        r_source_ohm: 0.02,
+        i_source_max_a: Real::INFINITY,
+        source: SourceKind::Sinking,
+        brake_resistor_ohm: Some((v_on / setup.rated_current_a as f64) as Real),
+    }
+}
 
 impl Mission<'_> {
     /// Segment 2, q-current step with the rotor locked. Returns the step \[A\].
@@ -217,19 +309,19 @@ impl Mission<'_> {
     }
 
     /// Segment 7, braking (design §18): two stops from the ramp's speed
-    /// into a supply that cannot sink current with the ODrive v3's bus
-    /// capacitor, the board's regen limit on; the first into the capacitor
-    /// alone, the second with the ODrive's brake resistor. Each: the DC link
-    /// on a battery (it sinks the spin-up's overshoot), a spin-up, then the
-    /// supply made non-sinking, the limits installed and 0 rad/s
-    /// commanded. Afterwards the power limits are off again and the plant
-    /// is back on its plain source.
+    /// into a supply that cannot sink current, through a DC link sized
+    /// from the motor file ([`braking_dc_link`]), the board's regen limit
+    /// on; the first into the capacitor alone, the second with the brake
+    /// resistor. Each: the DC link on a battery (it sinks the spin-up's
+    /// overshoot), a spin-up, then the supply made non-sinking, the limits
+    /// installed and 0 rad/s commanded. Afterwards the power limits are off
+    /// again and the plant is back on its plain source.
     pub(super) fn braking(&mut self) -> BrakingSummary {
         let setup = self.setup;
         let v_src = setup.bench.bus_voltage_v;
-        let base = DcLinkConfig::odrive_v3();
-        let resistor_ohm = base.brake_resistor_ohm.unwrap_or(2.0);
         let supervisor = self.sim.cascade.current.config().supervisor;
+        let base = braking_dc_link(setup, &supervisor);
+        let resistor_ohm = base.brake_resistor_ohm.unwrap_or(Real::INFINITY);
         let limits = PowerLimitsConfig::for_board(
             &supervisor,
             self.sim.cascade.current.config().current.motor,
@@ -240,7 +332,7 @@ impl Mission<'_> {
         // Both hard stops (0 rad/s at once).
         for (name, brake, ramp_s) in [("braking", false, 0.0), ("braking, resistor", true, 0.0)] {
             let start = self.sim.rows();
-            let mut link = base.battery(v_src, 0.02);
+            let mut link = base;
             link.brake_resistor_ohm = brake.then_some(resistor_ohm);
             self.sim.plant.set_dc_link(Some(link));
             self.spin_to(w0);
@@ -263,7 +355,7 @@ impl Mission<'_> {
         let resistor = stops.pop().expect("two stops");
         let capacitor = stops.pop().expect("two stops");
         BrakingSummary {
-            link: "ODrive v3 bus (DcLinkConfig::odrive_v3)",
+            link: BRAKING_LINK_RULE,
             c_f: base.c_f as f64,
             v_source_v: v_src as f64,
             over_voltage_v: supervisor.bus_over_voltage_v as f64,

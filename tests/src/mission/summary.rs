@@ -135,7 +135,7 @@ pub struct StopFigures {
 /// The braking segment's figures (design §18).
 #[derive(Clone, Debug, PartialEq)]
 pub struct BrakingSummary {
-    /// The DC link: its name and capacitance \[F\].
+    /// The DC link: how it was sized.
     pub link: &'static str,
     /// Bus capacitance \[F\].
     pub c_f: f64,
