@@ -24,9 +24,14 @@ use std::time::{Duration, Instant};
 /// How often the host asks while it waits.
 const POLL: Duration = Duration::from_millis(20);
 
-/// A calibration started this long ago without a "running" seen has ended
-/// (the offsets take 50 ms: a poll may miss them).
+/// An offset calibration started this long ago without a "running" seen
+/// has ended (the offsets and the sensor check take about 50 ms: a poll
+/// may miss them).
 const SHORT_RUN: Duration = Duration::from_secs(1);
+
+/// An identification not seen running this long after the request was
+/// not started.
+const START_WAIT: Duration = Duration::from_secs(2);
 
 /// The drive's report: the step running (or where the last run ended)
 /// and the result code.
@@ -72,7 +77,8 @@ impl CalProgress {
         match self.result {
             2 => "",
             3 => "stopped by a fault or a Disable: `foc-ctl faults` says which; clear it and run it again",
-            4 => "the current sensing's offsets were rejected (noise or an offset too large): check the supply and the sensing; `foc-ctl faults`",
+            4 => "the current sensing's offsets were rejected (noise or an offset too large) or it did not answer: check the supply and the sensing; `foc-ctl faults`",
+            5 => "the angle sensor did not answer: its wiring and supply; `foc-ctl faults`",
             _ => self.failure().map_or("", advice_for),
         }
     }
@@ -111,6 +117,9 @@ pub enum WaitEnd {
     Ended(CalProgress),
     /// Still running at the timeout, with this report.
     TimedOut(CalProgress),
+    /// The drive took the request but never showed the routine running
+    /// (the report is still the one from before it).
+    NotStarted(CalProgress),
 }
 
 /// Start `routine` and wait for its end (at most `timeout`), calling
@@ -123,12 +132,13 @@ pub fn run(
 ) -> Result<WaitEnd, ClientError> {
     let before = CalProgress::read(c)?;
     c.calibrate(routine)?;
-    wait(c, before, timeout, on_change)
+    wait(c, routine, before, timeout, on_change)
 }
 
 /// Wait for the calibration started after the drive reported `before`.
 pub fn wait(
     c: &mut Client,
+    routine: Calibration,
     before: CalProgress,
     timeout: Duration,
     on_change: &mut dyn FnMut(&CalProgress, Duration),
@@ -144,9 +154,12 @@ pub fn wait(
             last = Some(now);
         }
         seen_running |= now.running();
-        let ended = !now.running() && (seen_running || now != before || t > SHORT_RUN);
-        if ended {
+        let quick = routine == Calibration::Offsets && t > SHORT_RUN;
+        if !now.running() && (seen_running || now != before || quick) {
             return Ok(WaitEnd::Ended(now));
+        }
+        if !seen_running && now == before && t > START_WAIT && routine != Calibration::Offsets {
+            return Ok(WaitEnd::NotStarted(now));
         }
         if t > timeout {
             return Ok(WaitEnd::TimedOut(now));

@@ -143,6 +143,11 @@ fn simulate(a: &SimulateArgs) -> CliResult {
     }
     let mut opts = foc_ctl::sim::Options::simulator(setup);
     if let Some(&[lo, hi]) = a.end_stops.as_deref() {
+        if lo.partial_cmp(&hi) != Some(std::cmp::Ordering::Less) {
+            return Err(
+                format!("--end-stops {lo} {hi}: the low stop must be below the high one").into(),
+            );
+        }
         opts.end_stops_rad = (lo, hi);
     }
     let name = opts.setup.name.clone();
@@ -461,13 +466,20 @@ fn calibrate(c: &mut Client, routine: Routine, no_wait: bool, timeout_s: f64) ->
     c.calibrate(r)
         .map_err(|e| refusal::explain(c, &Request::RunCalibration(r), &e))?;
     say!("{r:?}: started");
-    let timeout = Duration::from_secs_f64(timeout_s.clamp(0.0, 3600.0));
-    let end = calibration::wait(c, before, timeout, &mut |p, t| {
+    if !(timeout_s.is_finite() && timeout_s >= 0.0) {
+        return Err(format!("--timeout {timeout_s}: give a time in s").into());
+    }
+    let timeout = Duration::from_secs_f64(timeout_s.min(3600.0));
+    let end = calibration::wait(c, r, before, timeout, &mut |p, t| {
         if p.running() {
             say!("{:6.1} s  {}", t.as_secs_f64(), p.step_name());
         }
     })?;
     match end {
+        WaitEnd::NotStarted(_) => Err(format!(
+            "the drive took the {r:?} request but did not start it: `foc-ctl faults` and `status` say why"
+        )
+        .into()),
         WaitEnd::TimedOut(p) => Err(format!(
             "still running at {} after {timeout_s} s (`foc-ctl param calibration-step` follows it)",
             p.step_name()

@@ -112,10 +112,10 @@ pub fn allowed_range(
     match (req, field) {
         (Request::SetCommand(Command::Torque { .. }), 1) => sym(l.max_current_a, "A", "the current limit"),
         (Request::SetCommand(Command::Velocity { .. }), 1) => {
-            sym(l.max_velocity_rad_s, "rad/s", "the velocity limit, rotor")
+            sym(l.max_velocity_rad_s, "rad/s", "the velocity limit")
         }
         (Request::SetCommand(Command::Position { .. }), 1) => Some(format!(
-            "{} .. {} rad, the position range (rotor; the joint's travel range where set)",
+            "{} .. {} rad, the position range (the joint's travel range where set)",
             l.min_position_rad, l.max_position_rad
         )),
         (Request::SetCommand(Command::OpenLoop { .. }), 1 | 2) => Some(format!(
@@ -125,18 +125,26 @@ pub fn allowed_range(
         (Request::SetCommand(Command::OpenLoop { .. }), 4) => {
             sym(l.max_open_loop_omega_e_rad_s, "rad/s", "the open-loop speed limit, electrical")
         }
+        (Request::SetCommand(Command::Impedance(_)), 1) => Some(format!(
+            "{} .. {} rad, the position range",
+            l.min_position_rad, l.max_position_rad
+        )),
+        (Request::SetCommand(Command::Impedance(_)), 2) => {
+            sym(l.max_velocity_rad_s, "rad/s", "the velocity limit")
+        }
         (Request::SetCommand(Command::Impedance(_)), 3) => Some(format!(
-            "0 .. {} N m/rad, the stiffness limit (rotor)",
+            "0 .. {} N m/rad, the stiffness limit",
             l.max_kp_nm_per_rad
         )),
         (Request::SetCommand(Command::Impedance(_)), 4) => Some(format!(
-            "0 .. {} N m s/rad, the damping limit (rotor)",
+            "0 .. {} N m s/rad, the damping limit",
             l.max_kd_nm_s_per_rad
         )),
         (Request::SetLimits(_), 0) => Some(match board_max_a {
             Some(m) => format!("above 0, at most {m} A, this board's hardware limit"),
             None => "above 0 and finite".into(),
         }),
+        (Request::SetLimits(_), 1) => Some("above 0 and finite".into()),
         (Request::SetLimits(_), 2 | 3) => Some("finite, the lowest below the highest".into()),
         (Request::SetLimits(_), _) => Some("finite and not negative".into()),
         (
@@ -149,6 +157,40 @@ pub fn allowed_range(
         ),
         _ => None,
     }
+}
+
+/// The limits `l` (rotor frame) in the frame a command's values are sent
+/// in (the joint's output frame: positions through its offset and gear,
+/// velocities through the gear, stiffness and damping times its square),
+/// with the frame's name for the text.
+fn in_command_frame(c: &mut Client, req: &Request, l: Limits) -> (Limits, &'static str) {
+    let Request::SetCommand(
+        Command::Velocity { .. } | Command::Position { .. } | Command::Impedance(_),
+    ) = req
+    else {
+        return (l, "");
+    };
+    let Ok(j) = c.joint() else {
+        return (l, " (rotor frame)");
+    };
+    let (g, z) = (j.gear_ratio, j.rotor_at_zero_rad);
+    if g == 1.0 && z == 0.0 {
+        return (l, "");
+    }
+    if g == 0.0 || !g.is_finite() {
+        return (l, " (rotor frame)");
+    }
+    let a = (l.min_position_rad - z) / g;
+    let b = (l.max_position_rad - z) / g;
+    let out = Limits {
+        max_velocity_rad_s: l.max_velocity_rad_s / g.abs(),
+        min_position_rad: a.min(b),
+        max_position_rad: a.max(b),
+        max_kp_nm_per_rad: l.max_kp_nm_per_rad * g * g,
+        max_kd_nm_s_per_rad: l.max_kd_nm_s_per_rad * g * g,
+        ..l
+    };
+    (out, " (output frame, through the joint)")
 }
 
 /// The limits in force, as the device reports them (`None` from a device
@@ -198,7 +240,10 @@ pub fn nack_explained(c: &mut Client, req: &Request, code: ErrorCode) -> String 
                 .map(|(v, u)| format!(" = {v}{}{u}", if u.is_empty() { "" } else { " " }))
                 .unwrap_or_default();
             let range = limits_in_force(c)
-                .and_then(|l| allowed_range(req, field, &l, board_max_a))
+                .map(|l| in_command_frame(c, req, l))
+                .and_then(|(l, frame)| {
+                    allowed_range(req, field, &l, board_max_a).map(|r| format!("{r}{frame}"))
+                })
                 .map(|r| format!(" is out of range (allowed: {r})"))
                 .unwrap_or_else(|| " is invalid or out of range".into());
             format!("`{name}`{value}{range}; nothing changed")

@@ -183,3 +183,27 @@ fn a_scope_read_says_what_it_waits_for_and_telemetry_states_its_rate() {
     );
     assert!(err(&o).contains(", 0 lost in the stream"), "{}", err(&o));
 }
+
+#[test]
+fn a_refused_range_is_given_in_the_frame_of_the_value() {
+    let server = calibrated_server();
+    let a = server.addr();
+    // 20:1 reversed: the rotor's 10000 rad/s is 500 rad/s at the output.
+    assert!(
+        foc_ctl(a, &["joint", "--gear-ratio", "-20", "--offset", "0"])
+            .status
+            .success()
+    );
+    let o = foc_ctl(a, &["mode", "velocity", "1000"]);
+    assert!(
+        err(&o).contains("`rad_s` = 1000 rad/s is out of range (allowed: -500 .. 500 rad/s, the velocity limit (output frame, through the joint))"),
+        "{}",
+        err(&o)
+    );
+    let o = foc_ctl(a, &["limits", "--max-velocity", "0"]);
+    assert!(
+        err(&o).contains("allowed: above 0 and finite"),
+        "{}",
+        err(&o)
+    );
+}

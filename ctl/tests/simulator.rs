@@ -52,8 +52,9 @@ fn a_second_client_is_answered_while_the_first_streams() {
     let (answered, retrans) = other.join().unwrap();
     assert_eq!((answered, retrans), (10, 0));
     // Every sample 100 periods after the last (200 Hz at 20 kHz), none
-    // lost, the stream counter without a gap.
-    assert!(samples.len() >= 40, "{} samples", samples.len());
+    // lost, the stream counter without a gap (80 in real time; fewer
+    // only on a machine that cannot keep the simulation's pace).
+    assert!(samples.len() >= 10, "{} samples", samples.len());
     for w in samples.windows(2) {
         assert_eq!(w[1].sample.period.wrapping_sub(w[0].sample.period), 100);
     }
@@ -219,4 +220,68 @@ fn a_failed_identification_names_its_step_and_reason() {
     let o = foc_ctl(server.addr(), &["calibrate", "offsets", "--no-wait"]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert!(String::from_utf8_lossy(&o.stdout).starts_with("started"));
+}
+
+#[test]
+fn a_hosts_watchdog_setting_holds_for_later_connections() {
+    let server = calibrated_server();
+    let a = server.addr();
+    assert!(foc_ctl(a, &["watchdog", "0", "stop"]).status.success());
+    assert!(foc_ctl(a, &["mode", "velocity", "30"]).status.success());
+    // Watched from a third connection: still running 2.5 s later (the
+    // automatic 1 s watchdog would have stopped it after 1 s).
+    let mut c = client(a);
+    let t0 = c.read_telemetry().unwrap();
+    let end = Instant::now() + Duration::from_secs(30);
+    loop {
+        let t = c.read_telemetry().unwrap();
+        assert_eq!(t.mode, Mode::Velocity, "{t:?}");
+        if t.period.wrapping_sub(t0.period) > 50_000 {
+            assert!((t.velocity_rad_s - 30.0).abs() < 1.0, "{t:?}");
+            break;
+        }
+        assert!(Instant::now() < end);
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    c.set_command(Command::Disable).unwrap();
+}
+
+#[test]
+fn a_client_that_does_not_read_holds_up_no_one() {
+    use foc_protocol::frame::{encode, MAX_FRAME};
+    use foc_protocol::message::Request;
+    use std::io::Write;
+    let server = calibrated_server();
+    // A client asks for every period's sample, then never reads.
+    let mut quiet = std::net::TcpStream::connect(server.addr()).unwrap();
+    let mut buf = [0u8; MAX_FRAME];
+    let n = encode(
+        7,
+        &Request::StartTelemetry(TelemetryRate::EveryPeriods(1)),
+        &mut buf,
+    )
+    .unwrap();
+    quiet.write_all(&[0]).unwrap();
+    quiet.write_all(&buf[..n]).unwrap();
+    // The others are answered meanwhile, and the drive's time goes on.
+    let mut c = client(server.addr());
+    let p0 = c.read_telemetry().unwrap().period;
+    // 4 s of every period's sample (about 1 MB/s) fill the kernel's
+    // buffers: a server that blocked on them would stop answering here.
+    for _ in 0..160 {
+        c.param(ParamId::PolePairs).unwrap();
+        std::thread::sleep(Duration::from_millis(25));
+    }
+    let p1 = c.read_telemetry().unwrap().period;
+    assert!(
+        p1.wrapping_sub(p0) > 2_000,
+        "the drive's time stood still: {p0} -> {p1}"
+    );
+    drop(c);
+    let dev = server.stop().unwrap();
+    assert!(
+        dev.dropped() > 0,
+        "the quiet client's samples were not dropped"
+    );
+    drop(quiet);
 }

@@ -370,7 +370,10 @@ window.addEventListener("load", async () => {
     if (line) runCommand(line);
   });
   $("clear-faults").addEventListener("click", () => runCommand("clear"));
-  $("disable").addEventListener("click", () => runCommand("mode disable"));
+  $("disable").addEventListener("click", async () => {
+    const r = await post("/api/disable");
+    consoleLog("(Disable button)", r.output || r.error || "", r.ok);
+  });
   $("wizard-run").addEventListener("click", runWizard);
   $("scope-arm").addEventListener("click", armScope);
   $("scope-force").addEventListener("click", async () => { await runCommand("scope trigger"); });

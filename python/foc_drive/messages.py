@@ -365,10 +365,18 @@ CALIBRATION_STEPS = (
     "flux linkage",
     "mechanics",
     "finished",
+    "sensor check",
 )
 
 #: ``calibration-result`` codes below :data:`CALIBRATION_FAILED_BASE`.
-CALIBRATION_RESULTS = ("none since reset", "running", "done", "aborted (a fault, or a Disable)", "offsets rejected")
+CALIBRATION_RESULTS = (
+    "none since reset",
+    "running",
+    "done",
+    "aborted (a fault, or a Disable)",
+    "offsets rejected (or the current sensor did not answer)",
+    "the angle sensor did not answer its check",
+)
 
 #: A failure's ``calibration-result`` is this plus the reason's index in
 #: :data:`CALIBRATION_FAILURES`.

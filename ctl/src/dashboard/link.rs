@@ -28,6 +28,14 @@ const STATUS_EVERY: Duration = Duration::from_millis(250);
 /// host.
 const PAGE_GONE: Duration = Duration::from_secs(1);
 
+/// How often the link is kept alive while a page is open (and how long
+/// the stream is read between jobs).
+const KEEP_ALIVE_EVERY: Duration = Duration::from_millis(50);
+
+/// A job that waited longer than this for the link is dropped unrun (the
+/// page has given up on it: it must not move the motor later).
+pub(super) const JOB_EXPIRES: Duration = Duration::from_secs(30);
+
 /// The telemetry columns the page can plot, with their units.
 pub(super) const SIGNALS: [(&str, &str); 12] = [
     ("velocity", "rad/s (output)"),
@@ -52,6 +60,9 @@ pub(super) enum Job {
     Calibrate(Calibration),
     /// The wizard's sensor check (a slow open-loop turn).
     SensorCheck,
+    /// Disable the drive (the page's button: a running job has been told
+    /// to stop).
+    Disable,
     /// The wizard's tuning report (a current step).
     Tune,
     /// Stream at this rate \[Hz\].
@@ -73,6 +84,9 @@ pub(super) struct Shared {
     pub status: Mutex<Value>,
     /// When a page last asked for samples.
     pub page_seen: Mutex<Option<Instant>>,
+    /// The page asked to disable the drive: a running job stops at its
+    /// next check and the bridge goes off.
+    pub abort: std::sync::atomic::AtomicBool,
 }
 
 /// The kept samples.
@@ -153,14 +167,28 @@ impl Link {
         }
     }
 
+    /// A page asked for samples within [`PAGE_GONE`].
+    fn page_open(&self) -> bool {
+        self.shared
+            .page_seen
+            .lock()
+            .ok()
+            .and_then(|g| *g)
+            .is_some_and(|t| t.elapsed() < PAGE_GONE)
+    }
+
     /// Serve until the job channel closes.
-    pub(super) fn run(mut self, jobs: Receiver<(Job, Sender<Value>)>) {
+    pub(super) fn run(mut self, jobs: Receiver<(Job, Instant, Sender<Value>)>) {
         self.start_stream();
         loop {
             loop {
                 match jobs.try_recv() {
-                    Ok((job, reply)) => {
-                        let v = self.job(job);
+                    Ok((job, asked, reply)) => {
+                        let v = if asked.elapsed() > JOB_EXPIRES {
+                            json!({"ok": false, "error": "dropped: it waited too long for the link"})
+                        } else {
+                            self.job(job)
+                        };
                         let _ = reply.send(v);
                         self.start_stream();
                     }
@@ -168,21 +196,15 @@ impl Link {
                     Err(std::sync::mpsc::TryRecvError::Disconnected) => return,
                 }
             }
-            self.pump(Duration::from_millis(20));
+            self.pump(KEEP_ALIVE_EVERY);
+            // The page is the host: while it is open, the drive's link
+            // watchdog is fed, as a GUI that stays connected does (every
+            // 50 ms: a simulated drive may run faster than real time).
+            if self.page_open() {
+                let _ = self.c.keep_alive();
+            }
             if self.last_status.elapsed() >= STATUS_EVERY {
                 self.last_status = Instant::now();
-                // The page is the host: while it is open, the drive's link
-                // watchdog is fed, as a GUI that stays connected does.
-                let page_open = self
-                    .shared
-                    .page_seen
-                    .lock()
-                    .ok()
-                    .and_then(|g| *g)
-                    .is_some_and(|t| t.elapsed() < PAGE_GONE);
-                if page_open {
-                    let _ = self.c.keep_alive();
-                }
                 let s = self.status();
                 if let Ok(mut g) = self.shared.status.lock() {
                     *g = s;
@@ -295,7 +317,16 @@ impl Link {
 
     /// Run one job.
     fn job(&mut self, job: Job) -> Value {
+        use std::sync::atomic::Ordering;
         match job {
+            Job::Disable => {
+                let r = self.c.set_command(foc_core::control::Command::Disable);
+                self.shared.abort.store(false, Ordering::Relaxed);
+                match r {
+                    Ok(()) => json!({"ok": true, "output": "disabled"}),
+                    Err(e) => json!({"ok": false, "output": e.to_string()}),
+                }
+            }
             Job::Console(line) => self.console(&line),
             Job::Calibrate(r) => match self.c.calibrate(r) {
                 Ok(()) => json!({"ok": true}),
@@ -303,7 +334,7 @@ impl Link {
                     json!({"ok": false, "error": foc_ctl::refusal::explain(&mut self.c, &Request::RunCalibration(r), &e)})
                 }
             },
-            Job::SensorCheck => wizard::sensor_check(&mut self.c),
+            Job::SensorCheck => wizard::sensor_check(&mut self.c, &self.shared.abort),
             Job::Tune => wizard::tune_report(&mut self.c),
             Job::ConfigTree => super::config::tree(&mut self.c),
             Job::ConfigSet(key, value) => super::config::set(&mut self.c, &key, &value),
@@ -334,11 +365,23 @@ impl Link {
             Ok(c) => c,
             Err(e) => return json!({"ok": false, "output": e.to_string()}),
         };
-        if matches!(cli.cmd, crate::Cmd::Simulate(_) | crate::Cmd::Dashboard(_)) {
-            return json!({"ok": false, "output": "not from the console: run it in a terminal"});
+        let mut cmd = cli.cmd;
+        match &mut cmd {
+            crate::Cmd::Simulate(_) | crate::Cmd::Dashboard(_) => {
+                return json!({"ok": false, "output": "not from the console: run it in a terminal"})
+            }
+            crate::Cmd::KeepAlive { .. } | crate::Cmd::Telemetry { .. } => {
+                return json!({"ok": false, "output": "not from the console: the page keeps the link alive and plots the telemetry"})
+            }
+            // The page follows a calibration in its status: the console
+            // does not hold the link while it runs.
+            crate::Cmd::Calibrate { no_wait, .. } | crate::Cmd::Identify { no_wait, .. } => {
+                *no_wait = true
+            }
+            _ => {}
         }
         let c = &mut self.c;
-        let (r, text) = out::capture(|| dispatch(c, cli.cmd));
+        let (r, text) = out::capture(|| dispatch(c, cmd));
         // Samples that arrived while the command ran.
         while let Ok(Some(s)) = self.c.next_stream(Duration::ZERO) {
             self.keep(&s);

@@ -15,6 +15,7 @@
 //! | `POST /api/console` (a command line) | a foc-ctl command's output |
 //! | `POST /api/calibrate` (`offsets` or `identification`) | started, or the refusal |
 //! | `POST /api/sensor-check`, `POST /api/tune` | the wizard's steps |
+//! | `POST /api/disable` | a running job stopped, then the drive disabled |
 //! | `POST /api/rate` (Hz) | the stream's rate, or the refusal |
 //! | `GET /api/config` | the configuration tree: each key's value, unit, range and meaning |
 //! | `POST /api/config` (`{"key", "value"}`) | the key changed and applied, or the refusal |
@@ -45,7 +46,8 @@ const UPLOT_JS: &str = include_str!("../../web/vendor/uplot/uPlot.iife.min.js");
 const UPLOT_CSS: &str = include_str!("../../web/vendor/uplot/uPlot.min.css");
 
 /// Longest a page waits for a job (the identification is followed in the
-/// status, not waited for).
+/// status, not waited for); the link thread drops a job that waited longer
+/// than [`link::JOB_EXPIRES`].
 const JOB_WAIT: Duration = Duration::from_secs(60);
 
 /// `foc-ctl dashboard`: serve the page until killed.
@@ -53,6 +55,9 @@ pub(super) fn serve(cli: &Cli, a: &DashboardArgs) -> crate::CliResult {
     // The simulated drive, when asked: served on a local port of its own
     // (other foc-ctl commands may connect to it too).
     let _sim;
+    if !(a.time_scale > 0.0 && a.time_scale <= 100.0) {
+        return Err(format!("--time-scale {} is outside (0, 100]", a.time_scale).into());
+    }
     let client = if a.simulate {
         let setup = match &a.motor {
             Some(p) => foc_bench::mission::Setup::load(p)
@@ -78,7 +83,7 @@ pub(super) fn serve(cli: &Cli, a: &DashboardArgs) -> crate::CliResult {
     let server =
         Server::http(&a.listen).map_err(|e| format!("cannot listen on {}: {e}", a.listen))?;
     let shared = Arc::new(Shared::default());
-    let (jobs, rx) = mpsc::channel::<(Job, Sender<Value>)>();
+    let (jobs, rx) = mpsc::channel::<(Job, std::time::Instant, Sender<Value>)>();
     let link = Link::new(client, shared.clone(), a.rate);
     std::thread::spawn(move || link.run(rx));
     say_err!("dashboard on http://{} (Ctrl-C to stop)", a.listen);
@@ -92,7 +97,11 @@ pub(super) fn serve(cli: &Cli, a: &DashboardArgs) -> crate::CliResult {
 }
 
 /// Answer one request.
-fn answer(mut req: Request, shared: &Shared, jobs: &Sender<(Job, Sender<Value>)>) {
+fn answer(
+    mut req: Request,
+    shared: &Shared,
+    jobs: &Sender<(Job, std::time::Instant, Sender<Value>)>,
+) {
     let url = req.url().to_string();
     let (path, query) = url.split_once('?').unwrap_or((url.as_str(), ""));
     let mut body = String::new();
@@ -157,6 +166,13 @@ fn answer(mut req: Request, shared: &Shared, jobs: &Sender<(Job, Sender<Value>)>
         },
         (Method::Get, "/api/scope") => job(jobs, Job::ScopeData),
         (Method::Post, "/api/sensor-check") => job(jobs, Job::SensorCheck),
+        (Method::Post, "/api/disable") => {
+            // A running job stops at its next check; then the bridge goes off.
+            shared
+                .abort
+                .store(true, std::sync::atomic::Ordering::Relaxed);
+            job(jobs, Job::Disable)
+        }
         (Method::Post, "/api/tune") => job(jobs, Job::Tune),
         (Method::Post, "/api/rate") => match body.trim().parse::<f32>() {
             Ok(hz) => job(jobs, Job::SetRate(hz)),
@@ -170,9 +186,12 @@ fn answer(mut req: Request, shared: &Shared, jobs: &Sender<(Job, Sender<Value>)>
 }
 
 /// Run `j` on the link thread and wait for its answer.
-fn job(jobs: &Sender<(Job, Sender<Value>)>, j: Job) -> Response<std::io::Cursor<Vec<u8>>> {
+fn job(
+    jobs: &Sender<(Job, std::time::Instant, Sender<Value>)>,
+    j: Job,
+) -> Response<std::io::Cursor<Vec<u8>>> {
     let (tx, rx) = mpsc::channel();
-    if jobs.send((j, tx)).is_err() {
+    if jobs.send((j, std::time::Instant::now(), tx)).is_err() {
         return json_response(&json!({"ok": false, "error": "the link thread has stopped"}));
     }
     match rx.recv_timeout(JOB_WAIT) {

@@ -9,6 +9,7 @@ use foc_ctl::{Client, ClientError};
 use foc_protocol::message::ParamId;
 use serde_json::{json, Value};
 use std::f32::consts::TAU;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 /// Electrical speed of the sensor check's field [rad/s] (one electrical
@@ -22,8 +23,8 @@ const WATCH: Duration = Duration::from_secs(2);
 /// The sensor check: a field turned slowly in open loop at a third of the
 /// current limit (at most the open-loop voltage limit); the rotor follows
 /// it, and the sensor must see the travel the field made, the right way.
-pub(super) fn sensor_check(c: &mut Client) -> Value {
-    match check(c) {
+pub(super) fn sensor_check(c: &mut Client, abort: &AtomicBool) -> Value {
+    match check(c, abort) {
         Ok(v) => v,
         Err(e) => {
             let _ = c.set_command(Command::Disable);
@@ -32,7 +33,7 @@ pub(super) fn sensor_check(c: &mut Client) -> Value {
     }
 }
 
-fn check(c: &mut Client) -> Result<Value, ClientError> {
+fn check(c: &mut Client, abort: &AtomicBool) -> Result<Value, ClientError> {
     if c.param(ParamId::AngleSource)? == 1.0 {
         return Ok(json!({"ok": true, "pass": true, "skipped": true,
             "text": "the drive runs without an angle sensor: nothing to check"}));
@@ -56,8 +57,8 @@ fn check(c: &mut Client) -> Result<Value, ClientError> {
     };
     let pwm_hz = c.param(ParamId::PwmFrequencyHz)?;
     c.set_command(cmd)?;
-    let (p1, k1) = hold(c, SETTLE)?;
-    let (p2, k2) = hold(c, WATCH)?;
+    let (p1, k1) = hold(c, SETTLE, abort)?;
+    let (p2, k2) = hold(c, WATCH, abort)?;
     c.set_command(Command::Disable)?;
     // The field's travel over the drive's own time (its period counter: a
     // simulated drive may run faster than real time); telemetry's position
@@ -95,9 +96,14 @@ fn check(c: &mut Client) -> Result<Value, ClientError> {
 
 /// Keep the command alive for `d` (the link watchdog is armed): the
 /// position and the period counter at the end.
-fn hold(c: &mut Client, d: Duration) -> Result<(f32, u32), ClientError> {
+fn hold(c: &mut Client, d: Duration, abort: &AtomicBool) -> Result<(f32, u32), ClientError> {
     let end = Instant::now() + d;
     while Instant::now() < end {
+        if abort.load(Ordering::Relaxed) {
+            return Err(ClientError::NotReady(
+                "stopped by the page's Disable".into(),
+            ));
+        }
         c.keep_alive()?;
         std::thread::sleep(Duration::from_millis(50));
     }

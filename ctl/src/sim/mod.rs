@@ -72,6 +72,11 @@ pub struct SimDevice {
     posts_seen: u64,
     /// The drive's homing state (the last any session reported).
     homing: HomingState,
+    /// The link-watchdog setting in force (the automatic one until a host
+    /// configures one).
+    link_setting: WatchdogConfig,
+    /// Streamed samples dropped for sessions that have ended.
+    dropped_closed: u64,
 }
 
 impl core::fmt::Debug for SimDevice {
@@ -113,6 +118,27 @@ impl SimDevice {
             owner: None,
             posts_seen: 0,
             homing: HomingState::Idle,
+            link_setting: WatchdogConfig::OFF,
+            dropped_closed: 0,
+        }
+        .with_link_setting()
+    }
+
+    /// The link setting at power-on: the one loaded at boot, else the
+    /// automatic one.
+    fn with_link_setting(mut self) -> Self {
+        self.link_setting = self
+            .drive
+            .boot_link_setting()
+            .unwrap_or_else(|| self.auto_watchdog());
+        self
+    }
+
+    /// The watchdog a session arms at its first motion command.
+    fn auto_watchdog(&self) -> WatchdogConfig {
+        WatchdogConfig {
+            timeout_periods: (AUTO_WATCHDOG_S * self.drive.pwm_hz() as f32) as u32,
+            reaction: TimeoutReaction::Stop,
         }
     }
 
@@ -127,13 +153,10 @@ impl SimDevice {
     pub fn open(&mut self) -> u64 {
         let id = self.next_id;
         self.next_id += 1;
-        let auto = WatchdogConfig {
-            timeout_periods: (AUTO_WATCHDOG_S * self.drive.pwm_hz() as f32) as u32,
-            reaction: TimeoutReaction::Stop,
-        };
+        let auto = self.auto_watchdog();
         let mut state = DeviceState::with_auto_watchdog(auto);
-        if let Some(c) = self.drive.boot_link_setting() {
-            state.restore_link_setting(c);
+        if self.link_setting != auto {
+            state.restore_link_setting(self.link_setting);
         }
         state.share_homing_state(self.homing);
         self.sessions.push(Session {
@@ -158,6 +181,13 @@ impl SimDevice {
 
     fn drop_closed(&mut self) {
         let owner = self.owner;
+        let gone: u64 = self
+            .sessions
+            .iter()
+            .filter(|s| !s.open && Some(s.id) != owner)
+            .map(|s| s.dropped)
+            .sum();
+        self.dropped_closed += gone;
         self.sessions.retain(|s| s.open || Some(s.id) == owner);
     }
 
@@ -184,6 +214,44 @@ impl SimDevice {
             self.note_owner(id);
         }
         self.share_homing(id);
+        self.share_link_setting(id);
+        self.drop_closed();
+    }
+
+    /// Session `id`'s link-watchdog setting, when its host configured one
+    /// (`SetWatchdog`, a loaded record), is the drive's: every session
+    /// takes it, as the one link of a board would.
+    fn share_link_setting(&mut self, id: u64) {
+        let Some(c) = self
+            .sessions
+            .iter()
+            .find(|s| s.id == id)
+            .map(|s| s.state.link_setting())
+        else {
+            return;
+        };
+        if c == self.link_setting {
+            return;
+        }
+        self.link_setting = c;
+        for s in self.sessions.iter_mut().filter(|s| s.id != id) {
+            s.state.restore_link_setting(c);
+        }
+    }
+
+    /// Streamed samples dropped so far because a client did not read.
+    pub fn dropped(&self) -> u64 {
+        self.sessions.iter().map(|s| s.dropped).sum::<u64>() + self.dropped_closed
+    }
+
+    /// Put back what could not be sent to session `id`'s client (it goes
+    /// first next time).
+    pub fn unsend(&mut self, id: u64, rest: &[u8]) {
+        if let Some(s) = self.sessions.iter_mut().find(|s| s.id == id) {
+            let mut v = rest.to_vec();
+            v.append(&mut s.out);
+            s.out = v;
+        }
     }
 
     /// Session `id`'s homing state is the drive's: every session reports
@@ -210,10 +278,7 @@ impl SimDevice {
     fn note_owner(&mut self, id: u64) {
         if self.drive.posts() != self.posts_seen {
             self.posts_seen = self.drive.posts();
-            if self.owner != Some(id) {
-                self.owner = Some(id);
-                self.drop_closed();
-            }
+            self.owner = Some(id);
         }
     }
 
@@ -246,6 +311,7 @@ impl SimDevice {
                 self.share_homing(id);
             }
         }
+        self.drop_closed();
     }
 
     /// Take what waits for session `id`'s client.

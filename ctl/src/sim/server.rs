@@ -21,8 +21,6 @@ struct Clock {
     last: Instant,
     carry: f64,
     periods_per_s: f64,
-    /// Simulated time the machine could not keep up with \[s\].
-    behind_s: f64,
 }
 
 impl Clock {
@@ -31,7 +29,6 @@ impl Clock {
             last: Instant::now(),
             carry: 0.0,
             periods_per_s: f64::from(pwm_hz) * scale,
-            behind_s: 0.0,
         }
     }
 
@@ -43,8 +40,11 @@ impl Clock {
         self.last = now;
         let cap = (MAX_STEP_S * self.periods_per_s).max(1.0);
         if self.carry > cap {
-            self.behind_s += (self.carry - cap) / self.periods_per_s;
             self.carry = cap;
+        }
+        // Periods lent to a request are paid back before any are due.
+        if self.carry < 1.0 {
+            return 0;
         }
         let n = self.carry.floor();
         self.carry -= n;
@@ -88,18 +88,26 @@ impl Conn {
         }
     }
 
-    /// Send what waits for the client; `false` when it left.
+    /// Send what the client takes now, keep the rest for later (without
+    /// blocking: a client that stops reading loses its streamed samples,
+    /// past the session's backlog, not the other clients' time); `false`
+    /// when it left.
     fn write(&mut self, dev: &mut SimDevice) -> bool {
         let out = dev.take_output(self.id);
-        if out.is_empty() {
-            return true;
+        let mut sent = 0;
+        while sent < out.len() {
+            match self.stream.write(out.get(sent..).unwrap_or_default()) {
+                Ok(0) => return false,
+                Ok(n) => sent += n,
+                Err(e) if e.kind() == io::ErrorKind::WouldBlock => break,
+                Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
+                Err(_) => return false,
+            }
         }
-        // Blocking with a bound: a client that stops reading loses its
-        // streamed samples (the session's backlog), not the others' time.
-        let _ = self.stream.set_nonblocking(false);
-        let ok = self.stream.write_all(&out).is_ok();
-        let _ = self.stream.set_nonblocking(true);
-        ok
+        if sent < out.len() {
+            dev.unsend(self.id, out.get(sent..).unwrap_or_default());
+        }
+        true
     }
 }
 
@@ -209,5 +217,29 @@ impl Drop for SimServer {
         if let Some(t) = self.thread.take() {
             let _ = t.join();
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn periods_lent_to_a_request_are_paid_back() {
+        let mut c = Clock::new(20_000, 1.0);
+        c.carry = 0.0;
+        c.last = Instant::now();
+        // A request forces one period now...
+        assert_eq!(c.periods_at_least(1), 1);
+        assert!(c.carry < 0.0);
+        // ... so none is due until a whole period of time has passed.
+        c.last = Instant::now();
+        assert_eq!(c.periods(), 0);
+        c.carry += 1.2;
+        c.last = Instant::now();
+        assert_eq!(c.periods(), 0, "0.2 periods due, not 1");
+        c.carry += 1.0;
+        c.last = Instant::now();
+        assert_eq!(c.periods(), 1);
     }
 }

@@ -301,7 +301,8 @@ impl Lifecycle {
             LifePhase::Identify => {
                 Progress::Running(self.identification_step().unwrap_or(Step::Resistance))
             }
-            LifePhase::SensorCheck(_) | LifePhase::Run => self.report,
+            LifePhase::SensorCheck(_) => Progress::SensorCheck,
+            LifePhase::Run => self.report,
         }
     }
 
@@ -523,6 +524,7 @@ impl Lifecycle {
         let Some(reading) = s.currents.map(|c| c.to_abc()) else {
             stage.report_fault(Fault::CurrentSenseError);
             self.enter_run(stage);
+            self.report = Progress::OffsetsFailed;
             out.event = Some(Event::CurrentSenseFailed);
             return;
         };
@@ -536,7 +538,6 @@ impl Lifecycle {
                 out.offsets_a = Some(o);
                 self.offsets_ok = true;
                 self.phase = LifePhase::SensorCheck(0);
-                self.report = Progress::Done;
                 out.event = Some(Event::OffsetsDone(o));
             }
             OffsetStep::Failed(e) => {
@@ -560,17 +561,20 @@ impl Lifecycle {
         if s.angle.is_none() && stage.sensorless().is_none() {
             stage.report_fault(Fault::AngleSensorError);
             self.enter_run(stage);
+            self.report = Progress::SensorCheckFailed;
             out.event = Some(Event::SensorCheckFailed);
         } else if n.saturating_add(1) < self.config.sensor_check_reads {
             self.phase = LifePhase::SensorCheck(n + 1);
         } else if let Some(p) = self.stored_permit() {
             stage.set_calibration(&p);
             self.enter_run(stage);
+            self.report = Progress::Done;
             out.event = Some(Event::CalibrationRestored);
         } else if self.config.identify_at_start_up && self.config.identification.is_some() {
             self.start_identification(stage, &inp.command, out);
         } else {
             self.enter_run(stage);
+            self.report = Progress::Done;
             out.event = Some(Event::StartUpDone);
         }
     }

@@ -15,12 +15,17 @@ pub enum Progress {
     Idle,
     /// The current sensor's offsets are being measured (bridge off).
     Offsets,
-    /// The offset calibration rejected the readings (fault latched).
+    /// The offset calibration rejected the readings, or the current sensor
+    /// did not answer (fault latched).
     OffsetsFailed,
+    /// The angle sensor is being checked (after the offsets).
+    SensorCheck,
+    /// The angle sensor did not answer during its check (fault latched).
+    SensorCheckFailed,
     /// The identification runs this step.
     Running(Step),
-    /// The last calibration finished (offsets, or an identification whose
-    /// permit is now installed).
+    /// The last calibration finished (the offsets and the sensor check, or
+    /// an identification whose permit is now installed).
     Done,
     /// The identification failed at this step for this reason (fault
     /// `CalibrationFailed` latched).
@@ -33,6 +38,9 @@ pub enum Progress {
 impl Progress {
     /// True while a calibration runs.
     pub const fn is_running(self) -> bool {
-        matches!(self, Progress::Offsets | Progress::Running(_))
+        matches!(
+            self,
+            Progress::Offsets | Progress::SensorCheck | Progress::Running(_)
+        )
     }
 }

@@ -301,11 +301,12 @@ param_ids! {
     /// The calibration running or last run: its step
     /// ([`progress_codes`]): 0 none, 1 current offsets, 2 resistance, 3
     /// inductance, 4 current-loop gains, 5 sensor alignment, 6 flux
-    /// linkage, 7 mechanics, 8 finished.
+    /// linkage, 7 mechanics, 8 finished, 9 the angle sensor's check.
     CalibrationStep = 22, "calibration-step", "";
     /// How it stands ([`progress_codes`]): 0 none since reset, 1 running,
-    /// 2 done, 3 aborted (by a fault or a `Disable`), 4 offsets rejected,
-    /// 32 + n failed for reason n ([`failure_name`]).
+    /// 2 done, 3 aborted (by a fault or a `Disable`), 4 offsets rejected, 5
+    /// the angle sensor's check failed, 32 + n failed for reason n
+    /// ([`failure_name`]).
     CalibrationResult = 23, "calibration-result", "";
     /// The board's hardware current limit \[A\]: no limit or record goes
     /// above it (a request that does is refused `Unsupported`).

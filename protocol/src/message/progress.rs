@@ -24,7 +24,7 @@ use foc_core::drive::Progress;
 pub const FAILED_BASE: u8 = 32;
 
 /// Step names by code.
-const STEPS: [&str; 9] = [
+const STEPS: [&str; 10] = [
     "none",
     "current offsets",
     "resistance",
@@ -34,6 +34,7 @@ const STEPS: [&str; 9] = [
     "flux linkage",
     "mechanics",
     "finished",
+    "sensor check",
 ];
 
 /// Failure reasons by number (`CalError`'s variants, in order).
@@ -106,6 +107,8 @@ pub const fn progress_codes(p: Progress) -> (u8, u8) {
         Progress::Idle => (0, 0),
         Progress::Offsets => (1, 1),
         Progress::OffsetsFailed => (1, 4),
+        Progress::SensorCheck => (9, 1),
+        Progress::SensorCheckFailed => (9, 5),
         Progress::Running(s) => (step_code(s), 1),
         Progress::Done => (8, 2),
         Progress::Failed(e, s) => (step_code(s), FAILED_BASE.wrapping_add(failure_code(e))),
@@ -125,7 +128,8 @@ pub fn result_name(code: u8) -> &'static str {
         1 => "running",
         2 => "done",
         3 => "aborted (a fault, or a Disable)",
-        4 => "offsets rejected",
+        4 => "offsets rejected (or the current sensor did not answer)",
+        5 => "the angle sensor did not answer its check",
         _ => failure_name(code),
     }
 }
