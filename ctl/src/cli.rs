@@ -60,9 +60,9 @@ pub(super) enum Cmd {
         /// Interval \[ms\].
         #[arg(long, default_value_t = 100)]
         interval_ms: u64,
-        /// How long \[s\].
-        #[arg(long, default_value_t = 10.0)]
-        duration: f64,
+        /// How long \[ms\].
+        #[arg(long = "duration-ms", default_value_t = 10_000.0)]
+        duration_ms: f64,
     },
     /// Clear latched faults.
     Clear,
@@ -83,9 +83,9 @@ pub(super) enum Cmd {
         /// Instead of a rate: one sample every K current-loop periods.
         #[arg(long, value_name = "K")]
         every: Option<u32>,
-        /// How long \[s\].
-        #[arg(long, default_value_t = 5.0)]
-        duration: f64,
+        /// How long \[ms\].
+        #[arg(long = "duration-ms", default_value_t = 5000.0)]
+        duration_ms: f64,
         /// Write the samples to a CSV file.
         #[arg(long, value_name = "FILE")]
         csv: Option<PathBuf>,
@@ -141,10 +141,10 @@ pub(super) enum Cmd {
         /// Return once the drive has taken the request.
         #[arg(long)]
         no_wait: bool,
-        /// Longest wait \[s\] (the identification of a large motor takes a
+        /// Longest wait \[ms\] (the identification of a large motor takes a
         /// minute).
-        #[arg(long, default_value_t = 180.0)]
-        timeout: f64,
+        #[arg(long = "wait-ms", default_value_t = 180_000.0)]
+        wait_ms: f64,
     },
     /// Identify the motor (as `calibrate identification`): wait for the end,
     /// showing each step, then the motor's values and the loops' gains.
@@ -152,9 +152,9 @@ pub(super) enum Cmd {
         /// Return once the drive has taken the request.
         #[arg(long)]
         no_wait: bool,
-        /// Longest wait \[s\].
-        #[arg(long, default_value_t = 180.0)]
-        timeout: f64,
+        /// Longest wait \[ms\].
+        #[arg(long = "wait-ms", default_value_t = 180_000.0)]
+        wait_ms: f64,
     },
     /// The drive's configuration record: show, save, load, erase, export, import.
     Config {
@@ -334,9 +334,13 @@ pub(super) enum HomeCmd {
         /// means the stop is reached.
         #[arg(long, allow_hyphen_values = true, default_value_t = 0.7)]
         detect: f32,
-        /// How long the stop must be held \[s\].
-        #[arg(long, allow_hyphen_values = true, default_value_t = 0.05)]
-        confirm: f32,
+        /// How long the stop must be held \[ms\].
+        #[arg(
+            long = "confirm-ms",
+            allow_hyphen_values = true,
+            default_value_t = 50.0
+        )]
+        confirm_ms: f32,
         /// Distance to back off from the stop [rad, output].
         #[arg(long, allow_hyphen_values = true)]
         backoff: f32,
@@ -346,9 +350,9 @@ pub(super) enum HomeCmd {
         /// The output position the stop reads [rad, output].
         #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
         at: f32,
-        /// Longest wait for the result \[s\].
-        #[arg(long, default_value_t = 60.0)]
-        timeout: f64,
+        /// Longest wait for the result \[ms\].
+        #[arg(long = "wait-ms", default_value_t = 60_000.0)]
+        wait_ms: f64,
     },
 }
 
@@ -367,24 +371,24 @@ impl HomeCmd {
                 velocity,
                 current,
                 detect,
-                confirm,
+                confirm_ms,
                 backoff,
                 max_travel,
                 at,
-                timeout,
+                wait_ms,
             } => (
                 HomingStart {
                     method: HomingMethod::EndStop(EndStop {
                         velocity_rad_s: velocity,
                         current_a: current,
                         detect_fraction: detect,
-                        confirm_s: confirm,
+                        confirm_s: confirm_ms * 1e-3,
                         backoff_rad: backoff,
                         max_travel_rad: max_travel,
                     }),
                     home_output_rad: at,
                 },
-                timeout,
+                wait_ms * 1e-3,
             ),
         }
     }

@@ -95,14 +95,14 @@ fn dispatch(c: &mut Client, cmd: Cmd) -> CliResult {
         Cmd::Mode { mode } => set_mode(c, mode),
         Cmd::KeepAlive {
             interval_ms,
-            duration,
-        } => keep_alive(c, interval_ms, duration),
+            duration_ms,
+        } => keep_alive(c, interval_ms, duration_ms * 1e-3),
         Cmd::Faults => show_faults(c),
         Cmd::Param { name } => show_params(c, &name),
         Cmd::Telemetry {
             rate,
             every,
-            duration,
+            duration_ms,
             csv,
             plot,
             svg,
@@ -111,15 +111,15 @@ fn dispatch(c: &mut Client, cmd: Cmd) -> CliResult {
                 Some(k) => TelemetryRate::EveryPeriods(k),
                 None => TelemetryRate::Hz(rate as f32),
             };
-            stream_telemetry(c, r, duration, csv, plot, svg)
+            stream_telemetry(c, r, duration_ms * 1e-3, csv, plot, svg)
         }
         Cmd::Calibrate {
             routine,
             no_wait,
-            timeout,
-        } => calibrate(c, routine, no_wait, timeout),
-        Cmd::Identify { no_wait, timeout } => {
-            calibrate(c, Routine::Identification, no_wait, timeout)
+            wait_ms,
+        } => calibrate(c, routine, no_wait, wait_ms),
+        Cmd::Identify { no_wait, wait_ms } => {
+            calibrate(c, Routine::Identification, no_wait, wait_ms)
         }
         Cmd::Config { op } => config(c, op),
         Cmd::Joint(args) => joint(c, &args),
@@ -367,7 +367,9 @@ fn watchdog(c: &mut Client, timeout_ms: f64, reaction: Reaction) -> CliResult {
 
 /// `keep-alive`: one keep-alive every `interval_ms` for `duration` seconds.
 fn keep_alive(c: &mut Client, interval_ms: u64, duration: f64) -> CliResult {
-    let end = std::time::Instant::now() + Duration::from_secs_f64(duration.max(0.0));
+    let end = std::time::Instant::now()
+        + Duration::try_from_secs_f64(duration.max(0.0))
+            .map_err(|_| "--duration-ms: not a time")?;
     while std::time::Instant::now() < end {
         c.keep_alive()?;
         std::thread::sleep(Duration::from_millis(interval_ms));
@@ -450,7 +452,7 @@ fn configure(c: &mut Client, setting: Cmd) -> CliResult {
 
 /// `calibrate ROUTINE [--no-wait]`: start it; unless told not to, show
 /// its steps as the drive reports them and the result.
-fn calibrate(c: &mut Client, routine: Routine, no_wait: bool, timeout_s: f64) -> CliResult {
+fn calibrate(c: &mut Client, routine: Routine, no_wait: bool, wait_ms: f64) -> CliResult {
     let r = match routine {
         Routine::Offsets => Calibration::Offsets,
         Routine::Identification => Calibration::Identification,
@@ -466,10 +468,10 @@ fn calibrate(c: &mut Client, routine: Routine, no_wait: bool, timeout_s: f64) ->
     c.calibrate(r)
         .map_err(|e| refusal::explain(c, &Request::RunCalibration(r), &e))?;
     say!("{r:?}: started");
-    if !(timeout_s.is_finite() && timeout_s >= 0.0) {
-        return Err(format!("--timeout {timeout_s}: give a time in s").into());
+    if !(wait_ms.is_finite() && wait_ms >= 0.0) {
+        return Err(format!("--wait-ms {wait_ms}: give a time in ms").into());
     }
-    let timeout = Duration::from_secs_f64(timeout_s.min(3600.0));
+    let timeout = Duration::from_secs_f64((wait_ms * 1e-3).min(3600.0));
     let end = calibration::wait(c, r, before, timeout, &mut |p, t| {
         if p.running() {
             say!("{:6.1} s  {}", t.as_secs_f64(), p.step_name());
@@ -481,7 +483,7 @@ fn calibrate(c: &mut Client, routine: Routine, no_wait: bool, timeout_s: f64) ->
         )
         .into()),
         WaitEnd::TimedOut(p) => Err(format!(
-            "still running at {} after {timeout_s} s (`foc-ctl param calibration-step` follows it)",
+            "still running at {} after {wait_ms} ms (`foc-ctl param calibration-step` follows it)",
             p.step_name()
         )
         .into()),

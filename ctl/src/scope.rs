@@ -169,11 +169,11 @@ impl Client {
                 return Err(ClientError::NotReady(match r.status.state {
                     State::Armed => format!(
                         "the scope is armed and waiting for its trigger ({:?}): nothing triggered it in {t:.1} s \
-                         (`foc-ctl scope trigger` forces it; `--wait` waits longer)",
+                         (`foc-ctl scope trigger` forces it; `--wait-ms` waits longer)",
                         r.status.config.trigger
                     ),
                     _ => format!(
-                        "the scope triggered but is still recording after {t:.1} s ({} samples): wait longer (`--wait`)",
+                        "the scope triggered but is still recording after {t:.1} s ({} samples): wait longer (`--wait-ms`)",
                         r.status.captured
                     ),
                 }));

@@ -72,9 +72,9 @@ pub struct SetArgs {
 /// `scope read`.
 #[derive(Args)]
 pub struct ReadArgs {
-    /// Wait at most this long for the capture \[s\] (host time).
-    #[arg(long, default_value_t = 10.0)]
-    wait: f64,
+    /// Wait at most this long for the capture \[ms\] (host time).
+    #[arg(long = "wait-ms", default_value_t = 10_000.0)]
+    wait_ms: f64,
     /// Write the capture as CSV.
     #[arg(long, value_name = "FILE")]
     csv: Option<PathBuf>,
@@ -176,8 +176,8 @@ pub fn scope(c: &mut Client, cmd: ScopeCmd) -> CliResult {
             Ok(())
         }
         ScopeCmd::Read(a) => {
-            let wait = Duration::try_from_secs_f64(a.wait)
-                .map_err(|_| format!("--wait {}: not a time", a.wait))?;
+            let wait = Duration::try_from_secs_f64(a.wait_ms * 1e-3)
+                .map_err(|_| format!("--wait-ms {}: not a time", a.wait_ms))?;
             let cap = c.scope_capture(wait)?;
             say!(
                 "{} samples of {} signal(s), trigger at sample {}",

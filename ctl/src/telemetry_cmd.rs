@@ -117,7 +117,7 @@ pub(super) fn write_svg(
     Ok(())
 }
 
-/// `telemetry`: stream for `duration` seconds, showing each sample (a line,
+/// `telemetry`: stream for `duration` seconds (given in ms on the command line), showing each sample (a line,
 /// or sparklines with `plot`), then the optional CSV and SVG files.
 pub(super) fn stream_telemetry(
     c: &mut Client,
@@ -132,7 +132,9 @@ pub(super) fn stream_telemetry(
     let pwm_hz = c.param(ParamId::PwmFrequencyHz)?;
     let req = Request::StartTelemetry(rate);
     let t0 = std::time::Instant::now();
-    c.telemetry_with(rate, Duration::from_secs_f64(duration.max(0.0)), |s| {
+    let d =
+        Duration::try_from_secs_f64(duration.max(0.0)).map_err(|_| "--duration-ms: not a time")?;
+    c.telemetry_with(rate, d, |s| {
         samples.push(*s);
         if plot && samples.len().is_multiple_of(5) {
             plot_tail(&mut stderr, &samples, s);

@@ -166,7 +166,7 @@ fn a_scope_read_says_what_it_waits_for_and_telemetry_states_its_rate() {
     let a = server.addr();
     let o = foc_ctl(a, &["scope", "arm"]);
     assert!(o.status.success(), "{}", err(&o));
-    let o = foc_ctl(a, &["scope", "read", "--wait", "0.3"]);
+    let o = foc_ctl(a, &["scope", "read", "--wait-ms", "300"]);
     assert!(!o.status.success());
     assert!(
         err(&o).contains("armed and waiting for its trigger"),
@@ -174,7 +174,7 @@ fn a_scope_read_says_what_it_waits_for_and_telemetry_states_its_rate() {
         err(&o)
     );
     assert!(!err(&o).contains("transport error"), "{}", err(&o));
-    let o = foc_ctl(a, &["telemetry", "--rate", "300", "--duration", "0.5"]);
+    let o = foc_ctl(a, &["telemetry", "--rate", "300", "--duration-ms", "500"]);
     assert!(o.status.success(), "{}", err(&o));
     assert!(
         err(&o).contains("asked 300 Hz, given every 67 periods = 298.5 Hz at 20000 Hz PWM"),

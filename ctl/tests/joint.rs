@@ -134,8 +134,8 @@ fn cli_sets_a_joint_homes_to_an_end_stop_and_shows_the_frames() {
             "0.5",
             "--at",
             "-0.25",
-            "--timeout",
-            "20",
+            "--wait-ms",
+            "20000",
         ],
     );
     let out = text(&o.stdout);
