@@ -232,16 +232,18 @@ async function runWizard() {
 }
 
 async function wizardSteps() {
-  // 1. The motor: the drive's values; a current limit if one is given.
+  // 1. The motor: a motor file or nameplate values, applied as one record
+  // (the drive's own values kept when both are empty).
   step("motor", "running");
-  const limit = $("max-current").value.trim();
-  if (limit) {
-    const r = await runCommand(`limits --max-current ${limit}`);
-    if (!r.ok) { step("motor", "failed", r.output); return false; }
+  const values = {};
+  for (const inp of document.querySelectorAll("#step-motor .nameplate input")) {
+    if (inp.value.trim()) values[inp.dataset.key] = inp.value.trim();
   }
-  const m = await runCommand("param pole-pairs");
-  const lim = await runCommand("limits");
-  step("motor", "done", `${m.output}${lim.output}`);
+  const mr = await post("/api/motor", JSON.stringify({ file: $("motor-file").value, values }));
+  if (!mr.ok) { step("motor", "failed", mr.error); return false; }
+  const m = await post("/api/console", "param all");
+  const keep = m.output.split("\n").filter((l) => /^(pole-pairs|r |ld |lq |psi |board-max-current|max-current )/.test(l));
+  step("motor", "done", `${mr.message}\n${keep.join("\n")}`);
   // 2. Offsets.
   if (!(await calibration("offsets", "offsets", 30))) return false;
   step("offsets", "done", "the current sensing's offsets are measured");

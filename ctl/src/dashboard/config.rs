@@ -97,27 +97,53 @@ fn row(key: &str, v: &toml::Value) -> Value {
 /// Change `key` to `text` (as the TOML value of the key's type), check,
 /// send and apply (not saved).
 pub(super) fn set(c: &mut Client, key: &str, text: &str) -> Value {
-    match try_set(c, key, text) {
+    set_many(c, &[(key.to_string(), text.to_string())])
+}
+
+/// Change several keys at once (one record: all taken or none).
+pub(super) fn set_many(c: &mut Client, pairs: &[(String, String)]) -> Value {
+    match try_set(c, pairs) {
         Ok(msg) => json!({"ok": true, "message": msg}),
         Err(e) => json!({"ok": false, "error": e}),
     }
 }
 
-fn try_set(c: &mut Client, key: &str, text: &str) -> Result<String, String> {
+/// The wizard's motor step: a motor file's text (the bench's format,
+/// `tests/motors/*.toml`: pole pairs, R, Ld, Lq, flux linkage or KV, the
+/// maximum current) as configuration keys.
+pub(super) fn motor_file_pairs(text: &str) -> Result<Vec<(String, String)>, String> {
+    let f = foc_bench::motor_file::MotorFile::parse(text, "the motor file")
+        .map_err(|e| e.to_string())?;
+    Ok(vec![
+        ("motor.pole_pairs".into(), f.pole_pairs.to_string()),
+        ("motor.r_ohm".into(), f.r_ohm.to_string()),
+        ("motor.ld_h".into(), f.ld_h.to_string()),
+        ("motor.lq_h".into(), f.lq_h.to_string()),
+        (
+            "motor.flux_linkage_wb".into(),
+            f.flux_linkage_wb().to_string(),
+        ),
+        ("limits.max_current_a".into(), f.max_current_a.to_string()),
+    ])
+}
+
+fn try_set(c: &mut Client, pairs: &[(String, String)]) -> Result<String, String> {
     let mut table: toml::Table = toml::from_str(&live_toml(c)?).map_err(|e| e.to_string())?;
-    let (section, name) = key
-        .split_once('.')
-        .map_or((None, key), |(s, n)| (Some(s), n));
-    let slot = match section {
-        Some(s) => table
-            .get_mut(s)
-            .and_then(toml::Value::as_table_mut)
-            .and_then(|t| t.get_mut(name)),
-        None => table.get_mut(name),
+    for (key, text) in pairs {
+        let (section, name) = key
+            .split_once('.')
+            .map_or((None, key.as_str()), |(s, n)| (Some(s), n));
+        let slot = match section {
+            Some(s) => table
+                .get_mut(s)
+                .and_then(toml::Value::as_table_mut)
+                .and_then(|t| t.get_mut(name)),
+            None => table.get_mut(name),
+        }
+        .ok_or_else(|| format!("the record has no `{key}`"))?;
+        *slot = parse_like(slot, text)
+            .map_err(|why| format!("`{key}` = {text}: {why}; nothing was sent"))?;
     }
-    .ok_or_else(|| format!("the record has no `{key}`"))?;
-    *slot = parse_like(slot, text)
-        .map_err(|why| format!("`{key}` = {text}: {why}; nothing was sent"))?;
     let edited = toml::to_string(&table).map_err(|e| e.to_string())?;
     // The host's checks first (the same as `config import`): the first
     // bad value named by its key.
@@ -128,24 +154,28 @@ fn try_set(c: &mut Client, key: &str, text: &str) -> Result<String, String> {
         .map_err(|e| format!("cannot encode the record: {e:?}"))?;
     let bytes = buf.get(..n).unwrap_or_default();
     c.write_config(bytes).map_err(|e| e.to_string())?;
+    let what: Vec<String> = pairs.iter().map(|(k, v)| format!("`{k}` = {v}")).collect();
     match c.store(StoreOp::Apply) {
         Ok(()) => Ok(format!(
-            "`{key}` = {text} applied (not saved: the wizard's Save, or `config save`, keeps it)"
+            "{} applied (not saved: the wizard's Save, or `config save`, keeps it)",
+            what.join(", ")
         )),
-        Err(ClientError::Nack(code)) => Err(refusal(c, key, text, code)),
+        Err(ClientError::Nack(code)) => Err(refusal(c, pairs, code)),
         Err(e) => Err(e.to_string()),
     }
 }
 
 /// A refused record in words, with the board's rule where it is known.
-fn refusal(c: &mut Client, key: &str, text: &str, code: ErrorCode) -> String {
-    if key == "limits.max_current_a" {
-        if let (Ok(hw), Ok(v)) = (c.param(ParamId::BoardMaxCurrentA), text.parse::<f32>()) {
-            if v > hw {
-                return format!(
-                    "refused by the device: `{key}` = {v} A is above this board's hardware limit of {hw} A; nothing changed"
-                );
-            }
+fn refusal(c: &mut Client, pairs: &[(String, String)], code: ErrorCode) -> String {
+    let current = pairs
+        .iter()
+        .find(|(k, _)| k == "limits.max_current_a")
+        .and_then(|(_, v)| v.parse::<f32>().ok());
+    if let (Some(v), Ok(hw)) = (current, c.param(ParamId::BoardMaxCurrentA)) {
+        if v > hw {
+            return format!(
+                "refused by the device: `limits.max_current_a` = {v} A is above this board's hardware limit of {hw} A; nothing changed"
+            );
         }
     }
     format!(
@@ -181,6 +211,24 @@ mod tests {
         assert!(range.contains("> 0"), "{range}");
         assert_eq!(field_doc("limits.max_current_a").unwrap().0, "A");
         assert!(field_doc("no.such").is_none());
+    }
+
+    #[test]
+    fn a_motor_file_becomes_configuration_keys() {
+        let text = include_str!("../../../tests/motors/dji-m2006.toml");
+        let pairs = motor_file_pairs(text).unwrap();
+        let get = |k: &str| pairs.iter().find(|(x, _)| x == k).map(|(_, v)| v.clone());
+        assert_eq!(get("motor.pole_pairs").as_deref(), Some("7"));
+        assert!(get("limits.max_current_a").is_some());
+        assert!(
+            get("motor.flux_linkage_wb")
+                .unwrap()
+                .parse::<f64>()
+                .unwrap()
+                > 0.0
+        );
+        let err = motor_file_pairs("name = \"x\"").unwrap_err();
+        assert!(err.contains("the motor file"), "{err}");
     }
 
     #[test]

@@ -71,6 +71,9 @@ pub(super) enum Job {
     ConfigTree,
     /// One configuration key changed and applied.
     ConfigSet(String, String),
+    /// The wizard's motor step: a motor file's text, or nameplate values
+    /// (configuration keys), applied as one record.
+    Motor(Option<String>, Vec<(String, String)>),
     /// The scope's state, and its capture when done.
     ScopeData,
 }
@@ -338,6 +341,20 @@ impl Link {
             Job::Tune => wizard::tune_report(&mut self.c),
             Job::ConfigTree => super::config::tree(&mut self.c),
             Job::ConfigSet(key, value) => super::config::set(&mut self.c, &key, &value),
+            Job::Motor(file, mut pairs) => {
+                if let Some(text) = file {
+                    match super::config::motor_file_pairs(&text) {
+                        Ok(p) => pairs.extend(p),
+                        Err(e) => {
+                            return json!({"ok": false, "error": format!("{e}; nothing was sent")})
+                        }
+                    }
+                }
+                if pairs.is_empty() {
+                    return json!({"ok": true, "message": "the drive's values kept"});
+                }
+                super::config::set_many(&mut self.c, &pairs)
+            }
             Job::ScopeData => scope_data(&mut self.c),
             Job::SetRate(hz) => {
                 let r = TelemetryRate::Hz(hz);

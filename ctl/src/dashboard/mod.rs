@@ -20,6 +20,7 @@
 //! | `GET /api/config` | the configuration tree: each key's value, unit, range and meaning |
 //! | `POST /api/config` (`{"key", "value"}`) | the key changed and applied, or the refusal |
 //! | `GET /api/scope` | the scope's state, and its capture when done |
+//! | `POST /api/motor` (`{"file", "values"}`) | the wizard's motor step: a motor file or nameplate values applied |
 
 mod config;
 mod faults;
@@ -165,6 +166,10 @@ fn answer(
             Err(e) => json_response(&json!({"ok": false, "error": e.to_string()})),
         },
         (Method::Get, "/api/scope") => job(jobs, Job::ScopeData),
+        (Method::Post, "/api/motor") => match serde_json::from_str::<Value>(&body) {
+            Ok(v) => job(jobs, motor_job(&v)),
+            Err(e) => json_response(&json!({"ok": false, "error": e.to_string()})),
+        },
         (Method::Post, "/api/sensor-check") => job(jobs, Job::SensorCheck),
         (Method::Post, "/api/disable") => {
             // A running job stops at its next check; then the bridge goes off.
@@ -183,6 +188,27 @@ fn answer(
         _ => text("not found", "text/plain").with_status_code(404),
     };
     let _ = req.respond(r);
+}
+
+/// The wizard's motor step from the page's `{"file": text, "values":
+/// {key: value}}` (empty ones left out).
+fn motor_job(v: &Value) -> Job {
+    let file = v
+        .get("file")
+        .and_then(Value::as_str)
+        .filter(|t| !t.trim().is_empty())
+        .map(str::to_string);
+    let pairs = v
+        .get("values")
+        .and_then(Value::as_object)
+        .map(|m| {
+            m.iter()
+                .filter_map(|(k, x)| x.as_str().map(|s| (k.clone(), s.trim().to_string())))
+                .filter(|(_, s)| !s.is_empty())
+                .collect()
+        })
+        .unwrap_or_default();
+    Job::Motor(file, pairs)
 }
 
 /// Run `j` on the link thread and wait for its answer.

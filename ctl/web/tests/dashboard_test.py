@@ -230,7 +230,18 @@ class Dashboard(unittest.TestCase):
         self.assertIn("above this board's hardware limit of 10 A", motor)
         self.assertEqual(self.wd.text("#step-motor .state"), "failed")
         self.wd.screenshot(os.path.join(OUT, "3-wizard-refused.png"))
-        # A good limit: every step to the end.
+        # A motor file with a bad value: named, nothing sent.
+        self.wd.type("#max-current", "")
+        self.wd.click("#step-motor details summary")
+        self.wd.type("#motor-file", 'name = "x"\nsource = "y"\npole_pairs = 0\n')
+        self.wd.click("#wizard-run")
+        until(lambda: "stopped" in self.wd.text("#wizard-done"), 30, "the wizard stopping")
+        motor = self.wd.text("#step-motor .result")
+        self.assertIn("the motor file", motor)
+        self.assertIn("nothing was sent", motor)
+        self.wd.type("#motor-file", "")
+        # Nameplate values and a good limit: every step to the end.
+        self.wd.type("#step-motor input[data-key='motor.pole_pairs']", "7")
         self.wd.type("#max-current", "8")
         self.wd.click("#wizard-run")
         # A step is seen running with its progress.
@@ -245,7 +256,8 @@ class Dashboard(unittest.TestCase):
         self.assertIn("the sensor follows the field", results["sensor"])
         self.assertIn("r ", results["identification"])
         self.assertIn("overshoot", results["tuning"])
-        self.assertIn("max current      8 A", results["motor"])
+        self.assertIn("`limits.max_current_a` = 8, `motor.pole_pairs` = 7 applied", results["motor"])
+        self.assertRegex(results["motor"], r"max-current +8 A")
         until(lambda: self.wd.text("#calibrated") == "yes", 10, "calibrated on the page")
         # Closed loop now: a velocity command runs, and is plotted.
         text, _ = self.console("mode velocity 20")
@@ -266,7 +278,7 @@ class Dashboard(unittest.TestCase):
 
     def test_4_the_configuration_tree_and_a_scope_capture(self):
         until(lambda: (self.wd.js("return window.dash.configRows") or 0) > 30, 30, "the configuration tree")
-        key = "input[data-key='limits.max_current_a']"
+        key = "#config-tree input[data-key='limits.max_current_a']"
         unit = self.wd.js(
             "return document.querySelector(arguments[0]).closest('tr').querySelector('.unit').textContent", key
         )
@@ -278,7 +290,7 @@ class Dashboard(unittest.TestCase):
         # A value the host's checks refuse, named by its key (its section
         # opened first: the tree shows the limits open).
         self.wd.click("details[data-section='motor'] summary")
-        self.wd.type("input[data-key='motor.r_ohm']", "-1", enter=True)
+        self.wd.type("#config-tree input[data-key='motor.r_ohm']", "-1", enter=True)
         until(lambda: "motor.r_ohm" in self.wd.text("#config-msg"), 30, "the host's check")
         self.assertIn("nothing was sent", self.wd.text("#config-msg"))
         self.wd.js("document.getElementById('config').scrollIntoView()")
