@@ -17,7 +17,7 @@
 
 use crate::{Client, ClientError};
 use foc_protocol::message::{
-    failure_reason, result_name, step_name, Calibration, ParamId, FAILED_BASE,
+    failure_reason, step_name, Calibration, ParamId, FAILED_BASE, RESULT_NAMES,
 };
 use std::time::{Duration, Instant};
 
@@ -63,7 +63,7 @@ impl CalProgress {
         step_name(self.step)
     }
     /// The result in words (`"failed: RotorStuck"`, ...).
-    pub fn result_text(&self) -> &'static str {
+    pub fn result_text(&self) -> String {
         result_name(self.result)
     }
     /// A failure's reason (the drive's `CalError`), if it failed.
@@ -81,6 +81,16 @@ impl CalProgress {
             5 => "the angle sensor did not answer: its wiring and supply; `foc-ctl faults`",
             _ => self.failure().map_or("", advice_for),
         }
+    }
+}
+
+/// The words for a `calibration-result` code (`"failed: <reason>"` for a
+/// failure).
+pub fn result_name(code: u8) -> String {
+    match (RESULT_NAMES.get(usize::from(code)), failure_reason(code)) {
+        (Some(r), _) => (*r).into(),
+        (None, Some(reason)) => format!("failed: {reason}"),
+        (None, None) => "unknown".into(),
     }
 }
 

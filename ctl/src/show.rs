@@ -41,7 +41,8 @@ pub(super) fn num(v: f32) -> String {
 
 /// A parameter's value with its unit (times also in ms, codes in words).
 pub(super) fn param_text(id: ParamId, v: f32) -> String {
-    use foc_protocol::message::{result_name, step_name};
+    use foc_ctl::calibration::result_name;
+    use foc_protocol::message::step_name;
     match id {
         ParamId::CalibrationStep => format!("{} ({})", num(v), step_name(v as u8)),
         ParamId::CalibrationResult => format!("{} ({})", num(v), result_name(v as u8)),

@@ -1154,6 +1154,15 @@ fn render() -> String {
         ),
         ("codes", code_tables()),
         (
+            "calibration",
+            Json::Obj(vec![
+                ("steps".into(), Json::Arr(foc_protocol::message::STEP_NAMES.iter().map(|n| s(n)).collect())),
+                ("results".into(), Json::Arr(foc_protocol::message::RESULT_NAMES.iter().map(|n| s(n)).collect())),
+                ("failed_base".into(), int(foc_protocol::message::FAILED_BASE)),
+                ("failures".into(), Json::Arr(foc_protocol::message::FAILURE_REASONS.iter().map(|n| s(n)).collect())),
+            ]),
+        ),
+        (
             "param_names",
             Json::Obj(
                 ParamId::ALL

@@ -320,6 +320,13 @@ class Tables(unittest.TestCase):
                 for (code, name), (_, rust) in zip(pairs, rows):
                     self.assertEqual(_norm(name), _norm(aliases.get(rust, rust)), f"{table} {code}")
 
+    def test_calibration_tables(self):
+        c = DOC["calibration"]
+        self.assertEqual(list(m.CALIBRATION_STEPS), c["steps"])
+        self.assertEqual(list(m.CALIBRATION_RESULTS), c["results"])
+        self.assertEqual(m.CALIBRATION_FAILED_BASE, c["failed_base"])
+        self.assertEqual(list(m.CALIBRATION_FAILURES), c["failures"])
+
     def test_param_names(self):
         self.assertEqual({p.name: n for p, n in m.PARAM_NAMES.items()}, DOC["param_names"])
 

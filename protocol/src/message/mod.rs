@@ -306,7 +306,7 @@ param_ids! {
     /// How it stands ([`progress_codes`]): 0 none since reset, 1 running,
     /// 2 done, 3 aborted (by a fault or a `Disable`), 4 offsets rejected, 5
     /// the angle sensor's check failed, 32 + n failed for reason n
-    /// ([`failure_name`]).
+    /// ([`FAILURE_REASONS`]).
     CalibrationResult = 23, "calibration-result", "";
     /// The board's hardware current limit \[A\]: no limit or record goes
     /// above it (a request that does is refused `Unsupported`).

@@ -4,13 +4,13 @@
 //! host shows for them.
 //!
 //! ```
-//! use foc_protocol::message::{progress_codes, step_name, result_name};
+//! use foc_protocol::message::{progress_codes, step_name, failure_reason};
 //! use foc_core::drive::Progress;
 //! use foc_core::calibration::identification::Step;
 //! use foc_core::calibration::CalError;
 //! assert_eq!(progress_codes(Progress::Running(Step::Alignment)), (5, 1));
 //! let (step, result) = progress_codes(Progress::Failed(CalError::RotorStuck, Step::Flux));
-//! assert_eq!((step_name(step), result_name(result)), ("flux linkage", "failed: RotorStuck"));
+//! assert_eq!((step_name(step), failure_reason(result)), ("flux linkage", Some("RotorStuck")));
 //! ```
 //!
 //! [`ParamId::CalibrationStep`]: super::ParamId::CalibrationStep
@@ -23,8 +23,8 @@ use foc_core::drive::Progress;
 /// Result code of a failure: this plus the reason's number.
 pub const FAILED_BASE: u8 = 32;
 
-/// Step names by code.
-const STEPS: [&str; 10] = [
+/// Step names by `calibration-step` code.
+pub const STEP_NAMES: [&str; 10] = [
     "none",
     "current offsets",
     "resistance",
@@ -37,8 +37,19 @@ const STEPS: [&str; 10] = [
     "sensor check",
 ];
 
-/// Failure reasons by number (`CalError`'s variants, in order).
-const FAILURES: [&str; 21] = [
+/// The words for the `calibration-result` codes below [`FAILED_BASE`].
+pub const RESULT_NAMES: [&str; 6] = [
+    "none since reset",
+    "running",
+    "done",
+    "aborted (a fault, or a Disable)",
+    "offsets rejected (or the current sensor did not answer)",
+    "the angle sensor did not answer its check",
+];
+
+/// Failure reasons by number (`CalError`'s variants, in order): a
+/// failure's result code is [`FAILED_BASE`] plus the number.
+pub const FAILURE_REASONS: [&str; 21] = [
     "InvalidInput",
     "InvalidConfig",
     "OverCurrent",
@@ -118,49 +129,8 @@ pub const fn progress_codes(p: Progress) -> (u8, u8) {
 
 /// The name of step code `code` (`"unknown"` past the table).
 pub fn step_name(code: u8) -> &'static str {
-    STEPS.get(usize::from(code)).copied().unwrap_or("unknown")
-}
-
-/// The words for result code `code`.
-pub fn result_name(code: u8) -> &'static str {
-    match code {
-        0 => "none since reset",
-        1 => "running",
-        2 => "done",
-        3 => "aborted (a fault, or a Disable)",
-        4 => "offsets rejected (or the current sensor did not answer)",
-        5 => "the angle sensor did not answer its check",
-        _ => failure_name(code),
-    }
-}
-
-/// `"failed: <reason>"` for a failure's result code, else `"unknown"`.
-pub fn failure_name(code: u8) -> &'static str {
-    const TEXTS: [&str; 21] = [
-        "failed: InvalidInput",
-        "failed: InvalidConfig",
-        "failed: OverCurrent",
-        "failed: Timeout",
-        "failed: OpenPhase(A)",
-        "failed: OpenPhase(B)",
-        "failed: OpenPhase(C)",
-        "failed: VoltageLimitReached",
-        "failed: PhaseImbalance",
-        "failed: CurrentSenseMismatch",
-        "failed: NoCurrentResponse",
-        "failed: PolePairMismatch",
-        "failed: SensorReversed",
-        "failed: RotorStuck",
-        "failed: SensorNoMotion",
-        "failed: SpeedNotReached",
-        "failed: ImplausibleResult",
-        "failed: NoAcceleration",
-        "failed: InertiaOutOfRange",
-        "failed: FrictionOutOfRange",
-        "failed: MechanicsIllConditioned",
-    ];
-    code.checked_sub(FAILED_BASE)
-        .and_then(|n| TEXTS.get(usize::from(n)))
+    STEP_NAMES
+        .get(usize::from(code))
         .copied()
         .unwrap_or("unknown")
 }
@@ -168,6 +138,6 @@ pub fn failure_name(code: u8) -> &'static str {
 /// The reason's name of a failure's result code (`CalError`'s variant).
 pub fn failure_reason(code: u8) -> Option<&'static str> {
     code.checked_sub(FAILED_BASE)
-        .and_then(|n| FAILURES.get(usize::from(n)))
+        .and_then(|n| FAILURE_REASONS.get(usize::from(n)))
         .copied()
 }
