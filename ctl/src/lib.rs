@@ -41,6 +41,7 @@ pub mod config;
 pub mod joint;
 pub mod refusal;
 pub mod scope;
+pub mod sensor_check;
 pub mod sim;
 pub mod transport;
 pub mod tune;

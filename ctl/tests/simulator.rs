@@ -285,3 +285,46 @@ fn a_client_that_does_not_read_holds_up_no_one() {
     );
     drop(quiet);
 }
+
+#[test]
+fn the_sensor_check_passes_on_every_motor_file_and_fails_on_a_stuck_encoder() {
+    use foc_ctl::sensor_check;
+    use std::sync::atomic::AtomicBool;
+    // Every motor file, each on its own simulated drive (in parallel):
+    // open loop needs no calibration.
+    let files = foc_bench::motor_file::all_motor_files();
+    assert!(files.len() >= 6, "{files:?}");
+    let runs: Vec<_> = files
+        .into_iter()
+        .map(|path| {
+            std::thread::spawn(move || {
+                let dev = SimDevice::from_motor_file(&path).unwrap();
+                let server =
+                    SimServer::spawn_with(TcpListener::bind("127.0.0.1:0").unwrap(), dev).unwrap();
+                let mut c = client(server.addr());
+                let r = sensor_check::run(&mut c, &AtomicBool::new(false)).unwrap();
+                let mode = c.read_telemetry().unwrap().mode;
+                (path, r, mode)
+            })
+        })
+        .collect();
+    for run in runs {
+        let (path, r, mode) = run.join().unwrap();
+        eprintln!("{}: {}", path.display(), r.text);
+        assert!(r.pass && !r.skipped, "{}: {r:?}", path.display());
+        assert_eq!(
+            mode,
+            Mode::Disabled,
+            "{}: the bridge left on",
+            path.display()
+        );
+    }
+    // A frozen encoder: the check says so, the bridge is off.
+    let mut dev = SimDevice::default();
+    dev.drive.inject(foc_simdrive::FaultKind::EncoderStuck);
+    let server = SimServer::spawn_with(TcpListener::bind("127.0.0.1:0").unwrap(), dev).unwrap();
+    let mut c = client(server.addr());
+    let r = sensor_check::run(&mut c, &AtomicBool::new(false)).unwrap();
+    assert!(!r.pass && r.text.contains("saw no motion"), "{r:?}");
+    assert_eq!(c.read_telemetry().unwrap().mode, Mode::Disabled);
+}
