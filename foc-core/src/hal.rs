@@ -56,6 +56,26 @@ pub trait PwmDriver {
 
     /// True while the outputs are enabled.
     fn is_enabled(&self) -> bool;
+
+    /// The active short circuit (design §30): the three low-side switches
+    /// on, the high sides off, entered through the timer's dead time.
+    ///
+    /// Default: compare values 0, then enable if off. In centre-aligned
+    /// PWM mode 1 with complementary outputs a compare of 0 keeps each
+    /// phase's high side off for the whole period and its low side on, the
+    /// new compare taking effect at the next update event as every duty
+    /// does. A board whose bridge cannot do that must override this and
+    /// return an error (the caller then disables). After a break or any
+    /// latch that makes [`Self::enable`] refuse, this fails too: a fault
+    /// that forbids switching turns everything off.
+    fn short_circuit(&mut self) -> Result<(), Self::Error> {
+        self.set_compare([0; 3])?;
+        if self.is_enabled() {
+            Ok(())
+        } else {
+            self.enable()
+        }
+    }
     /// The operator cleared the drive's faults: release a hardware fault
     /// latch (e.g. a timer break input that fired), so that [`Self::enable`]
     /// may turn the outputs on again. Until then `enable` must refuse: a

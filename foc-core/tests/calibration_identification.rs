@@ -647,6 +647,7 @@ impl ClosedLoop {
         match bridge {
             BridgeCommand::Duties(d) => d.map(|x| (x as f64 - 0.5) * m.v_bus),
             BridgeCommand::SafeState => [0.0; 3],
+            BridgeCommand::ShortCircuit => [-0.5 * m.v_bus; 3],
         }
     }
 }

@@ -125,6 +125,10 @@ impl Plant {
     fn apply(&mut self, b: BridgeCommand) {
         match b {
             BridgeCommand::SafeState => self.enabled = false,
+            BridgeCommand::ShortCircuit => {
+                self.duties = [0.0; 3];
+                self.enabled = true;
+            }
             BridgeCommand::Duties(d) => {
                 assert!(d.iter().all(|x| (0.0..=1.0).contains(x)), "{d:?}");
                 self.duties = d;
@@ -660,7 +664,7 @@ proptest! {
                     prop_assert!(!bad, "unsafe output for a bad sample");
                     prop_assert!(d.iter().all(|x| (0.0..=1.0).contains(x)), "{:?}", d);
                 }
-                BridgeCommand::SafeState => {}
+                BridgeCommand::SafeState | BridgeCommand::ShortCircuit => {}
             }
         }
     }

@@ -364,6 +364,7 @@ impl SilRunner {
         let fb = *self.cascade.feedback();
         let (duties, on) = match bridge {
             BridgeCommand::SafeState => ([0.5f32; 3], false),
+            BridgeCommand::ShortCircuit => ([0.0f32; 3], true),
             BridgeCommand::Duties(d) => (d, true),
         };
         let fault = fb.first_fault.map(|f| format!("{f:?}"));

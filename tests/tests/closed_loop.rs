@@ -232,8 +232,10 @@ fn check_speed_figures(stem: &str, s: &Setup, m: &mission::MissionSummary) {
     );
     assert!(m.speed_overshoot_percent <= 2.0, "{stem}: step overshoot");
     assert!(m.speed_settling_ms.is_some(), "{stem}: step settling");
+    // At least 0.5 ms on the limit (GL80 with MTPA: 0.8 ms, its reluctance
+    // torque accelerating it faster than `id = 0` did, 1.7 ms).
     assert!(
-        sp.sat_limited_ms > 1.0,
+        sp.sat_limited_ms > 0.5,
         "{stem}: the current limit was not active"
     );
     assert!(

@@ -57,8 +57,12 @@ fn setup(path: &PathBuf, bus_v: f64) -> Setup {
 /// from the angle tracker, which sees only the sensor (on a locked rotor
 /// the torque-fed speed observer's model is wrong for a moment; it does not
 /// reach the current loop).
+///
+/// MTPA is off (design §30): these are q steps with `id = 0` held, the d
+/// current the measure of the cross-coupling.
 fn config(s: &Setup, aw: Option<AntiWindup>) -> CascadeConfig {
     let mut c = s.cascade_config();
+    c.current.field.mtpa = false;
     if let Some(aw) = aw {
         c.current.current.anti_windup = aw;
     }

@@ -102,7 +102,7 @@ impl Run {
                 self.obs.record(d, v_bus);
                 self.fixed.record(d, v_bus);
             }
-            BridgeCommand::SafeState => {
+            BridgeCommand::SafeState | BridgeCommand::ShortCircuit => {
                 self.obs.pause();
                 self.fixed.pause();
             }

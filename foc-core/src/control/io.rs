@@ -34,6 +34,10 @@ pub fn apply<P: PwmDriver>(pwm: &mut P, cmd: BridgeCommand) -> Result<(), Fault>
             pwm.disable();
             Ok(())
         }
+        BridgeCommand::ShortCircuit => pwm.short_circuit().map_err(|_| {
+            pwm.disable();
+            Fault::PwmError
+        }),
         BridgeCommand::Duties(d) => {
             let r = pwm.set_duties(d).and_then(|()| {
                 if pwm.is_enabled() {

@@ -63,6 +63,7 @@
 
 pub mod current;
 pub mod estimator;
+pub mod field;
 pub mod flux_observer;
 pub mod frozen;
 pub mod hfi;
@@ -496,6 +497,10 @@ impl Limits {
 pub enum BridgeCommand {
     /// All switches off (high impedance).
     SafeState,
+    /// The three low-side switches on, the high sides off (active short
+    /// circuit, design §30): the safe state above the speed where the
+    /// back-EMF would rectify into the bus through the freewheel diodes.
+    ShortCircuit,
     /// Apply these duties (phases A, B, C, each in `[0, 1]`) and enable.
     Duties([f32; 3]),
 }

@@ -11,6 +11,7 @@ use super::{ConfigChange, Inputs, Lifecycle, LifecycleConfig, Output};
 use crate::angle::ElectricalAngle;
 use crate::control::current::CurrentLoopConfig;
 use crate::control::estimator::{AngleTrackerConfig, SpeedObserverConfig};
+use crate::control::field::FieldConfig;
 use crate::control::homing::{Homing, HomingError, HomingMethod, HomingStep};
 use crate::control::joint::{JointConfig, JointError, JointSetup, OutputFrame, TravelConfig};
 use crate::control::model::ModelTolerances;
@@ -152,6 +153,7 @@ impl CascadeConfig {
                 joint: JointConfig::for_pwm(pwm_frequency_hz),
                 sensorless: None,
                 fallback: None,
+                field: FieldConfig::for_motor(&motor, max_current_a, pwm_frequency_hz),
             },
             speed: SpeedLoopConfig::from_bandwidth(
                 inertia_kg_m2,

@@ -87,6 +87,15 @@ struct Args {
     /// `disable`, `velocity` and `open_loop` commands).
     #[arg(long, value_enum, default_value_t = Sensor::Encoder)]
     sensor: Sensor,
+    /// Field weakening on (design §30): above base speed the d current
+    /// holds the voltage margin, up to the configured largest `|id|`
+    /// (the smaller of the current limit and `psi / Ld`).
+    #[arg(long)]
+    field_weakening: bool,
+    /// MTPA off (design §30; on by default where `Lq` exceeds `Ld` by
+    /// more than 5 %): `id = 0` below base speed.
+    #[arg(long)]
+    no_mtpa: bool,
 }
 
 /// The angle source.
@@ -155,6 +164,10 @@ fn main() -> ExitCode {
     config.position.ts_s = config.rates.position_ts_s();
     config.current.angle.zero_offset = ElectricalAngle::from_degrees(args.zero_offset_deg);
     config.current.angle.reversed = args.reversed;
+    config.current.field.field_weakening = args.field_weakening;
+    if args.no_mtpa {
+        config.current.field.mtpa = false;
+    }
     eprintln!(
         "foc-sil: {} | {} pole pairs, R {} ohm, Ld {} H, Lq {} H, psi {} Wb | PWM {} Hz, speed loop /{}, position loop /{} | {} | {} | ready",
         s.name,

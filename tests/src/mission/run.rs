@@ -575,9 +575,16 @@ impl Mission<'_> {
         };
         let sat = self.segment("current-limited step");
         let (sat_overshoot_percent, sat_settling_ms) = speed_step_figures(trace, &sat, w2, ts);
+        // The current limit is on the vector: with MTPA (design §30) the
+        // d current takes its share of it.
         let iq_ref = &col(trace, "iq_ref_a")[sat.start..sat.end];
+        let id_ref = &col(trace, "id_ref_a")[sat.start..sat.end];
         let lim = self.plan.i_sat as f64;
-        let on_limit = iq_ref.iter().filter(|i| i.abs() >= 0.98 * lim).count();
+        let on_limit = iq_ref
+            .iter()
+            .zip(id_ref)
+            .filter(|(q, d)| q.hypot(**d) >= 0.98 * lim)
+            .count();
         let peak_acc = |seg: &Segment| {
             let ws = &col(trace, "speed_rad_s")[seg.start..seg.end];
             // Over 1 ms (the speed's quantisation is smoothed out).

@@ -155,6 +155,7 @@ impl Sim {
         let bridge = self.cascade.step(sample);
         let (duties, on) = match bridge {
             BridgeCommand::SafeState => ([0.5; 3], false),
+            BridgeCommand::ShortCircuit => ([0.0; 3], true),
             BridgeCommand::Duties(d) => (d, true),
         };
         if self.trace.is_some() {

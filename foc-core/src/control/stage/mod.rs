@@ -13,6 +13,7 @@ mod fallback;
 mod impedance;
 mod outer;
 mod period;
+mod safe;
 mod sensorless;
 mod window;
 
@@ -25,6 +26,7 @@ use period::Sensed;
 
 use super::current::{CurrentLoop, CurrentLoopConfig, CurrentLoopInput, CurrentLoopOutput};
 use super::estimator::{AngleTracker, AngleTrackerConfig, SpeedObserver, SpeedObserverConfig};
+use super::field::{Field, FieldConfig};
 use super::joint::JointChange;
 use super::joint::{Impedance, ImpedanceLaw, JointConfig};
 use super::model::{ModelCheck, Period, Verdict};
@@ -79,6 +81,9 @@ pub struct CurrentStageConfig {
     /// of stopping the drive) and halls + sensorless, as configured;
     /// `None`: off (no observer beside the sensor).
     pub fallback: Option<BesideConfig>,
+    /// The d-current reference (MTPA, field weakening) and the safe state
+    /// by speed (design §30).
+    pub field: FieldConfig,
 }
 
 /// One period's measurements; `None` where the read failed.
@@ -176,6 +181,9 @@ pub struct CurrentStageState {
     /// The travel limits' q-current window of this period \[A\], when they
     /// are configured and a closed-loop mode is active.
     pub travel_window_a: Option<(f32, f32)>,
+    /// The safe state is the active short circuit (design §30): the
+    /// bridge is off (faulted or disabled) above the rectifying speed.
+    pub short_circuit: bool,
 }
 
 impl CurrentStageState {
@@ -224,6 +232,7 @@ impl CurrentStageState {
             blend_step: 0.0,
             timeout_damping: false,
             travel_window_a: None,
+            short_circuit: false,
         }
     }
 
@@ -239,6 +248,7 @@ impl CurrentStageState {
             rejected: self.rejected,
             calibrated: self.calibrated,
             limp_home: self.limp_home,
+            short_circuit: self.short_circuit,
             speed_inv_periods: self.speed_inv_periods,
             speed_periods: self.speed_periods,
             ..Self::new(self.interpolation)
@@ -271,6 +281,8 @@ pub struct CurrentStage {
     power: Option<PowerLimiter>,
     /// Their report of this period.
     power_report: PowerReport,
+    /// The d-current reference (design §30).
+    field: Field,
     /// The sensorless angle source, when configured (design §27).
     sensorless: Option<Sensorless>,
     /// The observer beside the sensor, when a fallback is configured.
@@ -302,6 +314,7 @@ impl CurrentStage {
             state: CurrentStageState::new(config.angle.interpolation_half_count()),
             power: config.power.map(PowerLimiter::new),
             power_report: PowerReport::unlimited(config.limits.max_current_a),
+            field: field_of(&config),
             sensorless: config.sensorless.map(Sensorless::new),
             fallback: config
                 .fallback
@@ -358,6 +371,7 @@ impl CurrentStage {
         self.state.calibrated = true;
         self.rederive_mechanics();
         self.rebuild_model();
+        self.field = field_of(&self.config);
     }
 
     /// The sensorless observer restarts with a new motor.
@@ -430,6 +444,7 @@ impl CurrentStage {
         self.revoke_calibration();
         self.rederive_mechanics();
         self.rebuild_model();
+        self.field = field_of(&self.config);
     }
 
     /// Replace the angle calibration with values no permit vouches for.
@@ -461,6 +476,30 @@ impl CurrentStage {
     /// (closed-loop current refused and clamped to nothing).
     pub fn set_limits(&mut self, l: Limits) {
         self.config.limits = sanitize_limits(l);
+        let keep = self.field;
+        self.field = field_of(&self.config);
+        self.field.keep_integrator(&keep);
+    }
+
+    /// Replace the d-current reference's configuration (design §30);
+    /// an unusable one is refused and nothing changes. The field-weakening
+    /// integrator carries over (switching it off at speed takes effect
+    /// once its d current is back at 0).
+    pub fn set_field(&mut self, f: FieldConfig) -> Result<(), &'static str> {
+        f.check()?;
+        if f.field_weakening && self.config.angle.interpolation_half_count().is_some() {
+            return Err(COARSE_FIELD_WEAKENING);
+        }
+        self.config.field = f;
+        let keep = self.field;
+        self.field = field_of(&self.config);
+        self.field.keep_integrator(&keep);
+        Ok(())
+    }
+
+    /// The d-current reference in force (design §30).
+    pub fn field(&self) -> &Field {
+        &self.field
     }
 
     /// The fault supervisor.
@@ -483,6 +522,30 @@ impl CurrentStage {
         self.mechanics = Some(*m);
         true
     }
+}
+
+/// Why field weakening is refused on a coarse angle sensor.
+pub const COARSE_FIELD_WEAKENING: &str =
+    "field weakening needs a fine angle sensor: a coarse one's (halls') half-count \
+     uncertainty turns the weakening d current into q current";
+
+/// The d-current reference of a stage configuration. Field weakening is
+/// off on a coarse angle sensor (halls, interpolated): its half-count
+/// window (30 deg electrical for halls) turns a large d current into an
+/// unknown q current of half its size.
+fn field_of(c: &CurrentStageConfig) -> Field {
+    let cur = &c.current;
+    let mut f = c.field;
+    if c.angle.interpolation_half_count().is_some() {
+        f.field_weakening = false;
+    }
+    Field::new(
+        f,
+        &cur.motor,
+        c.limits.max_current_a,
+        1.0 / cur.ts_s,
+        cur.max_modulation,
+    )
 }
 
 /// `max_current_a` not finite and non-negative -> 0.

@@ -65,7 +65,7 @@ impl CurrentStage {
         let sensed = self.sense(s, iq_ref_from_speed_a);
         self.apply_command_timeout();
         let (out, i_ref, theta_e) = self.control(&sensed, iq_ref_from_speed_a);
-        self.publish(out, i_ref, theta_e, sensed.v_bus_v, fb)
+        self.publish(out, i_ref, theta_e, sensed.v_bus_read_v, fb)
     }
 
     /// Step 2: sensors and supervision: the angle used this period, the phase
@@ -107,8 +107,10 @@ impl CurrentStage {
                 // The torque-fed observer (design §19) takes the angle used
                 // (the reading itself for a fine sensor) and the q current
                 // measured at the last period's start: the torque that
-                // drove the rotor since.
-                self.observer.update(used, self.state.last_i_dq.q);
+                // drove the rotor since (with a salient rotor's reluctance
+                // torque, design §30).
+                let torque_iq = self.field.torque_iq_a(self.state.last_i_dq);
+                self.observer.update(used, torque_iq);
                 sensed.theta_e = self.config.angle.electrical(used);
                 sensed.i_abc = cur.to_abc();
                 sensed.channels = cur.channels();
@@ -151,20 +153,34 @@ impl CurrentStage {
         let requested = self.requested_iq(iq_ref_from_speed_a);
         self.state.travel_window_a = None;
         let requested = requested.map(|iq| self.travel(iq));
+        // The d current (MTPA, field weakening) and the q current within
+        // the current circle (design §30).
+        // Not under injection (design §28): its angle is the saliency's
+        // at id = 0, which a d current would move.
+        let i_ref =
+            match requested {
+                Some(iq) if !self.field.is_idle() && !self.injecting() => Some(
+                    self.field
+                        .reference(iq, w_e, sensed.v_bus_v, self.state.last_out_v_dq),
+                ),
+                Some(iq) => Some(Dq::new(0.0, iq)),
+                None => None,
+            };
         // Stepped every period (winding estimate, chopper), faulted or not.
-        let windowed = self.power_window(sensed, w_e, requested.unwrap_or(0.0));
+        let windowed = self.power_window(sensed, w_e, i_ref.unwrap_or(Dq::ZERO));
         if self.supervisor.is_faulted() {
             self.state.active = Command::Disable;
             self.model.reset();
+            self.field.reset();
             return (None, Dq::ZERO, sensed.theta_e);
         }
         // The closed-loop modes share one (inlined) current-loop call.
         let w = &self.power_report;
-        let closed = requested.map(|iq| {
+        let closed = i_ref.map(|i| {
             if windowed {
-                Dq::new(w.id_ref_a, w.clamp(iq))
+                Dq::new(w.id_ref_a, w.clamp(i.q))
             } else {
-                Dq::new(0.0, iq)
+                i
             }
         });
         let closed = if self.sensorless.is_some() {
@@ -196,6 +212,14 @@ impl CurrentStage {
             self.model.idle(sensed.theta_e);
         }
         (out, i_ref, theta_e)
+    }
+
+    /// The sensorless drive runs on high-frequency injection (design §28).
+    #[inline(always)]
+    fn injecting(&self) -> bool {
+        self.sensorless
+            .as_ref()
+            .is_some_and(|sl| sl.region().injects())
     }
 
     /// The q-current the active closed-loop mode asks for, before the
@@ -294,9 +318,10 @@ impl CurrentStage {
         out: Option<CurrentLoopOutput>,
         i_ref: Dq,
         theta_e: ElectricalAngle,
-        v_bus: f32,
+        v_bus_read_v: Option<f32>,
         fb: &mut Feedback,
     ) -> BridgeCommand {
+        let v_bus = v_bus_read_v.unwrap_or(0.0);
         let out = match out {
             Some(o) if o.invalid => {
                 self.supervisor.trip(Fault::NonFinite);
@@ -315,8 +340,9 @@ impl CurrentStage {
             ),
             None => {
                 self.current.reset();
+                self.field.reset();
                 (
-                    BridgeCommand::SafeState,
+                    self.safe_state(v_bus_read_v),
                     [0.5; 3],
                     Dq::ZERO,
                     Dq::ZERO,

@@ -347,7 +347,7 @@ impl CurrentStage {
         self.state.torque_iq_a = if on_field {
             self.state.iq_interp_a
         } else {
-            fb.i_dq_a.q
+            self.field.torque_iq_a(fb.i_dq_a)
         };
         if on_field {
             fb.mode = Mode::OpenLoop;

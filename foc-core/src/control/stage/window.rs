@@ -53,7 +53,7 @@ impl CurrentStage {
     /// `power_report`. Without them nothing is computed (false; the
     /// published report is the current limit's window).
     #[inline(always)]
-    pub(super) fn power_window(&mut self, sensed: &Sensed, w_e: f32, iq_request_a: f32) -> bool {
+    pub(super) fn power_window(&mut self, sensed: &Sensed, w_e: f32, i_request_a: Dq) -> bool {
         let Some(p) = self.power.as_mut() else {
             return false;
         };
@@ -64,8 +64,8 @@ impl CurrentStage {
             PowerInputs {
                 v_bus_v: sensed.v_bus_read_v,
                 omega_e_rad_s: w_e,
-                i_d_a: 0.0,
-                iq_request_a,
+                i_d_a: i_request_a.d,
+                iq_request_a: i_request_a.q,
                 current_limit_a: self.config.limits.max_current_a,
                 winding_temperature_c: None,
                 stage_temperature_c: sensed.temperature_c,

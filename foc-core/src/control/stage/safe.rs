@@ -1,0 +1,67 @@
+//! The safe state chosen by speed (design §30): with the bridge off
+//! (faulted or disabled) above the speed where the back-EMF's
+//! line-to-line peak exceeds the bus, the freewheel diodes would rectify
+//! it into the bus and brake the rotor with it (uncontrolled generator
+//! mode); the three low sides switched on (active short circuit) keep
+//! the bus out of it instead. Released to freewheeling below 90 % of that
+//! speed.
+
+use super::*;
+
+/// The short circuit is released below this share of the rectifying
+/// speed (hysteresis).
+pub const RELEASE_SHARE: f32 = 0.9;
+
+impl CurrentStage {
+    /// The bridge command while the bridge is off: the short circuit or
+    /// all switches off.
+    ///
+    /// - Only with a permit installed (an identified flux linkage) and the
+    ///   short circuit configured ([`crate::control::field::FieldConfig::short_circuit`]).
+    /// - Never when the fault forbids switching (gate driver, timer break,
+    ///   PWM error): everything off.
+    /// - The speed is the tracked one; after an angle-sensor fault it is
+    ///   not known, and the decision of the last period it was stands
+    ///   until the faults are cleared (a short circuit holds the rotor
+    ///   braked; nothing flows once it stops).
+    /// - The bus is the one read; when it cannot be read the decision
+    ///   stands.
+    #[inline(always)]
+    pub(super) fn safe_state(&mut self, v_bus_read_v: Option<f32>) -> BridgeCommand {
+        let wanted = self.short_circuit_wanted(v_bus_read_v);
+        self.state.short_circuit = wanted;
+        if wanted {
+            BridgeCommand::ShortCircuit
+        } else {
+            BridgeCommand::SafeState
+        }
+    }
+
+    #[inline(always)]
+    fn short_circuit_wanted(&self, v_bus_read_v: Option<f32>) -> bool {
+        if !(self.field.short_circuit() && self.state.calibrated) {
+            return false;
+        }
+        let faults = self.supervisor.faults();
+        if faults.contains(Fault::GateDriverFault) || faults.contains(Fault::PwmError) {
+            return false;
+        }
+        let angle_lost = faults.contains(Fault::AngleSensorError)
+            || faults.contains(Fault::AngleSensorImplausible)
+            || faults.contains(Fault::AngleSensorStuck);
+        let v_bus = match v_bus_read_v {
+            Some(v) if v.is_finite() && v > 0.0 => v,
+            _ => return self.state.short_circuit,
+        };
+        if angle_lost {
+            return self.state.short_circuit;
+        }
+        let w = (self.tracker.velocity_rad_s() * self.config.angle.pole_pairs as f32).abs();
+        let on = self.field.rectifying_speed_rad_s(v_bus);
+        if self.state.short_circuit {
+            w > RELEASE_SHARE * on
+        } else {
+            w > on
+        }
+    }
+}
