@@ -418,7 +418,7 @@ fn transitions_above_base_speed_keep_current_control() {
 fn non_sinking(s: &Setup) -> DcLinkConfig {
     let v = s.bench.bus_voltage_v;
     // Capacitance: 20 periods of the rated power's current per volt.
-    let p_rated = (s.kt() * s.rated_current_a * base_speed(&s)) as f64;
+    let p_rated = (s.kt() * s.rated_current_a * base_speed(s)) as f64;
     let c = 20.0 * p_rated / (v * v * s.bench.pwm_frequency_hz);
     DcLinkConfig {
         c_f: c.max(50e-6),

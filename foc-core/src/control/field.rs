@@ -506,8 +506,8 @@ mod tests {
         // Switched off at speed, it holds until the voltage allows.
         c.field_weakening = false;
         let before = f.weakening_id_a();
-        let mut g = f;
-        g.plan.field_weakening = false;
+        let mut g = Field::new(c, &m, 18.2, 15_000.0, 0.95);
+        g.keep_integrator(&f);
         let i = g.reference(5.0, 1100.0, 540.0, Dq::new(0.0, 290.0));
         assert!(i.d <= before * 0.99, "{i:?} {before}");
         // Back at low speed with voltage to spare it rises to 0.
