@@ -475,10 +475,14 @@ impl CurrentStage {
     /// A current limit that is not a finite, non-negative number becomes 0
     /// (closed-loop current refused and clamped to nothing).
     pub fn set_limits(&mut self, l: Limits) {
+        let old_a = self.config.limits.max_current_a;
         self.config.limits = sanitize_limits(l);
-        let keep = self.field;
-        self.field = field_of(&self.config);
-        self.field.keep_integrator(&keep);
+        // The d-current reference depends on the current limit only.
+        if self.config.limits.max_current_a != old_a {
+            let keep = self.field;
+            self.field = field_of(&self.config);
+            self.field.keep_integrator(&keep);
+        }
     }
 
     /// Replace the d-current reference's configuration (design §30);
