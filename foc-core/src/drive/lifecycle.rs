@@ -421,6 +421,12 @@ impl Lifecycle {
         if ch.limits.is_some_and(|l| l.validate().is_err()) {
             return Err(Refusal::Unsupported);
         }
+        // The d-current reference: on the angle calibration in force after
+        // the change (the stage would refuse it when it is applied, after
+        // the rest of the settings).
+        if ch.field_refusal(&stage.config().angle).is_some() {
+            return Err(Refusal::Unsupported);
+        }
         Ok(())
     }
 
@@ -476,6 +482,12 @@ impl Lifecycle {
         }
         if let Some(b) = ch.beside {
             stage.set_beside(b);
+        }
+        // After the limits, the current loop and the permit (its angle
+        // calibration); `check_settings` judged it with the same rule, so
+        // the stage takes it.
+        if let Some(f) = ch.field {
+            let _taken = stage.set_field(f);
         }
     }
 

@@ -96,7 +96,7 @@ impl AngleKind {
         matches!(self, AngleKind::Absolute | AngleKind::Hall)
     }
 }
-pub use rules::{ConfigChange, JointChange, Refusal, Status};
+pub use rules::{check_field, ConfigChange, JointChange, Refusal, Status};
 
 use crate::control::io::{apply, read_sample};
 use crate::control::stage::{CurrentStage, CurrentStageConfig};

@@ -27,11 +27,12 @@
 //! ```
 
 use crate::control::current::CurrentLoopConfig;
+use crate::control::field::FieldConfig;
 pub use crate::control::joint::JointChange;
 use crate::control::permit::Calibrated;
 use crate::control::power::PowerLimitsConfig;
 use crate::control::sensorless::SensorlessConfig;
-use crate::control::stage::BesideConfig;
+use crate::control::stage::{AngleCalibration, BesideConfig, COARSE_FIELD_WEAKENING};
 pub use crate::control::Refusal;
 use crate::control::{admit, Command, CommandError, Fault, Limits, Mechanics, Mode};
 
@@ -154,6 +155,13 @@ pub struct ConfigChange {
     /// runs while the drive is on its sensor), `Some(None)` removes it.
     /// Applied after `sensorless`.
     pub beside: Option<Option<BesideConfig>>,
+    /// The d-current reference (design §30: MTPA, field weakening, the
+    /// safe state by speed), whole. Checked with [`check_field`] on the
+    /// angle calibration in force after the change (a `permit`'s, else
+    /// the stage's); a configuration it refuses refuses the change's
+    /// settings ([`Refusal::Unsupported`]). Applied after `current` and
+    /// `permit` (its constants come from the motor and the limits).
+    pub field: Option<FieldConfig>,
 }
 
 impl ConfigChange {
@@ -171,6 +179,7 @@ impl ConfigChange {
         self.joint = newer.joint.or(self.joint);
         self.sensorless = newer.sensorless.or(self.sensorless);
         self.beside = newer.beside.or(self.beside);
+        self.field = newer.field.or(self.field);
     }
 
     /// True when it carries settings (limits, current loop, dividers,
@@ -184,5 +193,243 @@ impl ConfigChange {
             || self.mechanics.is_some()
             || self.sensorless.is_some()
             || self.beside.is_some()
+            || self.field.is_some()
+    }
+
+    /// Why this change's d-current reference cannot be installed on a
+    /// stage whose angle calibration is `angle` (the change's own permit,
+    /// if it carries one, decides instead): [`check_field`]'s reason, or
+    /// `None` (no field setting, or a usable one).
+    pub fn field_refusal(&self, angle: &AngleCalibration) -> Option<&'static str> {
+        let f = self.field?;
+        let angle = self.permit.map_or(*angle, |p| p.angle());
+        check_field(&f, &angle).err()
+    }
+}
+
+/// The one rule for a d-current reference (design §30), the drive's and
+/// every front end's: [`FieldConfig::check`] (`max_id_a` finite and
+/// `>= 0`, `voltage_margin` within 0 .. 0.5, a finite bandwidth, field
+/// weakening with `max_id_a > 0` and a bandwidth), and no field weakening
+/// on a coarse angle sensor (halls, interpolated:
+/// [`AngleCalibration::interpolation_half_count`]), whose half-count
+/// window turns the weakening d current into q current
+/// ([`COARSE_FIELD_WEAKENING`]). The error is the reason, in words.
+///
+/// ```
+/// use foc_core::control::field::FieldConfig;
+/// use foc_core::control::stage::{AngleCalibration, COARSE_FIELD_WEAKENING};
+/// use foc_core::control::MotorParams;
+/// use foc_core::drive::check_field;
+/// let m = MotorParams { pole_pairs: 8, r_ohm: 0.2, ld_h: 3e-4, lq_h: 3e-4, flux_linkage_wb: 0.02 };
+/// let on = FieldConfig { field_weakening: true, ..FieldConfig::for_motor(&m, 20.0, 20_000.0) };
+/// use foc_core::angle::ElectricalAngle;
+/// let encoder = AngleCalibration {
+///     pole_pairs: 8,
+///     zero_offset: ElectricalAngle::ZERO,
+///     reversed: false,
+///     sensor_counts_per_rev: 4096,
+///     sensorless_only: false,
+/// };
+/// // Halls: 6 edges per electrical turn.
+/// let halls = AngleCalibration { sensor_counts_per_rev: 48, ..encoder };
+/// assert_eq!(check_field(&on, &encoder), Ok(()));
+/// assert_eq!(check_field(&on, &halls), Err(COARSE_FIELD_WEAKENING));
+/// let nan = FieldConfig { max_id_a: f32::NAN, ..on };
+/// assert!(check_field(&nan, &encoder).unwrap_err().contains("max_id_a"));
+/// ```
+pub fn check_field(f: &FieldConfig, angle: &AngleCalibration) -> Result<(), &'static str> {
+    f.check()?;
+    if f.field_weakening && angle.interpolation_half_count().is_some() {
+        return Err(COARSE_FIELD_WEAKENING);
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::angle::MechanicalAngle;
+    use crate::control::permit::Calibrated;
+    use crate::control::stage::Sample;
+    use crate::control::MotorParams;
+    use crate::drive::cascade::{Cascade, CascadeConfig};
+    use crate::hal::PhaseCurrents;
+
+    /// A salient motor (its characteristic current `psi / Ld` = 10 A).
+    fn cascade(counts_per_rev: u32) -> (Cascade, CascadeConfig) {
+        let motor = MotorParams {
+            pole_pairs: 8,
+            r_ohm: 0.2,
+            ld_h: 2e-3,
+            lq_h: 3e-3,
+            flux_linkage_wb: 0.02,
+        };
+        let mut cfg = CascadeConfig::for_motor(motor, 20_000.0, 20.0);
+        cfg.current.angle.sensor_counts_per_rev = counts_per_rev;
+        (Cascade::new(cfg), cfg)
+    }
+
+    /// One period; the change's verdict.
+    fn step(c: &mut Cascade) -> Option<Result<(), Refusal>> {
+        c.step(&Sample {
+            currents: Some(PhaseCurrents::TwoPhase { a_a: 0.0, b_a: 0.0 }),
+            angle: Some(MechanicalAngle::ZERO),
+            v_bus_v: Some(24.0),
+            temperature_c: None,
+        });
+        c.last_output().and_then(|o| o.change)
+    }
+
+    fn with_field(f: FieldConfig) -> ConfigChange {
+        ConfigChange {
+            field: Some(f),
+            ..ConfigChange::default()
+        }
+    }
+
+    /// A d-current reference is taken whole at the period boundary, on
+    /// the stage and in its configuration.
+    #[test]
+    fn a_field_change_is_taken_whole() {
+        let (mut c, cfg) = cascade(4096);
+        let f = FieldConfig {
+            mtpa: true,
+            field_weakening: true,
+            max_id_a: 7.5,
+            voltage_margin: 0.1,
+            bandwidth_rad_s: 500.0,
+            short_circuit: false,
+        };
+        assert_ne!(cfg.current.field, f);
+        c.request(with_field(f));
+        assert_eq!(step(&mut c), Some(Ok(())));
+        assert_eq!(c.current.config().field, f);
+        assert_eq!(*c.current.field().config(), f);
+    }
+
+    /// Every unusable value, and field weakening on a coarse sensor
+    /// (also one a permit in the same change installs), refuses the
+    /// change's settings whole: nothing changes, the rule names why.
+    #[test]
+    fn a_bad_field_change_changes_nothing_and_names_why() {
+        let (_, cfg) = cascade(4096);
+        let base = FieldConfig {
+            field_weakening: true,
+            ..cfg.current.field
+        };
+        let bad: [(FieldConfig, &str); 6] = [
+            (
+                FieldConfig {
+                    max_id_a: f32::NAN,
+                    ..base
+                },
+                "max_id_a",
+            ),
+            (
+                FieldConfig {
+                    max_id_a: -1.0,
+                    ..base
+                },
+                "max_id_a",
+            ),
+            (
+                FieldConfig {
+                    max_id_a: f32::INFINITY,
+                    ..base
+                },
+                "max_id_a",
+            ),
+            (
+                FieldConfig {
+                    voltage_margin: 0.6,
+                    ..base
+                },
+                "voltage_margin",
+            ),
+            (
+                FieldConfig {
+                    voltage_margin: f32::NAN,
+                    ..base
+                },
+                "voltage_margin",
+            ),
+            (
+                FieldConfig {
+                    bandwidth_rad_s: f32::NAN,
+                    ..base
+                },
+                "bandwidth_rad_s",
+            ),
+        ];
+        for (f, why) in bad {
+            let (mut c, cfg) = cascade(4096);
+            let mut limits = cfg.current.limits;
+            limits.max_current_a = 5.0;
+            let ch = ConfigChange {
+                limits: Some(limits),
+                ..with_field(f)
+            };
+            assert!(
+                ch.field_refusal(&cfg.current.angle)
+                    .is_some_and(|r| r.contains(why)),
+                "{f:?}"
+            );
+            c.request(ch);
+            assert_eq!(step(&mut c), Some(Err(Refusal::Unsupported)), "{f:?}");
+            assert_eq!(c.current.config().field, cfg.current.field, "{f:?}");
+            assert_eq!(c.current.config().limits, cfg.current.limits, "{f:?}");
+        }
+        // Halls (48 counts on 8 pole pairs): no field weakening, MTPA and
+        // the short circuit are fine.
+        let (mut c, cfg) = cascade(48);
+        let ch = with_field(base);
+        assert_eq!(
+            ch.field_refusal(&cfg.current.angle),
+            Some(crate::control::stage::COARSE_FIELD_WEAKENING)
+        );
+        c.request(ch);
+        assert_eq!(step(&mut c), Some(Err(Refusal::Unsupported)));
+        assert_eq!(c.current.config().field, cfg.current.field);
+        let ok = FieldConfig {
+            mtpa: true,
+            short_circuit: true,
+            ..cfg.current.field
+        };
+        c.request(with_field(ok));
+        assert_eq!(step(&mut c), Some(Ok(())));
+        assert_eq!(c.current.config().field, ok);
+        // On an encoder, with a permit for halls in the same change: judged
+        // on the permit's angle.
+        let (mut c, cfg) = cascade(4096);
+        let mut halls = cfg.current.angle;
+        halls.sensor_counts_per_rev = 48;
+        let permit = Calibrated::supplied(halls, cfg.current.current).unwrap();
+        let ch = ConfigChange {
+            permit: Some(permit),
+            ..with_field(base)
+        };
+        assert!(ch.field_refusal(&cfg.current.angle).is_some());
+        c.request(ch);
+        assert_eq!(step(&mut c), Some(Err(Refusal::Unsupported)));
+        assert!(!c.is_calibrated(), "the permit was not installed either");
+    }
+
+    /// Like every setting, only while disabled.
+    #[test]
+    fn a_field_change_waits_for_the_drive_to_be_disabled() {
+        let (mut c, cfg) = cascade(4096);
+        c.set_calibration(&Calibrated::supplied(cfg.current.angle, cfg.current.current).unwrap());
+        step(&mut c);
+        c.command(crate::control::Command::Torque { iq_a: 1.0 })
+            .unwrap();
+        step(&mut c);
+        let f = FieldConfig {
+            mtpa: true,
+            ..cfg.current.field
+        };
+        c.request(with_field(f));
+        assert_eq!(step(&mut c), Some(Err(Refusal::NotDisabled)));
+        assert_eq!(c.current.config().field, cfg.current.field);
     }
 }
