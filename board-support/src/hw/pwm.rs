@@ -20,6 +20,17 @@
 //!   DTG, BKE, BKP, AOE, OISx after set-up;
 //! - `DBGMCU_APB2_FZ.DBG_TIM1_STOP = 1`: a debugger halt stops TIM1 and
 //!   disables its outputs as if `MOE` were cleared (RM0090 17.3.20).
+//!
+//! The active short circuit is `PwmDriver::short_circuit`'s default
+//! (`CCRx = 0`, then `enable`), not overridden: in centre-aligned PWM
+//! mode 1 a compare of 0 holds `OCxREF` low for the whole period (RM0090
+//! 17.3.10, RM0390 16.3.10, RM0368 12.3.10, figure "Center-aligned PWM
+//! waveforms (ARR=8)": `CCRx = 0`, `OCxREF` '0'), so every high side stays
+//! off and every low side on, on 6-PWM as `OCxN`, the complement of
+//! `OCxREF` out of the dead-time generator (17.3.11), on 3-PWM + EN as IN
+//! low with EN high (the L6230's low side), from the next update event
+//! like any duty (entered with `MOE = 0`, the last duties run until then:
+//! at most half a period).
 
 use crate::hw::PinId;
 use crate::logic::dead_time::{encode_dead_time, DeadTime};
