@@ -17,12 +17,12 @@
 //!
 //! - MTPA follows the torque-per-ampere ridge from the identified `Ld`,
 //!   `Lq` and `psi` (the Lagrange condition of `T` on a current circle).
-//!   Turned on, it acts where `Lq` exceeds `Ld` by more than
+//!   It is on by default where `Lq` exceeds `Ld` by more than
 //!   [`MTPA_SALIENCY_MARGIN`]; below it the gain is under a fraction of a
 //!   per cent at the current limit and the square root not worth a period.
-//!   It is off by default for now: the modes' current limit is still a
-//!   limit on the asked `iq_t`, so at the limit MTPA gives `id = 0`'s
-//!   torque with less current instead of more torque (design §30).
+//!   The modes' limit is on the asked `iq_t`: at the limit MTPA gives the
+//!   torque of `id = 0` at the current limit with less current (design
+//!   §30).
 //!   The q current is capped at the MTPA point on the current circle
 //!   before `id` is taken from it, so the pair never leaves the circle.
 //! - Field weakening holds the current loop's voltage (its last output,
@@ -45,8 +45,7 @@
 //! use foc_core::frames::Dq;
 //! // The 2.2 kW interior-PM motor: MTPA gives a negative d current.
 //! let m = MotorParams { pole_pairs: 3, r_ohm: 3.6, ld_h: 0.036, lq_h: 0.051, flux_linkage_wb: 0.545 };
-//! let c = FieldConfig { mtpa: true, ..FieldConfig::for_motor(&m, 18.2, 15_000.0) };
-//! let mut f = Field::new(c, &m, 18.2, 15_000.0, 0.95);
+//! let mut f = Field::new(FieldConfig::for_motor(&m, 18.2, 15_000.0), &m, 18.2, 15_000.0, 0.95);
 //! let i = f.reference(10.0, 0.0, 540.0, Dq::ZERO);
 //! // The same torque with less q current: the reluctance torque helps.
 //! assert!(i.d < -1.0 && i.q < 10.0);
@@ -99,17 +98,15 @@ impl FieldConfig {
         short_circuit: false,
     };
 
-    /// Defaults for a motor: MTPA off (turned on, it acts only where
-    /// [`is_salient`]; not yet on by default: the current limit of the
-    /// modes is still in `id = 0` terms, design §30), field weakening off
-    /// (the user turns it on), `max_id_a` the smaller
+    /// Defaults for a motor: MTPA where [`is_salient`], field weakening
+    /// off (the user turns it on), `max_id_a` the smaller
     /// of the current limit and the characteristic current `psi / Ld`
     /// (beyond it the magnet's flux is reversed), the short circuit where
     /// its steady current `psi / Ld` is within the current limit.
     pub fn for_motor(m: &MotorParams, max_current_a: f32, pwm_frequency_hz: f32) -> Self {
         let ch = characteristic_current_a(m);
         Self {
-            mtpa: false,
+            mtpa: is_salient(m),
             field_weakening: false,
             max_id_a: if ch < max_current_a {
                 ch
@@ -534,8 +531,7 @@ mod tests {
     fn defaults_per_motor() {
         let m = ipm();
         let c = FieldConfig::for_motor(&m, 18.2, 15_000.0);
-        assert!(!c.mtpa && !c.field_weakening && c.short_circuit);
-        assert!(is_salient(&m));
+        assert!(c.mtpa && !c.field_weakening && c.short_circuit);
         assert!((c.max_id_a - 0.545 / 0.036).abs() < 1e-3);
         let surface = MotorParams {
             ld_h: 0.5e-3,

@@ -575,15 +575,20 @@ impl Mission<'_> {
         };
         let sat = self.segment("current-limited step");
         let (sat_overshoot_percent, sat_settling_ms) = speed_step_figures(trace, &sat, w2, ts);
-        // The current limit is on the vector: with MTPA (design §30) the
-        // d current takes its share of it.
+        // The limit is on the torque asked, `T / kt` (design §30): with
+        // MTPA the q current that gives it is smaller, the d current adding
+        // reluctance torque.
         let iq_ref = &col(trace, "iq_ref_a")[sat.start..sat.end];
         let id_ref = &col(trace, "id_ref_a")[sat.start..sat.end];
         let lim = self.plan.i_sat as f64;
+        let field = self.sim.cascade.current.field();
         let on_limit = iq_ref
             .iter()
             .zip(id_ref)
-            .filter(|(q, d)| q.hypot(**d) >= 0.98 * lim)
+            .filter(|(q, d)| {
+                let asked = field.torque_iq_a(foc_core::frames::Dq::new(**d as f32, **q as f32));
+                f64::from(asked.abs()) >= 0.98 * lim
+            })
             .count();
         let peak_acc = |seg: &Segment| {
             let ws = &col(trace, "speed_rad_s")[seg.start..seg.end];

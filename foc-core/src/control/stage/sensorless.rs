@@ -347,7 +347,9 @@ impl CurrentStage {
         self.state.torque_iq_a = if on_field {
             self.state.iq_interp_a
         } else {
-            self.field.torque_iq_a(fb.i_dq_a)
+            // Sensorless the d-current reference is 0 (design §30): the
+            // q current alone (an injection's d ripple times iq would bias it).
+            fb.i_dq_a.q
         };
         if on_field {
             fb.mode = Mode::OpenLoop;
