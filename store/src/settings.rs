@@ -3,7 +3,8 @@
 //!
 //! The record keeps what is tuned or identified (motor, gains, calibration,
 //! limits, loop gains, dividers, watchdog, power limits, the rotor's
-//! mechanics, the joint with the impedance maxima); the rest (loop
+//! mechanics, the joint with the impedance maxima, the angle source, the
+//! d-current reference); the rest (loop
 //! periods, modulation, decoupling, anti-windup, delay compensation) comes
 //! from the build-time settings the record is applied on
 //! ([`DriveRecord::apply`]). The acceleration feed-forwards (`J / kt`)
@@ -24,6 +25,7 @@
 //! ```
 
 use foc_core::control::current::CurrentLoopConfig;
+use foc_core::control::field::FieldConfig;
 use foc_core::control::joint::{JointSetup, OutputFrame};
 use foc_core::control::permit::Calibrated;
 use foc_core::control::position::PositionLoopConfig;
@@ -34,8 +36,8 @@ use foc_core::control::{Limits, Mechanics};
 use foc_core::drive::cascade::CascadeConfig;
 
 use crate::record::{
-    AngleRecord, BesideRole, CurrentGainsRecord, DividersRecord, DriveRecord, Invalid, JointRecord,
-    Label, LimitsRecord, MechanicsRecord, MotorRecord, PositionRecord, PowerRecord,
+    AngleRecord, BesideRole, CurrentGainsRecord, DividersRecord, DriveRecord, FieldRecord, Invalid,
+    JointRecord, Label, LimitsRecord, MechanicsRecord, MotorRecord, PositionRecord, PowerRecord,
     SensorlessRecord, SpeedRecord, WatchdogReaction, WatchdogRecord,
 };
 use foc_core::control::flux_observer::ObserverConfig;
@@ -78,6 +80,10 @@ pub struct Settings {
     /// Run without the angle sensor (design §27; [`sensorless_config`]
     /// derives the rest); `None`: on the angle sensor.
     pub sensorless: Option<SensorlessRecord>,
+    /// The d-current reference and the safe state by speed (design §30):
+    /// MTPA, field weakening (never on a coarse angle sensor: see
+    /// [`field_refusal`]), the short circuit.
+    pub field: FieldConfig,
 }
 
 impl Settings {
@@ -104,13 +110,14 @@ impl Settings {
                 joint: c.current.joint,
             },
             sensorless: sensorless_record(c),
+            field: c.current.field,
         }
     }
 
     /// `base` with these settings in force (limits, current loop, angle
     /// calibration, power limits, speed and position loops, dividers,
-    /// mechanics); the rest of `base` (tracker, supervisor, rates, timeouts)
-    /// is kept.
+    /// mechanics, the d-current reference); the rest of `base` (tracker,
+    /// supervisor, rates, timeouts) is kept.
     ///
     /// With `mechanics` (these settings', else `base`'s), foc-core's
     /// `CascadeConfig::set_mechanics` runs first, on this motor, speed-loop
@@ -143,6 +150,7 @@ impl Settings {
         c.position = self.position;
         c.rates.speed_divider = self.dividers.0;
         c.rates.position_divider = self.dividers.1;
+        c.current.field = self.field;
         if let Some(m) = self.mechanics.or(base.mechanics) {
             if c.set_mechanics(&m) {
                 c.speed = SpeedLoopConfig {
@@ -280,6 +288,22 @@ pub fn beside_config(
     })
 }
 
+/// Why the d-current reference `f` is refused with the angle calibration
+/// `angle` (foc-core's one rule, `foc_core::drive::check_field`), as the
+/// record field it concerns: field weakening on a coarse angle sensor
+/// (halls) is `field.field_weakening`; an unusable value the field's own
+/// name (as [`FieldRecord::validate`] gives it).
+pub fn field_refusal(f: &FieldConfig, angle: &AngleCalibration) -> Option<Invalid> {
+    foc_core::drive::check_field(f, angle).err()?;
+    Some(match FieldRecord::from_config(f).validate() {
+        Err(e) => e,
+        // The rest of the rule: a coarse sensor.
+        Ok(()) => Invalid {
+            field: "field.field_weakening",
+        },
+    })
+}
+
 /// The record's form of foc-core's timeout reaction.
 pub fn reaction_record(r: TimeoutReaction) -> WatchdogReaction {
     match r {
@@ -332,6 +356,7 @@ impl DriveRecord {
             mechanics: s.mechanics.as_ref().map(MechanicsRecord::from_mechanics),
             joint: Some(JointRecord::from_setup(&s.joint, &s.limits)),
             sensorless: s.sensorless,
+            field: Some(FieldRecord::from_config(&s.field)),
         }
     }
 
@@ -348,7 +373,12 @@ impl DriveRecord {
     /// maxima when it has no joint (else the record's:
     /// [`JointRecord::to_setup`], [`JointRecord::limits`]); the record's
     /// angle source always (`sensorless`; refused as
-    /// `Invalid { field: "sensorless" }` without mechanics). With mechanics
+    /// `Invalid { field: "sensorless" }` without mechanics), and its
+    /// d-current reference (without one, foc-core's
+    /// `FieldConfig::for_motor` for the record's motor, current limit and
+    /// PWM rate; field weakening on a coarse angle sensor refused as
+    /// `Invalid { field: "field.field_weakening" }`, see
+    /// [`field_refusal`]). With mechanics
     /// (the record's or base's), the acceleration feed-forwards are derived
     /// from them for the record's motor ([`Settings::set_mechanics`]);
     /// without, they are base's.
@@ -419,6 +449,13 @@ impl DriveRecord {
             return Err(Invalid {
                 field: "sensorless",
             });
+        }
+        s.field = match &self.field {
+            Some(f) => f.to_config(),
+            None => FieldConfig::for_motor(&s.current.motor, self.limits.max_current_a, pwm),
+        };
+        if let Some(e) = field_refusal(&s.field, &s.angle) {
+            return Err(e);
         }
         Ok(s)
     }

@@ -7,7 +7,8 @@
 //! use foc_store::text::{from_toml, to_toml};
 //! # let r = foc_store::record::example();
 //! let text = to_toml(&r);
-//! assert!(text.contains("schema_version = 7"));
+//! assert!(text.contains("schema_version = 8"));
+//! assert!(text.contains("[field]\nmtpa = false\nfield_weakening = true\nmax_id_a = 4.0"));
 //! assert!(text.contains("[joint]"));
 //! assert!(text.contains("[motor]"));
 //! assert_eq!(from_toml(&text), Ok(r));
@@ -21,9 +22,9 @@ use std::string::{String, ToString};
 use serde::{Deserialize, Serialize};
 
 use crate::record::{
-    AngleRecord, CurrentGainsRecord, DividersRecord, DriveRecord, JointRecord, Label, LimitsRecord,
-    MechanicsRecord, MotorRecord, PositionRecord, PowerRecord, SensorlessRecord, SpeedRecord,
-    WatchdogRecord, SCHEMA_VERSION,
+    AngleRecord, CurrentGainsRecord, DividersRecord, DriveRecord, FieldRecord, JointRecord, Label,
+    LimitsRecord, MechanicsRecord, MotorRecord, PositionRecord, PowerRecord, SensorlessRecord,
+    SpeedRecord, WatchdogRecord, SCHEMA_VERSION,
 };
 
 /// The file layout: the record's fields with the schema version first.
@@ -50,11 +51,13 @@ struct TomlFile {
     joint: Option<JointRecord>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     sensorless: Option<SensorlessRecord>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    field: Option<FieldRecord>,
 }
 
 /// The record as a TOML document (no `[calibration]`, `[power]`,
-/// `[mechanics]`, `[joint]` or `[sensorless]` table when the record has
-/// none; no
+/// `[mechanics]`, `[joint]`, `[sensorless]` or `[field]` table when the
+/// record has none; no
 /// `travel_out_rad` key in `[joint]` without a travel range).
 pub fn to_toml(r: &DriveRecord) -> String {
     let file = TomlFile {
@@ -73,6 +76,7 @@ pub fn to_toml(r: &DriveRecord) -> String {
         mechanics: r.mechanics,
         joint: r.joint,
         sensorless: r.sensorless,
+        field: r.field,
     };
     match toml::to_string(&file) {
         Ok(s) => s,
@@ -88,10 +92,12 @@ pub fn from_toml(s: &str) -> Result<DriveRecord, String> {
     let table: toml::Table = toml::from_str(s).map_err(|e| e.to_string())?;
     match table.get("schema_version") {
         None => return Err("missing top-level key `schema_version`".to_string()),
-        // Version 1 is version 6 without the `[power]`, `[mechanics]`,
-        // `[joint]` and `[sensorless]` tables, version 2 without
-        // `[mechanics]` and what follows, and so on; version 4 has no
-        // `[sensorless]`; version 5 has no roles beside the sensor.
+        // Version 1 is version 8 without the `[power]`, `[mechanics]`,
+        // `[joint]`, `[sensorless]` and `[field]` tables, version 2
+        // without `[mechanics]` and what follows, and so on; version 4 has
+        // no `[sensorless]`; version 5 has no roles beside the sensor;
+        // version 7 no `[field]` (the motor's defaults, as a stored
+        // version-7 record).
         Some(toml::Value::Integer(v)) if (1..=i64::from(SCHEMA_VERSION)).contains(v) => {}
         Some(v) => {
             return Err(format!(
@@ -115,6 +121,7 @@ pub fn from_toml(s: &str) -> Result<DriveRecord, String> {
         mechanics: f.mechanics,
         joint: f.joint,
         sensorless: f.sensorless,
+        field: f.field,
     };
     r.validate().map_err(|e| e.to_string())?;
     Ok(r)

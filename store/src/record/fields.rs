@@ -166,6 +166,63 @@ impl SensorlessRecord {
     }
 }
 
+impl FieldRecord {
+    /// Check every value with foc-core's rule (`FieldConfig::check`),
+    /// one value at a time so the error names it: `max_id_a`,
+    /// `voltage_margin`, `bandwidth_rad_s`, then `field_weakening`
+    /// (it needs `max_id_a > 0` and a bandwidth).
+    pub fn validate(&self) -> Result<(), Invalid> {
+        let alone = |c: FieldConfig| c.check().is_ok();
+        let off = FieldConfig::OFF;
+        check(
+            alone(FieldConfig {
+                max_id_a: self.max_id_a,
+                ..off
+            }),
+            "field.max_id_a",
+        )?;
+        check(
+            alone(FieldConfig {
+                voltage_margin: self.voltage_margin,
+                ..off
+            }),
+            "field.voltage_margin",
+        )?;
+        check(
+            alone(FieldConfig {
+                bandwidth_rad_s: self.bandwidth_rad_s,
+                ..off
+            }),
+            "field.bandwidth_rad_s",
+        )?;
+        check(alone(self.to_config()), "field.field_weakening")
+    }
+
+    /// foc-core's form.
+    pub fn to_config(&self) -> FieldConfig {
+        FieldConfig {
+            mtpa: self.mtpa,
+            field_weakening: self.field_weakening,
+            max_id_a: self.max_id_a,
+            voltage_margin: self.voltage_margin,
+            bandwidth_rad_s: self.bandwidth_rad_s,
+            short_circuit: self.short_circuit,
+        }
+    }
+
+    /// The record's form of foc-core's.
+    pub fn from_config(c: &FieldConfig) -> Self {
+        Self {
+            mtpa: c.mtpa,
+            field_weakening: c.field_weakening,
+            max_id_a: c.max_id_a,
+            voltage_margin: c.voltage_margin,
+            bandwidth_rad_s: c.bandwidth_rad_s,
+            short_circuit: c.short_circuit,
+        }
+    }
+}
+
 impl MechanicsRecord {
     /// The plausible inertias [kg m^2]: from a small gimbal motor's rotor
     /// alone to a large servo with its load.

@@ -34,13 +34,14 @@ mod migrate;
 
 pub use fields::*;
 use migrate::migrate;
-pub use migrate::{v1, v2, v3, v4, v5, v6, AngleRecordV6};
+pub use migrate::{v1, v2, v3, v4, v5, v6, v7, AngleRecordV6};
 
 use core::f32::consts::TAU;
 use core::fmt;
 
 use foc_core::angle::ElectricalAngle;
 use foc_core::control::current::CurrentLoopConfig;
+use foc_core::control::field::FieldConfig;
 use foc_core::control::joint::{JointConfig, JointError, JointSetup, OutputFrame, TravelConfig};
 use foc_core::control::permit::Calibrated;
 use foc_core::control::power::PowerLimitsConfig;
@@ -52,11 +53,11 @@ use serde::{Deserialize, Serialize};
 /// Version of the schema written by this build ([`DriveRecord`]'s postcard
 /// layout). Bump it on any change of the layout and add a migration step in
 /// `migrate` for the old version.
-pub const SCHEMA_VERSION: u16 = 7;
+pub const SCHEMA_VERSION: u16 = 8;
 
 /// Largest envelope (header, payload and CRC) in bytes. The largest record
-/// of schema 7 (32-character label, every option `Some`, every varint at
-/// its widest) takes 293; the rest is room for a later schema. The link
+/// of schema 8 (32-character label, every option `Some`, every varint at
+/// its widest) takes 309; the rest is room for a later schema. The link
 /// must move records this long (`foc_protocol::config::MAX_RECORD`).
 pub const MAX_RECORD_BYTES: usize = 320;
 
@@ -289,6 +290,32 @@ pub enum BesideRole {
     HallSensorless,
 }
 
+/// The d-current reference and the safe state by speed (design §30;
+/// foc-core's `FieldConfig`, every value of it). Checked with foc-core's
+/// own rule (`FieldConfig::check`) value by value; field weakening on a
+/// coarse angle sensor (halls) is refused where the record is applied
+/// ([`DriveRecord::apply`]: the board's sensor decides).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FieldRecord {
+    /// Maximum torque per ampere (acts on a salient rotor: `Lq` more
+    /// than 5 % above `Ld`).
+    pub mtpa: bool,
+    /// Field weakening above base speed (needs `max_id_a > 0`,
+    /// `bandwidth_rad_s > 0` and a fine angle sensor).
+    pub field_weakening: bool,
+    /// Largest `|id|` field weakening may use \[A\] (finite, `>= 0`; the
+    /// magnets' demagnetisation limit; at most the current limit is used).
+    pub max_id_a: f32,
+    /// Share of the voltage circle field weakening keeps free (0 to 0.5).
+    pub voltage_margin: f32,
+    /// Field-weakening loop bandwidth \[rad/s\] (finite, `>= 0`).
+    pub bandwidth_rad_s: f32,
+    /// The active short circuit as the safe state above the speed where
+    /// the back-EMF's peak exceeds the bus (else the bridge freewheels).
+    pub short_circuit: bool,
+}
+
 /// The robot joint (design §21; foc-core's `JointSetup`) and the impedance
 /// maxima of the command limits.
 ///
@@ -371,6 +398,13 @@ pub struct DriveRecord {
     /// Run without the angle sensor (design §27); `None`: on the angle
     /// sensor (what a record from before schema 5 becomes).
     pub sensorless: Option<SensorlessRecord>,
+    /// The d-current reference and the safe state by speed (design §30);
+    /// `None`: the motor's defaults (foc-core's `FieldConfig::for_motor`
+    /// with the record's motor, current limit and PWM rate: MTPA as
+    /// foc-core decides for the motor, no field weakening, the short
+    /// circuit where its current is within the limit), what a record from
+    /// before schema 8 becomes.
+    pub field: Option<FieldRecord>,
 }
 
 /// Why bytes are not a record (see [`DriveRecord::decode`]).
@@ -437,9 +471,9 @@ impl DriveRecord {
 
     /// Read an envelope: length, then CRC, then version ([`SCHEMA_VERSION`]
     /// decodes; a newer one is [`RecordError::UnsupportedVersion`]; an older
-    /// one goes through the migration steps: version 1 to 4 records
-    /// decode with `power`, `mechanics`, `joint` and `sensorless` at `None`
-    /// where they had none).
+    /// one goes through the migration steps: version 1 to 7 records
+    /// decode with `power`, `mechanics`, `joint`, `sensorless` and `field`
+    /// at `None` where they had none).
     /// `bytes` must be exactly one envelope. Does not validate.
     pub fn decode(bytes: &[u8]) -> Result<DriveRecord, RecordError> {
         let (version, payload) = crate::envelope::open(bytes, MAX_RECORD_BYTES)?;
@@ -529,7 +563,8 @@ impl DriveRecord {
         check(self.dividers.position >= 1, "dividers.position")
     }
 
-    /// The optional parts: power limits, mechanics, joint.
+    /// The optional parts: power limits, mechanics, joint, sensorless,
+    /// the d-current reference.
     fn validate_options(&self) -> Result<(), Invalid> {
         if let Some(p) = &self.power {
             p.validate()?;
@@ -553,6 +588,9 @@ impl DriveRecord {
                 !sl.replaces_sensor() || self.joint.is_none_or(|j| j.travel_out_rad.is_none()),
                 "sensorless",
             )?;
+        }
+        if let Some(f) = &self.field {
+            f.validate()?;
         }
         Ok(())
     }
@@ -674,5 +712,13 @@ pub fn example() -> DriveRecord {
             max_kd_nm_s_per_rad: 0.5,
         }),
         sensorless: None,
+        field: Some(FieldRecord {
+            mtpa: false,
+            field_weakening: true,
+            max_id_a: 4.0,
+            voltage_margin: 0.05,
+            bandwidth_rad_s: 2000.0,
+            short_circuit: false,
+        }),
     }
 }

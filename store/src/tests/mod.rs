@@ -16,14 +16,19 @@ use crate::record::{
     SpeedRecord, WatchdogReaction, WatchdogRecord,
 };
 
-/// Record A of the tests.
+/// Record A of the tests: the example without its `[field]` table (as
+/// every schema before 8 held it, so the older versions' goldens decode
+/// to it; [`record_tests`]' `field_record` has one).
 pub(crate) fn record_a() -> DriveRecord {
-    example()
+    DriveRecord {
+        field: None,
+        ..example()
+    }
 }
 
 /// Record B: differs from A in every part (so a mix would be visible).
 pub(crate) fn record_b() -> DriveRecord {
-    let mut r = example();
+    let mut r = record_a();
     r.label = Label::try_from("second record, other motor").unwrap();
     r.pwm_frequency_hz = 16_000;
     r.motor.pole_pairs = 4;
@@ -140,6 +145,14 @@ pub(crate) fn largest_record() -> DriveRecord {
             bus_voltage_v: f32::MAX,
             beside_sensor: Some(crate::record::BesideRole::HallSensorless),
             observer_above_rad_s: Some(f32::MAX),
+        }),
+        field: Some(crate::record::FieldRecord {
+            mtpa: true,
+            field_weakening: true,
+            max_id_a: f32::MAX,
+            voltage_margin: f32::MAX,
+            bandwidth_rad_s: f32::MAX,
+            short_circuit: true,
         }),
     }
 }

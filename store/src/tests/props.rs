@@ -117,6 +117,28 @@ prop_compose! {
     }
 }
 
+/// A valid `[field]` table or none (boxed: the record's strategy is deep
+/// enough without it). Field weakening only with a current and a
+/// bandwidth (the rule).
+fn field() -> BoxedStrategy<Option<crate::record::FieldRecord>> {
+    proptest::option::of((any::<[bool; 3]>(), 0.0f32..1e5, 0.0f32..=0.5, 0.0f32..1e5))
+        .prop_map(|f| {
+            f.map(
+                |([mtpa, fw, sc], max_id_a, voltage_margin, bandwidth_rad_s)| {
+                    crate::record::FieldRecord {
+                        mtpa,
+                        field_weakening: fw && max_id_a > 0.0 && bandwidth_rad_s > 0.0,
+                        max_id_a,
+                        voltage_margin,
+                        bandwidth_rad_s,
+                        short_circuit: sc,
+                    }
+                },
+            )
+        })
+        .boxed()
+}
+
 fn label() -> impl Strategy<Value = Label> {
     "[ -~]{0,32}".prop_map(|s| Label::try_from(s.as_str()).unwrap())
 }
@@ -129,8 +151,14 @@ fn reaction() -> impl Strategy<Value = WatchdogReaction> {
     ]
 }
 
+/// [`valid_record_tree`] boxed: its value tree is large, and a test takes
+/// two of them (the test thread's stack).
+fn valid_record() -> BoxedStrategy<DriveRecord> {
+    valid_record_tree().boxed()
+}
+
 prop_compose! {
-    fn valid_record()(
+    fn valid_record_tree()(
         label in label(),
         pwm in 1u32..200_000,
         pole_pairs in 1u8..=50,
@@ -146,6 +174,7 @@ prop_compose! {
         mechanics in proptest::option::of(mechanics()),
         joint in proptest::option::of(joint()),
         sensorless in proptest::option::of((0.0f32..=1.0, 1.0f32..=1000.0)),
+        field in field(),
     ) -> DriveRecord {
         // Mechanics need a torque constant (flux > 0); sensorless needs
         // them (the build's have none here).
@@ -188,6 +217,7 @@ prop_compose! {
                 beside_sensor: None,
                 observer_above_rad_s: None,
             }),
+            field,
         }
     }
 }
@@ -299,6 +329,7 @@ proptest! {
             (j.min_position_rad, j.max_position_rad)
         );
         prop_assert_eq!(c.current.joint, j.joint);
+        prop_assert_eq!(c.current.field, s.field);
         prop_assert_eq!(c.current.limits.max_kp_nm_per_rad, s.limits.max_kp_nm_per_rad);
         let back = Settings::from_cascade(&c);
         prop_assert_eq!((back.speed, back.position, back.mechanics), (s.speed, s.position, s.mechanics));

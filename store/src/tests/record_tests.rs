@@ -90,6 +90,30 @@ fn largest_record_fits() {
     );
     r.sensorless.as_mut().unwrap().observer_above_rad_s =
         Some(SensorlessRecord::MAX_OBSERVER_ABOVE_RAD_S);
+    // The d-current reference: foc-core's bounds, value by value.
+    assert_eq!(
+        r.validate(),
+        Err(Invalid {
+            field: "field.max_id_a"
+        })
+    );
+    let f = r.field.as_mut().unwrap();
+    f.max_id_a = 9.99e5;
+    assert_eq!(
+        r.validate(),
+        Err(Invalid {
+            field: "field.voltage_margin"
+        })
+    );
+    let f = r.field.as_mut().unwrap();
+    f.voltage_margin = 0.5;
+    assert_eq!(
+        r.validate(),
+        Err(Invalid {
+            field: "field.bandwidth_rad_s"
+        })
+    );
+    r.field.as_mut().unwrap().bandwidth_rad_s = 9.99e5;
     // Beside the sensor, a travel range is fine.
     assert_eq!(r.validate(), Ok(()));
     r.sensorless.as_mut().unwrap().beside_sensor = None;
@@ -111,15 +135,18 @@ fn the_joint_costs_its_size_and_no_more() {
     // Schema 4 adds at most 47 bytes (tag, 9 f32, range tag, u32 varint)
     // to the largest version-3 record (229 bytes), schema 5 at most 9
     // (tag, 2 f32), schema 6 at most 7 (role tag and variant, speed tag
-    // and f32), schema 7 one (the calibration's `sensorless_only`).
+    // and f32), schema 7 one (the calibration's `sensorless_only`),
+    // schema 8 at most 16 (tag, 3 bool, 3 f32).
     let mut r = largest_record();
     let with = encoded(&r).len();
-    assert_eq!(with, 229 + 47 + 9 + 7 + 1);
+    assert_eq!(with, 229 + 47 + 9 + 7 + 1 + 16);
+    r.field = None;
+    assert_eq!(encoded(&r).len(), 229 + 47 + 9 + 7 + 1 + 1);
     r.sensorless = None;
-    assert_eq!(encoded(&r).len(), 229 + 47 + 1 + 1);
+    assert_eq!(encoded(&r).len(), 229 + 47 + 1 + 1 + 1);
     r.joint = None;
     // Without a joint: its `None` tag only.
-    assert_eq!(encoded(&r).len(), 229 + 1 + 1 + 1);
+    assert_eq!(encoded(&r).len(), 229 + 1 + 1 + 1 + 1);
     assert!(with <= MAX_RECORD_BYTES);
     let mut buf = [0u8; MAX_RECORD_BYTES];
     let v3 = postcard::to_slice(&as_v3(&largest_record()), &mut buf).unwrap();
@@ -438,7 +465,8 @@ fn a_version_1_record_migrates_with_the_build_default_power_limits() {
             .into_v4()
             .into_v5()
             .into_v6()
-            .into_v7(),
+            .into_v7()
+            .into_v8(),
         migrated
     );
     // A version-2, -3 or -4 payload under version 1 is not a version-1
@@ -477,7 +505,8 @@ fn a_version_2_record_migrates_without_mechanics() {
                 .into_v4()
                 .into_v5()
                 .into_v6()
-                .into_v7(),
+                .into_v7()
+                .into_v8(),
             migrated
         );
         // A version-3 or -4 payload (with or without mechanics) under
@@ -524,7 +553,12 @@ fn a_version_3_record_migrates_without_the_joint() {
         );
         assert_eq!(migrated.validate(), Ok(()));
         assert_eq!(
-            as_v3(&now).into_v4().into_v5().into_v6().into_v7(),
+            as_v3(&now)
+                .into_v4()
+                .into_v5()
+                .into_v6()
+                .into_v7()
+                .into_v8(),
             migrated
         );
         // A version-4 payload (with or without the joint) under version 3
@@ -566,13 +600,14 @@ fn a_migrated_record_applies_with_the_builds_joint() {
         (s.limits.max_kp_nm_per_rad, s.limits.max_kd_nm_s_per_rad),
         (7.0, base.limits.max_kd_nm_s_per_rad)
     );
-    // Saved again: with the joint, schema 7.
+    // Saved again: with the joint (and the d-current reference), schema 8.
     let again = DriveRecord::from_settings(&migrated.label, 20_000, &s);
     assert_eq!(
         again.joint,
         Some(JointRecord::from_setup(&base.joint, &base.limits))
     );
-    assert_eq!(encoded(&again)[0], 7);
+    assert!(again.field.is_some());
+    assert_eq!(encoded(&again)[0], 8);
 }
 
 /// `r` in the version-4 layout (what it loses: `sensorless`).
@@ -599,7 +634,10 @@ fn a_version_4_record_migrates_on_the_angle_sensor() {
             },
             now
         );
-        assert_eq!(as_v4(&now).into_v5().into_v6().into_v7(), migrated);
+        assert_eq!(
+            as_v4(&now).into_v5().into_v6().into_v7().into_v8(),
+            migrated
+        );
         // A version-5 payload under version 4 is not a version-4 record,
         // nor a version-4 payload one of version 5.
         assert_eq!(
@@ -971,7 +1009,8 @@ fn joint_is_checked_field_by_field() {
 fn joint_round_trips_through_settings() {
     use crate::Settings;
     use foc_core::drive::cascade::CascadeConfig;
-    let r = record_a();
+    // (With its `[field]` table: settings always write one.)
+    let r = crate::record::example();
     let build = CascadeConfig::for_motor(r.motor.to_params(), 20_000.0, 5.0);
     let base = Settings::from_cascade(&build);
     let j = r.joint.unwrap();
@@ -1347,10 +1386,8 @@ const V6_GOLDEN: [u8; 256] = [
     0x40, 0x00, 0x00, 0xc0, 0x41, 0x01, 0x02, 0x01, 0x00, 0x00, 0x20, 0x42, 0x4f, 0x22, 0x6f, 0x97,
 ];
 
-/// [`hybrid_record`] as this build (schema version 7) writes it, captured
-/// when the golden was added. When the layout changes, the schema version
-/// goes up and this envelope becomes a frozen version's golden; until then
-/// any change to `DriveRecord` or a sub-record's layout fails here.
+/// [`hybrid_record`] as schema version 7 wrote it (frozen: decoded by
+/// [`crate::record::v7::DriveRecordV7`] and migrated).
 const V7_GOLDEN: [u8; 257] = [
     0x07, 0x00, 0xf9, 0x00, 0x0b, 0x62, 0x65, 0x6e, 0x63, 0x68, 0x20, 0x6d, 0x6f, 0x74, 0x6f, 0x72,
     0xa0, 0x9c, 0x01, 0x07, 0xcd, 0xcc, 0x4c, 0x3e, 0x82, 0xa8, 0x7b, 0x38, 0xf7, 0xcc, 0x92, 0x38,
@@ -1371,15 +1408,251 @@ const V7_GOLDEN: [u8; 257] = [
     0x8b,
 ];
 
+/// [`hybrid_record`] with a d-current reference: MTPA, field weakening
+/// up to 4 A with a 10 % margin and a 2000 rad/s loop, the short circuit.
+fn field_record() -> DriveRecord {
+    let mut r = hybrid_record();
+    r.field = Some(crate::record::FieldRecord {
+        mtpa: true,
+        field_weakening: true,
+        max_id_a: 4.0,
+        voltage_margin: 0.1,
+        bandwidth_rad_s: 2000.0,
+        short_circuit: true,
+    });
+    r
+}
+
+/// [`field_record`] as this build (schema version 8) writes it, captured
+/// when the golden was added. When the layout changes, the schema version
+/// goes up and this envelope becomes a frozen version's golden; until then
+/// any change to `DriveRecord` or a sub-record's layout fails here.
+const V8_GOLDEN: [u8; 273] = [
+    0x08, 0x00, 0x09, 0x01, 0x0b, 0x62, 0x65, 0x6e, 0x63, 0x68, 0x20, 0x6d, 0x6f, 0x74, 0x6f, 0x72,
+    0xa0, 0x9c, 0x01, 0x07, 0xcd, 0xcc, 0x4c, 0x3e, 0x82, 0xa8, 0x7b, 0x38, 0xf7, 0xcc, 0x92, 0x38,
+    0x6f, 0x12, 0x83, 0x3b, 0x9a, 0x99, 0x99, 0x3e, 0x00, 0x00, 0x7a, 0x44, 0x33, 0x33, 0xb3, 0x3e,
+    0x00, 0x00, 0x7a, 0x44, 0x01, 0x00, 0x00, 0xa0, 0x3f, 0x01, 0x07, 0x80, 0x20, 0x00, 0x00, 0x00,
+    0xa0, 0x40, 0x00, 0x00, 0x96, 0x43, 0x00, 0x00, 0xc8, 0xc2, 0x00, 0x00, 0xc8, 0x42, 0x00, 0x00,
+    0x40, 0x40, 0x00, 0x00, 0xfa, 0x43, 0xcd, 0xcc, 0x4c, 0x3d, 0x00, 0x00, 0xc0, 0x3f, 0x00, 0x00,
+    0xf0, 0x41, 0x00, 0x00, 0xc8, 0x42, 0x00, 0x00, 0x7a, 0x44, 0x0a, 0x14, 0xd0, 0x0f, 0x01, 0x01,
+    0x00, 0x00, 0xcc, 0x41, 0x00, 0x00, 0xe4, 0x41, 0x00, 0x00, 0x80, 0x7f, 0x00, 0x00, 0x20, 0x41,
+    0x00, 0x00, 0x00, 0x40, 0x00, 0x00, 0x80, 0x7f, 0x00, 0x00, 0x80, 0x7f, 0x00, 0x00, 0x00, 0x40,
+    0x00, 0x00, 0x70, 0x42, 0x00, 0x00, 0x20, 0x42, 0x00, 0x00, 0xc8, 0x42, 0x00, 0x00, 0xf0, 0x42,
+    0x00, 0x00, 0x82, 0x42, 0x00, 0x00, 0xaa, 0x42, 0x00, 0x00, 0x80, 0x7f, 0x00, 0x00, 0x80, 0x7f,
+    0x00, 0x00, 0x80, 0x3f, 0x01, 0x17, 0xb7, 0xd1, 0x37, 0xac, 0xc5, 0x27, 0x37, 0x6f, 0x12, 0x03,
+    0x3b, 0x01, 0x00, 0x00, 0x10, 0xc1, 0x00, 0x00, 0xc0, 0x3f, 0x01, 0x00, 0x00, 0xc0, 0xbf, 0x00,
+    0x00, 0x00, 0x40, 0x00, 0x00, 0x80, 0x3e, 0x00, 0x00, 0xfa, 0x44, 0xcd, 0xcc, 0x4c, 0x3d, 0xc8,
+    0x01, 0x6f, 0x12, 0x83, 0x3a, 0x00, 0x00, 0xa0, 0x41, 0x00, 0x00, 0x00, 0x3f, 0x01, 0x00, 0x00,
+    0x80, 0x40, 0x00, 0x00, 0xc0, 0x41, 0x01, 0x02, 0x01, 0x00, 0x00, 0x20, 0x42, 0x01, 0x01, 0x01,
+    0x00, 0x00, 0x80, 0x40, 0xcd, 0xcc, 0xcc, 0x3d, 0x00, 0x00, 0xfa, 0x44, 0x01, 0xe5, 0xa0, 0x98,
+    0xa8,
+];
+
 #[test]
 fn the_current_schema_writes_and_reads_its_golden_envelope() {
     let mut buf = [0u8; crate::MAX_RECORD_BYTES];
-    let n = hybrid_record().encode(&mut buf).expect("encodes");
-    assert_eq!(&buf[..n], &V7_GOLDEN[..], "{:#04x?}", &buf[..n]);
-    let r = DriveRecord::decode(&V7_GOLDEN).expect("version 7 decodes");
-    assert_eq!(r, hybrid_record());
+    let n = field_record().encode(&mut buf).expect("encodes");
+    assert_eq!(&buf[..n], &V8_GOLDEN[..], "{:#04x?}", &buf[..n]);
+    let r = DriveRecord::decode(&V8_GOLDEN).expect("version 8 decodes");
+    assert_eq!(r, field_record());
     assert_eq!(r.validate(), Ok(()));
-    assert_eq!(crate::SCHEMA_VERSION, 7, "a new version freezes V7_GOLDEN");
+    assert_eq!(crate::SCHEMA_VERSION, 8, "a new version freezes V8_GOLDEN");
+}
+
+/// The frozen version-7 layout of `r`.
+fn as_v7(r: &DriveRecord) -> crate::record::v7::DriveRecordV7 {
+    crate::record::v7::DriveRecordV7 {
+        label: r.label.clone(),
+        pwm_frequency_hz: r.pwm_frequency_hz,
+        motor: r.motor,
+        current_gains: r.current_gains,
+        calibration: r.calibration,
+        limits: r.limits,
+        speed: r.speed,
+        position: r.position,
+        dividers: r.dividers,
+        watchdog: r.watchdog,
+        power: r.power,
+        mechanics: r.mechanics,
+        joint: r.joint,
+        sensorless: r.sensorless,
+    }
+}
+
+/// A version-7 record (before the d-current reference) migrates with the
+/// motor's defaults: `field: None`, applied as foc-core's
+/// `FieldConfig::for_motor` of the record's motor, current limit and PWM
+/// rate (no field weakening; MTPA and the short circuit as foc-core
+/// decides for the motor), and saved again with them written out.
+#[test]
+fn the_version_7_golden_envelope_migrates_with_the_motors_field_defaults() {
+    use crate::Settings;
+    use foc_core::control::field::FieldConfig;
+    use foc_core::drive::cascade::CascadeConfig;
+    let r = DriveRecord::decode(&V7_GOLDEN).expect("version 7 migrates");
+    assert_eq!(r, hybrid_record());
+    assert_eq!(r.field, None);
+    assert_eq!(r.validate(), Ok(()));
+    // The frozen version-7 struct still writes exactly these bytes.
+    let p = postcard_of(&as_v7(&hybrid_record()));
+    assert_eq!(envelope(7, &p), V7_GOLDEN);
+    assert_eq!(as_v7(&hybrid_record()).into_v8(), r);
+    // A version-8 payload is not a version-7 record, nor the reverse.
+    assert_eq!(
+        DriveRecord::decode(&envelope(7, payload(&encoded(&field_record())))),
+        Err(RecordError::Malformed)
+    );
+    assert_eq!(
+        DriveRecord::decode(&envelope(8, &p)),
+        Err(RecordError::Malformed)
+    );
+    // Applied: the record's motor's defaults (on a base built for
+    // another current limit, whose own defaults differ).
+    let m = r.motor.to_params();
+    let base = Settings::from_cascade(&CascadeConfig::for_motor(m, 20_000.0, 2.0));
+    let s = r.apply(&base, 20_000).unwrap();
+    let defaults = FieldConfig::for_motor(&m, r.limits.max_current_a, 20_000.0);
+    assert_eq!(s.field, defaults);
+    assert!(!s.field.field_weakening);
+    assert_ne!(base.field, defaults, "the base's are not the record's");
+    // Saved again: the defaults written out (schema 8).
+    let again = DriveRecord::from_settings(&r.label, 20_000, &s);
+    assert_eq!(
+        again.field,
+        Some(crate::record::FieldRecord::from_config(&defaults))
+    );
+    assert_eq!(again.apply(&base, 20_000), Ok(s));
+    // Every older golden migrates the same way.
+    for g in [
+        &V1_GOLDEN[..],
+        &V2_GOLDEN[..],
+        &V3_GOLDEN[..],
+        &V4_GOLDEN[..],
+        &V5_GOLDEN[..],
+        &V6_GOLDEN[..],
+    ] {
+        let r = DriveRecord::decode(g).unwrap();
+        assert_eq!(r.field, None, "version {}", g[0]);
+    }
+}
+
+/// The d-current reference: every value checked with foc-core's rule and
+/// named, applied whole to the settings and the cascade, back to the
+/// same record; field weakening refused on a coarse angle sensor (halls)
+/// where the record is applied.
+#[test]
+fn the_field_table_is_checked_applied_and_refused_on_halls() {
+    use crate::record::FieldRecord;
+    use crate::Settings;
+    use foc_core::drive::cascade::CascadeConfig;
+    let r = field_record();
+    let f = r.field.unwrap();
+    let base_cascade = CascadeConfig::for_motor(r.motor.to_params(), 20_000.0, 5.0);
+    let base = Settings::from_cascade(&base_cascade);
+    let s = r.apply(&base, 20_000).unwrap();
+    assert_eq!(s.field, f.to_config());
+    assert_eq!(s.apply_to(&base_cascade).current.field, f.to_config());
+    assert_eq!(
+        DriveRecord::from_settings(&r.label, 20_000, &s).field,
+        Some(f)
+    );
+    let bad: [(FieldRecord, &str); 9] = [
+        (
+            FieldRecord {
+                max_id_a: f32::NAN,
+                ..f
+            },
+            "field.max_id_a",
+        ),
+        (
+            FieldRecord {
+                max_id_a: -0.5,
+                ..f
+            },
+            "field.max_id_a",
+        ),
+        (
+            FieldRecord {
+                max_id_a: f32::INFINITY,
+                ..f
+            },
+            "field.max_id_a",
+        ),
+        (
+            FieldRecord {
+                voltage_margin: 0.51,
+                ..f
+            },
+            "field.voltage_margin",
+        ),
+        (
+            FieldRecord {
+                voltage_margin: -0.01,
+                ..f
+            },
+            "field.voltage_margin",
+        ),
+        (
+            FieldRecord {
+                voltage_margin: f32::NAN,
+                ..f
+            },
+            "field.voltage_margin",
+        ),
+        (
+            FieldRecord {
+                bandwidth_rad_s: f32::NAN,
+                ..f
+            },
+            "field.bandwidth_rad_s",
+        ),
+        (FieldRecord { max_id_a: 0.0, ..f }, "field.field_weakening"),
+        (
+            FieldRecord {
+                bandwidth_rad_s: 0.0,
+                ..f
+            },
+            "field.field_weakening",
+        ),
+    ];
+    for (b, field) in bad {
+        let mut r = field_record();
+        r.field = Some(b);
+        assert_eq!(r.validate(), Err(Invalid { field }), "{b:?}");
+        assert_eq!(r.apply(&base, 20_000), Err(Invalid { field }), "{b:?}");
+    }
+    // Without field weakening, no current or bandwidth is needed.
+    let mut off = field_record();
+    off.field = Some(FieldRecord {
+        field_weakening: false,
+        max_id_a: 0.0,
+        bandwidth_rad_s: 0.0,
+        ..f
+    });
+    assert_eq!(off.validate(), Ok(()));
+    // Halls (48 counts a turn on 7 pole pairs): field weakening refused,
+    // by the calibration's sensor or, without one, the board's.
+    let mut halls = field_record();
+    halls.calibration.as_mut().unwrap().sensor_counts_per_rev = 48;
+    assert_eq!(halls.validate(), Ok(()), "the record alone is fine");
+    let refused = Err(Invalid {
+        field: "field.field_weakening",
+    });
+    assert_eq!(halls.apply(&base, 20_000), refused);
+    let mut hall_board = base;
+    hall_board.angle.sensor_counts_per_rev = 48;
+    let mut uncalibrated = field_record();
+    uncalibrated.calibration = None;
+    assert_eq!(uncalibrated.apply(&hall_board, 20_000), refused);
+    assert!(uncalibrated.apply(&base, 20_000).is_ok());
+    // MTPA and the short circuit are fine on halls; so are the defaults.
+    halls.field = Some(FieldRecord {
+        field_weakening: false,
+        ..f
+    });
+    assert!(halls.apply(&base, 20_000).is_ok());
+    halls.field = None;
+    assert!(halls.apply(&base, 20_000).is_ok());
 }
 
 /// The frozen version-6 layout of `r`.

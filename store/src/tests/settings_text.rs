@@ -111,7 +111,7 @@ fn toml_is_readable_and_checked() {
     let text = to_toml(&r);
     std::eprintln!("{text}");
     for key in [
-        "schema_version = 7",
+        "schema_version = 8",
         "label = \"bench motor\"",
         "[motor]",
         "r_ohm = ",
@@ -180,7 +180,7 @@ fn toml_is_readable_and_checked() {
     assert_eq!(from_toml(&t), Ok(sl.clone()));
     assert!(!to_toml(&r).contains("[sensorless]"));
     assert_eq!(
-        from_toml(&to_toml(&r).replace("schema_version = 7", "schema_version = 4")),
+        from_toml(&to_toml(&r).replace("schema_version = 8", "schema_version = 4")),
         Ok(r.clone())
     );
     let e = from_toml(&t.replace("start_current_a = 3.5", "start_current_a = 50.0")).unwrap_err();
@@ -209,7 +209,7 @@ fn toml_is_readable_and_checked() {
     let e = from_toml(&tb.replace("hall+sensorless", "halls")).unwrap_err();
     assert!(e.contains("halls"), "{e}");
     assert_eq!(
-        from_toml(&t.replace("schema_version = 7", "schema_version = 5")),
+        from_toml(&t.replace("schema_version = 8", "schema_version = 5")),
         Ok(sl.clone())
     );
     // No joint: no table, and back to None (the build's).
@@ -220,7 +220,7 @@ fn toml_is_readable_and_checked() {
     assert_eq!(from_toml(&t), Ok(n.clone()));
     // A version-3 file (before the joint) reads as version 4 without it.
     assert_eq!(
-        from_toml(&t.replace("schema_version = 7", "schema_version = 3")),
+        from_toml(&t.replace("schema_version = 8", "schema_version = 3")),
         Ok(n.clone())
     );
     // No mechanics: no table, and back to None (not identified).
@@ -231,7 +231,7 @@ fn toml_is_readable_and_checked() {
     // A version-2 file (before the mechanics) reads as version 4 without
     // them.
     assert_eq!(
-        from_toml(&t.replace("schema_version = 7", "schema_version = 2")),
+        from_toml(&t.replace("schema_version = 8", "schema_version = 2")),
         Ok(n.clone())
     );
     // No power limits: no table, and back to None (the build's defaults).
@@ -242,13 +242,62 @@ fn toml_is_readable_and_checked() {
     // A version-1 file (before the power limits) reads as version 4
     // without them.
     assert_eq!(
-        from_toml(&t.replace("schema_version = 7", "schema_version = 1")),
+        from_toml(&t.replace("schema_version = 8", "schema_version = 1")),
         Ok(n)
     );
+    // The d-current reference (schema 8): a `[field]` table, every value
+    // named when out of range; none: the motor's defaults (a version-7
+    // file has none).
+    assert!(!text.contains("[field]"));
+    let mut f = r.clone();
+    f.field = Some(crate::record::FieldRecord {
+        mtpa: true,
+        field_weakening: true,
+        max_id_a: 4.5,
+        voltage_margin: 0.1,
+        bandwidth_rad_s: 700.0,
+        short_circuit: false,
+    });
+    let tf = to_toml(&f);
+    assert!(
+        tf.contains(
+            "[field]\nmtpa = true\nfield_weakening = true\nmax_id_a = 4.5\n\
+             voltage_margin = 0.1\nbandwidth_rad_s = 700.0\nshort_circuit = false"
+        ),
+        "{tf}"
+    );
+    assert_eq!(from_toml(&tf), Ok(f.clone()));
+    for (from, to, field) in [
+        ("max_id_a = 4.5", "max_id_a = nan", "field.max_id_a"),
+        ("max_id_a = 4.5", "max_id_a = -1.0", "field.max_id_a"),
+        ("max_id_a = 4.5", "max_id_a = inf", "field.max_id_a"),
+        (
+            "voltage_margin = 0.1",
+            "voltage_margin = 0.6",
+            "field.voltage_margin",
+        ),
+        (
+            "bandwidth_rad_s = 700.0",
+            "bandwidth_rad_s = -1.0",
+            "field.bandwidth_rad_s",
+        ),
+        ("max_id_a = 4.5", "max_id_a = 0.0", "field.field_weakening"),
+    ] {
+        let e = from_toml(&tf.replace(from, to)).unwrap_err();
+        assert!(e.contains(field), "{to}: {e}");
+    }
+    let e = from_toml(&tf.replace("mtpa = true", "mtpa = 1")).unwrap_err();
+    assert!(e.contains("mtpa"), "{e}");
+    let e = from_toml(&tf.replace("short_circuit = false", "")).unwrap_err();
+    assert!(e.contains("short_circuit"), "{e}");
+    assert_eq!(
+        from_toml(&text.replace("schema_version = 8", "schema_version = 7")),
+        Ok(r.clone())
+    );
     // Another schema version.
-    for v in ["0", "8"] {
+    for v in ["0", "9"] {
         let e =
-            from_toml(&text.replace("schema_version = 7", &std::format!("schema_version = {v}")))
+            from_toml(&text.replace("schema_version = 8", &std::format!("schema_version = {v}")))
                 .unwrap_err();
         assert!(e.contains("schema_version") && e.contains(v), "{e}");
     }
@@ -377,7 +426,7 @@ fn toml_is_readable_and_checked() {
         e,
         "record value `power.bus_current_regen_max_a` is out of range"
     );
-    let e = from_toml(&text.replace("schema_version = 7\n", "")).unwrap_err();
+    let e = from_toml(&text.replace("schema_version = 8\n", "")).unwrap_err();
     assert!(e.contains("schema_version"), "{e}");
     // A bad value names the field.
     let e = from_toml(&text.replace("max_current_a = 5.0", "max_current_a = -5.0")).unwrap_err();
@@ -394,7 +443,7 @@ fn toml_is_readable_and_checked() {
         from_toml(&text.replace("sensorless_only = false\n", "")),
         from_toml(&text)
     );
-    assert_eq!(SCHEMA_VERSION, 7);
+    assert_eq!(SCHEMA_VERSION, 8);
 }
 
 #[test]
