@@ -360,6 +360,10 @@ fn request_fields(r: &Request) -> (&'static str, Vec<(String, Json)>) {
             ]),
         ),
         Request::SetJoint(j) => ("SetJoint", own(joint_fields(&j))),
+        Request::SetParam { id, value } => (
+            "SetParam",
+            own(vec![("id", int(id as u8)), ("value", f(value))]),
+        ),
         Request::ReadJoint => ("ReadJoint", vec![]),
         Request::StartHoming(h) => {
             let mut v = vec![];
@@ -707,6 +711,14 @@ fn requests() -> Vec<Request> {
         }));
     }
     v.extend(joints().map(Request::SetJoint));
+    for (id, value) in [
+        (ParamId::FieldWeakening, 1.0),
+        (ParamId::Mtpa, 0.0),
+        (ParamId::MaxIdA, 12.5),
+        (ParamId::ShortCircuit, 1.0),
+    ] {
+        v.push(Request::SetParam { id, value });
+    }
     v.push(Request::ReadJoint);
     v.push(Request::StartHoming(HomingStart {
         method: HomingMethod::Present,
@@ -875,6 +887,8 @@ fn responses() -> Vec<Response> {
         (ParamId::SpeedKi, -4.5e-5),
         (ParamId::ScopeCapacity, 4096.0),
         (ParamId::AngleSource, 1.0),
+        (ParamId::FieldWeakening, 1.0),
+        (ParamId::MaxIdA, 15.138889),
     ] {
         v.push(Response::Param { id, value });
     }
@@ -1168,6 +1182,28 @@ fn render() -> String {
                 ParamId::ALL
                     .iter()
                     .map(|p| (format!("{p:?}"), s(p.name())))
+                    .collect(),
+            ),
+        ),
+        (
+            "param_units",
+            Json::Obj(
+                ParamId::ALL
+                    .iter()
+                    .filter(|p| !p.unit().is_empty())
+                    .map(|p| (format!("{p:?}"), s(p.unit())))
+                    .collect(),
+            ),
+        ),
+        (
+            "writable_params",
+            Json::Arr(
+                ParamId::ALL
+                    .iter()
+                    .filter(|p| p.is_writable())
+                    .map(|p| {
+                        Json::Arr(vec![s(&format!("{p:?}")), Json::Bool(p.is_switch())])
+                    })
                     .collect(),
             ),
         ),

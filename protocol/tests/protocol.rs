@@ -169,6 +169,14 @@ fn all_requests() -> Vec<Request> {
         Request::ReadFaults,
         Request::ClearFaults,
         Request::ReadParam(ParamId::FluxLinkageWb),
+        Request::SetParam {
+            id: ParamId::MaxIdA,
+            value: 12.5,
+        },
+        Request::SetParam {
+            id: ParamId::FieldWeakening,
+            value: 1.0,
+        },
         Request::ReadTelemetry,
         Request::StartTelemetry(TelemetryRate::EveryPeriods(200)),
         Request::StartTelemetry(TelemetryRate::Hz(100.0)),
@@ -293,7 +301,7 @@ fn every_message_round_trips() {
     tags.extend(all_responses().iter().map(Message::tag));
     tags.sort();
     tags.dedup();
-    assert_eq!(tags.len(), 28 + 12);
+    assert_eq!(tags.len(), 29 + 12);
 }
 
 #[test]
@@ -473,6 +481,11 @@ fn request() -> impl Strategy<Value = Request> {
         Just(Request::ReadFaults),
         Just(Request::ClearFaults),
         proptest::sample::select(ParamId::ALL.to_vec()).prop_map(Request::ReadParam),
+        (
+            proptest::sample::select(ParamId::ALL.to_vec()),
+            any::<f32>()
+        )
+            .prop_map(|(id, value)| Request::SetParam { id, value }),
         Just(Request::ReadTelemetry),
         any::<u32>().prop_map(|k| Request::StartTelemetry(TelemetryRate::EveryPeriods(k))),
         finite().prop_map(|h| Request::StartTelemetry(TelemetryRate::Hz(h))),
@@ -1617,4 +1630,82 @@ fn a_stream_polled_every_20_periods_is_evenly_spaced_from_its_first_sample() {
         periods.windows(2).all(|w| w[1] - w[0] == 160),
         "{periods:?}"
     );
+}
+
+/// `SetParam` (the d-current reference's parameters, design §30): a
+/// parameter that is not writable points at `id`, a value it does not take
+/// (NaN, negative, a switch not 0 or 1, `max-id` beyond foc-core's bound)
+/// at `value`; both change nothing, nor does a drive that is not disabled;
+/// the rest reaches the context, whose refusal is the reply.
+#[test]
+fn set_param_checks_the_id_and_the_value_then_asks_the_drive() {
+    let mut dev = DeviceState::new();
+    let mut ctx = RecordingContext::default();
+    let set = |id, value| Request::SetParam { id, value };
+    for p in ParamId::ALL {
+        assert_eq!(
+            p.is_writable(),
+            matches!(
+                p,
+                ParamId::FieldWeakening | ParamId::Mtpa | ParamId::MaxIdA | ParamId::ShortCircuit
+            ),
+            "{p:?}"
+        );
+    }
+    let mut seq = 1;
+    for (r, field) in [
+        (set(ParamId::MaxCurrentA, 5.0), 0),
+        (set(ParamId::PolePairs, 7.0), 0),
+        (set(ParamId::MaxIdA, f32::NAN), 1),
+        (set(ParamId::MaxIdA, -0.5), 1),
+        (set(ParamId::MaxIdA, f32::INFINITY), 1),
+        (set(ParamId::MaxIdA, 1.0e6), 1),
+        (set(ParamId::FieldWeakening, 0.5), 1),
+        (set(ParamId::FieldWeakening, f32::NAN), 1),
+        (set(ParamId::Mtpa, 2.0), 1),
+        (set(ParamId::ShortCircuit, -1.0), 1),
+    ] {
+        assert_eq!(
+            handle(&mut dev, &mut ctx, seq, r),
+            Response::Nack(ErrorCode::OutOfRange { field }),
+            "{r:?}"
+        );
+        assert_eq!(
+            r.field_name(field),
+            Some(["id", "value"][usize::from(field)])
+        );
+        seq += 1;
+    }
+    assert_eq!((ctx.calls, ctx.written), (0, None));
+    // Running: only while disabled.
+    ctx.mode = Mode::Torque;
+    assert_eq!(
+        handle(&mut dev, &mut ctx, seq, set(ParamId::Mtpa, 1.0)),
+        Response::Nack(ErrorCode::NotDisabled)
+    );
+    assert_eq!((ctx.calls, ctx.written), (0, None));
+    ctx.mode = Mode::Disabled;
+    for (id, value) in [
+        (ParamId::FieldWeakening, 1.0),
+        (ParamId::Mtpa, 0.0),
+        (ParamId::MaxIdA, 0.0),
+        (ParamId::MaxIdA, 15.5),
+        (ParamId::ShortCircuit, 1.0),
+    ] {
+        seq += 1;
+        assert_eq!(
+            handle(&mut dev, &mut ctx, seq, set(id, value)),
+            Response::Ack
+        );
+        assert_eq!(ctx.written, Some((id, value)));
+    }
+    // The drive's refusal (e.g. field weakening on halls) is the reply.
+    ctx.refuse = Some(foc_protocol::Refusal::Unsupported);
+    ctx.written = None;
+    seq += 1;
+    assert_eq!(
+        handle(&mut dev, &mut ctx, seq, set(ParamId::FieldWeakening, 1.0)),
+        Response::Nack(ErrorCode::Unsupported)
+    );
+    assert_eq!(ctx.written, None);
 }

@@ -91,6 +91,16 @@ pub trait DeviceContext {
     fn set_position_gains(&mut self, gains: PositionGains) -> Result<(), Refusal>;
     /// Replace the loop dividers (>= 1; only called while disabled).
     fn set_dividers(&mut self, speed: u16, position: u16) -> Result<(), Refusal>;
+    /// Write a parameter (only called while started and disabled, with a
+    /// writable `id` and a `value` it accepts: [`ParamId::accepts`]): the
+    /// d-current reference's, applied whole with the drive's rule
+    /// (`foc_core::drive::check_field`: no field weakening on a coarse
+    /// angle sensor, nor with `max-id` 0: [`Refusal::Unsupported`]).
+    /// Default: [`Refusal::Unsupported`].
+    fn set_param(&mut self, id: ParamId, value: f32) -> Result<(), Refusal> {
+        let _ = (id, value);
+        Err(Refusal::Unsupported)
+    }
     /// Start a calibration routine (only called while disabled and not
     /// faulted); return [`Refusal::Busy`] if one is running.
     fn start_calibration(&mut self, routine: Calibration) -> Result<(), Refusal>;

@@ -97,7 +97,8 @@ impl DeviceState {
             | Request::SetCurrentGains(_)
             | Request::SetSpeedGains(_)
             | Request::SetPositionGains(_)
-            | Request::SetDividers { .. } => configure(ctx, req),
+            | Request::SetDividers { .. }
+            | Request::SetParam { .. } => configure(ctx, req),
             Request::SetWatchdog(c) => {
                 self.host_configured = true;
                 self.watchdog.configure(c);
@@ -350,6 +351,17 @@ pub(super) fn configure<C: DeviceContext>(
             }
             ctx.status().check_config().map_err(refused)?;
             ctx.set_dividers(speed, position).map_err(refused)?;
+            Ok(Response::Ack)
+        }
+        Request::SetParam { id, value } => {
+            if !id.is_writable() {
+                return Err(out_of_range(0));
+            }
+            if !id.accepts(value) {
+                return Err(out_of_range(1));
+            }
+            ctx.status().check_config().map_err(refused)?;
+            ctx.set_param(id, value).map_err(refused)?;
             Ok(Response::Ack)
         }
         _ => Err(Response::Nack(ErrorCode::Unsupported)),

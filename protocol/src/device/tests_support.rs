@@ -67,6 +67,8 @@ pub struct RecordingContext {
     pub sensorless: bool,
     /// ... and holds torque at standstill (injection, design §28).
     pub injection: bool,
+    /// The last parameter written (`SetParam`).
+    pub written: Option<(ParamId, f32)>,
 }
 
 /// Byte `i` of [`RecordingContext`]'s configuration record.
@@ -110,6 +112,7 @@ impl Default for RecordingContext {
             max_stream_hz: None,
             sensorless: false,
             injection: false,
+            written: None,
             scope: Some(foc_core::scope::Scope::new([0.0; 64])),
             link: None,
             applied_link: None,
@@ -203,6 +206,11 @@ impl DeviceContext for RecordingContext {
     fn set_dividers(&mut self, speed: u16, position: u16) -> Result<(), Refusal> {
         self.mutate()?;
         self.dividers = (speed, position);
+        Ok(())
+    }
+    fn set_param(&mut self, id: ParamId, value: f32) -> Result<(), Refusal> {
+        self.mutate()?;
+        self.written = Some((id, value));
         Ok(())
     }
     fn start_calibration(&mut self, routine: Calibration) -> Result<(), Refusal> {

@@ -210,6 +210,7 @@ pub(super) mod tags {
     pub const SET_DIVIDERS: u8 = 0x15;
     pub const SET_WATCHDOG: u8 = 0x16;
     pub const SET_JOINT: u8 = 0x17;
+    pub const SET_PARAM: u8 = 0x18;
     pub const RUN_CALIBRATION: u8 = 0x20;
     pub const READ_FAULTS: u8 = 0x21;
     pub const CLEAR_FAULTS: u8 = 0x22;
@@ -257,6 +258,7 @@ impl Message for Request {
             Request::SetDividers { .. } => SET_DIVIDERS,
             Request::SetWatchdog(_) => SET_WATCHDOG,
             Request::SetJoint(_) => SET_JOINT,
+            Request::SetParam { .. } => SET_PARAM,
             Request::ReadJoint => READ_JOINT,
             Request::StartHoming(_) => START_HOMING,
             Request::ReadHoming => READ_HOMING,
@@ -328,6 +330,10 @@ impl Message for Request {
                 w.u8(reaction_code(c.reaction));
             }
             Request::SetJoint(j) => put_joint(w, j),
+            Request::SetParam { id, value } => {
+                w.u8(*id as u8);
+                w.f32(*value);
+            }
             Request::StartHoming(h) => put_homing(w, h),
             Request::RunCalibration(c) => w.u8(*c as u8),
             Request::ReadParam(p) => w.u8(*p as u8),
@@ -394,6 +400,10 @@ impl Message for Request {
                 })
             }
             SET_JOINT => Request::SetJoint(get_joint(r)?),
+            SET_PARAM => Request::SetParam {
+                id: ParamId::from_code(r.u8()?).ok_or(DecodeError::BadField(0))?,
+                value: r.f32()?,
+            },
             READ_JOINT => Request::ReadJoint,
             START_HOMING => Request::StartHoming(get_homing(r)?),
             READ_HOMING => Request::ReadHoming,

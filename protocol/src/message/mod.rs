@@ -22,6 +22,7 @@
 //! | 0x15 | `SetDividers` | `speed:u16 position:u16` (current-loop periods per run) | `Ack` |
 //! | 0x16 | `SetWatchdog` | `timeout_periods:u32` (0 = off), `reaction:u8` (0 disable, 1 stop, 2 hold; in impedance mode always damping, then disable) | `Ack` |
 //! | 0x17 | `SetJoint` | `gear_ratio:f32` (rotor turns per output turn, signed) `rotor_at_zero_rad:f32` (rot) `travel:u8` (0 none, 1 the range below) `travel_min_rad travel_max_rad` (f32, out; both +0.0 without travel) `fault_margin_rad` (rot) `brake_accel_rad_s2` (rot) `kv_a_per_rad_s` (A/(rad/s), rot) (f32) `entry_blend_periods:u32` `timeout_kd_nm_s_per_rad:f32` (rot) | `Ack` |
+//! | 0x18 | `SetParam` | `id:u8` (a writable [`ParamId`]: [`ParamId::is_writable`]) `value:f32` (its unit; an on/off parameter 0 or 1; checked with [`ParamId::accepts`]) | `Ack` (only while disabled) |
 //! | 0x20 | `RunCalibration` | `routine:u8` (0 offsets, 1 identification, 2 alignment) | `Ack` (started) |
 //! | 0x21 | `ReadFaults` | - | `Faults` |
 //! | 0x22 | `ClearFaults` | - | `Ack` |
@@ -329,6 +330,63 @@ param_ids! {
     MaxImpedanceKp = 31, "max-impedance-kp", "N m/rad";
     /// The largest impedance damping in force [N m s/rad, rotor].
     MaxImpedanceKd = 32, "max-impedance-kd", "N m s/rad";
+    /// Field weakening above base speed (design §30): 1 on, 0 off.
+    /// Writable ([`Request::SetParam`]); refused (`Unsupported`) on a
+    /// coarse angle sensor (halls), or with `max-id` 0.
+    FieldWeakening = 33, "field-weakening", "";
+    /// Maximum torque per ampere (design §30; acts on a salient rotor):
+    /// 1 on, 0 off. Writable.
+    Mtpa = 34, "mtpa", "";
+    /// The largest `|id|` field weakening may use \[A\] (the magnets'
+    /// demagnetisation limit; at most the current limit is used): finite,
+    /// `>= 0`, below 10^6. Writable.
+    MaxIdA = 35, "max-id", "A";
+    /// The active short circuit as the safe state above the speed where
+    /// the back-EMF's peak exceeds the bus (design §30): 1 on, 0 off
+    /// (freewheeling). Writable.
+    ShortCircuit = 36, "short-circuit", "";
+}
+
+impl ParamId {
+    /// True for the parameters [`Request::SetParam`] writes: the
+    /// d-current reference's (design §30), whole in the drive's
+    /// `FieldConfig`.
+    pub const fn is_writable(self) -> bool {
+        matches!(
+            self,
+            ParamId::FieldWeakening | ParamId::Mtpa | ParamId::MaxIdA | ParamId::ShortCircuit
+        )
+    }
+
+    /// True for an on/off setting (1 on, 0 off).
+    pub const fn is_switch(self) -> bool {
+        matches!(
+            self,
+            ParamId::FieldWeakening | ParamId::Mtpa | ParamId::ShortCircuit
+        )
+    }
+
+    /// True when `value` may be written to this parameter: a writable one
+    /// ([`Self::is_writable`]), 0 or 1 for a switch, and for `max-id` a
+    /// current foc-core's own rule takes (`FieldConfig::check`: finite,
+    /// `>= 0`, below 10^6). The rest of the rule (field weakening needs a
+    /// fine angle sensor and `max-id` above 0) is the drive's: see
+    /// `foc_core::drive::check_field`.
+    pub fn accepts(self, value: f32) -> bool {
+        use foc_core::control::field::FieldConfig;
+        match self {
+            ParamId::FieldWeakening | ParamId::Mtpa | ParamId::ShortCircuit => {
+                value == 0.0 || value == 1.0
+            }
+            ParamId::MaxIdA => FieldConfig {
+                max_id_a: value,
+                ..FieldConfig::OFF
+            }
+            .check()
+            .is_ok(),
+            _ => false,
+        }
+    }
 }
 
 /// A Nack's reason.
@@ -482,6 +540,14 @@ pub enum Request {
     /// Set the joint up: output frame, travel range, soft stop, impedance
     /// entry and timeout (see [`crate::joint`] for the frames).
     SetJoint(JointSettings),
+    /// Write a parameter ([`ParamId::is_writable`]: the d-current
+    /// reference's; only while disabled).
+    SetParam {
+        /// Which parameter.
+        id: ParamId,
+        /// Its value, in its unit (a switch: 0 or 1).
+        value: f32,
+    },
     /// The joint in force (`Joint`).
     ReadJoint,
     /// Start homing (the output frame's zero): a command from the host
@@ -594,6 +660,7 @@ impl Request {
             ],
             Request::RunCalibration(_) => &["routine"],
             Request::ReadParam(_) => &["id"],
+            Request::SetParam { .. } => &["id", "value"],
             Request::StartTelemetry(_) => &["kind", "value"],
             Request::ReadConfig { .. } => &["source", "offset"],
             Request::WriteConfig(_) => &["offset", "total", "len"],
