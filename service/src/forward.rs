@@ -138,6 +138,13 @@ macro_rules! forward_device_context {
             ) -> ::core::result::Result<(), $crate::__deps::foc_protocol::Refusal> {
                 self.with_link(|l| $crate::DeviceContext::set_dividers(l, speed, position))
             }
+            fn set_param(
+                &mut self,
+                id: $crate::__deps::foc_protocol::message::ParamId,
+                value: f32,
+            ) -> ::core::result::Result<(), $crate::__deps::foc_protocol::Refusal> {
+                self.with_link(|l| $crate::DeviceContext::set_param(l, id, value))
+            }
             fn start_calibration(
                 &mut self,
                 routine: $crate::__deps::foc_protocol::message::Calibration,

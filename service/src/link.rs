@@ -18,6 +18,7 @@
 //! | calibration `alignment` alone | always: it is part of `identification` | `Unsupported` |
 //! | calibration `identification` | the board cannot identify on command | `Unsupported` |
 //! | joint | the pending position command's target outside the new travel range | `NotDisabled` |
+//! | a d-current reference parameter | the reference it makes is one the drive refuses (`foc_core::drive::check_field`: field weakening on a coarse angle sensor such as halls, or with `max-id` 0 or no bandwidth) | `Unsupported` |
 //! | store operations | not quiet (see [`Link::quiet`]) | `NotDisabled` / `Busy` |
 //! | apply a record | the board does not take it ([`crate::records::admit`]) | `BadRecord` |
 
@@ -27,6 +28,7 @@ use crate::service::Service;
 use crate::snapshot::Snapshot;
 use crate::view::View;
 use foc_core::calibration::Calibrated;
+use foc_core::control::field::FieldConfig;
 use foc_core::control::joint::JointSetup;
 use foc_core::control::{Command, CommandError, Fault, FaultSet, Feedback, Limits, Mode};
 use foc_core::drive::{ConfigChange, Status};
@@ -150,6 +152,23 @@ impl<'a, S: RecordStore> Link<'a, S> {
             ErrorCode::BadRecord
         })?;
         Ok(rec)
+    }
+
+    /// Make `f` the d-current reference (design §30), whole, or refuse it
+    /// with the drive's own rule on the angle calibration in force
+    /// (`foc_store::settings::field_refusal`, which names why: logged).
+    fn set_field(&mut self, f: FieldConfig) -> Result<(), Refusal> {
+        let s = self.service.settings();
+        if let Some(e) = foc_store::settings::field_refusal(&f, &s.angle) {
+            crate::log_warn!("field: refused: {}", e);
+            return Err(Refusal::Unsupported);
+        }
+        self.service.settings_mut().field = f;
+        self.change(ConfigChange {
+            field: Some(f),
+            ..ConfigChange::default()
+        });
+        Ok(())
     }
 
     /// The travel range of `joint` in the rotor frame on `limits`.
@@ -287,6 +306,19 @@ impl<S: RecordStore> DeviceContext for Link<'_, S> {
         self.out.config.speed = Some(sp);
         self.out.config.position = Some(po);
         Ok(())
+    }
+    fn set_param(&mut self, id: ParamId, value: f32) -> Result<(), Refusal> {
+        // One setting of the reference in force; the whole is judged.
+        let mut f = self.service.settings().field;
+        let on = value == 1.0;
+        match id {
+            ParamId::FieldWeakening => f.field_weakening = on,
+            ParamId::Mtpa => f.mtpa = on,
+            ParamId::MaxIdA => f.max_id_a = value,
+            ParamId::ShortCircuit => f.short_circuit = on,
+            _ => return Err(Refusal::Unsupported),
+        }
+        self.set_field(f)
     }
     fn start_calibration(&mut self, routine: Calibration) -> Result<(), Refusal> {
         let change = match routine {

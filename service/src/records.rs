@@ -16,7 +16,10 @@ use foc_store::{CanRecord, DriveRecord, Invalid, Label, Settings, Store, StoreEr
 /// back-EMF charges the bus through the body diodes), its motor's pole
 /// pairs (the identification and a hall decoder are built for them) and
 /// its sensor's counts per turn (a calibration from another sensor is
-/// meaningless here).
+/// meaningless here). The record's d-current reference (`[field]`, design
+/// §30; none: the motor's defaults) is checked by
+/// [`DriveRecord::apply`] with the drive's own rule on the board's angle
+/// sensor: field weakening on halls is `field.field_weakening`.
 ///
 /// Where the sensor's zero does not survive a reset (an incremental
 /// encoder), the record's motor model and gains apply but not its

@@ -125,8 +125,9 @@ impl Service {
 
     /// The drive's change that makes the settings in force its own:
     /// limits, current loop, dividers, power, mechanics, the joint's
-    /// travel range, and the calibration where the sensor's zero survives
-    /// a reset (or where it was made without the sensor).
+    /// travel range, the angle source, the d-current reference, and the
+    /// calibration where the sensor's zero survives a reset (or where it
+    /// was made without the sensor).
     pub fn full_change(&self) -> ConfigMailbox {
         let s = &self.settings;
         // A calibration made without the sensor has no zero to lose.
@@ -147,6 +148,7 @@ impl Service {
                 ),
                 sensorless: Some(self.cascade().current.sensorless),
                 beside: Some(self.cascade().current.fallback),
+                field: Some(s.field),
                 ..ConfigChange::default()
             }),
             speed: Some(s.speed),

@@ -97,6 +97,10 @@ impl View<'_> {
             ParamId::CalibrationResult => {
                 f32::from(foc_protocol::message::progress_codes(self.snap.status.calibration).1)
             }
+            ParamId::FieldWeakening => f32::from(u8::from(s.field.field_weakening)),
+            ParamId::Mtpa => f32::from(u8::from(s.field.mtpa)),
+            ParamId::MaxIdA => s.field.max_id_a,
+            ParamId::ShortCircuit => f32::from(u8::from(s.field.short_circuit)),
             // Answered by the protocol layer itself.
             ParamId::ProtocolVersion | ParamId::TelemetryDivider | ParamId::WatchdogTimeout => {
                 return None

@@ -421,3 +421,164 @@ fn a_calibration_made_without_the_sensor_boots_on_an_incremental_encoder_board()
     assert_eq!(outcome, BootOutcome::Loaded { calibrated: false });
     assert!(booted.full_change().current.unwrap().permit.is_none());
 }
+
+/// `board(true)` on halls: 48 counts a turn on 7 pole pairs, a coarse
+/// angle sensor.
+fn hall_board() -> Board {
+    let mut cascade = board(true).cascade;
+    cascade.current.angle.sensor_counts_per_rev = 48;
+    let mut b = Board::new(cascade, PWM_HZ, MAX_CURRENT_A);
+    b.zero_survives_reset = true;
+    b
+}
+
+/// The d-current reference (design §30) through the link, as every front
+/// end sends it: its parameters read, and written one at a time through
+/// the protocol, the whole judged with the drive's rule; bad values and
+/// field weakening on halls refused, changing nothing; a record carries
+/// it (checked whole against the board), a record without one the
+/// motor's defaults.
+#[test]
+fn the_field_settings_are_admitted_whole_or_refused_with_nothing_changed() {
+    use foc_core::control::field::FieldConfig;
+    use foc_protocol::device::DeviceState;
+    use foc_protocol::message::{ParamId, Request, Response};
+    let mut s = Service::new(board(true));
+    let mut st = store();
+    let mut dev = DeviceState::new();
+    let mut seq = 0u16;
+    let mut send = |s: &mut Service, st: &mut Store<Flash>, id, value| {
+        seq += 1;
+        let mut l = link(s, quiet_snapshot(), st);
+        let r = dev.handle(&mut l, seq, 0, &Request::SetParam { id, value });
+        (r, l.out.config.current.and_then(|c| c.field))
+    };
+    let defaults = s.settings().field;
+    let motor = s.board().cascade.current.current.motor;
+    assert_eq!(
+        defaults,
+        FieldConfig::for_motor(&motor, MAX_CURRENT_A, PWM_HZ as f32)
+    );
+    let read = |s: &mut Service, st: &mut Store<Flash>, id| {
+        link(s, quiet_snapshot(), st).param(id).unwrap()
+    };
+    assert_eq!(read(&mut s, &mut st, ParamId::FieldWeakening), 0.0);
+    assert_eq!(read(&mut s, &mut st, ParamId::MaxIdA), defaults.max_id_a);
+    // One setting at a time: the drive gets the whole reference.
+    let (r, change) = send(&mut s, &mut st, ParamId::FieldWeakening, 1.0);
+    assert_eq!(r, Response::Ack);
+    let on = FieldConfig {
+        field_weakening: true,
+        ..defaults
+    };
+    assert_eq!((s.settings().field, change), (on, Some(on)));
+    let (r, _) = send(&mut s, &mut st, ParamId::MaxIdA, 6.5);
+    assert_eq!(r, Response::Ack);
+    let (r, _) = send(&mut s, &mut st, ParamId::ShortCircuit, 1.0);
+    assert_eq!(r, Response::Ack);
+    let (r, _) = send(&mut s, &mut st, ParamId::Mtpa, 1.0);
+    assert_eq!(r, Response::Ack);
+    let set = FieldConfig {
+        mtpa: true,
+        max_id_a: 6.5,
+        short_circuit: true,
+        ..on
+    };
+    assert_eq!(s.settings().field, set);
+    assert_eq!(read(&mut s, &mut st, ParamId::MaxIdA), 6.5);
+    assert_eq!(read(&mut s, &mut st, ParamId::Mtpa), 1.0);
+    assert_eq!(read(&mut s, &mut st, ParamId::ShortCircuit), 1.0);
+    assert_eq!(s.full_change().current.unwrap().field, Some(set));
+    // Bad values: refused by the protocol (the value named), or by the
+    // drive's rule (field weakening without a current); nothing changes.
+    for (id, value, want) in [
+        (
+            ParamId::MaxIdA,
+            f32::NAN,
+            ErrorCode::OutOfRange { field: 1 },
+        ),
+        (ParamId::MaxIdA, -1.0, ErrorCode::OutOfRange { field: 1 }),
+        (
+            ParamId::FieldWeakening,
+            0.5,
+            ErrorCode::OutOfRange { field: 1 },
+        ),
+        (
+            ParamId::MaxCurrentA,
+            1.0,
+            ErrorCode::OutOfRange { field: 0 },
+        ),
+        (ParamId::MaxIdA, 0.0, ErrorCode::Unsupported),
+    ] {
+        let (r, change) = send(&mut s, &mut st, id, value);
+        assert_eq!(r, Response::Nack(want), "{id:?} {value}");
+        assert_eq!((s.settings().field, change), (set, None), "{id:?}");
+    }
+    // Saved and loaded: the record carries it.
+    let mut l = link(&mut s, quiet_snapshot(), &mut st);
+    l.store(StoreOp::Save, &[], WatchdogConfig::OFF).unwrap();
+    let rec = st.load().unwrap().unwrap();
+    assert_eq!(
+        rec.field,
+        Some(foc_store::record::FieldRecord::from_config(&set))
+    );
+    let (booted, _) = Service::boot(board(true), Some(&mut st));
+    assert_eq!(booted.settings().field, set);
+    assert_eq!(booted.cascade().current.field, set);
+    // On halls: the record with field weakening is refused, whole, with
+    // the reason; so is the parameter. MTPA and the short circuit are
+    // fine.
+    let halls = hall_board();
+    assert_eq!(
+        foc_service::records::admit(&halls, &rec).map(|_| ()),
+        Err(foc_store::Invalid {
+            field: "field.field_weakening"
+        })
+    );
+    let mut h = Service::new(halls);
+    let before = *h.settings();
+    let mut buf = [0u8; foc_protocol::config::MAX_RECORD];
+    let n = rec.encode(&mut buf).unwrap();
+    let mut l = link(&mut h, quiet_snapshot(), &mut st);
+    assert_eq!(
+        l.store(StoreOp::Apply, &buf[..n], WatchdogConfig::OFF),
+        Err(ErrorCode::BadRecord)
+    );
+    assert!(!l.out.touches_config());
+    assert_eq!(*h.settings(), before);
+    let (r, change) = send(&mut h, &mut st, ParamId::FieldWeakening, 1.0);
+    assert_eq!((r, change), (Response::Nack(ErrorCode::Unsupported), None));
+    assert_eq!(*h.settings(), before);
+    let (r, _) = send(&mut h, &mut st, ParamId::Mtpa, 1.0);
+    assert_eq!(r, Response::Ack);
+    assert!(h.settings().field.mtpa);
+    // A record's values out of range: refused, named.
+    for (bad, field) in [
+        (
+            FieldConfig {
+                voltage_margin: 0.7,
+                ..set
+            },
+            "field.voltage_margin",
+        ),
+        (
+            FieldConfig {
+                max_id_a: f32::NAN,
+                ..set
+            },
+            "field.max_id_a",
+        ),
+    ] {
+        let mut r = rec.clone();
+        r.field = Some(foc_store::record::FieldRecord::from_config(&bad));
+        assert_eq!(
+            foc_service::records::admit(s.board(), &r).map(|_| ()),
+            Err(foc_store::Invalid { field })
+        );
+    }
+    // A record without one (an older schema's): the motor's defaults.
+    let mut old = rec.clone();
+    old.field = None;
+    let a = foc_service::records::admit(s.board(), &old).unwrap();
+    assert_eq!(a.field, defaults);
+}

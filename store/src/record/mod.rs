@@ -457,7 +457,14 @@ pub struct Invalid {
 
 impl fmt::Display for Invalid {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "record value `{}` is out of range", self.field)
+        match self.field {
+            // Not a range: the rule that combines it with others.
+            "field.field_weakening" => f.write_str(
+                "record value `field.field_weakening` is refused: field weakening needs \
+                 `max_id_a` > 0, `bandwidth_rad_s` > 0 and a fine angle sensor (not halls)",
+            ),
+            field => write!(f, "record value `{field}` is out of range"),
+        }
     }
 }
 

@@ -311,6 +311,18 @@ fn error_messages_are_sentences() {
     ] {
         assert!(std::format!("{e}").starts_with("the "));
     }
+    // Field weakening is refused by a rule, not a range: it says why.
+    let e = Invalid {
+        field: "field.field_weakening",
+    };
+    assert!(std::format!("{e}").contains("not halls"), "{e}");
+    let e = Invalid {
+        field: "field.max_id_a",
+    };
+    assert_eq!(
+        std::format!("{e}"),
+        "record value `field.max_id_a` is out of range"
+    );
 }
 
 #[test]
