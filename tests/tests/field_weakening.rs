@@ -93,6 +93,17 @@ fn periods_to(s: &Setup, w: f32) -> usize {
     ((w / acc).max(0.3) * s.pwm_hz()) as usize
 }
 
+/// The drive takes the rotor from rest to `w` itself (velocity mode), then
+/// a dyno holds it there. (A rotor spun by the dyno with the bridge off
+/// above the rectifying speed drives current through the diodes before
+/// the drive starts: not the drive's to control.)
+fn spin_up_then_hold(sim: &mut Sim, s: &Setup, w: f32) -> Option<Fault> {
+    sim.cascade.command(Command::Velocity { rad_s: w }).unwrap();
+    let (fault, _, _) = run(sim, periods_to(s, w));
+    sim.plant.set_mechanics(Mechanics::ConstantSpeed(w as f64));
+    fault
+}
+
 /// Mean plant torque [N m] and current magnitude [A] over `n` periods.
 fn mean_torque(sim: &mut Sim, n: usize) -> (f32, f32) {
     let (mut t, mut i) = (0.0, 0.0);
@@ -105,21 +116,6 @@ fn mean_torque(sim: &mut Sim, n: usize) -> (f32, f32) {
     assert!(f.is_none(), "{f:?}");
     ((t / n as f64) as f32, (i / n as f64) as f32)
 }
-
-/// Open defect (issue 37, not closed): on the HKC cheetah (30 uH, one
-/// electrical turn per 16 periods at 1.5 x base) the current loop loses
-/// the current (over-current vector trip) when a dyno holds the rotor above
-/// base speed with the current limit commanded; driven freely (its own
-/// acceleration, the transitions) it is clean. The two dyno tests report it
-/// and do not assert on it until it is fixed.
-const DYNO_KNOWN_GAPS: [&str; 1] = ["hkc-cheetah"];
-
-/// Open defect (issue 37, not closed): on the M153, held by a dyno at 1.17 x
-/// base with a zero torque command and field weakening, the drive brakes
-/// and charges the non-sinking DC link from 26 to 52 V before any fault:
-/// the short circuit's figure is then not the fault's. Reported, not
-/// asserted, until it is fixed.
-const SHORT_CIRCUIT_KNOWN_GAPS: [&str; 1] = ["m153-source"];
 
 /// Field weakening is within the bench's resolved speed on this motor,
 /// and its angle sensor is a fine one (halls are refused, design §30).
@@ -319,18 +315,13 @@ fn torque_at_one_and_a_half_times_base_speed_meets_the_model() {
             continue;
         }
         let mut sim = sim(&s, true);
-        sim.plant.set_mechanics(Mechanics::ConstantSpeed(w as f64));
+        assert_eq!(spin_up_then_hold(&mut sim, &s, w), None, "{stem}");
         sim.cascade
             .command(Command::Torque {
                 iq_a: s.max_current_a,
             })
             .unwrap();
         sim.run((0.1 * s.pwm_hz()) as usize);
-        if DYNO_KNOWN_GAPS.contains(&stem.as_str()) {
-            let f = sim.cascade.feedback().first_fault;
-            println!("{stem}: KNOWN GAP (see DYNO_KNOWN_GAPS): {f:?}");
-            continue;
-        }
         let (t, _) = mean_torque(&mut sim, (0.02 * s.pwm_hz()) as usize);
         let fb = sim.cascade.feedback();
         println!(
@@ -447,20 +438,13 @@ fn a_fault_at_top_speed_short_circuits_instead_of_pumping_the_bus() {
             // Over-voltage trip out of the way: the peak is the figure.
             c.current.supervisor.bus_over_voltage_v = 1.0e4;
             let mut sim = Sim::new_calibrated(&s, c, false);
-            sim.plant
-                .set_mechanics(Mechanics::ConstantSpeed(top as f64));
-            // Light load at the top speed (a dyno holds it); the DC link
-            // is connected once the drive runs there (before, the
-            // rotor's start at speed with the bridge off rectified into it).
+            assert_eq!(spin_up_then_hold(&mut sim, &s, top), None, "{stem}");
+            // Light load at the top speed (the dyno holds it), on a
+            // non-sinking DC link from here on.
             sim.cascade.command(Command::Torque { iq_a: 0.0 }).unwrap();
-            sim.run((0.05 * s.pwm_hz()) as usize);
             sim.plant.set_dc_link(Some(non_sinking(&s)));
-            sim.run((0.01 * s.pwm_hz()) as usize);
+            sim.run((0.05 * s.pwm_hz()) as usize);
             let f = sim.cascade.feedback().first_fault;
-            if f.is_some() && DYNO_KNOWN_GAPS.contains(&stem.as_str()) {
-                println!("{stem}: KNOWN GAP (see DYNO_KNOWN_GAPS): {f:?} before the fault");
-                break;
-            }
             assert!(f.is_none(), "{stem}: {f:?} before the fault");
             // The back-EMF's line-to-line peak against the bus at the fault.
             let m = &s.motor;
@@ -499,9 +483,7 @@ fn a_fault_at_top_speed_short_circuits_instead_of_pumping_the_bus() {
             out[1].0
         );
         let vbus = s.bench.bus_voltage_v as f32;
-        if SHORT_CIRCUIT_KNOWN_GAPS.contains(&stem.as_str()) {
-            println!("{stem}: KNOWN GAP (see SHORT_CIRCUIT_KNOWN_GAPS)");
-        } else if top > 1.15 * base {
+        if top > 1.15 * base {
             assert!(
                 out[1].1 < 1.05 * vbus,
                 "{stem}: the short circuit kept the bus"
@@ -509,4 +491,57 @@ fn a_fault_at_top_speed_short_circuits_instead_of_pumping_the_bus() {
             assert!(out[0].1 > out[1].1, "{stem}");
         }
     }
+}
+
+/// Switching field weakening off at the top speed does not brake: it
+/// stays in force until its d current is back at 0 (design §30), so the
+/// speed and the current stay where they were.
+#[test]
+fn switching_field_weakening_off_at_speed_does_not_brake() {
+    let mut failures = Vec::new();
+    for (stem, s) in setups() {
+        if !resolved(&stem, &s) {
+            continue;
+        }
+        let top = top_speed(&s);
+        let mut sim = sim(&s, true);
+        sim.cascade
+            .command(Command::Velocity { rad_s: top })
+            .unwrap();
+        let (fault, _, _) = run(&mut sim, periods_to(&s, top));
+        assert_eq!(fault, None, "{stem}");
+        let mut off = *sim.cascade.current.config();
+        off.field.field_weakening = false;
+        sim.cascade.current.set_field(off.field).unwrap();
+        let id_before = sim.cascade.feedback().i_dq_ref_a.d;
+        let (mut w_min, mut t_min) = (f32::INFINITY, f32::INFINITY);
+        let mut fault = None;
+        for _ in 0..(0.1 * s.pwm_hz()) as usize {
+            sim.step();
+            w_min = w_min.min(sim.plant.omega_m_rad_s() as f32);
+            t_min = t_min.min(sim.plant.torque_nm() as f32);
+            fault = fault.or(sim.cascade.feedback().first_fault);
+        }
+        let id_after = sim.cascade.feedback().i_dq_ref_a.d;
+        println!(
+            "{stem}: field weakening switched off at {top:.1} rad/s: slowest {w_min:.1} rad/s, \
+             least torque {t_min:.3} N m, id {id_before:.2} -> {id_after:.2} A, {fault:?}"
+        );
+        let max_t = s.kt() * s.max_current_a;
+        if fault.is_some() || w_min < 0.98 * top || t_min < -0.05 * max_t {
+            failures.push(format!("{stem}: {fault:?}, {w_min} rad/s, {t_min} N m"));
+        }
+        // Below base speed it is off for good: back at rest, no d current.
+        sim.cascade
+            .command(Command::Velocity { rad_s: 0.0 })
+            .unwrap();
+        let (fault, _, _) = run(&mut sim, periods_to(&s, top));
+        let id_rest = sim.cascade.current.field().weakening_id_a();
+        if fault.is_some() || id_rest != 0.0 {
+            failures.push(format!(
+                "{stem}: at rest {fault:?}, weakening id {id_rest} A"
+            ));
+        }
+    }
+    assert!(failures.is_empty(), "{failures:#?}");
 }

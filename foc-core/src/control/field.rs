@@ -34,10 +34,15 @@
 //!   are bounded by the configured `max_id_a` (demagnetisation) and the
 //!   current circle; the integrator is taken back whenever the sum is
 //!   clipped (no wind-up). Below base speed the feed-forward is 0 and the
-//!   integrator rises back to it.
+//!   integrator rises back to it. The output is slew-limited: it rises
+//!   (leaves field weakening) by at most `margin v_max Ts / Ld` per period,
+//!   the d voltage the margin leaves, and deepens at most
+//!   [`DEEPEN_RATE`] times as fast, so the d axis, served first, never
+//!   takes from the q axis the voltage that holds the back-EMF.
 //! - Switching field weakening off takes effect once its d current has
-//!   returned to 0: at a speed that still needs it, removing it would lose
-//!   current control to the back-EMF (the runaway braking peers report).
+//!   returned to 0 (below base speed); until then it runs as before: at a
+//!   speed that still needs it, removing it would lose current control to
+//!   the back-EMF (the runaway braking peers report).
 //!
 //! ```
 //! use foc_core::control::field::{Field, FieldConfig};
@@ -57,6 +62,10 @@ use crate::{clamp, sqrtf, FRAC_1_SQRT_3};
 
 /// MTPA is on by default when `(Lq - Ld) / Ld` exceeds this (5 %).
 pub const MTPA_SALIENCY_MARGIN: f32 = 0.05;
+
+/// How many times faster than it may rise the weakening d current may
+/// deepen (a bus that sags, an acceleration past base speed).
+pub const DEEPEN_RATE: f32 = 4.0;
 
 /// Default share of the voltage circle field weakening keeps free for
 /// the current loop's dynamics (5 %).
@@ -185,6 +194,11 @@ struct Plan {
     /// The lowest `|w_e|` the integrator's gain is scaled for (half the
     /// no-load base speed at the nominal... per bus volt) [rad/s / V].
     w_floor_per_bus: f32,
+    /// The largest rise of the weakening d current per period per bus
+    /// volt \[A/V\]: `margin v_max Ts / Ld` (leaving field weakening
+    /// takes at most the voltage margin, so the q axis keeps the voltage
+    /// that holds the back-EMF); it may deepen [`DEEPEN_RATE`] times as fast.
+    rise_per_bus: f32,
     field_weakening: bool,
     short_circuit: bool,
     /// `1 / (sqrt(3) psi)`: the electrical speed per bus volt above which
@@ -268,6 +282,12 @@ impl Field {
                 },
                 target_per_bus,
                 w_floor_per_bus: 0.5 * target_per_bus / psi,
+                rise_per_bus: if usable {
+                    config.voltage_margin * max_modulation * FRAC_1_SQRT_3
+                        / (pwm_frequency_hz * m.ld_h)
+                } else {
+                    0.0
+                },
                 field_weakening: config.field_weakening && max_id > 0.0,
                 short_circuit: config.short_circuit,
                 rectify_w_per_bus: FRAC_1_SQRT_3 / psi,
@@ -419,17 +439,26 @@ impl Field {
         } else {
             0.0
         };
-        let lo = if p.field_weakening {
-            -p.max_id_a
-        } else {
-            self.id_fw_a
-        };
+        // Switched off, it keeps running both ways until its output is
+        // back at 0 (below base speed): a ratchet that only let it rise
+        // would creep, on noise, to where the voltage runs out.
+        let lo = -p.max_id_a;
         let raw = id_ff + self.id_fb_a + step;
+        // Slew-limited: a d current that rises at once takes the whole
+        // voltage circle (the d axis first) from the q axis, whose voltage
+        // holds the back-EMF; the current lost brakes the rotor and pumps
+        // the bus (M153 on a non-sinking link: 26 -> 52 V from a 0.05 V
+        // rise of the bus before this limit).
+        let rise = p.rise_per_bus * v_bus_v;
+        let (down, up) = (self.id_fw_a - DEEPEN_RATE * rise, self.id_fw_a + rise);
+        let lo = if lo > down { lo } else { down };
         let id_fw = if raw.is_finite() {
-            clamp(raw, lo, 0.0)
+            clamp(clamp(raw, lo, up), -p.max_id_a, 0.0)
         } else {
             0.0
         };
+        // Taken back to the output (bounds and slew): no wind-up; after a
+        // jump of the feed-forward the integrator carries the rest.
         self.id_fb_a = id_fw - id_ff;
         self.id_fw_a = id_fw;
         id_fw
@@ -497,9 +526,17 @@ mod tests {
         // Well below base speed, a small voltage: no d current.
         let i = f.reference(5.0, 100.0, 540.0, Dq::new(10.0, 60.0));
         assert_eq!(i.d, 0.0);
-        // At twice base speed the feed-forward weakens at once.
+        // At twice base speed the feed-forward weakens, at its slew rate
+        // (`DEEPEN_RATE` times the rise: 0.43 A per period here).
+        let step = DEEPEN_RATE * f.plan.rise_per_bus * 540.0;
         let i = f.reference(5.0, 1100.0, 540.0, Dq::new(0.0, 280.0));
-        assert!(i.d < -5.0, "{i:?}");
+        assert!((i.d + step).abs() < 1e-4, "{i:?} {step}");
+        // Then the integrator carries on while the voltage is over the
+        // target (the current loop's output at the circle).
+        for _ in 0..2000 {
+            f.reference(5.0, 1100.0, 540.0, Dq::new(0.0, 310.0));
+        }
+        assert!(f.weakening_id_a() < -5.0, "{f:?}");
         // Switched off at speed, it holds until the voltage allows.
         c.field_weakening = false;
         let before = f.weakening_id_a();
