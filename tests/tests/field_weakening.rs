@@ -545,3 +545,143 @@ fn switching_field_weakening_off_at_speed_does_not_brake() {
     }
     assert!(failures.is_empty(), "{failures:#?}");
 }
+
+/// The power limits' regen ramp and the position loop above base speed:
+/// from the top speed a stop into a non-sinking DC link (the mission's
+/// braking link, no brake resistor) keeps the bus below its trip with no
+/// fault while the regen limit holds the braking; a position move whose
+/// trajectory cruises at the top speed reaches its target.
+#[test]
+fn regen_limit_and_position_moves_above_base_speed() {
+    use foc_bench::mission::braking_dc_link;
+    use foc_core::control::power::PowerLimitsConfig;
+    let mut failures = Vec::new();
+    for (stem, s) in setups() {
+        if !resolved(&stem, &s) {
+            continue;
+        }
+        let top = top_speed(&s);
+        let base = base_speed(&s);
+        // (a) regen ramp.
+        let mut c = s.cascade_config();
+        c.current.field.field_weakening = true;
+        let motor = c.current.current.motor;
+        c.current.power = Some(PowerLimitsConfig::for_board(
+            &c.current.supervisor,
+            motor,
+            false,
+        ));
+        let trip = c.current.supervisor.bus_over_voltage_v;
+        let mut link = braking_dc_link(&s, &c.current.supervisor);
+        link.source = SourceKind::NonSinking;
+        link.brake_resistor_ohm = None;
+        let mut sim = Sim::new_calibrated(&s, c, false);
+        sim.cascade
+            .command(Command::Velocity { rad_s: top })
+            .unwrap();
+        let (fault, _, _) = run(&mut sim, periods_to(&s, top));
+        sim.plant.set_dc_link(Some(link));
+        sim.cascade
+            .command(Command::Velocity { rad_s: 0.0 })
+            .unwrap();
+        let (fault2, i_peak, v_peak) = run(&mut sim, (0.3 * s.pwm_hz()) as usize);
+        let w_end = sim.plant.omega_m_rad_s() as f32;
+        println!(
+            "{stem}: stop from {top:.1} rad/s into {:.0} uF, non-sinking: peak bus {v_peak:.1} V \
+             (trip {trip:.1} V), peak phase {i_peak:.2} A, {w_end:.1} rad/s after 0.3 s, \
+             {:?}",
+            link.c_f * 1e6,
+            fault.or(fault2)
+        );
+        if fault.or(fault2).is_some() || v_peak >= trip || w_end >= 0.99 * top {
+            failures.push(format!(
+                "{stem}: regen {:?}, {v_peak} V, {w_end} rad/s",
+                fault.or(fault2)
+            ));
+        }
+        // (b) position move cruising at the top speed.
+        let mut c = s.cascade_config();
+        c.current.field.field_weakening = true;
+        c.position.max_velocity_rad_s = top;
+        let a = c.position.max_acceleration_rad_s2;
+        let distance = top * top / a + 0.2 * top;
+        let mut sim = Sim::new_calibrated(&s, c, false);
+        sim.cascade
+            .command(Command::Position { rad: distance })
+            .unwrap();
+        let n = ((2.0 * top / a + 0.2 + 0.5) * s.pwm_hz()) as usize;
+        let mut w_max = 0.0f32;
+        let mut fault = None;
+        for _ in 0..n {
+            sim.step();
+            w_max = w_max.max(sim.plant.omega_m_rad_s() as f32);
+            fault = fault.or(sim.cascade.feedback().first_fault);
+        }
+        let err = sim.cascade.feedback().position_rad - distance;
+        println!(
+            "{stem}: position move of {distance:.1} rad cruising at {:.2} x base: \
+             final error {err:.4} rad, {fault:?}",
+            w_max / base
+        );
+        if fault.is_some() || err.abs() > 0.01 || w_max < 1.1 * base {
+            failures.push(format!(
+                "{stem}: position {fault:?}, error {err}, {w_max} rad/s"
+            ));
+        }
+    }
+    assert!(failures.is_empty(), "{failures:#?}");
+}
+
+/// The short circuit is released to freewheeling as the speed falls
+/// (below 90 % of the rectifying speed), and a fault that forbids
+/// switching (the gate driver) turns everything off at any speed.
+#[test]
+fn the_short_circuit_is_released_as_the_speed_falls() {
+    for (stem, s) in setups() {
+        if !stem.starts_with("ipm") {
+            continue;
+        }
+        let top = top_speed(&s);
+        let m = &s.motor;
+        let vbus = s.bench.bus_voltage_v as f32;
+        let rectify = vbus / (3f32.sqrt() * m.pole_pairs as f32 * m.flux_linkage_wb as f32);
+        let mut sim = sim(&s, true);
+        assert_eq!(spin_up_then_hold(&mut sim, &s, top), None, "{stem}");
+        sim.cascade.report_fault(Fault::LoopOverrun);
+        // The dyno slows the rotor from the top speed to rest in 0.4 s.
+        let n = (0.4 * s.pwm_hz()) as usize;
+        let mut released_at = None;
+        for k in 0..n {
+            let w = top * (1.0 - k as f32 / n as f32);
+            sim.plant.set_mechanics(Mechanics::ConstantSpeed(w as f64));
+            let b = sim.step();
+            if k > 2 && w > rectify {
+                assert_eq!(b, BridgeCommand::ShortCircuit, "{stem} at {w} rad/s");
+            }
+            if b == BridgeCommand::SafeState && released_at.is_none() {
+                released_at = Some(w);
+            }
+            if released_at.is_some() {
+                assert_eq!(
+                    b,
+                    BridgeCommand::SafeState,
+                    "{stem} at {w}: released for good"
+                );
+            }
+        }
+        let released = released_at.expect("released");
+        println!(
+            "{stem}: short circuit from {top:.1} rad/s, released at {released:.1} rad/s \
+             ({:.2} of the rectifying speed {rectify:.1} rad/s)",
+            released / rectify
+        );
+        assert!((released / rectify - 0.9).abs() < 0.03, "{stem}");
+        // A gate-driver fault at the top speed: everything off.
+        let mut other = self::sim(&s, true);
+        assert_eq!(spin_up_then_hold(&mut other, &s, top), None, "{stem}");
+        other.cascade.report_fault(Fault::GateDriverFault);
+        for _ in 0..10 {
+            assert_eq!(other.step(), BridgeCommand::SafeState, "{stem}");
+        }
+    }
+}

@@ -13,6 +13,7 @@
 //!         id_fw = clamp(id_ff + id_fb, -max_id, 0)      (id_fb taken back to fit)
 //! id      = max(min(id_mtpa, id_fw), -max_id)
 //! iq      = iq_t / (1 - dL id / psi), within sqrt(I_max^2 - id^2)   (the d axis first)
+//!         and, weakening, within the steady-state voltage ellipse at id = -max_id
 //! ```
 //!
 //! - MTPA follows the torque-per-ampere ridge from the identified `Ld`,
@@ -402,7 +403,51 @@ impl Field {
         let iq = self.q_for(iq_a, id);
         let room = p.imax_sq - id * id;
         let iq_lim = if room > 0.0 { sqrtf(room) } else { 0.0 };
-        Dq::new(id, clamp(iq, -iq_lim, iq_lim))
+        let (mut lo, mut hi) = (-iq_lim, iq_lim);
+        if id_fw < 0.0 {
+            let (v_lo, v_hi) = self.voltage_q_range_a(w_e_rad_s, v_bus_v);
+            lo = if v_lo > lo { v_lo } else { lo };
+            hi = if v_hi < hi { v_hi } else { hi };
+        }
+        Dq::new(id, clamp(iq, lo, hi))
+    }
+
+    /// Field weakening: the q currents the voltage allows in steady state
+    /// at `w_e_rad_s` with the deepest weakening `id = -max_id` \[A\]: the
+    /// roots of `(R id - w Lq iq)^2 + (R iq + w (psi + Ld id))^2 = v_t^2`.
+    /// The q current's own voltage `w Lq iq` falls on the d axis, which
+    /// the current loop serves first: a q reference beyond it (the speed
+    /// loop asking for 10 A of braking at twice base speed on the
+    /// interior-PM motor, where at most 5.7 A fit) saturated the d axis,
+    /// left the q axis no voltage, and the current it no longer controlled
+    /// kept motoring. Taken at the deepest weakening, the range never
+    /// stops the loop deepening (the reference may lead it); beyond the
+    /// top speed it is empty and the q reference 0.
+    #[inline(always)]
+    fn voltage_q_range_a(&self, w_e_rad_s: f32, v_bus_v: f32) -> (f32, f32) {
+        let p = &self.plan;
+        let w = w_e_rad_s.abs();
+        let v = p.target_per_bus * v_bus_v;
+        let id = -p.max_id_a;
+        let (r, wl) = (p.r_ohm, w * p.lq_h);
+        let e = w * (p.psi_wb + p.ld_h * id);
+        // a iq^2 + b iq + c = 0
+        let a = wl * wl + r * r;
+        let b = 2.0 * r * (e - id * wl);
+        let c = r * r * id * id + e * e - v * v;
+        let disc = b * b - 4.0 * a * c;
+        if !(a > 0.0 && disc > 0.0) {
+            return (0.0, 0.0);
+        }
+        let root = sqrtf(disc);
+        let inv = 0.5 / a;
+        // The sign of the speed turns the range over.
+        let (lo, hi) = ((-b - root) * inv, (-b + root) * inv);
+        if w_e_rad_s >= 0.0 {
+            (lo, hi)
+        } else {
+            (-hi, -lo)
+        }
     }
 
     /// The q current that gives the torque of `iq_a` at `id = 0` with
