@@ -68,12 +68,20 @@ pub(super) enum Cmd {
     Clear,
     /// Show latched faults.
     Faults,
-    /// Read a parameter (`all` for every one).
+    /// Read a parameter (`all` for every one), or write one: the
+    /// d-current reference's (design §30) `field-weakening`, `mtpa`,
+    /// `short-circuit` (on/off, 1/0) and `max-id` (A), only while disabled.
     Param {
         /// pole-pairs, r, ld, lq, psi, pwm-frequency, speed-divider,
         /// position-divider, firmware-version, protocol-version, bus-voltage,
-        /// calibrated, max-loop-cycles, telemetry-divider, watchdog-timeout, all
+        /// calibrated, max-loop-cycles, telemetry-divider, watchdog-timeout,
+        /// field-weakening, mtpa, max-id, short-circuit, ... (`param all`
+        /// lists them), all
         name: String,
+        /// A new value (writable parameters only): a number in the
+        /// parameter's unit, or on/off for a switch.
+        #[arg(allow_hyphen_values = true)]
+        value: Option<String>,
     },
     /// Stream telemetry.
     Telemetry {

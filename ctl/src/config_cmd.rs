@@ -144,7 +144,18 @@ pub(super) fn import(c: &mut Client, file: &Path, no_save: bool) -> CliResult {
     } else {
         StoreOp::ApplyAndSave
     };
-    c.store(op).map_err(|e| config_error("config import", e))?;
+    c.store(op).map_err(|e| {
+        // A rule the host cannot check (the drive's angle sensor) named.
+        let hint = match e {
+            ClientError::Nack(ErrorCode::BadRecord) => refusal::record_refusal_hint(&r),
+            _ => None,
+        };
+        let base = config_error("config import", e);
+        match hint {
+            Some(h) => format!("{base}; {h}").into(),
+            None => base,
+        }
+    })?;
     if no_save {
         say!(
             "applied {} (not saved: `foc-ctl config save` keeps it)",

@@ -401,6 +401,10 @@ impl Client {
             r => Err(ClientError::Unexpected(r)),
         }
     }
+    /// Write a parameter ([`ParamId::is_writable`]; a switch 0 or 1).
+    pub fn set_param(&mut self, id: ParamId, value: f32) -> Result<(), ClientError> {
+        self.expect_ack(&Request::SetParam { id, value })
+    }
     /// One telemetry sample now.
     pub fn read_telemetry(&mut self) -> Result<Telemetry, ClientError> {
         match self.request(&Request::ReadTelemetry)? {

@@ -98,7 +98,11 @@ fn dispatch(c: &mut Client, cmd: Cmd) -> CliResult {
             duration_ms,
         } => keep_alive(c, interval_ms, duration_ms * 1e-3),
         Cmd::Faults => show_faults(c),
-        Cmd::Param { name } => show_params(c, &name),
+        Cmd::Param { name, value: None } => show_params(c, &name),
+        Cmd::Param {
+            name,
+            value: Some(v),
+        } => write_param(c, &name, &v),
         Cmd::Telemetry {
             rate,
             every,
@@ -411,6 +415,29 @@ fn show_params(c: &mut Client, name: &str) -> CliResult {
             Err(e) => return Err(e.into()),
         }
     }
+    Ok(())
+}
+
+/// `param NAME VALUE`: write a writable parameter (on/off for a switch),
+/// refused in words; then its value in force.
+fn write_param(c: &mut Client, name: &str, text: &str) -> CliResult {
+    let id = ParamId::from_name(name)
+        .filter(|p| p.is_writable())
+        .ok_or_else(|| {
+            let names: Vec<&str> = ParamId::ALL
+                .iter()
+                .filter(|p| p.is_writable())
+                .map(|p| p.name())
+                .collect();
+            format!(
+                "`{name}` is not a parameter that can be written; these are: {}",
+                names.join(", ")
+            )
+        })?;
+    let value = refusal::param_value(id, text).map_err(|e| format!("{name}: {e}"))?;
+    let r = Request::SetParam { id, value };
+    c.send(&r).map_err(|e| refusal::explain(c, &r, &e))?;
+    say!("{:<18} {}", id.name(), param_text(id, c.param(id)?));
     Ok(())
 }
 

@@ -19,6 +19,7 @@
 
 use crate::joint::nack_text;
 use crate::{Client, ClientError};
+use foc_core::control::stage::COARSE_FIELD_WEAKENING;
 use foc_core::control::{Command, Limits};
 use foc_protocol::device::MAX_GAIN;
 use foc_protocol::message::{ErrorCode, ParamId, Request, TelemetryRate};
@@ -59,6 +60,7 @@ pub fn field_value(req: &Request, field: u8) -> Option<(f32, &'static str)> {
             ]
         }
         Request::SetWatchdog(w) => vec![(w.timeout_periods as f32, "periods")],
+        Request::SetParam { id, value } => vec![(f32::from(*id as u8), ""), (*value, id.unit())],
         Request::StartTelemetry(TelemetryRate::Hz(hz)) => vec![(0.0, ""), (*hz, "Hz")],
         Request::StartTelemetry(TelemetryRate::EveryPeriods(k)) => {
             vec![(1.0, ""), (*k as f32, "periods")]
@@ -152,6 +154,14 @@ pub fn allowed_range(
             _,
         ) => Some(format!("0 .. {MAX_GAIN:e}, finite")),
         (Request::SetDividers { .. }, _) => Some("at least 1".into()),
+        (Request::SetParam { .. }, 0) => Some(format!(
+            "one of the parameters that can be written: {}",
+            writable_names()
+        )),
+        (Request::SetParam { id, .. }, 1) if id.is_switch() => Some("0 (off) or 1 (on)".into()),
+        (Request::SetParam { id: ParamId::MaxIdA, .. }, 1) => Some(
+            "0 .. 1e6 A, finite (field weakening uses at most the current limit)".into(),
+        ),
         (Request::StartTelemetry(_), 1) => Some(
             "above 0, at most the PWM rate and what the link carries (a board's 115200-baud UART: 192 Hz)".into(),
         ),
@@ -193,6 +203,78 @@ fn in_command_frame(c: &mut Client, req: &Request, l: Limits) -> (Limits, &'stat
     (out, " (output frame, through the joint)")
 }
 
+/// The writable parameters' names, comma-separated.
+fn writable_names() -> String {
+    let names: Vec<&str> = ParamId::ALL
+        .iter()
+        .filter(|p| p.is_writable())
+        .map(|p| p.name())
+        .collect();
+    names.join(", ")
+}
+
+/// `text` as a value of writable parameter `id`: a number (`nan` and `inf`
+/// included: the device says what it takes), or for a switch also
+/// `on`/`off`, `true`/`false`.
+pub fn param_value(id: ParamId, text: &str) -> Result<f32, String> {
+    let t = text.trim();
+    if id.is_switch() {
+        match t {
+            "on" | "true" => return Ok(1.0),
+            "off" | "false" => return Ok(0.0),
+            _ => {}
+        }
+    }
+    t.parse::<f32>().map_err(|_| {
+        if id.is_switch() {
+            format!("`{t}` is not on, off, 1 or 0")
+        } else {
+            format!("`{t}` is not a number")
+        }
+    })
+}
+
+/// Why the drive refused a d-current reference parameter its values pass
+/// (`Unsupported`: the drive's rule, `foc_core::drive::check_field`), in
+/// words, from what it reports.
+fn field_param_refusal(c: &mut Client, id: ParamId, value: f32) -> String {
+    let fw_on = c.param(ParamId::FieldWeakening).ok() == Some(1.0);
+    let max_id = c.param(ParamId::MaxIdA).ok();
+    match id {
+        ParamId::FieldWeakening if value == 1.0 && max_id == Some(0.0) => {
+            "`field-weakening` = 1 is refused: field weakening needs `max-id` above 0 \
+             (set it first); nothing changed"
+                .into()
+        }
+        ParamId::FieldWeakening if value == 1.0 => format!(
+            "`field-weakening` = 1 is refused: {COARSE_FIELD_WEAKENING} (or the configuration's \
+             `field.bandwidth_rad_s` is 0); nothing changed"
+        ),
+        ParamId::MaxIdA if value == 0.0 && fw_on => {
+            "`max-id` = 0 A is refused while field weakening is on (it needs a current): \
+             switch `field-weakening` off first; nothing changed"
+                .into()
+        }
+        _ => format!(
+            "`{}` = {value} is refused by the drive ({}); nothing changed",
+            id.name(),
+            crate::describe_error(ErrorCode::Unsupported)
+        ),
+    }
+}
+
+/// Why a record that passed the host's checks may still be refused
+/// (`BadRecord`) by a drive: field weakening on a coarse angle sensor, the
+/// drive's rule (`None` when the record does not turn it on).
+pub fn record_refusal_hint(r: &foc_store::DriveRecord) -> Option<String> {
+    r.field.filter(|f| f.field_weakening).map(|_| {
+        format!(
+            "the record turns field weakening on (`field.field_weakening`), which the drive \
+             refuses on a coarse angle sensor: {COARSE_FIELD_WEAKENING}"
+        )
+    })
+}
+
 /// The limits in force, as the device reports them (`None` from a device
 /// that does not).
 pub fn limits_in_force(c: &mut Client) -> Option<Limits> {
@@ -232,9 +314,17 @@ pub fn nack_explained(c: &mut Client, req: &Request, code: ErrorCode) -> String 
             ),
             _ => format!("{}; nothing changed", crate::describe_error(code)),
         },
+        (Request::SetParam { id, value }, ErrorCode::Unsupported) if id.is_writable() => {
+            field_param_refusal(c, *id, *value)
+        }
         (_, ErrorCode::OutOfRange { field }) => {
             let Some(name) = req.field_name(field) else {
                 return nack_text(req, code);
+            };
+            // A parameter's value is named by the parameter.
+            let name = match req {
+                Request::SetParam { id, .. } if field == 1 => id.name(),
+                _ => name,
             };
             let value = field_value(req, field)
                 .map(|(v, u)| format!(" = {v}{}{u}", if u.is_empty() { "" } else { " " }))

@@ -58,6 +58,15 @@ pub(super) fn param_text(id: ParamId, v: f32) -> String {
                 _ => "unknown",
             }
         ),
+        _ if id.is_switch() => format!(
+            "{} ({})",
+            num(v),
+            match v as u8 {
+                1 => "on",
+                0 => "off",
+                _ => "unknown",
+            }
+        ),
         _ if id.unit().is_empty() => num(v),
         _ => format!("{} {}", num(v), id.unit()),
     }

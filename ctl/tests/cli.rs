@@ -207,3 +207,120 @@ fn a_refused_range_is_given_in_the_frame_of_the_value() {
         err(&o)
     );
 }
+
+/// The d-current reference's parameters (design §30): read with units and
+/// on/off, written by name (on/off or a number), refused in words naming
+/// the parameter, the value and what it takes; nothing changes on a
+/// refusal. On halls field weakening is refused with the reason, by
+/// parameter and by record (`config import`).
+#[test]
+fn field_parameters_are_written_by_name_and_refused_in_words() {
+    let server = calibrated_server();
+    let a = server.addr();
+    let o = foc_ctl(a, &["param", "field-weakening"]);
+    assert!(
+        out(&o).contains("field-weakening    0 (off)"),
+        "{}",
+        out(&o)
+    );
+    let o = foc_ctl(a, &["param", "field-weakening", "on"]);
+    assert!(o.status.success(), "{}", err(&o));
+    assert!(out(&o).contains("field-weakening    1 (on)"), "{}", out(&o));
+    let o = foc_ctl(a, &["param", "max-id", "3.5"]);
+    assert!(out(&o).contains("max-id             3.5 A"), "{}", out(&o));
+    let o = foc_ctl(a, &["param", "short-circuit", "1"]);
+    assert!(out(&o).contains("short-circuit      1 (on)"), "{}", out(&o));
+    for (args, want) in [
+        (
+            ["param", "max-id", "nan"],
+            "`max-id` = NaN A is out of range (allowed: 0 .. 1e6 A, finite",
+        ),
+        (
+            ["param", "max-id", "-2"],
+            "`max-id` = -2 A is out of range",
+        ),
+        (
+            ["param", "mtpa", "0.5"],
+            "`mtpa` = 0.5 is out of range (allowed: 0 (off) or 1 (on))",
+        ),
+        (["param", "mtpa", "maybe"], "`maybe` is not on, off, 1 or 0"),
+        (
+            ["param", "max-current", "3"],
+            "`max-current` is not a parameter that can be written; these are: field-weakening, mtpa, max-id, short-circuit",
+        ),
+        (
+            ["param", "max-id", "0"],
+            "`max-id` = 0 A is refused while field weakening is on",
+        ),
+    ] {
+        let o = foc_ctl(a, &args);
+        assert!(!o.status.success(), "{args:?}");
+        assert!(err(&o).contains(want), "{args:?}: {}", err(&o));
+    }
+    // Nothing changed.
+    let mut c = Client::connect_tcp(a).unwrap();
+    assert_eq!(c.param(ParamId::MaxIdA).unwrap(), 3.5);
+    assert_eq!(c.param(ParamId::FieldWeakening).unwrap(), 1.0);
+    // The live record carries them.
+    let o = foc_ctl(a, &["config", "show"]);
+    assert!(
+        out(&o).contains("[field]\nmtpa = ") && out(&o).contains("max_id_a = 3.5"),
+        "{}",
+        out(&o)
+    );
+    // Not while running.
+    let o = foc_ctl(a, &["mode", "velocity", "5"]);
+    assert!(o.status.success(), "{}", err(&o));
+    let o = foc_ctl(a, &["param", "mtpa", "off"]);
+    assert!(!o.status.success());
+    assert!(err(&o).contains("disable"), "{}", err(&o));
+}
+
+#[test]
+fn field_weakening_is_refused_on_halls_with_the_reason() {
+    let path = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../tests/motors/cute-q85sx-hub.toml");
+    let dev = SimDevice::from_motor_file(&path).unwrap();
+    let server = SimServer::spawn_with(TcpListener::bind("127.0.0.1:0").unwrap(), dev).unwrap();
+    let a = server.addr();
+    let o = foc_ctl(a, &["param", "field-weakening", "on"]);
+    assert!(!o.status.success());
+    assert!(
+        err(&o).contains(
+            "`field-weakening` = 1 is refused: field weakening needs a fine angle sensor"
+        ),
+        "{}",
+        err(&o)
+    );
+    assert!(err(&o).contains("nothing changed"), "{}", err(&o));
+    let o = foc_ctl(a, &["param", "field-weakening"]);
+    assert!(out(&o).contains("0 (off)"), "{}", out(&o));
+    // MTPA is fine on halls.
+    let o = foc_ctl(a, &["param", "mtpa", "on"]);
+    assert!(o.status.success(), "{}", err(&o));
+    // A record that turns it on: the host's checks pass, the drive
+    // refuses it whole and the reason is given.
+    let file = std::env::temp_dir().join(format!("foc-ctl-halls-{}.toml", std::process::id()));
+    let o = foc_ctl(a, &["config", "export", file.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", err(&o));
+    let text = std::fs::read_to_string(&file).unwrap();
+    assert!(text.contains("field_weakening = false"), "{text}");
+    std::fs::write(
+        &file,
+        text.replace("field_weakening = false", "field_weakening = true"),
+    )
+    .unwrap();
+    let o = foc_ctl(
+        a,
+        &["config", "import", file.to_str().unwrap(), "--no-save"],
+    );
+    assert!(!o.status.success());
+    assert!(
+        err(&o).contains("the record turns field weakening on (`field.field_weakening`)"),
+        "{}",
+        err(&o)
+    );
+    let _ = std::fs::remove_file(&file);
+    let o = foc_ctl(a, &["param", "field-weakening"]);
+    assert!(out(&o).contains("0 (off)"), "{}", out(&o));
+}

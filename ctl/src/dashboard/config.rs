@@ -160,13 +160,13 @@ fn try_set(c: &mut Client, pairs: &[(String, String)]) -> Result<String, String>
             "{} applied (not saved: the wizard's Save, or `config save`, keeps it)",
             what.join(", ")
         )),
-        Err(ClientError::Nack(code)) => Err(refusal(c, pairs, code)),
+        Err(ClientError::Nack(code)) => Err(refusal(c, pairs, &r, code)),
         Err(e) => Err(e.to_string()),
     }
 }
 
 /// A refused record in words, with the board's rule where it is known.
-fn refusal(c: &mut Client, pairs: &[(String, String)], code: ErrorCode) -> String {
+fn refusal(c: &mut Client, pairs: &[(String, String)], r: &DriveRecord, code: ErrorCode) -> String {
     let current = pairs
         .iter()
         .find(|(k, _)| k == "limits.max_current_a")
@@ -177,6 +177,12 @@ fn refusal(c: &mut Client, pairs: &[(String, String)], code: ErrorCode) -> Strin
                 "refused by the device: `limits.max_current_a` = {v} A is above this board's hardware limit of {hw} A; nothing changed"
             );
         }
+    }
+    if let (ErrorCode::BadRecord, Some(hint)) = (code, foc_ctl::refusal::record_refusal_hint(r)) {
+        return format!(
+            "refused by the device: {}: {hint}; nothing changed",
+            describe_error(code)
+        );
     }
     format!(
         "refused by the device: {}; nothing changed",
@@ -210,6 +216,17 @@ mod tests {
         assert_eq!(unit, "H");
         assert!(range.contains("> 0"), "{range}");
         assert_eq!(field_doc("limits.max_current_a").unwrap().0, "A");
+        // The d-current reference (schema 8).
+        assert_eq!(field_doc("field.max_id_a").unwrap().0, "A");
+        for key in [
+            "field.mtpa",
+            "field.field_weakening",
+            "field.voltage_margin",
+            "field.bandwidth_rad_s",
+            "field.short_circuit",
+        ] {
+            assert!(field_doc(key).is_some(), "{key}");
+        }
         assert!(field_doc("no.such").is_none());
     }
 
