@@ -316,6 +316,14 @@ class Drive:
             allowed = self._allowed(tag, body, field)
             if allowed:
                 text += f" (allowed: {allowed})"
+        elif ec == ErrorCode.Unsupported and tag == Tag.SET_PARAM and body[:1] == bytes(
+            [ParamId.FieldWeakening]
+        ):
+            text = m.FIELD_WEAKENING_REFUSED
+        elif ec == ErrorCode.Unsupported and tag == Tag.SET_PARAM and body[:1] == bytes(
+            [ParamId.MaxIdA]
+        ):
+            text = "max-id 0 is refused while field weakening is on (switch it off first)"
         elif ec == ErrorCode.Unsupported and tag == Tag.SET_LIMITS:
             hw = self._quiet_param(ParamId.BoardMaxCurrentA)
             asked = m.field_value(tag, body, 0)
@@ -336,6 +344,8 @@ class Drive:
     def _allowed(self, tag: int, body: bytes, field: int) -> Optional[str]:
         """The range an out-of-range command field is checked against, read
         from the device's limits in force (``None`` where unknown)."""
+        if tag == Tag.SET_PARAM and field == 1 and body:
+            return m.PARAM_RANGES.get(body[0])
         r = m.range_params(tag, body, field)
         if r is None:
             return None
@@ -590,6 +600,24 @@ class Drive:
         if got != pid:
             raise ProtocolError(f"asked for parameter {int(pid)}, got {got}")
         return value
+
+    def set_param(self, name_or_id: Union[str, int, ParamId], value: Union[float, bool]) -> None:
+        """Write a parameter (the d-current reference's, design §30:
+        ``"field-weakening"``, ``"mtpa"``, ``"short-circuit"`` take
+        ``True``/``False`` or 1/0, ``"max-id"`` a current [A]; only while
+        disabled). A refusal changes nothing: :class:`NackError`
+        ``OutOfRange`` (field 1: the value) for a value the parameter does
+        not take, ``Unsupported`` when the drive's rule refuses it (field
+        weakening on halls, or with max-id 0)."""
+        pid = self._param_id(name_or_id)
+        if pid not in m.WRITABLE_PARAMS:
+            names = ", ".join(m.PARAM_NAMES[p] for p in m.WRITABLE_PARAMS)
+            raise ValueError(f"{m.PARAM_NAMES.get(pid, pid)} cannot be written (one of {names})")
+        if isinstance(value, bool):
+            v = 1.0 if value else 0.0
+        else:
+            v = _real(m.PARAM_NAMES[pid], value)
+        self._ack(Tag.SET_PARAM, m.body_set_param(pid, v))
 
     def params(self) -> Dict[str, float]:
         """Every parameter the device answers, by ``foc-ctl`` name (those it

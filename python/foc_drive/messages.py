@@ -60,6 +60,7 @@ class Tag(enum.IntEnum):
     SET_DIVIDERS = 0x15
     SET_WATCHDOG = 0x16
     SET_JOINT = 0x17
+    SET_PARAM = 0x18
     RUN_CALIBRATION = 0x20
     READ_FAULTS = 0x21
     CLEAR_FAULTS = 0x22
@@ -283,6 +284,11 @@ class ParamId(enum.IntEnum):
     MaxOpenLoopOmegaERadS = 30
     MaxImpedanceKp = 31
     MaxImpedanceKd = 32
+    # The d-current reference (design §30), writable (``SetParam``):
+    FieldWeakening = 33
+    Mtpa = 34
+    MaxIdA = 35
+    ShortCircuit = 36
 
 
 #: Parameter names as ``foc-ctl param NAME`` spells them.
@@ -320,6 +326,10 @@ PARAM_NAMES: Dict[ParamId, str] = {
     ParamId.MaxOpenLoopOmegaERadS: "max-open-loop-omega-e",
     ParamId.MaxImpedanceKp: "max-impedance-kp",
     ParamId.MaxImpedanceKd: "max-impedance-kd",
+    ParamId.FieldWeakening: "field-weakening",
+    ParamId.Mtpa: "mtpa",
+    ParamId.MaxIdA: "max-id",
+    ParamId.ShortCircuit: "short-circuit",
 }
 
 #: Each parameter's unit ("" for a count or a code), as ``foc-ctl param``
@@ -351,7 +361,35 @@ PARAM_UNITS: Dict[ParamId, str] = {
     ParamId.MaxOpenLoopOmegaERadS: "rad/s",
     ParamId.MaxImpedanceKp: "N m/rad",
     ParamId.MaxImpedanceKd: "N m s/rad",
+    ParamId.MaxIdA: "A",
 }
+
+#: The parameters ``SetParam`` writes (the d-current reference's, design
+#: §30; only while disabled), each with whether it is an on/off switch
+#: (0 or 1).
+WRITABLE_PARAMS: Dict[ParamId, bool] = {
+    ParamId.FieldWeakening: True,
+    ParamId.Mtpa: True,
+    ParamId.MaxIdA: False,
+    ParamId.ShortCircuit: True,
+}
+
+#: What a writable parameter takes (the device checks the same: a switch
+#: 0 or 1; ``max-id`` finite, >= 0, below 1e6 [A]).
+PARAM_RANGES: Dict[ParamId, str] = {
+    ParamId.FieldWeakening: "0 (off) or 1 (on)",
+    ParamId.Mtpa: "0 (off) or 1 (on)",
+    ParamId.MaxIdA: "0 .. 1e6 A, finite (field weakening uses at most the current limit)",
+    ParamId.ShortCircuit: "0 (off) or 1 (on)",
+}
+
+#: Why the drive refuses field weakening its values allow (``Unsupported``):
+#: foc-core's rule (``foc_core::drive::check_field``).
+FIELD_WEAKENING_REFUSED = (
+    "field weakening needs a fine angle sensor (a coarse one's, halls', half-count "
+    "uncertainty turns the weakening d current into q current), max-id above 0 and "
+    "a field-weakening bandwidth above 0"
+)
 
 #: ``calibration-step`` codes (the step running, or where the last run
 #: ended).
@@ -491,6 +529,7 @@ REQUEST_FIELDS: Dict[int, Tuple[str, ...]] = {
     ),
     Tag.RUN_CALIBRATION: ("routine",),
     Tag.READ_PARAM: ("id",),
+    Tag.SET_PARAM: ("id", "value"),
     Tag.START_HOMING: (
         "method",
         "home_output_rad",
@@ -562,6 +601,8 @@ def field_value(tag: int, body: bytes, field: int) -> Optional[float]:
             return float(struct.unpack_from("<H", body, 2 * field)[0])
         if tag == Tag.SET_WATCHDOG and field == 0:
             return float(struct.unpack_from("<I", body, 0)[0])
+        if tag == Tag.SET_PARAM:
+            return float(body[0]) if field == 0 else struct.unpack_from("<f", body, 1)[0]
     except (struct.error, IndexError):
         return None
     return None
@@ -676,6 +717,11 @@ def body_calibration(routine: int) -> bytes:
 def body_read_param(pid: int) -> bytes:
     """``ReadParam`` body (a :class:`ParamId` code)."""
     return bytes([pid])
+
+
+def body_set_param(pid: int, value: float) -> bytes:
+    """``SetParam`` body (a writable :class:`ParamId` code, its value)."""
+    return bytes([pid]) + f32_bits(value)
 
 
 def body_start_telemetry(

@@ -167,6 +167,7 @@ BUILDERS = {
     "ReadFaults": _empty,
     "ClearFaults": _empty,
     "ReadParam": lambda f: m.body_read_param(f["id"]),
+    "SetParam": lambda f: m.body_set_param(f["id"], f["value"]),
     "ReadTelemetry": _empty,
     "StartTelemetry": _start_telemetry,
     "StopTelemetry": _empty,
@@ -330,6 +331,13 @@ class Tables(unittest.TestCase):
     def test_param_names(self):
         self.assertEqual({p.name: n for p, n in m.PARAM_NAMES.items()}, DOC["param_names"])
 
+    def test_param_units_and_writable_params(self):
+        self.assertEqual({p.name: u for p, u in m.PARAM_UNITS.items()}, DOC["param_units"])
+        self.assertEqual(
+            [[p.name, switch] for p, switch in m.WRITABLE_PARAMS.items()], DOC["writable_params"]
+        )
+        self.assertEqual(set(m.PARAM_RANGES), set(m.WRITABLE_PARAMS))
+
     def test_request_field_names(self):
         want = {m.Tag[k]: tuple(v) for k, v in DOC["request_fields"].items()}
         self.assertEqual(dict(m.REQUEST_FIELDS), want)
@@ -407,6 +415,7 @@ def _drive_call(name, f):
         "ReadFaults": lambda d: d.faults(),
         "ClearFaults": lambda d: d.clear_faults(),
         "ReadParam": lambda d: d.param(f["id"]),
+        "SetParam": lambda d: d.set_param(f["id"], f["value"]),
         "ReadTelemetry": lambda d: d.telemetry(),
         "StopTelemetry": lambda d: d.stop_stream(),
         "Store": lambda d: d.store(f["op"]),

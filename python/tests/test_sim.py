@@ -407,5 +407,78 @@ class RustEncoding(unittest.TestCase):
                 self.assertEqual(data[1:], encode_frame(tag, frames[0].seq, body))
 
 
+
+class FieldReference(SimTestCase):
+    """The d-current reference's parameters (design §30): read, written by
+    name one at a time (only while disabled), refused with the reason and
+    nothing changed; the live record carries them."""
+
+    def test_field_parameters_read_write_and_refusals(self):
+        p = self.d.params()
+        for name in ("field-weakening", "mtpa", "max-id", "short-circuit"):
+            self.assertIn(name, p)
+        self.assertEqual(p["field-weakening"], 0.0)
+        self.assertEqual(m.PARAM_UNITS[m.ParamId.MaxIdA], "A")
+        self.d.set_param("field-weakening", True)
+        self.d.set_param("max-id", 3.5)
+        self.d.set_param(m.ParamId.ShortCircuit, 1)
+        self.assertEqual(self.d.param("field-weakening"), 1.0)
+        self.assertEqual(self.d.param(m.ParamId.MaxIdA), 3.5)
+        self.assertEqual(self.d.param("short-circuit"), 1.0)
+        before = self.d.read_config()
+        # Values the parameter does not take: the value is named, with
+        # what it takes.
+        for name, value in (("max-id", float("nan")), ("max-id", -1.0), ("mtpa", 0.5), ("short-circuit", 2)):
+            with self.subTest(name=name, value=value):
+                with self.assertRaises(NackError) as cm:
+                    self.d.set_param(name, value)
+                e = cm.exception
+                self.assertEqual((e.code, e.field, e.field_name), (ErrorCode.OutOfRange, 1, "value"))
+                self.assertIn("allowed: ", e.message)
+                self.assertIn("nothing changed", e.message)
+        # The drive's rule: field weakening needs a current.
+        with self.assertRaises(NackError) as cm:
+            self.d.set_param("max-id", 0.0)
+        self.assertEqual(cm.exception.code, ErrorCode.Unsupported)
+        self.assertIn("while field weakening is on", cm.exception.message)
+        # Not a parameter that can be written: refused on the host.
+        with self.assertRaises(ValueError):
+            self.d.set_param("max-current", 1.0)
+        self.assertEqual(self.d.read_config(), before)
+        self.assertEqual(self.d.param("max-id"), 3.5)
+        # Not while running.
+        self.calibrate()
+        self.d.velocity(5.0)
+        with self.assertRaises(NackError) as cm:
+            self.d.set_param("mtpa", False)
+        self.assertEqual(cm.exception.code, ErrorCode.NotDisabled)
+        self.d.disable()
+
+
+class FieldWeakeningOnHalls(SimTestCase):
+    """On halls (the hub motor's 48 counts a turn) field weakening is
+    refused with the reason; MTPA is taken."""
+
+    def setUp(self):
+        hub = os.path.join(support.REPO_ROOT, "tests", "motors", "cute-q85sx-hub.toml")
+        self.sim = support.Simulator(FOC_CTL, ["--calibrated", "--motor", hub])
+        self.addCleanup(self.sim.stop)
+        self.d = Drive.connect_tcp("127.0.0.1", self.sim.port, timeout=1.0)
+        self.addCleanup(self.d.close)
+
+    def test_field_weakening_refused(self):
+        before = self.d.read_config()
+        with self.assertRaises(NackError) as cm:
+            self.d.set_param("field-weakening", True)
+        e = cm.exception
+        self.assertEqual(e.code, ErrorCode.Unsupported)
+        self.assertIn("fine angle sensor", e.message)
+        self.assertIn("halls", e.message)
+        self.assertEqual(self.d.param("field-weakening"), 0.0)
+        self.assertEqual(self.d.read_config(), before)
+        self.d.set_param("mtpa", True)
+        self.assertEqual(self.d.param("mtpa"), 1.0)
+
+
 if __name__ == "__main__":
     unittest.main()
