@@ -128,6 +128,21 @@ class BootAndConfigure(Rig):
             # Configuration and calibration through the manufacturer objects.
             self.assertEqual(n.sdo[0x2000].raw, 7)  # pole pairs of the emulated motor
             self.assertEqual(n.sdo[0x2100].raw, n.id)
+            # The d-current reference (0x2008, design §30): one setting at
+            # a time, judged whole by the drive; a bad value aborts.
+            self.assertEqual(n.sdo[0x2008][1].raw, 0)  # field weakening off
+            n.sdo[0x2008][3].raw = 4.0
+            n.sdo[0x2008][1].raw = 1
+            self.assertEqual(n.sdo[0x2008][1].raw, 1)
+            self.assertEqual(n.sdo[0x2008][3].raw, 4.0)
+            with self.assertRaises(canopen.SdoAbortedError) as e:
+                n.sdo[0x2008][3].raw = float("nan")
+            self.assertEqual(e.exception.code, 0x06090030)
+            with self.assertRaises(canopen.SdoAbortedError) as e:
+                n.sdo[0x2008][3].raw = 0.0  # field weakening needs a current
+            self.assertEqual(e.exception.code, 0x06090030)
+            self.assertEqual(n.sdo[0x2008][3].raw, 4.0)
+            n.sdo[0x2008][1].raw = 0
             supported = n.sdo[0x6502].raw
             for mode in (1, 3, 4, 8, 9, 10):
                 self.assertTrue(supported & (1 << (mode - 1)), mode)

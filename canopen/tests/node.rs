@@ -746,6 +746,58 @@ fn manufacturer_objects_read_the_drive_and_write_gains_through_it() {
     assert_eq!(b.read_u32(0x60C2, 1), 0);
 }
 
+/// 0x2008, the d-current reference (design §30): each sub-index reads and
+/// writes one setting through the drive; a value the parameter does not
+/// take, a write while running and the drive's refusal (field weakening
+/// on halls) abort and change nothing.
+#[test]
+fn the_d_current_reference_is_written_one_setting_at_a_time() {
+    let mut b = Bench::new();
+    assert_eq!(b.read_u32(0x2008, 0), 4);
+    assert_eq!(b.read(0x2008, 1), Ok(vec![0]), "field weakening off");
+    assert_eq!(f32::from_bits(b.read_u32(0x2008, 3)), 10.0);
+    b.write(0x2008, 1, &[1]).unwrap();
+    b.write(0x2008, 2, &[1]).unwrap();
+    b.write_u32(0x2008, 3, 4.5f32.to_bits()).unwrap();
+    b.write(0x2008, 4, &[1]).unwrap();
+    assert_eq!(b.read(0x2008, 1), Ok(vec![1]));
+    assert_eq!(b.read(0x2008, 2), Ok(vec![1]));
+    assert_eq!(f32::from_bits(b.read_u32(0x2008, 3)), 4.5);
+    assert_eq!(b.read(0x2008, 4), Ok(vec![1]));
+    assert!(b.dev.field.field_weakening && b.dev.field.mtpa && b.dev.field.short_circuit);
+    let before = b.snapshot();
+    let calls = b.dev.ctx.calls;
+    // Values the parameter does not take, and the drive's rule (max-id 0
+    // while field weakening is on).
+    for (sub, data, abort) in [
+        (1u8, vec![2u8], 0x0609_0031u32),
+        (3, f32::NAN.to_le_bytes().to_vec(), 0x0609_0030),
+        (3, (-1.0f32).to_le_bytes().to_vec(), 0x0609_0032),
+        (3, 1.0e7f32.to_le_bytes().to_vec(), 0x0609_0031),
+        (3, 0.0f32.to_le_bytes().to_vec(), 0x0609_0030),
+        (5, vec![1], 0x0609_0011),
+    ] {
+        assert_eq!(
+            b.write(0x2008, sub, &data),
+            Err(abort),
+            "sub {sub} {data:?}"
+        );
+    }
+    // Not while running.
+    b.dev.ctx.mode = Mode::Velocity;
+    assert_eq!(b.write(0x2008, 2, &[0]), Err(0x0800_0022));
+    b.dev.ctx.mode = Mode::Disabled;
+    assert_eq!(b.snapshot(), before);
+    assert_eq!(b.dev.ctx.calls, calls);
+    // Halls: field weakening refused by the drive, MTPA taken.
+    let mut b = Bench::new();
+    b.dev.angle.sensor_counts_per_rev = 48;
+    assert_eq!(b.write(0x2008, 1, &[1]), Err(0x0609_0030));
+    assert_eq!(b.read(0x2008, 1), Ok(vec![0]));
+    b.write(0x2008, 2, &[1]).unwrap();
+    assert!(b.dev.field.mtpa && !b.dev.field.field_weakening);
+}
+
 #[test]
 fn comm_settings_and_the_stored_record_agree() {
     assert_eq!(

@@ -67,6 +67,8 @@ pub(crate) enum Action {
     Save,
     Restore,
     SpeedGains(SpeedGains),
+    /// A writable parameter (0x2008: the d-current reference's).
+    Param(ParamId, f32),
     NodeId(u8),
     BitRate(u16),
     Controlword(u16),
@@ -96,6 +98,23 @@ fn int(i: impl Into<i64>) -> Result<Out, Abort> {
 
 fn real(x: Option<f32>) -> Result<Out, Abort> {
     x.map(|x| Out::V(Value::Real(x))).ok_or(Abort::NoData)
+}
+
+/// An on/off parameter as a BOOLEAN (1 on).
+fn switch(x: Option<f32>) -> Result<Out, Abort> {
+    int(u8::from(x.ok_or(Abort::NoData)? == 1.0))
+}
+
+/// The parameter behind sub-index `sub` of 0x2008 (the d-current
+/// reference).
+fn field_param(sub: u8) -> Result<ParamId, Abort> {
+    match sub {
+        1 => Ok(ParamId::FieldWeakening),
+        2 => Ok(ParamId::Mtpa),
+        3 => Ok(ParamId::MaxIdA),
+        4 => Ok(ParamId::ShortCircuit),
+        _ => Err(Abort::NoSubIndex),
+    }
 }
 
 /// f32 to a u32 with saturation (NaN: 0).
@@ -290,6 +309,8 @@ impl<P: Profile> Dict<P> {
                 // 0 to 3 (a value beyond is not one).
                 int(if (0.0..=3.0).contains(&s) { s as u8 } else { 0 })
             }
+            (0x2008, 3) => real(ctx.param(ParamId::MaxIdA)),
+            (0x2008, s) => switch(ctx.param(field_param(s)?)),
             (0x2010, 0) => real(ctx.param(ParamId::CurrentKp)),
             (0x2011, 0) => real(ctx.param(ParamId::CurrentKi)),
             (0x2012, 0) => real(ctx.param(ParamId::SpeedKp)),
@@ -507,6 +528,27 @@ impl<P: Profile> Dict<P> {
                     }
                 })
             }
+            (0x2008, s) => {
+                let id = field_param(s)?;
+                let x = match v {
+                    Value::Int(i) => i as f32,
+                    Value::Real(x) => x,
+                };
+                // The protocol's check of the value (the table's range
+                // took a BOOLEAN's already), then the drive's state; the
+                // drive's own rule (field weakening on halls) when applied.
+                if !id.accepts(x) {
+                    return Err(if x < 0.0 {
+                        Abort::ValueTooLow
+                    } else if x.is_finite() {
+                        Abort::ValueTooHigh
+                    } else {
+                        Abort::InvalidValue
+                    });
+                }
+                ctx.status().check_config().map_err(refusal)?;
+                Action::Param(id, x)
+            }
             (0x2100, 0) => Action::NodeId(u as u8),
             (0x2101, 0) => {
                 if !CommSettings::BIT_RATES.contains(&(u as u16)) {
@@ -585,9 +627,10 @@ impl<P: Profile> Dict<P> {
         Ok(a)
     }
 
-    /// Apply a validated write. Only the store operations and the gains
-    /// (the device's own refusals) can still fail, having changed nothing
-    /// here.
+    /// Apply a validated write. Only the store operations, the gains and
+    /// the d-current reference's parameters (the device's own refusals:
+    /// field weakening on halls is `InvalidValue`) can still fail, having
+    /// changed nothing here.
     pub fn apply<C: CanDevice>(
         &mut self,
         a: Action,
@@ -639,6 +682,7 @@ impl<P: Profile> Dict<P> {
                 self.stored = CommSettings::DEFAULT;
             }
             Action::SpeedGains(g) => ctx.set_speed_gains(g).map_err(refusal)?,
+            Action::Param(id, x) => ctx.set_param(id, x).map_err(refusal)?,
             Action::NodeId(n) => {
                 self.next = CommSettings::new(
                     n,

@@ -523,7 +523,26 @@ const fn build() -> Builder {
             Ro,
             false,
             d,
+        );
+    // The d-current reference (design §30): each setting written alone,
+    // the whole judged by the drive (only while disabled).
+    let (o, k) = ("D-current reference", Kind::Record(4));
+    b = b
+        .head(0x2008, o, k, Const)
+        .sub(0x2008, 1, o, "Field weakening", k, Boolean, Rw, d)
+        .sub(0x2008, 2, o, "MTPA", k, Boolean, Rw, d)
+        .sub(
+            0x2008,
+            3,
+            o,
+            "Field weakening max d current [A]",
+            k,
+            Real32,
+            Rw,
+            d,
         )
+        .sub(0x2008, 4, o, "Short circuit safe state", k, Boolean, Rw, d);
+    b = b
         .p(0x2010, "Current loop kp [V per A]", Real32, Ro, false, d)
         .p(0x2011, "Current loop ki [V per A s]", Real32, Ro, false, d)
         .p(

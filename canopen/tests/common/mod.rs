@@ -161,6 +161,11 @@ pub struct FakeDevice {
     pub stores: Vec<StoreOp>,
     /// The drive runs without its angle sensor (`ParamId::AngleSource`).
     pub sensorless: bool,
+    /// The d-current reference in force (parameters 33-36), judged with
+    /// the drive's rule on `angle` when one setting is written.
+    pub field: foc_core::control::field::FieldConfig,
+    /// The angle calibration the rule looks at (halls: coarse).
+    pub angle: foc_core::control::stage::AngleCalibration,
 }
 
 impl FakeDevice {
@@ -172,6 +177,16 @@ impl FakeDevice {
             store_fails: false,
             stores: Vec::new(),
             sensorless: false,
+            field: foc_core::control::field::FieldConfig {
+                max_id_a: 10.0,
+                bandwidth_rad_s: 600.0,
+                ..foc_core::control::field::FieldConfig::OFF
+            },
+            angle: foc_core::control::stage::AngleCalibration {
+                sensor_counts_per_rev: 4096,
+                sensorless_only: false,
+                ..foc_core::control::stage::AngleCalibration::sensorless(7, 4096)
+            },
         }
     }
     pub fn set_faults(&mut self, faults: &[Fault]) {
@@ -223,6 +238,20 @@ impl DeviceContext for FakeDevice {
     fn set_dividers(&mut self, s: u16, p: u16) -> Result<(), Refusal> {
         self.ctx.set_dividers(s, p)
     }
+    fn set_param(&mut self, id: ParamId, value: f32) -> Result<(), Refusal> {
+        let mut f = self.field;
+        match id {
+            ParamId::FieldWeakening => f.field_weakening = value == 1.0,
+            ParamId::Mtpa => f.mtpa = value == 1.0,
+            ParamId::MaxIdA => f.max_id_a = value,
+            ParamId::ShortCircuit => f.short_circuit = value == 1.0,
+            _ => return Err(Refusal::Unsupported),
+        }
+        foc_core::drive::check_field(&f, &self.angle).map_err(|_| Refusal::Unsupported)?;
+        self.ctx.set_param(id, value)?;
+        self.field = f;
+        Ok(())
+    }
     fn start_calibration(&mut self, r: Calibration) -> Result<(), Refusal> {
         self.ctx.start_calibration(r)
     }
@@ -240,6 +269,10 @@ impl DeviceContext for FakeDevice {
             ParamId::SpeedKi => Some(self.ctx.speed_gains.map(|g| g.ki_a_per_rad).unwrap_or(2.0)),
             ParamId::ResistanceOhm => Some(0.12),
             ParamId::AngleSource => Some(f32::from(u8::from(self.sensorless))),
+            ParamId::FieldWeakening => Some(f32::from(u8::from(self.field.field_weakening))),
+            ParamId::Mtpa => Some(f32::from(u8::from(self.field.mtpa))),
+            ParamId::MaxIdA => Some(self.field.max_id_a),
+            ParamId::ShortCircuit => Some(f32::from(u8::from(self.field.short_circuit))),
             _ => self.ctx.param(id),
         }
     }
