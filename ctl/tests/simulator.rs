@@ -328,3 +328,56 @@ fn the_sensor_check_passes_on_every_motor_file_and_fails_on_a_stuck_encoder() {
     assert!(!r.pass && r.text.contains("saw no motion"), "{r:?}");
     assert_eq!(c.read_telemetry().unwrap().mode, Mode::Disabled);
 }
+
+/// The simulated drive takes the d-current reference through the same
+/// service path as a board (design §30): a parameter written over the
+/// link reaches the drive's current stage at the next period, a save
+/// keeps it across a power cycle, and on the hub motor's halls field
+/// weakening is refused with the stage unchanged.
+#[test]
+fn the_d_current_reference_reaches_the_simulated_drive_and_survives_a_power_cycle() {
+    use foc_ctl::sim::{HostDrive, Options};
+    use foc_protocol::device::{DeviceContext, WatchdogConfig};
+    let mut d = HostDrive::new();
+    let before = d.sim.cascade.current.config().field;
+    assert!(!before.field_weakening);
+    d.set_param(ParamId::MaxIdA, 4.0).unwrap();
+    d.set_param(ParamId::FieldWeakening, 1.0).unwrap();
+    d.step_periods(1);
+    let f = d.sim.cascade.current.config().field;
+    assert!(f.field_weakening && f.max_id_a == 4.0, "{f:?}");
+    assert_eq!(*d.sim.cascade.current.field().config(), f);
+    assert_eq!(d.settings().field, f);
+    // A bad value through the link changes nothing (the protocol's check
+    // is the device state's; the link's rule refuses max-id 0 here).
+    assert!(d.set_param(ParamId::MaxIdA, 0.0).is_err());
+    d.step_periods(1);
+    assert_eq!(d.sim.cascade.current.config().field, f);
+    // Saved, power-cycled: the booted drive runs with it.
+    d.with_link(|l| l.store(StoreOp::Save, &[], WatchdogConfig::OFF))
+        .unwrap();
+    d.power_cycle();
+    assert_eq!(d.sim.cascade.current.config().field, f);
+    assert_eq!(d.param(ParamId::FieldWeakening), Some(1.0));
+    // Halls: refused, the stage unchanged; MTPA taken.
+    let hub =
+        foc_bench::mission::Setup::load(&repo().join("tests/motors/cute-q85sx-hub.toml")).unwrap();
+    let mut h = HostDrive::with_options(Options::simulator(hub), Default::default());
+    h.start_up();
+    let before = h.sim.cascade.current.config().field;
+    assert_eq!(
+        h.set_param(ParamId::FieldWeakening, 1.0),
+        Err(foc_protocol::Refusal::Unsupported)
+    );
+    h.set_param(ParamId::Mtpa, 1.0).unwrap();
+    h.step_periods(1);
+    let after = h.sim.cascade.current.config().field;
+    assert!(!after.field_weakening && after.mtpa);
+    assert_eq!(
+        foc_core::control::field::FieldConfig {
+            mtpa: before.mtpa,
+            ..after
+        },
+        before
+    );
+}
