@@ -361,7 +361,7 @@ fn the_d_current_reference_reaches_the_simulated_drive_and_survives_a_power_cycl
     assert_eq!(d.param(ParamId::FieldWeakening), Some(1.0));
     // Halls: refused, the stage unchanged; MTPA taken.
     let hub =
-        foc_bench::mission::Setup::load(&repo().join("tests/motors/cute-q85sx-hub.toml")).unwrap();
+        foc_bench::mission::Setup::load(repo().join("tests/motors/cute-q85sx-hub.toml")).unwrap();
     let mut h = HostDrive::with_options(Options::simulator(hub), Default::default());
     h.start_up();
     let before = h.sim.cascade.current.config().field;
