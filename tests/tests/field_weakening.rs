@@ -254,38 +254,28 @@ fn field_weakening_extends_the_speed_range() {
 }
 
 /// The highest torque the model allows at electrical speed `w_e` within
-/// the current circle and the voltage circle `v` [N m]:
+/// the current circle, `|id| <= max_id` and the voltage circle `v` [N m]:
 /// `v_d = R id - w Lq iq`, `v_q = R iq + w (psi + Ld id)`.
 fn model_torque_at(s: &Setup, w_e: f32, v: f32) -> f32 {
+    let max_id = field(s, true).config().max_id_a;
     let m = &s.motor;
     let (psi, ld, lq) = (m.flux_linkage_wb as f32, m.ld_h as f32, m.lq_h as f32);
     let r = m.r_ohm as f32;
     let p = m.pole_pairs as f32;
+    let n = 400;
     let mut best = 0.0f32;
-    for k in 0..=1000 {
-        let beta = k as f32 / 1000.0 * std::f32::consts::FRAC_PI_2;
-        // The largest current along this angle whose voltage fits.
-        let fits = |i: f32| {
-            let (id, iq) = (-i * beta.sin(), i * beta.cos());
-            (r * id - w_e * lq * iq).hypot(r * iq + w_e * (psi + ld * id)) <= v
-        };
-        let (mut lo, mut hi) = (0.0f32, s.max_current_a);
-        if fits(hi) {
-            lo = hi;
-        } else if fits(lo) {
-            for _ in 0..40 {
-                let mid = 0.5 * (lo + hi);
-                if fits(mid) {
-                    lo = mid;
-                } else {
-                    hi = mid;
-                }
+    for a in 0..=n {
+        let id = -max_id * a as f32 / n as f32;
+        let iq_max = (s.max_current_a * s.max_current_a - id * id)
+            .max(0.0)
+            .sqrt();
+        for b in 0..=n {
+            let iq = iq_max * b as f32 / n as f32;
+            let fits = (r * id - w_e * lq * iq).hypot(r * iq + w_e * (psi + ld * id)) <= v;
+            if fits {
+                best = best.max(1.5 * p * iq * (psi + (ld - lq) * id));
             }
-        } else {
-            continue;
         }
-        let (id, iq) = (-lo * beta.sin(), lo * beta.cos());
-        best = best.max(1.5 * p * iq * (psi + (ld - lq) * id));
     }
     best
 }
@@ -684,4 +674,67 @@ fn the_short_circuit_is_released_as_the_speed_falls() {
             assert_eq!(other.step(), BridgeCommand::SafeState, "{stem}");
         }
     }
+}
+
+/// The sensor supervision (design §24) expects the voltage field weakening
+/// applies: with the plant's R and L 30 % off the drive's model either way
+/// (and its winding at 120 deg C), up to the top speed, a load step there
+/// and back to rest trip nothing.
+#[test]
+fn supervision_stays_quiet_above_base_speed_with_the_model_off() {
+    use foc_bench::plant::{MotorParams, Plant};
+    let mut failures = Vec::new();
+    for (stem, s) in setups() {
+        if !resolved(&stem, &s) {
+            continue;
+        }
+        let top = top_speed(&s);
+        let m = s.motor;
+        let scaled = |r: foc_bench::real::Real, l: foc_bench::real::Real| MotorParams {
+            r_ohm: m.r_ohm * r,
+            ld_h: m.ld_h * l,
+            lq_h: m.lq_h * l,
+            ..m
+        };
+        for (name, plant_motor) in [
+            ("R +30 %, L -30 %", scaled(1.3, 0.7)),
+            ("R -30 %, L +30 %", scaled(0.7, 1.3)),
+            ("R +30 % at 120 C, L +30 %", scaled(1.3 * 1.39, 1.3)),
+        ] {
+            let mut c = s.cascade_config();
+            c.current.field.field_weakening = true;
+            let mut sim = Sim::with_plant(&s, Plant::new(plant_motor, s.bench), c, false);
+            sim.cascade.set_calibration(&s.supplied_calibration(&c));
+            // The top speed the plant reaches may be lower than the
+            // model's: 90 % of it.
+            let w = 0.9 * top;
+            sim.cascade.command(Command::Velocity { rad_s: w }).unwrap();
+            let (f1, i1, _) = run(&mut sim, periods_to(&s, w));
+            let (f2, i2) = if f1.is_none() {
+                sim.cascade
+                    .command(Command::Velocity { rad_s: 0.0 })
+                    .unwrap();
+                let (f2, i2, _) = run(&mut sim, periods_to(&s, w));
+                (f2, i2)
+            } else {
+                (None, 0.0)
+            };
+            let margin = sim.cascade.current.model_check().peak_ratio();
+            let reached = sim.plant.omega_m_rad_s();
+            println!(
+                "{stem}, {name}: to {w:.1} rad/s and back: {:?} (at {reached:.1} rad/s), \
+                 peak phase {:.2} A, model-check margin {margin:.2}",
+                f1.or(f2),
+                i1.max(i2)
+            );
+            // A speed a hotter, more resistive plant cannot reach trips
+            // `SpeedRunaway` (its job); a sensor fault would be false.
+            if let Some(f) = f1.or(f2) {
+                if f != Fault::SpeedRunaway {
+                    failures.push(format!("{stem}, {name}: {f:?}"));
+                }
+            }
+        }
+    }
+    assert!(failures.is_empty(), "{failures:#?}");
 }

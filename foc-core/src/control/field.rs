@@ -68,6 +68,32 @@ pub const MTPA_SALIENCY_MARGIN: f32 = 0.05;
 /// deepen (a bus that sags, an acceleration past base speed).
 pub const DEEPEN_RATE: f32 = 4.0;
 
+/// Per period on the voltage circle while weakening, the q range's share
+/// shrinks by this (and grows back ten times slower).
+pub const Q_SHARE_STEP: f32 = 0.01;
+
+/// The q range shrinks only after this many periods in a row on the
+/// circle (a weakening that catches up with an acceleration stands there
+/// for a few; a q reference the voltage cannot hold, for good).
+pub const Q_SHARE_AFTER_PERIODS: u16 = 30;
+
+/// The least share of the q range.
+pub const Q_SHARE_MIN: f32 = 0.2;
+
+/// Default largest weakening `|id|` as a share of the characteristic
+/// current `psi / Ld`: a motor whose inductance is 30 % above the model
+/// (the tolerance the sensor supervision allows) has its characteristic
+/// current at 0.77 of the model's; beyond it the flux reverses and the
+/// loop loses the motor (interior-PM file, Ld +30 %: from 340 to 477 rad/s
+/// uncommanded before `SpeedRunaway` tripped, with the whole `psi / Ld`).
+pub const MAX_ID_SHARE: f32 = 0.75;
+
+/// Field weakening deepens only above this share of the no-load base
+/// speed (`w_e psi > share v_t`): below it a voltage shortfall is the
+/// winding's resistance (GL80 with its winding at 120 deg C: the loop
+/// took id to its limit at 0.7 x base and the drive faulted).
+pub const FW_ENTRY_SHARE: f32 = 0.8;
+
 /// Default share of the voltage circle field weakening keeps free for
 /// the current loop's dynamics (5 %).
 pub const DEFAULT_VOLTAGE_MARGIN: f32 = 0.05;
@@ -109,17 +135,17 @@ impl FieldConfig {
     };
 
     /// Defaults for a motor: MTPA where [`is_salient`], field weakening
-    /// off (the user turns it on), `max_id_a` the smaller
-    /// of the current limit and the characteristic current `psi / Ld`
-    /// (beyond it the magnet's flux is reversed), the short circuit where
+    /// off (the user turns it on), `max_id_a` the smaller of the current
+    /// limit and [`MAX_ID_SHARE`] of the characteristic current `psi / Ld`
+    /// (beyond which the magnet's flux is reversed), the short circuit where
     /// its steady current `psi / Ld` is within the current limit.
     pub fn for_motor(m: &MotorParams, max_current_a: f32, pwm_frequency_hz: f32) -> Self {
         let ch = characteristic_current_a(m);
         Self {
             mtpa: is_salient(m),
             field_weakening: false,
-            max_id_a: if ch < max_current_a {
-                ch
+            max_id_a: if MAX_ID_SHARE * ch < max_current_a {
+                MAX_ID_SHARE * ch
             } else {
                 max_current_a
             },
@@ -200,6 +226,8 @@ struct Plan {
     /// takes at most the voltage margin, so the q axis keeps the voltage
     /// that holds the back-EMF); it may deepen [`DEEPEN_RATE`] times as fast.
     rise_per_bus: f32,
+    /// `1 / (1 - margin)`: the current loop's circle over the target.
+    circle_per_target: f32,
     field_weakening: bool,
     short_circuit: bool,
     /// `1 / (sqrt(3) psi)`: the electrical speed per bus volt above which
@@ -219,6 +247,13 @@ pub struct Field {
     id_fb_a: f32,
     /// The field-weakening d current of the last period \[A\] (`<= 0`).
     id_fw_a: f32,
+    /// The share of the voltage ellipse's q range in force (0.2 ..= 1):
+    /// shrinks while the current loop's output stands on its circle, for
+    /// a motor whose inductances are above the model's (its ellipse is
+    /// smaller than the one computed).
+    q_share: f32,
+    /// Periods in a row the current loop's output stood on its circle.
+    circle_periods: u16,
 }
 
 impl Field {
@@ -283,6 +318,7 @@ impl Field {
                 },
                 target_per_bus,
                 w_floor_per_bus: 0.5 * target_per_bus / psi,
+                circle_per_target: 1.0 / (1.0 - config.voltage_margin),
                 rise_per_bus: if usable {
                     config.voltage_margin * max_modulation * FRAC_1_SQRT_3
                         / (pwm_frequency_hz * m.ld_h)
@@ -296,6 +332,8 @@ impl Field {
             },
             id_fb_a: 0.0,
             id_fw_a: 0.0,
+            q_share: 1.0,
+            circle_periods: 0,
         }
     }
 
@@ -337,12 +375,16 @@ impl Field {
     pub fn keep_integrator(&mut self, old: &Field) {
         self.id_fb_a = old.id_fb_a;
         self.id_fw_a = old.id_fw_a;
+        self.q_share = old.q_share;
+        self.circle_periods = old.circle_periods;
     }
 
     /// Forget the integrator (bridge off).
     pub fn reset(&mut self) {
         self.id_fb_a = 0.0;
         self.id_fw_a = 0.0;
+        self.q_share = 1.0;
+        self.circle_periods = 0;
     }
 
     /// The field-weakening d current of the last period \[A\] (`<= 0`).
@@ -406,6 +448,7 @@ impl Field {
         let (mut lo, mut hi) = (-iq_lim, iq_lim);
         if id_fw < 0.0 {
             let (v_lo, v_hi) = self.voltage_q_range_a(w_e_rad_s, v_bus_v);
+            let (v_lo, v_hi) = (v_lo * self.q_share, v_hi * self.q_share);
             lo = if v_lo > lo { v_lo } else { lo };
             hi = if v_hi < hi { v_hi } else { hi };
         }
@@ -477,6 +520,29 @@ impl Field {
         }
         // Feedback on the voltage the current loop really asked for.
         let v = sqrtf(v_last.d * v_last.d + v_last.q * v_last.q);
+        let v_out = v;
+        // On the circle (the current loop limited): less q current.
+        let circle = p.target_per_bus * v_bus_v * p.circle_per_target;
+        self.circle_periods = if v_out >= 0.999 * circle {
+            self.circle_periods.saturating_add(1)
+        } else {
+            0
+        };
+        self.q_share = if self.circle_periods > Q_SHARE_AFTER_PERIODS {
+            let s = self.q_share - Q_SHARE_STEP;
+            if s > Q_SHARE_MIN {
+                s
+            } else {
+                Q_SHARE_MIN
+            }
+        } else {
+            let s = self.q_share + 0.1 * Q_SHARE_STEP;
+            if s < 1.0 {
+                s
+            } else {
+                1.0
+            }
+        };
         let w_floor = p.w_floor_per_bus * v_bus_v;
         let w_gain = if w > w_floor { w } else { w_floor };
         let step = if w_gain > 0.0 {
@@ -488,6 +554,23 @@ impl Field {
         // back at 0 (below base speed): a ratchet that only let it rise
         // would creep, on noise, to where the voltage runs out.
         let lo = -p.max_id_a;
+        // Below FW_ENTRY_SHARE of base speed the voltage a loop finds short
+        // is the resistance's (a hot winding at full current), which a d
+        // current only adds to: it may return to 0, not deepen.
+        // Deepening must lower the voltage: `d|v|^2 / d id = 2 (R v_d +
+        // w Ld v_q)` > 0. Where the resistance's drop dominates (a hot,
+        // resistive winding: GL80 at 120 deg C) a deeper d current only
+        // adds to it; counted anyway it kept the d current at its limit,
+        // the d axis on the whole circle, the q axis starved, the rotor
+        // braked to rest.
+        let lowers = p.r_ohm * v_last.d + w_e_rad_s.abs() * p.ld_h * v_last.q.abs() > 0.0;
+        let lo = if lowers && w * p.psi_wb > FW_ENTRY_SHARE * v_t {
+            lo
+        } else if self.id_fw_a < 0.0 {
+            self.id_fw_a
+        } else {
+            0.0
+        };
         let raw = id_ff + self.id_fb_a + step;
         // Slew-limited: a d current that rises at once takes the whole
         // voltage circle (the d axis first) from the q axis, whose voltage
@@ -614,7 +697,7 @@ mod tests {
         let m = ipm();
         let c = FieldConfig::for_motor(&m, 18.2, 15_000.0);
         assert!(c.mtpa && !c.field_weakening && c.short_circuit);
-        assert!((c.max_id_a - 0.545 / 0.036).abs() < 1e-3);
+        assert!((c.max_id_a - MAX_ID_SHARE * 0.545 / 0.036).abs() < 1e-3);
         let surface = MotorParams {
             ld_h: 0.5e-3,
             lq_h: 0.5e-3,
