@@ -5,15 +5,19 @@
 //! identification's permit; then the braking segment: stops into a supply
 //! that cannot sink current with the ODrive v3's bus capacitor, the regen
 //! limit on, into the capacitor alone and with the brake resistor, design
-//! §18).
+//! §18; last, field weakening, design §30: from rest to 2.2 x base speed
+//! where the model allows it, a load step there, back to rest, skipped on
+//! halls and where base speed is beyond the bench's resolved speed).
 //!
 //! Writes `identification.csv` / `identification.svg` (the identify
 //! segment, decimated), `mission.csv` (every PWM period after the
 //! identification), `current_step.csv`, SVG plots (`mission.svg`,
-//! `current_step.svg`, `speed.svg`, `position.svg`, `braking.svg`) and
-//! `summary.md` into the output directory and prints the summary. Fails
-//! when the mission's pass criteria fail (the braking segment's: the bus
-//! at or above the over-voltage threshold, no stop, a fault). `--all` runs every motor file in `tests/motors` (one
+//! `current_step.svg`, `speed.svg`, `position.svg`, `braking.svg`,
+//! `field_weakening.svg`) and `summary.md` into the output directory and
+//! prints the summary. Fails when the mission's pass criteria fail (the
+//! braking segment's: the bus at or above the over-voltage threshold, no
+//! stop, a fault; the field-weakening segment's: a fault, the speed more
+//! than 2 % off the command, the phase current at 1.1 x the limit). `--all` runs every motor file in `tests/motors` (one
 //! sub-directory each); `--bench` also measures the simulation speed.
 //! `--save-config FILE.toml` writes the configuration the mission ended
 //! with (the identified calibration included) as `foc-ctl config export`

@@ -18,6 +18,7 @@ impl MissionSummary {
         self.loop_rows(&mut t);
         self.motion_rows(&mut t);
         self.braking_rows(&mut t);
+        self.field_weakening_rows(&mut t);
         t.row(
             "model check: largest healthy residual / bound, disturbance / envelope",
             format!(
@@ -313,6 +314,75 @@ impl MissionSummary {
                 );
             }
         }
+    }
+}
+
+impl MissionSummary {
+    /// The field-weakening segment's rows (design §30).
+    pub(super) fn field_weakening_rows(&self, t: &mut Table) {
+        const NAME: &str = "field weakening (design §30)";
+        let w = match &self.field_weakening {
+            None => return,
+            Some(FieldWeakeningSegment::Skipped(why)) => {
+                t.row(NAME, format!("skipped: {why}"));
+                return;
+            }
+            Some(FieldWeakeningSegment::Ran(w)) => w,
+        };
+        t.row(
+            NAME,
+            format!(
+                "turned on, from rest to the top speed, held, a load step there, back to rest, turned off: {:.3} s simulated ({:.2} s wall)",
+                w.time_s, w.wall_time_s
+            ),
+        );
+        t.row(
+            "field weakening: base speed (drive's model, no load)",
+            format!("{:.1} rad/s", w.base_rad_s),
+        );
+        let model = if w.model_top_rad_s.is_finite() {
+            format!("{:.1} rad/s", w.model_top_rad_s)
+        } else {
+            "unbounded (the d-current bound reaches psi / Ld)".into()
+        };
+        t.row(
+            "field weakening: top speed commanded / reached",
+            format!(
+                "{:.1} / {:.1} rad/s = {:.2} x base{} (the model's top speed {model})",
+                w.commanded_rad_s,
+                w.reached_rad_s,
+                w.ratio(),
+                w.ratio_goal
+                    .map_or(String::new(), |g| format!(", goal {g:.1} x")),
+            ),
+        );
+        t.row(
+            "field weakening: load step at the top speed",
+            format!(
+                "{:.3} N m: {:.1} rad/s at its end; back at rest {:.2} rad/s",
+                w.load_nm, w.loaded_rad_s, w.end_rad_s
+            ),
+        );
+        t.row(
+            "field weakening: most negative d current",
+            format!("{:.2} A (bound {:.2} A)", w.min_id_a, -w.max_id_a),
+        );
+        t.row(
+            "field weakening: peak phase current / limit",
+            format!("{:.2} A / {:.2} A", w.peak_phase_a, w.limit_a),
+        );
+        t.row(
+            "field weakening: peak bus voltage",
+            format!("{:.2} V", w.peak_bus_v),
+        );
+        t.row(
+            "field weakening: faults",
+            if w.faults.is_empty() {
+                "none".into()
+            } else {
+                w.faults.join(", ")
+            },
+        );
     }
 }
 

@@ -48,6 +48,15 @@
 //!    stop that takes longer than the segment is reported, not failed. The
 //!    power limits and the DC link are only in this segment (every earlier
 //!    figure is unchanged).
+//! 8. **field weakening** (design §30; the segment's module, `field_weakening.rs`): turned
+//!    on with `CurrentStage::set_field`, from rest to 2.2 x the drive
+//!    model's base speed (or 60 % of the way to the model's top speed),
+//!    held, a load step there (half the rated torque or less), back to
+//!    rest, turned off. It fails on a fault, a speed reached more than 2 %
+//!    off the command, a phase current at or above 1.1 x the limit, or
+//!    below 2 x base where 2.2 x was commanded. Skipped, the reason
+//!    stated, on a coarse angle sensor (halls: refused) or a base speed
+//!    whose 1.2 x is beyond 80 % of the bench's resolved speed.
 //!
 //! ```no_run
 //! use foc_bench::mission::{run_mission, Setup};
@@ -57,6 +66,7 @@
 //! assert!(r.summary.failures().is_empty());
 //! ```
 
+mod field_weakening;
 mod figures;
 mod markdown;
 mod result;
@@ -67,6 +77,7 @@ mod setup;
 mod sim;
 mod summary;
 
+use field_weakening::*;
 use figures::*;
 pub use result::*;
 pub use run::*;

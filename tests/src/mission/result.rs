@@ -69,8 +69,8 @@ impl MissionResult {
     /// it is most of the simulated time), `mission.csv` (every PWM period
     /// from the end of the identification on, simulation time),
     /// `mission.svg` (the same, decimated), `current_step.csv`,
-    /// `current_step.svg`, `speed.svg`, `position.svg`, `braking.svg` and
-    /// `summary.md`.
+    /// `current_step.svg`, `speed.svg`, `position.svg`, `braking.svg`,
+    /// `field_weakening.svg` (where that segment ran) and `summary.md`.
     /// Returns the paths.
     pub fn write(&self, dir: &Path) -> std::io::Result<Vec<std::path::PathBuf>> {
         std::fs::create_dir_all(dir)?;
@@ -80,6 +80,7 @@ impl MissionResult {
         self.write_current_step(dir, &mut out)?;
         self.write_speed_and_position(dir, &mut out)?;
         self.write_braking(dir, &mut out)?;
+        self.write_field_weakening(dir, &mut out)?;
         let p = dir.join("summary.md");
         std::fs::write(&p, self.summary.to_markdown())?;
         out.push(p);
@@ -311,6 +312,43 @@ impl MissionResult {
             )?;
             out.push(p);
         }
+        Ok(())
+    }
+}
+
+impl MissionResult {
+    /// `field_weakening.svg`: the field-weakening segment (design §30).
+    pub(super) fn write_field_weakening(
+        &self,
+        dir: &Path,
+        out: &mut Vec<std::path::PathBuf>,
+    ) -> std::io::Result<()> {
+        let (Some(seg), Some(FieldWeakeningSegment::Ran(w))) = (
+            self.segment("field weakening"),
+            self.summary.field_weakening.as_ref(),
+        ) else {
+            return Ok(());
+        };
+        let p = dir.join("field_weakening.svg");
+        crate::report::plot_svg(
+            &p,
+            &format!(
+                "Field weakening: {} (top speed {:.1} rad/s = {:.2} x base, a {:.3} N m load step there)",
+                self.summary.motor,
+                w.commanded_rad_s,
+                w.ratio(),
+                w.load_nm
+            ),
+            &decimate(&self.slice(seg), 4000),
+            &[
+                Panel::new("speed", "rad/s", &["speed_ref_rad_s", "speed_rad_s"]),
+                Panel::new("d current", "A", &["id_ref_a", "id_a"]),
+                Panel::new("q current", "A", &["iq_ref_a", "iq_a"]),
+                Panel::new("dq voltages", "V", &["vd_v", "vq_v"]),
+                Panel::new("load torque", "N m", &["load_nm"]),
+            ],
+        )?;
+        out.push(p);
         Ok(())
     }
 }

@@ -183,6 +183,7 @@ pub fn run_mission_from(
     let p0_true = m.position_move();
     let impedance = m.impedance();
     let braking = m.braking();
+    let field_weakening = m.field_weakening();
     (m.progress.report)(1.0);
 
     let trace = m.sim.take_trace().unwrap_or_default();
@@ -191,6 +192,7 @@ pub fn run_mission_from(
     summary.restored = stored.is_some();
     summary.braking = Some(braking);
     summary.impedance = Some(impedance);
+    summary.field_weakening = Some(field_weakening);
     Ok(MissionResult {
         trace,
         segments: m.segments,
@@ -288,7 +290,8 @@ impl MissionPlan {
             + t_ramp
             + 0.3
             + t_move
-            + 2.0 * (BRAKE_SPIN_S + BRAKE_STOP_S);
+            + 2.0 * (BRAKE_SPIN_S + BRAKE_STOP_S)
+            + field_weakening_expected_s(setup);
         Self {
             kt,
             w1,
@@ -542,6 +545,7 @@ impl Mission<'_> {
             encoder_count_rad: std::f64::consts::TAU / cpr as f64,
             braking: None,
             impedance: None,
+            field_weakening: None,
             faults: mission_faults(trace),
             model_margin: self.sim.cascade.current.model_check().peak_ratio() as f64,
             model_disturbance_margin: self

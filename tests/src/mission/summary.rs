@@ -157,6 +157,103 @@ pub struct BrakingSummary {
     pub resistor_ohm: f64,
 }
 
+/// The field-weakening segment (design §30): its figures, or why it was
+/// skipped.
+#[derive(Clone, Debug, PartialEq)]
+pub enum FieldWeakeningSegment {
+    /// It ran.
+    Ran(FieldWeakeningFigures),
+    /// It did not apply to this motor (a coarse angle sensor, or base
+    /// speed beyond the bench's resolved speed).
+    Skipped(String),
+}
+
+/// The field-weakening segment's figures (design §30), rotor frame.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FieldWeakeningFigures {
+    /// The drive model's no-load base speed at the nominal bus [rad/s].
+    pub base_rad_s: f64,
+    /// The drive model's top speed with field weakening [rad/s] (infinite
+    /// where the d-current bound reaches the characteristic current).
+    pub model_top_rad_s: f64,
+    /// The top speed commanded [rad/s].
+    pub commanded_rad_s: f64,
+    /// The mean true speed at the end of the hold there [rad/s].
+    pub reached_rad_s: f64,
+    /// The least `reached / base` required (where the model allows 2.2 x base).
+    pub ratio_goal: Option<f64>,
+    /// The load step at the top speed [N m].
+    pub load_nm: f64,
+    /// The mean true speed at the end of the load step [rad/s].
+    pub loaded_rad_s: f64,
+    /// The true speed after the return to rest [rad/s].
+    pub end_rad_s: f64,
+    /// The most negative true d current \[A\].
+    pub min_id_a: f64,
+    /// The field-weakening d-current bound \[A\] (the smaller of `max_id_a`
+    /// and the current limit).
+    pub max_id_a: f64,
+    /// Largest true phase current \[A\].
+    pub peak_phase_a: f64,
+    /// The drive's current limit \[A\].
+    pub limit_a: f64,
+    /// Highest bus voltage \[V\].
+    pub peak_bus_v: f64,
+    /// Faults latched during the segment (names).
+    pub faults: Vec<String>,
+    /// Why field weakening is still in force after the segment (None: off).
+    pub still_on: Option<String>,
+    /// Simulated time \[s\].
+    pub time_s: f64,
+    /// Wall time \[s\].
+    pub wall_time_s: f64,
+}
+
+impl FieldWeakeningFigures {
+    /// `reached / base`.
+    pub fn ratio(&self) -> f64 {
+        self.reached_rad_s / self.base_rad_s
+    }
+
+    /// What fails: a fault, the speed reached more than 2 % off the
+    /// command, the peak phase current at or above 1.1 x the limit, the
+    /// ratio to base speed below its goal, field weakening still on.
+    pub fn failures(&self) -> Vec<String> {
+        let mut f = Vec::new();
+        if !self.faults.is_empty() {
+            f.push(format!(
+                "field weakening: faults latched: {}",
+                self.faults.join(", ")
+            ));
+        }
+        let off = self.reached_rad_s - self.commanded_rad_s;
+        if !below(off.abs(), 0.02 * self.commanded_rad_s.abs()) {
+            f.push(format!(
+                "field weakening: {:.1} rad/s reached of {:.1}",
+                self.reached_rad_s, self.commanded_rad_s
+            ));
+        }
+        if !below(self.peak_phase_a, 1.1 * self.limit_a) {
+            f.push(format!(
+                "field weakening: peak phase current {:.2} A, limit {:.2} A",
+                self.peak_phase_a, self.limit_a
+            ));
+        }
+        if let Some(goal) = self.ratio_goal {
+            let r = self.ratio();
+            if r.is_nan() || r < goal {
+                f.push(format!(
+                    "field weakening: {r:.2} x base speed, goal {goal:.1}"
+                ));
+            }
+        }
+        if let Some(why) = &self.still_on {
+            f.push(format!("field weakening still on after its segment: {why}"));
+        }
+        f
+    }
+}
+
 /// The speed loop's figures beyond the first step (design §19): the
 /// speed estimate during the steps' acceleration, the load release and a
 /// step large enough to put the q current on its limit.
@@ -263,6 +360,8 @@ pub struct MissionSummary {
     pub braking: Option<BrakingSummary>,
     /// The impedance segment (None: not run).
     pub impedance: Option<ImpedanceFigures>,
+    /// The field-weakening segment (None: not run).
+    pub field_weakening: Option<FieldWeakeningSegment>,
     /// Faults latched during the mission (names).
     pub faults: Vec<String>,
     /// The model check's largest healthy residual over its bound (design
@@ -339,6 +438,9 @@ impl MissionSummary {
         }
         if let Some(b) = &self.braking {
             f.extend(b.failures());
+        }
+        if let Some(FieldWeakeningSegment::Ran(w)) = &self.field_weakening {
+            f.extend(w.failures());
         }
         f
     }
