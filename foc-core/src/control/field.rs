@@ -189,6 +189,20 @@ pub fn characteristic_current_a(m: &MotorParams) -> f32 {
     }
 }
 
+/// The constants [`Field::new`] derives stay finite (an absurd motor, e.g.
+/// `Lq = 3e38 H`, made MTPA's d current NaN).
+fn derived_finite(c: &FieldConfig, m: &MotorParams, max_current_a: f32, pwm_hz: f32) -> bool {
+    let dl = m.lq_h - m.ld_h;
+    let mtpa = 8.0 * dl * dl * max_current_a * max_current_a + m.flux_linkage_wb;
+    let gain = c.bandwidth_rad_s / (pwm_hz * m.ld_h);
+    let rise = c.voltage_margin / (pwm_hz * m.ld_h);
+    let reluctance = dl / m.flux_linkage_wb;
+    let flux = m.lq_h * max_current_a + m.ld_h * max_current_a;
+    [mtpa, gain, rise, reluctance, flux, m.r_ohm, pwm_hz]
+        .iter()
+        .all(|x| x.is_finite())
+}
+
 /// The MTPA d current for a q current (0 when `dl_h <= 0`).
 #[inline(always)]
 pub fn mtpa_id_a(psi_wb: f32, dl_h: f32, iq_a: f32) -> f32 {
@@ -274,7 +288,8 @@ impl Field {
             && m.flux_linkage_wb.is_finite()
             && max_current_a >= 0.0
             && max_current_a.is_finite()
-            && pwm_frequency_hz > 0.0;
+            && pwm_frequency_hz > 0.0
+            && derived_finite(&config, m, max_current_a, pwm_frequency_hz);
         let config = if usable { config } else { FieldConfig::OFF };
         let psi = m.flux_linkage_wb;
         let dl = if config.mtpa && is_salient(m) {
@@ -452,7 +467,11 @@ impl Field {
             lo = if v_lo > lo { v_lo } else { lo };
             hi = if v_hi < hi { v_hi } else { hi };
         }
-        Dq::new(id, clamp(iq, lo, hi))
+        if id.is_finite() {
+            Dq::new(id, clamp(iq, lo, hi))
+        } else {
+            Dq::new(0.0, clamp(iq_a, -iq_lim, iq_lim))
+        }
     }
 
     /// Field weakening: the q currents the voltage allows in steady state
