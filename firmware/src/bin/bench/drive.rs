@@ -293,7 +293,8 @@ fn travel_around(p: f32) -> ConfigChange {
 
 /// The change the firmware makes when it adopts a stored record
 /// (`comms::adopt`: limits, current loop, dividers, power limits, the
-/// calibration permit and the mechanics), with the values in force:
+/// calibration permit, the mechanics and the d-current reference), with
+/// the values in force:
 /// applied whole while disabled, the stage stays calibrated. (A calibration
 /// request merged into it would start a routine instead.)
 fn same_configuration() -> ConfigChange {
@@ -305,6 +306,7 @@ fn same_configuration() -> ConfigChange {
         power: Some(c.current.power),
         permit: Calibrated::supplied(c.current.angle, c.current.current).ok(),
         mechanics: c.mechanics,
+        field: Some(c.current.field),
         ..ConfigChange::default()
     }
 }
