@@ -1,7 +1,11 @@
 //! TOML export and import of a [`DriveRecord`] (host side, feature `std`).
 //!
 //! One table per part, units in the key names, and a top-level
-//! `schema_version` so a file written for another schema is refused:
+//! `schema_version` so a file written for another schema is refused. In
+//! the `[field]` table a key left out is the motor's default (foc-core's
+//! `FieldConfig::for_motor` of the file's motor, current limit and PWM
+//! rate), so `[field]` with `field_weakening = true` alone turns field
+//! weakening on; an export writes every key:
 //!
 //! ```
 //! use foc_store::text::{from_toml, to_toml};
@@ -52,7 +56,52 @@ struct TomlFile {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     sensorless: Option<SensorlessRecord>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    field: Option<FieldRecord>,
+    field: Option<FieldText>,
+}
+
+/// The `[field]` table as read: every key optional (a key left out is
+/// the motor's default, see [`FieldText::or_defaults`]).
+#[derive(Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct FieldText {
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    mtpa: Option<bool>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    field_weakening: Option<bool>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    max_id_a: Option<f32>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    voltage_margin: Option<f32>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    bandwidth_rad_s: Option<f32>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    short_circuit: Option<bool>,
+}
+
+impl FieldText {
+    /// Every key of `f`.
+    fn of(f: &FieldRecord) -> Self {
+        Self {
+            mtpa: Some(f.mtpa),
+            field_weakening: Some(f.field_weakening),
+            max_id_a: Some(f.max_id_a),
+            voltage_margin: Some(f.voltage_margin),
+            bandwidth_rad_s: Some(f.bandwidth_rad_s),
+            short_circuit: Some(f.short_circuit),
+        }
+    }
+
+    /// The keys given, the rest `d`'s.
+    fn or_defaults(&self, d: &FieldRecord) -> FieldRecord {
+        FieldRecord {
+            mtpa: self.mtpa.unwrap_or(d.mtpa),
+            field_weakening: self.field_weakening.unwrap_or(d.field_weakening),
+            max_id_a: self.max_id_a.unwrap_or(d.max_id_a),
+            voltage_margin: self.voltage_margin.unwrap_or(d.voltage_margin),
+            bandwidth_rad_s: self.bandwidth_rad_s.unwrap_or(d.bandwidth_rad_s),
+            short_circuit: self.short_circuit.unwrap_or(d.short_circuit),
+        }
+    }
 }
 
 /// The record as a TOML document (no `[calibration]`, `[power]`,
@@ -76,7 +125,7 @@ pub fn to_toml(r: &DriveRecord) -> String {
         mechanics: r.mechanics,
         joint: r.joint,
         sensorless: r.sensorless,
-        field: r.field,
+        field: r.field.as_ref().map(FieldText::of),
     };
     match toml::to_string(&file) {
         Ok(s) => s,
@@ -121,7 +170,20 @@ pub fn from_toml(s: &str) -> Result<DriveRecord, String> {
         mechanics: f.mechanics,
         joint: f.joint,
         sensorless: f.sensorless,
-        field: f.field,
+        field: None,
+    };
+    // The `[field]` keys left out: the motor's defaults, as for a record
+    // without the table.
+    let r = DriveRecord {
+        field: f.field.as_ref().map(|t| {
+            let d = foc_core::control::field::FieldConfig::for_motor(
+                &r.motor.to_params(),
+                r.limits.max_current_a,
+                r.pwm_frequency_hz as f32,
+            );
+            t.or_defaults(&FieldRecord::from_config(&d))
+        }),
+        ..r
     };
     r.validate().map_err(|e| e.to_string())?;
     Ok(r)

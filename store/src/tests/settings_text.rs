@@ -288,8 +288,37 @@ fn toml_is_readable_and_checked() {
     }
     let e = from_toml(&tf.replace("mtpa = true", "mtpa = 1")).unwrap_err();
     assert!(e.contains("mtpa"), "{e}");
-    let e = from_toml(&tf.replace("short_circuit = false", "")).unwrap_err();
-    assert!(e.contains("short_circuit"), "{e}");
+    let e = from_toml(&tf.replace("short_circuit = false", "short_circut = false")).unwrap_err();
+    assert!(e.contains("short_circut"), "{e}");
+    // A key left out is the motor's default (`FieldConfig::for_motor` of
+    // the file's motor, current limit and PWM rate).
+    let d =
+        crate::record::FieldRecord::from_config(&foc_core::control::field::FieldConfig::for_motor(
+            &f.motor.to_params(),
+            f.limits.max_current_a,
+            f.pwm_frequency_hz as f32,
+        ));
+    let only = tf.replace(
+        "[field]\nmtpa = true\nfield_weakening = true\nmax_id_a = 4.5\n\
+         voltage_margin = 0.1\nbandwidth_rad_s = 700.0\nshort_circuit = false",
+        "[field]\nfield_weakening = true\nmax_id_a = 4.5",
+    );
+    assert_ne!(only, tf);
+    let back = from_toml(&only).unwrap().field.unwrap();
+    assert_eq!(
+        back,
+        crate::record::FieldRecord {
+            field_weakening: true,
+            max_id_a: 4.5,
+            ..d
+        }
+    );
+    let empty = tf.replace(
+        "[field]\nmtpa = true\nfield_weakening = true\nmax_id_a = 4.5\n\
+         voltage_margin = 0.1\nbandwidth_rad_s = 700.0\nshort_circuit = false",
+        "[field]",
+    );
+    assert_eq!(from_toml(&empty).unwrap().field, Some(d));
     assert_eq!(
         from_toml(&text.replace("schema_version = 8", "schema_version = 7")),
         Ok(r.clone())
