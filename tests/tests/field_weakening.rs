@@ -574,11 +574,33 @@ fn regen_limit_and_position_moves_above_base_speed() {
         sim.cascade
             .command(Command::Velocity { rad_s: 0.0 })
             .unwrap();
-        let (fault2, i_peak, v_peak) = run(&mut sim, (0.3 * s.pwm_hz()) as usize);
+        // The d reference stays within the deeper of the weakening's
+        // bound and the regen ramp's braking alone (design §30).
+        let max_id = sim.cascade.current.field().config().max_id_a;
+        let mut id_min = 0.0f32;
+        let (mut fault2, mut i_peak, mut v_peak) = (None, 0.0f32, 0.0f32);
+        for _ in 0..(0.3 * s.pwm_hz()) as usize {
+            let (f, i, v) = run(&mut sim, 1);
+            id_min = id_min.min(sim.cascade.feedback().i_dq_ref_a.d);
+            fault2 = fault2.or(f);
+            i_peak = i_peak.max(i);
+            v_peak = v_peak.max(v);
+            if f.is_some() {
+                break;
+            }
+        }
+        // The regen ramp alone may ask up to the current limit on d (its
+        // `regen_id_max_a` is not bounded by default); the two are not
+        // summed.
+        let d_bound = max_id.max(s.max_current_a);
+        if id_min < -1.001 * d_bound {
+            failures.push(format!("{stem}: d reference {id_min} A beyond {d_bound} A"));
+        }
         let w_end = sim.plant.omega_m_rad_s() as f32;
         println!(
             "{stem}: stop from {top:.1} rad/s into {:.0} uF, non-sinking: peak bus {v_peak:.1} V \
-             (trip {trip:.1} V), peak phase {i_peak:.2} A, {w_end:.1} rad/s after 0.3 s, \
+             (trip {trip:.1} V), peak phase {i_peak:.2} A, deepest d reference {id_min:.2} A, \
+             {w_end:.1} rad/s after 0.3 s, \
              {:?}",
             link.c_f * 1e6,
             fault.or(fault2)
@@ -666,6 +688,22 @@ fn the_short_circuit_is_released_as_the_speed_falls() {
             released / rectify
         );
         assert!((released / rectify - 0.9).abs() < 0.03, "{stem}");
+        // An angle-sensor fault at the top speed (the reading lost): the
+        // speed just before it is the one judged by, the short circuit.
+        let mut other = self::sim(&s, true);
+        assert_eq!(spin_up_then_hold(&mut other, &s, top), None, "{stem}");
+        let mut shorted = 0;
+        for _ in 0..20 {
+            let mut smp = other.sample();
+            smp.angle = None;
+            shorted += usize::from(other.step_with(&smp) == BridgeCommand::ShortCircuit);
+        }
+        assert_eq!(
+            other.cascade.feedback().first_fault,
+            Some(Fault::AngleSensorError),
+            "{stem}"
+        );
+        assert!(shorted >= 19, "{stem}: {shorted} of 20 periods shorted");
         // A gate-driver fault at the top speed: everything off.
         let mut other = self::sim(&s, true);
         assert_eq!(spin_up_then_hold(&mut other, &s, top), None, "{stem}");

@@ -184,6 +184,9 @@ pub struct CurrentStageState {
     /// The safe state is the active short circuit (design §30): the
     /// bridge is off (faulted or disabled) above the rectifying speed.
     pub short_circuit: bool,
+    /// The electrical speed the safe state judges by, `|w_e|` \[rad/s\]
+    /// (the last one the tracker could be trusted with).
+    pub trusted_speed_e_rad_s: f32,
 }
 
 impl CurrentStageState {
@@ -233,6 +236,7 @@ impl CurrentStageState {
             timeout_damping: false,
             travel_window_a: None,
             short_circuit: false,
+            trusted_speed_e_rad_s: 0.0,
         }
     }
 
@@ -249,6 +253,7 @@ impl CurrentStageState {
             calibrated: self.calibrated,
             limp_home: self.limp_home,
             short_circuit: self.short_circuit,
+            trusted_speed_e_rad_s: self.trusted_speed_e_rad_s,
             speed_inv_periods: self.speed_inv_periods,
             speed_periods: self.speed_periods,
             ..Self::new(self.interpolation)
@@ -468,6 +473,8 @@ impl CurrentStage {
         self.observer.reset();
         self.revoke_calibration();
         self.rebuild_model();
+        // The sensor's class decides whether weakening is allowed.
+        self.field = field_of(&self.config);
     }
 
     /// Lock the closed-loop modes again; a closed-loop command that is

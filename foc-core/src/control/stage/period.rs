@@ -178,7 +178,7 @@ impl CurrentStage {
         let w = &self.power_report;
         let closed = i_ref.map(|i| {
             if windowed {
-                Dq::new(w.id_ref_a, w.clamp(i.q))
+                braked(i, w, self.config.limits.max_current_a)
             } else {
                 i
             }
@@ -330,6 +330,7 @@ impl CurrentStage {
             }
             o => o,
         };
+        self.note_speed(out.is_some());
         let (bridge, duties, v_dq, i_dq, limited) = match out {
             Some(o) => (
                 BridgeCommand::Duties(o.duties),
@@ -379,6 +380,26 @@ impl CurrentStage {
         }
         bridge
     }
+}
+
+/// The power window's reference on top of the d-current reference `i`
+/// (design §18, §30): the regen ramp's d braking is the window's `id`
+/// less the `i.d` it was given; the deeper of the two d currents is
+/// taken, not their sum (summed, the interior-PM stop from twice base
+/// speed asked -18.2 A, beyond `psi / Ld`), and the q current stays in
+/// the window and the current circle.
+#[inline(always)]
+fn braked(i: Dq, w: &PowerReport, max_current_a: f32) -> Dq {
+    let brake = w.id_ref_a - i.d;
+    let d = if brake < i.d { brake } else { i.d };
+    let q = w.clamp(i.q);
+    if i.d == 0.0 {
+        // No d-current reference: the window as it always was.
+        return Dq::new(w.id_ref_a, q);
+    }
+    let room = max_current_a * max_current_a - d * d;
+    let lim = if room > 0.0 { crate::sqrtf(room) } else { 0.0 };
+    Dq::new(d, clamp(q, -lim, lim))
 }
 
 impl Sensed {

@@ -20,10 +20,11 @@ impl CurrentStage {
     ///   short circuit configured ([`crate::control::field::FieldConfig::short_circuit`]).
     /// - Never when the fault forbids switching (gate driver, timer break,
     ///   PWM error): everything off.
-    /// - The speed is the tracked one; after an angle-sensor fault it is
-    ///   not known, and the decision of the last period it was stands
-    ///   until the faults are cleared (a short circuit holds the rotor
-    ///   braked; nothing flows once it stops).
+    /// - The speed is the tracked one, as [`Self::note_speed`] last trusted
+    ///   it: after an angle-sensor fault (or sensorless, with the bridge
+    ///   off) the speed just before stands until the faults are cleared (a
+    ///   short circuit holds the rotor braked; nothing flows once it
+    ///   stops).
     /// - The bus is the one read; when it cannot be read the decision
     ///   stands.
     #[inline(always)]
@@ -46,22 +47,41 @@ impl CurrentStage {
         if faults.contains(Fault::GateDriverFault) || faults.contains(Fault::PwmError) {
             return false;
         }
-        let angle_lost = faults.contains(Fault::AngleSensorError)
-            || faults.contains(Fault::AngleSensorImplausible)
-            || faults.contains(Fault::AngleSensorStuck);
         let v_bus = match v_bus_read_v {
             Some(v) if v.is_finite() && v > 0.0 => v,
             _ => return self.state.short_circuit,
         };
-        if angle_lost {
-            return self.state.short_circuit;
-        }
-        let w = (self.tracker.velocity_rad_s() * self.config.angle.pole_pairs as f32).abs();
+        let w = self.state.trusted_speed_e_rad_s;
         let on = self.field.rectifying_speed_rad_s(v_bus);
         if self.state.short_circuit {
             w > RELEASE_SHARE * on
         } else {
             w > on
+        }
+    }
+
+    /// Every period: the electrical speed the safe state judges by
+    /// (`|w_e|`), taken from the tracker only while it can be trusted: no
+    /// angle-sensor fault latched, and, where an observer gives the angle
+    /// (sensorless, limp-home), only while the bridge runs (off, the
+    /// observer pauses and its speed decays while the rotor does not).
+    /// Otherwise the last trusted speed stands: an angle fault at the top
+    /// speed is judged by the speed just before it. While the bridge runs
+    /// the short circuit is not in force (a fresh decision when it stops).
+    #[inline(always)]
+    pub(super) fn note_speed(&mut self, bridge_on: bool) {
+        if bridge_on {
+            self.state.short_circuit = false;
+        }
+        let faults = self.supervisor.faults();
+        let angle_lost = faults.contains(Fault::AngleSensorError)
+            || faults.contains(Fault::AngleSensorImplausible)
+            || faults.contains(Fault::AngleSensorStuck)
+            || faults.contains(Fault::ObserverLostLock);
+        let observer = self.sensorless.is_some() || self.state.limp_home;
+        if !angle_lost && (bridge_on || !observer) {
+            self.state.trusted_speed_e_rad_s =
+                (self.tracker.velocity_rad_s() * self.config.angle.pole_pairs as f32).abs();
         }
     }
 }

@@ -346,10 +346,14 @@ impl CurrentStage {
         sl.record(duties, v_bus_v);
         self.state.torque_iq_a = if on_field {
             self.state.iq_interp_a
-        } else {
-            // Sensorless the d-current reference is 0 (design §30): the
-            // q current alone (an injection's d ripple times iq would bias it).
+        } else if sl.region().injects() {
+            // Under injection the d reference is 0 (design §30): the q
+            // current alone (the injection's d ripple times iq biased it).
             fb.i_dq_a.q
+        } else {
+            // On the flux observer MTPA and field weakening act: the
+            // reluctance torque counted in.
+            self.field.torque_iq_a(fb.i_dq_a)
         };
         if on_field {
             fb.mode = Mode::OpenLoop;
