@@ -143,7 +143,7 @@ impl Fault {
         }
     }
 
-    const fn bit(self) -> u32 {
+    pub(crate) const fn bit(self) -> u32 {
         1u32 << (self as u8)
     }
 }

@@ -181,12 +181,6 @@ pub struct CurrentStageState {
     /// The travel limits' q-current window of this period \[A\], when they
     /// are configured and a closed-loop mode is active.
     pub travel_window_a: Option<(f32, f32)>,
-    /// The safe state is the active short circuit (design §30): the
-    /// bridge is off (faulted or disabled) above the rectifying speed.
-    pub short_circuit: bool,
-    /// The electrical speed the safe state judges by, `|w_e|` \[rad/s\]
-    /// (the last one the tracker could be trusted with).
-    pub trusted_speed_e_rad_s: f32,
 }
 
 impl CurrentStageState {
@@ -235,8 +229,6 @@ impl CurrentStageState {
             blend_step: 0.0,
             timeout_damping: false,
             travel_window_a: None,
-            short_circuit: false,
-            trusted_speed_e_rad_s: 0.0,
         }
     }
 
@@ -252,8 +244,6 @@ impl CurrentStageState {
             rejected: self.rejected,
             calibrated: self.calibrated,
             limp_home: self.limp_home,
-            short_circuit: self.short_circuit,
-            trusted_speed_e_rad_s: self.trusted_speed_e_rad_s,
             speed_inv_periods: self.speed_inv_periods,
             speed_periods: self.speed_periods,
             ..Self::new(self.interpolation)
@@ -292,6 +282,10 @@ pub struct CurrentStage {
     sensorless: Option<Sensorless>,
     /// The observer beside the sensor, when a fallback is configured.
     fallback: Option<fallback::Fallback>,
+    /// The safe state by speed (design §30), last: a field added before
+    /// the hot ones moved them past the short load offsets (+75
+    /// instructions a period, `cargo xtask bench`).
+    safe: safe::SafeMemory,
 }
 
 impl CurrentStage {
@@ -325,6 +319,7 @@ impl CurrentStage {
                 .fallback
                 .filter(|_| config.sensorless.is_none())
                 .map(fallback::Fallback::new),
+            safe: safe::SafeMemory::INIT,
         }
     }
 

@@ -8,6 +8,25 @@
 
 use super::*;
 
+/// What the safe state remembers between periods.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SafeMemory {
+    /// The short circuit is in force (the bridge off above the rectifying
+    /// speed).
+    pub short_circuit: bool,
+    /// The speed judged by [rad/s, mechanical, signed] (the last one the
+    /// tracker could be trusted with).
+    pub trusted_speed_rad_s: f32,
+}
+
+impl SafeMemory {
+    /// Freewheeling, at rest.
+    pub const INIT: Self = Self {
+        short_circuit: false,
+        trusted_speed_rad_s: 0.0,
+    };
+}
+
 /// The short circuit is released below this share of the rectifying
 /// speed (hysteresis).
 pub const RELEASE_SHARE: f32 = 0.9;
@@ -30,7 +49,7 @@ impl CurrentStage {
     #[inline(always)]
     pub(super) fn safe_state(&mut self, v_bus_read_v: Option<f32>) -> BridgeCommand {
         let wanted = self.short_circuit_wanted(v_bus_read_v);
-        self.state.short_circuit = wanted;
+        self.safe.short_circuit = wanted;
         if wanted {
             BridgeCommand::ShortCircuit
         } else {
@@ -49,11 +68,11 @@ impl CurrentStage {
         }
         let v_bus = match v_bus_read_v {
             Some(v) if v.is_finite() && v > 0.0 => v,
-            _ => return self.state.short_circuit,
+            _ => return self.safe.short_circuit,
         };
-        let w = self.state.trusted_speed_e_rad_s;
+        let w = (self.safe.trusted_speed_rad_s * self.config.angle.pole_pairs as f32).abs();
         let on = self.field.rectifying_speed_rad_s(v_bus);
-        if self.state.short_circuit {
+        if self.safe.short_circuit {
             w > RELEASE_SHARE * on
         } else {
             w > on
@@ -70,18 +89,19 @@ impl CurrentStage {
     /// the short circuit is not in force (a fresh decision when it stops).
     #[inline(always)]
     pub(super) fn note_speed(&mut self, bridge_on: bool) {
+        // Running, no fault is latched and the angle is the loop's own.
         if bridge_on {
-            self.state.short_circuit = false;
+            self.safe.short_circuit = false;
+            self.safe.trusted_speed_rad_s = self.tracker.velocity_rad_s();
+            return;
         }
-        let faults = self.supervisor.faults();
-        let angle_lost = faults.contains(Fault::AngleSensorError)
-            || faults.contains(Fault::AngleSensorImplausible)
-            || faults.contains(Fault::AngleSensorStuck)
-            || faults.contains(Fault::ObserverLostLock);
+        const ANGLE_LOST: u32 = Fault::AngleSensorError.bit()
+            | Fault::AngleSensorImplausible.bit()
+            | Fault::AngleSensorStuck.bit()
+            | Fault::ObserverLostLock.bit();
         let observer = self.sensorless.is_some() || self.state.limp_home;
-        if !angle_lost && (bridge_on || !observer) {
-            self.state.trusted_speed_e_rad_s =
-                (self.tracker.velocity_rad_s() * self.config.angle.pole_pairs as f32).abs();
+        if !observer && self.supervisor.faults().0 & ANGLE_LOST == 0 {
+            self.safe.trusted_speed_rad_s = self.tracker.velocity_rad_s();
         }
     }
 }
