@@ -19,6 +19,7 @@
 
 use crate::joint::nack_text;
 use crate::{Client, ClientError};
+use foc_core::control::field::MIN_VOLTAGE_MARGIN;
 use foc_core::control::stage::COARSE_FIELD_WEAKENING;
 use foc_core::control::{Command, Limits};
 use foc_protocol::device::MAX_GAIN;
@@ -248,7 +249,8 @@ fn field_param_refusal(c: &mut Client, id: ParamId, value: f32) -> String {
         }
         ParamId::FieldWeakening if value == 1.0 => format!(
             "`field-weakening` = 1 is refused: {COARSE_FIELD_WEAKENING} (or the configuration's \
-             `field.bandwidth_rad_s` is 0); nothing changed"
+             `field.bandwidth_rad_s` is 0 or its `field.voltage_margin` below {MIN_VOLTAGE_MARGIN}); \
+             nothing changed"
         ),
         ParamId::MaxIdA if value == 0.0 && fw_on => {
             "`max-id` = 0 A is refused while field weakening is on (it needs a current): \

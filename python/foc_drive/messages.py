@@ -387,8 +387,8 @@ PARAM_RANGES: Dict[ParamId, str] = {
 #: foc-core's rule (``foc_core::drive::check_field``).
 FIELD_WEAKENING_REFUSED = (
     "field weakening needs a fine angle sensor (a coarse one's, halls', half-count "
-    "uncertainty turns the weakening d current into q current), max-id above 0 and "
-    "a field-weakening bandwidth above 0"
+    "uncertainty turns the weakening d current into q current), max-id above 0, "
+    "a field-weakening bandwidth above 0 and a voltage margin of at least 0.02"
 )
 
 #: ``calibration-step`` codes (the step running, or where the last run

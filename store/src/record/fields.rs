@@ -170,7 +170,8 @@ impl FieldRecord {
     /// Check every value with foc-core's rule (`FieldConfig::check`),
     /// one value at a time so the error names it: `max_id_a`,
     /// `voltage_margin`, `bandwidth_rad_s`, then `field_weakening`
-    /// (it needs `max_id_a > 0` and a bandwidth).
+    /// (it needs `max_id_a > 0`, a bandwidth and a voltage margin of at
+    /// least foc-core's `MIN_VOLTAGE_MARGIN`).
     pub fn validate(&self) -> Result<(), Invalid> {
         let alone = |c: FieldConfig| c.check().is_ok();
         let off = FieldConfig::OFF;

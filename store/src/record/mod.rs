@@ -302,12 +302,14 @@ pub struct FieldRecord {
     /// than 5 % above `Ld`).
     pub mtpa: bool,
     /// Field weakening above base speed (needs `max_id_a > 0`,
-    /// `bandwidth_rad_s > 0` and a fine angle sensor).
+    /// `bandwidth_rad_s > 0`, `voltage_margin` >= 0.02 and a fine angle
+    /// sensor).
     pub field_weakening: bool,
     /// Largest `|id|` field weakening may use \[A\] (finite, `>= 0`; the
     /// magnets' demagnetisation limit; at most the current limit is used).
     pub max_id_a: f32,
-    /// Share of the voltage circle field weakening keeps free (0 to 0.5).
+    /// Share of the voltage circle field weakening keeps free (0 to 0.5;
+    /// at least 0.02 with field weakening: it also sets its slew).
     pub voltage_margin: f32,
     /// Field-weakening loop bandwidth \[rad/s\] (finite, `>= 0`).
     pub bandwidth_rad_s: f32,
@@ -459,9 +461,12 @@ impl fmt::Display for Invalid {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self.field {
             // Not a range: the rule that combines it with others.
-            "field.field_weakening" => f.write_str(
+            "field.field_weakening" => write!(
+                f,
                 "record value `field.field_weakening` is refused: field weakening needs \
-                 `max_id_a` > 0, `bandwidth_rad_s` > 0 and a fine angle sensor (not halls)",
+                 `max_id_a` > 0, `bandwidth_rad_s` > 0, `voltage_margin` >= {} and a fine \
+                 angle sensor (not halls)",
+                foc_core::control::field::MIN_VOLTAGE_MARGIN
             ),
             field => write!(f, "record value `{field}` is out of range"),
         }

@@ -118,20 +118,24 @@ prop_compose! {
 }
 
 /// A valid `[field]` table or none (boxed: the record's strategy is deep
-/// enough without it). Field weakening only with a current and a
-/// bandwidth (the rule).
+/// enough without it). Field weakening only where foc-core's rule takes
+/// it (a current, a bandwidth, a voltage margin).
 fn field() -> BoxedStrategy<Option<crate::record::FieldRecord>> {
     proptest::option::of((any::<[bool; 3]>(), 0.0f32..1e5, 0.0f32..=0.5, 0.0f32..1e5))
         .prop_map(|f| {
             f.map(
                 |([mtpa, fw, sc], max_id_a, voltage_margin, bandwidth_rad_s)| {
-                    crate::record::FieldRecord {
+                    let f = crate::record::FieldRecord {
                         mtpa,
-                        field_weakening: fw && max_id_a > 0.0 && bandwidth_rad_s > 0.0,
+                        field_weakening: fw,
                         max_id_a,
                         voltage_margin,
                         bandwidth_rad_s,
                         short_circuit: sc,
+                    };
+                    crate::record::FieldRecord {
+                        field_weakening: fw && f.to_config().check().is_ok(),
+                        ..f
                     }
                 },
             )

@@ -1568,7 +1568,7 @@ fn the_field_table_is_checked_applied_and_refused_on_halls() {
         DriveRecord::from_settings(&r.label, 20_000, &s).field,
         Some(f)
     );
-    let bad: [(FieldRecord, &str); 9] = [
+    let bad: [(FieldRecord, &str); 10] = [
         (
             FieldRecord {
                 max_id_a: f32::NAN,
@@ -1622,6 +1622,13 @@ fn the_field_table_is_checked_applied_and_refused_on_halls() {
         (
             FieldRecord {
                 bandwidth_rad_s: 0.0,
+                ..f
+            },
+            "field.field_weakening",
+        ),
+        (
+            FieldRecord {
+                voltage_margin: 0.01,
                 ..f
             },
             "field.field_weakening",
