@@ -7,6 +7,7 @@ use crate::link::Link;
 use crate::mailbox::ConfigMailbox;
 use crate::records::{admit, link_setting, live_record, RecordStore};
 use crate::snapshot::{Identified, Snapshot};
+use foc_core::control::field::FieldConfig;
 use foc_core::control::Mechanics;
 use foc_core::drive::ConfigChange;
 use foc_protocol::scope::ScopePort;
@@ -196,6 +197,32 @@ impl Service {
                 self.pending.speed = Some(c.speed);
                 self.pending.position = Some(c.position);
             }
+        }
+        // The d-current reference follows the identified motor (design
+        // §30): MTPA where it is salient, the short circuit where its
+        // characteristic current is within the limit, the deepest
+        // weakening no deeper than its default (a motor with a smaller
+        // `psi / Ld` than the one configured would have its flux reversed);
+        // field weakening stays as it was set.
+        let c = self.cascade();
+        let derived = FieldConfig::for_motor(
+            &c.current.current.motor,
+            c.current.limits.max_current_a,
+            c.rates.pwm_frequency_hz,
+        );
+        let before = self.settings.field;
+        let field = FieldConfig {
+            mtpa: derived.mtpa,
+            short_circuit: derived.short_circuit,
+            max_id_a: before.max_id_a.min(derived.max_id_a),
+            ..before
+        };
+        if field != before && field.check().is_ok() {
+            self.settings.field = field;
+            self.pending.change(ConfigChange {
+                field: Some(field),
+                ..ConfigChange::default()
+            });
         }
         // A sensorless start is derived from the motor and the mechanics:
         // again from the identified ones.

@@ -582,3 +582,50 @@ fn the_field_settings_are_admitted_whole_or_refused_with_nothing_changed() {
     let a = foc_service::records::admit(s.board(), &old).unwrap();
     assert_eq!(a.field, defaults);
 }
+
+/// An identification that finds a salient motor with a small
+/// characteristic current re-derives the d-current reference (design
+/// §30): MTPA on, the short circuit on, the deepest weakening no deeper
+/// than 0.75 psi/Ld; field weakening stays as set. The drive gets it.
+#[test]
+fn an_identification_rederives_the_d_current_reference() {
+    use foc_core::calibration::identification::IdentificationResult;
+    use foc_core::control::permit::Calibrated;
+    use foc_service::Identified;
+    let mut s = Service::new(board(true));
+    let before = s.settings().field;
+    assert!(!before.mtpa && !before.short_circuit, "{before:?}");
+    // The identified motor: Lq 50 % above Ld, psi/Ld = 5 A.
+    let motor = MotorParams {
+        pole_pairs: 7,
+        r_ohm: 0.1,
+        ld_h: 800e-6,
+        lq_h: 1200e-6,
+        flux_linkage_wb: 0.004,
+    };
+    let c = s.cascade();
+    let mut current = c.current.current;
+    current.motor = motor;
+    let angle = c.current.angle;
+    let permit = Calibrated::supplied(angle, current).unwrap();
+    let result = IdentificationResult {
+        r_ohm: motor.r_ohm,
+        ld_h: motor.ld_h,
+        lq_h: motor.lq_h,
+        flux_linkage_wb: motor.flux_linkage_wb,
+        mechanics: None,
+        angle,
+        pole_pairs: 7,
+    };
+    s.fold_identification(Some(Identified {
+        result,
+        permit,
+        count: 1,
+    }));
+    let after = s.settings().field;
+    assert!(after.mtpa && after.short_circuit, "{after:?}");
+    assert!((after.max_id_a - 0.75 * 5.0).abs() < 1e-3, "{after:?}");
+    assert_eq!(after.field_weakening, before.field_weakening);
+    let pending = s.take_pending();
+    assert_eq!(pending.current.and_then(|c| c.field), Some(after));
+}
