@@ -776,3 +776,52 @@ fn supervision_stays_quiet_above_base_speed_with_the_model_off() {
     }
     assert!(failures.is_empty(), "{failures:#?}");
 }
+
+/// A closed-loop start with the bridge off above base speed is refused
+/// (design §30): the rotor turning at twice base speed in the short
+/// circuit, faults cleared, a velocity command: the drive stays off, no
+/// over-current, the bus at its level; below base speed it starts.
+#[test]
+fn a_start_above_base_speed_is_refused() {
+    for (stem, s) in setups() {
+        if !stem.starts_with("ipm") {
+            continue;
+        }
+        let top = top_speed(&s);
+        let base = base_speed(&s);
+        let mut c = s.cascade_config();
+        c.current.field.field_weakening = true;
+        let mut sim = Sim::new_calibrated(&s, c, false);
+        assert_eq!(spin_up_then_hold(&mut sim, &s, top), None, "{stem}");
+        sim.cascade.report_fault(Fault::LoopOverrun);
+        sim.run(10);
+        sim.cascade.clear_faults();
+        sim.run(2);
+        sim.cascade
+            .command(Command::Velocity { rad_s: top })
+            .unwrap();
+        let (fault, i_peak, v_peak) = run(&mut sim, (0.05 * s.pwm_hz()) as usize);
+        let mode = sim.cascade.feedback().mode;
+        println!(
+            "{stem}: velocity command at {:.2} x base after a fault: mode {mode:?}, {fault:?}, \
+             peak phase {i_peak:.2} A, peak bus {v_peak:.1} V",
+            top / base
+        );
+        assert_eq!(fault, None, "{stem}");
+        assert_eq!(mode, foc_core::control::Mode::Disabled, "{stem}");
+        assert!(v_peak < 1.05 * s.bench.bus_voltage_v as f32, "{stem}");
+        // Below base speed the same command is taken.
+        sim.plant
+            .set_mechanics(Mechanics::ConstantSpeed(0.5 * base as f64));
+        sim.run((0.02 * s.pwm_hz()) as usize);
+        sim.cascade
+            .command(Command::Velocity { rad_s: 0.5 * base })
+            .unwrap();
+        sim.run(10);
+        assert_eq!(
+            sim.cascade.feedback().mode,
+            foc_core::control::Mode::Velocity,
+            "{stem}"
+        );
+    }
+}

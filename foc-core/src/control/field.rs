@@ -371,6 +371,18 @@ impl Field {
         self.plan.short_circuit
     }
 
+    /// The no-load base speed at bus `v_bus_v` [rad/s, electrical]: where
+    /// the back-EMF `w_e psi` meets the voltage target (infinite without
+    /// a flux linkage).
+    #[inline]
+    pub fn base_speed_e_rad_s(&self, v_bus_v: f32) -> f32 {
+        if self.plan.psi_wb > 0.0 {
+            self.plan.target_per_bus * v_bus_v / self.plan.psi_wb
+        } else {
+            f32::INFINITY
+        }
+    }
+
     /// The electrical speed \[rad/s\] above which the back-EMF's
     /// line-to-line peak `sqrt(3) w_e psi` exceeds the bus `v_bus_v`: the
     /// freewheel diodes rectify into the bus above it.

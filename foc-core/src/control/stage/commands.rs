@@ -69,6 +69,9 @@ impl CurrentStage {
             || crate::control::admit(&cmd, &self.config.limits, faulted, self.is_calibrated())
                 .is_err()
             || (self.sensorless_refuses(cmd.mode()))
+            || (self.state.active.mode() == Mode::Disabled
+                && cmd.mode().is_closed_loop()
+                && self.too_fast_to_start())
         {
             self.state.rejected = self.state.rejected.wrapping_add(1);
             return;

@@ -17,6 +17,8 @@ pub struct SafeMemory {
     /// The speed judged by [rad/s, mechanical, signed] (the last one the
     /// tracker could be trusted with).
     pub trusted_speed_rad_s: f32,
+    /// The bus as last read with the bridge off \[V\] (0: none yet).
+    pub v_bus_off_v: f32,
 }
 
 impl SafeMemory {
@@ -24,6 +26,7 @@ impl SafeMemory {
     pub const INIT: Self = Self {
         short_circuit: false,
         trusted_speed_rad_s: 0.0,
+        v_bus_off_v: 0.0,
     };
 }
 
@@ -48,6 +51,9 @@ impl CurrentStage {
     ///   stands.
     #[inline(always)]
     pub(super) fn safe_state(&mut self, v_bus_read_v: Option<f32>) -> BridgeCommand {
+        if let Some(v) = v_bus_read_v {
+            self.safe.v_bus_off_v = v;
+        }
         let wanted = self.short_circuit_wanted(v_bus_read_v);
         self.safe.short_circuit = wanted;
         if wanted {
@@ -103,5 +109,25 @@ impl CurrentStage {
         if !observer && self.supervisor.faults().0 & ANGLE_LOST == 0 {
             self.safe.trusted_speed_rad_s = self.tracker.velocity_rad_s();
         }
+    }
+
+    /// A closed-loop start with the bridge off is refused while the rotor
+    /// turns above its no-load base speed (the back-EMF above the voltage
+    /// the current loop can hold, design §30): the loops and the
+    /// weakening would start from zero against it and lose the current
+    /// (reproduced on the interior-PM file at 1.5 to 2.2 x base:
+    /// over-current, the bus over its trip). The safe state (the short
+    /// circuit above the rectifying speed) stays until the rotor is slower.
+    /// Only on the angle sensor, with a permit (an identified flux
+    /// linkage) and a bus read.
+    pub(super) fn too_fast_to_start(&self) -> bool {
+        let v = self.safe.v_bus_off_v;
+        // Sensorless the speed with the bridge off is not known (the
+        // observer pauses): not judged.
+        if !(self.state.calibrated && self.sensorless.is_none() && v.is_finite() && v > 0.0) {
+            return false;
+        }
+        let w = (self.safe.trusted_speed_rad_s * self.config.angle.pole_pairs as f32).abs();
+        w > self.field.base_speed_e_rad_s(v)
     }
 }
