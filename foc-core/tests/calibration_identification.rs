@@ -643,6 +643,7 @@ impl ClosedLoop {
             v_dq_v: fb.v_dq_v,
             i_dq_a: fb.i_dq_a,
             velocity_rad_s: fb.velocity_rad_s,
+            theta_e: fb.theta_e,
         });
         match bridge {
             BridgeCommand::Duties(d) => d.map(|x| (x as f64 - 0.5) * m.v_bus),

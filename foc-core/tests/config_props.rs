@@ -603,6 +603,7 @@ proptest! {
                             v_dq_v: Dq::new(0.0, 0.01 * rad_s),
                             i_dq_a: Dq::new(0.0, 0.1),
                             velocity_rad_s: *rad_s,
+                            theta_e: Default::default(),
                         });
                     }
                     CalStep::Torque { iq_a } => {
@@ -614,6 +615,7 @@ proptest! {
                             v_dq_v: Dq::new(0.0, 0.01 * w),
                             i_dq_a: Dq::new(0.0, *iq_a),
                             velocity_rad_s: w,
+                            theta_e: Default::default(),
                         });
                     }
                     CalStep::Done(_) => {

@@ -404,6 +404,7 @@ CALIBRATION_STEPS = (
     "mechanics",
     "finished",
     "sensor check",
+    "anticogging",
 )
 
 #: ``calibration-result`` codes below :data:`CALIBRATION_FAILED_BASE`.

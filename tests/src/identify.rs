@@ -251,7 +251,10 @@ fn drive(
             Event::OffsetsFailed(e) => return Err(Error::Offsets(e)),
             Event::CurrentSenseFailed => return Err(Error::StartUp(Fault::CurrentSenseError)),
             Event::SensorCheckFailed => return Err(Error::StartUp(Fault::AngleSensorError)),
-            Event::StartUpDone | Event::IdentificationStarted | Event::CalibrationRestored => {}
+            Event::StartUpDone
+            | Event::IdentificationStarted
+            | Event::CalibrationRestored
+            | Event::CoggingMeasured { .. } => {}
             Event::Identified(result) => {
                 let c = sim.cascade.current.config();
                 // The permit the stage holds now, as a value.

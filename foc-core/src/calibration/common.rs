@@ -181,6 +181,8 @@ pub struct ClosedLoopFeedback {
     pub i_dq_a: Dq,
     /// Measured mechanical velocity [rad/s] (`Feedback::velocity_rad_s`).
     pub velocity_rad_s: f32,
+    /// Electrical angle the current loop used (`Feedback::theta_e`).
+    pub theta_e: ElectricalAngle,
 }
 
 /// One period's measurements for a routine.

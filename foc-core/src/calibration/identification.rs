@@ -203,6 +203,9 @@ pub enum Step {
     Flux,
     /// Inertia and friction (closed-loop torque pulses).
     Mechanics,
+    /// The anticogging map (design §32): its own request
+    /// (`ConfigChange::calibrate_cogging`), never part of the sequence.
+    Cogging,
     /// Finished successfully.
     Done,
 }

@@ -934,6 +934,7 @@ mod tests {
                 v_dq_v: Dq::ZERO,
                 i_dq_a: Dq::new(0.0, body.iq as f32 + n),
                 velocity_rad_s: w,
+                theta_e: crate::angle::ElectricalAngle::ZERO,
             });
         }
         panic!("routine did not finish");

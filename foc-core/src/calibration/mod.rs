@@ -12,6 +12,7 @@
 //! - [`field_flux`]: flux linkage from two speeds of a turning field,
 //!   without an angle sensor.
 //! - [`mechanics`]: inertia, viscous and Coulomb friction from torque pulses.
+//! - [`cogging`]: the anticogging map from a slow sweep in both directions.
 //! - [`gains`]: current-loop gains from the measured values (technical optimum).
 //! - [`permit`]: [`Calibrated`], the proof that closed-loop modes may start.
 //! - [`identification`]: the sequencer running all of them in order.
@@ -37,6 +38,7 @@
 //! ```
 
 pub mod alignment;
+pub mod cogging;
 pub mod common;
 pub mod field_flux;
 pub mod flux;

@@ -61,6 +61,7 @@
 //! assert!(pwm.is_enabled());
 //! ```
 
+pub mod cogging;
 pub mod current;
 pub mod estimator;
 pub mod field;

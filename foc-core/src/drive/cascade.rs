@@ -423,11 +423,11 @@ impl Cascade {
         self.change = Some(c);
     }
 
-    /// A calibration (offsets, identification) is requested and not yet
-    /// taken by a step.
+    /// A calibration (offsets, identification, anticogging) is requested
+    /// and not yet taken by a step.
     pub fn calibration_pending(&self) -> bool {
         self.change
-            .is_some_and(|c| c.identify || c.calibrate_offsets)
+            .is_some_and(|c| c.identify || c.calibrate_offsets || c.calibrate_cogging)
     }
 
     /// The lifecycle's output of the last step.

@@ -159,6 +159,7 @@ impl Identifier {
                 v_dq_v: f.v_dq_v,
                 i_dq_a: f.i_dq_a,
                 velocity_rad_s: f.velocity_rad_s,
+                theta_e: f.theta_e,
             });
         inp
     }

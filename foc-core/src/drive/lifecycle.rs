@@ -22,6 +22,7 @@
 //! configuration change is applied whole at the start of a period, or
 //! refused whole (see [`super::rules`]).
 
+use super::cogging::{CoggingOutcome, CoggingRun};
 use super::identify::{Identifier, Outcome};
 use super::rules::{ConfigChange, Refusal, Status};
 use super::{AngleKind, Progress};
@@ -124,6 +125,13 @@ pub enum Event {
     IdentificationFailed(CalError, Step),
     /// Stopped by a fault, or by an operator `Disable` (`None`).
     IdentificationAborted(Option<Fault>, Step),
+    /// The anticogging map is measured and installed (design §32).
+    CoggingMeasured {
+        /// Its largest feed-forward \[A\].
+        peak_a: f32,
+        /// Periods the calibration took.
+        periods: u32,
+    },
 }
 
 /// The drive's decision for one period.
@@ -160,6 +168,8 @@ pub struct Lifecycle {
     /// offsets: skip it.
     skip_offset_sample: bool,
     identifier: Option<Identifier>,
+    /// The anticogging calibration, while it runs (design §32).
+    cogging: Option<CoggingRun>,
     /// The operator's command number when the identification started.
     identify_seq: u32,
     identified: Option<IdentificationResult>,
@@ -232,6 +242,7 @@ impl Lifecycle {
             offsets_ok: offsets.is_none(),
             skip_offset_sample: false,
             identifier: None,
+            cogging: None,
             identify_seq: 0,
             identified: None,
             report: Progress::Idle,
@@ -274,6 +285,9 @@ impl Lifecycle {
 
     /// The stage of the identification running or last run.
     pub fn identification_step(&self) -> Option<Step> {
+        if self.cogging.is_some() {
+            return Some(Step::Cogging);
+        }
         self.identifier.map(|i| i.current_step())
     }
 
@@ -409,6 +423,9 @@ impl Lifecycle {
             if ch.identify {
                 self.start_identification(stage, &inp.command, out);
             }
+            if ch.calibrate_cogging {
+                self.start_cogging(stage, &inp.command, out);
+            }
         }
         settings.and(calibration).and(joint)
     }
@@ -435,10 +452,25 @@ impl Lifecycle {
         stage: &CurrentStage,
         ch: &ConfigChange,
     ) -> Result<(), Refusal> {
-        if !ch.identify && !ch.calibrate_offsets {
+        if !ch.identify && !ch.calibrate_offsets && !ch.calibrate_cogging {
             return Ok(());
         }
-        self.status(stage).check_calibration()?;
+        let status = self.status(stage);
+        status.check_calibration()?;
+        if ch.calibrate_cogging {
+            // A sweep at low speed in velocity mode: calibrated, and the
+            // angle known at standstill; one calibration at a time.
+            if ch.identify || ch.calibrate_offsets {
+                return Err(Refusal::Busy);
+            }
+            if !status.calibrated {
+                return Err(Refusal::NotCalibrated);
+            }
+            if status.angle_only_in_motion() {
+                return Err(Refusal::Unsupported);
+            }
+            return Ok(());
+        }
         if (ch.identify && self.config.identification.is_none())
             || (ch.calibrate_offsets && self.config.offsets.is_none())
         {
@@ -524,6 +556,19 @@ impl Lifecycle {
             cfg.field_flux.max_modulation = m;
         }
         self.identifier = Some(Identifier::new(cfg, operator));
+        self.identify_seq = operator.seq;
+        self.phase = LifePhase::Identify;
+        out.event = Some(Event::IdentificationStarted);
+    }
+
+    fn start_cogging(
+        &mut self,
+        stage: &mut CurrentStage,
+        operator: &CommandSlot,
+        out: &mut Output,
+    ) {
+        self.cogging = Some(CoggingRun::for_stage(stage, operator));
+        self.identifier = None;
         self.identify_seq = operator.seq;
         self.phase = LifePhase::Identify;
         out.event = Some(Event::IdentificationStarted);
@@ -620,6 +665,9 @@ impl Lifecycle {
         out: &mut Output,
         fb_out: &mut Feedback,
     ) {
+        if self.cogging.is_some() {
+            return self.step_cogging(stage, inp, s, out, fb_out);
+        }
         let Some(id) = self.identifier.as_mut() else {
             self.phase = LifePhase::Run;
             return;
@@ -658,6 +706,47 @@ impl Lifecycle {
         // Back to the operator's mailbox, with its last command taken as
         // seen: nothing sent before or during the identification starts
         // the motor now.
+        stage.sync_mailbox(cmd);
+        self.phase = LifePhase::Run;
+    }
+
+    /// The anticogging calibration's period (design §32).
+    fn step_cogging(
+        &mut self,
+        stage: &mut CurrentStage,
+        inp: &Inputs,
+        s: &Sample,
+        out: &mut Output,
+        fb_out: &mut Feedback,
+    ) {
+        let Some(run) = self.cogging.as_mut() else {
+            return;
+        };
+        let cmd = &inp.command;
+        let abort = cmd.seq != self.identify_seq && cmd.command == Command::Disable;
+        let (outcome, b, fb) = if abort {
+            run.abort(stage, inp.iq_ref_a, s)
+        } else {
+            run.step(stage, inp.iq_ref_a, s)
+        };
+        out.bridge = b;
+        *fb_out = fb;
+        out.event = match outcome {
+            CoggingOutcome::Running => return,
+            CoggingOutcome::Done { peak_a, periods } => {
+                self.report = Progress::Done;
+                Some(Event::CoggingMeasured { peak_a, periods })
+            }
+            CoggingOutcome::Failed(e) => {
+                self.report = Progress::Failed(e, Step::Cogging);
+                Some(Event::IdentificationFailed(e, Step::Cogging))
+            }
+            CoggingOutcome::Aborted(f) => {
+                self.report = Progress::Aborted(f, Step::Cogging);
+                Some(Event::IdentificationAborted(f, Step::Cogging))
+            }
+        };
+        self.cogging = None;
         stage.sync_mailbox(cmd);
         self.phase = LifePhase::Run;
     }

@@ -59,6 +59,7 @@
 //! ```
 
 pub mod cascade;
+pub mod cogging;
 pub mod identify;
 pub mod lifecycle;
 pub mod period;

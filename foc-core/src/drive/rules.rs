@@ -136,6 +136,11 @@ pub struct ConfigChange {
     pub calibrate_offsets: bool,
     /// Run the motor identification ([`Status::check_calibration`]).
     pub identify: bool,
+    /// Measure the anticogging map (design §32): a slow sweep in both
+    /// directions in velocity mode, so the drive must be calibrated
+    /// ([`Status::check_calibration`], [`Refusal::NotCalibrated`]) and
+    /// know its angle at low speed (an angle sensor, or injection).
+    pub calibrate_cogging: bool,
     /// Latch this fault (e.g. a link watchdog's `Disable` reaction); taken
     /// in any phase, never refused.
     pub fault: Option<Fault>,
@@ -174,6 +179,7 @@ impl ConfigChange {
         self.permit = newer.permit.or(self.permit);
         self.calibrate_offsets |= newer.calibrate_offsets;
         self.identify |= newer.identify;
+        self.calibrate_cogging |= newer.calibrate_cogging;
         self.fault = self.fault.or(newer.fault);
         self.mechanics = newer.mechanics.or(self.mechanics);
         self.joint = newer.joint.or(self.joint);

@@ -24,7 +24,7 @@ use foc_core::drive::Progress;
 pub const FAILED_BASE: u8 = 32;
 
 /// Step names by `calibration-step` code.
-pub const STEP_NAMES: [&str; 10] = [
+pub const STEP_NAMES: [&str; 11] = [
     "none",
     "current offsets",
     "resistance",
@@ -35,6 +35,7 @@ pub const STEP_NAMES: [&str; 10] = [
     "mechanics",
     "finished",
     "sensor check",
+    "anticogging",
 ];
 
 /// The words for the `calibration-result` codes below [`FAILED_BASE`].
@@ -82,6 +83,7 @@ const fn step_code(s: Step) -> u8 {
         Step::Flux => 6,
         Step::Mechanics => 7,
         Step::Done => 8,
+        Step::Cogging => 10,
     }
 }
 

@@ -323,7 +323,7 @@ impl CurrentStage {
         self.state.emf_turned_rad = 0.0;
         // The speed observer's torque input from now on (what
         // `publish_sensorless` keeps up to date).
-        self.state.torque_iq_a = self.field.torque_iq_a(self.state.last_i_dq);
+        self.state.torque_iq_a = self.net_torque_iq_a(self.state.last_i_dq);
         self.model.reset();
         self.state.limp_home = true;
     }

@@ -8,6 +8,7 @@
 
 mod angle;
 mod checks;
+mod cogging;
 mod commands;
 mod fallback;
 mod impedance;
@@ -286,6 +287,8 @@ pub struct CurrentStage {
     /// the hot ones moved them past the short load offsets (+75
     /// instructions a period, `cargo xtask bench`).
     safe: safe::SafeMemory,
+    /// The anticogging map (design §32), after the rest: 1 KB.
+    cogging: cogging::Anticogging,
 }
 
 impl CurrentStage {
@@ -320,6 +323,7 @@ impl CurrentStage {
                 .filter(|_| config.sensorless.is_none())
                 .map(fallback::Fallback::new),
             safe: safe::SafeMemory::INIT,
+            cogging: cogging::Anticogging::INIT,
         }
     }
 

@@ -109,7 +109,7 @@ impl CurrentStage {
                 // measured at the last period's start: the torque that
                 // drove the rotor since (with a salient rotor's reluctance
                 // torque, design §30).
-                let torque_iq = self.field.torque_iq_a(self.state.last_i_dq);
+                let torque_iq = self.net_torque_iq_a(self.state.last_i_dq);
                 self.observer.update(used, torque_iq);
                 sensed.theta_e = self.config.angle.electrical(used);
                 sensed.i_abc = cur.to_abc();
@@ -152,6 +152,9 @@ impl CurrentStage {
         let w_e = self.tracker.velocity_rad_s() * pp;
         let requested = self.requested_iq(iq_ref_from_speed_a);
         self.state.travel_window_a = None;
+        // The anticogging feed-forward (design §32) before the travel
+        // limits, so that they hold against it too.
+        let requested = self.with_cogging(requested, sensed.theta_e);
         let requested = requested.map(|iq| self.travel(iq));
         // The d current (MTPA, field weakening) and the q current within
         // the current circle (design §30).

@@ -344,16 +344,18 @@ impl CurrentStage {
         };
         let on_field = sl.region().starting() && duties.is_some();
         sl.record(duties, v_bus_v);
+        let injects = sl.region().injects();
         self.state.torque_iq_a = if on_field {
             self.state.iq_interp_a
-        } else if sl.region().injects() {
+        } else if injects {
             // Under injection the d reference is 0 (design §30): the q
-            // current alone (the injection's d ripple times iq biased it).
-            fb.i_dq_a.q
+            // current alone (the injection's d ripple times iq biased it),
+            // less the anticogging's feed-forward (design §32).
+            fb.i_dq_a.q - self.cogging.last_a
         } else {
             // On the flux observer MTPA and field weakening act: the
             // reluctance torque counted in.
-            self.field.torque_iq_a(fb.i_dq_a)
+            self.net_torque_iq_a(fb.i_dq_a)
         };
         if on_field {
             fb.mode = Mode::OpenLoop;
@@ -361,7 +363,10 @@ impl CurrentStage {
         // On the injection's angle (the rotor's, from a PLL whose speed is
         // noisy) the torque-fed speed observer's estimate, which fuses the
         // torque in, stays the speed loop's feedback.
-        if !sl.region().injects() {
+        let Some(sl) = self.sensorless.as_ref() else {
+            return;
+        };
+        if !injects {
             fb.velocity_rad_s = sl.speed_rad_s() / pp;
         }
         // The speed observer's disturbance: with injection (it followed

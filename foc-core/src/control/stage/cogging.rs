@@ -1,0 +1,76 @@
+//! The anticogging feed-forward in the stage (design §32): the map, and
+//! the q current it added this period.
+
+use super::*;
+use crate::control::cogging::{CoggingMap, CoggingMapError};
+
+/// The map and what it added (kept last in the stage: see its docs).
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Anticogging {
+    pub(super) map: CoggingMap,
+    /// The feed-forward of the last closed-loop period \[A\] (0 otherwise).
+    pub(super) last_a: f32,
+}
+
+impl Anticogging {
+    pub(super) const INIT: Self = Self {
+        map: CoggingMap::EMPTY,
+        last_a: 0.0,
+    };
+}
+
+impl CurrentStage {
+    /// Install a cogging map (design §32); refused whole if its scale is
+    /// unusable or its peak is above the current limit.
+    pub fn set_cogging(&mut self, map: &CoggingMap) -> Result<(), CoggingMapError> {
+        map.check(self.config.limits.max_current_a)?;
+        self.cogging.map = *map;
+        self.cogging.last_a = 0.0;
+        Ok(())
+    }
+
+    /// Switch the installed map's feed-forward on or off.
+    pub fn set_cogging_enabled(&mut self, on: bool) {
+        self.cogging.map.enabled = on;
+        self.cogging.last_a = 0.0;
+    }
+
+    /// The installed cogging map ([`CoggingMap::EMPTY`] when none).
+    pub fn cogging(&self) -> &CoggingMap {
+        &self.cogging.map
+    }
+
+    /// The feed-forward added to the q current last period \[A\].
+    pub fn cogging_feed_forward_a(&self) -> f32 {
+        self.cogging.last_a
+    }
+
+    /// `iq_a` plus the map's feed-forward at `theta_e`, within the current
+    /// limit; the feed-forward kept for the speed observer.
+    #[inline(always)]
+    pub(super) fn with_cogging(
+        &mut self,
+        iq_a: Option<f32>,
+        theta_e: ElectricalAngle,
+    ) -> Option<f32> {
+        if !self.cogging.map.enabled {
+            return iq_a;
+        }
+        let Some(iq) = iq_a else {
+            self.cogging.last_a = 0.0;
+            return None;
+        };
+        let ff = self.cogging.map.iq_a(theta_e);
+        self.cogging.last_a = ff;
+        let lim = self.config.limits.max_current_a;
+        Some(clamp(iq + ff, -lim, lim))
+    }
+
+    /// The q current that drove the rotor, as the torque-fed speed
+    /// observer takes it: the feed-forward cancelled the cogging, so it
+    /// moved nothing and is taken off.
+    #[inline(always)]
+    pub(super) fn net_torque_iq_a(&self, i_dq: Dq) -> f32 {
+        self.field.torque_iq_a(i_dq) - self.cogging.last_a
+    }
+}
