@@ -11,14 +11,25 @@
 //!
 //! (line-to-line peak EMF = sqrt(3) * omega_e * psi, omega_e = p * omega_m).
 //!
+//! A file may also state the motor's and board's imperfections (stator
+//! slots and cogging, the angle sensor's error, the board's dead time):
+//! [`MotorFile::imperfections`]. [`MotorFile::motor_params`] and
+//! [`MotorFile::bench_config`] leave them out (the ideal bench); a test
+//! that wants them applies them with [`Imperfections::apply_bench`] and
+//! [`Imperfections::apply_plant`].
+//!
 //! ```no_run
 //! use foc_bench::motor_file::MotorFile;
 //! let f = MotorFile::load("tests/motors/m153-source.toml").unwrap();
 //! let params = f.motor_params();
 //! assert_eq!(params.pole_pairs, 4);
+//! let imperfect = f.imperfections();
+//! assert_eq!(imperfect.cogging.map(|c| c.cycles_per_turn), Some(24));
 //! ```
 
-use crate::plant::{BenchConfig, DSaturation, MotorParams, SensorConfig};
+use crate::plant::{
+    BenchConfig, Cogging, DSaturation, MotorParams, Plant, SensorConfig, SensorError,
+};
 use crate::real::Real;
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
@@ -85,6 +96,56 @@ pub struct MotorFile {
     /// The d current of `ld_saturation_fraction` \[A\].
     #[serde(default)]
     pub ld_saturation_current_a: Option<f64>,
+    /// Stator slots (optional; a positive multiple of 3): with the poles
+    /// they set the cogging's cycles per turn, `lcm(slots, 2 pole_pairs)`.
+    #[serde(default)]
+    pub slots: Option<u32>,
+    /// Peak of the cogging torque's fundamental \[N m\] (optional, needs
+    /// `slots`; >= 0).
+    #[serde(default)]
+    pub cogging_torque_nm: Option<f64>,
+    /// Amplitude of the cogging's second harmonic over its fundamental's
+    /// (optional, with `cogging_torque_nm`; 0 to 1; 0 when absent).
+    #[serde(default)]
+    pub cogging_second_harmonic_share: Option<f64>,
+    /// The angle sensor's once-per-turn error (eccentricity), amplitude in
+    /// mechanical radians (optional; 0 to 0.1).
+    #[serde(default)]
+    pub sensor_first_harmonic_rad: Option<f64>,
+    /// The angle sensor's twice-per-turn error, amplitude in mechanical
+    /// radians (optional; 0 to 0.1).
+    #[serde(default)]
+    pub sensor_second_harmonic_rad: Option<f64>,
+    /// The board's dead time at this operating point \[ns\] (optional; 0 to
+    /// a tenth of the PWM period).
+    #[serde(default)]
+    pub dead_time_ns: Option<f64>,
+}
+
+/// A motor file's imperfections ([`MotorFile::imperfections`]), for the
+/// tests that want a real motor rather than the ideal one.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Imperfections {
+    /// Cogging torque (`None` without `slots` and `cogging_torque_nm`, or
+    /// with a zero amplitude).
+    pub cogging: Option<Cogging>,
+    /// The angle sensor's error (`None` when both harmonics are 0 or absent).
+    pub sensor_error: Option<SensorError>,
+    /// The board's dead time \[s\] (0 when absent).
+    pub dead_time_s: Real,
+}
+
+impl Imperfections {
+    /// Put the board's dead time into `cfg`.
+    pub fn apply_bench(&self, cfg: &mut BenchConfig) {
+        cfg.dead_time_s = self.dead_time_s;
+    }
+
+    /// Give `plant` the cogging and the angle sensor's error.
+    pub fn apply_plant(&self, plant: &mut Plant) {
+        plant.set_cogging(self.cogging);
+        plant.set_angle_sensor_error(self.sensor_error);
+    }
 }
 
 /// Why a motor file could not be loaded.
@@ -120,6 +181,20 @@ impl std::fmt::Display for MotorFileError {
 }
 
 impl std::error::Error for MotorFileError {}
+
+/// An optional field `x` named `field` within `(lo, hi)` (inclusive), or
+/// the field and `reason`.
+fn in_range(
+    x: Option<f64>,
+    field: &'static str,
+    (lo, hi): (f64, f64),
+    reason: &'static str,
+) -> Result<(), (&'static str, &'static str)> {
+    match x {
+        Some(v) if !(v.is_finite() && (lo..=hi).contains(&v)) => Err((field, reason)),
+        _ => Ok(()),
+    }
+}
 
 /// Flux linkage \[Wb\] from a line-to-line KV [rpm/V]: `60 / (sqrt3 2 pi KV p)`.
 pub fn flux_linkage_from_kv(kv_rpm_per_v: f64, pole_pairs: u8) -> f64 {
@@ -217,7 +292,55 @@ impl MotorFile {
                 ))
             }
         }
+        f.check_imperfections()
+            .map_err(|(field, reason)| bad(field, reason))?;
         Ok(f)
+    }
+
+    /// The optional imperfection fields: the bad field and why.
+    fn check_imperfections(&self) -> Result<(), (&'static str, &'static str)> {
+        self.check_cogging()?;
+        let rad = "must be 0 to 0.1 rad";
+        let first = self.sensor_first_harmonic_rad;
+        in_range(first, "sensor_first_harmonic_rad", (0.0, 0.1), rad)?;
+        let second = self.sensor_second_harmonic_rad;
+        in_range(second, "sensor_second_harmonic_rad", (0.0, 0.1), rad)?;
+        let tenth_of_period_ns = 0.1e9 / self.pwm_frequency_hz;
+        in_range(
+            self.dead_time_ns,
+            "dead_time_ns",
+            (0.0, tenth_of_period_ns),
+            "must be 0 to a tenth of the PWM period",
+        )
+    }
+
+    /// `slots`, `cogging_torque_nm` and `cogging_second_harmonic_share`:
+    /// the bad field and why.
+    fn check_cogging(&self) -> Result<(), (&'static str, &'static str)> {
+        if self.slots.is_some_and(|s| s == 0 || !s.is_multiple_of(3)) {
+            return Err(("slots", "must be a positive multiple of 3 (three phases)"));
+        }
+        let amplitude = self.cogging_torque_nm;
+        in_range(
+            amplitude,
+            "cogging_torque_nm",
+            (0.0, f64::MAX),
+            "must be a finite number >= 0",
+        )?;
+        if amplitude.is_some() && self.slots.is_none() {
+            return Err(("cogging_torque_nm", "needs `slots` (the cycles per turn)"));
+        }
+        let share = self.cogging_second_harmonic_share;
+        in_range(
+            share,
+            "cogging_second_harmonic_share",
+            (0.0, 1.0),
+            "must be 0 to 1",
+        )?;
+        if share.is_some() && amplitude.is_none() {
+            return Err(("cogging_second_harmonic_share", "needs `cogging_torque_nm`"));
+        }
+        Ok(())
     }
 
     /// Flux linkage \[Wb\], converted from KV when the file gives KV.
@@ -247,6 +370,29 @@ impl MotorFile {
                 },
                 _ => DSaturation::NONE,
             },
+        }
+    }
+
+    /// The file's imperfections: cogging from `slots` and
+    /// `cogging_torque_nm` (phase 0), the angle sensor's error (phases 0)
+    /// and the dead time. Absent fields are ideal.
+    pub fn imperfections(&self) -> Imperfections {
+        let cogging = match (self.slots, self.cogging_torque_nm) {
+            (Some(slots), Some(a)) if a > 0.0 => Some(Cogging::from_slots(
+                slots,
+                self.pole_pairs,
+                a as Real,
+                self.cogging_second_harmonic_share.unwrap_or(0.0) as Real,
+            )),
+            _ => None,
+        };
+        let first = self.sensor_first_harmonic_rad.unwrap_or(0.0) as Real;
+        let second = self.sensor_second_harmonic_rad.unwrap_or(0.0) as Real;
+        let sensor_error = (first > 0.0 || second > 0.0).then(|| SensorError::new(first, second));
+        Imperfections {
+            cogging,
+            sensor_error,
+            dead_time_s: self.dead_time_ns.unwrap_or(0.0) as Real * 1e-9,
         }
     }
 
@@ -323,5 +469,100 @@ encoder_counts_per_rev = 4096
             .unwrap_err()
             .to_string();
         assert!(e.contains("cannot read"), "{e}");
+    }
+
+    const IMPERFECT: &str = r#"
+slots = 12
+cogging_torque_nm = 0.002
+cogging_second_harmonic_share = 0.3
+sensor_first_harmonic_rad = 0.005
+sensor_second_harmonic_rad = 0.002
+dead_time_ns = 250.0
+"#;
+
+    #[test]
+    fn imperfections_parse_and_apply() {
+        let f = MotorFile::parse(&format!("{GOOD}{IMPERFECT}"), "i").unwrap();
+        let imp = f.imperfections();
+        let c = imp.cogging.unwrap();
+        assert_eq!(c.cycles_per_turn, 84); // lcm(12, 14)
+        assert_eq!((c.amplitude_nm, c.second_harmonic_share), (0.002, 0.3));
+        let s = imp.sensor_error.unwrap();
+        assert_eq!((s.first_rad, s.second_rad), (0.005, 0.002));
+        assert!((imp.dead_time_s - 250e-9).abs() < 1e-15);
+        // The ideal bench stays ideal; the imperfections opt in.
+        let mut cfg = f.bench_config();
+        assert_eq!(cfg.dead_time_s, 0.0);
+        imp.apply_bench(&mut cfg);
+        assert_eq!(cfg.dead_time_s, imp.dead_time_s);
+        let mut plant = Plant::new(f.motor_params(), cfg);
+        assert!(plant.cogging().is_none());
+        imp.apply_plant(&mut plant);
+        assert_eq!(plant.cogging(), Some(&c));
+        assert_eq!(plant.angle_sensor_error(), Some(&s));
+        // Without the fields: ideal.
+        let ideal = MotorFile::parse(GOOD, "g").unwrap().imperfections();
+        assert_eq!(
+            ideal,
+            Imperfections {
+                cogging: None,
+                sensor_error: None,
+                dead_time_s: 0.0
+            }
+        );
+    }
+
+    #[test]
+    fn imperfection_errors_name_the_field() {
+        let full = format!("{GOOD}{IMPERFECT}");
+        for (from, to, field) in [
+            ("slots = 12", "slots = 0", "slots"),
+            ("slots = 12", "slots = 13", "slots"),
+            ("slots = 12\n", "", "cogging_torque_nm"),
+            ("0.002\n", "-0.002\n", "cogging_torque_nm"),
+            (
+                "share = 0.3",
+                "share = 1.5",
+                "cogging_second_harmonic_share",
+            ),
+            (
+                "share = 0.3",
+                "share = -0.1",
+                "cogging_second_harmonic_share",
+            ),
+            (
+                "first_harmonic_rad = 0.005",
+                "first_harmonic_rad = -1e-3",
+                "sensor_first_harmonic_rad",
+            ),
+            (
+                "second_harmonic_rad = 0.002",
+                "second_harmonic_rad = 0.5",
+                "sensor_second_harmonic_rad",
+            ),
+            (
+                "dead_time_ns = 250.0",
+                "dead_time_ns = -1.0",
+                "dead_time_ns",
+            ),
+            (
+                "dead_time_ns = 250.0",
+                "dead_time_ns = 6000.0",
+                "dead_time_ns",
+            ),
+            ("dead_time_ns = 250.0", "dead_time_ns = nan", "dead_time_ns"),
+        ] {
+            assert!(full.contains(from), "{from}");
+            let text = full.replacen(from, to, 1);
+            let e = MotorFile::parse(&text, "bad.toml").unwrap_err().to_string();
+            assert!(
+                e.contains("bad.toml") && e.contains(&format!("`{field}`")),
+                "{from} -> {to}: {e}"
+            );
+        }
+        // The share needs an amplitude.
+        let lone = format!("{GOOD}cogging_second_harmonic_share = 0.3\n");
+        let e = MotorFile::parse(&lone, "l").unwrap_err().to_string();
+        assert!(e.contains("cogging_second_harmonic_share"), "{e}");
     }
 }

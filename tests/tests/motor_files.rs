@@ -1,5 +1,8 @@
 //! Every file in tests/motors/ loads, validates and runs in the plant.
 
+// `Real` is f64 or f32 by feature: a cast to or from it is a no-op in one of the two.
+#![allow(clippy::unnecessary_cast)]
+
 use foc_bench::motor_file::MotorFile;
 use foc_bench::plant::{Mechanics, Plant};
 
@@ -46,4 +49,55 @@ fn every_motor_file_loads_and_simulates() {
         "expected at least 4 motor files, found {names:?}"
     );
     assert!(names.iter().any(|n| n.starts_with("M153")));
+}
+
+#[test]
+fn every_motor_file_states_its_imperfections() {
+    let files = foc_bench::motor_file::all_motor_files();
+    assert!(files.len() >= 6, "{files:?}");
+    for path in files {
+        let f = MotorFile::load(&path).unwrap_or_else(|e| panic!("{e}"));
+        let imp = f.imperfections();
+        let who = &f.name;
+        // Every file gives every imperfection, and says it is assumed.
+        for field in [
+            "slots",
+            "cogging_torque_nm",
+            "sensor_first_harmonic_rad",
+            "dead_time_ns",
+        ] {
+            assert!(
+                f.assumed.iter().any(|a| a.contains(field)),
+                "{who}: `{field}` not in `assumed`"
+            );
+        }
+        let c = imp.cogging.unwrap_or_else(|| panic!("{who}: no cogging"));
+        c.validate().unwrap();
+        let (slots, poles) = (f.slots.unwrap(), 2 * f.pole_pairs as u32);
+        assert!(c.cycles_per_turn.is_multiple_of(slots) && c.cycles_per_turn.is_multiple_of(poles));
+        let rated_nm = 1.5 * f.pole_pairs as f64 * f.flux_linkage_wb() * f.rated_current_a;
+        let share = c.amplitude_nm as f64 / rated_nm;
+        assert!(
+            (0.003..=0.04).contains(&share),
+            "{who}: cogging {share} of rated"
+        );
+        assert!(imp.dead_time_s > 0.0 && imp.dead_time_s < 1.01e-6, "{who}");
+        // A sensor with counts to resolve it has an error; a hall-like one not.
+        match imp.sensor_error {
+            Some(e) => e.validate().unwrap(),
+            None => assert!(f.encoder_counts_per_rev < 100, "{who}: no sensor error"),
+        }
+        // Applied, the plant runs and its cogging shows on the shaft.
+        let mut cfg = f.bench_config();
+        imp.apply_bench(&mut cfg);
+        let mut p = Plant::new(f.motor_params(), cfg);
+        imp.apply_plant(&mut p);
+        p.set_mechanics(Mechanics::ConstantSpeed(1.0));
+        for _ in 0..50 {
+            let m = p.step_period([0.5; 3], false, 0.0);
+            assert!(m.angle.to_radians().is_finite());
+        }
+        assert_eq!(p.shaft_torque_nm(), p.cogging_torque_nm(), "{who}");
+        assert!(p.cogging_torque_nm().abs() <= c.amplitude_nm * 1.31);
+    }
 }

@@ -1,8 +1,8 @@
 //! Physics checks of the plant: each asserts a law the model could violate.
 
 use foc_bench::plant::{
-    BenchConfig, DSaturation, EncoderFault, Mechanics, MotorParams, Phase, PhaseShort, Plant,
-    PwmMode, SensorConfig, Shunts,
+    BenchConfig, Cogging, DSaturation, EncoderFault, Mechanics, MotorParams, Phase, PhaseShort,
+    Plant, PwmMode, SensorConfig, Shunts,
 };
 use foc_bench::real::Real;
 use foc_core::angle::ElectricalAngle;
@@ -275,14 +275,27 @@ fn energy_is_conserved_with_a_saturated_d_axis() {
         (4.0, 2.5),
         PwmMode::Averaged,
         0.0,
+        None,
     );
 }
 
 fn energy_balance(mode: PwmMode, dead_time_s: Real) {
-    energy_balance_of(motor(), (4.0, -1.0), mode, dead_time_s);
+    energy_balance_of(motor(), (4.0, -1.0), mode, dead_time_s, None);
 }
 
-fn energy_balance_of(m: MotorParams, (iq, id): (Real, Real), mode: PwmMode, dead_time_s: Real) {
+/// Energy stored in the windings, the rotor's motion and the cogging
+/// field \[J\].
+fn stored_j(p: &Plant) -> Real {
+    p.magnetic_energy_j() + p.kinetic_energy_j() + p.cogging_energy_j()
+}
+
+fn energy_balance_of(
+    m: MotorParams,
+    (iq, id): (Real, Real),
+    mode: PwmMode,
+    dead_time_s: Real,
+    cogging: Option<Cogging>,
+) {
     let mut m = m;
     m.viscous_friction_nm_s_per_rad = 2e-4;
     m.coulomb_friction_nm = 0.01;
@@ -292,7 +305,9 @@ fn energy_balance_of(m: MotorParams, (iq, id): (Real, Real), mode: PwmMode, dead
     c.dead_time_s = dead_time_s;
     c.source_resistance_ohm = 0.2;
     let mut p = Plant::new(m, c);
-    let e0 = p.magnetic_energy_j() + p.kinetic_energy_j();
+    p.set_cogging(cogging);
+    let e0 = stored_j(&p);
+    let cogging_e0 = p.cogging_energy_j();
     for _ in 0..4000 {
         let we = p.omega_e_rad_s();
         let d = duties_for(
@@ -303,7 +318,7 @@ fn energy_balance_of(m: MotorParams, (iq, id): (Real, Real), mode: PwmMode, dead
         p.step_period(d, true, 0.05);
     }
     let e = *p.energy();
-    let stored = p.magnetic_energy_j() + p.kinetic_energy_j() - e0;
+    let stored = stored_j(&p) - e0;
     let out = e.copper_j + e.friction_j + e.load_j + stored;
     assert!(e.supply_j > 0.1, "no energy moved: {e:?}");
     assert!(
@@ -312,9 +327,16 @@ fn energy_balance_of(m: MotorParams, (iq, id): (Real, Real), mode: PwmMode, dead
         e.supply_j,
         out
     );
-    // Shaft energy splits into friction, load and kinetic energy.
+    // Shaft and cogging work split into friction, load and kinetic energy.
     let mech = e.friction_j + e.load_j + p.kinetic_energy_j();
-    assert!((e.shaft_j - mech).abs() < 0.002 * e.shaft_j);
+    assert!((e.shaft_j + e.cogging_j - mech).abs() < 0.002 * e.shaft_j);
+    // The cogging's work is minus its energy's change (0 without).
+    let released = cogging_e0 - p.cogging_energy_j();
+    assert!(
+        (e.cogging_j - released).abs() < 1e-6 * e.shaft_j,
+        "cogging work {} J vs released {released} J",
+        e.cogging_j
+    );
     // The bus sagged by R_source * i_dc.
     let sag = 24.0 - p.v_bus_avg_v();
     assert!(sag > 0.0 && p.supply_current_a() > 0.0);
@@ -335,6 +357,15 @@ fn energy_is_conserved_averaged() {
 #[test]
 fn energy_is_conserved_carrier_with_dead_time() {
     energy_balance(PwmMode::CarrierCompared, 500e-9);
+}
+
+#[test]
+fn energy_is_conserved_with_cogging() {
+    // 12 slots, 4 pole pairs: 24 cycles per turn, a tenth of the 0.48 N m.
+    let cogging = Cogging::from_slots(12, 4, 0.05, 0.3);
+    for mode in [PwmMode::Averaged, PwmMode::CarrierCompared] {
+        energy_balance_of(motor(), (4.0, -1.0), mode, 300e-9, Some(cogging));
+    }
 }
 
 #[test]

@@ -13,6 +13,8 @@ pub(super) struct Deriv {
     pub(super) p_supply: Real,
     pub(super) p_copper: Real,
     pub(super) p_shaft: Real,
+    /// Power of the cogging torque on the rotor `T_cog w`.
+    pub(super) p_cogging: Real,
     pub(super) p_friction: Real,
     pub(super) p_load: Real,
     pub(super) p_short: Real,
@@ -73,6 +75,16 @@ pub(super) fn add(x: [Real; 5], d: &Deriv, h: Real) -> [Real; 5] {
         x[3] + h * d.theta,
         x[4] + h * d.v_cap,
     ]
+}
+
+/// The motor's torque on the rotor: the electromagnetic `te` plus the
+/// cogging torque `t_cog` where modelled \[N m\] (`te` itself without,
+/// bit for bit).
+fn with_cogging(te: Real, t_cog: Option<Real>) -> Real {
+    match t_cog {
+        Some(t) => te + t,
+        None => te,
+    }
 }
 
 impl Plant {
@@ -233,6 +245,7 @@ impl Plant {
         self.energy.supply_j += w(k1.p_supply, k2.p_supply, k3.p_supply, k4.p_supply);
         self.energy.copper_j += w(k1.p_copper, k2.p_copper, k3.p_copper, k4.p_copper);
         self.energy.shaft_j += w(k1.p_shaft, k2.p_shaft, k3.p_shaft, k4.p_shaft);
+        self.energy.cogging_j += w(k1.p_cogging, k2.p_cogging, k3.p_cogging, k4.p_cogging);
         self.energy.friction_j += w(k1.p_friction, k2.p_friction, k3.p_friction, k4.p_friction);
         self.energy.load_j += w(k1.p_load, k2.p_load, k3.p_load, k4.p_load);
         self.energy.short_j += w(k1.p_short, k2.p_short, k3.p_short, k4.p_short);
@@ -246,7 +259,7 @@ impl Plant {
             (0.0, 0.0)
         };
 
-        let omega = self.stiction(omega, id, iq);
+        let omega = self.stiction(omega, id, iq, theta);
         let (th, turns) = real::wrap_tau(theta);
         self.theta_m = th;
         self.turns += turns;
@@ -304,14 +317,16 @@ impl Plant {
     }
 
     /// Coulomb friction and stiction: the speed `omega` does not cross zero
-    /// while the motor's torque is within the friction.
-    fn stiction(&self, omega: Real, id: Real, iq: Real) -> Real {
+    /// while the motor's torque (electromagnetic at `id`, `iq` plus cogging
+    /// at `theta_m`) is within the friction.
+    fn stiction(&self, omega: Real, id: Real, iq: Real, theta_m: Real) -> Real {
         if matches!(self.mechanics, Mechanics::Free)
             && self.motor.coulomb_friction_nm > 0.0
             && ((self.omega_m > 0.0 && omega < 0.0) || (self.omega_m < 0.0 && omega > 0.0))
         {
             let te = self.motor.torque_nm(id, iq);
-            if (te - self.load_nm).abs() <= self.motor.coulomb_friction_nm {
+            let t_motor = with_cogging(te, self.cogging.map(|c| c.torque_nm(theta_m)));
+            if (t_motor - self.load_nm).abs() <= self.motor.coulomb_friction_nm {
                 return 0.0;
             }
         }
@@ -419,7 +434,8 @@ impl Plant {
             (did, diq) = self.open_phase_held(drives, &cs, we, (id, iq), (did, diq));
         }
         let te = if open >= 2 { 0.0 } else { m.torque_nm(id, iq) };
-        let domega = self.acceleration(te, omega);
+        let t_cog = self.cogging.map(|c| c.torque_nm(theta));
+        let domega = self.acceleration(with_cogging(te, t_cog), omega);
         let mut i_dc = 0.0;
         for k in 0..3 {
             if let Leg::Bus(h) = drives[k] {
@@ -447,6 +463,7 @@ impl Plant {
             p_supply: v_bus * (i_dc + self.short_dc_current(drives, v_bus)),
             p_copper: copper,
             p_shaft: te * omega,
+            p_cogging: t_cog.map_or(0.0, |t| t * omega),
             p_friction: friction,
             p_load: self.load_nm * omega,
             p_short,
@@ -479,8 +496,9 @@ impl Plant {
         (did, diq)
     }
 
-    /// The rotor's acceleration under the motor's torque `te` at `omega`
-    /// (viscous and Coulomb friction, stiction, the load; 0 when held).
+    /// The rotor's acceleration under the motor's torque `te`
+    /// (electromagnetic plus cogging) at `omega` (viscous and Coulomb
+    /// friction, stiction, the load; 0 when held).
     fn acceleration(&self, te: Real, omega: Real) -> Real {
         let m = &self.motor;
         match self.mechanics {

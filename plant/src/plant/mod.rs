@@ -28,9 +28,10 @@
 //! - Electrical: `Ld did/dt = vd - R id + w_e Lq iq`,
 //!   `Lq diq/dt = vq - R iq - w_e Ld id - w_e psi`.
 //! - Torque: `Te = 1.5 p (psi iq + (Ld - Lq) id iq)`.
-//! - Mechanical: `J dw/dt = Te - B w - Tc sgn(w) - T_load`, with stiction
-//!   (the rotor stays stopped while `|Te - T_load| <= Tc`). Or [`Mechanics`]
-//!   `Locked` / `ConstantSpeed` for tests.
+//! - Mechanical: `J dw/dt = Te + T_cog - B w - Tc sgn(w) - T_load`, with
+//!   stiction (the rotor stays stopped while `|Te + T_cog - T_load| <= Tc`).
+//!   Or [`Mechanics`] `Locked` / `ConstantSpeed` for tests. The cogging
+//!   torque `T_cog` is optional ([`Plant::set_cogging`], see [`Cogging`]).
 //! - Integration: classic RK4 at [`BenchConfig::substeps`] sub-steps per PWM
 //!   period, terminal voltages held over each sub-step.
 //! - Inverter: each phase terminal is connected to the bus for a fraction `h`
@@ -70,7 +71,9 @@
 //!   [`Plant::set_stage_thermal`]): winding and power-stage temperatures fed
 //!   by the copper and switch losses; the winding's can make the phase
 //!   resistance follow its temperature. See [`crate::power`].
-//! - Sensors: see [`SensorConfig`] and [`Faults`].
+//! - Sensors: see [`SensorConfig`] and [`Faults`]; the angle sensor's
+//!   error over a turn is optional ([`Plant::set_angle_sensor_error`], see
+//!   [`SensorError`]).
 //!
 //! ```
 //! use foc_plant::plant::{BenchConfig, MotorParams, Plant};
@@ -87,7 +90,8 @@
 //! Files: this one the plant's state and accessors; `motor` its
 //! parameters; `config` the bench (PWM, shunts, sensors); `faults` what
 //! can be broken on purpose; `inverter` the legs, diodes and bus;
-//! `dynamics` the motor's equations over a period; `sensors` the readings.
+//! `dynamics` the motor's equations over a period; `sensors` the readings;
+//! `imperfections` cogging and the angle sensor's error.
 
 // Loops over the three phases index several parallel arrays.
 #![allow(clippy::needless_range_loop)]
@@ -95,12 +99,14 @@
 mod config;
 mod dynamics;
 mod faults;
+mod imperfections;
 mod inverter;
 mod motor;
 mod sensors;
 
 pub use config::*;
 pub use faults::*;
+pub use imperfections::*;
 pub use inverter::*;
 pub use motor::*;
 
@@ -148,6 +154,11 @@ pub struct EnergyAccount {
     pub copper_j: Real,
     /// Converted to mechanical (`Te w`).
     pub shaft_j: Real,
+    /// Work of the cogging torque on the rotor (`T_cog w`; zero without
+    /// [`Plant::set_cogging`]): minus the change of
+    /// [`Plant::cogging_energy_j`]. On a free rotor `shaft_j + cogging_j =
+    /// friction_j + load_j +` the change of kinetic energy.
+    pub cogging_j: Real,
     /// Dissipated in viscous and coulomb friction.
     pub friction_j: Real,
     /// Delivered to the load torque (`T_load w`).
@@ -216,6 +227,10 @@ pub struct Plant {
     /// `encoder_offset_rad`) \[rad\]: the power-on angle of an incremental
     /// encoder, the mounting offset of an absolute sensor.
     sensor_zero_m_rad: Real,
+    /// The angle sensor's error over a turn (off by default).
+    sensor_error: Option<SensorError>,
+    /// Cogging torque (off by default).
+    cogging: Option<Cogging>,
     time_s: f64,
     period: u64,
     energy: EnergyAccount,
@@ -263,6 +278,8 @@ impl Plant {
             last_encoder_counts: 0,
             angle_sensor: AngleSensorKind::Incremental,
             sensor_zero_m_rad: 0.0,
+            sensor_error: None,
+            cogging: None,
             time_s: 0.0,
             period: 0,
             energy: EnergyAccount::default(),

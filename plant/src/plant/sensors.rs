@@ -1,5 +1,5 @@
 //! What the sensors read at the sampling instant (offsets, noise,
-//! quantisation, faults).
+//! quantisation, the angle sensor's error, faults).
 
 use super::*;
 
@@ -48,7 +48,12 @@ impl Plant {
         } else {
             1.0
         };
-        let turns = (dir * (self.theta_m - self.sensor_zero_m_rad) - s.encoder_offset_rad) / TAU;
+        let read_m_rad = match self.sensor_error {
+            // The disc's error, before quantisation.
+            Some(_) => self.theta_m + self.angle_sensor_error_rad(),
+            None => self.theta_m,
+        };
+        let turns = (dir * (read_m_rad - self.sensor_zero_m_rad) - s.encoder_offset_rad) / TAU;
         let frac = turns - real::floor(turns);
         let mut counts = (real::floor(frac * cpr as Real) as i64).rem_euclid(cpr as i64);
         match self.faults.encoder {
