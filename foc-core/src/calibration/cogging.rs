@@ -39,6 +39,16 @@ use crate::angle::ElectricalAngle;
 use crate::control::cogging::{bin_of, CoggingMap, COGGING_BINS};
 use core::f32::consts::TAU;
 
+/// Longest time the rotor may stay off the sweep speed while recording \[s\].
+const OFF_SPEED_S: f32 = 0.5;
+
+/// The pull towards the sweep's angle \[1/s\]: the lag closes with a
+/// 0.3 s time constant.
+const POSITION_GAIN_PER_S: f32 = 3.0;
+
+/// Largest lead of the sweep's angle over the rotor's \[rad\] (electrical).
+const MAX_LEAD_RAD: f32 = 1.0;
+
 /// Settings of the anticogging calibration.
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -64,18 +74,20 @@ pub struct CoggingCalConfig {
 }
 
 impl CoggingCalConfig {
-    /// Defaults: one electrical turn per second (the cogging's 6 to 18
-    /// cycles per electrical turn at 6 to 18 Hz, inside the speed loop's
-    /// bandwidth), 4 turns recorded per direction after 0.5 s of settling,
-    /// 2 passes, a map of at most half the current bound, and a timeout
-    /// of twice the planned time.
+    /// Defaults: a fifth of an electrical turn per second (the cogging's
+    /// 6 to 18 cycles per electrical turn at 1.2 to 3.6 Hz, well inside
+    /// the speed loop's bandwidth: at one turn per second the DJI M2006
+    /// stuck and slipped from tooth to tooth), one turn recorded per
+    /// direction after 1 s of settling, 2 passes (24 s in all), a map of
+    /// at most half the current bound, and a timeout of twice the planned
+    /// time.
     pub fn new(pole_pairs: u8, pwm_frequency_hz: f32, max_current_a: f32) -> Self {
         let mut c = Self {
             pole_pairs,
             ts_s: 1.0 / pwm_frequency_hz,
-            sweep_e_rad_s: TAU,
-            turns: 4,
-            settle_s: 0.5,
+            sweep_e_rad_s: 0.2 * TAU,
+            turns: 1,
+            settle_s: 1.0,
             passes: 2,
             max_current_a,
             max_map_share: 0.5,
@@ -133,6 +145,11 @@ pub struct CoggingCalibration {
     period: u32,
     passes_done: u8,
     last_theta: Option<ElectricalAngle>,
+    /// How far the sweep's angle is ahead of the rotor's \[rad\]
+    /// (electrical).
+    lead_rad: f32,
+    /// Consecutive recording periods off the sweep speed.
+    off_speed_periods: u32,
     /// This direction's sum of q current per point \[A\].
     sum_a: [f32; COGGING_BINS],
     /// Samples per point this direction.
@@ -155,6 +172,8 @@ impl CoggingCalibration {
             period: 0,
             passes_done: 0,
             last_theta: None,
+            off_speed_periods: 0,
+            lead_rad: 0.0,
             sum_a: [0.0; COGGING_BINS],
             count: [0; COGGING_BINS],
             forward: [0; COGGING_BINS],
@@ -206,6 +225,10 @@ impl CoggingCalibration {
             // The first period: ask for the sweep.
             return Ok(self.sweep(1));
         };
+        let dir = match self.phase {
+            Phase::Settle { dir, .. } | Phase::Record { dir, .. } => dir,
+        };
+        self.track(dir, fb.theta_e);
         let step = match self.phase {
             Phase::Settle { dir, since } => self.settle(dir, since, fb.velocity_rad_s)?,
             Phase::Record { dir, travelled_rad } => self.record(
@@ -220,10 +243,27 @@ impl CoggingCalibration {
         Ok(step)
     }
 
+    /// The velocity request: the sweep speed plus a pull towards the
+    /// sweep's angle (a rotor held in a cogging well by a velocity loop
+    /// whose error cannot exceed the small sweep speed builds its torque
+    /// slowly and then slips from tooth to tooth; with the angle's lag
+    /// added the request grows while it is held), never backwards and at
+    /// most four times the sweep speed.
     fn sweep(&self, dir: i8) -> CalStep<()> {
+        let w = self.config.sweep_e_rad_s;
+        let e = (w + POSITION_GAIN_PER_S * self.lead_rad).clamp(0.0, 4.0 * w);
         CalStep::Velocity {
-            rad_s: self.config.mech_rad_s(dir as f32),
+            rad_s: dir as f32 * e / self.config.pole_pairs as f32,
         }
+    }
+
+    /// The sweep's angle runs on by a period; the rotor's advance in the
+    /// sweep's direction is taken off the lead.
+    fn track(&mut self, dir: i8, theta_e: ElectricalAngle) {
+        let moved = self.last_theta.map_or(0.0, |l| theta_e.diff_radians(l));
+        let lead = self.lead_rad + self.config.sweep_e_rad_s * self.config.ts_s - moved * dir as f32;
+        // Bounded: a rotor held for long does not store a lunge.
+        self.lead_rad = lead.clamp(-MAX_LEAD_RAD, MAX_LEAD_RAD);
     }
 
     /// Settling: recording starts after `settle_s` at speed; a rotor that
@@ -254,8 +294,15 @@ impl CoggingCalibration {
         w_rad_s: f32,
     ) -> Result<CalStep<()>, CalError> {
         let target = self.config.mech_rad_s(dir as f32);
+        // Off the speed for a moment (a tooth's pull) is what the sweep
+        // measures; off it for half a second is a rotor that cannot follow.
         if (w_rad_s - target).abs() > 0.9 * target.abs() {
-            return Err(slow_rotor(w_rad_s, target));
+            self.off_speed_periods = self.off_speed_periods.saturating_add(1);
+            if self.off_speed_periods as f32 * self.config.ts_s > OFF_SPEED_S {
+                return Err(slow_rotor(w_rad_s, target));
+            }
+        } else {
+            self.off_speed_periods = 0;
         }
         let k = bin_of(theta_e);
         if let (Some(s), Some(n)) = (self.sum_a.get_mut(k), self.count.get_mut(k)) {
@@ -272,6 +319,7 @@ impl CoggingCalibration {
         }
         if dir > 0 {
             self.keep_forward()?;
+            self.lead_rad = 0.0;
             self.phase = Phase::Settle {
                 dir: -1,
                 since: self.period,
@@ -282,6 +330,7 @@ impl CoggingCalibration {
         if self.passes_done >= self.config.passes {
             return Ok(CalStep::Done(()));
         }
+        self.lead_rad = 0.0;
         self.phase = Phase::Settle {
             dir: 1,
             since: self.period,

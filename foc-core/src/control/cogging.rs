@@ -51,8 +51,9 @@ pub struct CoggingMap {
     pub enabled: bool,
     /// Amperes per count of [`Self::table`] (finite, `>= 0`).
     pub scale_a: f32,
-    /// The feed-forward at electrical angle `k / COGGING_BINS` turns, in
-    /// counts of `scale_a`.
+    /// The feed-forward over electrical angles `k / COGGING_BINS` to
+    /// `(k + 1) / COGGING_BINS` turns (its value at the centre), in counts
+    /// of `scale_a`.
     pub table: [i16; COGGING_BINS],
 }
 
@@ -137,7 +138,10 @@ impl CoggingMap {
         if !self.enabled {
             return 0.0;
         }
-        let bits = theta_e.to_bits();
+        // Point k holds the mean over its bin, whose centre is half a bin
+        // on: interpolate between the centres (without the shift, the map
+        // lagged by half a bin, 4 deg of a 12-cycle cogging).
+        let bits = theta_e.to_bits().wrapping_sub(1 << (31 - BIN_BITS));
         let k = (bits >> (32 - BIN_BITS)) as usize;
         // The fraction between point k and k + 1, from the next 16 bits.
         let frac = ((bits >> (16 - BIN_BITS)) & 0xFFFF) as f32 * (1.0 / 65536.0);
@@ -167,7 +171,8 @@ mod tests {
     fn sine(cycles: f32, amp: f32) -> [f32; COGGING_BINS] {
         let mut a = [0.0; COGGING_BINS];
         for (k, v) in a.iter_mut().enumerate() {
-            let th = core::f32::consts::TAU * k as f32 / COGGING_BINS as f32;
+            // The point's value is its bin's centre's.
+            let th = core::f32::consts::TAU * (k as f32 + 0.5) / COGGING_BINS as f32;
             *v = amp * libm::sinf(cycles * th);
         }
         a
@@ -184,9 +189,10 @@ mod tests {
             // 42 points per cycle: linear interpolation within 0.3 %.
             assert!((m.iq_a(th) - want).abs() < 0.003 * 0.4 + 1e-4, "{i}");
         }
-        // The last point interpolates towards the first.
-        let last = ElectricalAngle::from_bits(u32::MAX);
-        assert!((m.iq_a(last) - m.amps_at(0)).abs() < 1e-3);
+        // Across the wrap: angle 0 is halfway between the last point's
+        // centre and the first's.
+        let mid = 0.5 * (m.amps_at(COGGING_BINS - 1) + m.amps_at(0));
+        assert!((m.iq_a(ElectricalAngle::ZERO) - mid).abs() < 1e-4);
     }
 
     #[test]

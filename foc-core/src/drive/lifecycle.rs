@@ -466,7 +466,13 @@ impl Lifecycle {
             if !status.calibrated {
                 return Err(Refusal::NotCalibrated);
             }
-            if status.angle_only_in_motion() {
+            // Without the angle at low speed (sensorless without
+            // injection), or with a coarse one (halls: the interpolated
+            // angle is off by up to half a count, 30 deg(e), as wide as a
+            // cogging cycle), the map cannot be measured.
+            let coarse = stage.config().angle.interpolation_half_count().is_some()
+                && stage.sensorless().is_none();
+            if status.angle_only_in_motion() || coarse {
                 return Err(Refusal::Unsupported);
             }
             return Ok(());
