@@ -53,6 +53,7 @@ pub fn current_loop_config(motor: MotorParams, ts_s: f32) -> Result<CurrentLoopC
         max_modulation: 0.95,
         anti_windup: DEFAULT_ANTI_WINDUP,
         delay_compensation_periods: DEFAULT_DELAY_COMPENSATION_PERIODS,
+        dead_time: crate::control::dead_time::DeadTimeCompensation::OFF,
     })
 }
 

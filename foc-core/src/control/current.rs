@@ -7,7 +7,9 @@
 //! v_d = PI_d(e_d) + ff_d,  ff_d = -w_e Lq iq            (decoupling, optional)
 //! v_q = PI_q(e_q) + ff_q,  ff_q =  w_e (Ld id + psi)
 //! |v_dq| <= m_max * Udc / sqrt(3)   circle, d axis first, PI limits follow it
-//! v_dq --inverse Park(theta_e + k w_e Ts)--> v_ab --SVPWM(Udc)--> duties
+//! v_dq --inverse Park(theta_e + k w_e Ts)--> v_ab
+//! v_ab += clarke(s(i_abc_ref)) Udc t_d / T              (dead time, optional)
+//! v_ab --SVPWM(Udc)--> duties
 //! ```
 //!
 //! The inverse Park (design §7, §8) is taken at the angle the rotor
@@ -16,6 +18,13 @@
 //! period of computation plus half a period of PWM hold). Without it the
 //! applied vector lags by `1.5 w_e Ts` (13.5 deg electrical at one electrical
 //! turn per 60 periods), which couples d and q at speed.
+//!
+//! The bridge's dead time is compensated on top of the limited voltage
+//! ([`CurrentLoopConfig::dead_time`], off by default; design §31, module
+//! [`super::dead_time`]): per phase `s(i_k) t_d / T` of duty, `s` a sign
+//! smoothed over a band, `i_k` the reference's phase current at the angle
+//! the voltage applies at. The PIs, the circle and the anti-windup do not
+//! see it; [`CurrentLoopOutput::v_ab_v`] and the duties include it.
 //!
 //! The voltage limit is a circle (not a square) of the *measured* bus
 //! voltage, so loop gains do not change with the bus. The d axis gets the
@@ -84,6 +93,7 @@
 //! assert!(out.duties.iter().all(|d| (0.0..=1.0).contains(d)));
 //! ```
 
+use super::dead_time::{DeadTimeCompensation, DeadTimeGains};
 use super::MotorParams;
 use crate::angle::ElectricalAngle;
 use crate::frames::{Abc, AlphaBeta, Dq};
@@ -117,6 +127,11 @@ pub struct CurrentLoopConfig {
     /// `theta_e + k w_e Ts` (the Park of the measured currents keeps the
     /// sampled angle). 1.5 for the usual one-period update; 0 disables.
     pub delay_compensation_periods: f32,
+    /// Dead-time compensation ([`super::dead_time`], design §31):
+    /// [`DeadTimeCompensation::OFF`] from the constructors; a drive sets
+    /// it from its board's dead time
+    /// ([`DeadTimeCompensation::for_current_limit`]).
+    pub dead_time: DeadTimeCompensation,
 }
 
 /// The current loop's anti-windup, for both PIs: back-calculation with the
@@ -135,7 +150,8 @@ impl CurrentLoopConfig {
     /// The source's tuning (design §11): technical optimum for both axes at
     /// the given PWM frequency, decoupling on, 95 % of the linear range,
     /// 1.5 periods of delay compensation, the matched back-calculation
-    /// ([`DEFAULT_ANTI_WINDUP`]).
+    /// ([`DEFAULT_ANTI_WINDUP`]), no dead-time compensation (the board's
+    /// dead time is not the motor's: see [`Self::dead_time`]).
     pub fn technical_optimum(motor: MotorParams, pwm_frequency_hz: f32) -> Self {
         let ts_s = 1.0 / pwm_frequency_hz;
         Self {
@@ -147,6 +163,7 @@ impl CurrentLoopConfig {
             max_modulation: 0.95,
             anti_windup: DEFAULT_ANTI_WINDUP,
             delay_compensation_periods: DEFAULT_DELAY_COMPENSATION_PERIODS,
+            dead_time: DeadTimeCompensation::OFF,
         }
     }
 }
@@ -173,9 +190,13 @@ pub struct CurrentLoopOutput {
     pub duties: [f32; 3],
     /// Measured currents in the dq frame \[A\].
     pub i_dq_a: Dq,
-    /// Commanded dq voltage \[V\] (after the circle limit).
+    /// Commanded dq voltage \[V\] (after the circle limit): the PIs' and
+    /// the feed-forward's, without the dead-time compensation (the voltage
+    /// the winding gets once the bridge's error is cancelled).
     pub v_dq_v: Dq,
-    /// Commanded alpha/beta voltage \[V\].
+    /// The alpha/beta voltage handed to the modulator \[V\]: `v_dq_v` at
+    /// the angle it applies at, plus the dead-time compensation when on
+    /// (module docs).
     pub v_ab_v: AlphaBeta,
     /// Modulator report (sector, times, saturation, validity).
     pub svpwm: SvpwmOutput,
@@ -208,6 +229,8 @@ pub struct CurrentLoop {
     /// `gains_finite` and the q PI's `kp` and `ki * ts` are `>= 0`: the
     /// step may take [`Self::pi_q_inside_circle`].
     q_fast: bool,
+    /// The dead-time compensation's per-step values (off: not applied).
+    dead: DeadTimeGains,
 }
 
 /// The loop's `advance_s`: `k Ts`, or 0 for k = 0 or an unusable product.
@@ -242,6 +265,7 @@ impl CurrentLoop {
             track_g: Dq::ZERO,
             gains_finite: false,
             q_fast: false,
+            dead: DeadTimeGains::OFF,
             config,
         };
         cl.derive();
@@ -263,6 +287,7 @@ impl CurrentLoop {
             self.ki_ts.q,
         ]);
         self.q_fast = self.gains_finite && self.pi_q.config.kp >= 0.0 && self.ki_ts.q >= 0.0;
+        self.dead = self.config.dead_time.gains(self.config.ts_s);
     }
 
     /// The configuration.
@@ -439,6 +464,17 @@ impl CurrentLoop {
             trig::sin_cos(inp.theta_e.add_radians(advance))
         };
         let v_ab = transforms::inverse_park(v_dq, sin_v, cos_v);
+        // The dead time's error cancelled on top of the limited voltage,
+        // from the reference's phase currents at the same angle (design
+        // §31; the PIs and the circle above never see it).
+        let v_ab = if self.dead.is_on() {
+            let c = self
+                .dead
+                .voltage_ab(inp.i_dq_ref_a, sin_v, cos_v, inp.v_bus_v);
+            AlphaBeta::new(v_ab.alpha + c.alpha, v_ab.beta + c.beta)
+        } else {
+            v_ab
+        };
         let sv = svpwm::svpwm_inline(v_ab, inp.v_bus_v);
         CurrentLoopOutput {
             duties: sv.duties,
@@ -456,7 +492,10 @@ impl CurrentLoop {
 impl CurrentLoop {
     /// Open-loop voltage step (alignment, bring-up): applies `v_dq_v` at
     /// `theta_e`, limited to the same voltage circle, and reports the
-    /// measured dq currents. The PIs are not stepped.
+    /// measured dq currents. The PIs are not stepped. No dead-time
+    /// compensation here (no current reference to take its sign from, and
+    /// the identification measures the bridge's drop with open-loop
+    /// voltages: design §31).
     pub fn step_voltage(
         &mut self,
         i_abc_a: Abc,
@@ -969,5 +1008,252 @@ mod tests {
             }
         }
         assert!(hits > 10_000 && misses > 10_000, "{hits} {misses}");
+    }
+
+    /// 500 ns at 20 kHz (1 % of the period), band 0.5 A.
+    fn with_dead_time(cfg: CurrentLoopConfig) -> CurrentLoopConfig {
+        CurrentLoopConfig {
+            dead_time: DeadTimeCompensation {
+                dead_time_s: 500e-9,
+                band_a: 0.5,
+            },
+            ..cfg
+        }
+    }
+
+    /// A random input generator (xorshift) over references, currents,
+    /// speeds, buses and angles, from deep inside the circle to far
+    /// beyond it.
+    fn random_inputs(seed: u32) -> impl FnMut(u32) -> CurrentLoopInput {
+        let mut seed = seed;
+        let mut rnd = move || {
+            seed ^= seed << 13;
+            seed ^= seed >> 17;
+            seed ^= seed << 5;
+            seed as f32 / u32::MAX as f32
+        };
+        move |n| {
+            let scale = [0.1f32, 2.0, 20.0, 1000.0][(n / 500 % 4) as usize];
+            let mut inp = input((rnd() - 0.5) * scale);
+            inp.i_dq_ref_a.d = (rnd() - 0.5) * scale * 0.3;
+            inp.omega_e_rad_s = (rnd() - 0.5) * [0.0f32, 2000.0, 8000.0][(n / 300 % 3) as usize];
+            inp.v_bus_v = 24.0 * (0.5 + rnd());
+            inp.theta_e = ElectricalAngle::from_bits((rnd() * 4.0e9) as u32);
+            inp.i_abc_a = Abc::new((rnd() - 0.5) * 4.0, (rnd() - 0.5) * 4.0, 0.0);
+            inp.i_abc_a.c = -inp.i_abc_a.a - inp.i_abc_a.b;
+            inp
+        }
+    }
+
+    fn output_bits(o: &CurrentLoopOutput) -> ([u32; 3], [u32; 4], bool, bool) {
+        (
+            o.duties.map(f32::to_bits),
+            [
+                o.v_dq_v.d.to_bits(),
+                o.v_dq_v.q.to_bits(),
+                o.v_ab_v.alpha.to_bits(),
+                o.v_ab_v.beta.to_bits(),
+            ],
+            o.voltage_limited,
+            o.invalid,
+        )
+    }
+
+    /// Off (the constructors' default, a dead time of 0, or values that
+    /// are not usable) the loop's outputs and states are bit for bit
+    /// those of the loop without the compensation, closed loop and open
+    /// loop.
+    #[test]
+    fn dead_time_off_is_bit_identical() {
+        let base = CurrentLoopConfig::technical_optimum(motor(), 20e3);
+        assert_eq!(base.dead_time, DeadTimeCompensation::OFF);
+        for dt in [
+            DeadTimeCompensation {
+                dead_time_s: 0.0,
+                band_a: 0.5,
+            },
+            DeadTimeCompensation {
+                dead_time_s: f32::NAN,
+                band_a: 0.5,
+            },
+            DeadTimeCompensation {
+                dead_time_s: 500e-9,
+                band_a: 0.0,
+            },
+            DeadTimeCompensation {
+                dead_time_s: 500e-9,
+                band_a: f32::NAN,
+            },
+            DeadTimeCompensation {
+                dead_time_s: 20e-6,
+                band_a: 0.5,
+            },
+        ] {
+            let mut off = CurrentLoop::new(base);
+            let mut other = CurrentLoop::new(CurrentLoopConfig {
+                dead_time: dt,
+                ..base
+            });
+            assert!(!other.dead.is_on(), "{dt:?}");
+            let mut gen = random_inputs(0x9e37_79b9);
+            for n in 0..4000 {
+                let inp = gen(n);
+                let (a, b) = (off.step(&inp), other.step(&inp));
+                assert_eq!(output_bits(&a), output_bits(&b), "{dt:?} {n}");
+                assert_eq!(off.pi_d.state, other.pi_d.state);
+                assert_eq!(off.pi_q.state, other.pi_q.state);
+            }
+        }
+    }
+
+    /// On, the PIs, the circle and the anti-windup see exactly what they
+    /// see off (the same `v_dq_v`, integrators, limit flags, bit for bit);
+    /// `v_ab_v` differs by the compensation of the reference's phase
+    /// currents at the angle the voltage applies at; the duties stay in
+    /// `[0, 1]`.
+    #[test]
+    fn dead_time_sits_on_top_of_the_limited_voltage() {
+        for mm in [0.95f32, 1.0] {
+            let base = CurrentLoopConfig {
+                max_modulation: mm,
+                ..CurrentLoopConfig::technical_optimum(motor(), 20e3)
+            };
+            let on_cfg = with_dead_time(base);
+            let gains = on_cfg.dead_time.gains(on_cfg.ts_s);
+            let mut off = CurrentLoop::new(base);
+            let mut on = CurrentLoop::new(on_cfg);
+            assert!(on.dead.is_on());
+            let mut gen = random_inputs(0x1234_5678);
+            let mut limited = 0;
+            for n in 0..20_000 {
+                let inp = gen(n);
+                let (a, b) = (off.step(&inp), on.step(&inp));
+                assert_eq!(a.v_dq_v.d.to_bits(), b.v_dq_v.d.to_bits(), "{n}");
+                assert_eq!(a.v_dq_v.q.to_bits(), b.v_dq_v.q.to_bits(), "{n}");
+                assert_eq!(a.voltage_limited, b.voltage_limited);
+                assert_eq!(off.pi_d.state, on.pi_d.state);
+                assert_eq!(off.pi_q.state, on.pi_q.state);
+                assert!(b.duties.iter().all(|d| (0.0..=1.0).contains(d)), "{b:?}");
+                assert!(!b.invalid);
+                let adv = 1.5 * inp.omega_e_rad_s / 20e3;
+                let (s, c) = trig::sin_cos(inp.theta_e.add_radians(adv));
+                let want = gains.voltage_ab(inp.i_dq_ref_a, s, c, inp.v_bus_v);
+                let got = AlphaBeta::new(
+                    b.v_ab_v.alpha - a.v_ab_v.alpha,
+                    b.v_ab_v.beta - a.v_ab_v.beta,
+                );
+                let tol = 1e-5 * (1.0 + a.v_dq_v.magnitude());
+                assert!(
+                    (got.alpha - want.alpha).abs() < tol && (got.beta - want.beta).abs() < tol,
+                    "{n}: {got:?} {want:?}"
+                );
+                limited += usize::from(a.voltage_limited);
+            }
+            assert!(limited > 1000, "{limited}");
+        }
+    }
+
+    /// Inside the modulator's range the compensation is the duty
+    /// `s(i_k) t_d / T` on each phase (up to the common mode the
+    /// modulator adds): 1 % of the period on each line where both phase
+    /// references are beyond the band, a share inside it; it follows the
+    /// reference, not the measured current.
+    #[test]
+    fn dead_time_adds_the_phase_duties() {
+        let base = CurrentLoopConfig::technical_optimum(motor(), 20e3);
+        let mut off = CurrentLoop::new(base);
+        let mut on = CurrentLoop::new(with_dead_time(base));
+        // Reference 4 A along phase a's axis (rotor at 0, at rest): phase
+        // a +4 A, b and c -2 A: all beyond the 0.5 A band.
+        let mut inp = input(0.0);
+        inp.theta_e = ElectricalAngle::ZERO;
+        inp.i_dq_ref_a = Dq::new(4.0, 0.0);
+        // The measured currents are small and of the other sign: ignored.
+        inp.i_abc_a = Abc::new(-0.1, 0.05, 0.05);
+        let (a, b) = (off.step(&inp), on.step(&inp));
+        let line = |d: [f32; 3]| [d[0] - d[1], d[1] - d[2], d[2] - d[0]];
+        let (la, lb) = (line(a.duties), line(b.duties));
+        let want = [0.02f32, 0.0, -0.02]; // 0.01 (1 - (-1)), 0, -0.02
+        for k in 0..3 {
+            assert!((lb[k] - la[k] - want[k]).abs() < 1e-5, "{la:?} {lb:?}");
+        }
+        // Reference 0.6 A along a: phase a beyond the band (+1), b and c
+        // -0.3 A, inside it (-0.6 each).
+        inp.i_dq_ref_a = Dq::new(0.6, 0.0);
+        let (a, b) = (off.step(&inp), on.step(&inp));
+        let (la, lb) = (line(a.duties), line(b.duties));
+        let want = [0.01 * 1.6f32, 0.0, -0.01 * 1.6];
+        for k in 0..3 {
+            assert!((lb[k] - la[k] - want[k]).abs() < 1e-5, "{la:?} {lb:?}");
+        }
+        // No reference: nothing added.
+        inp.i_dq_ref_a = Dq::ZERO;
+        let (a, b) = (off.step(&inp), on.step(&inp));
+        for k in 0..3 {
+            assert!((a.duties[k] - b.duties[k]).abs() < 1e-6);
+        }
+    }
+
+    /// At speed the sign is the reference's at the angle the voltage
+    /// applies at (`theta_e + 1.5 w_e Ts`), not at the sampled angle:
+    /// just before the reference's phase-a current crosses zero, the
+    /// compensation already has the sign it has after the crossing.
+    #[test]
+    fn dead_time_sign_at_the_applied_angle() {
+        let base = CurrentLoopConfig::technical_optimum(motor(), 20e3);
+        let mut off = CurrentLoop::new(base);
+        let mut on = CurrentLoop::new(with_dead_time(base));
+        // q reference 10 A: phase a's current is -10 sin(theta); at
+        // theta = -3 deg it is +0.52 A (beyond the band), the voltage
+        // applies 0.15 rad (8.6 deg) later where it is -0.98 A.
+        let mut inp = input(10.0);
+        inp.theta_e = ElectricalAngle::from_degrees(-3.0);
+        inp.omega_e_rad_s = 2000.0;
+        let (a, b) = (off.step(&inp), on.step(&inp));
+        let d = AlphaBeta::new(
+            b.v_ab_v.alpha - a.v_ab_v.alpha,
+            b.v_ab_v.beta - a.v_ab_v.beta,
+        );
+        let s = transforms::inverse_clarke(d);
+        // Phase a's share of the compensation is negative: clarke(-1, b, c)
+        // with b, c of opposite signs gives a = 2/3 (-1) - 1/3 (b + c) < 0.
+        assert!(s.a < -0.5 * 0.01 * 24.0, "{s:?}");
+    }
+
+    /// The open-loop voltage step is never compensated (the identification
+    /// measures the bridge's drop with it): bit for bit the same.
+    #[test]
+    fn step_voltage_is_not_compensated() {
+        let base = CurrentLoopConfig::technical_optimum(motor(), 20e3);
+        let mut off = CurrentLoop::new(base);
+        let mut on = CurrentLoop::new(with_dead_time(base));
+        for deg in [0.0f32, 45.0, 200.0] {
+            let th = ElectricalAngle::from_degrees(deg);
+            let i = Abc::new(2.0, -1.0, -1.0);
+            let v = Dq::new(1.5, 0.5);
+            let (a, b) = (
+                off.step_voltage(i, th, v, 24.0),
+                on.step_voltage(i, th, v, 24.0),
+            );
+            assert_eq!(output_bits(&a), output_bits(&b));
+        }
+    }
+
+    /// With the compensation on, an unusable input still gives centred
+    /// duties and leaves the integrators as they were.
+    #[test]
+    fn dead_time_on_nan_input_gives_centred_duties() {
+        let mut cl = CurrentLoop::new(with_dead_time(CurrentLoopConfig::technical_optimum(
+            motor(),
+            20e3,
+        )));
+        cl.step(&input(1.0));
+        let before = cl.integrators();
+        let mut bad = input(1.0);
+        bad.i_dq_ref_a.d = f32::NAN;
+        let o = cl.step(&bad);
+        assert!(o.invalid);
+        assert_eq!(o.duties, [0.5; 3]);
+        assert_eq!(cl.integrators(), before);
     }
 }

@@ -35,7 +35,10 @@
 //! over the last period: the duties handed to it two periods ago (one
 //! period's compare update), times the bus they were computed for, less
 //! the dead time's `sgn(i) V_bus t_d f_pwm` per phase where the current's
-//! sign is known. **The flux linkage** is the identified one: its size
+//! sign is known. With the current loop's dead-time compensation on
+//! (design §31) the duties include it and this is still the bridge's
+//! voltage: the compensation changes the duties, not the bridge's error.
+//! **The flux linkage** is the identified one: its size
 //! is what the radial correction pulls to, and one that is `e` (relative)
 //! too small leaves the angle behind by about `e gamma psi^2 / |w|` (the
 //! balance of that pull against the rotation: at 20 kHz and 2000 rad/s

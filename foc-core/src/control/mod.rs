@@ -63,6 +63,7 @@
 
 pub mod cogging;
 pub mod current;
+pub mod dead_time;
 pub mod estimator;
 pub mod field;
 pub mod flux_observer;

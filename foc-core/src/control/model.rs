@@ -27,6 +27,14 @@
 //! ([`SPEED_WINDOW_PERIODS`]); for a coarse sensor (halls) the caller's
 //! estimate.
 //!
+//! The duties are those handed to the bridge, so with the current loop's
+//! dead-time compensation on (design §31) they include it, and the
+//! dead-time correction here (by the measured currents' signs, none
+//! within the floor) still gives the voltage the bridge really applied.
+//! The compensation does not change what this check gets wrong about the
+//! dead time (its own sign near a current's zero), so its allowance
+//! (twice `V_bus t_d / T` in the bounds and the envelope) is kept.
+//!
 //! Three checks here, none of which looks at the reference (a current
 //! slewing at the voltage limit, a current limit, the power windows,
 //! impedance mode all leave a healthy drive quiet, whatever its size),

@@ -628,6 +628,7 @@ impl DriveRecord {
                 max_modulation: 0.95,
                 anti_windup: foc_core::control::current::DEFAULT_ANTI_WINDUP,
                 delay_compensation_periods: 1.5,
+                dead_time: foc_core::control::dead_time::DeadTimeCompensation::OFF,
             };
             Calibrated::supplied(c.to_calibration(), current)
                 .map_err(|_| invalid("calibration"))?;
