@@ -5,6 +5,7 @@
 //! paired with; a different motor needs its own values (or the
 //! identification routines).
 
+use foc_core::control::dead_time::DeadTimeCompensation;
 use foc_core::control::power::PowerLimitsConfig;
 use foc_core::control::{Command, MotorParams};
 use foc_core::drive::cascade::CascadeConfig;
@@ -194,6 +195,12 @@ pub fn cascade(pwm_frequency_hz: f32) -> CascadeConfig {
     // The model check (design §24) corrects the applied voltage by the
     // bridge's dead time and allows for it near a current's zero.
     c.current.supervisor.model.dead_time_s = board_support::board::DEAD_TIME_NS as f32 * 1e-9;
+    // The current loop cancels it (design §31): the smooth sign's band a
+    // share of the current limit.
+    c.current.current.dead_time = DeadTimeCompensation::for_current_limit(
+        c.current.supervisor.model.dead_time_s,
+        max_current_a,
+    );
     c.current.power = Some(power_limits(&c));
     c
 }

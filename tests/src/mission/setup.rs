@@ -104,8 +104,15 @@ impl Setup {
         c.current.angle.sensor_counts_per_rev = self.bench.sensors.encoder_counts_per_rev;
         // The bridge's dead time is the board's, known as the firmware
         // knows it (`board::DEAD_TIME_NS`, design §24): the model check
-        // corrects for it.
+        // corrects for it ...
         c.current.supervisor.model.dead_time_s = self.bench.dead_time_s as f32;
+        // ... and the current loop cancels it (design §31), as the
+        // firmware's `config::cascade` sets it.
+        c.current.current.dead_time =
+            foc_core::control::dead_time::DeadTimeCompensation::for_current_limit(
+                self.bench.dead_time_s as f32,
+                self.max_current_a,
+            );
         // The plant's mechanics, as a user who knows them would give them
         // (the mission installs the identified ones instead).
         c.set_mechanics(&self.mechanics());
