@@ -8,13 +8,12 @@
 //!   slowly, the shaft torque (motor plus cogging, what a transducer
 //!   between rotor and dyno reads) over one electrical turn, peak to
 //!   peak, with the map off and on (the goal, ten times smaller,
-//!   is met on the M153 only: see design §32's open items);
+//!   is met within the current ADC's resolution: see design §32);
 //! - speed ripple in velocity mode at 1 % and 5 % of the no-load speed,
 //!   the rotor free, peak to peak over whole electrical turns, off and on;
 //! - a coarse sensor (the hub's halls) is refused, and a request on an
-//!   uncalibrated drive too; a calibration that fails (the HKC cheetah's
-//!   rotor sticks between teeth: `RotorStuck`) leaves the bridge off, the
-//!   fault latched and the map as it was.
+//!   uncalibrated drive too; a calibration that fails leaves the bridge
+//!   off, the fault latched and the map as it was.
 //!
 //! Each test prints its figures per motor.
 
@@ -194,7 +193,7 @@ fn anticogging_on_every_motor_file() {
                 assert_eq!(sim.last_bridge(), BridgeCommand::SafeState, "{}", c.stem);
                 assert_eq!(
                     *sim.cascade.current.cogging(),
-                    CoggingMap::EMPTY,
+                    CoggingMap::EMPTY, // as it was
                     "{}",
                     c.stem
                 );
@@ -223,9 +222,20 @@ fn anticogging_on_every_motor_file() {
             "{}: map peak {peak_a} A against {want_a} A",
             c.stem
         );
+        // Ten times smaller is the goal; the current ADC's step limits how
+        // finely the loop can shape the current: where the cogging's
+        // current is under five steps (the interior-PM motor: 45 mA against
+        // 18 mA), at least three times (design §32).
+        let lsb_a = 2.0 * c.setup.bench.sensors.current_full_scale_a
+            / (1u64 << c.setup.bench.sensors.adc_bits) as f64;
+        let goal = if peak_a as f64 >= 5.0 * lsb_a {
+            8.0
+        } else {
+            3.0
+        };
         assert!(
-            off[0] / on[0] >= 1.5,
-            "{}: zero-torque ripple {off:?} -> {on:?}",
+            off[0] / on[0] >= goal,
+            "{}: zero-torque ripple {off:?} -> {on:?} (goal {goal}x)",
             c.stem
         );
         assert!(
@@ -239,9 +249,7 @@ fn anticogging_on_every_motor_file() {
             c.stem
         );
     }
-    // The one failure, named above: the cheetah's light rotor sticks and
-    // slips between teeth under the velocity-mode sweep (design §32).
-    assert_eq!(failed, ["hkc-cheetah"]);
+    assert!(failed.is_empty(), "calibration failed on {failed:?}");
     println!(
         "| motor | cogging cycles/turn | map peak (model) | calibration | zero-torque ripple | speed ripple at 1 % | at 5 % |\n|---|---|---|---|---|---|---|\n{table}"
     );
@@ -257,4 +265,29 @@ fn refused_on_an_uncalibrated_drive() {
     let mut sim = Sim::new(&c.setup, config, false);
     let r = calibrate(&mut sim, c.setup.pwm_hz());
     assert_eq!(r, Err(format!("refused: {:?}", Refusal::NotCalibrated)));
+}
+
+/// A rotor that cannot turn: `RotorStuck`, the bridge off, the fault
+/// latched, the map the drive had before back in place.
+#[test]
+fn a_stuck_rotor_fails_safe() {
+    let c = cases()
+        .into_iter()
+        .find(|c| c.stem.starts_with("gl80"))
+        .unwrap();
+    let mut sim = sim(&c);
+    let mut amps = [0.0f32; foc_core::control::cogging::COGGING_BINS];
+    amps[3] = 0.05;
+    let before = CoggingMap::from_amps(&amps).unwrap();
+    sim.cascade.current.set_cogging(&before).unwrap();
+    sim.plant.set_mechanics(Mechanics::Locked);
+    let r = calibrate(&mut sim, c.setup.pwm_hz());
+    assert_eq!(r, Err("RotorStuck in Cogging".to_string()));
+    sim.run(10);
+    assert_eq!(
+        sim.cascade.feedback().first_fault,
+        Some(Fault::CalibrationFailed)
+    );
+    assert_eq!(sim.last_bridge(), BridgeCommand::SafeState);
+    assert_eq!(*sim.cascade.current.cogging(), before);
 }

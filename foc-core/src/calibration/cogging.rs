@@ -261,7 +261,8 @@ impl CoggingCalibration {
     /// sweep's direction is taken off the lead.
     fn track(&mut self, dir: i8, theta_e: ElectricalAngle) {
         let moved = self.last_theta.map_or(0.0, |l| theta_e.diff_radians(l));
-        let lead = self.lead_rad + self.config.sweep_e_rad_s * self.config.ts_s - moved * dir as f32;
+        let lead =
+            self.lead_rad + self.config.sweep_e_rad_s * self.config.ts_s - moved * dir as f32;
         // Bounded: a rotor held for long does not store a lunge.
         self.lead_rad = lead.clamp(-MAX_LEAD_RAD, MAX_LEAD_RAD);
     }

@@ -4,6 +4,19 @@
 //! private [`CommandSlot`] as `Command::Velocity`, so the speed loop, the
 //! fault supervisor and the safe state work as in normal control.
 //!
+//! **The sweep is a stiff spring.** Where the rotor's inertia `J` is
+//! known (the speed observer's `kt / J`, from an identification or the
+//! configuration), the sweep runs in impedance mode (design §21): a
+//! spring-damper of natural frequency [`SWEEP_SPRING_HZ`], critically
+//! damped, pulls the rotor along a reference that moves at the sweep
+//! speed. The cogging's own stiffness (`T_cog N_cycles` per mechanical
+//! radian) is negative on half of every cycle; the speed loop's (its
+//! integral gain, 20 Hz) is far below it on a light rotor, and in
+//! velocity mode the DJI M2006 stuck and slipped from tooth to tooth and
+//! the HKC cheetah stuck for good. The spring is 3 to 7 times stiffer
+//! than the cogging on every motor file. Without a known inertia the
+//! sweep runs in velocity mode.
+//!
 //! Each finished pass's map is installed in the stage at once (the next
 //! pass runs with it); a failed or aborted calibration puts the map the
 //! stage had before back.
@@ -11,8 +24,13 @@
 use crate::calibration::cogging::{CoggingCalConfig, CoggingCalibration};
 use crate::calibration::{CalError, CalInput, CalStep, ClosedLoopFeedback};
 use crate::control::cogging::CoggingMap;
+use crate::control::joint::Impedance;
 use crate::control::stage::{CurrentStage, Sample};
 use crate::control::{BridgeCommand, Command, CommandSlot, Fault, Feedback, Mode};
+
+/// Natural frequency of the sweep's spring \[Hz\]: inside the angle
+/// tracker's 80 Hz, and stiffer than the cogging of every motor file.
+pub const SWEEP_SPRING_HZ: f32 = 35.0;
 
 /// How an anticogging period ended.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -41,6 +59,11 @@ pub struct CoggingRun {
     /// The stage's map before the calibration (put back on failure).
     before: CoggingMap,
     installed_passes: u8,
+    /// The spring of the sweep (stiffness, damping), when the inertia
+    /// is known.
+    spring: Option<(f32, f32)>,
+    /// Direction of the sweep posted last (0: none yet).
+    posted_dir: i8,
 }
 
 impl CoggingRun {
@@ -68,6 +91,8 @@ impl CoggingRun {
             last_fb: None,
             before: *stage.cogging(),
             installed_passes: 0,
+            spring: spring_of(stage),
+            posted_dir: 0,
         }
     }
 
@@ -79,15 +104,15 @@ impl CoggingRun {
     fn input(&self, s: &Sample) -> Option<CalInput> {
         let i_abc = s.currents?.to_abc();
         let mut inp = CalInput::open_loop(i_abc, s.angle?, s.v_bus_v?);
-        inp.closed_loop =
-            self.last_fb
-                .filter(|f| f.mode == Mode::Velocity)
-                .map(|f| ClosedLoopFeedback {
-                    v_dq_v: f.v_dq_v,
-                    i_dq_a: f.i_dq_a,
-                    velocity_rad_s: f.velocity_rad_s,
-                    theta_e: f.theta_e,
-                });
+        inp.closed_loop = self
+            .last_fb
+            .filter(|f| matches!(f.mode, Mode::Velocity | Mode::Impedance))
+            .map(|f| ClosedLoopFeedback {
+                v_dq_v: f.v_dq_v,
+                i_dq_a: f.i_dq_a,
+                velocity_rad_s: f.velocity_rad_s,
+                theta_e: f.theta_e,
+            });
         Some(inp)
     }
 
@@ -104,9 +129,7 @@ impl CoggingRun {
             None => {}
             Some(CalStep::Velocity { rad_s }) => {
                 self.install_new_map(stage);
-                if self.slot.command != (Command::Velocity { rad_s }) {
-                    self.slot.post(Command::Velocity { rad_s });
-                }
+                self.post_sweep(rad_s);
             }
             Some(CalStep::Done(())) => {
                 self.install_new_map(stage);
@@ -131,6 +154,37 @@ impl CoggingRun {
             return (CoggingOutcome::Aborted(Some(f)), b, fb);
         }
         (CoggingOutcome::Running, b, fb)
+    }
+
+    /// The sweep at `rad_s`: in velocity mode, or (with the spring) an
+    /// impedance reference from where the rotor is, moving at the sweep
+    /// speed in the requested direction, posted when the direction
+    /// changes (the reference moves on by itself between).
+    fn post_sweep(&mut self, rad_s: f32) {
+        let Some((kp, kd)) = self.spring else {
+            if self.slot.command != (Command::Velocity { rad_s }) {
+                self.slot.post(Command::Velocity { rad_s });
+            }
+            return;
+        };
+        let dir: i8 = if rad_s < 0.0 { -1 } else { 1 };
+        let Some(fb) = self.last_fb else {
+            return;
+        };
+        if dir == self.posted_dir {
+            return;
+        }
+        let c = self.cal.config();
+        let w = c.sweep_e_rad_s / c.pole_pairs as f32;
+        self.posted_dir = dir;
+        self.slot.post(Command::Impedance(Impedance {
+            position_rad: fb.position_rad,
+            velocity_rad_s: dir as f32 * w,
+            kp_nm_per_rad: kp,
+            kd_nm_s_per_rad: kd,
+            torque_ff_nm: 0.0,
+            torque_limit_nm: f32::INFINITY,
+        }));
     }
 
     /// A pass finished: its map goes into the stage (the next pass runs
@@ -170,4 +224,21 @@ impl CoggingRun {
         let (b, fb) = stage.step(&self.slot, iq_ref_a, s);
         (out, b, fb)
     }
+}
+
+/// The sweep's spring `(kp, kd)` [N m/rad, N m s/rad] for the stage's
+/// rotor: `J w^2` and `2 J w` at [`SWEEP_SPRING_HZ`], within the stage's
+/// impedance limits; `None` when the inertia is unknown.
+fn spring_of(stage: &CurrentStage) -> Option<(f32, f32)> {
+    let c = stage.config();
+    let a = c.observer.accel_per_a_rad_s2;
+    let kt = c.current.motor.torque_constant_nm_per_a();
+    if !(a.is_finite() && a > 0.0 && kt.is_finite() && kt > 0.0) {
+        return None;
+    }
+    let j = kt / a;
+    let w = core::f32::consts::TAU * SWEEP_SPRING_HZ;
+    let kp = (j * w * w).min(c.limits.max_kp_nm_per_rad);
+    let kd = (2.0 * j * w).min(c.limits.max_kd_nm_s_per_rad);
+    (kp > 0.0 && kd > 0.0).then_some((kp, kd))
 }

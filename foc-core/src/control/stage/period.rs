@@ -154,7 +154,7 @@ impl CurrentStage {
         self.state.travel_window_a = None;
         // The anticogging feed-forward (design §32) before the travel
         // limits, so that they hold against it too.
-        let requested = self.with_cogging(requested, sensed.theta_e);
+        let requested = self.with_cogging(requested, sensed.theta_e, w_e);
         let requested = requested.map(|iq| self.travel(iq));
         // The d current (MTPA, field weakening) and the q current within
         // the current circle (design §30).
