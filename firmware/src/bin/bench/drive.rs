@@ -47,9 +47,11 @@ pub struct Rig {
 /// The emulated board's configuration as the firmware builds it
 /// (`config::cascade`: the simulated motor with its inertia, 10 A, the
 /// board's power limits from `PowerLimitsConfig::for_board`, no brake
-/// resistor), rebuilt here: the bench cannot reach the firmware's private
-/// `config` module. Not set here: the sensor's counts per turn for the
-/// supervisor's angle-step floor (the default floor applies).
+/// resistor, the current loop's dead-time compensation from
+/// `board::DEAD_TIME_NS`), rebuilt here: the bench cannot reach the
+/// firmware's private `config` module. Not set here: the sensor's counts
+/// per turn for the supervisor's angle-step floor (the default floor
+/// applies).
 pub fn cascade() -> CascadeConfig {
     let m = board::SIM_MOTOR;
     let motor = super::motor();
@@ -64,6 +66,7 @@ pub fn cascade() -> CascadeConfig {
         motor,
         board::STAGE_TEMPERATURE_SENSOR,
     ));
+    c.current.current.dead_time = super::dead_time_compensation();
     c
 }
 

@@ -30,6 +30,7 @@ use cortex_m::peripheral::{syst::SystClkSource, SYST};
 use defmt_semihosting as _;
 use foc_core::angle::ElectricalAngle;
 use foc_core::control::current::{CurrentLoop, CurrentLoopInput};
+use foc_core::control::dead_time::DeadTimeCompensation;
 use foc_core::control::stage::{PositionStage, SpeedStage, VelocityRef};
 use foc_core::control::{Command, Feedback, Mode, MotorParams};
 use foc_core::drive::cascade::CascadeConfig;
@@ -145,6 +146,13 @@ fn motor() -> MotorParams {
     }
 }
 
+/// The current loop's dead-time compensation as the firmware sets it
+/// (`config::cascade`): the board's dead time, the band a share of the
+/// 10 A limit.
+fn dead_time_compensation() -> DeadTimeCompensation {
+    DeadTimeCompensation::for_current_limit(board::DEAD_TIME_NS as f32 * 1e-9, 10.0)
+}
+
 #[cortex_m_rt::entry]
 fn main() -> ! {
     let mut cp = cortex_m::Peripherals::take().unwrap_or_else(|| mission_exit(1));
@@ -175,7 +183,9 @@ fn main() -> ! {
         (baseline as f32 / TICKS_PER_INSTRUCTION + 0.5) as u32
     );
 
-    let cfg = CascadeConfig::for_motor(motor(), board::PWM_FREQUENCY_HZ as f32, 10.0);
+    let mut cfg = CascadeConfig::for_motor(motor(), board::PWM_FREQUENCY_HZ as f32, 10.0);
+    // The product's current loop: the board's dead time compensated.
+    cfg.current.current.dead_time = dead_time_compensation();
     let angles: [u32; 8] = [
         0,
         0x1555_5555,
