@@ -48,6 +48,13 @@ pub fn log(e: &Event, period: u32) -> Option<IdentificationResult> {
         Event::IdentificationAborted(f, st) => {
             defmt::error!("identification aborted in {}: fault {}", st, f)
         }
+        Event::EncoderLinearised { peak_rad, periods } => {
+            defmt::info!(
+                "angle sensor linearised: peak {=f32} rad in {=u32} periods",
+                peak_rad,
+                periods
+            )
+        }
         Event::CoggingMeasured { peak_a, periods } => {
             defmt::info!(
                 "anticogging map measured: peak {=f32} A in {=u32} periods",

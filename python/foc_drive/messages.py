@@ -405,6 +405,7 @@ CALIBRATION_STEPS = (
     "finished",
     "sensor check",
     "anticogging",
+    "encoder linearisation",
 )
 
 #: ``calibration-result`` codes below :data:`CALIBRATION_FAILED_BASE`.

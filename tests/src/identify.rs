@@ -254,7 +254,8 @@ fn drive(
             Event::StartUpDone
             | Event::IdentificationStarted
             | Event::CalibrationRestored
-            | Event::CoggingMeasured { .. } => {}
+            | Event::CoggingMeasured { .. }
+            | Event::EncoderLinearised { .. } => {}
             Event::Identified(result) => {
                 let c = sim.cascade.current.config();
                 // The permit the stage holds now, as a value.

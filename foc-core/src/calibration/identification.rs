@@ -206,6 +206,9 @@ pub enum Step {
     /// The anticogging map (design §32): its own request
     /// (`ConfigChange::calibrate_cogging`), never part of the sequence.
     Cogging,
+    /// The angle sensor's correction (design §33): its own request
+    /// (`ConfigChange::calibrate_encoder`), never part of the sequence.
+    Encoder,
     /// Finished successfully.
     Done,
 }

@@ -61,6 +61,7 @@
 //! assert!(pwm.is_enabled());
 //! ```
 
+pub mod angle_correction;
 pub mod cogging;
 pub mod current;
 pub mod dead_time;

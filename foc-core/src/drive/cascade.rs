@@ -426,8 +426,9 @@ impl Cascade {
     /// A calibration (offsets, identification, anticogging) is requested
     /// and not yet taken by a step.
     pub fn calibration_pending(&self) -> bool {
-        self.change
-            .is_some_and(|c| c.identify || c.calibrate_offsets || c.calibrate_cogging)
+        self.change.is_some_and(|c| {
+            c.identify || c.calibrate_offsets || c.calibrate_cogging || c.calibrate_encoder
+        })
     }
 
     /// The lifecycle's output of the last step.

@@ -132,6 +132,13 @@ pub enum Event {
         /// Periods the calibration took.
         periods: u32,
     },
+    /// The angle sensor's correction is learnt and installed (design §33).
+    EncoderLinearised {
+        /// Its largest correction \[rad\] (mechanical).
+        peak_rad: f32,
+        /// Periods the calibration took.
+        periods: u32,
+    },
 }
 
 /// The drive's decision for one period.

@@ -141,6 +141,10 @@ pub struct ConfigChange {
     /// ([`Status::check_calibration`], [`Refusal::NotCalibrated`]) and
     /// know its angle at low speed (an angle sensor, or injection).
     pub calibrate_cogging: bool,
+    /// Learn the angle sensor's correction (design §33): turns at a
+    /// constant speed both ways, so the same conditions as
+    /// `calibrate_cogging`.
+    pub calibrate_encoder: bool,
     /// Latch this fault (e.g. a link watchdog's `Disable` reaction); taken
     /// in any phase, never refused.
     pub fault: Option<Fault>,
@@ -180,6 +184,7 @@ impl ConfigChange {
         self.calibrate_offsets |= newer.calibrate_offsets;
         self.identify |= newer.identify;
         self.calibrate_cogging |= newer.calibrate_cogging;
+        self.calibrate_encoder |= newer.calibrate_encoder;
         self.fault = self.fault.or(newer.fault);
         self.mechanics = newer.mechanics.or(self.mechanics);
         self.joint = newer.joint.or(self.joint);

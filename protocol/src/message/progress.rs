@@ -24,7 +24,7 @@ use foc_core::drive::Progress;
 pub const FAILED_BASE: u8 = 32;
 
 /// Step names by `calibration-step` code.
-pub const STEP_NAMES: [&str; 11] = [
+pub const STEP_NAMES: [&str; 12] = [
     "none",
     "current offsets",
     "resistance",
@@ -36,6 +36,7 @@ pub const STEP_NAMES: [&str; 11] = [
     "finished",
     "sensor check",
     "anticogging",
+    "encoder linearisation",
 ];
 
 /// The words for the `calibration-result` codes below [`FAILED_BASE`].
@@ -84,6 +85,7 @@ const fn step_code(s: Step) -> u8 {
         Step::Mechanics => 7,
         Step::Done => 8,
         Step::Cogging => 10,
+        Step::Encoder => 11,
     }
 }
 

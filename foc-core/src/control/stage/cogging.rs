@@ -1,7 +1,9 @@
 //! The anticogging feed-forward in the stage (design §32): the map, and
-//! the q current it added this period.
+//! the q current it added this period; and the angle sensor's correction
+//! (design §33), which the same calibrations install.
 
 use super::*;
+use crate::control::angle_correction::{AngleCorrection, AngleCorrectionError};
 use crate::control::cogging::{CoggingMap, CoggingMapError};
 
 /// The map and what it added (kept last in the stage: see its docs).
@@ -33,6 +35,27 @@ impl CurrentStage {
     pub fn set_cogging_enabled(&mut self, on: bool) {
         self.cogging.map.enabled = on;
         self.cogging.last_a = 0.0;
+    }
+
+    /// Install the angle sensor's correction (design §33), refused whole
+    /// if its scale is unusable or its peak too large.
+    pub fn set_angle_correction(
+        &mut self,
+        c: &AngleCorrection,
+    ) -> Result<(), AngleCorrectionError> {
+        c.check()?;
+        self.angle_correction = *c;
+        Ok(())
+    }
+
+    /// Switch the installed angle correction on or off.
+    pub fn set_angle_correction_enabled(&mut self, on: bool) {
+        self.angle_correction.enabled = on;
+    }
+
+    /// The installed angle correction ([`AngleCorrection::NONE`] when none).
+    pub fn angle_correction(&self) -> &AngleCorrection {
+        &self.angle_correction
     }
 
     /// The installed cogging map ([`CoggingMap::EMPTY`] when none).

@@ -289,6 +289,8 @@ pub struct CurrentStage {
     safe: safe::SafeMemory,
     /// The anticogging map (design §32), after the rest: 1 KB.
     cogging: cogging::Anticogging,
+    /// The angle sensor's correction (design §33): 512 bytes.
+    angle_correction: super::angle_correction::AngleCorrection,
 }
 
 impl CurrentStage {
@@ -324,6 +326,7 @@ impl CurrentStage {
                 .map(fallback::Fallback::new),
             safe: safe::SafeMemory::INIT,
             cogging: cogging::Anticogging::INIT,
+            angle_correction: super::angle_correction::AngleCorrection::NONE,
         }
     }
 

@@ -91,7 +91,12 @@ impl CurrentStage {
             (_, None, _) => self.supervisor.trip(Fault::AngleSensorError),
             (_, _, None) => self.supervisor.trip(Fault::BusSenseError),
             (Some(cur), Some(raw), Some(v_bus_v)) => {
-                let mech = self.config.angle.mechanical(raw);
+                // The sensor's own error off first (design §33): every
+                // use of the angle below sees the corrected reading.
+                let mech = self
+                    .config
+                    .angle
+                    .mechanical(self.angle_correction.correct(raw));
                 let innovation = self.tracker.update(mech);
                 let innovation_step = innovation - self.state.last_innovation_rad;
                 self.state.last_innovation_rad = innovation;
