@@ -13,6 +13,7 @@
 //!   without an angle sensor.
 //! - [`mechanics`]: inertia, viscous and Coulomb friction from torque pulses.
 //! - [`cogging`]: the anticogging map from a slow sweep in both directions.
+//! - [`encoder`]: the angle sensor's error from turns at a steady speed.
 //! - [`gains`]: current-loop gains from the measured values (technical optimum).
 //! - [`permit`]: [`Calibrated`], the proof that closed-loop modes may start.
 //! - [`identification`]: the sequencer running all of them in order.
@@ -40,6 +41,7 @@
 pub mod alignment;
 pub mod cogging;
 pub mod common;
+pub mod encoder;
 pub mod field_flux;
 pub mod flux;
 pub mod gains;

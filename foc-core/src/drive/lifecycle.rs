@@ -23,6 +23,7 @@
 //! refused whole (see [`super::rules`]).
 
 use super::cogging::{CoggingOutcome, CoggingRun};
+use super::encoder::{EncoderOutcome, EncoderRun};
 use super::identify::{Identifier, Outcome};
 use super::rules::{ConfigChange, Refusal, Status};
 use super::{AngleKind, Progress};
@@ -177,6 +178,8 @@ pub struct Lifecycle {
     identifier: Option<Identifier>,
     /// The anticogging calibration, while it runs (design §32).
     cogging: Option<CoggingRun>,
+    /// The encoder linearisation, while it runs (design §33).
+    encoder: Option<EncoderRun>,
     /// The operator's command number when the identification started.
     identify_seq: u32,
     identified: Option<IdentificationResult>,
@@ -250,6 +253,7 @@ impl Lifecycle {
             skip_offset_sample: false,
             identifier: None,
             cogging: None,
+            encoder: None,
             identify_seq: 0,
             identified: None,
             report: Progress::Idle,
@@ -294,6 +298,9 @@ impl Lifecycle {
     pub fn identification_step(&self) -> Option<Step> {
         if self.cogging.is_some() {
             return Some(Step::Cogging);
+        }
+        if self.encoder.is_some() {
+            return Some(Step::Encoder);
         }
         self.identifier.map(|i| i.current_step())
     }
@@ -432,6 +439,8 @@ impl Lifecycle {
             }
             if ch.calibrate_cogging {
                 self.start_cogging(stage, &inp.command, out);
+            } else if ch.calibrate_encoder {
+                self.start_encoder(stage, &inp.command, out);
             }
         }
         settings.and(calibration).and(joint)
@@ -459,11 +468,28 @@ impl Lifecycle {
         stage: &CurrentStage,
         ch: &ConfigChange,
     ) -> Result<(), Refusal> {
-        if !ch.identify && !ch.calibrate_offsets && !ch.calibrate_cogging {
+        if !ch.identify && !ch.calibrate_offsets && !ch.calibrate_cogging && !ch.calibrate_encoder {
             return Ok(());
         }
         let status = self.status(stage);
         status.check_calibration()?;
+        if ch.calibrate_encoder {
+            // Turns in velocity and torque mode on the angle sensor.
+            if ch.identify || ch.calibrate_offsets || ch.calibrate_cogging {
+                return Err(Refusal::Busy);
+            }
+            if !status.calibrated {
+                return Err(Refusal::NotCalibrated);
+            }
+            // Sensorless, the sensor is not read (nothing to linearise);
+            // a coarse one (halls) is interpolated, not read, between its
+            // edges.
+            let coarse = stage.config().angle.interpolation_half_count().is_some();
+            if stage.sensorless().is_some() || coarse {
+                return Err(Refusal::Unsupported);
+            }
+            return Ok(());
+        }
         if ch.calibrate_cogging {
             // A sweep at low speed in velocity mode: calibrated, and the
             // angle known at standstill; one calibration at a time.
@@ -587,6 +613,19 @@ impl Lifecycle {
         out.event = Some(Event::IdentificationStarted);
     }
 
+    fn start_encoder(
+        &mut self,
+        stage: &mut CurrentStage,
+        operator: &CommandSlot,
+        out: &mut Output,
+    ) {
+        self.encoder = Some(EncoderRun::for_stage(stage, operator));
+        self.identifier = None;
+        self.identify_seq = operator.seq;
+        self.phase = LifePhase::Identify;
+        out.event = Some(Event::IdentificationStarted);
+    }
+
     fn step_offsets(&mut self, stage: &mut CurrentStage, s: &Sample, out: &mut Output) {
         if core::mem::take(&mut self.skip_offset_sample) {
             return;
@@ -681,6 +720,9 @@ impl Lifecycle {
         if self.cogging.is_some() {
             return self.step_cogging(stage, inp, s, out, fb_out);
         }
+        if self.encoder.is_some() {
+            return self.step_encoder(stage, inp, s, out, fb_out);
+        }
         let Some(id) = self.identifier.as_mut() else {
             self.phase = LifePhase::Run;
             return;
@@ -719,6 +761,47 @@ impl Lifecycle {
         // Back to the operator's mailbox, with its last command taken as
         // seen: nothing sent before or during the identification starts
         // the motor now.
+        stage.sync_mailbox(cmd);
+        self.phase = LifePhase::Run;
+    }
+
+    /// The encoder linearisation's period (design §33).
+    fn step_encoder(
+        &mut self,
+        stage: &mut CurrentStage,
+        inp: &Inputs,
+        s: &Sample,
+        out: &mut Output,
+        fb_out: &mut Feedback,
+    ) {
+        let Some(run) = self.encoder.as_mut() else {
+            return;
+        };
+        let cmd = &inp.command;
+        let abort = cmd.seq != self.identify_seq && cmd.command == Command::Disable;
+        let (outcome, b, fb) = if abort {
+            run.abort(stage, inp.iq_ref_a, s)
+        } else {
+            run.step(stage, inp.iq_ref_a, s)
+        };
+        out.bridge = b;
+        *fb_out = fb;
+        out.event = match outcome {
+            EncoderOutcome::Running => return,
+            EncoderOutcome::Done { peak_rad, periods } => {
+                self.report = Progress::Done;
+                Some(Event::EncoderLinearised { peak_rad, periods })
+            }
+            EncoderOutcome::Failed(e) => {
+                self.report = Progress::Failed(e, Step::Encoder);
+                Some(Event::IdentificationFailed(e, Step::Encoder))
+            }
+            EncoderOutcome::Aborted(f) => {
+                self.report = Progress::Aborted(f, Step::Encoder);
+                Some(Event::IdentificationAborted(f, Step::Encoder))
+            }
+        };
+        self.encoder = None;
         stage.sync_mailbox(cmd);
         self.phase = LifePhase::Run;
     }

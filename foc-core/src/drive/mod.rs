@@ -60,6 +60,7 @@
 
 pub mod cascade;
 pub mod cogging;
+pub mod encoder;
 pub mod identify;
 pub mod lifecycle;
 pub mod period;
