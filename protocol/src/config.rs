@@ -25,8 +25,10 @@ use crate::message::ErrorCode;
 pub const CHUNK_BYTES: usize = 48;
 
 /// Largest record the link moves \[bytes\] (`foc_store::MAX_RECORD_BYTES`,
-/// which the firmware checks at build time).
-pub const MAX_RECORD: usize = 320;
+/// which the firmware checks at build time): 2048 since the record keeps
+/// the anticogging map and the angle sensor's correction (store schema 9,
+/// up to 1861 bytes: 39 chunks), 320 before.
+pub const MAX_RECORD: usize = 2048;
 
 /// A piece of a configuration record.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

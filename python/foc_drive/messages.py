@@ -37,8 +37,9 @@ SUPPORTED_PROTOCOL_VERSIONS = (3, 4, 5)
 SCOPE_PROTOCOL_VERSION = 4
 #: Record bytes per configuration chunk.
 CHUNK_BYTES = 48
-#: Largest configuration record the link moves [bytes].
-MAX_RECORD = 320
+#: Largest configuration record the link moves [bytes] (2048 since the
+#: record keeps the anticogging map and the angle correction, 320 before).
+MAX_RECORD = 2048
 #: Most values in one ``ScopeData`` reply.
 SCOPE_DATA_MAX = 12
 #: Scope signal slots.
@@ -406,6 +407,7 @@ CALIBRATION_STEPS = (
     "sensor check",
     "anticogging",
     "encoder linearisation",
+    "index search",
 )
 
 #: ``calibration-result`` codes below :data:`CALIBRATION_FAILED_BASE`.
@@ -445,6 +447,7 @@ CALIBRATION_FAILURES = (
     "InertiaOutOfRange",
     "FrictionOutOfRange",
     "MechanicsIllConditioned",
+    "IndexNotFound",
 )
 
 

@@ -13,7 +13,7 @@ use foc_service::{Board, BootOutcome, Link, Pending, Service, Snapshot};
 use foc_store::fake::FakeFlash;
 use foc_store::{DriveRecord, Label, Store};
 
-type Flash = FakeFlash<4, 1024, 4>;
+type Flash = FakeFlash<4, 4096, 4>;
 const PWM_HZ: u32 = 20_000;
 const MAX_CURRENT_A: f32 = 10.0;
 
@@ -32,7 +32,7 @@ fn board(zero_survives_reset: bool) -> Board {
 }
 
 fn store() -> Store<Flash> {
-    Store::new(Flash::new(), 0..4096).unwrap()
+    Store::new(Flash::new(), 0..16384).unwrap()
 }
 
 /// Disabled, running, calibrated, nothing pending.
@@ -218,7 +218,7 @@ fn a_failed_save_applies_nothing() {
     let n = rec.encode(&mut buf).unwrap();
     let mut flash = Flash::new();
     flash.cut_power_after_words(0);
-    let mut st = Store::new(flash, 0..4096).unwrap();
+    let mut st = Store::new(flash, 0..16384).unwrap();
     let before = *s.settings();
     let mut l = link(&mut s, quiet_snapshot(), &mut st);
     assert_eq!(

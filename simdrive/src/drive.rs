@@ -59,10 +59,11 @@ use foc_service::{Identified, Link, Outbox, Pending, RecordStore, Service, Snaps
 use foc_store::fake::FakeFlash;
 use foc_store::{DriveRecord, Label, Settings, Store};
 
-/// The drive's configuration flash: 4 pages of 1 KiB, 4-byte words.
-pub type DriveFlash = FakeFlash<4, 1024, 4>;
+/// The drive's configuration flash: 4 pages of 4 KiB, 4-byte words (a
+/// page holds the largest record, 2 KiB with both tables).
+pub type DriveFlash = FakeFlash<4, 4096, 4>;
 /// The store's region of [`DriveFlash`] (all of it).
-pub const STORE_RANGE: core::ops::Range<u32> = 0..4096;
+pub const STORE_RANGE: core::ops::Range<u32> = 0..16384;
 
 /// The real drive on the host (see the module docs).
 pub struct HostDrive {

@@ -17,7 +17,7 @@
 //! ```
 //! use foc_store::{fake::FakeFlash, DriveRecord, Store, MAX_RECORD_BYTES};
 //! # let record = foc_store::record::example();
-//! let mut store = Store::new(FakeFlash::<4, 1024, 1>::new(), 0..4096).unwrap();
+//! let mut store = Store::new(FakeFlash::<4, 4096, 1>::new(), 0..16384).unwrap();
 //! store.save(&record).unwrap();
 //! let loaded: Option<DriveRecord> = store.load().unwrap();
 //! assert_eq!(loaded, Some(record));

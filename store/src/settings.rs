@@ -12,6 +12,11 @@
 //! `CascadeConfig::set_mechanics` derives them ([`Settings::set_mechanics`],
 //! [`Settings::apply_to`]); without mechanics they are the build's.
 //!
+//! The tables kept with the configuration (the anticogging map, the angle
+//! sensor's correction: 1.5 KB) are not settings: [`Tables`], apart, so
+//! that [`Settings`] stays small enough to copy, and never in a
+//! `ConfigChange` (which crosses the current loop's mailbox every period).
+//!
 //! ```
 //! use foc_core::control::MotorParams;
 //! use foc_core::drive::cascade::CascadeConfig;
@@ -24,6 +29,8 @@
 //! assert_eq!(record.apply(&base, 16_000).unwrap_err().field, "pwm_frequency_hz");
 //! ```
 
+use foc_core::control::angle_correction::AngleCorrection;
+use foc_core::control::cogging::CoggingMap;
 use foc_core::control::current::CurrentLoopConfig;
 use foc_core::control::field::FieldConfig;
 use foc_core::control::joint::{JointSetup, OutputFrame};
@@ -31,14 +38,15 @@ use foc_core::control::permit::Calibrated;
 use foc_core::control::position::PositionLoopConfig;
 use foc_core::control::power::PowerLimitsConfig;
 use foc_core::control::speed::SpeedLoopConfig;
-use foc_core::control::stage::{AngleCalibration, TimeoutReaction};
+use foc_core::control::stage::{AngleCalibration, CurrentStage, TimeoutReaction};
 use foc_core::control::{Limits, Mechanics};
 use foc_core::drive::cascade::CascadeConfig;
 
 use crate::record::{
-    AngleRecord, BesideRole, CurrentGainsRecord, DividersRecord, DriveRecord, FieldRecord, Invalid,
-    JointRecord, Label, LimitsRecord, MechanicsRecord, MotorRecord, PositionRecord, PowerRecord,
-    SensorlessRecord, SpeedRecord, WatchdogReaction, WatchdogRecord,
+    AngleRecord, BesideRole, CoggingRecord, CorrectionRecord, CurrentGainsRecord, DividersRecord,
+    DriveRecord, FieldRecord, Invalid, JointRecord, Label, LimitsRecord, MechanicsRecord,
+    MotorRecord, PositionRecord, PowerRecord, SensorlessRecord, SpeedRecord, WatchdogReaction,
+    WatchdogRecord,
 };
 use foc_core::control::flux_observer::ObserverConfig;
 use foc_core::control::sensorless::SensorlessConfig;
@@ -84,6 +92,103 @@ pub struct Settings {
     /// MTPA, field weakening (never on a coarse angle sensor: see
     /// [`field_refusal`]), the short circuit.
     pub field: FieldConfig,
+}
+
+/// The tables kept with the configuration, in foc-core's form: the
+/// anticogging map (design §32) and the angle sensor's correction (design
+/// §33), each with its switch. Installed in the current stage outside the
+/// period's mailbox ([`Tables::install`]), read back from it after a
+/// calibration measured one ([`Tables::of_stage`]).
+///
+/// ```
+/// use foc_store::settings::Tables;
+/// use foc_core::control::cogging::{CoggingMap, COGGING_BINS};
+/// use foc_core::control::MotorParams;
+/// use foc_core::control::stage::CurrentStage;
+/// use foc_core::drive::cascade::CascadeConfig;
+/// let m = MotorParams { pole_pairs: 7, r_ohm: 0.2, ld_h: 60e-6, lq_h: 60e-6, flux_linkage_wb: 0.004 };
+/// let mut stage = CurrentStage::new(CascadeConfig::for_motor(m, 20_000.0, 5.0).current);
+/// let mut amps = [0.0; COGGING_BINS];
+/// amps[0] = 0.1;
+/// let t = Tables { cogging: CoggingMap::from_amps(&amps).unwrap(), ..Tables::NONE };
+/// assert_eq!(t.install(&mut stage), Ok(()));
+/// assert_eq!(Tables::of_stage(&stage), t);
+/// amps[0] = 6.0; // above the 5 A limit
+/// let big = Tables { cogging: CoggingMap::from_amps(&amps).unwrap(), ..Tables::NONE };
+/// assert_eq!(big.install(&mut stage).unwrap_err().field, "cogging.table");
+/// assert_eq!(Tables::of_stage(&stage), t, "refused whole");
+/// ```
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Tables {
+    /// The anticogging map ([`CoggingMap::EMPTY`]: none).
+    pub cogging: CoggingMap,
+    /// The angle sensor's correction ([`AngleCorrection::NONE`]: none).
+    pub angle_correction: AngleCorrection,
+}
+
+impl Tables {
+    /// No tables.
+    pub const NONE: Self = Self {
+        cogging: CoggingMap::EMPTY,
+        angle_correction: AngleCorrection::NONE,
+    };
+
+    /// The tables of a record (none where it holds none). The record's
+    /// validation checks them.
+    pub fn of_record(r: &DriveRecord) -> Self {
+        Self {
+            cogging: r
+                .cogging
+                .as_ref()
+                .map_or(CoggingMap::EMPTY, CoggingRecord::to_map),
+            angle_correction: r
+                .angle_correction
+                .as_ref()
+                .map_or(AngleCorrection::NONE, CorrectionRecord::to_correction),
+        }
+    }
+
+    /// The tables installed in `stage`.
+    pub fn of_stage(stage: &CurrentStage) -> Self {
+        Self {
+            cogging: *stage.cogging(),
+            angle_correction: *stage.angle_correction(),
+        }
+    }
+
+    /// A map is held (not zero everywhere).
+    pub fn has_cogging(&self) -> bool {
+        self.cogging.peak_a() > 0.0
+    }
+
+    /// A correction is held (not zero everywhere).
+    pub fn has_angle_correction(&self) -> bool {
+        self.angle_correction.peak_rad() > 0.0
+    }
+
+    /// Install both in `stage` with the stage's own checks
+    /// (`CurrentStage::set_cogging` against its current limit,
+    /// `set_angle_correction`), or neither: the error names the table
+    /// refused (`cogging.table`, `cogging.scale_a`,
+    /// `angle_correction.table`, `angle_correction.scale_rad`). The
+    /// owner calls it outside the period (at start-up, or with the bridge
+    /// off under the stage's lock): a copy of 1.5 KB and two checks.
+    pub fn install(&self, stage: &mut CurrentStage) -> Result<(), Invalid> {
+        CoggingRecord::from_map(&self.cogging).validate(stage.config().limits.max_current_a)?;
+        CorrectionRecord::from_correction(&self.angle_correction).validate()?;
+        let cogging = stage.set_cogging(&self.cogging);
+        let correction = stage.set_angle_correction(&self.angle_correction);
+        match (cogging, correction) {
+            (Ok(()), Ok(())) => Ok(()),
+            // Checked above with the same rules.
+            (Err(_), _) => Err(Invalid {
+                field: "cogging.table",
+            }),
+            (_, Err(_)) => Err(Invalid {
+                field: "angle_correction.table",
+            }),
+        }
+    }
 }
 
 impl Settings {
@@ -357,6 +462,20 @@ impl DriveRecord {
             joint: Some(JointRecord::from_setup(&s.joint, &s.limits)),
             sensorless: s.sensorless,
             field: Some(FieldRecord::from_config(&s.field)),
+            cogging: None,
+            angle_correction: None,
+        }
+    }
+
+    /// This record with the tables `t` (a table zero everywhere is none:
+    /// `None`).
+    pub fn with_tables(self, t: &Tables) -> Self {
+        Self {
+            cogging: t.has_cogging().then(|| CoggingRecord::from_map(&t.cogging)),
+            angle_correction: t
+                .has_angle_correction()
+                .then(|| CorrectionRecord::from_correction(&t.angle_correction)),
+            ..self
         }
     }
 

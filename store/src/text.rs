@@ -5,13 +5,16 @@
 //! the `[field]` table a key left out is the motor's default (foc-core's
 //! `FieldConfig::for_motor` of the file's motor, current limit and PWM
 //! rate), so `[field]` with `field_weakening = true` alone turns field
-//! weakening on; an export writes every key:
+//! weakening on; an export writes every key. The tables (schema 9:
+//! `[cogging]`, `[angle_correction]`) are written as their switch, their
+//! scale and their counts (`table = [...]`, 512 and 256 integers); a table
+//! of another length is refused by name:
 //!
 //! ```
 //! use foc_store::text::{from_toml, to_toml};
 //! # let r = foc_store::record::example();
 //! let text = to_toml(&r);
-//! assert!(text.contains("schema_version = 8"));
+//! assert!(text.contains("schema_version = 9"));
 //! assert!(text.contains("[field]\nmtpa = false\nfield_weakening = true\nmax_id_a = 4.0"));
 //! assert!(text.contains("[joint]"));
 //! assert!(text.contains("[motor]"));
@@ -25,10 +28,12 @@ use std::string::{String, ToString};
 
 use serde::{Deserialize, Serialize};
 
+use std::vec::Vec;
+
 use crate::record::{
-    AngleRecord, CurrentGainsRecord, DividersRecord, DriveRecord, FieldRecord, JointRecord, Label,
-    LimitsRecord, MechanicsRecord, MotorRecord, PositionRecord, PowerRecord, SensorlessRecord,
-    SpeedRecord, WatchdogRecord, SCHEMA_VERSION,
+    AngleRecord, CoggingRecord, CorrectionRecord, Counts, CurrentGainsRecord, DividersRecord,
+    DriveRecord, FieldRecord, JointRecord, Label, LimitsRecord, MechanicsRecord, MotorRecord,
+    PositionRecord, PowerRecord, SensorlessRecord, SpeedRecord, WatchdogRecord, SCHEMA_VERSION,
 };
 
 /// The file layout: the record's fields with the schema version first.
@@ -57,6 +62,75 @@ struct TomlFile {
     sensorless: Option<SensorlessRecord>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     field: Option<FieldText>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    cogging: Option<CoggingText>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    angle_correction: Option<CorrectionText>,
+}
+
+/// The `[cogging]` table: the map's counts as a TOML array.
+#[derive(Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct CoggingText {
+    enabled: bool,
+    scale_a: f32,
+    table: Vec<i16>,
+}
+
+/// The `[angle_correction]` table: the correction's counts as a TOML
+/// array.
+#[derive(Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct CorrectionText {
+    enabled: bool,
+    scale_rad: f32,
+    table: Vec<i16>,
+}
+
+/// `table` as `N` counts, or the sentence that says how many it has.
+fn counts<const N: usize>(table: &[i16], field: &str) -> Result<Counts<N>, String> {
+    Counts::from_slice(table).ok_or_else(|| {
+        format!(
+            "`{field}` has {} values; it takes {N} (one per point of the table)",
+            table.len()
+        )
+    })
+}
+
+impl CoggingText {
+    fn of(r: &CoggingRecord) -> Self {
+        Self {
+            enabled: r.enabled,
+            scale_a: r.scale_a,
+            table: r.table.as_slice().to_vec(),
+        }
+    }
+
+    fn record(&self) -> Result<CoggingRecord, String> {
+        Ok(CoggingRecord {
+            enabled: self.enabled,
+            scale_a: self.scale_a,
+            table: counts(&self.table, "cogging.table")?,
+        })
+    }
+}
+
+impl CorrectionText {
+    fn of(r: &CorrectionRecord) -> Self {
+        Self {
+            enabled: r.enabled,
+            scale_rad: r.scale_rad,
+            table: r.table.as_slice().to_vec(),
+        }
+    }
+
+    fn record(&self) -> Result<CorrectionRecord, String> {
+        Ok(CorrectionRecord {
+            enabled: self.enabled,
+            scale_rad: self.scale_rad,
+            table: counts(&self.table, "angle_correction.table")?,
+        })
+    }
 }
 
 /// The `[field]` table as read: every key optional (a key left out is
@@ -105,8 +179,8 @@ impl FieldText {
 }
 
 /// The record as a TOML document (no `[calibration]`, `[power]`,
-/// `[mechanics]`, `[joint]`, `[sensorless]` or `[field]` table when the
-/// record has none; no
+/// `[mechanics]`, `[joint]`, `[sensorless]`, `[field]`, `[cogging]` or
+/// `[angle_correction]` table when the record has none; no
 /// `travel_out_rad` key in `[joint]` without a travel range).
 pub fn to_toml(r: &DriveRecord) -> String {
     let file = TomlFile {
@@ -126,6 +200,8 @@ pub fn to_toml(r: &DriveRecord) -> String {
         joint: r.joint,
         sensorless: r.sensorless,
         field: r.field.as_ref().map(FieldText::of),
+        cogging: r.cogging.as_ref().map(CoggingText::of),
+        angle_correction: r.angle_correction.as_ref().map(CorrectionText::of),
     };
     match toml::to_string(&file) {
         Ok(s) => s,
@@ -146,7 +222,8 @@ pub fn from_toml(s: &str) -> Result<DriveRecord, String> {
         // without `[mechanics]` and what follows, and so on; version 4 has
         // no `[sensorless]`; version 5 has no roles beside the sensor;
         // version 7 no `[field]` (the motor's defaults, as a stored
-        // version-7 record).
+        // version-7 record); version 8 no `[cogging]` nor
+        // `[angle_correction]`.
         Some(toml::Value::Integer(v)) if (1..=i64::from(SCHEMA_VERSION)).contains(v) => {}
         Some(v) => {
             return Err(format!(
@@ -171,6 +248,12 @@ pub fn from_toml(s: &str) -> Result<DriveRecord, String> {
         joint: f.joint,
         sensorless: f.sensorless,
         field: None,
+        cogging: f.cogging.as_ref().map(CoggingText::record).transpose()?,
+        angle_correction: f
+            .angle_correction
+            .as_ref()
+            .map(CorrectionText::record)
+            .transpose()?,
     };
     // The `[field]` keys left out: the motor's defaults, as for a record
     // without the table.

@@ -18,8 +18,10 @@ use super::*;
 /// `sensorless_only: false` in its calibration (every earlier one was
 /// made with the sensor), version 7 (before the d-current reference,
 /// [`v7::DriveRecordV7`]) gets `field: None` (the motor's defaults,
-/// foc-core's `FieldConfig::for_motor`, applied with the record); a
-/// version-1 record goes `1 -> 2 -> ... -> 8`. A
+/// foc-core's `FieldConfig::for_motor`, applied with the record), version
+/// 8 (before the tables, [`v8::DriveRecordV8`]) gets `cogging: None` and
+/// `angle_correction: None` (none measured); a version-1 record goes
+/// `1 -> 2 -> ... -> 9`. A
 /// migrated record is validated by the caller like any other; version 0
 /// and unknown versions are refused.
 pub(super) fn migrate(found: u16, payload: &[u8]) -> Result<DriveRecord, RecordError> {
@@ -32,7 +34,8 @@ pub(super) fn migrate(found: u16, payload: &[u8]) -> Result<DriveRecord, RecordE
                 .into_v5()
                 .into_v6()
                 .into_v7()
-                .into_v8()),
+                .into_v8()
+                .into_v9()),
             _ => Err(RecordError::Malformed),
         },
         2 => match postcard::take_from_bytes::<v2::DriveRecordV2>(payload) {
@@ -42,27 +45,38 @@ pub(super) fn migrate(found: u16, payload: &[u8]) -> Result<DriveRecord, RecordE
                 .into_v5()
                 .into_v6()
                 .into_v7()
-                .into_v8()),
+                .into_v8()
+                .into_v9()),
             _ => Err(RecordError::Malformed),
         },
         3 => match postcard::take_from_bytes::<v3::DriveRecordV3>(payload) {
-            Ok((r, [])) => Ok(r.into_v4().into_v5().into_v6().into_v7().into_v8()),
+            Ok((r, [])) => Ok(r
+                .into_v4()
+                .into_v5()
+                .into_v6()
+                .into_v7()
+                .into_v8()
+                .into_v9()),
             _ => Err(RecordError::Malformed),
         },
         4 => match postcard::take_from_bytes::<v4::DriveRecordV4>(payload) {
-            Ok((r, [])) => Ok(r.into_v5().into_v6().into_v7().into_v8()),
+            Ok((r, [])) => Ok(r.into_v5().into_v6().into_v7().into_v8().into_v9()),
             _ => Err(RecordError::Malformed),
         },
         5 => match postcard::take_from_bytes::<v5::DriveRecordV5>(payload) {
-            Ok((r, [])) => Ok(r.into_v6().into_v7().into_v8()),
+            Ok((r, [])) => Ok(r.into_v6().into_v7().into_v8().into_v9()),
             _ => Err(RecordError::Malformed),
         },
         6 => match postcard::take_from_bytes::<v6::DriveRecordV6>(payload) {
-            Ok((r, [])) => Ok(r.into_v7().into_v8()),
+            Ok((r, [])) => Ok(r.into_v7().into_v8().into_v9()),
             _ => Err(RecordError::Malformed),
         },
         7 => match postcard::take_from_bytes::<v7::DriveRecordV7>(payload) {
-            Ok((r, [])) => Ok(r.into_v8()),
+            Ok((r, [])) => Ok(r.into_v8().into_v9()),
+            _ => Err(RecordError::Malformed),
+        },
+        8 => match postcard::take_from_bytes::<v8::DriveRecordV8>(payload) {
+            Ok((r, [])) => Ok(r.into_v9()),
             _ => Err(RecordError::Malformed),
         },
         _ => Err(RecordError::UnsupportedVersion {
@@ -508,8 +522,8 @@ pub mod v7 {
     impl DriveRecordV7 {
         /// Version 8: the same values; the d-current reference the motor's
         /// defaults (`field: None`, see [`DriveRecord::field`]).
-        pub fn into_v8(self) -> DriveRecord {
-            DriveRecord {
+        pub fn into_v8(self) -> super::v8::DriveRecordV8 {
+            super::v8::DriveRecordV8 {
                 label: self.label,
                 pwm_frequency_hz: self.pwm_frequency_hz,
                 motor: self.motor,
@@ -525,6 +539,74 @@ pub mod v7 {
                 joint: self.joint,
                 sensorless: self.sensorless,
                 field: None,
+            }
+        }
+    }
+}
+
+/// Schema version 8: [`DriveRecord`] before the tables (the anticogging
+/// map, design §32; the angle sensor's correction, design §33).
+pub mod v8 {
+    use super::*;
+
+    /// The version-8 layout. Frozen: never change it.
+    #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+    #[serde(deny_unknown_fields)]
+    pub struct DriveRecordV8 {
+        /// See [`DriveRecord::label`].
+        pub label: Label,
+        /// See [`DriveRecord::pwm_frequency_hz`].
+        pub pwm_frequency_hz: u32,
+        /// See [`DriveRecord::motor`].
+        pub motor: MotorRecord,
+        /// See [`DriveRecord::current_gains`].
+        pub current_gains: CurrentGainsRecord,
+        /// See [`DriveRecord::calibration`].
+        pub calibration: Option<AngleRecord>,
+        /// See [`DriveRecord::limits`].
+        pub limits: LimitsRecord,
+        /// See [`DriveRecord::speed`].
+        pub speed: SpeedRecord,
+        /// See [`DriveRecord::position`].
+        pub position: PositionRecord,
+        /// See [`DriveRecord::dividers`].
+        pub dividers: DividersRecord,
+        /// See [`DriveRecord::watchdog`].
+        pub watchdog: WatchdogRecord,
+        /// See [`DriveRecord::power`].
+        pub power: Option<PowerRecord>,
+        /// See [`DriveRecord::mechanics`].
+        pub mechanics: Option<MechanicsRecord>,
+        /// See [`DriveRecord::joint`].
+        pub joint: Option<JointRecord>,
+        /// See [`DriveRecord::sensorless`].
+        pub sensorless: Option<SensorlessRecord>,
+        /// See [`DriveRecord::field`].
+        pub field: Option<FieldRecord>,
+    }
+
+    impl DriveRecordV8 {
+        /// Version 9: the same values; no tables measured
+        /// (`cogging: None`, `angle_correction: None`).
+        pub fn into_v9(self) -> DriveRecord {
+            DriveRecord {
+                label: self.label,
+                pwm_frequency_hz: self.pwm_frequency_hz,
+                motor: self.motor,
+                current_gains: self.current_gains,
+                calibration: self.calibration,
+                limits: self.limits,
+                speed: self.speed,
+                position: self.position,
+                dividers: self.dividers,
+                watchdog: self.watchdog,
+                power: self.power,
+                mechanics: self.mechanics,
+                joint: self.joint,
+                sensorless: self.sensorless,
+                field: self.field,
+                cogging: None,
+                angle_correction: None,
             }
         }
     }

@@ -26,15 +26,18 @@
 //! ```
 //!
 //! Files: this one the schema (the record and its sub-records, encoding);
-//! `fields` the sub-records' checks and conversions; `migrate` the frozen
-//! older versions and their migration.
+//! `fields` the sub-records' checks and conversions; `tables` the
+//! anticogging map and the angle sensor's correction (schema 9); `migrate`
+//! the frozen older versions and their migration.
 
 mod fields;
 mod migrate;
+mod tables;
 
 pub use fields::*;
 use migrate::migrate;
-pub use migrate::{v1, v2, v3, v4, v5, v6, v7, AngleRecordV6};
+pub use migrate::{v1, v2, v3, v4, v5, v6, v7, v8, AngleRecordV6};
+pub use tables::*;
 
 use core::f32::consts::TAU;
 use core::fmt;
@@ -53,13 +56,16 @@ use serde::{Deserialize, Serialize};
 /// Version of the schema written by this build ([`DriveRecord`]'s postcard
 /// layout). Bump it on any change of the layout and add a migration step in
 /// `migrate` for the old version.
-pub const SCHEMA_VERSION: u16 = 8;
+pub const SCHEMA_VERSION: u16 = 9;
 
 /// Largest envelope (header, payload and CRC) in bytes. The largest record
-/// of schema 8 (32-character label, every option `Some`, every varint at
-/// its widest) takes 309; the rest is room for a later schema. The link
-/// must move records this long (`foc_protocol::config::MAX_RECORD`).
-pub const MAX_RECORD_BYTES: usize = 320;
+/// of schema 9 (32-character label, every option `Some`, every varint at
+/// its widest) takes 1861: 309 of schema 8's, the anticogging map 1032
+/// and the angle correction 520 (see [`CoggingRecord`]); the rest is room
+/// for a later schema. The link must move records this long
+/// (`foc_protocol::config::MAX_RECORD`), and a flash page hold one
+/// (`Store::new` checks it).
+pub const MAX_RECORD_BYTES: usize = 2048;
 
 /// A user label: printable ASCII, at most 32 bytes.
 pub type Label = heapless::String<32>;
@@ -407,6 +413,16 @@ pub struct DriveRecord {
     /// circuit where its current is within the limit), what a record from
     /// before schema 8 becomes.
     pub field: Option<FieldRecord>,
+    /// The anticogging map (design §32), with its switch; `None`: none
+    /// measured (what a record from before schema 9 becomes). Checked
+    /// against `limits.max_current_a` (foc-core's `CoggingMap::check`).
+    pub cogging: Option<CoggingRecord>,
+    /// The angle sensor's correction (design §33: encoder linearisation),
+    /// with its switch; `None`: none learnt (what a record from before
+    /// schema 9 becomes). Referred to the sensor's reading, so applied
+    /// only where the reading's zero survives a reset (the device
+    /// service's rule).
+    pub angle_correction: Option<CorrectionRecord>,
 }
 
 /// Why bytes are not a record (see [`DriveRecord::decode`]).
@@ -468,6 +484,18 @@ impl fmt::Display for Invalid {
                  angle sensor (not halls)",
                 foc_core::control::field::MIN_VOLTAGE_MARGIN
             ),
+            "cogging.table" => f.write_str(
+                "record value `cogging.table` is refused: the anticogging map's peak is above \
+                 the current limit `limits.max_current_a` (a measurement gone wrong, not \
+                 cogging); measure it again",
+            ),
+            "angle_correction.table" => write!(
+                f,
+                "record value `angle_correction.table` is refused: the angle correction's \
+                 peak is above {} rad (a sensor that far off is loose or broken); learn it \
+                 again",
+                foc_core::control::angle_correction::MAX_CORRECTION_RAD
+            ),
             field => write!(f, "record value `{field}` is out of range"),
         }
     }
@@ -483,9 +511,9 @@ impl DriveRecord {
 
     /// Read an envelope: length, then CRC, then version ([`SCHEMA_VERSION`]
     /// decodes; a newer one is [`RecordError::UnsupportedVersion`]; an older
-    /// one goes through the migration steps: version 1 to 7 records
-    /// decode with `power`, `mechanics`, `joint`, `sensorless` and `field`
-    /// at `None` where they had none).
+    /// one goes through the migration steps: version 1 to 8 records
+    /// decode with `power`, `mechanics`, `joint`, `sensorless`, `field`,
+    /// `cogging` and `angle_correction` at `None` where they had none).
     /// `bytes` must be exactly one envelope. Does not validate.
     pub fn decode(bytes: &[u8]) -> Result<DriveRecord, RecordError> {
         let (version, payload) = crate::envelope::open(bytes, MAX_RECORD_BYTES)?;
@@ -576,7 +604,7 @@ impl DriveRecord {
     }
 
     /// The optional parts: power limits, mechanics, joint, sensorless,
-    /// the d-current reference.
+    /// the d-current reference, the tables.
     fn validate_options(&self) -> Result<(), Invalid> {
         if let Some(p) = &self.power {
             p.validate()?;
@@ -603,6 +631,12 @@ impl DriveRecord {
         }
         if let Some(f) = &self.field {
             f.validate()?;
+        }
+        if let Some(c) = &self.cogging {
+            c.validate(self.limits.max_current_a)?;
+        }
+        if let Some(c) = &self.angle_correction {
+            c.validate()?;
         }
         Ok(())
     }
@@ -733,5 +767,7 @@ pub fn example() -> DriveRecord {
             bandwidth_rad_s: 2000.0,
             short_circuit: false,
         }),
+        cogging: None,
+        angle_correction: None,
     }
 }

@@ -9,10 +9,10 @@ use crate::store::{Store, StoreError};
 use proptest::prelude::*;
 use std::{vec, vec::Vec};
 
-type Flash4 = FakeFlash<4, 1024, 4>;
+type Flash4 = FakeFlash<4, 4096, 4>;
 
 fn new_store(f: &mut Flash4) -> Store<&mut Flash4> {
-    Store::new(f, 0..4096).unwrap()
+    Store::new(f, 0..16384).unwrap()
 }
 
 fn can_a() -> CanRecord {
@@ -342,15 +342,15 @@ fn corrupt_stored_bytes_are_an_error_not_the_defaults() {
 /// error or the defaults, and the drive record is untouched.
 #[test]
 fn power_cut_during_save_can_keeps_the_old_settings() {
-    let range = 0..4096;
-    let mut f = Flash4::new();
+    let range = 0..8192;
+    let mut f = FakeFlash::<2, 4096, 4>::new();
     {
         let mut s = Store::new(&mut f, range.clone()).unwrap();
         s.save(&record_a()).unwrap();
         s.save_can(&can_a()).unwrap();
     }
     let (mut cuts, mut with_erase) = (0u64, 0u32);
-    for level in 0..160 {
+    for level in 0..400 {
         // Measure one uninterrupted save of B from here.
         let mut full = f.clone();
         full.reset_counters();

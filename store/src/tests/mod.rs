@@ -53,6 +53,34 @@ pub(crate) fn record_b() -> DriveRecord {
     r
 }
 
+/// Record B with both tables (schema 9): a 12-cycle cogging map of 0.3 A
+/// (switched on) and an eccentric sensor's correction of 5 mrad (kept
+/// switched off); 1.5 KB more than B, the size of record a calibrated
+/// drive writes.
+pub(crate) fn record_t() -> DriveRecord {
+    use foc_core::control::angle_correction::{AngleCorrection, CORRECTION_BINS};
+    use foc_core::control::cogging::{CoggingMap, COGGING_BINS};
+    let mut amps = [0.0f32; COGGING_BINS];
+    for (k, a) in amps.iter_mut().enumerate() {
+        *a = 0.3 * f32::sin(12.0 * core::f32::consts::TAU * (k as f32 + 0.5) / 512.0);
+    }
+    let mut rad = [0.0f32; CORRECTION_BINS];
+    for (k, r) in rad.iter_mut().enumerate() {
+        *r = 0.005 * f32::sin(core::f32::consts::TAU * (k as f32 + 0.5) / 256.0);
+    }
+    let mut correction = AngleCorrection::from_rad(&rad).unwrap();
+    correction.enabled = false;
+    DriveRecord {
+        cogging: Some(crate::record::CoggingRecord::from_map(
+            &CoggingMap::from_amps(&amps).unwrap(),
+        )),
+        angle_correction: Some(crate::record::CorrectionRecord::from_correction(
+            &correction,
+        )),
+        ..record_b()
+    }
+}
+
 /// The largest record: 32-character label, every option `Some`, every
 /// varint at its widest.
 pub(crate) fn largest_record() -> DriveRecord {
@@ -153,6 +181,19 @@ pub(crate) fn largest_record() -> DriveRecord {
             voltage_margin: f32::MAX,
             bandwidth_rad_s: f32::MAX,
             short_circuit: true,
+        }),
+        // Fixed width: every count takes two bytes whatever its value.
+        cogging: Some(crate::record::CoggingRecord {
+            enabled: true,
+            scale_a: f32::MAX,
+            table: crate::record::Counts([i16::MIN; foc_core::control::cogging::COGGING_BINS]),
+        }),
+        angle_correction: Some(crate::record::CorrectionRecord {
+            enabled: true,
+            scale_rad: f32::MAX,
+            table: crate::record::Counts(
+                [i16::MIN; foc_core::control::angle_correction::CORRECTION_BINS],
+            ),
         }),
     }
 }

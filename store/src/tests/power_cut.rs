@@ -1,7 +1,8 @@
 //! A power cut after every flash word of a save: the store holds the old
-//! record or the new one, never a mix, never neither.
+//! record or the new one, never a mix, never neither. The new one is the
+//! largest kind (record B with both tables, 1.8 KB: many words).
 
-use super::{record_a, record_b};
+use super::{record_a, record_t as record_b};
 use crate::fake::FakeFlash;
 use crate::record::DriveRecord;
 use crate::store::Store;
@@ -113,30 +114,30 @@ fn sweep<const P: usize, const PB: usize, const W: usize>(compaction: bool) -> u
 
 #[test]
 fn power_cut_word1_append() {
-    sweep::<4, 1024, 1>(false);
+    sweep::<4, 4096, 1>(false);
 }
 
 #[test]
 fn power_cut_word1_compaction() {
-    sweep::<4, 1024, 1>(true);
+    sweep::<4, 4096, 1>(true);
 }
 
 #[test]
 fn power_cut_word4_append() {
-    sweep::<4, 1024, 4>(false);
+    sweep::<4, 4096, 4>(false);
 }
 
 #[test]
 fn power_cut_word4_compaction() {
-    sweep::<4, 1024, 4>(true);
+    sweep::<4, 4096, 4>(true);
 }
 
 #[test]
 fn power_cut_word4_compaction_two_pages() {
-    sweep::<2, 1024, 4>(true);
+    sweep::<2, 4096, 4>(true);
 }
 
 #[test]
 fn power_cut_word1_compaction_two_pages() {
-    sweep::<2, 1024, 1>(true);
+    sweep::<2, 4096, 1>(true);
 }

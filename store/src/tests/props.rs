@@ -3,9 +3,9 @@
 
 use crate::fake::FakeFlash;
 use crate::record::{
-    AngleRecord, CurrentGainsRecord, DividersRecord, DriveRecord, JointRecord, Label, LimitsRecord,
-    MechanicsRecord, MotorRecord, PositionRecord, PowerRecord, SensorlessRecord, SpeedRecord,
-    WatchdogReaction, WatchdogRecord, MAX_RECORD_BYTES,
+    AngleRecord, CoggingRecord, CorrectionRecord, Counts, CurrentGainsRecord, DividersRecord,
+    DriveRecord, JointRecord, Label, LimitsRecord, MechanicsRecord, MotorRecord, PositionRecord,
+    PowerRecord, SensorlessRecord, SpeedRecord, WatchdogReaction, WatchdogRecord, MAX_RECORD_BYTES,
 };
 use crate::settings::Settings;
 use crate::store::Store;
@@ -143,6 +143,40 @@ fn field() -> BoxedStrategy<Option<crate::record::FieldRecord>> {
         .boxed()
 }
 
+/// A table's switch, its peak as a share of what the check takes
+/// (below 1) and `n` counts.
+fn table(n: usize) -> BoxedStrategy<Option<(bool, f32, std::vec::Vec<i16>)>> {
+    proptest::option::of((
+        any::<bool>(),
+        prop_oneof![Just(0.0f32), 0.0f32..0.99],
+        proptest::collection::vec(-32767i16..=32767, n),
+    ))
+    .boxed()
+}
+
+/// Valid tables for a current limit `max_current_a`: the anticogging map
+/// (its peak within the limit) and the angle correction (within
+/// foc-core's bound), or none.
+fn tables(
+    cogging: Option<(bool, f32, std::vec::Vec<i16>)>,
+    correction: Option<(bool, f32, std::vec::Vec<i16>)>,
+    max_current_a: f32,
+) -> (Option<CoggingRecord>, Option<CorrectionRecord>) {
+    use foc_core::control::angle_correction::MAX_CORRECTION_RAD;
+    (
+        cogging.map(|(enabled, share, t)| CoggingRecord {
+            enabled,
+            scale_a: max_current_a * share / 32767.0,
+            table: Counts::from_slice(&t).unwrap(),
+        }),
+        correction.map(|(enabled, share, t)| CorrectionRecord {
+            enabled,
+            scale_rad: MAX_CORRECTION_RAD * share / 32767.0,
+            table: Counts::from_slice(&t).unwrap(),
+        }),
+    )
+}
+
 fn label() -> impl Strategy<Value = Label> {
     "[ -~]{0,32}".prop_map(|s| Label::try_from(s.as_str()).unwrap())
 }
@@ -179,7 +213,10 @@ prop_compose! {
         joint in proptest::option::of(joint()),
         sensorless in proptest::option::of((0.0f32..=1.0, 1.0f32..=1000.0)),
         field in field(),
+        cogging in table(foc_core::control::cogging::COGGING_BINS),
+        correction in table(foc_core::control::angle_correction::CORRECTION_BINS),
     ) -> DriveRecord {
+        let (cogging, angle_correction) = tables(cogging, correction, lim.0);
         // Mechanics need a torque constant (flux > 0); sensorless needs
         // them (the build's have none here).
         let mechanics = mechanics.filter(|_| motor.3 > 0.0);
@@ -222,6 +259,8 @@ prop_compose! {
                 observer_above_rad_s: None,
             }),
             field,
+            cogging,
+            angle_correction,
         }
     }
 }
@@ -239,13 +278,13 @@ proptest! {
 
     #[test]
     fn valid_records_round_trip_through_the_store(r in valid_record(), other in valid_record()) {
-        let mut f = FakeFlash::<2, 1024, 4>::new();
-        let mut s = Store::new(&mut f, 0..2048).unwrap();
+        let mut f = FakeFlash::<2, 8192, 4>::new();
+        let mut s = Store::new(&mut f, 0..16384).unwrap();
         s.save(&other).unwrap();
         s.save(&r).unwrap();
         prop_assert_eq!(s.load(), Ok(Some(r.clone())));
         let _ = s.into_flash();
-        prop_assert_eq!(Store::new(&mut f, 0..2048).unwrap().load(), Ok(Some(r)));
+        prop_assert_eq!(Store::new(&mut f, 0..16384).unwrap().load(), Ok(Some(r)));
     }
 
     #[test]

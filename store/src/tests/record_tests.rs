@@ -114,6 +114,22 @@ fn largest_record_fits() {
         })
     );
     r.field.as_mut().unwrap().bandwidth_rad_s = 9.99e5;
+    // The tables: foc-core's checks (a peak within the current limit, a
+    // correction within its bound), named.
+    assert_eq!(
+        r.validate(),
+        Err(Invalid {
+            field: "cogging.table"
+        })
+    );
+    r.cogging.as_mut().unwrap().scale_a = 1e30;
+    assert_eq!(
+        r.validate(),
+        Err(Invalid {
+            field: "angle_correction.table"
+        })
+    );
+    r.angle_correction.as_mut().unwrap().scale_rad = 2e-6;
     // Beside the sensor, a travel range is fine.
     assert_eq!(r.validate(), Ok(()));
     r.sensorless.as_mut().unwrap().beside_sensor = None;
@@ -136,17 +152,25 @@ fn the_joint_costs_its_size_and_no_more() {
     // to the largest version-3 record (229 bytes), schema 5 at most 9
     // (tag, 2 f32), schema 6 at most 7 (role tag and variant, speed tag
     // and f32), schema 7 one (the calibration's `sensorless_only`),
-    // schema 8 at most 16 (tag, 3 bool, 3 f32).
+    // schema 8 at most 16 (tag, 3 bool, 3 f32), schema 9 the tables at
+    // their fixed size: the map 1032 (tag, bool, f32, a 2-byte length
+    // and 512 x 2 bytes), the correction 520 (256 x 2 bytes), two tags
+    // without them.
     let mut r = largest_record();
     let with = encoded(&r).len();
-    assert_eq!(with, 229 + 47 + 9 + 7 + 1 + 16);
+    assert_eq!(with, 229 + 47 + 9 + 7 + 1 + 16 + 1032 + 520);
+    assert_eq!(with, 1861);
+    r.cogging = None;
+    assert_eq!(encoded(&r).len(), 229 + 47 + 9 + 7 + 1 + 16 + 1 + 520);
+    r.angle_correction = None;
+    assert_eq!(encoded(&r).len(), 229 + 47 + 9 + 7 + 1 + 16 + 1 + 1);
     r.field = None;
-    assert_eq!(encoded(&r).len(), 229 + 47 + 9 + 7 + 1 + 1);
+    assert_eq!(encoded(&r).len(), 229 + 47 + 9 + 7 + 1 + 1 + 2);
     r.sensorless = None;
-    assert_eq!(encoded(&r).len(), 229 + 47 + 1 + 1 + 1);
+    assert_eq!(encoded(&r).len(), 229 + 47 + 1 + 1 + 1 + 2);
     r.joint = None;
     // Without a joint: its `None` tag only.
-    assert_eq!(encoded(&r).len(), 229 + 1 + 1 + 1 + 1);
+    assert_eq!(encoded(&r).len(), 229 + 1 + 1 + 1 + 1 + 2);
     assert!(with <= MAX_RECORD_BYTES);
     let mut buf = [0u8; MAX_RECORD_BYTES];
     let v3 = postcard::to_slice(&as_v3(&largest_record()), &mut buf).unwrap();
@@ -478,7 +502,8 @@ fn a_version_1_record_migrates_with_the_build_default_power_limits() {
             .into_v5()
             .into_v6()
             .into_v7()
-            .into_v8(),
+            .into_v8()
+            .into_v9(),
         migrated
     );
     // A version-2, -3 or -4 payload under version 1 is not a version-1
@@ -518,7 +543,8 @@ fn a_version_2_record_migrates_without_mechanics() {
                 .into_v5()
                 .into_v6()
                 .into_v7()
-                .into_v8(),
+                .into_v8()
+                .into_v9(),
             migrated
         );
         // A version-3 or -4 payload (with or without mechanics) under
@@ -570,7 +596,8 @@ fn a_version_3_record_migrates_without_the_joint() {
                 .into_v5()
                 .into_v6()
                 .into_v7()
-                .into_v8(),
+                .into_v8()
+                .into_v9(),
             migrated
         );
         // A version-4 payload (with or without the joint) under version 3
@@ -612,14 +639,16 @@ fn a_migrated_record_applies_with_the_builds_joint() {
         (s.limits.max_kp_nm_per_rad, s.limits.max_kd_nm_s_per_rad),
         (7.0, base.limits.max_kd_nm_s_per_rad)
     );
-    // Saved again: with the joint (and the d-current reference), schema 8.
+    // Saved again: with the joint (and the d-current reference), schema 9
+    // (no tables measured: none).
     let again = DriveRecord::from_settings(&migrated.label, 20_000, &s);
     assert_eq!(
         again.joint,
         Some(JointRecord::from_setup(&base.joint, &base.limits))
     );
     assert!(again.field.is_some());
-    assert_eq!(encoded(&again)[0], 8);
+    assert_eq!((again.cogging, again.angle_correction), (None, None));
+    assert_eq!(encoded(&again)[0], 9);
 }
 
 /// `r` in the version-4 layout (what it loses: `sensorless`).
@@ -647,7 +676,12 @@ fn a_version_4_record_migrates_on_the_angle_sensor() {
             now
         );
         assert_eq!(
-            as_v4(&now).into_v5().into_v6().into_v7().into_v8(),
+            as_v4(&now)
+                .into_v5()
+                .into_v6()
+                .into_v7()
+                .into_v8()
+                .into_v9(),
             migrated
         );
         // A version-5 payload under version 4 is not a version-4 record,
@@ -1435,10 +1469,8 @@ fn field_record() -> DriveRecord {
     r
 }
 
-/// [`field_record`] as this build (schema version 8) writes it, captured
-/// when the golden was added. When the layout changes, the schema version
-/// goes up and this envelope becomes a frozen version's golden; until then
-/// any change to `DriveRecord` or a sub-record's layout fails here.
+/// [`field_record`] as schema version 8 wrote it (frozen: decoded by
+/// [`crate::record::v8::DriveRecordV8`] and migrated).
 const V8_GOLDEN: [u8; 273] = [
     0x08, 0x00, 0x09, 0x01, 0x0b, 0x62, 0x65, 0x6e, 0x63, 0x68, 0x20, 0x6d, 0x6f, 0x74, 0x6f, 0x72,
     0xa0, 0x9c, 0x01, 0x07, 0xcd, 0xcc, 0x4c, 0x3e, 0x82, 0xa8, 0x7b, 0x38, 0xf7, 0xcc, 0x92, 0x38,
@@ -1460,15 +1492,140 @@ const V8_GOLDEN: [u8; 273] = [
     0xa8,
 ];
 
+/// [`field_record`] with both tables: a map of 1e-5 A per count (on)
+/// with counts 1000, -1 at points 0, 1 and 32767 at point 511; a
+/// correction of 1e-6 rad per count (off) with -32767 at point 0 and 5
+/// at point 255; every other count 0.
+fn tables_record() -> DriveRecord {
+    use crate::record::{CoggingRecord, CorrectionRecord, Counts};
+    let mut map = Counts::ZERO;
+    map.0[0] = 1000;
+    map.0[1] = -1;
+    map.0[511] = 32767;
+    let mut correction = Counts::ZERO;
+    correction.0[0] = -32767;
+    correction.0[255] = 5;
+    DriveRecord {
+        cogging: Some(CoggingRecord {
+            enabled: true,
+            scale_a: 1e-5,
+            table: map,
+        }),
+        angle_correction: Some(CorrectionRecord {
+            enabled: false,
+            scale_rad: 1e-6,
+            table: correction,
+        }),
+        ..field_record()
+    }
+}
+
+/// The CRC of [`v9_golden`], captured when it was added.
+const V9_GOLDEN_CRC: [u8; 4] = [0xe9, 0x08, 0xb9, 0xf2];
+
+/// [`tables_record`] as this build (schema version 9) writes it, spelled
+/// out: the header (version 9, a payload of 1817 bytes), the schema-8
+/// payload of [`V8_GOLDEN`] unchanged, then each table: its `Some` tag,
+/// its switch, its scale (f32 LE), the length varint of its bytes
+/// (1024: `0x80 0x08`; 512: `0x80 0x04`) and its counts as i16 LE; the
+/// CRC. When the layout changes, the schema version goes up and this
+/// becomes a frozen version's golden; until then any change to
+/// `DriveRecord` or a sub-record's layout fails here.
+fn v9_golden() -> std::vec::Vec<u8> {
+    let mut v = std::vec![0x09, 0x00, 0x19, 0x07];
+    v.extend_from_slice(&V8_GOLDEN[4..V8_GOLDEN.len() - 4]);
+    v.extend_from_slice(&[0x01, 0x01, 0xac, 0xc5, 0x27, 0x37, 0x80, 0x08]);
+    let mut map = [0u8; 1024];
+    map[..4].copy_from_slice(&[0xe8, 0x03, 0xff, 0xff]);
+    map[1022..].copy_from_slice(&[0xff, 0x7f]);
+    v.extend_from_slice(&map);
+    v.extend_from_slice(&[0x01, 0x00, 0xbd, 0x37, 0x86, 0x35, 0x80, 0x04]);
+    let mut correction = [0u8; 512];
+    correction[..2].copy_from_slice(&[0x01, 0x80]);
+    correction[510..].copy_from_slice(&[0x05, 0x00]);
+    v.extend_from_slice(&correction);
+    v.extend_from_slice(&V9_GOLDEN_CRC);
+    v
+}
+
 #[test]
 fn the_current_schema_writes_and_reads_its_golden_envelope() {
+    let golden = v9_golden();
+    assert_eq!(golden.len(), 1825);
     let mut buf = [0u8; crate::MAX_RECORD_BYTES];
-    let n = field_record().encode(&mut buf).expect("encodes");
-    assert_eq!(&buf[..n], &V8_GOLDEN[..], "{:#04x?}", &buf[..n]);
-    let r = DriveRecord::decode(&V8_GOLDEN).expect("version 8 decodes");
-    assert_eq!(r, field_record());
+    let n = tables_record().encode(&mut buf).expect("encodes");
+    assert_eq!(&buf[..n], &golden[..], "{:#04x?}", &buf[n - 4..n]);
+    let r = DriveRecord::decode(&golden).expect("version 9 decodes");
+    assert_eq!(r, tables_record());
     assert_eq!(r.validate(), Ok(()));
-    assert_eq!(crate::SCHEMA_VERSION, 8, "a new version freezes V8_GOLDEN");
+    assert_eq!(crate::SCHEMA_VERSION, 9, "a new version freezes v9_golden");
+}
+
+/// The frozen version-8 layout of `r`.
+fn as_v8(r: &DriveRecord) -> crate::record::v8::DriveRecordV8 {
+    crate::record::v8::DriveRecordV8 {
+        label: r.label.clone(),
+        pwm_frequency_hz: r.pwm_frequency_hz,
+        motor: r.motor,
+        current_gains: r.current_gains,
+        calibration: r.calibration,
+        limits: r.limits,
+        speed: r.speed,
+        position: r.position,
+        dividers: r.dividers,
+        watchdog: r.watchdog,
+        power: r.power,
+        mechanics: r.mechanics,
+        joint: r.joint,
+        sensorless: r.sensorless,
+        field: r.field,
+    }
+}
+
+/// A version-8 record (before the tables) migrates with none; applied,
+/// it installs none; saved again, it is schema 9 with none.
+#[test]
+fn the_version_8_golden_envelope_migrates_without_tables() {
+    use crate::settings::Tables;
+    let r = DriveRecord::decode(&V8_GOLDEN).expect("version 8 migrates");
+    assert_eq!(r, field_record());
+    assert_eq!((r.cogging, r.angle_correction), (None, None));
+    assert_eq!(r.validate(), Ok(()));
+    // The frozen version-8 struct still writes exactly these bytes.
+    let p = postcard_of(&as_v8(&field_record()));
+    assert_eq!(envelope(8, &p), V8_GOLDEN);
+    assert_eq!(as_v8(&field_record()).into_v9(), r);
+    assert_eq!(Tables::of_record(&r), Tables::NONE);
+    // A version-9 payload is not a version-8 record, nor the reverse.
+    assert_eq!(
+        DriveRecord::decode(&envelope(8, payload(&v9_golden()))),
+        Err(RecordError::Malformed)
+    );
+    assert_eq!(
+        DriveRecord::decode(&envelope(9, &p)),
+        Err(RecordError::Malformed)
+    );
+    // Saved again without tables: two `None` tags more.
+    assert_eq!(encoded(&r).len(), V8_GOLDEN.len() + 2);
+    assert_eq!(encoded(&r)[0], 9);
+    // Every older golden migrates without tables.
+    for g in [
+        &V1_GOLDEN[..],
+        &V2_GOLDEN[..],
+        &V3_GOLDEN[..],
+        &V4_GOLDEN[..],
+        &V5_GOLDEN[..],
+        &V6_GOLDEN[..],
+        &V7_GOLDEN[..],
+    ] {
+        let r = DriveRecord::decode(g).unwrap();
+        assert_eq!(
+            (r.cogging, r.angle_correction),
+            (None, None),
+            "version {}",
+            g[0]
+        );
+    }
 }
 
 /// The frozen version-7 layout of `r`.
@@ -1508,7 +1665,7 @@ fn the_version_7_golden_envelope_migrates_with_the_motors_field_defaults() {
     // The frozen version-7 struct still writes exactly these bytes.
     let p = postcard_of(&as_v7(&hybrid_record()));
     assert_eq!(envelope(7, &p), V7_GOLDEN);
-    assert_eq!(as_v7(&hybrid_record()).into_v8(), r);
+    assert_eq!(as_v7(&hybrid_record()).into_v8().into_v9(), r);
     // A version-8 payload is not a version-7 record, nor the reverse.
     assert_eq!(
         DriveRecord::decode(&envelope(7, payload(&encoded(&field_record())))),
@@ -1770,4 +1927,110 @@ fn the_version_4_golden_envelope_migrates() {
         .unwrap()
         .to_vec();
     assert_eq!(envelope(4, &p), V4_GOLDEN);
+}
+
+/// The tables: round trip through the envelope, the settings' tables and
+/// TOML; a bad scale (NaN, infinite, negative), a peak foc-core's check
+/// refuses (above the record's current limit, beyond the correction's
+/// bound) and a table of the wrong length are refused by name, whole,
+/// never decoded into a record.
+#[test]
+fn the_tables_are_checked_and_refused_whole() {
+    use crate::settings::Tables;
+    let r = tables_record();
+    assert_eq!(r.validate(), Ok(()));
+    assert_eq!(DriveRecord::decode(&encoded(&r)), Ok(r.clone()));
+    let t = Tables::of_record(&r);
+    assert!(t.cogging.enabled && !t.angle_correction.enabled);
+    assert!((t.cogging.peak_a() - 0.32767).abs() < 1e-6);
+    assert_eq!(
+        DriveRecord {
+            cogging: None,
+            angle_correction: None,
+            ..r.clone()
+        }
+        .with_tables(&t),
+        r
+    );
+    // Tables zero everywhere are none.
+    assert_eq!(r.clone().with_tables(&Tables::NONE), field_record());
+
+    for (bad, field) in [
+        (f32::NAN, "cogging.scale_a"),
+        (f32::INFINITY, "cogging.scale_a"),
+        (-1e-5, "cogging.scale_a"),
+        // 32767 counts of 2e-4 A: 6.6 A, above the 5 A limit.
+        (2e-4, "cogging.table"),
+    ] {
+        let mut b = r.clone();
+        b.cogging.as_mut().unwrap().scale_a = bad;
+        assert_eq!(b.validate(), Err(Invalid { field }), "{bad}");
+        // The envelope is sound: it decodes; validation refuses it.
+        assert!(DriveRecord::decode(&encoded(&b)).is_ok());
+    }
+    // The same map with the current limit lowered below its peak.
+    let mut low = r.clone();
+    low.limits.max_current_a = 0.3;
+    low.sensorless = None;
+    assert_eq!(
+        low.validate(),
+        Err(Invalid {
+            field: "cogging.table"
+        })
+    );
+    for (bad, field) in [
+        (f32::NAN, "angle_correction.scale_rad"),
+        (f32::NEG_INFINITY, "angle_correction.scale_rad"),
+        // 32767 counts of 3e-6 rad: 0.098 rad, beyond 0.087.
+        (3e-6, "angle_correction.table"),
+    ] {
+        let mut b = r.clone();
+        b.angle_correction.as_mut().unwrap().scale_rad = bad;
+        assert_eq!(b.validate(), Err(Invalid { field }), "{bad}");
+    }
+    let msg = std::format!(
+        "{}",
+        Invalid {
+            field: "cogging.table"
+        }
+    );
+    assert!(msg.contains("limits.max_current_a"), "{msg}");
+    let msg = std::format!(
+        "{}",
+        Invalid {
+            field: "angle_correction.table"
+        }
+    );
+    assert!(msg.contains("0.087"), "{msg}");
+
+    // A table of another length (a CRC-valid envelope, so not a damaged
+    // one): malformed, never a record. The map's length varint `0x80 0x08`
+    // (1024 bytes) sits right after the schema-8 payload, its tag, switch
+    // and scale.
+    let good = payload(&v9_golden()).to_vec();
+    let at = V8_GOLDEN.len() - 8 + 6;
+    assert_eq!(&good[at..at + 2], &[0x80, 0x08]);
+    let mut short = good.clone();
+    short[at] = 0xfe; // 1022 bytes
+    short[at + 1] = 0x07;
+    short.remove(at + 2);
+    short.remove(at + 2);
+    let mut long = good.clone();
+    long[at] = 0x82; // 1026 bytes
+    long.insert(at + 2, 0);
+    long.insert(at + 2, 0);
+    for p in [&short, &long] {
+        assert_eq!(
+            DriveRecord::decode(&envelope(9, p)),
+            Err(RecordError::Malformed)
+        );
+    }
+    // Cut anywhere in the tables: malformed too, never a panic.
+    for n in (good.len() - 1560..good.len()).step_by(7) {
+        assert_eq!(
+            DriveRecord::decode(&envelope(9, &good[..n])),
+            Err(RecordError::Malformed),
+            "{n}"
+        );
+    }
 }

@@ -111,7 +111,7 @@ fn toml_is_readable_and_checked() {
     let text = to_toml(&r);
     std::eprintln!("{text}");
     for key in [
-        "schema_version = 8",
+        "schema_version = 9",
         "label = \"bench motor\"",
         "[motor]",
         "r_ohm = ",
@@ -180,7 +180,7 @@ fn toml_is_readable_and_checked() {
     assert_eq!(from_toml(&t), Ok(sl.clone()));
     assert!(!to_toml(&r).contains("[sensorless]"));
     assert_eq!(
-        from_toml(&to_toml(&r).replace("schema_version = 8", "schema_version = 4")),
+        from_toml(&to_toml(&r).replace("schema_version = 9", "schema_version = 4")),
         Ok(r.clone())
     );
     let e = from_toml(&t.replace("start_current_a = 3.5", "start_current_a = 50.0")).unwrap_err();
@@ -209,7 +209,7 @@ fn toml_is_readable_and_checked() {
     let e = from_toml(&tb.replace("hall+sensorless", "halls")).unwrap_err();
     assert!(e.contains("halls"), "{e}");
     assert_eq!(
-        from_toml(&t.replace("schema_version = 8", "schema_version = 5")),
+        from_toml(&t.replace("schema_version = 9", "schema_version = 5")),
         Ok(sl.clone())
     );
     // No joint: no table, and back to None (the build's).
@@ -220,7 +220,7 @@ fn toml_is_readable_and_checked() {
     assert_eq!(from_toml(&t), Ok(n.clone()));
     // A version-3 file (before the joint) reads as version 4 without it.
     assert_eq!(
-        from_toml(&t.replace("schema_version = 8", "schema_version = 3")),
+        from_toml(&t.replace("schema_version = 9", "schema_version = 3")),
         Ok(n.clone())
     );
     // No mechanics: no table, and back to None (not identified).
@@ -231,7 +231,7 @@ fn toml_is_readable_and_checked() {
     // A version-2 file (before the mechanics) reads as version 4 without
     // them.
     assert_eq!(
-        from_toml(&t.replace("schema_version = 8", "schema_version = 2")),
+        from_toml(&t.replace("schema_version = 9", "schema_version = 2")),
         Ok(n.clone())
     );
     // No power limits: no table, and back to None (the build's defaults).
@@ -242,7 +242,7 @@ fn toml_is_readable_and_checked() {
     // A version-1 file (before the power limits) reads as version 4
     // without them.
     assert_eq!(
-        from_toml(&t.replace("schema_version = 8", "schema_version = 1")),
+        from_toml(&t.replace("schema_version = 9", "schema_version = 1")),
         Ok(n)
     );
     // The d-current reference (schema 8): a `[field]` table, every value
@@ -319,14 +319,16 @@ fn toml_is_readable_and_checked() {
         "[field]",
     );
     assert_eq!(from_toml(&empty).unwrap().field, Some(d));
-    assert_eq!(
-        from_toml(&text.replace("schema_version = 8", "schema_version = 7")),
-        Ok(r.clone())
-    );
+    for older in ["schema_version = 7", "schema_version = 8"] {
+        assert_eq!(
+            from_toml(&text.replace("schema_version = 9", older)),
+            Ok(r.clone())
+        );
+    }
     // Another schema version.
-    for v in ["0", "9"] {
+    for v in ["0", "10"] {
         let e =
-            from_toml(&text.replace("schema_version = 8", &std::format!("schema_version = {v}")))
+            from_toml(&text.replace("schema_version = 9", &std::format!("schema_version = {v}")))
                 .unwrap_err();
         assert!(e.contains("schema_version") && e.contains(v), "{e}");
     }
@@ -455,7 +457,7 @@ fn toml_is_readable_and_checked() {
         e,
         "record value `power.bus_current_regen_max_a` is out of range"
     );
-    let e = from_toml(&text.replace("schema_version = 8\n", "")).unwrap_err();
+    let e = from_toml(&text.replace("schema_version = 9\n", "")).unwrap_err();
     assert!(e.contains("schema_version"), "{e}");
     // A bad value names the field.
     let e = from_toml(&text.replace("max_current_a = 5.0", "max_current_a = -5.0")).unwrap_err();
@@ -472,7 +474,7 @@ fn toml_is_readable_and_checked() {
         from_toml(&text.replace("sensorless_only = false\n", "")),
         from_toml(&text)
     );
-    assert_eq!(SCHEMA_VERSION, 8);
+    assert_eq!(SCHEMA_VERSION, 9);
 }
 
 #[test]
@@ -647,4 +649,47 @@ fn settings_refuse_unusable_mechanics() {
     assert!(s.set_mechanics(&Mechanics::inertia(1e-5)));
     assert_eq!(s.mechanics, Some(Mechanics::inertia(1e-5)));
     assert_eq!(s.speed.kp_a_per_rad_s, before.speed.kp_a_per_rad_s);
+}
+
+/// The tables in TOML: `[cogging]` and `[angle_correction]` with their
+/// switch, scale and counts; round trip; a table of another length, a
+/// bad scale or a peak the check refuses named.
+#[test]
+fn tables_in_toml_round_trip_and_are_checked() {
+    let r = super::record_t();
+    let text = to_toml(&r);
+    for key in [
+        "[cogging]\nenabled = true\nscale_a = ",
+        "[angle_correction]\nenabled = false\nscale_rad = ",
+        "table = [",
+    ] {
+        assert!(text.contains(key), "{key} missing");
+    }
+    assert_eq!(from_toml(&text), Ok(r.clone()));
+    // A table of another length: the count named.
+    let t = r.cogging.unwrap().table.0;
+    let first = std::format!("table = [{}, ", t[0]);
+    assert!(text.contains(&first));
+    let short = text.replacen(&first, "table = [", 1);
+    let e = from_toml(&short).unwrap_err();
+    assert_eq!(
+        e,
+        "`cogging.table` has 511 values; it takes 512 (one per point of the table)"
+    );
+    let c = r.angle_correction.unwrap().table.0;
+    let first = std::format!("table = [{}, ", c[0]);
+    let long = text.replace(&first, &std::format!("table = [0, {}, ", c[0]));
+    assert!(from_toml(&long)
+        .unwrap_err()
+        .contains("`angle_correction.table` has 257 values; it takes 256"));
+    // A bad scale, a peak above the current limit.
+    let scale = text.lines().find(|l| l.starts_with("scale_a = ")).unwrap();
+    let e = from_toml(&text.replace(scale, "scale_a = nan")).unwrap_err();
+    assert_eq!(e, "record value `cogging.scale_a` is out of range");
+    let e = from_toml(&text.replace(scale, "scale_a = 1.0")).unwrap_err();
+    assert!(e.contains("`cogging.table` is refused"), "{e}");
+    // Without tables: no tables written, none read.
+    let none = to_toml(&record_b());
+    assert!(!none.contains("[cogging]") && !none.contains("[angle_correction]"));
+    assert_eq!(from_toml(&none), Ok(record_b()));
 }
