@@ -56,6 +56,10 @@
 //! }
 //! assert_eq!(drive.lifecycle().phase(), LifePhase::Run);
 //! assert!(!drive.status().calibrated); // no permit yet: closed loop refused
+//! // What is too large for a configuration change (the anticogging map,
+//! // the angle correction) goes in outside the period, bridge off:
+//! let stage = drive.stage_while_disabled().expect("disabled");
+//! assert_eq!(stage.set_cogging(&foc_core::control::cogging::CoggingMap::EMPTY), Ok(()));
 //! ```
 
 pub mod cascade;
@@ -98,7 +102,7 @@ impl AngleKind {
         matches!(self, AngleKind::Absolute | AngleKind::Hall)
     }
 }
-pub use rules::{check_field, ConfigChange, JointChange, Refusal, Status};
+pub use rules::{check_field, ConfigChange, JointChange, Refusal, Status, Sweep};
 
 use crate::control::io::{apply, read_sample};
 use crate::control::stage::{CurrentStage, CurrentStageConfig};
@@ -222,6 +226,25 @@ where
     /// The current stage.
     pub fn stage(&self) -> &CurrentStage {
         &self.stage
+    }
+
+    /// The current stage, to install what is kept with the configuration
+    /// but too large for a [`ConfigChange`] (the anticogging map, the
+    /// angle sensor's correction: `CurrentStage::set_cogging`,
+    /// `set_angle_correction`), outside the period: at start-up before
+    /// the interrupt runs, or from a lower priority under the drive's
+    /// lock. Only while the bridge is off by command (mode `Disabled`)
+    /// and no routine owns the stage: during start-up's offset
+    /// calibration and sensor check, or running ([`LifePhase::Run`]);
+    /// not while a calibration turns the rotor (the sweeps install their
+    /// own table, or put the old one back when stopped); `None`
+    /// otherwise.
+    pub fn stage_while_disabled(&mut self) -> Option<&mut CurrentStage> {
+        let quiet = matches!(
+            self.life.phase(),
+            LifePhase::OffsetCalibration | LifePhase::SensorCheck(_) | LifePhase::Run
+        ) && self.stage.active().mode() == crate::control::Mode::Disabled;
+        quiet.then_some(&mut self.stage)
     }
 
     /// The lifecycle.

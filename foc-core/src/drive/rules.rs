@@ -257,6 +257,64 @@ pub fn check_field(f: &FieldConfig, angle: &AngleCalibration) -> Result<(), &'st
     Ok(())
 }
 
+/// A calibration that turns the rotor slowly on the closed loop and keeps
+/// a table (requested with [`ConfigChange::calibrate_cogging`] and
+/// [`ConfigChange::calibrate_encoder`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Sweep {
+    /// The anticogging map (design §32).
+    Cogging,
+    /// The angle sensor's correction (design §33).
+    Encoder,
+}
+
+impl Status {
+    /// A sweep calibration alone, as the lifecycle judges its request
+    /// (`Lifecycle`'s `check_calibration_request`; a front end applies it
+    /// for an immediate refusal): [`Self::check_calibration`], calibrated
+    /// ([`Refusal::NotCalibrated`]: it runs on the closed loop), and an
+    /// angle it can measure with ([`Refusal::Unsupported`]): the map needs
+    /// the angle at low speed, so not sensorless without injection
+    /// ([`Self::angle_only_in_motion`]) nor on a coarse sensor (`angle`
+    /// interpolated between hall edges: half a count is as wide as a
+    /// cogging cycle) unless the drive runs sensorless; the correction
+    /// needs the sensor read, so neither sensorless nor coarse. (Two
+    /// calibrations in one request are the lifecycle's to refuse:
+    /// [`Refusal::Busy`].)
+    ///
+    /// ```
+    /// use foc_core::angle::ElectricalAngle;
+    /// use foc_core::control::stage::AngleCalibration;
+    /// use foc_core::control::{Mode, Refusal};
+    /// use foc_core::drive::{Progress, Status, Sweep};
+    /// let idle = Status { running: true, mode: Mode::Disabled, faulted: false, calibrated: true, sensorless: false, injection: false, calibration: Progress::Idle };
+    /// let encoder = AngleCalibration { pole_pairs: 7, zero_offset: ElectricalAngle::ZERO, reversed: false, sensor_counts_per_rev: 4096, sensorless_only: false };
+    /// let halls = AngleCalibration { sensor_counts_per_rev: 42, ..encoder };
+    /// assert_eq!(idle.check_sweep(Sweep::Cogging, &encoder), Ok(()));
+    /// assert_eq!(idle.check_sweep(Sweep::Cogging, &halls), Err(Refusal::Unsupported));
+    /// let uncalibrated = Status { calibrated: false, ..idle };
+    /// assert_eq!(uncalibrated.check_sweep(Sweep::Encoder, &encoder), Err(Refusal::NotCalibrated));
+    /// let sensorless = Status { sensorless: true, ..idle };
+    /// assert_eq!(sensorless.check_sweep(Sweep::Encoder, &encoder), Err(Refusal::Unsupported));
+    /// ```
+    pub fn check_sweep(&self, sweep: Sweep, angle: &AngleCalibration) -> Result<(), Refusal> {
+        self.check_calibration()?;
+        if !self.calibrated {
+            return Err(Refusal::NotCalibrated);
+        }
+        let coarse = angle.interpolation_half_count().is_some();
+        let measurable = match sweep {
+            Sweep::Cogging => !self.angle_only_in_motion() && !(coarse && !self.sensorless),
+            Sweep::Encoder => !self.sensorless && !coarse,
+        };
+        if !measurable {
+            return Err(Refusal::Unsupported);
+        }
+        Ok(())
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -442,5 +500,69 @@ mod tests {
         c.request(with_field(f));
         assert_eq!(step(&mut c), Some(Err(Refusal::NotDisabled)));
         assert_eq!(c.current.config().field, cfg.current.field);
+    }
+
+    /// The front ends' rule for a sweep calibration
+    /// ([`Status::check_sweep`]) gives the lifecycle's verdict on the
+    /// request, case by case: uncalibrated, calibrated on an encoder, on
+    /// halls, faulted, enabled.
+    #[test]
+    fn the_sweep_rule_is_the_lifecycles() {
+        let request = |s| match s {
+            Sweep::Cogging => ConfigChange {
+                calibrate_cogging: true,
+                ..ConfigChange::default()
+            },
+            Sweep::Encoder => ConfigChange {
+                calibrate_encoder: true,
+                ..ConfigChange::default()
+            },
+        };
+        let calibrated = |counts| {
+            let (mut c, cfg) = cascade(counts);
+            c.set_calibration(
+                &Calibrated::supplied(cfg.current.angle, cfg.current.current).unwrap(),
+            );
+            step(&mut c);
+            (c, cfg)
+        };
+        for sweep in [Sweep::Cogging, Sweep::Encoder] {
+            let cases: [(&str, (Cascade, CascadeConfig), Result<(), Refusal>); 5] = [
+                ("uncalibrated", cascade(4096), Err(Refusal::NotCalibrated)),
+                ("encoder", calibrated(4096), Ok(())),
+                ("halls", calibrated(48), Err(Refusal::Unsupported)),
+                (
+                    "faulted",
+                    {
+                        let (mut c, cfg) = calibrated(4096);
+                        c.report_fault(Fault::CommandTimeout);
+                        step(&mut c);
+                        (c, cfg)
+                    },
+                    Err(Refusal::Faulted),
+                ),
+                (
+                    "enabled",
+                    {
+                        let (mut c, cfg) = calibrated(4096);
+                        c.command(crate::control::Command::Torque { iq_a: 0.5 })
+                            .unwrap();
+                        step(&mut c);
+                        (c, cfg)
+                    },
+                    Err(Refusal::NotDisabled),
+                ),
+            ];
+            for (what, (mut c, _), want) in cases {
+                let angle = c.current.config().angle;
+                assert_eq!(
+                    c.status().check_sweep(sweep, &angle),
+                    want,
+                    "{sweep:?} {what}"
+                );
+                c.request(request(sweep));
+                assert_eq!(step(&mut c), Some(want), "{sweep:?} {what}: the lifecycle");
+            }
+        }
     }
 }
