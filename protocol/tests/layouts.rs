@@ -716,6 +716,8 @@ fn requests() -> Vec<Request> {
         (ParamId::Mtpa, 0.0),
         (ParamId::MaxIdA, 12.5),
         (ParamId::ShortCircuit, 1.0),
+        (ParamId::Anticogging, 1.0),
+        (ParamId::EncoderLinearisation, 0.0),
     ] {
         v.push(Request::SetParam { id, value });
     }
@@ -740,6 +742,8 @@ fn requests() -> Vec<Request> {
         Calibration::Offsets,
         Calibration::Identification,
         Calibration::Alignment,
+        Calibration::Anticogging,
+        Calibration::EncoderLinearisation,
     ] {
         v.push(Request::RunCalibration(c));
     }
@@ -889,6 +893,9 @@ fn responses() -> Vec<Response> {
         (ParamId::AngleSource, 1.0),
         (ParamId::FieldWeakening, 1.0),
         (ParamId::MaxIdA, 15.138889),
+        (ParamId::Anticogging, 1.0),
+        (ParamId::AnticoggingPeakA, 0.3125),
+        (ParamId::EncoderCorrectionPeakRad, 0.0048828125),
     ] {
         v.push(Response::Param { id, value });
     }

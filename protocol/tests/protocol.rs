@@ -166,6 +166,8 @@ fn all_requests() -> Vec<Request> {
         Request::RunCalibration(Calibration::Offsets),
         Request::RunCalibration(Calibration::Identification),
         Request::RunCalibration(Calibration::Alignment),
+        Request::RunCalibration(Calibration::Anticogging),
+        Request::RunCalibration(Calibration::EncoderLinearisation),
         Request::ReadFaults,
         Request::ClearFaults,
         Request::ReadParam(ParamId::FluxLinkageWb),
@@ -477,7 +479,7 @@ fn request() -> impl Strategy<Value = Request> {
             timeout_periods: t,
             reaction: reaction_from_code(r).unwrap(),
         })),
-        (0u8..3).prop_map(|c| Request::RunCalibration(Calibration::from_code(c).unwrap())),
+        (0u8..5).prop_map(|c| Request::RunCalibration(Calibration::from_code(c).unwrap())),
         Just(Request::ReadFaults),
         Just(Request::ClearFaults),
         proptest::sample::select(ParamId::ALL.to_vec()).prop_map(Request::ReadParam),
@@ -1632,11 +1634,12 @@ fn a_stream_polled_every_20_periods_is_evenly_spaced_from_its_first_sample() {
     );
 }
 
-/// `SetParam` (the d-current reference's parameters, design §30): a
-/// parameter that is not writable points at `id`, a value it does not take
-/// (NaN, negative, a switch not 0 or 1, `max-id` beyond foc-core's bound)
-/// at `value`; both change nothing, nor does a drive that is not disabled;
-/// the rest reaches the context, whose refusal is the reply.
+/// `SetParam` (the d-current reference's parameters, design §30; the
+/// tables' switches, design §32, §33): a parameter that is not writable
+/// (the tables' peaks are read-only) points at `id`, a value it does not
+/// take (NaN, negative, a switch not 0 or 1, `max-id` beyond foc-core's
+/// bound) at `value`; both change nothing, nor does a drive that is not
+/// disabled; the rest reaches the context, whose refusal is the reply.
 #[test]
 fn set_param_checks_the_id_and_the_value_then_asks_the_drive() {
     let mut dev = DeviceState::new();
@@ -1647,7 +1650,12 @@ fn set_param_checks_the_id_and_the_value_then_asks_the_drive() {
             p.is_writable(),
             matches!(
                 p,
-                ParamId::FieldWeakening | ParamId::Mtpa | ParamId::MaxIdA | ParamId::ShortCircuit
+                ParamId::FieldWeakening
+                    | ParamId::Mtpa
+                    | ParamId::MaxIdA
+                    | ParamId::ShortCircuit
+                    | ParamId::Anticogging
+                    | ParamId::EncoderLinearisation
             ),
             "{p:?}"
         );
@@ -1664,6 +1672,10 @@ fn set_param_checks_the_id_and_the_value_then_asks_the_drive() {
         (set(ParamId::FieldWeakening, f32::NAN), 1),
         (set(ParamId::Mtpa, 2.0), 1),
         (set(ParamId::ShortCircuit, -1.0), 1),
+        (set(ParamId::AnticoggingPeakA, 0.0), 0),
+        (set(ParamId::EncoderCorrectionPeakRad, 0.0), 0),
+        (set(ParamId::Anticogging, 0.5), 1),
+        (set(ParamId::EncoderLinearisation, 2.0), 1),
     ] {
         assert_eq!(
             handle(&mut dev, &mut ctx, seq, r),
@@ -1691,6 +1703,8 @@ fn set_param_checks_the_id_and_the_value_then_asks_the_drive() {
         (ParamId::MaxIdA, 0.0),
         (ParamId::MaxIdA, 15.5),
         (ParamId::ShortCircuit, 1.0),
+        (ParamId::Anticogging, 1.0),
+        (ParamId::EncoderLinearisation, 0.0),
     ] {
         seq += 1;
         assert_eq!(
@@ -1708,4 +1722,63 @@ fn set_param_checks_the_id_and_the_value_then_asks_the_drive() {
         Response::Nack(ErrorCode::Unsupported)
     );
     assert_eq!(ctx.written, None);
+}
+
+/// `RunCalibration` of the sweeps (design §32, §33): routines 3 and 4 on
+/// the wire, judged like every calibration (started, disabled, not
+/// faulted), then handed to the drive, whose refusal (`NotCalibrated`,
+/// `Unsupported`: `Status::check_sweep`) is the reply.
+#[test]
+fn the_sweep_calibrations_are_routines_3_and_4_and_the_drive_decides() {
+    assert_eq!(Calibration::from_code(3), Some(Calibration::Anticogging));
+    assert_eq!(
+        Calibration::from_code(4),
+        Some(Calibration::EncoderLinearisation)
+    );
+    assert_eq!(Calibration::from_code(5), None);
+    assert_eq!(
+        Calibration::Anticogging.sweep(),
+        Some(foc_core::drive::Sweep::Cogging)
+    );
+    assert_eq!(Calibration::Identification.sweep(), None);
+    let mut dev = DeviceState::new();
+    let mut seq = 1;
+    for c in [Calibration::Anticogging, Calibration::EncoderLinearisation] {
+        let mut ctx = RecordingContext::default();
+        assert_eq!(
+            handle(&mut dev, &mut ctx, seq, Request::RunCalibration(c)),
+            Response::Ack
+        );
+        assert_eq!(ctx.calibration, Some(c));
+        for (refusal, code) in [
+            (
+                foc_protocol::Refusal::NotCalibrated,
+                ErrorCode::NotCalibrated,
+            ),
+            (foc_protocol::Refusal::Unsupported, ErrorCode::Unsupported),
+        ] {
+            seq += 1;
+            let mut ctx = RecordingContext {
+                refuse: Some(refusal),
+                ..Default::default()
+            };
+            assert_eq!(
+                handle(&mut dev, &mut ctx, seq, Request::RunCalibration(c)),
+                Response::Nack(code)
+            );
+            assert_eq!(ctx.calibration, None);
+        }
+        // Enabled: refused before the drive is asked.
+        seq += 1;
+        let mut ctx = RecordingContext {
+            mode: Mode::Velocity,
+            ..Default::default()
+        };
+        assert_eq!(
+            handle(&mut dev, &mut ctx, seq, Request::RunCalibration(c)),
+            Response::Nack(ErrorCode::NotDisabled)
+        );
+        assert_eq!(ctx.calibration, None);
+        seq += 1;
+    }
 }

@@ -95,14 +95,20 @@ pub trait DeviceContext {
     /// writable `id` and a `value` it accepts: [`ParamId::accepts`]): the
     /// d-current reference's, applied whole with the drive's rule
     /// (`foc_core::drive::check_field`: no field weakening on a coarse
-    /// angle sensor, nor with `max-id` 0: [`Refusal::Unsupported`]).
+    /// angle sensor, nor with `max-id` 0: [`Refusal::Unsupported`]); the
+    /// tables' switches (`anticogging`, `encoder-linearisation`: on
+    /// without a table is [`Refusal::NotCalibrated`]).
     /// Default: [`Refusal::Unsupported`].
     fn set_param(&mut self, id: ParamId, value: f32) -> Result<(), Refusal> {
         let _ = (id, value);
         Err(Refusal::Unsupported)
     }
     /// Start a calibration routine (only called while disabled and not
-    /// faulted); return [`Refusal::Busy`] if one is running.
+    /// faulted); return [`Refusal::Busy`] if one is running. A sweep
+    /// ([`Calibration::sweep`]: anticogging, encoder linearisation) is
+    /// judged with the drive's rule, `foc_core::drive::Status::check_sweep`
+    /// on the angle calibration in force ([`Refusal::NotCalibrated`],
+    /// [`Refusal::Unsupported`]).
     fn start_calibration(&mut self, routine: Calibration) -> Result<(), Refusal>;
     /// True once the drive may run closed loop (offsets and alignment done).
     fn is_calibrated(&self) -> bool;

@@ -23,7 +23,7 @@
 //! | 0x16 | `SetWatchdog` | `timeout_periods:u32` (0 = off), `reaction:u8` (0 disable, 1 stop, 2 hold; in impedance mode always damping, then disable) | `Ack` |
 //! | 0x17 | `SetJoint` | `gear_ratio:f32` (rotor turns per output turn, signed) `rotor_at_zero_rad:f32` (rot) `travel:u8` (0 none, 1 the range below) `travel_min_rad travel_max_rad` (f32, out; both +0.0 without travel) `fault_margin_rad` (rot) `brake_accel_rad_s2` (rot) `kv_a_per_rad_s` (A/(rad/s), rot) (f32) `entry_blend_periods:u32` `timeout_kd_nm_s_per_rad:f32` (rot) | `Ack` |
 //! | 0x18 | `SetParam` | `id:u8` (a writable [`ParamId`]: [`ParamId::is_writable`]) `value:f32` (its unit; an on/off parameter 0 or 1; checked with [`ParamId::accepts`]) | `Ack` (only while disabled) |
-//! | 0x20 | `RunCalibration` | `routine:u8` (0 offsets, 1 identification, 2 alignment) | `Ack` (started) |
+//! | 0x20 | `RunCalibration` | `routine:u8` (0 offsets, 1 identification, 2 alignment, 3 anticogging, 4 encoder linearisation) | `Ack` (started) |
 //! | 0x21 | `ReadFaults` | - | `Faults` |
 //! | 0x22 | `ClearFaults` | - | `Ack` |
 //! | 0x23 | `ReadParam` | `id:u8` ([`ParamId`]) | `Param` |
@@ -196,6 +196,16 @@ pub enum Calibration {
     Identification = 1,
     /// Angle-sensor direction, pole pairs and electrical zero.
     Alignment = 2,
+    /// The anticogging map (design §32): a slow sweep both ways on the
+    /// closed loop; the map is installed (switched on) and kept with the
+    /// configuration by the next save. Needs a calibrated drive and the
+    /// angle at low speed (`foc_core::drive::Status::check_sweep`).
+    Anticogging = 3,
+    /// The angle sensor's correction (design §33: encoder linearisation):
+    /// turns at a constant speed both ways; installed (switched on) and
+    /// kept by the next save. Needs a calibrated drive on a fine angle
+    /// sensor (not halls, not sensorless).
+    EncoderLinearisation = 4,
 }
 
 impl Calibration {
@@ -205,7 +215,18 @@ impl Calibration {
             0 => Some(Self::Offsets),
             1 => Some(Self::Identification),
             2 => Some(Self::Alignment),
+            3 => Some(Self::Anticogging),
+            4 => Some(Self::EncoderLinearisation),
             _ => None,
+        }
+    }
+
+    /// The sweep calibration this routine is (`None`: not a sweep).
+    pub const fn sweep(self) -> Option<foc_core::drive::Sweep> {
+        match self {
+            Self::Anticogging => Some(foc_core::drive::Sweep::Cogging),
+            Self::EncoderLinearisation => Some(foc_core::drive::Sweep::Encoder),
+            Self::Offsets | Self::Identification | Self::Alignment => None,
         }
     }
 }
@@ -302,7 +323,8 @@ param_ids! {
     /// The calibration running or last run: its step
     /// ([`progress_codes`]): 0 none, 1 current offsets, 2 resistance, 3
     /// inductance, 4 current-loop gains, 5 sensor alignment, 6 flux
-    /// linkage, 7 mechanics, 8 finished, 9 the angle sensor's check.
+    /// linkage, 7 mechanics, 8 finished, 9 the angle sensor's check, 10
+    /// anticogging, 11 encoder linearisation.
     CalibrationStep = 22, "calibration-step", "";
     /// How it stands ([`progress_codes`]): 0 none since reset, 1 running,
     /// 2 done, 3 aborted (by a fault or a `Disable`), 4 offsets rejected, 5
@@ -345,16 +367,35 @@ param_ids! {
     /// the back-EMF's peak exceeds the bus (design §30): 1 on, 0 off
     /// (freewheeling). Writable.
     ShortCircuit = 36, "short-circuit", "";
+    /// The anticogging feed-forward (design §32): 1 on, 0 off. Writable;
+    /// switching it on without a map (never measured, nor loaded with the
+    /// configuration) is refused `NotCalibrated`.
+    Anticogging = 37, "anticogging", "";
+    /// The angle sensor's correction (design §33, encoder
+    /// linearisation): 1 on, 0 off. Writable; on without a correction is
+    /// refused `NotCalibrated`.
+    EncoderLinearisation = 38, "encoder-linearisation", "";
+    /// The anticogging map's largest feed-forward \[A\] (0: no map).
+    AnticoggingPeakA = 39, "anticogging-peak", "A";
+    /// The angle correction's largest correction [rad, mechanical] (0:
+    /// none).
+    EncoderCorrectionPeakRad = 40, "encoder-correction-peak", "rad";
 }
 
 impl ParamId {
     /// True for the parameters [`Request::SetParam`] writes: the
     /// d-current reference's (design §30), whole in the drive's
-    /// `FieldConfig`.
+    /// `FieldConfig`, and the switches of the tables kept with the
+    /// configuration (design §32, §33).
     pub const fn is_writable(self) -> bool {
         matches!(
             self,
-            ParamId::FieldWeakening | ParamId::Mtpa | ParamId::MaxIdA | ParamId::ShortCircuit
+            ParamId::FieldWeakening
+                | ParamId::Mtpa
+                | ParamId::MaxIdA
+                | ParamId::ShortCircuit
+                | ParamId::Anticogging
+                | ParamId::EncoderLinearisation
         )
     }
 
@@ -362,7 +403,11 @@ impl ParamId {
     pub const fn is_switch(self) -> bool {
         matches!(
             self,
-            ParamId::FieldWeakening | ParamId::Mtpa | ParamId::ShortCircuit
+            ParamId::FieldWeakening
+                | ParamId::Mtpa
+                | ParamId::ShortCircuit
+                | ParamId::Anticogging
+                | ParamId::EncoderLinearisation
         )
     }
 
@@ -375,9 +420,11 @@ impl ParamId {
     pub fn accepts(self, value: f32) -> bool {
         use foc_core::control::field::FieldConfig;
         match self {
-            ParamId::FieldWeakening | ParamId::Mtpa | ParamId::ShortCircuit => {
-                value == 0.0 || value == 1.0
-            }
+            ParamId::FieldWeakening
+            | ParamId::Mtpa
+            | ParamId::ShortCircuit
+            | ParamId::Anticogging
+            | ParamId::EncoderLinearisation => value == 0.0 || value == 1.0,
             ParamId::MaxIdA => FieldConfig {
                 max_id_a: value,
                 ..FieldConfig::OFF
@@ -541,7 +588,7 @@ pub enum Request {
     /// entry and timeout (see [`crate::joint`] for the frames).
     SetJoint(JointSettings),
     /// Write a parameter ([`ParamId::is_writable`]: the d-current
-    /// reference's; only while disabled).
+    /// reference's, the tables' switches; only while disabled).
     SetParam {
         /// Which parameter.
         id: ParamId,
