@@ -48,6 +48,9 @@ pub fn log(e: &Event, period: u32) -> Option<IdentificationResult> {
         Event::IdentificationAborted(f, st) => {
             defmt::error!("identification aborted in {}: fault {}", st, f)
         }
+        Event::IndexFound { travel_rad } => {
+            defmt::info!("encoder index found after {=f32} rad", travel_rad)
+        }
         Event::EncoderLinearised { peak_rad, periods } => {
             defmt::info!(
                 "angle sensor linearised: peak {=f32} rad in {=u32} periods",

@@ -157,6 +157,12 @@ pub trait AngleSensor {
     fn velocity_rad_s(&mut self) -> Option<f32> {
         None
     }
+
+    /// The reading latched at the encoder's index pulse since the last
+    /// call, if it pulsed (design §33). The default: no index.
+    fn take_index(&mut self) -> Option<MechanicalAngle> {
+        None
+    }
 }
 
 /// DC-bus voltage (and temperature where the board has it).

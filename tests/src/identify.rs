@@ -255,7 +255,8 @@ fn drive(
             | Event::IdentificationStarted
             | Event::CalibrationRestored
             | Event::CoggingMeasured { .. }
-            | Event::EncoderLinearised { .. } => {}
+            | Event::EncoderLinearised { .. }
+            | Event::IndexFound { .. } => {}
             Event::Identified(result) => {
                 let c = sim.cascade.current.config();
                 // The permit the stage holds now, as a value.

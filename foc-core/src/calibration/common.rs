@@ -168,6 +168,9 @@ pub enum CalError {
     /// Too few usable windows for the mechanical fit, or windows that do
     /// not separate inertia, viscous and Coulomb friction.
     MechanicsIllConditioned,
+    /// The encoder's index did not pulse within the index search's travel
+    /// (design §33): no index, a broken index line, or the wrong sensor.
+    IndexNotFound,
 }
 
 /// Closed-loop measurements for [`CalStep::Velocity`] and [`CalStep::Torque`]

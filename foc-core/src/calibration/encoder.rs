@@ -477,7 +477,8 @@ mod tests {
     /// current is held), read through a sensor with `e(theta) = 0.005 sin
     /// theta + 0.0017 sin(2 theta + 0.4)` and a reading delay.
     fn run(cal: &mut EncoderCalibration, stuck: bool) -> CalStep<()> {
-        let (mut theta, mut w, mut held) = (0.3f64, 0.0f64, false);
+        let (mut theta, mut w) = (0.3f64, 0.0f64);
+        let mut held;
         for n in 0..10_000_000u32 {
             let e = 0.005 * theta.sin() + 0.0017 * (2.0 * theta + 0.4).sin();
             let reading = MechanicalAngle::from_radians((theta + e) as f32);

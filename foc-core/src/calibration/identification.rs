@@ -209,6 +209,8 @@ pub enum Step {
     /// The angle sensor's correction (design §33): its own request
     /// (`ConfigChange::calibrate_encoder`), never part of the sequence.
     Encoder,
+    /// The incremental encoder's index search at start-up (design §33).
+    IndexSearch,
     /// Finished successfully.
     Done,
 }

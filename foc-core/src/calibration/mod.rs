@@ -13,6 +13,7 @@
 //!   without an angle sensor.
 //! - [`mechanics`]: inertia, viscous and Coulomb friction from torque pulses.
 //! - [`cogging`]: the anticogging map from a slow sweep in both directions.
+//! - [`index`]: the incremental encoder's index, found at start-up.
 //! - [`encoder`]: the angle sensor's error from turns at a steady speed.
 //! - [`gains`]: current-loop gains from the measured values (technical optimum).
 //! - [`permit`]: [`Calibrated`], the proof that closed-loop modes may start.
@@ -46,6 +47,7 @@ pub mod field_flux;
 pub mod flux;
 pub mod gains;
 pub mod identification;
+pub mod index;
 pub mod inductance;
 pub mod mechanics;
 pub mod offsets;

@@ -241,6 +241,8 @@ pub struct Cascade {
     life: Lifecycle,
     slot: CommandSlot,
     change: Option<ConfigChange>,
+    /// The encoder's index reading for the next step (design §33).
+    index: Option<crate::angle::MechanicalAngle>,
     iq_ref_a: f32,
     w_ref: VelocityRef,
     output: Option<Output>,
@@ -290,6 +292,7 @@ impl Cascade {
             life,
             slot: CommandSlot::INIT,
             change: None,
+            index: None,
             iq_ref_a: 0.0,
             w_ref: VelocityRef::default(),
             output: None,
@@ -415,6 +418,17 @@ impl Cascade {
         &self.life
     }
 
+    /// The lifecycle, to configure it (e.g. its index search, design §33).
+    pub fn lifecycle_mut(&mut self) -> &mut Lifecycle {
+        &mut self.life
+    }
+
+    /// The reading the encoder latched at its index pulse, for the next
+    /// step (what `AngleSensor::take_index` gives the firmware's drive).
+    pub fn set_index(&mut self, index: Option<crate::angle::MechanicalAngle>) {
+        self.index = index;
+    }
+
     /// Ask for a configuration change (applied, or refused whole, at the
     /// start of the next step: see [`Self::last_output`]'s `change`).
     pub fn request(&mut self, change: ConfigChange) {
@@ -516,6 +530,7 @@ impl Cascade {
         let change = self.change.take();
         let mut inputs = Inputs::new(self.slot, self.iq_ref_a);
         inputs.change = change.as_ref();
+        inputs.index = self.index.take();
         let out = self
             .life
             .step(&mut self.current, &inputs, sample, &mut self.feedback);

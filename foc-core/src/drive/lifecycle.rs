@@ -27,9 +27,11 @@ use super::encoder::{EncoderOutcome, EncoderRun};
 use super::identify::{Identifier, Outcome};
 use super::rules::{ConfigChange, Refusal, Status};
 use super::{AngleKind, Progress};
+use crate::angle::MechanicalAngle;
 use crate::calibration::identification::{IdentificationConfig, IdentificationResult, Step};
+use crate::calibration::index::{IndexSearch, IndexSearchConfig};
 use crate::calibration::offsets::{OffsetCalibrator, OffsetError, OffsetLimits, OffsetStep};
-use crate::calibration::CalError;
+use crate::calibration::{CalError, CalInput, CalStep};
 use crate::control::permit::Calibrated;
 use crate::control::stage::{CurrentStage, Sample};
 use crate::control::{BridgeCommand, Command, CommandSlot, Fault, Feedback, Mechanics};
@@ -43,8 +45,11 @@ pub enum LifePhase {
     OffsetCalibration,
     /// Checking that the angle sensor answers (consecutive good reads).
     SensorCheck(u32),
-    /// Motor identification (R, L, gains, alignment, flux linkage).
+    /// Motor identification (R, L, gains, alignment, flux linkage), and
+    /// the anticogging and encoder calibrations.
     Identify,
+    /// Turning slowly until the encoder's index pulses (design §33).
+    IndexSearch,
     /// Control running (the current stage decides; disabled until told).
     Run,
 }
@@ -87,6 +92,9 @@ pub struct Inputs<'a> {
     pub change: Option<&'a ConfigChange>,
     /// The power stage reported a fault (timer break, gate driver).
     pub gate_fault: bool,
+    /// The angle sensor's reading latched at its index pulse this period
+    /// (`AngleSensor::take_index`; design §33).
+    pub index: Option<MechanicalAngle>,
 }
 
 impl Inputs<'_> {
@@ -97,6 +105,7 @@ impl Inputs<'_> {
             iq_ref_a,
             change: None,
             gate_fault: false,
+            index: None,
         }
     }
 }
@@ -126,6 +135,12 @@ pub enum Event {
     IdentificationFailed(CalError, Step),
     /// Stopped by a fault, or by an operator `Disable` (`None`).
     IdentificationAborted(Option<Fault>, Step),
+    /// The encoder's index was found (design §33); its reading is the
+    /// zero of every reading from now on.
+    IndexFound {
+        /// How far the rotor turned to find it \[rad\] (mechanical, signed).
+        travel_rad: f32,
+    },
     /// The anticogging map is measured and installed (design §32).
     CoggingMeasured {
         /// Its largest feed-forward \[A\].
@@ -180,6 +195,12 @@ pub struct Lifecycle {
     cogging: Option<CoggingRun>,
     /// The encoder linearisation, while it runs (design §33).
     encoder: Option<EncoderRun>,
+    /// The index search's settings (design §33; `None`: no index).
+    index_search: Option<IndexSearchConfig>,
+    /// The index search, while it runs, and its private mailbox.
+    index_run: Option<(IndexSearch, CommandSlot)>,
+    /// The index's reading, once found: taken off every reading.
+    index_offset: Option<MechanicalAngle>,
     /// The operator's command number when the identification started.
     identify_seq: u32,
     identified: Option<IdentificationResult>,
@@ -254,6 +275,9 @@ impl Lifecycle {
             identifier: None,
             cogging: None,
             encoder: None,
+            index_search: None,
+            index_run: None,
+            index_offset: None,
             identify_seq: 0,
             identified: None,
             report: Progress::Idle,
@@ -302,6 +326,9 @@ impl Lifecycle {
         if self.encoder.is_some() {
             return Some(Step::Encoder);
         }
+        if self.index_run.is_some() {
+            return Some(Step::IndexSearch);
+        }
         self.identifier.map(|i| i.current_step())
     }
 
@@ -330,6 +357,7 @@ impl Lifecycle {
                 Progress::Running(self.identification_step().unwrap_or(Step::Resistance))
             }
             LifePhase::SensorCheck(_) => Progress::SensorCheck,
+            LifePhase::IndexSearch => Progress::Running(Step::IndexSearch),
             LifePhase::Run => self.report,
         }
     }
@@ -372,6 +400,19 @@ impl Lifecycle {
         fb: &mut Feedback,
         out: &mut Output,
     ) {
+        // Referred to the encoder's index once it is found (design §33):
+        // every use of the reading below sees the index as its zero.
+        let rebased;
+        let s = match self.index_offset {
+            Some(zero) => {
+                rebased = Sample {
+                    angle: s.angle.map(|a| a.wrapping_sub(zero)),
+                    ..*s
+                };
+                &rebased
+            }
+            None => s,
+        };
         // The operator's clear first: a fault found this period (power
         // stage, link watchdog) is latched after it and stays latched.
         if self.phase == LifePhase::Run {
@@ -398,6 +439,7 @@ impl Lifecycle {
             LifePhase::OffsetCalibration => self.step_offsets(stage, s, out),
             LifePhase::SensorCheck(n) => self.step_sensor_check(stage, inp, s, n, out),
             LifePhase::Identify => self.step_identify(stage, inp, s, out, fb),
+            LifePhase::IndexSearch => self.step_index_search(stage, inp, s, out, fb),
             LifePhase::Run => {
                 out.bridge = stage.step_into(&inp.command, inp.iq_ref_a, s, fb);
             }
@@ -613,6 +655,97 @@ impl Lifecycle {
         out.event = Some(Event::IdentificationStarted);
     }
 
+    /// Search the encoder's index at every start-up, after the sensor
+    /// check and before a stored calibration is taken (design §33); `None`:
+    /// no index. A stored electrical zero of an incremental encoder then
+    /// applies (it is referred to the index).
+    pub fn set_index_search(&mut self, c: Option<IndexSearchConfig>) {
+        self.index_search = c;
+    }
+
+    /// The index's reading, once found (the zero of every reading since).
+    pub fn index_offset(&self) -> Option<MechanicalAngle> {
+        self.index_offset
+    }
+
+    fn start_index_search(&mut self, c: IndexSearchConfig, operator: &CommandSlot) {
+        let mut slot = *operator;
+        slot.seq = operator.seq.wrapping_add(0x4000_0000);
+        slot.command = Command::Disable;
+        self.index_run = Some((IndexSearch::new(c), slot));
+        self.phase = LifePhase::IndexSearch;
+    }
+
+    /// The index search's period: the field through the stage's open loop
+    /// (a private mailbox); once the index pulses, its reading becomes the
+    /// readings' zero and start-up goes on (next period) where the sensor
+    /// check left it, with the stored calibration now valid.
+    fn step_index_search(
+        &mut self,
+        stage: &mut CurrentStage,
+        inp: &Inputs,
+        s: &Sample,
+        out: &mut Output,
+        fb: &mut Feedback,
+    ) {
+        let Some((search, slot)) = self.index_run.as_mut() else {
+            return;
+        };
+        let step = match (s.currents, s.angle, s.v_bus_v) {
+            (Some(c), Some(a), Some(v)) => {
+                Some(search.step(&CalInput::open_loop(c.to_abc(), a, v), inp.index))
+            }
+            // A failed read: the stage trips on it below.
+            _ => None,
+        };
+        let ended = match step {
+            Some(CalStep::Apply { v_dq, theta_e }) => {
+                slot.post(Command::OpenLoop {
+                    v_d_v: v_dq.d,
+                    v_q_v: v_dq.q,
+                    theta_e,
+                    omega_e_rad_s: 0.0,
+                });
+                None
+            }
+            Some(CalStep::Done(zero)) => Some(Ok((zero, search.travel_rad()))),
+            Some(CalStep::Failed(e)) => Some(Err(e)),
+            _ => None,
+        };
+        if ended.is_some() {
+            slot.post(Command::Disable);
+        }
+        let (b, f) = stage.step(slot, inp.iq_ref_a, s);
+        out.bridge = b;
+        *fb = f;
+        match ended {
+            None => {
+                if let Some(fault) = f.first_fault {
+                    self.index_run = None;
+                    self.report = Progress::Aborted(Some(fault), Step::IndexSearch);
+                    out.event = Some(Event::IdentificationAborted(Some(fault), Step::IndexSearch));
+                    self.enter_run(stage);
+                    stage.report_fault(fault);
+                }
+            }
+            Some(Ok((zero, travel_rad))) => {
+                self.index_run = None;
+                self.index_offset = Some(zero);
+                out.event = Some(Event::IndexFound { travel_rad });
+                // Start-up goes on from the end of the sensor check.
+                self.phase = LifePhase::SensorCheck(self.config.sensor_check_reads);
+            }
+            Some(Err(e)) => {
+                self.index_run = None;
+                // Into `Run` first: entering it resets the stage.
+                self.enter_run(stage);
+                stage.report_fault(Fault::CalibrationFailed);
+                self.report = Progress::Failed(e, Step::IndexSearch);
+                out.event = Some(Event::IdentificationFailed(e, Step::IndexSearch));
+            }
+        }
+    }
+
     fn start_encoder(
         &mut self,
         stage: &mut CurrentStage,
@@ -674,6 +807,8 @@ impl Lifecycle {
             out.event = Some(Event::SensorCheckFailed);
         } else if n.saturating_add(1) < self.config.sensor_check_reads {
             self.phase = LifePhase::SensorCheck(n + 1);
+        } else if let (Some(c), None) = (self.index_search, self.index_offset) {
+            self.start_index_search(c, &inp.command);
         } else if let Some(p) = self.stored_permit() {
             stage.set_calibration(&p);
             self.enter_run(stage);
@@ -692,9 +827,11 @@ impl Lifecycle {
     /// one made without a sensor always (it has no zero to lose; it
     /// unlocks the closed loop only while the drive runs sensorless).
     fn stored_permit(&self) -> Option<Calibrated> {
-        self.config
-            .stored
-            .filter(|p| self.config.angle_kind.zero_survives_reset() || p.angle().sensorless_only)
+        self.config.stored.filter(|p| {
+            self.config.angle_kind.zero_survives_reset()
+                || self.index_offset.is_some()
+                || p.angle().sensorless_only
+        })
     }
 
     /// From the start-up phases (bridge off, stage not stepped) to `Run`:

@@ -52,6 +52,7 @@ where
             iq_ref_a: mail.iq_ref_a,
             change: mail.change.as_ref(),
             gate_fault: mail.gate_fault,
+            index: None,
         };
         let out = self.step(&inputs, feedback);
         if mail.change.is_some() {

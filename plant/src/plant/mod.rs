@@ -132,6 +132,10 @@ pub struct Measurements {
     pub currents: PhaseCurrents,
     /// Encoder reading.
     pub angle: MechanicalAngle,
+    /// The encoder's reading latched at its index pulse, when the rotor
+    /// passed the index mark during the period that just ended
+    /// ([`Plant::set_encoder_index`]; `None` without a mark).
+    pub index: Option<MechanicalAngle>,
     /// Bus voltage \[V\] as the ADC reads it.
     pub v_bus_v: f32,
     /// Power-stage temperature [deg C] as the board's sensor reads it: `Some`
@@ -229,6 +233,11 @@ pub struct Plant {
     sensor_zero_m_rad: Real,
     /// The angle sensor's error over a turn (off by default).
     sensor_error: Option<SensorError>,
+    /// The encoder's index mark: the rotor's mechanical angle at which it
+    /// pulses \[rad\] (`None`: no index).
+    encoder_index_m_rad: Option<Real>,
+    /// The unwrapped position at the last sample (the index's crossing).
+    index_last_pos_rad: Real,
     /// Cogging torque (off by default).
     cogging: Option<Cogging>,
     time_s: f64,
@@ -279,6 +288,8 @@ impl Plant {
             angle_sensor: AngleSensorKind::Incremental,
             sensor_zero_m_rad: 0.0,
             sensor_error: None,
+            encoder_index_m_rad: None,
+            index_last_pos_rad: 0.0,
             cogging: None,
             time_s: 0.0,
             period: 0,

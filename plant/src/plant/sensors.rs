@@ -64,6 +64,7 @@ impl Plant {
         self.last_encoder_counts = counts as u32;
         let bits = ((counts as u128) << 32) / cpr as u128;
         let angle = MechanicalAngle::from_bits(bits as u32);
+        let index = self.index_crossed();
 
         // Bus voltage.
         let lsb_v = s.bus_full_scale_v / levels;
@@ -73,10 +74,52 @@ impl Plant {
         Measurements {
             currents,
             angle,
+            index,
             v_bus_v: (vc * lsb_v) as f32,
             stage_temperature_c: self.stage_thermal.map(|_| self.t_stage_c as f32),
             time_s: self.time_s,
             period: self.period,
         }
+    }
+
+    /// The encoder's index mark at `theta_m_rad` (mechanical, the rotor's
+    /// angle at which it pulses; `None`: no index).
+    pub fn set_encoder_index(&mut self, theta_m_rad: Option<Real>) {
+        self.encoder_index_m_rad = theta_m_rad;
+        self.index_last_pos_rad = self.position_rad();
+    }
+
+    /// The reading the encoder latches at its index pulse, when the rotor
+    /// crossed the mark since the last sample (either way): the count at
+    /// the mark, through the same direction, offset and sensor error as
+    /// the reading.
+    fn index_crossed(&mut self) -> Option<MechanicalAngle> {
+        let mark = self.encoder_index_m_rad?;
+        let (from, to) = (self.index_last_pos_rad, self.position_rad());
+        self.index_last_pos_rad = to;
+        let k_from = real::floor((from - mark) / TAU);
+        let k_to = real::floor((to - mark) / TAU);
+        if k_from == k_to {
+            return None;
+        }
+        let s = self.cfg.sensors;
+        let cpr = s.encoder_counts_per_rev.max(1);
+        let dir = if self.faults.encoder_reversed {
+            -1.0
+        } else {
+            1.0
+        };
+        let error = match (self.sensor_error, self.angle_sensor) {
+            (None, _) => 0.0,
+            (Some(e), AngleSensorKind::Absolute { .. }) => e.error_rad(mark),
+            (Some(e), AngleSensorKind::Incremental) => {
+                e.error_rad(mark) - e.error_rad(self.sensor_zero_m_rad)
+            }
+        };
+        let turns = (dir * (mark + error - self.sensor_zero_m_rad) - s.encoder_offset_rad) / TAU;
+        let frac = turns - real::floor(turns);
+        let counts = (real::floor(frac * cpr as Real) as i64).rem_euclid(cpr as i64);
+        let bits = ((counts as u128) << 32) / cpr as u128;
+        Some(MechanicalAngle::from_bits(bits as u32))
     }
 }

@@ -24,7 +24,7 @@ use foc_core::drive::Progress;
 pub const FAILED_BASE: u8 = 32;
 
 /// Step names by `calibration-step` code.
-pub const STEP_NAMES: [&str; 12] = [
+pub const STEP_NAMES: [&str; 13] = [
     "none",
     "current offsets",
     "resistance",
@@ -37,6 +37,7 @@ pub const STEP_NAMES: [&str; 12] = [
     "sensor check",
     "anticogging",
     "encoder linearisation",
+    "index search",
 ];
 
 /// The words for the `calibration-result` codes below [`FAILED_BASE`].
@@ -51,7 +52,7 @@ pub const RESULT_NAMES: [&str; 6] = [
 
 /// Failure reasons by number (`CalError`'s variants, in order): a
 /// failure's result code is [`FAILED_BASE`] plus the number.
-pub const FAILURE_REASONS: [&str; 21] = [
+pub const FAILURE_REASONS: [&str; 22] = [
     "InvalidInput",
     "InvalidConfig",
     "OverCurrent",
@@ -73,6 +74,7 @@ pub const FAILURE_REASONS: [&str; 21] = [
     "InertiaOutOfRange",
     "FrictionOutOfRange",
     "MechanicsIllConditioned",
+    "IndexNotFound",
 ];
 
 const fn step_code(s: Step) -> u8 {
@@ -86,6 +88,7 @@ const fn step_code(s: Step) -> u8 {
         Step::Done => 8,
         Step::Cogging => 10,
         Step::Encoder => 11,
+        Step::IndexSearch => 12,
     }
 }
 
@@ -113,6 +116,7 @@ pub const fn failure_code(e: CalError) -> u8 {
         CalError::InertiaOutOfRange => 18,
         CalError::FrictionOutOfRange => 19,
         CalError::MechanicsIllConditioned => 20,
+        CalError::IndexNotFound => 21,
     }
 }
 
