@@ -381,3 +381,89 @@ fn the_d_current_reference_reaches_the_simulated_drive_and_survives_a_power_cycl
         before
     );
 }
+
+/// Run the simulated drive until the calibration it runs ends (at most
+/// `max_s` simulated seconds): how it ended.
+fn calibration_end(d: &mut foc_ctl::sim::HostDrive, max_s: f32) -> foc_core::drive::Progress {
+    use foc_core::drive::Progress;
+    for _ in 0..(max_s * 10.0) as u32 {
+        d.step_periods(d.pwm_hz() / 10);
+        let p = d.status().calibration;
+        if !matches!(p, Progress::Running(_)) {
+            return p;
+        }
+    }
+    d.status().calibration
+}
+
+/// The tables take the firmware's path on the simulated drive (design
+/// §32, §33): each calibration, asked over the link, measures its table
+/// in the stage, which becomes the one in force (a save stores it);
+/// after a power cycle the stored tables are in the stage before the
+/// first period; a switch written over the link reaches the stage at
+/// once (outside the period's mailbox); a record applied over the link
+/// brings its tables; refusals are the drive's rule.
+#[test]
+fn the_tables_reach_the_simulated_drive_and_come_back_with_a_save() {
+    use foc_core::drive::Progress;
+    use foc_ctl::sim::{HostDrive, Options};
+    use foc_protocol::device::{DeviceContext, WatchdogConfig};
+    use foc_protocol::message::Calibration;
+    use foc_store::settings::Tables;
+    let stage_tables = |d: &HostDrive| Tables::of_stage(&d.sim.cascade.current);
+    let gl80 = foc_bench::mission::Setup::load(repo().join("tests/motors/gl80-kv30.toml")).unwrap();
+    let mut d = HostDrive::with_options(Options::simulator(gl80), Default::default());
+    // Uncalibrated: refused at once, nothing asked of the drive.
+    d.start_up();
+    assert_eq!(
+        d.start_calibration(Calibration::Anticogging),
+        Err(foc_protocol::Refusal::NotCalibrated)
+    );
+    assert_eq!(
+        d.set_param(ParamId::Anticogging, 1.0),
+        Err(foc_protocol::Refusal::NotCalibrated)
+    );
+    assert!(d.calibrate_from_bench());
+    // The anticogging map, then the angle correction.
+    d.start_calibration(Calibration::Anticogging).unwrap();
+    assert_eq!(calibration_end(&mut d, 60.0), Progress::Done);
+    assert!(d.tables().cogging.enabled && d.tables().has_cogging());
+    assert_eq!(d.tables().cogging, *d.sim.cascade.current.cogging());
+    d.start_calibration(Calibration::EncoderLinearisation)
+        .unwrap();
+    assert_eq!(calibration_end(&mut d, 30.0), Progress::Done);
+    let measured = stage_tables(&d);
+    assert!(measured.has_angle_correction() && measured.angle_correction.enabled);
+    assert_eq!(*d.tables(), measured);
+    let peak = d.param(ParamId::AnticoggingPeakA).unwrap();
+    assert!(peak > 0.0 && peak == measured.cogging.peak_a(), "{peak}");
+    // Saved: the record holds them; power-cycled: in the stage before the
+    // first period.
+    d.with_link(|l| l.store(StoreOp::Save, &[], WatchdogConfig::OFF))
+        .unwrap();
+    let saved = d.stored_record().unwrap().unwrap();
+    assert_eq!(Tables::of_record(&saved), measured);
+    d.power_cycle();
+    assert_eq!(d.periods(), 0);
+    assert_eq!(stage_tables(&d), measured);
+    assert_eq!(d.param(ParamId::EncoderLinearisation), Some(1.0));
+    // A switch over the link: in the stage at once, no period needed.
+    d.start_up();
+    d.set_param(ParamId::Anticogging, 0.0).unwrap();
+    assert!(!d.sim.cascade.current.cogging().enabled);
+    assert_eq!(d.param(ParamId::Anticogging), Some(0.0));
+    // A record without tables applied over the link: none in the stage.
+    let mut bare = saved.clone();
+    bare.cogging = None;
+    bare.angle_correction = None;
+    let mut buf = [0u8; foc_store::MAX_RECORD_BYTES];
+    let n = bare.encode(&mut buf).unwrap();
+    d.with_link(|l| l.store(StoreOp::Apply, &buf[..n], WatchdogConfig::OFF))
+        .unwrap();
+    assert_eq!(stage_tables(&d), Tables::NONE);
+    // And back with them.
+    let n = saved.encode(&mut buf).unwrap();
+    d.with_link(|l| l.store(StoreOp::Apply, &buf[..n], WatchdogConfig::OFF))
+        .unwrap();
+    assert_eq!(stage_tables(&d), measured);
+}

@@ -18,12 +18,16 @@
 //! | calibration `alignment` alone | always: it is part of `identification` | `Unsupported` |
 //! | calibration `identification` | the board cannot identify on command | `Unsupported` |
 //! | joint | the pending position command's target outside the new travel range | `NotDisabled` |
+//! | limits | `max_current_a` below the anticogging map's peak (the record would not be saved) | `Unsupported` |
 //! | a d-current reference parameter | the reference it makes is one the drive refuses (`foc_core::drive::check_field`: field weakening on a coarse angle sensor such as halls, or with `max-id` 0 or no bandwidth) | `Unsupported` |
+//! | `anticogging`, `encoder-linearisation` on | no such table (never measured, nor loaded) | `NotCalibrated` |
+//! | a table's switch | a command posted and not yet taken | `NotDisabled` |
+//! | calibration `anticogging`, `encoder linearisation` | the drive's rule (`foc_core::drive::Status::check_sweep` on the angle calibration in force): uncalibrated; halls, or sensorless (without injection, for the map) | `NotCalibrated` / `Unsupported` |
 //! | store operations | not quiet (see [`Link::quiet`]) | `NotDisabled` / `Busy` |
 //! | apply a record | the board does not take it ([`crate::records::admit`]) | `BadRecord` |
 
 use crate::mailbox::Outbox;
-use crate::records::{admit, link_setting, store_error, RecordStore};
+use crate::records::{admit, admit_tables, link_setting, store_error, RecordStore};
 use crate::service::Service;
 use crate::snapshot::Snapshot;
 use crate::view::View;
@@ -119,8 +123,10 @@ impl<'a, S: RecordStore> Link<'a, S> {
             crate::log_warn!("store: record refused: {}", e);
             ErrorCode::BadRecord
         })?;
-        let change = self.service.adopt(s, rec.label.clone());
+        let t = admit_tables(self.service.board(), rec);
+        let change = self.service.adopt(s, t, rec.label.clone());
         self.out.config.merge(&change);
+        self.out.tables = true;
         Ok(link_setting(rec))
     }
 
@@ -171,6 +177,30 @@ impl<'a, S: RecordStore> Link<'a, S> {
         Ok(())
     }
 
+    /// Switch a table (design §32, §33) on or off: not on without one
+    /// (`NotCalibrated`: calibrate first), not with a command waiting in
+    /// the mailbox (`NotDisabled`: the owner installs the tables with the
+    /// bridge off).
+    fn set_table_switch(&mut self, id: ParamId, on: bool) -> Result<(), Refusal> {
+        if self.snap.pending.command != Command::Disable {
+            return Err(Refusal::NotDisabled);
+        }
+        let t = self.service.tables_mut();
+        let (held, enabled) = match id {
+            ParamId::Anticogging => (t.has_cogging(), &mut t.cogging.enabled),
+            ParamId::EncoderLinearisation => {
+                (t.has_angle_correction(), &mut t.angle_correction.enabled)
+            }
+            _ => return Err(Refusal::Unsupported),
+        };
+        if on && !held {
+            return Err(Refusal::NotCalibrated);
+        }
+        *enabled = on;
+        self.out.tables = true;
+        Ok(())
+    }
+
     /// The travel range of `joint` in the rotor frame on `limits`.
     fn joint_change(joint: &JointSetup, limits: &Limits) -> foc_core::drive::JointChange {
         joint.rotor_change((limits.min_position_rad, limits.max_position_rad))
@@ -215,6 +245,12 @@ impl<S: RecordStore> DeviceContext for Link<'_, S> {
             .sensorless
             .is_some_and(|sl| sl.start_current_a > limits.max_current_a)
         {
+            return Err(Refusal::Unsupported);
+        }
+        // Nor an anticogging map larger than the new limit (the record
+        // checks it against the limit, as the stage does).
+        if self.service.tables().cogging.peak_a() > limits.max_current_a {
+            crate::log_warn!("limits: refused: below the anticogging map's peak");
             return Err(Refusal::Unsupported);
         }
         let s = self.service.settings_mut();
@@ -308,9 +344,12 @@ impl<S: RecordStore> DeviceContext for Link<'_, S> {
         Ok(())
     }
     fn set_param(&mut self, id: ParamId, value: f32) -> Result<(), Refusal> {
+        let on = value == 1.0;
+        if matches!(id, ParamId::Anticogging | ParamId::EncoderLinearisation) {
+            return self.set_table_switch(id, on);
+        }
         // One setting of the reference in force; the whole is judged.
         let mut f = self.service.settings().field;
-        let on = value == 1.0;
         match id {
             ParamId::FieldWeakening => f.field_weakening = on,
             ParamId::Mtpa => f.mtpa = on,
@@ -333,6 +372,19 @@ impl<S: RecordStore> DeviceContext for Link<'_, S> {
             // Alignment alone is part of the identification sequence.
             Calibration::Identification | Calibration::Alignment => {
                 return Err(Refusal::Unsupported)
+            }
+            // The sweeps: the drive's own rule, on the angle calibration
+            // in force, for the immediate answer (the drive judges the
+            // request again when it takes it).
+            Calibration::Anticogging | Calibration::EncoderLinearisation => {
+                let angle = self.service.settings().angle;
+                let sweep = routine.sweep().ok_or(Refusal::Unsupported)?;
+                self.view().status().check_sweep(sweep, &angle)?;
+                ConfigChange {
+                    calibrate_cogging: routine == Calibration::Anticogging,
+                    calibrate_encoder: routine == Calibration::EncoderLinearisation,
+                    ..ConfigChange::default()
+                }
             }
         };
         self.change(change);

@@ -1,7 +1,8 @@
 //! What a frame asks of the drive, gathered while it is handled and
-//! handed over after: the command part ([`Outbox::post`], a fault clear)
-//! and the configuration part ([`ConfigMailbox`], one part per loop that
-//! owns it).
+//! handed over after: the command part ([`Outbox::post`], a fault clear),
+//! the configuration part ([`ConfigMailbox`], one part per loop that
+//! owns it) and the tables ([`Outbox::tables`]: too large for a
+//! mailbox, installed by the owner outside the period).
 
 use foc_core::control::position::PositionLoopConfig;
 use foc_core::control::speed::SpeedLoopConfig;
@@ -43,8 +44,9 @@ impl ConfigMailbox {
 
     /// A calibration request is waiting for the current loop.
     pub fn calibration_pending(&self) -> bool {
-        self.current
-            .is_some_and(|c| c.identify || c.calibrate_offsets)
+        self.current.is_some_and(|c| {
+            c.identify || c.calibrate_offsets || c.calibrate_cogging || c.calibrate_encoder
+        })
     }
 
     /// Nothing pending.
@@ -63,6 +65,13 @@ pub struct Outbox {
     pub clear: bool,
     /// Configuration changes.
     pub config: ConfigMailbox,
+    /// The tables in force changed (a record applied, a switch written):
+    /// the owner installs the service's tables in the current stage
+    /// ([`crate::Service::install_tables`]) outside the period, with the
+    /// bridge off (on a board under the drive's lock from its low
+    /// priority: a copy of 1.5 KB is more than a period's mailbox may
+    /// cost the interrupt).
+    pub tables: bool,
 }
 
 impl Outbox {
@@ -97,5 +106,6 @@ impl Outbox {
         self.post = later.post.or(self.post);
         self.clear |= later.clear;
         self.config.merge(&later.config);
+        self.tables |= later.tables;
     }
 }

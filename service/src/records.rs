@@ -1,12 +1,13 @@
 //! Stored records and the board: which record a board takes ([`admit`]),
-//! the record of the settings in force ([`live_record`]), and the store
-//! as the service uses it ([`RecordStore`]).
+//! which of its tables ([`admit_tables`]), the record of the settings in
+//! force ([`live_record`]), and the store as the service uses it
+//! ([`RecordStore`]).
 
 use crate::board::Board;
 use foc_protocol::message::ErrorCode;
 use foc_protocol::WatchdogConfig;
 use foc_store::record::WatchdogRecord;
-use foc_store::settings::{reaction_record, timeout_reaction};
+use foc_store::settings::{reaction_record, timeout_reaction, Tables};
 use foc_store::{CanRecord, DriveRecord, Invalid, Label, Settings, Store, StoreError};
 
 /// `rec` applied onto the board's build-time settings: whole, or refused.
@@ -73,12 +74,30 @@ pub fn admit(board: &Board, rec: &DriveRecord) -> Result<Settings, Invalid> {
     Ok(s)
 }
 
-/// The record of the settings `s` in force, labelled `label`, with the
-/// link watchdog `link` in force.
+/// The tables of `rec` (admitted whole by [`admit`], which checked them
+/// with the record) this board takes. The anticogging map is referred to
+/// the electrical angle, which every calibration refers to the magnets:
+/// it applies on every board. The angle sensor's correction is referred
+/// to the sensor's reading: where its zero does not survive a reset (an
+/// incremental encoder) the stored correction belongs to another zero and
+/// is dropped, with a log line saying so (learn it again once the drive
+/// is calibrated).
+pub fn admit_tables(board: &Board, rec: &DriveRecord) -> Tables {
+    let mut t = Tables::of_record(rec);
+    if t.has_angle_correction() && !board.zero_survives_reset {
+        crate::log_warn!("store: the stored angle correction does not apply to an incremental encoder (its reading's zero is where the rotor was at reset): dropped, learn it again");
+        t.angle_correction = Tables::NONE.angle_correction;
+    }
+    t
+}
+
+/// The record of the settings `s` and the tables `t` in force, labelled
+/// `label`, with the link watchdog `link` in force.
 pub fn live_record(
     board: &Board,
     label: &Label,
     s: &Settings,
+    t: &Tables,
     link: WatchdogConfig,
 ) -> DriveRecord {
     let mut s = *s;
@@ -86,7 +105,7 @@ pub fn live_record(
         timeout_periods: link.timeout_periods,
         reaction: reaction_record(link.reaction),
     };
-    DriveRecord::from_settings(label, board.pwm_hz, &s)
+    DriveRecord::from_settings(label, board.pwm_hz, &s).with_tables(t)
 }
 
 /// The link-watchdog setting a record carries.

@@ -1,17 +1,37 @@
-//! [`Service`]: the configuration in force, its label, and what an
-//! identification left for the loops; [`Service::boot`] takes the stored
-//! record at power-on.
+//! [`Service`]: the configuration in force, its label, the tables kept
+//! with it, and what an identification left for the loops;
+//! [`Service::boot`] takes the stored record at power-on.
+//!
+//! # The tables
+//!
+//! The anticogging map and the angle sensor's correction (design §32,
+//! §33; [`Tables`], 1.5 KB) never travel in a `ConfigChange`, which
+//! crosses the current loop's mailbox every period. The service keeps the
+//! ones in force; its owner moves them between it and the current stage
+//! outside the period, with the bridge off:
+//!
+//! - into the stage: at start-up before the interrupt runs (the stored
+//!   record's, [`Service::tables`]), and when a link's outbox says so
+//!   ([`crate::Outbox::tables`]: a record applied, a switch written),
+//!   with [`Service::install_tables`] on the stage the drive lends while
+//!   disabled (`Drive::stage_while_disabled`);
+//! - back from the stage: after a calibration measured one
+//!   (`Event::CoggingMeasured`, `Event::EncoderLinearised`), with
+//!   [`Service::take_measured_tables`] before the next link, so that the
+//!   next save stores it.
 
 use crate::board::Board;
 use crate::link::Link;
 use crate::mailbox::ConfigMailbox;
-use crate::records::{admit, link_setting, live_record, RecordStore};
+use crate::records::{admit, admit_tables, link_setting, live_record, RecordStore};
 use crate::snapshot::{Identified, Snapshot};
 use foc_core::control::field::FieldConfig;
+use foc_core::control::stage::CurrentStage;
 use foc_core::control::Mechanics;
 use foc_core::drive::ConfigChange;
 use foc_protocol::scope::ScopePort;
 use foc_protocol::WatchdogConfig;
+use foc_store::settings::Tables;
 use foc_store::{DriveRecord, Invalid, Label, Settings, StoreError};
 
 /// What the boot found in the store.
@@ -46,6 +66,10 @@ pub struct Service {
     /// Speed and position configurations re-derived from an
     /// identification's mechanics, for the next outbox.
     pending: ConfigMailbox,
+    /// The tables in force (see the module docs).
+    tables: Tables,
+    /// The count of measured tables last taken from the stage.
+    tables_seen: u32,
 }
 
 impl Service {
@@ -58,12 +82,15 @@ impl Service {
             boot_link: None,
             seen_identification: 0,
             pending: ConfigMailbox::EMPTY,
+            tables: Tables::NONE,
+            tables_seen: 0,
         }
     }
 
     /// Power-on: the stored record if there is one and the board takes it
-    /// ([`admit`]), else the build-time settings. Never fails: what went
-    /// wrong is in the outcome.
+    /// ([`admit`], its tables [`admit_tables`]: the owner installs them
+    /// before the drive's interrupt runs), else the build-time settings.
+    /// Never fails: what went wrong is in the outcome.
     pub fn boot<S: RecordStore>(board: Board, store: Option<&mut S>) -> (Self, BootOutcome) {
         let mut s = Self::new(board);
         let Some(store) = store else {
@@ -74,6 +101,7 @@ impl Service {
             Ok(Some(rec)) => match admit(&s.board, &rec) {
                 Ok(settings) => {
                     s.settings = settings;
+                    s.tables = admit_tables(&s.board, &rec);
                     s.boot_link = Some(link_setting(&rec));
                     s.label = rec.label;
                     BootOutcome::Loaded {
@@ -118,10 +146,59 @@ impl Service {
         self.board.cascade_of(&self.settings)
     }
 
-    /// The record of the configuration in force with the link watchdog
-    /// `link`.
+    /// The record of the configuration in force (with its tables) and
+    /// the link watchdog `link`.
     pub fn live_record(&self, link: WatchdogConfig) -> DriveRecord {
-        live_record(&self.board, &self.label, &self.settings, link)
+        live_record(&self.board, &self.label, &self.settings, &self.tables, link)
+    }
+
+    /// The tables in force (see the module docs).
+    pub fn tables(&self) -> &Tables {
+        &self.tables
+    }
+
+    /// The tables in force, mutable (the link's switches).
+    pub(crate) fn tables_mut(&mut self) -> &mut Tables {
+        &mut self.tables
+    }
+
+    /// Install the tables in force in `stage` (the owner's part of an
+    /// outbox's [`crate::Outbox::tables`], with the stage the drive lends
+    /// while disabled), whole or not at all ([`Tables::install`]). If the
+    /// stage refuses them, the stage's become the ones in force again
+    /// (what a save stores is what the drive runs), logged.
+    pub fn install_tables(&mut self, stage: &mut CurrentStage) -> Result<(), Invalid> {
+        self.tables.install(stage).inspect_err(|e| {
+            crate::log_warn!("tables: not installed: {}", e);
+            self.tables = Tables::of_stage(stage);
+        })
+    }
+
+    /// The drive could not lend its stage (not disabled, a calibration
+    /// running): the stage's tables stay, and become the ones in force
+    /// again, logged.
+    pub fn tables_not_installed(&mut self, stage: &CurrentStage) {
+        crate::log_warn!("tables: not installed: the drive is not disabled");
+        self.tables = Tables::of_stage(stage);
+    }
+
+    /// How many measured tables have been taken from the stage
+    /// ([`Self::take_measured_tables`]).
+    pub fn tables_seen(&self) -> u32 {
+        self.tables_seen
+    }
+
+    /// After a calibration measured a table (`Event::CoggingMeasured`,
+    /// `Event::EncoderLinearised`; `count` the owner's count of them): the
+    /// stage's tables become the ones in force, so a save stores them.
+    /// Nothing when `count` was taken already. Call it before the next
+    /// link (on a board, from the low priority under the drive's lock).
+    pub fn take_measured_tables(&mut self, count: u32, stage: &CurrentStage) {
+        if count == self.tables_seen {
+            return;
+        }
+        self.tables_seen = count;
+        self.tables = Tables::of_stage(stage);
     }
 
     /// The drive's change that makes the settings in force its own:
@@ -157,10 +234,12 @@ impl Service {
         }
     }
 
-    /// Make `s` (a whole, admitted record's settings) the configuration in
-    /// force; the change every loop must take.
-    pub(crate) fn adopt(&mut self, s: Settings, label: Label) -> ConfigMailbox {
+    /// Make `s` and `t` (a whole, admitted record's settings and tables)
+    /// the configuration in force; the change every loop must take (the
+    /// tables are installed by the owner: [`crate::Outbox::tables`]).
+    pub(crate) fn adopt(&mut self, s: Settings, t: Tables, label: Label) -> ConfigMailbox {
         self.settings = s;
+        self.tables = t;
         self.label = label;
         self.full_change()
     }

@@ -101,6 +101,12 @@ impl View<'_> {
             ParamId::Mtpa => f32::from(u8::from(s.field.mtpa)),
             ParamId::MaxIdA => s.field.max_id_a,
             ParamId::ShortCircuit => f32::from(u8::from(s.field.short_circuit)),
+            ParamId::Anticogging => f32::from(u8::from(self.service.tables().cogging.enabled)),
+            ParamId::EncoderLinearisation => {
+                f32::from(u8::from(self.service.tables().angle_correction.enabled))
+            }
+            ParamId::AnticoggingPeakA => self.service.tables().cogging.peak_a(),
+            ParamId::EncoderCorrectionPeakRad => self.service.tables().angle_correction.peak_rad(),
             // Answered by the protocol layer itself.
             ParamId::ProtocolVersion | ParamId::TelemetryDivider | ParamId::WatchdogTimeout => {
                 return None

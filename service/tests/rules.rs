@@ -629,3 +629,211 @@ fn an_identification_rederives_the_d_current_reference() {
     let pending = s.take_pending();
     assert_eq!(pending.current.and_then(|c| c.field), Some(after));
 }
+
+/// The tables of the tests: a 0.3 A, 12-cycle cogging map and a 5 mrad
+/// eccentric correction, both on.
+fn tables() -> foc_store::settings::Tables {
+    use foc_core::control::angle_correction::{AngleCorrection, CORRECTION_BINS};
+    use foc_core::control::cogging::{CoggingMap, COGGING_BINS};
+    let tau = core::f32::consts::TAU;
+    let amps: [f32; COGGING_BINS] =
+        core::array::from_fn(|k| 0.3 * (12.0 * tau * (k as f32 + 0.5) / 512.0).sin());
+    let rad: [f32; CORRECTION_BINS] =
+        core::array::from_fn(|k| 0.005 * (tau * (k as f32 + 0.5) / 256.0).sin());
+    foc_store::settings::Tables {
+        cogging: CoggingMap::from_amps(&amps).unwrap(),
+        angle_correction: AngleCorrection::from_rad(&rad).unwrap(),
+    }
+}
+
+/// A stored record's tables: the map applies on every board, the angle
+/// correction only where the sensor's reading keeps its zero across a
+/// reset (dropped on an incremental encoder); loaded at boot and by
+/// `Load`/`Apply` (the outbox asks the owner to install them, never in
+/// the configuration change); saved back with the record.
+#[test]
+fn stored_tables_are_admitted_per_board_and_reach_the_owner_outside_the_mailbox() {
+    use foc_store::settings::Tables;
+    for survives in [true, false] {
+        let s = Service::new(board(survives));
+        let rec = calibrated_record(&s).with_tables(&tables());
+        let mut st = store();
+        st.save(&rec).unwrap();
+        let want = Tables {
+            angle_correction: if survives {
+                tables().angle_correction
+            } else {
+                Tables::NONE.angle_correction
+            },
+            ..tables()
+        };
+        let (booted, _) = Service::boot(board(survives), Some(&mut st));
+        assert_eq!(*booted.tables(), want, "boot, survives {survives}");
+        let mut s = Service::new(board(survives));
+        let mut l = link(&mut s, quiet_snapshot(), &mut st);
+        l.store(StoreOp::Load, &[], WatchdogConfig::OFF).unwrap();
+        assert!(l.out.tables, "the owner installs them");
+        assert!(l.out.config.current.is_some());
+        assert_eq!(*s.tables(), want, "load, survives {survives}");
+        // The live record (what a save writes) carries them.
+        let live = s.live_record(WatchdogConfig::OFF);
+        assert_eq!(Tables::of_record(&live), want);
+    }
+    // Applied into a stage: whole.
+    let mut s = Service::new(board(true));
+    let mut st = store();
+    st.save(&calibrated_record(&s).with_tables(&tables()))
+        .unwrap();
+    link(&mut s, quiet_snapshot(), &mut st)
+        .store(StoreOp::Load, &[], WatchdogConfig::OFF)
+        .unwrap();
+    let mut stage = foc_core::control::stage::CurrentStage::new(s.cascade().current);
+    assert_eq!(s.install_tables(&mut stage), Ok(()));
+    assert_eq!(Tables::of_stage(&stage), tables());
+}
+
+/// The switches: on without a table is `NotCalibrated`; with one, the
+/// switch reaches the tables in force and the outbox asks the owner to
+/// install them (never the mailbox's change); not while a command waits;
+/// read back as parameters with the peaks.
+#[test]
+fn the_table_switches_need_a_table_and_a_quiet_drive() {
+    use foc_protocol::message::ParamId;
+    let mut s = Service::new(board(true));
+    let mut st = store();
+    for id in [ParamId::Anticogging, ParamId::EncoderLinearisation] {
+        let mut l = link(&mut s, quiet_snapshot(), &mut st);
+        assert_eq!(l.set_param(id, 1.0), Err(Refusal::NotCalibrated), "{id:?}");
+        assert!(!l.out.tables);
+        assert_eq!(l.param(id), Some(0.0));
+        assert_eq!(l.set_param(id, 0.0), Ok(()), "off is always taken");
+    }
+    // A calibration measured both (the stage holds them).
+    let mut stage = foc_core::control::stage::CurrentStage::new(s.cascade().current);
+    assert_eq!(tables().install(&mut stage), Ok(()));
+    s.take_measured_tables(1, &stage);
+    assert_eq!(s.tables_seen(), 1);
+    assert_eq!(*s.tables(), tables());
+    let mut l = link(&mut s, quiet_snapshot(), &mut st);
+    assert_eq!(l.param(ParamId::Anticogging), Some(1.0));
+    let peak = l.param(ParamId::AnticoggingPeakA).unwrap();
+    assert!((peak - 0.3).abs() < 1e-3, "{peak}");
+    let peak = l.param(ParamId::EncoderCorrectionPeakRad).unwrap();
+    assert!((peak - 0.005).abs() < 1e-4, "{peak}");
+    assert_eq!(l.set_param(ParamId::Anticogging, 0.0), Ok(()));
+    assert!(l.out.tables && l.out.config.current.is_none());
+    assert_eq!(l.param(ParamId::Anticogging), Some(0.0));
+    assert_eq!(l.set_param(ParamId::EncoderLinearisation, 0.0), Ok(()));
+    assert!(!s.tables().cogging.enabled && !s.tables().angle_correction.enabled);
+    assert_eq!(s.install_tables(&mut stage), Ok(()));
+    assert!(!stage.cogging().enabled && !stage.angle_correction().enabled);
+    // A command waiting in the mailbox: not now.
+    let mut snap = quiet_snapshot();
+    snap.pending.command = Command::Velocity { rad_s: 1.0 };
+    let mut l = link(&mut s, snap, &mut st);
+    assert_eq!(
+        l.set_param(ParamId::Anticogging, 1.0),
+        Err(Refusal::NotDisabled)
+    );
+    assert!(!l.out.tables);
+    // Saved with the switches as they stand.
+    let mut l = link(&mut s, quiet_snapshot(), &mut st);
+    assert_eq!(l.set_param(ParamId::Anticogging, 1.0), Ok(()));
+    l.store(StoreOp::Save, &[], WatchdogConfig::OFF).unwrap();
+    let saved = st.load().unwrap().unwrap();
+    assert!(saved.cogging.unwrap().enabled);
+    assert!(!saved.angle_correction.unwrap().enabled);
+    // The same count again takes nothing.
+    let other = foc_core::control::stage::CurrentStage::new(s.cascade().current);
+    s.take_measured_tables(1, &other);
+    assert!(s.tables().has_cogging());
+}
+
+/// A current limit below the map's peak would make the configuration
+/// unsaveable: refused, nothing changes.
+#[test]
+fn limits_below_the_anticogging_peak_are_refused() {
+    let mut s = Service::new(board(true));
+    let mut st = store();
+    let mut stage = foc_core::control::stage::CurrentStage::new(s.cascade().current);
+    tables().install(&mut stage).unwrap();
+    s.take_measured_tables(1, &stage);
+    let before = s.settings().limits;
+    let mut l = link(&mut s, quiet_snapshot(), &mut st);
+    let low = Limits {
+        max_current_a: 0.25,
+        ..before
+    };
+    assert_eq!(l.set_limits(low), Err(Refusal::Unsupported));
+    assert!(!l.out.touches_config());
+    let ok = Limits {
+        max_current_a: 0.5,
+        ..before
+    };
+    assert_eq!(l.set_limits(ok), Ok(()));
+}
+
+/// A stage that refuses the tables (its current limit below the map's
+/// peak) keeps its own, and they become the ones in force again.
+#[test]
+fn tables_the_stage_refuses_fall_back_to_the_stages() {
+    use foc_store::settings::Tables;
+    let mut s = Service::new(board(true));
+    let mut st = store();
+    st.save(&calibrated_record(&s).with_tables(&tables()))
+        .unwrap();
+    link(&mut s, quiet_snapshot(), &mut st)
+        .store(StoreOp::Load, &[], WatchdogConfig::OFF)
+        .unwrap();
+    let mut cfg = s.cascade().current;
+    cfg.limits.max_current_a = 0.1;
+    let mut stage = foc_core::control::stage::CurrentStage::new(cfg);
+    assert_eq!(
+        s.install_tables(&mut stage).unwrap_err().field,
+        "cogging.table"
+    );
+    assert_eq!(Tables::of_stage(&stage), Tables::NONE, "nothing installed");
+    assert_eq!(*s.tables(), Tables::NONE);
+    s.tables_not_installed(&stage);
+    assert_eq!(*s.tables(), Tables::NONE);
+}
+
+/// The sweeps are asked of the drive through the configuration change's
+/// flags, after the drive's own rule on the snapshot and the angle
+/// calibration in force: uncalibrated, halls, sensorless are refused at
+/// once; a request waiting makes the store busy.
+#[test]
+fn the_sweep_calibrations_follow_the_drives_rule() {
+    for routine in [Calibration::Anticogging, Calibration::EncoderLinearisation] {
+        let mut s = Service::new(board(true));
+        let mut st = store();
+        let mut l = link(&mut s, quiet_snapshot(), &mut st);
+        assert_eq!(l.start_calibration(routine), Ok(()));
+        let c = l.out.config.current.unwrap();
+        assert_eq!(
+            (c.calibrate_cogging, c.calibrate_encoder),
+            (
+                routine == Calibration::Anticogging,
+                routine == Calibration::EncoderLinearisation
+            )
+        );
+        assert!(l.out.config.calibration_pending());
+        assert_eq!(
+            l.store(StoreOp::Save, &[], WatchdogConfig::OFF),
+            Err(ErrorCode::Busy)
+        );
+        let mut snap = quiet_snapshot();
+        snap.status.calibrated = false;
+        let mut l = link(&mut s, snap, &mut st);
+        assert_eq!(l.start_calibration(routine), Err(Refusal::NotCalibrated));
+        assert!(!l.out.touches_config());
+        let mut snap = quiet_snapshot();
+        snap.status.sensorless = true;
+        let mut l = link(&mut s, snap, &mut st);
+        assert_eq!(l.start_calibration(routine), Err(Refusal::Unsupported));
+        let mut h = Service::new(hall_board());
+        let mut l = link(&mut h, quiet_snapshot(), &mut st);
+        assert_eq!(l.start_calibration(routine), Err(Refusal::Unsupported));
+        assert!(!l.out.touches_config());
+    }
+}

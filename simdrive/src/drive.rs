@@ -38,6 +38,14 @@
 //! re-opened from the raw flash, the record loaded and adopted at boot as
 //! the firmware does).
 //!
+//! The tables kept with the configuration (the anticogging map, the angle
+//! correction) take the firmware's path, outside the period's mailbox:
+//! installed in the current stage at power-on before the first period and
+//! when a link's outbox asks ([`foc_service::Outbox::tables`]: committed
+//! at once, between periods, the link having checked the drive is
+//! disabled), and taken back from the stage when a calibration measured
+//! one ([`foc_service::Service::take_measured_tables`]).
+//!
 //! ```
 //! use foc_simdrive::HostDrive;
 //! use foc_protocol::device::DeviceContext;
@@ -86,6 +94,9 @@ pub struct HostDrive {
     /// The link-watchdog setting of the link now talking to the drive (a
     /// saved record carries it).
     link_setting: WatchdogConfig,
+    /// Tables measured by a calibration since power-on (the current loop's
+    /// count of `CoggingMeasured` and `EncoderLinearised`).
+    tables_measured: u32,
     /// The scope (design §22), recording the period's feedback.
     pub scope: Scope<Vec<f32>>,
     /// The CAN node's communication settings stored in the flash, as
@@ -126,6 +137,7 @@ impl HostDrive {
             identified: None,
             posts: 0,
             link_setting: WatchdogConfig::OFF,
+            tables_measured: 0,
             scope,
             #[cfg(feature = "canopen")]
             comm: None,
@@ -167,9 +179,15 @@ impl HostDrive {
                 );
             }
         }
+        // The stored tables, before the first period (as the firmware
+        // installs them before its interrupt runs); admitted with the
+        // record, whose current limit is the stage's, so the stage takes
+        // them (else it keeps none and so does the service).
+        let _taken = self.service.install_tables(&mut sim.cascade.current);
         self.sim = sim;
         self.periods = 0;
         self.identified = None;
+        self.tables_measured = 0;
     }
 
     /// Power-cycle: a new simulation (rotor at rest, no injected faults),
@@ -197,13 +215,21 @@ impl HostDrive {
     }
 
     /// One PWM period: drive and plant, the scope recording the period's
-    /// feedback, an identification's result published, the end stops.
+    /// feedback, an identification's result published, a measured table
+    /// taken into the configuration in force, the end stops.
     fn step(&mut self) {
         self.sim.step();
         self.scope.record(self.sim.cascade.feedback());
-        if let Some(Event::Identified(result)) =
-            self.sim.cascade.last_output().and_then(|o| o.event)
-        {
+        let event = self.sim.cascade.last_output().and_then(|o| o.event);
+        if matches!(
+            event,
+            Some(Event::CoggingMeasured { .. } | Event::EncoderLinearised { .. })
+        ) {
+            self.tables_measured = self.tables_measured.wrapping_add(1);
+            self.service
+                .take_measured_tables(self.tables_measured, &self.sim.cascade.current);
+        }
+        if let Some(Event::Identified(result)) = event {
             let c = self.sim.cascade.current.config();
             if let Ok(permit) = Calibrated::supplied(c.angle, c.current) {
                 let count = self.identified.map_or(0, |i| i.count).wrapping_add(1);
@@ -349,6 +375,12 @@ impl HostDrive {
         self.service.settings()
     }
 
+    /// The tables in force (the anticogging map, the angle correction:
+    /// what a save stores).
+    pub fn tables(&self) -> &foc_store::settings::Tables {
+        self.service.tables()
+    }
+
     /// The drive's label (saved with the configuration).
     pub fn label(&self) -> &Label {
         self.service.label()
@@ -449,6 +481,11 @@ impl HostDrive {
         }
         if let Some(p) = out.config.position {
             c.position.set_config(p);
+        }
+        // Between periods, the link having checked the drive is disabled
+        // (the firmware takes the drive's lock from its low priority).
+        if out.tables {
+            let _logged = self.service.install_tables(&mut c.current);
         }
     }
 
