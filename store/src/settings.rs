@@ -29,8 +29,8 @@
 //! assert_eq!(record.apply(&base, 16_000).unwrap_err().field, "pwm_frequency_hz");
 //! ```
 
-use foc_core::control::angle_correction::AngleCorrection;
-use foc_core::control::cogging::CoggingMap;
+use foc_core::control::angle_correction::{AngleCorrection, AngleCorrectionError};
+use foc_core::control::cogging::{CoggingMap, CoggingMapError};
 use foc_core::control::current::CurrentLoopConfig;
 use foc_core::control::field::FieldConfig;
 use foc_core::control::joint::{JointSetup, OutputFrame};
@@ -172,22 +172,27 @@ impl Tables {
     /// refused (`cogging.table`, `cogging.scale_a`,
     /// `angle_correction.table`, `angle_correction.scale_rad`). The
     /// owner calls it outside the period (at start-up, or with the bridge
-    /// off under the stage's lock): a copy of 1.5 KB and two checks.
+    /// off under the stage's lock): a copy of 1.5 KB and three passes
+    /// over the tables (the correction's check, which does not depend on
+    /// the stage, first; then the map's, against the stage's limit, which
+    /// alone decides whether both go in).
     pub fn install(&self, stage: &mut CurrentStage) -> Result<(), Invalid> {
-        CoggingRecord::from_map(&self.cogging).validate(stage.config().limits.max_current_a)?;
-        CorrectionRecord::from_correction(&self.angle_correction).validate()?;
-        let cogging = stage.set_cogging(&self.cogging);
-        let correction = stage.set_angle_correction(&self.angle_correction);
-        match (cogging, correction) {
-            (Ok(()), Ok(())) => Ok(()),
-            // Checked above with the same rules.
-            (Err(_), _) => Err(Invalid {
-                field: "cogging.table",
-            }),
-            (_, Err(_)) => Err(Invalid {
-                field: "angle_correction.table",
-            }),
-        }
+        let correction = |e| Invalid {
+            field: match e {
+                AngleCorrectionError::BadScale => "angle_correction.scale_rad",
+                _ => "angle_correction.table",
+            },
+        };
+        self.angle_correction.check().map_err(correction)?;
+        stage.set_cogging(&self.cogging).map_err(|e| Invalid {
+            field: match e {
+                CoggingMapError::BadScale => "cogging.scale_a",
+                _ => "cogging.table",
+            },
+        })?;
+        stage
+            .set_angle_correction(&self.angle_correction)
+            .map_err(correction)
     }
 }
 
