@@ -11,6 +11,8 @@
 //!   is met within the current ADC's resolution: see design §32);
 //! - speed ripple in velocity mode at 1 % and 5 % of the no-load speed,
 //!   the rotor free, peak to peak over whole electrical turns, off and on;
+//! - the hold error: position holds at 16 targets across one cogging
+//!   cycle, the largest error after 0.3 s each, off and on;
 //! - a coarse sensor (the hub's halls) is refused, and a request on an
 //!   uncalibrated drive too; a calibration that fails leaves the bridge
 //!   off, the fault latched and the map as it was.
@@ -144,13 +146,37 @@ fn speed_ripple(sim: &mut Sim, c: &Case, share: f32) -> f64 {
     p2p(&v)
 }
 
+/// The largest error [rad] of a position hold at 16 targets across one
+/// cogging cycle, each held 0.3 s (the error at its end): where the
+/// cogging's pull is steeper than the hold's stiffness the rotor cannot
+/// stay, and jumps towards the next stable point.
+fn hold_error(sim: &mut Sim, c: &Case) -> f64 {
+    let cycles = c.file.imperfections().cogging.unwrap().cycles_per_turn as f32;
+    let hz = c.setup.pwm_hz();
+    let start = sim.cascade.feedback().position_rad;
+    let mut worst = 0.0f64;
+    for j in 0..16 {
+        let target = start + j as f32 * std::f32::consts::TAU / cycles / 16.0;
+        sim.cascade
+            .command(Command::Position { rad: target })
+            .unwrap();
+        sim.run((0.3 * hz) as usize);
+        worst = worst.max((sim.true_position_rad() - target as f64).abs());
+    }
+    let fault = sim.cascade.feedback().first_fault;
+    assert!(fault.is_none(), "{}: {fault:?}", c.stem);
+    release(sim);
+    worst
+}
+
 /// The figures of one motor with the map off or on.
-fn figures(sim: &mut Sim, c: &Case, on: bool) -> [f64; 3] {
+fn figures(sim: &mut Sim, c: &Case, on: bool) -> [f64; 4] {
     sim.cascade.current.set_cogging_enabled(on);
     [
         zero_torque_ripple(sim, c),
         speed_ripple(sim, c, 0.01),
         speed_ripple(sim, c, 0.05),
+        hold_error(sim, c),
     ]
 }
 
@@ -209,8 +235,8 @@ fn anticogging_on_every_motor_file() {
         let off = figures(&mut sim, &c, false);
         let on = figures(&mut sim, &c, true);
         let row = format!(
-            "| {} | {} | {:.4} A ({:.4} A) | {:.1} s | {:.4} -> {:.4} N m ({:.1}x) | {:.4} -> {:.4} rad/s | {:.4} -> {:.4} rad/s |",
-            c.stem, cog.cycles_per_turn, peak_a, want_a, secs, off[0], on[0], off[0] / on[0], off[1], on[1], off[2], on[2],
+            "| {} | {} | {:.4} A ({:.4} A) | {:.1} s | {:.4} -> {:.4} N m ({:.1}x) | {:.4} -> {:.4} rad/s | {:.4} -> {:.4} rad/s | {:.2} -> {:.2} mrad |",
+            c.stem, cog.cycles_per_turn, peak_a, want_a, secs, off[0], on[0], off[0] / on[0], off[1], on[1], off[2], on[2], 1e3 * off[3], 1e3 * on[3],
         );
         println!("{row}");
         table.push_str(&row);
@@ -238,6 +264,13 @@ fn anticogging_on_every_motor_file() {
             "{}: zero-torque ripple {off:?} -> {on:?} (goal {goal}x)",
             c.stem
         );
+        // The hold does not get worse (within two counts of the sensor).
+        let count = std::f64::consts::TAU / c.setup.bench.sensors.encoder_counts_per_rev as f64;
+        assert!(
+            on[3] <= off[3] + 2.0 * count,
+            "{}: hold error {off:?} -> {on:?}",
+            c.stem
+        );
         assert!(
             on[1] < 0.7 * off[1],
             "{}: speed ripple at 1 % {off:?} -> {on:?}",
@@ -251,7 +284,7 @@ fn anticogging_on_every_motor_file() {
     }
     assert!(failed.is_empty(), "calibration failed on {failed:?}");
     println!(
-        "| motor | cogging cycles/turn | map peak (model) | calibration | zero-torque ripple | speed ripple at 1 % | at 5 % |\n|---|---|---|---|---|---|---|\n{table}"
+        "| motor | cogging cycles/turn | map peak (model) | calibration | zero-torque ripple | speed ripple at 1 % | at 5 % | hold error |\n|---|---|---|---|---|---|---|---|\n{table}"
     );
 }
 
