@@ -32,9 +32,23 @@
 //! frame and the drive's rotor frame with the joint in force, and runs
 //! homing in `poll` (housekeeping, 50 Hz; its commands go to the `command`
 //! mailbox like the host's).
+//!
+//! The tables kept with the configuration (the anticogging map and the
+//! angle sensor's correction, design §32, §33: 1.5 KB) never cross the
+//! configuration mailbox (its change is copied into the current loop
+//! every period it waits). They move between the service and the drive's
+//! current stage from priority 1 under the `drive` lock, with the bridge
+//! off: [`install_tables`] when a link's outbox asks
+//! (`Outbox::tables`: a record applied, a switch written), through
+//! `Drive::stage_while_disabled`; [`take_measured_tables`] before each
+//! link once the current loop has counted a measured table, so the next
+//! save stores it. The stored ones are installed in `init`, before the
+//! interrupt runs.
 
+use crate::app::BoardDrive;
 use crate::persist::{self, GuardedStore};
 use board_support::board;
+use core::sync::atomic::{AtomicBool, Ordering};
 use foc_core::control::Feedback;
 use foc_core::scope::{Scope, ScopeConfig, ScopeError, ScopeStatus};
 use foc_protocol::frame::{encode, FrameDecoder, MAX_FRAME};
@@ -234,6 +248,72 @@ impl Comms {
         }
         out
     }
+}
+
+/// The tables are being moved under the drive's lock ([`with_drive`]).
+static TABLES_BUSY: AtomicBool = AtomicBool::new(false);
+
+/// True while the tables are moved under the drive's lock: the current
+/// loop held off for it (with the bridge off) does not count its late run
+/// as an overrun.
+pub fn tables_busy() -> bool {
+    TABLES_BUSY.load(Ordering::Relaxed)
+}
+
+/// `f` on the drive under its lock from priority 1: a move of the tables
+/// and their checks (about 3.5k cycles, the current loop held off while
+/// the bridge is off), flagged for the current loop's overrun check.
+fn with_drive<R>(
+    drive: impl rtic::Mutex<T = BoardDrive>,
+    f: impl FnOnce(&mut BoardDrive) -> R,
+) -> R {
+    TABLES_BUSY.store(true, Ordering::Relaxed);
+    let mut drive = drive;
+    let r = drive.lock(f);
+    TABLES_BUSY.store(false, Ordering::Relaxed);
+    r
+}
+
+/// After a calibration measured a table (the current loop counts
+/// `CoggingMeasured` and `EncoderLinearised` in `measured`): the stage's
+/// tables become the service's, so a save stores them. Call it before
+/// each link; the drive is locked only when the count moved.
+pub fn take_measured_tables(
+    measured: impl rtic::Mutex<T = u32>,
+    drive: impl rtic::Mutex<T = BoardDrive>,
+    comms: impl rtic::Mutex<T = Comms>,
+) {
+    let (mut measured, mut comms) = (measured, comms);
+    let count = measured.lock(|n| *n);
+    comms.lock(|c| {
+        if c.service.tables_seen() != count {
+            with_drive(drive, |d| c.service.take_measured_tables(count, d.stage()));
+        }
+    });
+}
+
+/// A link's outbox asked for the tables in force to be installed
+/// (`Outbox::tables`): into the current stage the drive lends while
+/// disabled, whole; otherwise the stage's stay and become the service's
+/// again (logged by the service).
+pub fn install_tables(
+    out: &Outbox,
+    drive: impl rtic::Mutex<T = BoardDrive>,
+    comms: impl rtic::Mutex<T = Comms>,
+) {
+    if !out.tables {
+        return;
+    }
+    let mut comms = comms;
+    comms.lock(|c| {
+        with_drive(drive, |d| {
+            if let Some(stage) = d.stage_while_disabled() {
+                let _logged = c.service.install_tables(stage);
+            } else {
+                c.service.tables_not_installed(d.stage());
+            }
+        })
+    });
 }
 
 /// The shared state now, for the link: feedback, timing, status, the last

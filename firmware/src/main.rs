@@ -29,6 +29,12 @@
 //! velocity and position commands: a motor never runs closed loop on an
 //! unknown electrical zero.
 //!
+//! The tables kept with the configuration (the anticogging map and the
+//! angle correction, 1.5 KB) never cross the configuration mailbox: the
+//! stored ones are installed in `init` before the interrupt runs, later
+//! ones from priority 1 under the `drive` lock with the bridge off, and a
+//! table a calibration measured is taken back the same way (see `comms`).
+//!
 //! Safety: any fault latched by the supervisor puts the bridge in the safe
 //! state in the same period. The panic and HardFault handlers call
 //! `board::emergency_disable()` before anything else, then log.
@@ -79,10 +85,21 @@ macro_rules! snapshot {
     };
 }
 
-/// `comms::commit` of `out` into a task's shared resources (`cx.shared`).
+/// `comms::commit` of `out` into a task's shared resources (`cx.shared`),
+/// then the tables it asks for (`comms::install_tables`, under the drive's
+/// lock).
 macro_rules! commit {
-    ($s:expr, $out:expr) => {
-        comms::commit($out, &mut $s.command, &mut $s.config_request)
+    ($s:expr, $out:expr) => {{
+        comms::commit($out, &mut $s.command, &mut $s.config_request);
+        comms::install_tables($out, &mut $s.drive, &mut $s.comms);
+    }};
+}
+
+/// `comms::take_measured_tables` with a task's shared resources: before a
+/// link, the tables a calibration measured into the service.
+macro_rules! take_measured_tables {
+    ($s:expr) => {
+        comms::take_measured_tables(&mut $s.tables_measured, &mut $s.drive, &mut $s.comms)
     };
 }
 
@@ -163,12 +180,21 @@ mod app {
         /// The CANopen node and its port (`can`; empty on boards without
         /// CAN). Used by `stream` (priority 1) only.
         can: can::CanNode,
+        /// The drive (hardware, current stage, lifecycle). Stepped by
+        /// `current_loop` (4) every period; locked by `serial`, `stream`
+        /// and `housekeeping` (1) only to move the tables kept with the
+        /// configuration in or out of its stage with the bridge off
+        /// (`comms::install_tables`, `comms::take_measured_tables`: about
+        /// 3.5k cycles, the current loop held off meanwhile).
+        drive: BoardDrive,
+        /// Tables measured by a calibration since reset (anticogging map,
+        /// angle correction). Counted by `current_loop` (4) on their
+        /// events; read by the priority-1 tasks before each link.
+        tables_measured: u32,
     }
 
     #[local]
     struct Local {
-        /// `current_loop` only: the drive (hardware, current stage, lifecycle).
-        drive: BoardDrive,
         /// `current_loop` only: periods since reset (housekeeping rate).
         tick: u32,
         /// `speed_loop` only.
@@ -191,7 +217,6 @@ mod app {
         let watchdog_reset = watchdog::take_reset_flag();
         let b = board::init(cx.device);
         // The stored configuration, or the build-time one (see `persist`).
-        #[cfg_attr(not(feature = "can"), allow(unused_mut))]
         let mut boot = persist::boot(b.store);
         // The CANopen node with its stored settings, on the started port.
         #[cfg(feature = "can")]
@@ -208,6 +233,13 @@ mod app {
         let life = lifecycle_config(&cfg, boot.service.settings().permit());
         let mut drive =
             Drive::new(b.pwm, b.currents, b.angle, b.bus, cfg.current, life).with_brake(b.brake);
+        // The stored tables, before the interrupt runs (never in a
+        // configuration change).
+        if let Some(stage) = drive.stage_while_disabled() {
+            if boot.service.install_tables(stage).is_err() {
+                defmt::warn!("store: the stored tables were not installed");
+            }
+        }
         if watchdog_reset {
             defmt::error!("reset by the watchdog");
             drive.trip(Fault::Watchdog);
@@ -224,11 +256,11 @@ mod app {
             shared_resources(
                 comms::Comms::new(b.serial, boot),
                 can_node,
+                drive,
                 budget,
                 foc_core::scope::Scope::new(&mut cx.local.scope_buf[..]),
             ),
             Local {
-                drive,
                 tick: 0,
                 speed: SpeedStage::new(cfg.speed),
                 position: PositionStage::new(cfg.position),
@@ -278,11 +310,12 @@ mod app {
 
     /// The shared resources at start-up: empty mailboxes, nothing measured
     /// yet, the status [`STARTING`], the command channel `comms`, the CAN
-    /// node `can` and the `scope`; the current loop's timing with its
-    /// `budget` [cycles].
+    /// node `can`, the `drive` and the `scope`; the current loop's timing
+    /// with its `budget` [cycles].
     fn shared_resources(
         comms: comms::Comms,
         can: can::CanNode,
+        drive: BoardDrive,
         budget: f32,
         scope: comms::BoardScope,
     ) -> Shared {
@@ -302,6 +335,8 @@ mod app {
             comms,
             can,
             scope,
+            drive,
+            tables_measured: 0,
         }
     }
 
@@ -330,15 +365,14 @@ mod app {
     #[task(
         binds = ADC,
         priority = 4,
-        shared = [command, feedback, iq_ref_a, timing, break_fired, status, identified, config_request, scope],
-        local = [drive, tick]
+        shared = [command, feedback, iq_ref_a, timing, break_fired, status, identified, config_request, scope, drive, tables_measured],
+        local = [tick]
     )]
     fn current_loop(mut cx: current_loop::Context) {
         let t0 = timing::now_cycles();
         let command = cx.shared.command.lock(|c| *c);
         let iq_ref_a = cx.shared.iq_ref_a.lock(|x| *x);
         let gate_fault = cx.shared.break_fired.lock(core::mem::take) || board::gate_driver_fault();
-        let drive = &mut *cx.local.drive;
         // Each lock raises and restores BASEPRI (RTIC 2 does so even at the
         // ceiling: about 6 instructions each, not counted by the bench);
         // the drive writes the feedback and status in place; the scope
@@ -348,8 +382,9 @@ mod app {
             cx.shared.feedback,
             cx.shared.status,
             cx.shared.scope,
+            &mut cx.shared.drive,
         )
-            .lock(|request, feedback, status, scope| {
+            .lock(|request, feedback, status, scope, drive| {
                 let mail = Mail {
                     command,
                     iq_ref_a,
@@ -361,8 +396,17 @@ mod app {
                 out
             });
         if let Some(e) = out.event {
+            // A table measured: the priority-1 tasks take it into the
+            // service before their next link (`comms`).
+            if matches!(
+                e,
+                foc_core::drive::Event::CoggingMeasured { .. }
+                    | foc_core::drive::Event::EncoderLinearised { .. }
+            ) {
+                cx.shared.tables_measured.lock(|n| *n = n.wrapping_add(1));
+            }
             if let Some(result) = events::log(&e, *cx.local.tick) {
-                let c = cx.local.drive.stage().config();
+                let c = cx.shared.drive.lock(|d| *d.stage().config());
                 if let Ok(permit) = Calibrated::supplied(c.angle, c.current) {
                     cx.shared.identified.lock(|x| {
                         let count = x.map_or(0, |i| i.count).wrapping_add(1);
@@ -385,10 +429,14 @@ mod app {
         // Overrun: over the cycle budget, or the next period's conversion
         // (the interrupt that triggers this task) already pending again.
         let repended = cortex_m::peripheral::NVIC::is_pending(board::CURRENT_IRQ);
-        // A run stretched by a flash stall (a store operation, bridge off)
-        // is not an overrun of the control code.
-        if cx.shared.timing.lock(|tm| tm.record(dt, repended)) && !persist::flash_busy() {
-            cx.local.drive.trip(Fault::LoopOverrun);
+        // A run stretched by a flash stall (a store operation, bridge off),
+        // or held off while the tables moved under the drive's lock, is not
+        // an overrun of the control code.
+        if cx.shared.timing.lock(|tm| tm.record(dt, repended))
+            && !persist::flash_busy()
+            && !comms::tables_busy()
+        {
+            cx.shared.drive.lock(|d| d.trip(Fault::LoopOverrun));
         }
     }
 
@@ -438,13 +486,14 @@ mod app {
     #[task(
         binds = USART2,
         priority = 1,
-        shared = [command, feedback, timing, status, identified, config_request, comms, scope]
+        shared = [command, feedback, timing, status, identified, config_request, comms, scope, drive, tables_measured]
     )]
     fn serial(mut cx: serial::Context) {
         let mut scope = comms::ScopeLock(cx.shared.scope);
         cx.shared.comms.lock(|c| c.serial.on_interrupt());
         // Bounded: every frame takes at least one byte of the RX ring.
         for _ in 0..board_support::hw::serial::RX_CAPACITY {
+            take_measured_tables!(cx.shared);
             let snap = snapshot!(cx.shared);
             let Some(out) = cx.shared.comms.lock(|c| c.receive(snap, &mut scope)) else {
                 break;
@@ -457,7 +506,7 @@ mod app {
     /// host's, up to the UART's capacity), at 1 kHz. On boards with CAN
     /// first the CANopen node (`can`): received frames, then its tick;
     /// the CAN interrupt pends this task too.
-    #[task(binds = EXTI4, priority = 1, shared = [feedback, timing, status, identified, config_request, command, comms, can])]
+    #[task(binds = EXTI4, priority = 1, shared = [feedback, timing, status, identified, config_request, command, comms, can, drive, tables_measured])]
     fn stream(mut cx: stream::Context) {
         #[cfg(feature = "can")]
         can_service(&mut cx);
@@ -481,6 +530,7 @@ mod app {
         cx.shared.can.lock(|n| n.service_port());
         // Bounded: every pass takes a frame from the port.
         for _ in 0..board_support::hw::serial::RX_CAPACITY {
+            take_measured_tables!(cx.shared);
             let snap = snapshot!(cx.shared);
             let comms = &mut cx.shared.comms;
             let Some(out) = cx.shared.can.lock(|n| comms.lock(|c| n.receive(c, snap))) else {
@@ -499,10 +549,11 @@ mod app {
     #[task(
         binds = EXTI3,
         priority = 1,
-        shared = [command, feedback, timing, status, identified, config_request, comms],
+        shared = [command, feedback, timing, status, identified, config_request, comms, drive, tables_measured],
         local = [started, power_limit]
     )]
     fn housekeeping(mut cx: housekeeping::Context) {
+        take_measured_tables!(cx.shared);
         let mut snap = snapshot!(cx.shared);
         let (fb, status) = (snap.feedback, snap.status);
         if status.running && !*cx.local.started {
