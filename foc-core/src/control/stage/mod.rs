@@ -372,7 +372,13 @@ impl CurrentStage {
         );
         self.tracker.reset();
         self.observer.reset();
-        let cur = c.current_config();
+        let mut cur = c.current_config();
+        // The dead time is the board's (design §31): a permit without one
+        // (an identification's, whose gains are the motor's) keeps the
+        // stage's, so an identification does not switch the compensation off.
+        if cur.dead_time.dead_time_s == 0.0 {
+            cur.dead_time = before.0.dead_time;
+        }
         self.config.current = cur;
         self.current.set_config(cur);
         self.sensorless_motor(cur.motor);
@@ -608,6 +614,31 @@ mod tests {
             v_bus_v: Some(24.0),
             temperature_c: None,
         }
+    }
+
+    /// The board's dead-time compensation survives a permit without one
+    /// (an identification's), and a permit with its own brings it.
+    #[test]
+    fn a_permit_without_a_dead_time_keeps_the_boards() {
+        use crate::control::dead_time::DeadTimeCompensation;
+        let mut c = config();
+        let board = DeadTimeCompensation::for_current_limit(200e-9, 10.0);
+        c.current.dead_time = board;
+        let mut stage = CurrentStage::new(c);
+        let identified = CurrentLoopConfig {
+            dead_time: DeadTimeCompensation::OFF,
+            ..c.current
+        };
+        let p = Calibrated::supplied(c.angle, identified).unwrap();
+        stage.set_calibration(&p);
+        assert_eq!(stage.config().current.dead_time, board);
+        let other = DeadTimeCompensation::for_current_limit(500e-9, 10.0);
+        let stored = CurrentLoopConfig {
+            dead_time: other,
+            ..c.current
+        };
+        stage.set_calibration(&Calibrated::supplied(c.angle, stored).unwrap());
+        assert_eq!(stage.config().current.dead_time, other);
     }
 
     /// A calibrated stage in torque mode (0 A) on a sensor of `counts`
