@@ -116,6 +116,11 @@ fn advice_for(reason: &str) -> &'static str {
         "SpeedNotReached" => "the test speed was not reached: too much friction or load for the test current",
         "OverCurrent" => "the current went past the routine's limit: check the motor file's values and the wiring",
         "Timeout" => "a step did not finish in time: the motor may be loaded or far from its configured values",
+        "ImplausibleResult" => {
+            "the result is implausible (an anticogging map above half the current limit is a load \
+             or friction, not cogging; an angle correction beyond 5 deg a loose or broken sensor): \
+             free the rotor, check the sensor's mounting and run it again"
+        }
         _ => "see the identification guide (docs/src/guide/identification.md)",
     }
 }

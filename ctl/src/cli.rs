@@ -70,13 +70,16 @@ pub(super) enum Cmd {
     Faults,
     /// Read a parameter (`all` for every one), or write one: the
     /// d-current reference's (design §30) `field-weakening`, `mtpa`,
-    /// `short-circuit` (on/off, 1/0) and `max-id` (A), only while disabled.
+    /// `short-circuit` (on/off, 1/0) and `max-id` (A), the tables'
+    /// switches `anticogging` and `encoder-linearisation` (on/off; design
+    /// §32, §33), only while disabled.
     Param {
         /// pole-pairs, r, ld, lq, psi, pwm-frequency, speed-divider,
         /// position-divider, firmware-version, protocol-version, bus-voltage,
         /// calibrated, max-loop-cycles, telemetry-divider, watchdog-timeout,
-        /// field-weakening, mtpa, max-id, short-circuit, ... (`param all`
-        /// lists them), all
+        /// field-weakening, mtpa, max-id, short-circuit, anticogging,
+        /// encoder-linearisation, anticogging-peak, encoder-correction-peak,
+        /// ... (`param all` lists them), all
         name: String,
         /// A new value (writable parameters only): a number in the
         /// parameter's unit, or on/off for a switch.
@@ -533,7 +536,20 @@ pub(super) enum Reaction {
 
 #[derive(Clone, Copy, ValueEnum)]
 pub(super) enum Routine {
+    /// The current sensors' offsets (bridge off).
     Offsets,
+    /// The motor's identification (resistance, inductances, alignment,
+    /// flux linkage, mechanics, gains).
     Identification,
+    /// Part of the identification (refused alone).
     Alignment,
+    /// The anticogging map (design §32): a slow sweep both ways on the
+    /// closed loop, about 24 s; then switched on. Needs a calibrated
+    /// drive on a fine angle sensor; `config save` keeps it.
+    Cogging,
+    /// Encoder linearisation (design §33): the angle sensor's error,
+    /// learnt turning at a constant speed both ways, about 6 s; then
+    /// switched on. Needs a calibrated drive on a fine angle sensor;
+    /// `config save` keeps it.
+    Encoder,
 }

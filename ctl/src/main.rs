@@ -484,6 +484,8 @@ fn calibrate(c: &mut Client, routine: Routine, no_wait: bool, wait_ms: f64) -> C
         Routine::Offsets => Calibration::Offsets,
         Routine::Identification => Calibration::Identification,
         Routine::Alignment => Calibration::Alignment,
+        Routine::Cogging => Calibration::Anticogging,
+        Routine::Encoder => Calibration::EncoderLinearisation,
     };
     if no_wait {
         c.calibrate(r)
@@ -516,8 +518,12 @@ fn calibrate(c: &mut Client, routine: Routine, no_wait: bool, wait_ms: f64) -> C
         .into()),
         WaitEnd::Ended(p) if p.done() => {
             say!("done");
-            if r == Calibration::Identification {
-                print_identified(c)?;
+            match r {
+                Calibration::Identification => print_identified(c)?,
+                Calibration::Anticogging | Calibration::EncoderLinearisation => {
+                    print_table(c, r)?
+                }
+                Calibration::Offsets | Calibration::Alignment => {}
             }
             Ok(())
         }
@@ -529,6 +535,31 @@ fn calibrate(c: &mut Client, routine: Routine, no_wait: bool, wait_ms: f64) -> C
         )
         .into()),
     }
+}
+
+/// The table a sweep calibration measured: its peak, switched on, and
+/// how to keep it.
+fn print_table(c: &mut Client, r: Calibration) -> CliResult {
+    let (switch, peak) = if r == Calibration::Anticogging {
+        (ParamId::Anticogging, ParamId::AnticoggingPeakA)
+    } else {
+        (
+            ParamId::EncoderLinearisation,
+            ParamId::EncoderCorrectionPeakRad,
+        )
+    };
+    let p = c.param(peak)?;
+    say!("{:<24}{}", peak.name(), show::param_text(peak, p));
+    say!(
+        "{:<24}{}",
+        switch.name(),
+        show::param_text(switch, c.param(switch)?)
+    );
+    say!(
+        "keep it: `foc-ctl config save` (off: `foc-ctl param {} off`)",
+        switch.name()
+    );
+    Ok(())
 }
 
 /// The identified motor and the gains derived from it.

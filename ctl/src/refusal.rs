@@ -23,7 +23,7 @@ use foc_core::control::field::MIN_VOLTAGE_MARGIN;
 use foc_core::control::stage::COARSE_FIELD_WEAKENING;
 use foc_core::control::{Command, Limits};
 use foc_protocol::device::MAX_GAIN;
-use foc_protocol::message::{ErrorCode, ParamId, Request, TelemetryRate};
+use foc_protocol::message::{Calibration, ErrorCode, ParamId, Request, TelemetryRate};
 
 /// The value of field `field` of `req` as sent, with its unit (`None`
 /// past the numeric fields).
@@ -265,6 +265,78 @@ fn field_param_refusal(c: &mut Client, id: ParamId, value: f32) -> String {
     }
 }
 
+/// Why the drive refused a table's switch or a sweep calibration (design
+/// §32, §33) with `code`, in words (`None`: not one of them, or a code
+/// the generic words cover).
+fn table_refusal(req: &Request, code: ErrorCode) -> Option<String> {
+    use Calibration::{Anticogging, EncoderLinearisation};
+    Some(match (req, code) {
+        (
+            Request::SetParam {
+                id: ParamId::Anticogging,
+                ..
+            },
+            ErrorCode::NotCalibrated,
+        ) => "`anticogging` = 1 is refused: the drive holds no anticogging map; measure one \
+             with `foc-ctl calibrate cogging` (or load a configuration that has one); \
+             nothing changed"
+            .into(),
+        (
+            Request::SetParam {
+                id: ParamId::EncoderLinearisation,
+                ..
+            },
+            ErrorCode::NotCalibrated,
+        ) => "`encoder-linearisation` = 1 is refused: the drive holds no angle correction; \
+              learn one with `foc-ctl calibrate encoder` (or load a configuration that has \
+              one); nothing changed"
+            .into(),
+        (Request::SetParam { id, .. }, ErrorCode::NotDisabled)
+            if matches!(id, ParamId::Anticogging | ParamId::EncoderLinearisation) =>
+        {
+            format!(
+                "`{}` is written only while the drive is disabled (a command is in force \
+                 or waiting): `foc-ctl mode disable` first; nothing changed",
+                id.name()
+            )
+        }
+        (
+            Request::RunCalibration(r @ (Anticogging | EncoderLinearisation)),
+            ErrorCode::NotCalibrated,
+        ) => {
+            format!(
+                "{} runs on the closed loop and the drive is not calibrated: run `foc-ctl \
+                 identify` first (or load a calibrated configuration); nothing changed",
+                sweep_name(*r)
+            )
+        }
+        (Request::RunCalibration(Anticogging), ErrorCode::Unsupported) => {
+            "the anticogging calibration needs the rotor's angle at low speed: refused on \
+             halls (their half-count uncertainty, 30 deg electrical, is as wide as a cogging \
+             cycle) and sensorless without injection; nothing changed"
+                .into()
+        }
+        (Request::RunCalibration(EncoderLinearisation), ErrorCode::Unsupported) => {
+            "encoder linearisation learns the angle sensor's own error, so it needs a fine \
+             sensor that is read: refused on halls (interpolated between their edges) and \
+             while the drive runs sensorless; nothing changed"
+                .into()
+        }
+        _ => return None,
+    })
+}
+
+/// A sweep calibration's name, for people.
+fn sweep_name(r: Calibration) -> &'static str {
+    match r {
+        Calibration::Anticogging => "the anticogging calibration",
+        Calibration::EncoderLinearisation => "encoder linearisation",
+        Calibration::Offsets | Calibration::Identification | Calibration::Alignment => {
+            "the calibration"
+        }
+    }
+}
+
 /// Why a record that passed the host's checks may still be refused
 /// (`BadRecord`) by a drive: field weakening on a coarse angle sensor, the
 /// drive's rule (`None` when the record does not turn it on).
@@ -308,13 +380,25 @@ pub fn explain(c: &mut Client, req: &Request, e: &ClientError) -> String {
 /// The Nack `code` of `req` in words (see [`explain`]).
 pub fn nack_explained(c: &mut Client, req: &Request, code: ErrorCode) -> String {
     let board_max_a = c.param(ParamId::BoardMaxCurrentA).ok();
+    if let Some(text) = table_refusal(req, code) {
+        return text;
+    }
     match (req, code) {
         (Request::SetLimits(l), ErrorCode::Unsupported) => match board_max_a {
             Some(m) if l.max_current_a > m => format!(
                 "`max_current_a` = {} A is above this board's hardware limit of {m} A; nothing changed",
                 l.max_current_a
             ),
-            _ => format!("{}; nothing changed", crate::describe_error(code)),
+            _ => match c.param(ParamId::AnticoggingPeakA).ok() {
+                Some(p) if l.max_current_a < p => format!(
+                    "`max_current_a` = {} A is below the anticogging map's peak of {p} A (the \
+                     configuration, which keeps the map, could not be saved): keep a higher \
+                     limit, or drop the map first (`foc-ctl config export`, remove its \
+                     `[cogging]` table, `config import`); nothing changed",
+                    l.max_current_a
+                ),
+                _ => format!("{}; nothing changed", crate::describe_error(code)),
+            },
         },
         (Request::SetParam { id, value }, ErrorCode::Unsupported) if id.is_writable() => {
             field_param_refusal(c, *id, *value)

@@ -246,7 +246,7 @@ fn field_parameters_are_written_by_name_and_refused_in_words() {
         (["param", "mtpa", "maybe"], "`maybe` is not on, off, 1 or 0"),
         (
             ["param", "max-current", "3"],
-            "`max-current` is not a parameter that can be written; these are: field-weakening, mtpa, max-id, short-circuit",
+            "`max-current` is not a parameter that can be written; these are: field-weakening, mtpa, max-id, short-circuit, anticogging, encoder-linearisation",
         ),
         (
             ["param", "max-id", "0"],
@@ -323,4 +323,114 @@ fn field_weakening_is_refused_on_halls_with_the_reason() {
     let _ = std::fs::remove_file(&file);
     let o = foc_ctl(a, &["param", "field-weakening"]);
     assert!(out(&o).contains("0 (off)"), "{}", out(&o));
+}
+
+/// The sweep calibrations and the tables' switches (design §32, §33):
+/// a switch without its table is refused with what to do; `calibrate
+/// encoder` and `calibrate cogging` show their steps, the table's peak and
+/// the switch; the switches are written by name; the configuration keeps
+/// both; a running drive refuses them in words. (The simulation runs at 8
+/// times real time: the map's sweep is 24 s simulated.)
+#[test]
+fn the_sweep_calibrations_keep_their_tables_and_switch_by_name() {
+    let mut dev = SimDevice::default();
+    assert!(dev.drive.calibrate_from_bench());
+    let server =
+        SimServer::spawn_scaled(TcpListener::bind("127.0.0.1:0").unwrap(), dev, 8.0).unwrap();
+    let a = server.addr();
+    for (name, want) in [
+        (
+            "anticogging",
+            "`anticogging` = 1 is refused: the drive holds no anticogging map; measure one with `foc-ctl calibrate cogging`",
+        ),
+        (
+            "encoder-linearisation",
+            "`encoder-linearisation` = 1 is refused: the drive holds no angle correction; learn one with `foc-ctl calibrate encoder`",
+        ),
+    ] {
+        let o = foc_ctl(a, &["param", name, "on"]);
+        assert!(!o.status.success(), "{name}");
+        assert!(err(&o).contains(want), "{name}: {}", err(&o));
+        let o = foc_ctl(a, &["param", name]);
+        assert!(out(&o).contains("0 (off)"), "{}", out(&o));
+    }
+    let o = foc_ctl(a, &["calibrate", "encoder"]);
+    assert!(o.status.success(), "{}", err(&o));
+    for want in [
+        "EncoderLinearisation: started",
+        "encoder linearisation",
+        "done",
+        "encoder-correction-peak ",
+        "encoder-linearisation   1 (on)",
+        "keep it: `foc-ctl config save`",
+    ] {
+        assert!(out(&o).contains(want), "{want}: {}", out(&o));
+    }
+    let o = foc_ctl(a, &["calibrate", "cogging"]);
+    assert!(o.status.success(), "{}", err(&o));
+    for want in [
+        "anticogging",
+        "done",
+        "anticogging-peak",
+        " A\n",
+        "anticogging             1 (on)",
+    ] {
+        assert!(out(&o).contains(want), "{want}: {}", out(&o));
+    }
+    let o = foc_ctl(a, &["param", "anticogging", "off"]);
+    assert!(o.status.success(), "{}", err(&o));
+    assert!(
+        out(&o).contains("anticogging        0 (off)"),
+        "{}",
+        out(&o)
+    );
+    // Kept with the configuration, each with its switch.
+    let o = foc_ctl(a, &["config", "save"]);
+    assert!(o.status.success(), "{}", err(&o));
+    let o = foc_ctl(a, &["config", "show", "--stored"]);
+    let text = out(&o);
+    assert!(
+        text.contains("[cogging]\nenabled = false\nscale_a = ")
+            && text.contains("[angle_correction]\nenabled = true\nscale_rad = "),
+        "{text}"
+    );
+    // Not while running.
+    let o = foc_ctl(a, &["mode", "velocity", "5"]);
+    assert!(o.status.success(), "{}", err(&o));
+    let o = foc_ctl(a, &["calibrate", "cogging", "--no-wait"]);
+    assert!(!o.status.success());
+    assert!(err(&o).contains("disable"), "{}", err(&o));
+    let o = foc_ctl(a, &["param", "anticogging", "on"]);
+    assert!(!o.status.success());
+    assert!(err(&o).contains("disable"), "{}", err(&o));
+}
+
+/// On halls the sweeps are refused with the reason, before anything moves.
+#[test]
+fn the_sweep_calibrations_are_refused_on_halls_with_the_reason() {
+    let path = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../tests/motors/cute-q85sx-hub.toml");
+    let mut dev = SimDevice::from_motor_file(&path).unwrap();
+    // Uncalibrated first.
+    let server = SimServer::spawn_with(TcpListener::bind("127.0.0.1:0").unwrap(), dev).unwrap();
+    let o = foc_ctl(server.addr(), &["calibrate", "cogging"]);
+    assert!(!o.status.success());
+    assert!(
+        err(&o).contains("the anticogging calibration runs on the closed loop and the drive is not calibrated: run `foc-ctl identify` first"),
+        "{}",
+        err(&o)
+    );
+    drop(server);
+    dev = SimDevice::from_motor_file(&path).unwrap();
+    assert!(dev.drive.calibrate_from_bench());
+    let server = SimServer::spawn_with(TcpListener::bind("127.0.0.1:0").unwrap(), dev).unwrap();
+    for (routine, want) in [
+        ("cogging", "the anticogging calibration needs the rotor's angle at low speed: refused on halls"),
+        ("encoder", "encoder linearisation learns the angle sensor's own error, so it needs a fine sensor that is read: refused on halls"),
+    ] {
+        let o = foc_ctl(server.addr(), &["calibrate", routine]);
+        assert!(!o.status.success(), "{routine}");
+        assert!(err(&o).contains(want), "{routine}: {}", err(&o));
+        assert!(err(&o).contains("nothing changed"), "{}", err(&o));
+    }
 }
