@@ -14,7 +14,14 @@ CRC-32; ``protocol/src/message.rs`` of the firmware repository)::
 """
 
 from .drive import Drive, LinkStats, StreamData, StreamSample
-from .errors import DriveError, NackError, ProtocolError, TimeoutError, TransferError
+from .errors import (
+    CalibrationError,
+    DriveError,
+    NackError,
+    ProtocolError,
+    TimeoutError,
+    TransferError,
+)
 from .messages import (
     ActiveLimit,
     Calibration,
@@ -42,6 +49,7 @@ __all__ = [
     "LinkStats",
     "StreamData",
     "StreamSample",
+    "CalibrationError",
     "DriveError",
     "NackError",
     "ProtocolError",

@@ -26,7 +26,14 @@ import numpy as np
 
 from . import messages as m
 from .codec import FrameDecoder, FrameFault, RawFrame, encode_frame
-from .errors import DriveError, NackError, ProtocolError, TimeoutError, TransferError
+from .errors import (
+    CalibrationError,
+    DriveError,
+    NackError,
+    ProtocolError,
+    TimeoutError,
+    TransferError,
+)
 from .messages import (
     ErrorCode,
     FaultReport,
@@ -144,6 +151,20 @@ def _choice(name: str, x: object, enum_cls):
         except ValueError:
             raise ValueError(f"unknown {name} code {x}") from None
     raise TypeError(f"{name} must be a name or a code, not {type(x).__name__}")
+
+
+def _table_refusal(tag: int, body: bytes, code: int) -> Optional[str]:
+    """The words for the drive's refusal of a table's switch or a sweep
+    calibration (design §32, §33), else ``None``."""
+    if not body:
+        return None
+    if tag == Tag.SET_PARAM:
+        key: object = ParamId._value2member_map_.get(body[0])
+    elif tag == Tag.RUN_CALIBRATION:
+        key = m.Calibration._value2member_map_.get(body[0])
+    else:
+        return None
+    return m.TABLE_REFUSALS.get((key, code))
 
 
 class Drive:
@@ -316,6 +337,8 @@ class Drive:
             allowed = self._allowed(tag, body, field)
             if allowed:
                 text += f" (allowed: {allowed})"
+        elif _table_refusal(tag, body, ec):
+            text = _table_refusal(tag, body, ec) or text
         elif ec == ErrorCode.Unsupported and tag == Tag.SET_PARAM and body[:1] == bytes(
             [ParamId.FieldWeakening]
         ):
@@ -567,9 +590,65 @@ class Drive:
 
     def calibrate(self, routine: Union[str, int]) -> None:
         """Start a calibration routine (``"offsets"``, ``"identification"``,
-        ``"alignment"``); returns once started (only while disabled)."""
+        ``"alignment"``, ``"anticogging"``, ``"encoder_linearisation"``);
+        returns once started (only while disabled)."""
         r = _choice("routine", routine, m.Calibration)
         self._ack(Tag.RUN_CALIBRATION, m.body_calibration(r))
+
+    def wait_calibration(self, timeout: float = 120.0, poll: float = 0.05) -> None:
+        """Wait for the calibration running to end (``calibration-result``
+        no longer 1, running); raises :class:`CalibrationError` when it
+        failed or was aborted (the step and the reason in words), a
+        :class:`TimeoutError` when it still runs after ``timeout`` seconds."""
+        deadline = time.monotonic() + timeout
+        seen = False
+        while True:
+            result = int(self.param(ParamId.CalibrationResult))
+            if result == 1:
+                seen = True
+            elif seen or result != 0:
+                break
+            if time.monotonic() > deadline:
+                raise TimeoutError(f"the calibration still runs after {timeout:g} s")
+            time.sleep(poll)
+        if result == 2:
+            return
+        step = int(self.param(ParamId.CalibrationStep))
+        step_name = m.CALIBRATION_STEPS[step] if step < len(m.CALIBRATION_STEPS) else f"step {step}"
+        if result >= m.CALIBRATION_FAILED_BASE:
+            n = result - m.CALIBRATION_FAILED_BASE
+            why = m.CALIBRATION_FAILURES[n] if n < len(m.CALIBRATION_FAILURES) else f"reason {n}"
+            raise CalibrationError(step_name, f"failed at {step_name}: {why}")
+        what = m.CALIBRATION_RESULTS[result] if result < len(m.CALIBRATION_RESULTS) else f"result {result}"
+        raise CalibrationError(step_name, f"{step_name}: {what}")
+
+    def calibrate_cogging(self, wait: bool = True, timeout: float = 120.0) -> float:
+        """Measure the anticogging map (design §32): a slow sweep both ways on
+        the closed loop, about 24 s; the map is installed switched on and kept
+        by the next :meth:`save_config`. Only while disabled, on a calibrated
+        drive with the angle known at low speed: refused (:class:`NackError`,
+        ``NotCalibrated`` or ``Unsupported``, the reason in words) otherwise.
+        With ``wait``, returns the map's peak [A] once done
+        (:class:`CalibrationError` if it failed); without, 0 once started."""
+        self.calibrate(m.Calibration.anticogging)
+        if not wait:
+            return 0.0
+        self.wait_calibration(timeout)
+        return self.param(ParamId.AnticoggingPeakA)
+
+    def calibrate_encoder(self, wait: bool = True, timeout: float = 60.0) -> float:
+        """Learn the angle sensor's correction (design §33, encoder
+        linearisation): turns at a constant speed both ways, about 6 s; the
+        correction is installed switched on and kept by the next
+        :meth:`save_config`. Only while disabled, on a calibrated drive with a
+        fine angle sensor (not halls, not sensorless). With ``wait``, returns
+        the correction's peak [rad, mechanical] once done; without, 0 once
+        started."""
+        self.calibrate(m.Calibration.encoder_linearisation)
+        if not wait:
+            return 0.0
+        self.wait_calibration(timeout)
+        return self.param(ParamId.EncoderCorrectionPeakRad)
 
     # --------------------------------------------------------------- reads
 
@@ -604,11 +683,13 @@ class Drive:
     def set_param(self, name_or_id: Union[str, int, ParamId], value: Union[float, bool]) -> None:
         """Write a parameter (the d-current reference's, design §30:
         ``"field-weakening"``, ``"mtpa"``, ``"short-circuit"`` take
-        ``True``/``False`` or 1/0, ``"max-id"`` a current [A]; only while
-        disabled). A refusal changes nothing: :class:`NackError`
-        ``OutOfRange`` (field 1: the value) for a value the parameter does
-        not take, ``Unsupported`` when the drive's rule refuses it (field
-        weakening on halls, or with max-id 0)."""
+        ``True``/``False`` or 1/0, ``"max-id"`` a current [A]; the tables'
+        switches, design §32, §33: ``"anticogging"``,
+        ``"encoder-linearisation"``; only while disabled). A refusal changes
+        nothing: :class:`NackError` ``OutOfRange`` (field 1: the value) for a
+        value the parameter does not take, ``Unsupported`` when the drive's
+        rule refuses it (field weakening on halls, or with max-id 0),
+        ``NotCalibrated`` for a table's switch on without the table."""
         pid = self._param_id(name_or_id)
         if pid not in m.WRITABLE_PARAMS:
             names = ", ".join(m.PARAM_NAMES[p] for p in m.WRITABLE_PARAMS)

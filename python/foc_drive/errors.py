@@ -5,7 +5,14 @@ from __future__ import annotations
 import builtins
 from typing import Optional
 
-__all__ = ["DriveError", "NackError", "TimeoutError", "ProtocolError", "TransferError"]
+__all__ = [
+    "DriveError",
+    "NackError",
+    "TimeoutError",
+    "ProtocolError",
+    "TransferError",
+    "CalibrationError",
+]
 
 
 class DriveError(Exception):
@@ -62,3 +69,18 @@ class ProtocolError(DriveError):
 
 class TransferError(ProtocolError):
     """A chunked transfer (configuration record, scope data) that does not add up."""
+
+
+class CalibrationError(DriveError):
+    """A calibration the drive ran failed or was aborted (the drive latched
+    ``CalibrationFailed``, or a fault or a ``Disable`` stopped it).
+
+    Attributes:
+        step: the step where it ended, in words (``"anticogging"``...).
+        message: the step and the reason in words.
+    """
+
+    def __init__(self, step: str, message: str):
+        super().__init__(message)
+        self.step = step
+        self.message = message

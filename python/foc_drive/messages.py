@@ -210,6 +210,10 @@ class Calibration(enum.IntEnum):
     offsets = 0
     identification = 1
     alignment = 2
+    #: The anticogging map (design §32).
+    anticogging = 3
+    #: The angle sensor's correction (design §33).
+    encoder_linearisation = 4
 
 
 class TimeoutReaction(enum.IntEnum):
@@ -290,6 +294,12 @@ class ParamId(enum.IntEnum):
     Mtpa = 34
     MaxIdA = 35
     ShortCircuit = 36
+    # The tables kept with the configuration (design §32, §33): their
+    # switches, writable, and their peaks.
+    Anticogging = 37
+    EncoderLinearisation = 38
+    AnticoggingPeakA = 39
+    EncoderCorrectionPeakRad = 40
 
 
 #: Parameter names as ``foc-ctl param NAME`` spells them.
@@ -331,6 +341,10 @@ PARAM_NAMES: Dict[ParamId, str] = {
     ParamId.Mtpa: "mtpa",
     ParamId.MaxIdA: "max-id",
     ParamId.ShortCircuit: "short-circuit",
+    ParamId.Anticogging: "anticogging",
+    ParamId.EncoderLinearisation: "encoder-linearisation",
+    ParamId.AnticoggingPeakA: "anticogging-peak",
+    ParamId.EncoderCorrectionPeakRad: "encoder-correction-peak",
 }
 
 #: Each parameter's unit ("" for a count or a code), as ``foc-ctl param``
@@ -363,16 +377,20 @@ PARAM_UNITS: Dict[ParamId, str] = {
     ParamId.MaxImpedanceKp: "N m/rad",
     ParamId.MaxImpedanceKd: "N m s/rad",
     ParamId.MaxIdA: "A",
+    ParamId.AnticoggingPeakA: "A",
+    ParamId.EncoderCorrectionPeakRad: "rad",
 }
 
 #: The parameters ``SetParam`` writes (the d-current reference's, design
-#: §30; only while disabled), each with whether it is an on/off switch
-#: (0 or 1).
+#: §30; the tables' switches, design §32, §33; only while disabled), each
+#: with whether it is an on/off switch (0 or 1).
 WRITABLE_PARAMS: Dict[ParamId, bool] = {
     ParamId.FieldWeakening: True,
     ParamId.Mtpa: True,
     ParamId.MaxIdA: False,
     ParamId.ShortCircuit: True,
+    ParamId.Anticogging: True,
+    ParamId.EncoderLinearisation: True,
 }
 
 #: What a writable parameter takes (the device checks the same: a switch
@@ -382,6 +400,39 @@ PARAM_RANGES: Dict[ParamId, str] = {
     ParamId.Mtpa: "0 (off) or 1 (on)",
     ParamId.MaxIdA: "0 .. 1e6 A, finite (field weakening uses at most the current limit)",
     ParamId.ShortCircuit: "0 (off) or 1 (on)",
+    ParamId.Anticogging: "0 (off) or 1 (on)",
+    ParamId.EncoderLinearisation: "0 (off) or 1 (on)",
+}
+
+#: The drive's refusals of a table's switch or a sweep calibration (design
+#: §32, §33), by (parameter or routine, error code), in words.
+TABLE_REFUSALS: Dict[tuple, str] = {
+    (ParamId.Anticogging, ErrorCode.NotCalibrated): (
+        "the drive holds no anticogging map: measure one with calibrate_cogging() "
+        "(or load a configuration that has one)"
+    ),
+    (ParamId.EncoderLinearisation, ErrorCode.NotCalibrated): (
+        "the drive holds no angle correction: learn one with calibrate_encoder() "
+        "(or load a configuration that has one)"
+    ),
+    (Calibration.anticogging, ErrorCode.NotCalibrated): (
+        "the anticogging calibration runs on the closed loop and the drive is not "
+        "calibrated: identify it first"
+    ),
+    (Calibration.encoder_linearisation, ErrorCode.NotCalibrated): (
+        "encoder linearisation runs on the closed loop and the drive is not "
+        "calibrated: identify it first"
+    ),
+    (Calibration.anticogging, ErrorCode.Unsupported): (
+        "the anticogging calibration needs the rotor's angle at low speed: refused on "
+        "halls (their half-count uncertainty, 30 deg electrical, is as wide as a "
+        "cogging cycle) and sensorless without injection"
+    ),
+    (Calibration.encoder_linearisation, ErrorCode.Unsupported): (
+        "encoder linearisation learns the angle sensor's own error, so it needs a fine "
+        "sensor that is read: refused on halls (interpolated between their edges) and "
+        "while the drive runs sensorless"
+    ),
 }
 
 #: Why the drive refuses field weakening its values allow (``Unsupported``):

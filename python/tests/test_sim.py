@@ -480,5 +480,85 @@ class FieldWeakeningOnHalls(SimTestCase):
         self.assertEqual(self.d.param("mtpa"), 1.0)
 
 
+class Tables(SimTestCase):
+    """The tables kept with the configuration (design §32, §33): a switch
+    without its table is refused with what to do; calibrate_encoder() and
+    calibrate_cogging() measure them (switched on) and return their peaks;
+    the switches by name; a save keeps both; not while running. The
+    simulation runs at 8 times real time (the map's sweep is 24 s
+    simulated)."""
+
+    def setUp(self):
+        self.sim = support.Simulator(FOC_CTL, ["--calibrated", "--time-scale", "8"])
+        self.addCleanup(self.sim.stop)
+        self.d = Drive.connect_tcp("127.0.0.1", self.sim.port, timeout=1.0)
+        self.addCleanup(self.d.close)
+
+    def test_calibrations_switches_and_save(self):
+        p = self.d.params()
+        for name in ("anticogging", "encoder-linearisation", "anticogging-peak", "encoder-correction-peak"):
+            self.assertIn(name, p)
+            self.assertEqual(p[name], 0.0)
+        self.assertEqual(m.PARAM_UNITS[m.ParamId.AnticoggingPeakA], "A")
+        for name, hint in (
+            ("anticogging", "calibrate_cogging()"),
+            ("encoder-linearisation", "calibrate_encoder()"),
+        ):
+            with self.subTest(name=name):
+                with self.assertRaises(NackError) as cm:
+                    self.d.set_param(name, True)
+                self.assertEqual(cm.exception.code, ErrorCode.NotCalibrated)
+                self.assertIn(hint, cm.exception.message)
+                self.assertIn("nothing changed", cm.exception.message)
+        before = len(self.d.read_config())
+        peak = self.d.calibrate_encoder(timeout=30.0)
+        self.assertGreater(peak, 0.0)
+        self.assertEqual(self.d.param("encoder-linearisation"), 1.0)
+        peak = self.d.calibrate_cogging(timeout=60.0)
+        self.assertGreater(peak, 0.0)
+        self.assertEqual(self.d.param("anticogging-peak"), peak)
+        self.assertEqual(self.d.param("anticogging"), 1.0)
+        self.d.set_param("anticogging", False)
+        self.assertEqual(self.d.param("anticogging"), 0.0)
+        # The record keeps both tables: 1.5 KB more.
+        live = self.d.read_config()
+        self.assertEqual(len(live), before + 1550)
+        self.d.save_config()
+        self.assertEqual(self.d.read_config("stored"), live)
+        # Not while running.
+        self.d.velocity(5.0)
+        with self.assertRaises(NackError) as cm:
+            self.d.calibrate_cogging()
+        self.assertEqual(cm.exception.code, ErrorCode.NotDisabled)
+        with self.assertRaises(NackError) as cm:
+            self.d.set_param("anticogging", True)
+        self.assertEqual(cm.exception.code, ErrorCode.NotDisabled)
+        self.d.disable()
+
+
+class TablesOnHalls(SimTestCase):
+    """On halls both calibrations are refused with the reason."""
+
+    def setUp(self):
+        hub = os.path.join(support.REPO_ROOT, "tests", "motors", "cute-q85sx-hub.toml")
+        self.sim = support.Simulator(FOC_CTL, ["--calibrated", "--motor", hub])
+        self.addCleanup(self.sim.stop)
+        self.d = Drive.connect_tcp("127.0.0.1", self.sim.port, timeout=1.0)
+        self.addCleanup(self.d.close)
+
+    def test_refused_on_halls(self):
+        for run, why in (
+            (self.d.calibrate_cogging, "angle at low speed"),
+            (self.d.calibrate_encoder, "fine sensor"),
+        ):
+            with self.subTest(run=run.__name__):
+                with self.assertRaises(NackError) as cm:
+                    run()
+                self.assertEqual(cm.exception.code, ErrorCode.Unsupported)
+                self.assertIn(why, cm.exception.message)
+                self.assertIn("halls", cm.exception.message)
+        self.assertEqual(self.d.param("anticogging"), 0.0)
+
+
 if __name__ == "__main__":
     unittest.main()
