@@ -22,6 +22,7 @@
 //! | a d-current reference parameter | the reference it makes is one the drive refuses (`foc_core::drive::check_field`: field weakening on a coarse angle sensor such as halls, or with `max-id` 0 or no bandwidth) | `Unsupported` |
 //! | `anticogging`, `encoder-linearisation` on | no such table (never measured, nor loaded) | `NotCalibrated` |
 //! | a table's switch | a command posted and not yet taken | `NotDisabled` |
+//! | calibration `anticogging`, `encoder linearisation` | a command posted and not yet taken | `NotDisabled` |
 //! | calibration `anticogging`, `encoder linearisation` | the drive's rule (`foc_core::drive::Status::check_sweep` on the angle calibration in force): uncalibrated; halls, or sensorless (without injection, for the map) | `NotCalibrated` / `Unsupported` |
 //! | store operations | not quiet (see [`Link::quiet`]) | `NotDisabled` / `Busy` |
 //! | apply a record | the board does not take it ([`crate::records::admit`]) | `BadRecord` |
@@ -377,6 +378,11 @@ impl<S: RecordStore> DeviceContext for Link<'_, S> {
             // in force, for the immediate answer (the drive judges the
             // request again when it takes it).
             Calibration::Anticogging | Calibration::EncoderLinearisation => {
+                // A command waiting in the mailbox would be overtaken by
+                // the sweep (which takes the stage at the same boundary).
+                if self.snap.pending.command != Command::Disable {
+                    return Err(Refusal::NotDisabled);
+                }
                 let angle = self.service.settings().angle;
                 let sweep = routine.sweep().ok_or(Refusal::Unsupported)?;
                 self.view().status().check_sweep(sweep, &angle)?;

@@ -835,5 +835,12 @@ fn the_sweep_calibrations_follow_the_drives_rule() {
         let mut l = link(&mut h, quiet_snapshot(), &mut st);
         assert_eq!(l.start_calibration(routine), Err(Refusal::Unsupported));
         assert!(!l.out.touches_config());
+        // A command waiting in the mailbox (the status not yet showing
+        // it): the sweep would overtake it.
+        let mut snap = quiet_snapshot();
+        snap.pending.command = Command::Velocity { rad_s: 0.0 };
+        let mut l = link(&mut s, snap, &mut st);
+        assert_eq!(l.start_calibration(routine), Err(Refusal::NotDisabled));
+        assert!(!l.out.touches_config());
     }
 }
