@@ -829,3 +829,72 @@ fn comm_settings_and_the_stored_record_agree() {
         assert!(CommSettings::from_record(&r).is_err());
     }
 }
+
+/// 0x2009 and 0x200A, the tables kept with the configuration (design §32,
+/// §33): sub 1 the switch, sub 2 the calibration (write 1 to start it;
+/// reads 1 while it runs), sub 3 the table's peak. A switch without its
+/// table, a calibration on an uncalibrated drive, on halls or while
+/// running abort with the drive's reason and change nothing.
+#[test]
+fn the_tables_are_switched_and_calibrated_through_their_objects() {
+    use foc_core::calibration::identification::Step;
+    use foc_core::drive::Progress;
+    use foc_protocol::message::Calibration;
+    let mut b = Bench::new();
+    for index in [0x2009u16, 0x200A] {
+        assert_eq!(b.read_u32(index, 0), 3);
+        assert_eq!(b.read(index, 1), Ok(vec![0]), "{index:#x} off");
+        assert_eq!(b.read(index, 2), Ok(vec![0]), "{index:#x} not running");
+        assert_eq!(f32::from_bits(b.read_u32(index, 3)), 0.0);
+        // On without a table: the drive's refusal (its state).
+        assert_eq!(b.write(index, 1, &[1]), Err(0x0800_0022));
+        // Only 1 starts the calibration.
+        for v in [0u8, 2] {
+            assert_eq!(b.write(index, 2, &[v]), Err(0x0609_0030));
+        }
+        // The peak is read-only.
+        assert_eq!(b.write_u32(index, 3, 0), Err(0x0601_0002));
+        assert_eq!(b.read(index, 4), Err(0x0609_0011));
+    }
+    assert_eq!(b.dev.ctx.calibration, None);
+    let before = b.snapshot();
+    // Not while running, nor on an uncalibrated drive, nor on halls.
+    b.dev.ctx.mode = Mode::Velocity;
+    assert_eq!(b.write(0x2009, 2, &[1]), Err(0x0800_0022));
+    b.dev.ctx.mode = Mode::Disabled;
+    b.dev.ctx.calibrated = false;
+    assert_eq!(b.write(0x200A, 2, &[1]), Err(0x0800_0022));
+    b.dev.ctx.calibrated = true;
+    b.dev.angle.sensor_counts_per_rev = 48;
+    assert_eq!(b.write(0x2009, 2, &[1]), Err(0x0609_0030));
+    assert_eq!(b.write(0x200A, 2, &[1]), Err(0x0609_0030));
+    b.dev.angle.sensor_counts_per_rev = 4096;
+    assert_eq!(b.dev.ctx.calibration, None);
+    assert_eq!(b.snapshot(), before);
+    // Started; the running calibration reads 1 on its own object only.
+    b.write(0x2009, 2, &[1]).unwrap();
+    assert_eq!(b.dev.ctx.calibration, Some(Calibration::Anticogging));
+    b.dev.progress = Progress::Running(Step::Cogging);
+    assert_eq!(b.read(0x2009, 2), Ok(vec![1]));
+    assert_eq!(b.read(0x200A, 2), Ok(vec![0]));
+    b.dev.progress = Progress::Done;
+    assert_eq!(b.read(0x2009, 2), Ok(vec![0]));
+    b.write(0x200A, 2, &[1]).unwrap();
+    assert_eq!(
+        b.dev.ctx.calibration,
+        Some(Calibration::EncoderLinearisation)
+    );
+    // Measured: on, with their peaks; switched by sub 1.
+    assert_eq!(b.read(0x2009, 1), Ok(vec![1]));
+    assert_eq!(f32::from_bits(b.read_u32(0x2009, 3)), 0.25);
+    assert_eq!(f32::from_bits(b.read_u32(0x200A, 3)), 0.004);
+    b.write(0x2009, 1, &[0]).unwrap();
+    assert_eq!(b.read(0x2009, 1), Ok(vec![0]));
+    assert_eq!(b.dev.cogging, Some(false));
+    b.write(0x2009, 1, &[1]).unwrap();
+    assert_eq!(b.dev.cogging, Some(true));
+    // Not while running.
+    b.dev.ctx.mode = Mode::Velocity;
+    assert_eq!(b.write(0x200A, 1, &[0]), Err(0x0800_0022));
+    assert_eq!(b.dev.correction, Some(true));
+}

@@ -3,8 +3,10 @@
 //! ([`Dict::prepare`]: no side effect) before it is applied
 //! ([`Dict::apply`]).
 
+use foc_core::calibration::identification::Step;
+use foc_core::drive::Progress;
 use foc_protocol::device::Refusal;
-use foc_protocol::message::{ParamId, SpeedGains};
+use foc_protocol::message::{Calibration, ParamId, SpeedGains};
 
 use crate::cia402::{OpMode, Params, Targets};
 use crate::emcy::Emcy;
@@ -67,8 +69,11 @@ pub(crate) enum Action {
     Save,
     Restore,
     SpeedGains(SpeedGains),
-    /// A writable parameter (0x2008: the d-current reference's).
+    /// A writable parameter (0x2008: the d-current reference's; 0x2009,
+    /// 0x200A sub 1: the tables' switches).
     Param(ParamId, f32),
+    /// Start a calibration (0x2009, 0x200A sub 2).
+    Calibrate(Calibration),
     NodeId(u8),
     BitRate(u16),
     Controlword(u16),
@@ -114,6 +119,27 @@ fn field_param(sub: u8) -> Result<ParamId, Abort> {
         3 => Ok(ParamId::MaxIdA),
         4 => Ok(ParamId::ShortCircuit),
         _ => Err(Abort::NoSubIndex),
+    }
+}
+
+/// The table object `index` (0x2009 the anticogging map, 0x200A the
+/// angle correction): its switch, its calibration and the step that
+/// calibration runs as, its peak.
+fn table_object(index: u16) -> Result<(ParamId, Calibration, Step, ParamId), Abort> {
+    match index {
+        0x2009 => Ok((
+            ParamId::Anticogging,
+            Calibration::Anticogging,
+            Step::Cogging,
+            ParamId::AnticoggingPeakA,
+        )),
+        0x200A => Ok((
+            ParamId::EncoderLinearisation,
+            Calibration::EncoderLinearisation,
+            Step::Encoder,
+            ParamId::EncoderCorrectionPeakRad,
+        )),
+        _ => Err(Abort::NoObject),
     }
 }
 
@@ -311,6 +337,18 @@ impl<P: Profile> Dict<P> {
             }
             (0x2008, 3) => real(ctx.param(ParamId::MaxIdA)),
             (0x2008, s) => switch(ctx.param(field_param(s)?)),
+            (0x2009 | 0x200A, s) => {
+                let (on, _, step, peak) = table_object(index)?;
+                match s {
+                    1 => switch(ctx.param(on)),
+                    // 1 while this calibration runs.
+                    2 => int(u8::from(
+                        ctx.status().calibration == Progress::Running(step),
+                    )),
+                    3 => real(ctx.param(peak)),
+                    _ => Err(Abort::NoSubIndex),
+                }
+            }
             (0x2010, 0) => real(ctx.param(ParamId::CurrentKp)),
             (0x2011, 0) => real(ctx.param(ParamId::CurrentKi)),
             (0x2012, 0) => real(ctx.param(ParamId::SpeedKp)),
@@ -549,6 +587,24 @@ impl<P: Profile> Dict<P> {
                 ctx.status().check_config().map_err(refusal)?;
                 Action::Param(id, x)
             }
+            // A table's switch (the BOOLEAN's range checked already); on
+            // without a table is the drive's refusal (0x08000022).
+            (0x2009 | 0x200A, 1) => {
+                let (on, ..) = table_object(def.index)?;
+                ctx.status().check_config().map_err(refusal)?;
+                Action::Param(on, if u == 1 { 1.0 } else { 0.0 })
+            }
+            // Its calibration: 1 starts it (as `RunCalibration`: started,
+            // disabled, not faulted; then the drive's rule when applied:
+            // uncalibrated 0x08000022, halls or sensorless 0x06090030).
+            (0x2009 | 0x200A, 2) => {
+                let (_, routine, ..) = table_object(def.index)?;
+                if u != 1 {
+                    return Err(Abort::InvalidValue);
+                }
+                ctx.status().check_calibration().map_err(refusal)?;
+                Action::Calibrate(routine)
+            }
             (0x2100, 0) => Action::NodeId(u as u8),
             (0x2101, 0) => {
                 if !CommSettings::BIT_RATES.contains(&(u as u16)) {
@@ -627,10 +683,12 @@ impl<P: Profile> Dict<P> {
         Ok(a)
     }
 
-    /// Apply a validated write. Only the store operations, the gains and
-    /// the d-current reference's parameters (the device's own refusals:
-    /// field weakening on halls is `InvalidValue`) can still fail, having
-    /// changed nothing here.
+    /// Apply a validated write. Only the store operations, the gains, the
+    /// writable parameters and the calibrations (the device's own
+    /// refusals: field weakening on halls, a sweep on halls are
+    /// `InvalidValue`; a table's switch without its table, a sweep on an
+    /// uncalibrated drive `DeviceState`) can still fail, having changed
+    /// nothing here.
     pub fn apply<C: CanDevice>(
         &mut self,
         a: Action,
@@ -683,6 +741,7 @@ impl<P: Profile> Dict<P> {
             }
             Action::SpeedGains(g) => ctx.set_speed_gains(g).map_err(refusal)?,
             Action::Param(id, x) => ctx.set_param(id, x).map_err(refusal)?,
+            Action::Calibrate(r) => ctx.start_calibration(r).map_err(refusal)?,
             Action::NodeId(n) => {
                 self.next = CommSettings::new(
                     n,

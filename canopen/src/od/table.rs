@@ -542,6 +542,22 @@ const fn build() -> Builder {
             d,
         )
         .sub(0x2008, 4, o, "Short circuit safe state", k, Boolean, Rw, d);
+    // The tables kept with the configuration (design §32, §33): the
+    // switch (only while disabled), the calibration (write 1 to start it,
+    // only while disabled and calibrated; reads 1 while it runs) and the
+    // table's peak.
+    let (o, k) = ("Anticogging", Kind::Record(3));
+    b = b
+        .head(0x2009, o, k, Const)
+        .sub(0x2009, 1, o, "Anticogging on", k, Boolean, Rw, d)
+        .sub(0x2009, 2, o, "Measure the map", k, Unsigned8, Rw, d)
+        .sub(0x2009, 3, o, "Map peak [A]", k, Real32, Ro, d);
+    let (o, k) = ("Encoder linearisation", Kind::Record(3));
+    b = b
+        .head(0x200A, o, k, Const)
+        .sub(0x200A, 1, o, "Encoder linearisation on", k, Boolean, Rw, d)
+        .sub(0x200A, 2, o, "Learn the correction", k, Unsigned8, Rw, d)
+        .sub(0x200A, 3, o, "Correction peak [rad]", k, Real32, Ro, d);
     b = b
         .p(0x2010, "Current loop kp [V per A]", Real32, Ro, false, d)
         .p(0x2011, "Current loop ki [V per A s]", Real32, Ro, false, d)

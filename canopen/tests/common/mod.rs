@@ -166,6 +166,14 @@ pub struct FakeDevice {
     pub field: foc_core::control::field::FieldConfig,
     /// The angle calibration the rule looks at (halls: coarse).
     pub angle: foc_core::control::stage::AngleCalibration,
+    /// The anticogging map: `None` none measured, else its switch
+    /// (parameter 37; peak 0.25 A).
+    pub cogging: Option<bool>,
+    /// The angle correction: `None` none learnt, else its switch
+    /// (parameter 38; peak 0.004 rad).
+    pub correction: Option<bool>,
+    /// The calibration's progress the status reports.
+    pub progress: foc_core::drive::Progress,
 }
 
 impl FakeDevice {
@@ -187,6 +195,9 @@ impl FakeDevice {
                 sensorless_only: false,
                 ..foc_core::control::stage::AngleCalibration::sensorless(7, 4096)
             },
+            cogging: None,
+            correction: None,
+            progress: foc_core::drive::Progress::Idle,
         }
     }
     pub fn set_faults(&mut self, faults: &[Fault]) {
@@ -239,6 +250,19 @@ impl DeviceContext for FakeDevice {
         self.ctx.set_dividers(s, p)
     }
     fn set_param(&mut self, id: ParamId, value: f32) -> Result<(), Refusal> {
+        // A table's switch: not on without the table.
+        let table = match id {
+            ParamId::Anticogging => Some(&mut self.cogging),
+            ParamId::EncoderLinearisation => Some(&mut self.correction),
+            _ => None,
+        };
+        if let Some(t) = table {
+            if value == 1.0 && t.is_none() {
+                return Err(Refusal::NotCalibrated);
+            }
+            *t = Some(value == 1.0);
+            return self.ctx.set_param(id, value);
+        }
         let mut f = self.field;
         match id {
             ParamId::FieldWeakening => f.field_weakening = value == 1.0,
@@ -253,7 +277,28 @@ impl DeviceContext for FakeDevice {
         Ok(())
     }
     fn start_calibration(&mut self, r: Calibration) -> Result<(), Refusal> {
-        self.ctx.start_calibration(r)
+        // A sweep: the drive's rule; measured at once (switched on).
+        if let Some(sweep) = r.sweep() {
+            self.status().check_sweep(sweep, &self.angle)?;
+        }
+        self.ctx.start_calibration(r)?;
+        match r {
+            Calibration::Anticogging => self.cogging = Some(true),
+            Calibration::EncoderLinearisation => self.correction = Some(true),
+            _ => {}
+        }
+        Ok(())
+    }
+    fn status(&self) -> foc_core::drive::Status {
+        foc_core::drive::Status {
+            running: true,
+            mode: self.ctx.mode,
+            faulted: !self.ctx.faults.is_empty(),
+            calibrated: self.ctx.calibrated,
+            sensorless: self.sensorless,
+            injection: false,
+            calibration: self.progress,
+        }
     }
     fn is_calibrated(&self) -> bool {
         self.ctx.is_calibrated()
@@ -273,6 +318,16 @@ impl DeviceContext for FakeDevice {
             ParamId::Mtpa => Some(f32::from(u8::from(self.field.mtpa))),
             ParamId::MaxIdA => Some(self.field.max_id_a),
             ParamId::ShortCircuit => Some(f32::from(u8::from(self.field.short_circuit))),
+            ParamId::Anticogging => Some(f32::from(u8::from(self.cogging == Some(true)))),
+            ParamId::EncoderLinearisation => {
+                Some(f32::from(u8::from(self.correction == Some(true))))
+            }
+            ParamId::AnticoggingPeakA => Some(if self.cogging.is_some() { 0.25 } else { 0.0 }),
+            ParamId::EncoderCorrectionPeakRad => Some(if self.correction.is_some() {
+                0.004
+            } else {
+                0.0
+            }),
             _ => self.ctx.param(id),
         }
     }
