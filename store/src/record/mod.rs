@@ -767,7 +767,17 @@ pub fn example() -> DriveRecord {
             bandwidth_rad_s: 2000.0,
             short_circuit: false,
         }),
-        cogging: None,
-        angle_correction: None,
+        cogging: Some(CoggingRecord {
+            enabled: true,
+            scale_a: 1e-5,
+            // A saw of 42 points a cycle, peak 0.21 A.
+            table: Counts(core::array::from_fn(|k| ((k % 42) as i16 - 21) * 1000)),
+        }),
+        angle_correction: Some(CorrectionRecord {
+            enabled: false,
+            scale_rad: 1e-6,
+            // A ramp over the turn, peak 12.8 mrad.
+            table: Counts(core::array::from_fn(|k| (k as i16 - 128) * 100)),
+        }),
     }
 }

@@ -16,12 +16,15 @@ use crate::record::{
     SpeedRecord, WatchdogReaction, WatchdogRecord,
 };
 
-/// Record A of the tests: the example without its `[field]` table (as
-/// every schema before 8 held it, so the older versions' goldens decode
-/// to it; [`record_tests`]' `field_record` has one).
+/// Record A of the tests: the example without its `[field]` table and
+/// its tables (as every schema before 8 held it, so the older versions'
+/// goldens decode to it; [`record_tests`]' `field_record` has a `[field]`
+/// table, `tables_record` tables).
 pub(crate) fn record_a() -> DriveRecord {
     DriveRecord {
         field: None,
+        cogging: None,
+        angle_correction: None,
         ..example()
     }
 }

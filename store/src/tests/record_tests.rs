@@ -1055,7 +1055,8 @@ fn joint_is_checked_field_by_field() {
 fn joint_round_trips_through_settings() {
     use crate::Settings;
     use foc_core::drive::cascade::CascadeConfig;
-    // (With its `[field]` table: settings always write one.)
+    // (With its `[field]` table: settings always write one; its tables
+    // are not settings: added back.)
     let r = crate::record::example();
     let build = CascadeConfig::for_motor(r.motor.to_params(), 20_000.0, 5.0);
     let base = Settings::from_cascade(&build);
@@ -1078,7 +1079,11 @@ fn joint_round_trips_through_settings() {
         (s.limits.min_position_rad, s.limits.max_position_rad),
         (-100.0, 100.0)
     );
-    assert_eq!(DriveRecord::from_settings(&r.label, 20_000, &s), r);
+    let tables = crate::settings::Tables::of_record(&r);
+    assert_eq!(
+        DriveRecord::from_settings(&r.label, 20_000, &s).with_tables(&tables),
+        r
+    );
     assert_eq!(r.apply(&s, 20_000), Ok(s));
     // In the stage: the travel range in the rotor frame, reversed by the
     // negative ratio: 1.5 - 9 * 2 ..= 1.5 + 9 * 1.5.
@@ -1106,7 +1111,10 @@ fn joint_round_trips_through_settings() {
         (-100.0, 100.0)
     );
     assert_eq!(c.current.joint.travel, None);
-    assert_eq!(DriveRecord::from_settings(&r.label, 20_000, &s), free);
+    assert_eq!(
+        DriveRecord::from_settings(&r.label, 20_000, &s).with_tables(&tables),
+        free
+    );
     // None keeps base's joint and maxima (a reload keeps the ones in
     // force).
     let mut none = r.clone();
