@@ -305,7 +305,7 @@ impl Status {
         }
         let coarse = angle.interpolation_half_count().is_some();
         let measurable = match sweep {
-            Sweep::Cogging => !self.angle_only_in_motion() && !(coarse && !self.sensorless),
+            Sweep::Cogging => !self.angle_only_in_motion() && (!coarse || self.sensorless),
             Sweep::Encoder => !self.sensorless && !coarse,
         };
         if !measurable {
@@ -527,7 +527,7 @@ mod tests {
             (c, cfg)
         };
         for sweep in [Sweep::Cogging, Sweep::Encoder] {
-            let cases: [(&str, (Cascade, CascadeConfig), Result<(), Refusal>); 5] = [
+            let cases = [
                 ("uncalibrated", cascade(4096), Err(Refusal::NotCalibrated)),
                 ("encoder", calibrated(4096), Ok(())),
                 ("halls", calibrated(48), Err(Refusal::Unsupported)),
