@@ -46,7 +46,7 @@ pub fn without_wall_time(summary: &str) -> String {
 }
 
 /// The rows of the motors' mission summaries compared side by side.
-const COMPARED: [&str; 13] = [
+const COMPARED: [&str; 15] = [
     "identified R / error",
     "identified Ld / error",
     "identified Lq / error",
@@ -59,6 +59,8 @@ const COMPARED: [&str; 13] = [
     "current-limited step overshoot",
     "position 2 % settling",
     "model check: largest healthy residual / bound, disturbance / envelope",
+    "low-speed smoothness: zero-torque shaft-torque ripple p-p, before -> after",
+    "low-speed smoothness: angle error p-p of the sensor's reading, before -> after",
     "faults",
 ];
 

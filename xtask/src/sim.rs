@@ -5,19 +5,28 @@
 //! identification's permit; then the braking segment: stops into a supply
 //! that cannot sink current with the ODrive v3's bus capacitor, the regen
 //! limit on, into the capacitor alone and with the brake resistor, design
-//! §18; last, field weakening, design §30: from rest to 2.2 x base speed
+//! §18; then field weakening, design §30: from rest to 2.2 x base speed
 //! where the model allows it, a load step there, back to rest, skipped on
-//! halls and where base speed is beyond the bench's resolved speed).
+//! halls and where base speed is beyond the bench's resolved speed; last,
+//! low-speed smoothness, design §32, §33: on a separate simulation with the
+//! motor file's cogging, sensor error and dead time, the zero-torque
+//! ripple, the speed ripple at 1 % and 5 % of the no-load speed and the
+//! sensor's angle error before and after the encoder linearisation and
+//! the anticogging calibration, skipped on halls; `--sensorless` states
+//! that it does not run there).
 //!
 //! Writes `identification.csv` / `identification.svg` (the identify
 //! segment, decimated), `mission.csv` (every PWM period after the
 //! identification), `current_step.csv`, SVG plots (`mission.svg`,
 //! `current_step.svg`, `speed.svg`, `position.svg`, `braking.svg`,
-//! `field_weakening.svg`) and `summary.md` into the output directory and
-//! prints the summary. Fails when the mission's pass criteria fail (the
-//! braking segment's: the bus at or above the over-voltage threshold, no
-//! stop, a fault; the field-weakening segment's: a fault, the speed more
-//! than 2 % off the command, the phase current at 1.1 x the limit). `--all` runs every motor file in `tests/motors` (one
+//! `field_weakening.svg`, `smoothness.svg`) and `summary.md` into the
+//! output directory and prints the summary. Fails when the mission's pass
+//! criteria fail (the braking segment's: the bus at or above the
+//! over-voltage threshold, no stop, a fault; the field-weakening
+//! segment's: a fault, the speed more than 2 % off the command, the phase
+//! current at 1.1 x the limit; the smoothness segment's: a calibration
+//! that does not finish, the zero-torque ripple down less than 3 times,
+//! the angle error neither smaller nor within two counts, a fault). `--all` runs every motor file in `tests/motors` (one
 //! sub-directory each); `--bench` also measures the simulation speed.
 //! `--save-config FILE.toml` writes the configuration the mission ended
 //! with (the identified calibration included) as `foc-ctl config export`
@@ -28,13 +37,16 @@
 //! It runs in this process: a mission is about 100 000 to 500 000 PWM
 //! periods (the identification is most of them: its alignment sweeps run at
 //! a quarter of an electrical turn per second on high-flux motors), 1 to 4 s
-//! each in xtask's dev profile (opt-level 1), so no release build is spawned.
+//! each in xtask's dev profile (opt-level 1), plus the smoothness segment's
+//! 50 to 62 s simulated (0.9 to 2.4 million periods, 10 to 30 s), so no
+//! release build is spawned.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use clap::Args;
 use foc_bench::mission::{self, Setup};
+use foc_bench::motor_file::MotorFile;
 use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::util::{banner, root, Error, Result};
@@ -140,7 +152,8 @@ fn run_sensorless(setup: &Setup, motor: &Path, out: &Path) -> Result<(bool, Stri
 
 /// One mission; whether it passed, and its summary.
 fn run_one(motor: &Path, out: &Path, args: &SimArgs) -> Result<(bool, String)> {
-    let setup = Setup::load(motor).map_err(|e| Error(e.to_string()))?;
+    let file = MotorFile::load(motor).map_err(|e| Error(e.to_string()))?;
+    let setup = Setup::from_file(&file);
     if args.sensorless {
         banner(&format!("sim --sensorless: {}", setup.name));
         return run_sensorless(&setup, motor, out);
@@ -152,10 +165,13 @@ fn run_one(motor: &Path, out: &Path, args: &SimArgs) -> Result<(bool, String)> {
     }
     let pb = progress_bar(&stem(motor));
     let t = Instant::now();
-    let result = mission::run_mission_from(&setup, stored.as_ref(), &mut |f| {
-        pb.set_position((f * 1000.0) as u64)
-    })
-    .map_err(|e| Error(format!("the stored configuration does not apply: {e}")))?;
+    // The low-speed smoothness segment on the file's imperfections.
+    let imperfections = file.imperfections();
+    let result =
+        mission::run_mission_with(&setup, stored.as_ref(), Some(&imperfections), &mut |f| {
+            pb.set_position((f * 1000.0) as u64)
+        })
+        .map_err(|e| Error(format!("the stored configuration does not apply: {e}")))?;
     pb.finish_and_clear();
     if let Some(p) = &args.save_config {
         if let Some(dir) = p.parent().filter(|d| !d.as_os_str().is_empty()) {

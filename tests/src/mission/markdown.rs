@@ -19,6 +19,7 @@ impl MissionSummary {
         self.motion_rows(&mut t);
         self.braking_rows(&mut t);
         self.field_weakening_rows(&mut t);
+        self.smoothness_rows(&mut t);
         t.row(
             "model check: largest healthy residual / bound, disturbance / envelope",
             format!(

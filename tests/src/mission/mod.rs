@@ -57,6 +57,19 @@
 //!    below 2 x base where 2.2 x was commanded. Skipped, the reason
 //!    stated, on a coarse angle sensor (halls: refused) or a base speed
 //!    whose 1.2 x is beyond 80 % of the bench's resolved speed.
+//! 9. **low-speed smoothness** (design §32, §33; `smoothness.rs`), where
+//!    the motor file's imperfections are given ([`run_mission_with`];
+//!    `cargo xtask sim` gives them): on a separate simulation of the same
+//!    setup with the file's cogging, sensor error and dead time, driven
+//!    by the mission's calibration, the zero-torque shaft-torque ripple,
+//!    the speed ripple at 1 % and 5 % of the no-load speed and the
+//!    sensor's angle error with both corrections off; the encoder
+//!    linearisation, the anticogging calibration and the linearisation
+//!    again with the map on, through the drive's lifecycle; the same
+//!    figures with both on. It fails on a calibration
+//!    that does not finish, a zero-torque ripple down less than 3 times,
+//!    an angle error neither smaller nor within two counts, or a fault.
+//!    Skipped, the reason stated, on a coarse angle sensor (halls).
 //!
 //! ```no_run
 //! use foc_bench::mission::{run_mission, Setup};
@@ -75,6 +88,7 @@ mod segments;
 mod sensorless;
 mod setup;
 mod sim;
+mod smoothness;
 mod summary;
 
 use field_weakening::*;
@@ -87,11 +101,12 @@ pub use segments::{
 pub use sensorless::*;
 pub use setup::*;
 pub use sim::*;
+pub use smoothness::*;
 pub use summary::*;
 
 use crate::identify;
 use crate::metrics;
-use crate::motor_file::{MotorFile, MotorFileError};
+use crate::motor_file::{Imperfections, MotorFile, MotorFileError};
 use crate::plant::{self, BenchConfig, Measurements, Mechanics, Plant};
 use crate::power::{DcLinkConfig, SourceKind};
 use crate::report::{Panel, Trace};

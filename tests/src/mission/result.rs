@@ -26,6 +26,10 @@ pub struct MissionResult {
     /// The configuration the mission ended with (identified or restored),
     /// as the drive would save it.
     pub record: foc_store::DriveRecord,
+    /// The low-speed smoothness segment's waveforms, before and after,
+    /// against the share of their turn (None: it did not run, or a
+    /// calibration failed).
+    pub smoothness_trace: Option<Trace>,
 }
 
 impl MissionResult {
@@ -70,7 +74,8 @@ impl MissionResult {
     /// from the end of the identification on, simulation time),
     /// `mission.svg` (the same, decimated), `current_step.csv`,
     /// `current_step.svg`, `speed.svg`, `position.svg`, `braking.svg`,
-    /// `field_weakening.svg` (where that segment ran) and `summary.md`.
+    /// `field_weakening.svg` and `smoothness.svg` (where those segments
+    /// ran) and `summary.md`.
     /// Returns the paths.
     pub fn write(&self, dir: &Path) -> std::io::Result<Vec<std::path::PathBuf>> {
         std::fs::create_dir_all(dir)?;
@@ -81,6 +86,7 @@ impl MissionResult {
         self.write_speed_and_position(dir, &mut out)?;
         self.write_braking(dir, &mut out)?;
         self.write_field_weakening(dir, &mut out)?;
+        self.write_smoothness(dir, &mut out)?;
         let p = dir.join("summary.md");
         std::fs::write(&p, self.summary.to_markdown())?;
         out.push(p);

@@ -113,7 +113,9 @@ pub(super) fn identification_summary(
     }
 }
 
-/// Run the mission on `setup`. `progress` is called with the fraction done (0..=1).
+/// Run the mission on `setup` (the ideal bench: no low-speed smoothness
+/// segment, see [`run_mission_with`]). `progress` is called with the
+/// fraction done (0..=1).
 pub fn run_mission(setup: &Setup, progress: &mut dyn FnMut(f64)) -> MissionResult {
     match run_mission_from(setup, None, progress) {
         Ok(r) => r,
@@ -136,6 +138,20 @@ pub fn run_mission_from(
     stored: Option<&foc_store::DriveRecord>,
     progress: &mut dyn FnMut(f64),
 ) -> Result<MissionResult, String> {
+    run_mission_with(setup, stored, None, progress)
+}
+
+/// [`run_mission_from`], then, where `imperfections` are given (the
+/// motor file's, [`MotorFile::imperfections`]: what `cargo xtask sim`
+/// runs), the low-speed smoothness segment on them (the module
+/// `smoothness.rs`: a separate simulation of the same setup, so every
+/// earlier figure is the same as without it).
+pub fn run_mission_with(
+    setup: &Setup,
+    stored: Option<&foc_store::DriveRecord>,
+    imperfections: Option<&Imperfections>,
+    progress: &mut dyn FnMut(f64),
+) -> Result<MissionResult, String> {
     let wall = Instant::now();
     // Without a stored record the drive knows nothing of the rotor's
     // mechanics until its identification has measured them.
@@ -152,7 +168,10 @@ pub fn run_mission_from(
     };
     let config = settings.map_or(base, |s| s.apply_to(&base));
     let sim = Sim::new(setup, config, true);
-    let plan = MissionPlan::new(setup, &config);
+    let mut plan = MissionPlan::new(setup, &config);
+    if imperfections.is_some() {
+        plan.expected_s += smoothness_expected_s(setup);
+    }
     let total = secs(setup, plan.expected_s).max(1);
     let mut m = Mission {
         setup,
@@ -184,6 +203,13 @@ pub fn run_mission_from(
     let impedance = m.impedance();
     let braking = m.braking();
     let field_weakening = m.field_weakening();
+    let (smoothness, smoothness_trace) = match imperfections {
+        Some(imp) => {
+            let (s, t) = m.smoothness(imp);
+            (Some(s), t)
+        }
+        None => (None, None),
+    };
     (m.progress.report)(1.0);
 
     let trace = m.sim.take_trace().unwrap_or_default();
@@ -193,11 +219,13 @@ pub fn run_mission_from(
     summary.braking = Some(braking);
     summary.impedance = Some(impedance);
     summary.field_weakening = Some(field_weakening);
+    summary.smoothness = smoothness;
     Ok(MissionResult {
         trace,
         segments: m.segments,
         summary,
         record,
+        smoothness_trace,
     })
 }
 
@@ -323,8 +351,14 @@ pub(super) struct Progress<'a> {
 impl Progress<'_> {
     /// Report the fraction done every 2048 rows.
     pub(super) fn tick(&mut self, sim: &Sim) {
-        if sim.rows().is_multiple_of(2048) {
-            (self.report)((sim.rows() as f64 / self.total as f64).min(1.0));
+        self.tick_at(sim.rows());
+    }
+
+    /// [`Self::tick`] for a simulation that does not record (`rows`
+    /// periods done in all).
+    pub(super) fn tick_at(&mut self, rows: usize) {
+        if rows.is_multiple_of(2048) {
+            (self.report)((rows as f64 / self.total as f64).min(1.0));
         }
     }
 }
@@ -546,6 +580,7 @@ impl Mission<'_> {
             braking: None,
             impedance: None,
             field_weakening: None,
+            smoothness: None,
             faults: mission_faults(trace),
             model_margin: self.sim.cascade.current.model_check().peak_ratio() as f64,
             model_disturbance_margin: self

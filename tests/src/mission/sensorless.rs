@@ -154,6 +154,7 @@ impl SensorlessResult {
                 g.fault.map_or("none".into(), |f| format!("{f:?}"))
             );
         }
+        s += &format!("\n{}\n", super::SMOOTHNESS_SENSORLESS);
         let fails = self.failures();
         s += &format!(
             "\nResult: {}\n",
@@ -167,9 +168,14 @@ impl SensorlessResult {
     }
 }
 
-/// `x` with four significant digits.
-fn significant(x: f32) -> String {
-    let decimals = 3 - x.abs().log10().floor() as i32;
+/// `x` with four significant digits (0 and non-finite values with three
+/// decimals).
+pub(super) fn significant(x: f32) -> String {
+    let decimals = if x != 0.0 && x.is_finite() {
+        3 - x.abs().log10().floor() as i32
+    } else {
+        3
+    };
     format!("{x:.*}", decimals.clamp(0, 9) as usize)
 }
 

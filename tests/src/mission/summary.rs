@@ -1,5 +1,7 @@
 //! The mission's figures and the checks on them ([`MissionSummary::failures`]).
 
+use super::SmoothnessSegment;
+
 /// What the identification segment measured, against the plant's truth.
 #[derive(Clone, Debug, PartialEq)]
 pub struct IdentificationSummary {
@@ -362,6 +364,9 @@ pub struct MissionSummary {
     pub impedance: Option<ImpedanceFigures>,
     /// The field-weakening segment (None: not run).
     pub field_weakening: Option<FieldWeakeningSegment>,
+    /// The low-speed smoothness segment (None: not run, no imperfections
+    /// given; see [`run_mission_with`](super::run_mission_with)).
+    pub smoothness: Option<SmoothnessSegment>,
     /// Faults latched during the mission (names).
     pub faults: Vec<String>,
     /// The model check's largest healthy residual over its bound (design
@@ -441,6 +446,9 @@ impl MissionSummary {
         }
         if let Some(FieldWeakeningSegment::Ran(w)) = &self.field_weakening {
             f.extend(w.failures());
+        }
+        if let Some(s) = &self.smoothness {
+            f.extend(s.failures());
         }
         f
     }
