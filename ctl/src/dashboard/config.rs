@@ -224,9 +224,17 @@ mod tests {
             "field.voltage_margin",
             "field.bandwidth_rad_s",
             "field.short_circuit",
+            // The tables (schema 9).
+            "cogging.enabled",
+            "cogging.scale_a",
+            "cogging.table",
+            "angle_correction.enabled",
+            "angle_correction.scale_rad",
+            "angle_correction.table",
         ] {
             assert!(field_doc(key).is_some(), "{key}");
         }
+        assert_eq!(field_doc("cogging.scale_a").unwrap().0, "A per count");
         assert!(field_doc("no.such").is_none());
     }
 
