@@ -133,6 +133,10 @@ pub struct CalibrationRun {
     pub peak: f64,
 }
 
+/// A calibration's run, or why it failed (refused, a named failure, not
+/// finished in time).
+pub type CalibrationOutcome = Result<CalibrationRun, String>;
+
 /// One set of the segment's figures, rotor frame.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct SmoothnessMeasures {
@@ -161,12 +165,12 @@ pub struct SmoothnessFigures {
     /// Both on (None: a calibration did not finish).
     pub after: Option<SmoothnessMeasures>,
     /// The encoder linearisation on the raw reading, or why it failed.
-    pub encoder: Result<CalibrationRun, String>,
+    pub encoder: CalibrationOutcome,
     /// The anticogging calibration, or why it failed.
-    pub cogging: Result<CalibrationRun, String>,
+    pub cogging: CalibrationOutcome,
     /// The encoder linearisation again, with the map on, or why it failed
     /// (None: not run, an earlier calibration failed).
-    pub encoder_again: Option<Result<CalibrationRun, String>>,
+    pub encoder_again: Option<CalibrationOutcome>,
     /// Faults latched during the segment (names).
     pub faults: Vec<String>,
     /// Simulated time \[s\].
@@ -528,7 +532,7 @@ impl SmoothnessBench<'_, '_> {
     /// Request `change` (one calibration) from where the segment started
     /// and run it to its event, at most `limit_s` \[s\]; then the rotor
     /// brought to rest and the bridge off.
-    fn calibrate(&mut self, change: ConfigChange, limit_s: f64) -> Result<CalibrationRun, String> {
+    fn calibrate(&mut self, change: ConfigChange, limit_s: f64) -> CalibrationOutcome {
         self.return_to_start();
         self.sim.cascade.request(change);
         let hz = self.setup.pwm_hz() as f64;
@@ -581,56 +585,9 @@ impl Mission<'_> {
     /// figures and the waveforms of `smoothness.svg` (where it ran).
     pub(super) fn smoothness(&mut self, imp: &Imperfections) -> (SmoothnessSegment, Option<Trace>) {
         let wall = Instant::now();
-        if imp.cogging.is_none() && imp.sensor_error.is_none() {
-            return (
-                SmoothnessSegment::Skipped(
-                    "the motor file states no cogging torque and no angle-sensor error".into(),
-                ),
-                None,
-            );
-        }
-        // The same setup with the file's dead time on the bench, and the
-        // drive as the mission left it, the dead time compensated as the
-        // bench's configuration does it.
-        let mut setup = self.setup.clone();
-        imp.apply_bench(&mut setup.bench);
-        let fresh = setup.cascade_config();
-        let mut config = *self.sim.cascade.config();
-        config.current = *self.sim.cascade.current.config();
-        config.current.current.dead_time = fresh.current.current.dead_time;
-        config.current.supervisor.model.dead_time_s = fresh.current.supervisor.model.dead_time_s;
-        let angle = config.current.angle;
-        if angle.interpolation_half_count().is_some() {
-            let cpr = angle.sensor_counts_per_rev;
-            return (
-                SmoothnessSegment::Skipped(format!(
-                    "a coarse angle sensor ({cpr} counts per turn, {} per electrical turn: halls, interpolated between their edges): the drive refuses the encoder linearisation and the anticogging calibration (design §32, §33)",
-                    cpr / u32::from(angle.pole_pairs.max(1))
-                )),
-                None,
-            );
-        }
-        let permit = match Calibrated::supplied(angle, config.current.current) {
-            Ok(p) => p,
-            Err(e) => {
-                return (
-                    SmoothnessSegment::Failed(format!(
-                        "the mission's calibration is refused on the separate simulation: {e:?}"
-                    )),
-                    None,
-                )
-            }
-        };
-        let mut plant = Plant::new(setup.motor, setup.bench);
-        imp.apply_plant(&mut plant);
-        let mut sim = Sim::with_plant(&setup, plant, config, false);
-        if let Some(o) = self.sim.current_offsets() {
-            sim.set_current_offsets(o);
-        }
-        sim.cascade.set_calibration(&permit);
-        let (encoder_limit, cogging_limit) = {
-            let (e, c) = planned_s(&setup);
-            (2.0 * e + 1.0, 2.0 * c + 1.0)
+        let (setup, sim) = match self.separate_sim(imp) {
+            Ok(s) => s,
+            Err(not_run) => return (not_run, None),
         };
         let done = self.sim.rows();
         let mut bench = SmoothnessBench {
@@ -645,29 +602,8 @@ impl Mission<'_> {
         bench.run(2);
         bench.start_rad = bench.sim.cascade.feedback().position_rad;
         let before = bench.measure(false);
-        let linearise = ConfigChange {
-            calibrate_encoder: true,
-            ..ConfigChange::default()
-        };
-        let encoder = bench.calibrate(linearise, encoder_limit);
-        bench
-            .sim
-            .cascade
-            .current
-            .set_angle_correction_enabled(encoder.is_ok());
-        let cogging = bench.calibrate(
-            ConfigChange {
-                calibrate_cogging: true,
-                ..ConfigChange::default()
-            },
-            cogging_limit,
-        );
-        let both = encoder.is_ok() && cogging.is_ok();
-        let encoder_again = both.then(|| {
-            bench.sim.cascade.current.set_cogging_enabled(true);
-            bench.calibrate(linearise, encoder_limit)
-        });
-        let after = both.then(|| bench.measure(true));
+        let (encoder, cogging, encoder_again) = bench.calibrations();
+        let after = (encoder.is_ok() && cogging.is_ok()).then(|| bench.measure(true));
         let count_rad = TAU / f64::from(bench.setup.bench.sensors.encoder_counts_per_rev.max(1));
         let waves = after.as_ref().map(|a| waves_trace(&before, a));
         let figures = SmoothnessFigures {
@@ -684,6 +620,82 @@ impl Mission<'_> {
             wall_time_s: wall.elapsed().as_secs_f64(),
         };
         (SmoothnessSegment::Ran(Box::new(figures)), waves)
+    }
+
+    /// The separate simulation: the same setup with the file's dead time
+    /// on the bench and its cogging and sensor error in the plant, the
+    /// drive as the mission left it (its configuration, calibration and
+    /// current-sense offsets), the dead time compensated as
+    /// [`Setup::cascade_config`] does it. `Err`: why the segment does not
+    /// run.
+    fn separate_sim(&self, imp: &Imperfections) -> Result<(Setup, Sim), SmoothnessSegment> {
+        if imp.cogging.is_none() && imp.sensor_error.is_none() {
+            return Err(SmoothnessSegment::Skipped(
+                "the motor file states no cogging torque and no angle-sensor error".into(),
+            ));
+        }
+        let mut setup = self.setup.clone();
+        imp.apply_bench(&mut setup.bench);
+        let fresh = setup.cascade_config();
+        let mut config = *self.sim.cascade.config();
+        config.current = *self.sim.cascade.current.config();
+        config.current.current.dead_time = fresh.current.current.dead_time;
+        config.current.supervisor.model.dead_time_s = fresh.current.supervisor.model.dead_time_s;
+        let angle = config.current.angle;
+        if angle.interpolation_half_count().is_some() {
+            let cpr = angle.sensor_counts_per_rev;
+            return Err(SmoothnessSegment::Skipped(format!(
+                "a coarse angle sensor ({cpr} counts per turn, {} per electrical turn: halls, interpolated between their edges): the drive refuses the encoder linearisation and the anticogging calibration (design §32, §33)",
+                cpr / u32::from(angle.pole_pairs.max(1))
+            )));
+        }
+        let permit = Calibrated::supplied(angle, config.current.current).map_err(|e| {
+            SmoothnessSegment::Failed(format!(
+                "the mission's calibration is refused on the separate simulation: {e:?}"
+            ))
+        })?;
+        let mut plant = Plant::new(setup.motor, setup.bench);
+        imp.apply_plant(&mut plant);
+        let mut sim = Sim::with_plant(&setup, plant, config, false);
+        if let Some(o) = self.sim.current_offsets() {
+            sim.set_current_offsets(o);
+        }
+        sim.cascade.set_calibration(&permit);
+        Ok((setup, sim))
+    }
+}
+
+impl SmoothnessBench<'_, '_> {
+    /// The encoder linearisation, the anticogging calibration, and (where
+    /// both finished) the linearisation again with the map on; each given
+    /// twice its planned time plus a second.
+    fn calibrations(
+        &mut self,
+    ) -> (
+        CalibrationOutcome,
+        CalibrationOutcome,
+        Option<CalibrationOutcome>,
+    ) {
+        let (e, c) = planned_s(&self.setup);
+        let linearise = ConfigChange {
+            calibrate_encoder: true,
+            ..ConfigChange::default()
+        };
+        let encoder = self.calibrate(linearise, 2.0 * e + 1.0);
+        self.sim
+            .cascade
+            .current
+            .set_angle_correction_enabled(encoder.is_ok());
+        let anticogging = ConfigChange {
+            calibrate_cogging: true,
+            ..ConfigChange::default()
+        };
+        let cogging = self.calibrate(anticogging, 2.0 * c + 1.0);
+        let again = (encoder.is_ok() && cogging.is_ok()).then(|| {
+            self.sim.cascade.current.set_cogging_enabled(true);
+            self.calibrate(linearise, 2.0 * e + 1.0)
+        });
+        (encoder, cogging, again)
     }
 }
 
@@ -779,7 +791,7 @@ impl MissionSummary {
                 s.imperfections, s.time_s, s.wall_time_s
             ),
         );
-        let run = |r: &Result<CalibrationRun, String>, peak: &dyn Fn(f64) -> String| match r {
+        let run = |r: &CalibrationOutcome, peak: &dyn Fn(f64) -> String| match r {
             Ok(r) => format!("{:.1} s simulated, {}", r.time_s, peak(r.peak)),
             Err(e) => format!("FAILED: {e}"),
         };
