@@ -36,7 +36,10 @@ const FULL_COUNT: f32 = 32767.0;
 const RAD_PER_BIT: f32 = core::f32::consts::TAU / 4_294_967_296.0;
 
 /// The sensor's error over its turn, to be taken off its reading.
+/// `repr(C)`: the switch and the scale, read every period, before the
+/// table.
 #[derive(Clone, Copy, Debug, PartialEq)]
+#[repr(C)]
 pub struct AngleCorrection {
     /// Apply the correction.
     pub enabled: bool,

@@ -44,7 +44,10 @@ const FULL_COUNT: f32 = 32767.0;
 
 /// The cogging map: the q current \[A\] that cancels the cogging torque at
 /// each point of the electrical turn.
+/// `repr(C)`: the switch and the scale, read every period, before the
+/// table (the stage keeps it at its end, design §20).
 #[derive(Clone, Copy, Debug, PartialEq)]
+#[repr(C)]
 pub struct CoggingMap {
     /// Apply the feed-forward (a measured map can be kept but switched
     /// off).

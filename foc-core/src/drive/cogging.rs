@@ -101,9 +101,9 @@ impl CoggingRun {
         &self.cal
     }
 
-    fn input(&self, s: &Sample) -> Option<CalInput> {
+    fn input(&self, stage: &CurrentStage, s: &Sample) -> Option<CalInput> {
         let i_abc = s.currents?.to_abc();
-        let mut inp = CalInput::open_loop(i_abc, s.angle?, s.v_bus_v?);
+        let mut inp = CalInput::open_loop(i_abc, stage.reading(s.angle?), s.v_bus_v?);
         inp.closed_loop = self
             .last_fb
             .filter(|f| matches!(f.mode, Mode::Velocity | Mode::Impedance))
@@ -125,7 +125,7 @@ impl CoggingRun {
     ) -> (CoggingOutcome, BridgeCommand, Feedback) {
         // A failed read is the stage's fault (it trips below), not the
         // routine's.
-        match self.input(s).map(|inp| self.cal.step(&inp)) {
+        match self.input(stage, s).map(|inp| self.cal.step(&inp)) {
             None => {}
             Some(CalStep::Velocity { rad_s }) => {
                 self.install_new_map(stage);

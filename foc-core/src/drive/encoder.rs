@@ -70,9 +70,11 @@ impl EncoderRun {
         &self.cal
     }
 
-    fn input(&self, s: &Sample) -> Option<CalInput> {
+    /// The routine's input: the reading referred to the index (design
+    /// §33), the sensor's error not taken off (it is what is fitted).
+    fn input(&self, stage: &CurrentStage, s: &Sample) -> Option<CalInput> {
         let i_abc = s.currents?.to_abc();
-        let mut inp = CalInput::open_loop(i_abc, s.angle?, s.v_bus_v?);
+        let mut inp = CalInput::open_loop(i_abc, stage.reading(s.angle?), s.v_bus_v?);
         inp.closed_loop = self
             .last_fb
             .filter(|f| matches!(f.mode, Mode::Velocity | Mode::Torque))
@@ -98,7 +100,7 @@ impl EncoderRun {
         iq_ref_a: f32,
         s: &Sample,
     ) -> (EncoderOutcome, BridgeCommand, Feedback) {
-        match self.input(s).map(|inp| self.cal.step(&inp)) {
+        match self.input(stage, s).map(|inp| self.cal.step(&inp)) {
             None => {}
             Some(CalStep::Velocity { rad_s }) => self.post(Command::Velocity { rad_s }),
             Some(CalStep::Torque { iq_a }) => self.post(Command::Torque { iq_a }),

@@ -138,7 +138,7 @@ impl Identifier {
     /// The sequencer's input from this period's sample and the last
     /// closed-loop feedback (a failed read would be a non-finite input; the
     /// caller does not step the routine on one).
-    fn input(&self, s: &Sample) -> CalInput {
+    fn input(&self, stage: &CurrentStage, s: &Sample) -> CalInput {
         let nan = Abc::new(f32::NAN, f32::NAN, f32::NAN);
         let angle_ok = s.angle.is_some() || !self.id.config().angle_sensor;
         let i_abc = match s.currents {
@@ -147,9 +147,13 @@ impl Identifier {
         };
         // Without a sensor nothing reads it, even where a (broken) one
         // still answers: the routines see a rotor that does not move.
+        // The reading as the stage uses it (referred to the index, the
+        // sensor's error taken off, design §33): the alignment's zero is
+        // then the stage's.
         let angle = s
             .angle
             .filter(|_| self.id.config().angle_sensor)
+            .map(|a| stage.angle_correction().correct(stage.reading(a)))
             .unwrap_or(MechanicalAngle::ZERO);
         let mut inp = CalInput::open_loop(i_abc, angle, s.v_bus_v.unwrap_or(f32::NAN));
         inp.closed_loop = self
@@ -177,7 +181,7 @@ impl Identifier {
         let angle_ok = s.angle.is_some() || !self.id.config().angle_sensor;
         let reads_ok = s.currents.is_some() && angle_ok && s.v_bus_v.is_some();
         let step = if reads_ok {
-            Some(self.id.step(&self.input(s)))
+            Some(self.id.step(&self.input(stage, s)))
         } else {
             None
         };

@@ -180,38 +180,48 @@ pub struct Output {
 
 /// The drive's life (see the module docs). Hardware-free: the caller owns
 /// the [`CurrentStage`] and passes it to every step.
+///
+/// `repr(C)`: the fields every period reads first, the calibrations'
+/// state (kilobytes: the anticogging run's accumulators, the encoder fit's
+/// normal equations) last. Left to the compiler, the encoder fit's `f64`
+/// alignment put it first and pushed every hot field kilobytes away: +150
+/// to +190 instructions a period (`cargo xtask bench`).
 #[derive(Clone, Copy, Debug)]
+#[repr(C)]
 pub struct Lifecycle {
-    config: LifecycleConfig,
     phase: LifePhase,
-    offsets: Option<OffsetCalibrator>,
+    /// Periods stepped so far.
+    tick: u32,
+    /// When the speed and the position stages run.
+    speed: Countdown,
+    position: Countdown,
     /// The current sensor's offsets are calibrated.
     offsets_ok: bool,
     /// The first offset sample after a restart was read with the old
     /// offsets: skip it.
     skip_offset_sample: bool,
-    identifier: Option<Identifier>,
-    /// The anticogging calibration, while it runs (design §32).
-    cogging: Option<CoggingRun>,
-    /// The encoder linearisation, while it runs (design §33).
-    encoder: Option<EncoderRun>,
-    /// The index search's settings (design §33; `None`: no index).
-    index_search: Option<IndexSearchConfig>,
-    /// The index search, while it runs, and its private mailbox.
-    index_run: Option<(IndexSearch, CommandSlot)>,
     /// The index's reading, once found: taken off every reading.
     index_offset: Option<MechanicalAngle>,
     /// The operator's command number when the identification started.
     identify_seq: u32,
-    identified: Option<IdentificationResult>,
     /// How the last calibration ended (the status reports a running one
     /// from the phase).
     report: Progress,
-    /// When the speed and the position stages run.
-    speed: Countdown,
-    position: Countdown,
-    /// Periods stepped so far.
-    tick: u32,
+    config: LifecycleConfig,
+    offsets: Option<OffsetCalibrator>,
+    /// The index search's settings (design §33; `None`: no index).
+    index_search: Option<IndexSearchConfig>,
+    identified: Option<IdentificationResult>,
+    /// The index search, while it runs, and its private mailbox.
+    index_run: Option<(IndexSearch, CommandSlot)>,
+    /// The index reading the drive took from its sensor this period
+    /// ([`Self::note_index`]).
+    pending_index: Option<MechanicalAngle>,
+    identifier: Option<Identifier>,
+    /// The encoder linearisation, while it runs (design §33).
+    encoder: Option<EncoderRun>,
+    /// The anticogging calibration, while it runs (design §32).
+    cogging: Option<CoggingRun>,
 }
 
 /// When a slower loop runs: every `divider` periods, counted down (no
@@ -277,6 +287,7 @@ impl Lifecycle {
             encoder: None,
             index_search: None,
             index_run: None,
+            pending_index: None,
             index_offset: None,
             identify_seq: 0,
             identified: None,
@@ -400,19 +411,6 @@ impl Lifecycle {
         fb: &mut Feedback,
         out: &mut Output,
     ) {
-        // Referred to the encoder's index once it is found (design §33):
-        // every use of the reading below sees the index as its zero.
-        let rebased;
-        let s = match self.index_offset {
-            Some(zero) => {
-                rebased = Sample {
-                    angle: s.angle.map(|a| a.wrapping_sub(zero)),
-                    ..*s
-                };
-                &rebased
-            }
-            None => s,
-        };
         // The operator's clear first: a fault found this period (power
         // stage, link watchdog) is latched after it and stays latched.
         if self.phase == LifePhase::Run {
@@ -642,6 +640,8 @@ impl Lifecycle {
         out.event = Some(Event::IdentificationStarted);
     }
 
+    #[inline(never)]
+    #[cold]
     fn start_cogging(
         &mut self,
         stage: &mut CurrentStage,
@@ -663,11 +663,20 @@ impl Lifecycle {
         self.index_search = c;
     }
 
+    /// The reading the angle sensor latched at its index this period, for
+    /// the index search (what [`Inputs::index`] gives, from the drive's
+    /// own sensor).
+    pub fn note_index(&mut self, index: Option<MechanicalAngle>) {
+        self.pending_index = index;
+    }
+
     /// The index's reading, once found (the zero of every reading since).
     pub fn index_offset(&self) -> Option<MechanicalAngle> {
         self.index_offset
     }
 
+    #[inline(never)]
+    #[cold]
     fn start_index_search(&mut self, c: IndexSearchConfig, operator: &CommandSlot) {
         let mut slot = *operator;
         slot.seq = operator.seq.wrapping_add(0x4000_0000);
@@ -680,6 +689,8 @@ impl Lifecycle {
     /// (a private mailbox); once the index pulses, its reading becomes the
     /// readings' zero and start-up goes on (next period) where the sensor
     /// check left it, with the stored calibration now valid.
+    #[inline(never)]
+    #[cold]
     fn step_index_search(
         &mut self,
         stage: &mut CurrentStage,
@@ -693,7 +704,8 @@ impl Lifecycle {
         };
         let step = match (s.currents, s.angle, s.v_bus_v) {
             (Some(c), Some(a), Some(v)) => {
-                Some(search.step(&CalInput::open_loop(c.to_abc(), a, v), inp.index))
+                let index = inp.index.or(self.pending_index.take());
+                Some(search.step(&CalInput::open_loop(c.to_abc(), a, v), index))
             }
             // A failed read: the stage trips on it below.
             _ => None,
@@ -731,6 +743,9 @@ impl Lifecycle {
             Some(Ok((zero, travel_rad))) => {
                 self.index_run = None;
                 self.index_offset = Some(zero);
+                // Every reading from now on referred to the index: the
+                // stage's, the routines' (through `CurrentStage::reading`).
+                stage.set_reading_zero(zero);
                 out.event = Some(Event::IndexFound { travel_rad });
                 // Start-up goes on from the end of the sensor check.
                 self.phase = LifePhase::SensorCheck(self.config.sensor_check_reads);
@@ -746,6 +761,8 @@ impl Lifecycle {
         }
     }
 
+    #[inline(never)]
+    #[cold]
     fn start_encoder(
         &mut self,
         stage: &mut CurrentStage,
@@ -903,6 +920,8 @@ impl Lifecycle {
     }
 
     /// The encoder linearisation's period (design §33).
+    #[inline(never)]
+    #[cold]
     fn step_encoder(
         &mut self,
         stage: &mut CurrentStage,
@@ -944,6 +963,8 @@ impl Lifecycle {
     }
 
     /// The anticogging calibration's period (design §32).
+    #[inline(never)]
+    #[cold]
     fn step_cogging(
         &mut self,
         stage: &mut CurrentStage,

@@ -199,10 +199,13 @@ where
     /// so publishing it costs no copy (design §20).
     pub fn step(&mut self, inputs: &Inputs, feedback: &mut Feedback) -> Output {
         let sample = read_sample(&mut self.currents, &mut self.angle, &mut self.bus);
-        // The index the sensor latched (design §33), unless the caller
-        // gives one.
-        let index = inputs.index.or_else(|| self.angle.take_index());
-        let inputs = &Inputs { index, ..*inputs };
+        // The index the sensor latched (design §33), read only while the
+        // lifecycle searches it (no copy of the inputs in the other
+        // periods: `cargo xtask bench`).
+        if self.life.phase() == LifePhase::IndexSearch {
+            let index = self.angle.take_index();
+            self.life.note_index(index);
+        }
         let out = self.life.step(&mut self.stage, inputs, &sample, feedback);
         if let Some(o) = out.offsets_a {
             self.currents.set_offsets_a(o);

@@ -7,17 +7,19 @@ use crate::control::angle_correction::{AngleCorrection, AngleCorrectionError};
 use crate::control::cogging::{CoggingMap, CoggingMapError};
 
 /// The map and what it added (kept last in the stage: see its docs).
+/// `repr(C)`, what every period reads first (the map's table after).
 #[derive(Clone, Copy, Debug)]
+#[repr(C)]
 pub(super) struct Anticogging {
-    pub(super) map: CoggingMap,
     /// The feed-forward of the last closed-loop period \[A\] (0 otherwise).
     pub(super) last_a: f32,
+    pub(super) map: CoggingMap,
 }
 
 impl Anticogging {
     pub(super) const INIT: Self = Self {
-        map: CoggingMap::EMPTY,
         last_a: 0.0,
+        map: CoggingMap::EMPTY,
     };
 }
 
@@ -56,6 +58,19 @@ impl CurrentStage {
     /// The installed angle correction ([`AngleCorrection::NONE`] when none).
     pub fn angle_correction(&self) -> &AngleCorrection {
         &self.angle_correction
+    }
+
+    /// The reading taken as 0 (design §33: the encoder's index, once
+    /// found): subtracted from every reading first.
+    pub fn set_reading_zero(&mut self, zero: MechanicalAngle) {
+        self.reading_zero = zero;
+    }
+
+    /// A raw reading referred to the reading's zero ([`Self::set_reading_zero`]),
+    /// as the stage uses it and the calibration routines must see it.
+    #[inline(always)]
+    pub fn reading(&self, raw: MechanicalAngle) -> MechanicalAngle {
+        raw.wrapping_sub(self.reading_zero)
     }
 
     /// The installed cogging map ([`CoggingMap::EMPTY`] when none).

@@ -224,6 +224,7 @@ impl CurrentStageState {
                 iq_max_a: 0.0,
                 p_min_rad: 0.0,
                 p_max_rad: 0.0,
+                p_carry_rad: 0.0,
             },
             blend_from_a: 0.0,
             blend_weight: 0.0,
@@ -287,10 +288,13 @@ pub struct CurrentStage {
     /// the hot ones moved them past the short load offsets (+75
     /// instructions a period, `cargo xtask bench`).
     safe: safe::SafeMemory,
-    /// The anticogging map (design §32), after the rest: 1 KB.
-    cogging: cogging::Anticogging,
-    /// The angle sensor's correction (design §33): 512 bytes.
+    /// The reading taken as 0 (design §33: the encoder's index).
+    reading_zero: MechanicalAngle,
+    /// The angle sensor's correction (design §33), after the rest (its
+    /// switch read every period, its 512-byte table after it).
     angle_correction: super::angle_correction::AngleCorrection,
+    /// The anticogging map (design §32): 1 KB, last.
+    cogging: cogging::Anticogging,
 }
 
 impl CurrentStage {
@@ -325,8 +329,9 @@ impl CurrentStage {
                 .filter(|_| config.sensorless.is_none())
                 .map(fallback::Fallback::new),
             safe: safe::SafeMemory::INIT,
-            cogging: cogging::Anticogging::INIT,
+            reading_zero: MechanicalAngle::ZERO,
             angle_correction: super::angle_correction::AngleCorrection::NONE,
+            cogging: cogging::Anticogging::INIT,
         }
     }
 

@@ -96,7 +96,7 @@ impl CurrentStage {
                 let mech = self
                     .config
                     .angle
-                    .mechanical(self.angle_correction.correct(raw));
+                    .mechanical(self.angle_correction.correct(self.reading(raw)));
                 let innovation = self.tracker.update(mech);
                 let innovation_step = innovation - self.state.last_innovation_rad;
                 self.state.last_innovation_rad = innovation;
