@@ -260,6 +260,11 @@ pub struct ImpedanceLaw {
     pub p_min_rad: f32,
     /// Position range the reference stays in [rad, rotor].
     pub p_max_rad: f32,
+    /// What the reference's last advances lost to rounding \[rad\]
+    /// (carried into the next: far from 0 a slow reference's advance is
+    /// below the `f32` step of its position, 3e-5 rad at 300 rad, and it
+    /// stalled; the anticogging sweep found it, design §32).
+    pub p_carry_rad: f32,
 }
 
 impl ImpedanceLaw {
@@ -281,6 +286,7 @@ impl ImpedanceLaw {
             iq_max_a: c.torque_limit_nm * inv_kt,
             p_min_rad: l.min_position_rad,
             p_max_rad: l.max_position_rad,
+            p_carry_rad: 0.0,
         }
     }
 
@@ -293,7 +299,9 @@ impl ImpedanceLaw {
             + self.kd_a_s_per_rad * (self.v_ref_rad_s - v_rad_s)
             + self.iq_ff_a;
         let iq = crate::clamp(iq, -self.iq_max_a, self.iq_max_a);
-        let next = self.p_ref_rad + self.p_step_rad;
+        let step = self.p_step_rad + self.p_carry_rad;
+        let next = self.p_ref_rad + step;
+        self.p_carry_rad = step - (next - self.p_ref_rad);
         self.p_ref_rad = crate::clamp(next, self.p_min_rad, self.p_max_rad);
         iq
     }
@@ -617,6 +625,25 @@ mod tests {
             law.step(0.0, 0.0);
         }
         assert_eq!(law.p_ref_rad, 10.0);
+    }
+
+    /// Far from 0 a slow reference still advances at its speed: the
+    /// rounding of each step is carried into the next.
+    #[test]
+    fn a_slow_reference_far_from_zero_advances() {
+        let mut law = ImpedanceLaw {
+            p_ref_rad: 300.0,
+            p_step_rad: 9e-6,
+            p_min_rad: -1e6,
+            p_max_rad: 1e6,
+            ..ImpedanceLaw::default()
+        };
+        for _ in 0..100_000 {
+            law.step(300.0, 0.0);
+        }
+        // 0.9 rad in 100 000 periods (without the carry: 0, the step is
+        // below the f32 spacing at 300 rad).
+        assert!((law.p_ref_rad - 300.9).abs() < 1e-3, "{}", law.p_ref_rad);
     }
 
     #[test]
