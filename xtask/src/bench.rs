@@ -163,10 +163,19 @@ fn check_self_check(rows: &[Row]) -> Result {
         .find(|r| r.name.starts_with("self-check: 100 nops"))
     {
         Some(r) if ok(r.min) && ok(r.max) && ok(r.median) => Ok(()),
-        Some(r) => Err(Error(format!(
-            "the bench's self-check read {}-{} instructions for 100 nops: the counts are not exact",
-            r.min, r.max
-        ))),
+        Some(r) => {
+            // The raw calls, for the diagnosis.
+            for raw in rows.iter().filter(|r| r.name.starts_with("self-check raw")) {
+                eprintln!(
+                    "  {}: min {} max {} median {}",
+                    raw.name, raw.min, raw.max, raw.median
+                );
+            }
+            Err(Error(format!(
+                "the bench's self-check read {}-{} instructions for 100 nops: the counts are not exact",
+                r.min, r.max
+            )))
+        }
         None => Err(Error("the bench printed no self-check".into())),
     }
 }

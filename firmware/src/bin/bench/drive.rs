@@ -11,6 +11,8 @@ use super::{measure_rig, report, Stats};
 use board_support::board;
 use foc_core::calibration::offsets::OffsetLimits;
 use foc_core::calibration::Calibrated;
+use foc_core::control::angle_correction::{AngleCorrection, CORRECTION_BINS};
+use foc_core::control::cogging::{CoggingMap, COGGING_BINS};
 use foc_core::control::joint::{Impedance, JointConfig};
 use foc_core::control::power::PowerLimitsConfig;
 use foc_core::control::stage::{PositionStage, SpeedStage, VelocityRef};
@@ -314,6 +316,37 @@ fn same_configuration() -> ConfigChange {
     }
 }
 
+/// Install an anticogging map and an angle correction (design §32, §33)
+/// of made-up values in the disabled drive: what a drive with both
+/// calibrations stored runs.
+#[inline(never)]
+fn install_tables(r: &mut Rig) {
+    r.slot.post(Command::Disable);
+    r.run(4);
+    let mut amps = [0.0f32; COGGING_BINS];
+    for (k, a) in amps.iter_mut().enumerate() {
+        *a = 0.05 * ((k % 43) as f32 - 21.0) / 21.0;
+    }
+    let mut rad = [0.0f32; CORRECTION_BINS];
+    for (k, e) in rad.iter_mut().enumerate() {
+        *e = 0.004 * ((k % 128) as f32 - 64.0) / 64.0;
+    }
+    let ok = match (
+        CoggingMap::from_amps(&amps),
+        AngleCorrection::from_rad(&rad),
+        r.drive_mut().stage_while_disabled(),
+    ) {
+        (Ok(m), Ok(c), Some(stage)) => {
+            stage.set_cogging(&m).is_ok() && stage.set_angle_correction(&c).is_ok()
+        }
+        _ => false,
+    };
+    if !ok {
+        defmt::println!("BENCH-FAILED the tables were not installed");
+        super::mission_exit(1);
+    }
+}
+
 /// Every scenario; returns the worst case over all.
 pub fn measure_all(rig: &mut Rig, baseline: u32) -> Stats {
     let runs = [
@@ -411,6 +444,18 @@ pub fn measure_all(rig: &mut Rig, baseline: u32) -> Stats {
                 }
             },
             Expect::running(Mode::Impedance),
+        ),
+        scenario(
+            rig,
+            baseline,
+            "drive period: torque 1 A, anticogging map and angle correction on",
+            |r| {
+                install_tables(r);
+                r.slot.post(Command::Torque { iq_a: 1.0 });
+                r.run(100);
+            },
+            nothing,
+            Expect::running(Mode::Torque),
         ),
         scenario(
             rig,
