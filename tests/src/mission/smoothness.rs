@@ -43,8 +43,13 @@
 //!    finished);
 //! 3. **after**, both switched on (where both finished): the same figures.
 //!
+//! 4. **the floor**: the zero-torque ripple once more with the plant's
+//!    cogging taken out and the map off (what ripples without any
+//!    cogging, which anticogging cannot remove).
+//!
 //! It passes when both calibrations finish, the zero-torque ripple falls
-//! at least [`SMOOTHNESS_RIPPLE_GOAL`] times and the angle error falls or
+//! at least [`SMOOTHNESS_RIPPLE_GOAL`] times (or to within
+//! [`FLOOR_MARGIN`] of its floor) and the angle error falls or
 //! is within two counts of the sensor, with no fault. It is skipped, the
 //! reason stated, where the file states neither cogging nor a sensor
 //! error, and on a coarse angle sensor (halls: the drive refuses both
@@ -68,6 +73,13 @@ use std::f64::consts::TAU;
 /// ripple near zero current (design §31) limits it further where the
 /// file's dead time is large.
 pub const SMOOTHNESS_RIPPLE_GOAL: f64 = 3.0;
+
+/// A zero-torque ripple within this factor of its floor without the
+/// cogging passes even below [`SMOOTHNESS_RIPPLE_GOAL`]: what is left is
+/// then not the cogging's. (On the interior-PM file at 540 V the floor is
+/// 0.003 N m and the ripple with the map 0.20 N m: there the dead time
+/// distorts the map's own small currents, design §32, and it fails.)
+pub const FLOOR_MARGIN: f64 = 1.25;
 
 /// The speed-ripple figures' speeds, shares of the no-load speed
 /// ([`Setup::max_speed_rad_s`]).
@@ -164,6 +176,11 @@ pub struct SmoothnessFigures {
     pub before: SmoothnessMeasures,
     /// Both on (None: a calibration did not finish).
     pub after: Option<SmoothnessMeasures>,
+    /// The zero-torque ripple of the same drive and plant without the
+    /// cogging (the plant's taken out, the map off) [N m]: what ripples
+    /// without any cogging, the floor anticogging cannot go below (None:
+    /// not measured, a calibration failed).
+    pub zero_torque_floor_nm: Option<f64>,
     /// The encoder linearisation on the raw reading, or why it failed.
     pub encoder: CalibrationOutcome,
     /// The anticogging calibration, or why it failed.
@@ -198,7 +215,8 @@ impl SmoothnessFigures {
     }
 
     /// What fails: a calibration that did not finish, the zero-torque
-    /// ripple down less than [`SMOOTHNESS_RIPPLE_GOAL`] times, the angle
+    /// ripple down less than [`SMOOTHNESS_RIPPLE_GOAL`] times and not
+    /// within [`FLOOR_MARGIN`] of its floor without the cogging, the angle
     /// error neither smaller nor within two counts, a fault.
     pub fn failures(&self) -> Vec<String> {
         let mut f = Vec::new();
@@ -215,7 +233,10 @@ impl SmoothnessFigures {
             }
         }
         if let (Some(a), Some(r)) = (&self.after, self.ripple_ratio()) {
-            if r.is_nan() || r < SMOOTHNESS_RIPPLE_GOAL {
+            let at_floor = self
+                .zero_torque_floor_nm
+                .is_some_and(|fl| a.zero_torque_ripple_nm <= FLOOR_MARGIN * fl);
+            if r.is_nan() || (r < SMOOTHNESS_RIPPLE_GOAL && !at_floor) {
                 f.push(format!(
                     "low-speed smoothness: zero-torque ripple {:.3e} -> {:.3e} N m, {r:.1}x less (goal {SMOOTHNESS_RIPPLE_GOAL}x)",
                     self.before.zero_torque_ripple_nm, a.zero_torque_ripple_nm
@@ -473,6 +494,18 @@ impl SmoothnessBench<'_, '_> {
         (p2p(&v), v, self.secs(turn_s))
     }
 
+    /// The zero-torque ripple without the cogging: the plant's taken out
+    /// and the map off for the measurement, both back after.
+    fn zero_torque_floor(&mut self) -> f64 {
+        let cogging = self.sim.plant.cogging().copied();
+        self.sim.plant.set_cogging(None);
+        self.sim.cascade.current.set_cogging_enabled(false);
+        let (r, _) = self.zero_torque_ripple();
+        self.sim.plant.set_cogging(cogging);
+        self.sim.cascade.current.set_cogging_enabled(true);
+        r
+    }
+
     /// One set of figures with both corrections `on` or off.
     fn measure(&mut self, on: bool) -> Measured {
         self.sim.cascade.current.set_angle_correction_enabled(on);
@@ -604,6 +637,7 @@ impl Mission<'_> {
         let before = bench.measure(false);
         let (encoder, cogging, encoder_again) = bench.calibrations();
         let after = (encoder.is_ok() && cogging.is_ok()).then(|| bench.measure(true));
+        let zero_torque_floor_nm = after.as_ref().map(|_| bench.zero_torque_floor());
         let count_rad = TAU / f64::from(bench.setup.bench.sensors.encoder_counts_per_rev.max(1));
         let waves = after.as_ref().map(|a| waves_trace(&before, a));
         let figures = SmoothnessFigures {
@@ -612,6 +646,7 @@ impl Mission<'_> {
             count_rad,
             before: before.figures,
             after: after.map(|a| a.figures),
+            zero_torque_floor_nm,
             encoder,
             cogging,
             encoder_again,
@@ -837,6 +872,15 @@ impl MissionSummary {
                 )
             ),
         );
+        if let Some(fl) = s.zero_torque_floor_nm {
+            t.row(
+                "low-speed smoothness: zero-torque ripple without the cogging (its floor)",
+                format!(
+                    "{} N m (the plant's cogging out, the map off)",
+                    significant(fl as f32)
+                ),
+            );
+        }
         for (k, pc) in ["1 %", "5 %"].iter().enumerate() {
             t.row(
                 &format!("low-speed smoothness: speed ripple p-p at {pc} of the no-load speed, before -> after"),
@@ -908,6 +952,7 @@ mod tests {
             count_rad: 1e-3,
             before: m(1.0, 10e-3),
             after: Some(m(zero_after_nm, angle_after_rad)),
+            zero_torque_floor_nm: Some(0.01),
             encoder: Ok(CalibrationRun {
                 time_s: 6.0,
                 peak: 5e-3,
@@ -940,6 +985,16 @@ mod tests {
         assert_eq!(figures(0.34, 9e-3).failures().len(), 1);
         assert_eq!(figures(0.1, 11e-3).failures().len(), 1);
         assert_eq!(figures(f64::NAN, f64::NAN).failures().len(), 2);
+    }
+
+    #[test]
+    fn at_its_floor_without_the_cogging_passes() {
+        let mut f = figures(0.8, 9e-3);
+        assert_eq!(f.failures().len(), 1);
+        f.zero_torque_floor_nm = Some(0.7);
+        assert!(f.failures().is_empty(), "{:?}", f.failures());
+        f.zero_torque_floor_nm = Some(0.6);
+        assert_eq!(f.failures().len(), 1);
     }
 
     #[test]
