@@ -101,9 +101,7 @@ fn angle_error(sim: &mut Sim, c: &Case) -> f64 {
         sim.step();
         let raw = sim.last_sample().angle;
         let read = sim.cascade.current.angle_correction().correct(raw);
-        v.push(wrap(
-            read.to_radians() as f64 - sim.plant.theta_m_rad() as f64,
-        ));
+        v.push(wrap(read.to_radians() as f64 - sim.plant.theta_m_rad()));
     }
     sim.plant.set_mechanics(Mechanics::Free);
     let first = v[0];
@@ -123,7 +121,7 @@ fn speed_ripple(sim: &mut Sim, c: &Case, share: f32) -> (f64, f64) {
     let (mut t, mut e) = (Vec::new(), Vec::new());
     for _ in 0..(turns * turn_s * hz) as usize {
         sim.step();
-        t.push(sim.plant.omega_m_rad_s() as f64);
+        t.push(sim.plant.omega_m_rad_s());
         e.push(sim.cascade.feedback().velocity_rad_s as f64);
     }
     let fault = sim.cascade.feedback().first_fault;

@@ -84,7 +84,7 @@ fn start_up(sim: &mut Sim, secs: f32, hz: f32) -> Vec<Event> {
 
 /// The drive's electrical angle against the rotor's [rad, electrical].
 fn angle_error(sim: &Sim) -> f64 {
-    let d = sim.cascade.feedback().theta_e.to_radians() as f64 - sim.plant.theta_e_rad() as f64;
+    let d = sim.cascade.feedback().theta_e.to_radians() as f64 - sim.plant.theta_e_rad();
     (d + TAU / 2.0).rem_euclid(TAU) - TAU / 2.0
 }
 
@@ -166,5 +166,5 @@ fn a_missing_index_is_a_named_failure() {
         Err(CommandError::NotCalibrated)
     );
     // The rotor moved at most the search's bound.
-    assert!((sim.plant.position_rad() as f64 - 1.0).abs() < 1.25 * TAU + 0.5);
+    assert!((sim.plant.position_rad() - 1.0).abs() < 1.25 * TAU + 0.5);
 }

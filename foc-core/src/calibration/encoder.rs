@@ -167,32 +167,33 @@ impl Fit {
     /// Add one sample: `u` at scaled time `tau` and reading angle `r`.
     fn add(&mut self, tau: f32, r: MechanicalAngle, u: f64) {
         let row = basis(tau, r);
-        for i in 0..N {
-            let ri = row[i];
-            if let Some(line) = self.ata.get_mut(i) {
-                for (j, a) in line.iter_mut().enumerate().skip(i) {
-                    *a += ri * row[j];
-                }
+        for (i, (line, y)) in self.ata.iter_mut().zip(self.aty.iter_mut()).enumerate() {
+            let ri = row.get(i).copied().unwrap_or(0.0);
+            for (a, rj) in line.iter_mut().zip(row.iter()).skip(i) {
+                *a += ri * rj;
             }
-            if let Some(y) = self.aty.get_mut(i) {
-                *y += ri * u;
-            }
+            *y += ri * u;
         }
     }
 
     /// Eliminate column `col` below the diagonal (the lower triangle is
     /// read from the upper, which is what is accumulated).
     fn eliminate(&mut self, col: usize) -> Result<(), CalError> {
-        let pivot = self.ata[col][col];
+        let singular = CalError::MechanicsIllConditioned;
+        let pivot_row = *self.ata.get(col).ok_or(singular)?;
+        let pivot = pivot_row.get(col).copied().unwrap_or(0.0);
         if !(pivot.is_finite() && pivot.abs() > 1e-12) {
-            return Err(CalError::MechanicsIllConditioned);
+            return Err(singular);
         }
-        for i in (col + 1)..N {
-            let f = self.ata[col][i] / pivot; // the symmetric lower entry
-            for j in i..N {
-                self.ata[i][j] -= f * self.ata[col][j];
+        let y_col = self.aty.get(col).copied().unwrap_or(0.0);
+        let rows = self.ata.iter_mut().zip(self.aty.iter_mut());
+        for (i, (line, y)) in rows.enumerate().skip(col + 1) {
+            // The symmetric lower entry.
+            let f = pivot_row.get(i).copied().unwrap_or(0.0) / pivot;
+            for (a, p) in line.iter_mut().zip(pivot_row.iter()).skip(i) {
+                *a -= f * p;
             }
-            self.aty[i] -= f * self.aty[col];
+            *y -= f * y_col;
         }
         Ok(())
     }
@@ -201,11 +202,17 @@ impl Fit {
     fn solve(&self) -> [f64; N] {
         let mut x = [0.0; N];
         for i in (0..N).rev() {
-            let mut s = self.aty[i];
-            for j in (i + 1)..N {
-                s -= self.ata[i][j] * x[j];
+            let (Some(line), Some(y)) = (self.ata.get(i), self.aty.get(i)) else {
+                continue;
+            };
+            let mut s = *y;
+            for (a, xj) in line.iter().zip(x.iter()).skip(i + 1) {
+                s -= a * xj;
             }
-            x[i] = s / self.ata[i][i];
+            let d = line.get(i).copied().unwrap_or(0.0);
+            if let Some(xi) = x.get_mut(i) {
+                *xi = if d != 0.0 { s / d } else { 0.0 };
+            }
         }
         x
     }
@@ -215,15 +222,13 @@ impl Fit {
 fn basis(tau: f32, r: MechanicalAngle) -> [f64; N] {
     let (s1, c1) = crate::trig::sin_cos_bits(r.to_bits());
     let mut row = [0.0f64; N];
-    row[0] = 1.0;
-    row[1] = tau as f64;
-    row[2] = (tau * tau) as f64;
-    row[3] = (tau * tau * tau) as f64;
+    let (t, t2) = (tau as f64, (tau * tau) as f64);
+    let (head, harmonics) = row.split_at_mut(4);
+    head.copy_from_slice(&[1.0, t, t2, t2 * t]);
     let (mut s, mut c) = (s1, c1);
-    for k in 0..HARMONICS {
-        row[4 + 2 * k] = s as f64;
-        row[5 + 2 * k] = c as f64;
-        // sin/cos of (k + 2) r from (k + 1) r.
+    for pair in harmonics.chunks_exact_mut(2) {
+        pair.copy_from_slice(&[s as f64, c as f64]);
+        // sin/cos of (k + 1) r from k r.
         let (sn, cn) = (s * c1 + c * s1, c * c1 - s * s1);
         s = sn;
         c = cn;
@@ -394,7 +399,7 @@ impl EncoderCalibration {
         self.travel_rad += reading.diff_radians(self.last) as f64;
         self.last = reading;
         let n = self.period.saturating_sub(since);
-        if n % 2 == 0 {
+        if n.is_multiple_of(2) {
             let tau = 2.0 * n as f32 * c.ts_s / c.record_s() - 1.0;
             self.fit.add(tau, reading, self.travel_rad);
         }
@@ -443,7 +448,9 @@ fn table_of(h: &[f32; 2 * HARMONICS]) -> Result<AngleCorrection, CalError> {
         let (mut s, mut c) = (s1, c1);
         let mut e = 0.0;
         for pair in h.chunks_exact(2) {
-            e += pair[0] * s + pair[1] * c;
+            if let [sk, ck] = pair {
+                e += sk * s + ck * c;
+            }
             let (sn, cn) = (s * c1 + c * s1, c * c1 - s * s1);
             s = sn;
             c = cn;
