@@ -45,6 +45,15 @@ pub fn emulated_current_step(step_a: f32, gains: Option<(f32, f32)>) -> (ScopeSt
     let setup = emulated_setup();
     let pwm = setup.bench.pwm_frequency_hz as f32;
     let mut config = CascadeConfig::for_motor(control_motor(&setup.motor), pwm, MAX_CURRENT_A);
+    // As the firmware configures it (`config::cascade`): the model check
+    // and the current loop know the board's dead time (design §24, §31).
+    let dead_time_s = setup.bench.dead_time_s as f32;
+    config.current.supervisor.model.dead_time_s = dead_time_s;
+    config.current.current.dead_time =
+        foc_core::control::dead_time::DeadTimeCompensation::for_current_limit(
+            dead_time_s,
+            MAX_CURRENT_A,
+        );
     if let Some((kp, ki)) = gains {
         for g in [
             &mut config.current.current.d_gains,
