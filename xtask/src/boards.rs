@@ -23,6 +23,9 @@ pub struct Board {
     pub qemu: bool,
     /// Human description: MCU board + power stage.
     pub description: &'static str,
+    /// 256 KiB of program flash: the release build uses the
+    /// `release-small` profile (size first, Cargo.toml).
+    pub small_flash: bool,
 }
 
 /// All boards, the default one first.
@@ -33,6 +36,7 @@ pub const BOARDS: [Board; 5] = [
         chip: "STM32F446RETx",
         qemu: false,
         description: "NUCLEO-F446RE + X-NUCLEO-IHM07M1 (default)",
+        small_flash: true,
     },
     Board {
         name: "nucleo-f401re-ihm07m1",
@@ -40,6 +44,7 @@ pub const BOARDS: [Board; 5] = [
         chip: "STM32F401RETx",
         qemu: false,
         description: "NUCLEO-F401RE + X-NUCLEO-IHM07M1",
+        small_flash: true,
     },
     Board {
         name: "odrive-v3",
@@ -47,6 +52,7 @@ pub const BOARDS: [Board; 5] = [
         chip: "STM32F405RGTx",
         qemu: false,
         description: "ODrive v3.x (STM32F405)",
+        small_flash: false,
     },
     Board {
         name: "odrive-v3-as5047p",
@@ -54,6 +60,7 @@ pub const BOARDS: [Board; 5] = [
         chip: "STM32F405RGTx",
         qemu: false,
         description: "ODrive v3.x (STM32F405) + AS5047P on the SPI bus",
+        small_flash: false,
     },
     Board {
         name: "qemu",
@@ -61,6 +68,7 @@ pub const BOARDS: [Board; 5] = [
         chip: "STM32F405RGTx",
         qemu: true,
         description: "emulated: QEMU netduinoplus2 (STM32F405) + simulated motor",
+        small_flash: false,
     },
 ];
 

@@ -55,7 +55,11 @@ impl Profile {
 pub fn firmware_args(board: &Board, profile: Profile) -> Vec<&'static str> {
     let mut args = vec!["build", "-p", "firmware"];
     if profile == Profile::Release {
-        args.push("--release");
+        if board.small_flash {
+            args.extend(["--profile", "release-small"]);
+        } else {
+            args.push("--release");
+        }
     }
     args.extend(["--target", THUMB_TARGET, "--features", board.feature]);
     args
@@ -69,26 +73,42 @@ pub fn cargo_elf(profile: Profile) -> PathBuf {
         .join("firmware")
 }
 
+/// The profile directory a board's build lands in: `release-small` for a
+/// board with little flash ([`Board::small_flash`]).
+pub fn profile_dir(board: &Board, profile: Profile) -> &'static str {
+    match profile {
+        Profile::Release if board.small_flash => "release-small",
+        p => p.dir(),
+    }
+}
+
 /// The per-board copy of the ELF that xtask keeps:
 /// `target/thumbv7em-none-eabihf/<profile>/firmware-<board>.elf`.
 pub fn board_elf(board: &Board, profile: Profile) -> PathBuf {
     target_dir()
         .join(THUMB_TARGET)
-        .join(profile.dir())
+        .join(profile_dir(board, profile))
         .join(format!("firmware-{}.elf", board.name))
 }
 
 /// Builds the firmware for one board and copies the ELF to [`board_elf`].
 /// Returns the path of that copy. The toolchain must already be set up.
 pub fn build_board(board: &Board, profile: Profile) -> Result<PathBuf> {
-    println!("building firmware for {} ({})", board.name, profile.dir());
+    println!(
+        "building firmware for {} ({})",
+        board.name,
+        profile_dir(board, profile)
+    );
     run(cargo(firmware_args(board, profile))).map_err(|e| {
         Error(format!(
             "firmware build for board {} failed: {e}",
             board.name
         ))
     })?;
-    let from = cargo_elf(profile);
+    let from = target_dir()
+        .join(THUMB_TARGET)
+        .join(profile_dir(board, profile))
+        .join("firmware");
     let to = board_elf(board, profile);
     fs::copy(&from, &to).map_err(|e| {
         Error(format!(
@@ -131,13 +151,17 @@ mod tests {
                 "build",
                 "-p",
                 "firmware",
-                "--release",
+                "--profile",
+                "release-small",
                 "--target",
                 "thumbv7em-none-eabihf",
                 "--features",
                 "nucleo-f446re-ihm07m1"
             ]
         );
+        assert!(firmware_args(&BOARDS[2], Profile::Release).contains(&"--release"));
         assert!(!firmware_args(&BOARDS[2], Profile::Debug).contains(&"--release"));
+        assert_eq!(profile_dir(&BOARDS[0], Profile::Release), "release-small");
+        assert_eq!(profile_dir(&BOARDS[2], Profile::Release), "release");
     }
 }
