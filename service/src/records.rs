@@ -76,17 +76,21 @@ pub fn admit(board: &Board, rec: &DriveRecord) -> Result<Settings, Invalid> {
 
 /// The tables of `rec` (admitted whole by [`admit`], which checked them
 /// with the record) this board takes. The anticogging map is referred to
-/// the electrical angle, which every calibration refers to the magnets:
-/// it applies on every board. The angle sensor's correction is referred
-/// to the sensor's reading: where its zero does not survive a reset (an
-/// incremental encoder) the stored correction belongs to another zero and
-/// is dropped, with a log line saying so (learn it again once the drive
-/// is calibrated).
+/// the electrical angle, which every calibration refers to the magnets.
+/// The angle sensor's correction is referred to the sensor's reading:
+/// where its zero does not survive a reset (an incremental encoder) the
+/// stored correction belongs to another zero and is dropped, with a log
+/// line saying so (learn it again once the drive is calibrated). The map
+/// stored with a correction goes with it: it was measured on the
+/// corrected angle, and on the uncorrected one a sensor's eccentricity
+/// moves it by `p e(theta)` from one pole pair to the next (on the GL80,
+/// 0.3 deg of eccentricity made the zero-torque ripple 1.8 times worse
+/// than without a map, design §32).
 pub fn admit_tables(board: &Board, rec: &DriveRecord) -> Tables {
     let mut t = Tables::of_record(rec);
     if t.has_angle_correction() && !board.zero_survives_reset {
-        crate::log_warn!("store: the stored angle correction does not apply to an incremental encoder (its reading's zero is where the rotor was at reset): dropped, learn it again");
-        t.angle_correction = Tables::NONE.angle_correction;
+        crate::log_warn!("store: the stored angle correction does not apply to an incremental encoder (its reading's zero is where the rotor was at reset): dropped with the anticogging map measured on it, learn both again");
+        t = Tables::NONE;
     }
     t
 }

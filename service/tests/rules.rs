@@ -646,9 +646,9 @@ fn tables() -> foc_store::settings::Tables {
     }
 }
 
-/// A stored record's tables: the map applies on every board, the angle
-/// correction only where the sensor's reading keeps its zero across a
-/// reset (dropped on an incremental encoder); loaded at boot and by
+/// A stored record's tables: where the sensor's reading keeps its zero
+/// across a reset both apply; on an incremental encoder the correction is
+/// dropped, and the map stored with it too; loaded at boot and by
 /// `Load`/`Apply` (the outbox asks the owner to install them, never in
 /// the configuration change); saved back with the record.
 #[test]
@@ -659,14 +659,9 @@ fn stored_tables_are_admitted_per_board_and_reach_the_owner_outside_the_mailbox(
         let rec = calibrated_record(&s).with_tables(&tables());
         let mut st = store();
         st.save(&rec).unwrap();
-        let want = Tables {
-            angle_correction: if survives {
-                tables().angle_correction
-            } else {
-                Tables::NONE.angle_correction
-            },
-            ..tables()
-        };
+        // On an incremental encoder the correction is dropped, and the map
+        // measured on it with it (design §32).
+        let want = if survives { tables() } else { Tables::NONE };
         let (booted, _) = Service::boot(board(survives), Some(&mut st));
         assert_eq!(*booted.tables(), want, "boot, survives {survives}");
         let mut s = Service::new(board(survives));

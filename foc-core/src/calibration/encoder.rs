@@ -317,6 +317,12 @@ impl EncoderCalibration {
                 if fit < self.config.turns as f32 {
                     self.config.turns = (fit as u8).max(3);
                 }
+                // The bound follows the slower run (at least three turns:
+                // below 3.8 rad/s the default's 12 s was too short).
+                let longer = 2.0 * self.config.planned_s();
+                if longer > self.config.timeout_s {
+                    self.config.timeout_s = longer;
+                }
             }
             return Ok(self.velocity(1));
         };
