@@ -1,5 +1,5 @@
 //! The anticogging calibration: the cogging map
-//! ([`CoggingMap`](crate::control::cogging::CoggingMap)) measured by a
+//! ([`crate::control::cogging::CoggingMap`]) measured by a
 //! slow constant-speed sweep in both directions (design §32).
 //!
 //! At a constant speed the rotor does not accelerate, so the q current the
