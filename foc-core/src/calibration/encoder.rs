@@ -16,9 +16,7 @@
 //! friction; without it, a 2 %/s decay over three turns leaked 3 % into
 //! the first harmonic): the harmonics are the sensor's error
 //! `e(r)`, the first being the eccentricity. Only the normal equations
-//! (12 x 12) are accumulated, in `f64`, every other period; no samples are
-//! kept. They are solved one column per period, so no period does more
-//! than a row's work.
+//! (12 x 12) are accumulated; no samples are kept.
 //!
 //! **Experiment**, per direction: reach the speed in velocity mode
 //! (`settle_s`), then hold the q current the speed loop needed over its
@@ -28,16 +26,44 @@
 //! averaged (a reading delay moves `a` the opposite way in each and cancels
 //! in neither harmonic). The correction's table is `e` at each point.
 //!
+//! **A period's work.** The routine runs in the current loop's interrupt
+//! on a Cortex-M4F, whose `f64` is software (about a hundred instructions
+//! an operation), so no period does more than a handful of `f64`
+//! operations, and none on a sample:
+//!
+//! - recording, every period: the travel, unwrapped in integer bits of a
+//!   turn (exact);
+//! - every other period, a sample: its regressors, and its products into
+//!   an `f32` block of the normal equations' upper triangle and
+//!   right-hand side (90 multiply-adds). What is fitted is the travel less
+//!   the nominal run `dir * speed * t`: a straight line in `tau`, which
+//!   only moves `a` and `b`, and leaves a few radians instead of tens for
+//!   the `f32` products (in the unit test's run the table came within
+//!   2e-7 rad of an all-`f64` fit's, against 9e-7 fitting the travel
+//!   itself);
+//! - the periods between, a fold: 6 of the block's entries added to the
+//!   `f64` sums and zeroed, round the block, so each entry sums in `f32`
+//!   over 15 samples at most;
+//! - after the last sample, the solve, the velocity loop holding the speed
+//!   (161 periods): the block folded once more (15), the elimination (a
+//!   pivot's reciprocal, or up to 4 `f64` multiply-subtracts of one row,
+//!   a period: 124) and the back substitution by columns (the same: 22);
+//! - after both directions, the table in 8 points a period (65 periods):
+//!   the error's peak, which sets the quantisation, then the points
+//!   quantised into the correction ([`AngleCorrection::with_peak`],
+//!   [`AngleCorrection::set_rad`]).
+//!
 //! Bounded: the current vector within `max_current_a`, the whole run within
 //! `timeout_s`. Named failures: the rotor does not turn
 //! ([`CalError::RotorStuck`]) or does not keep a speed
 //! ([`CalError::SpeedNotReached`]), the fit is singular
 //! ([`CalError::MechanicsIllConditioned`]), an error beyond
-//! [`MAX_CORRECTION_RAD`] ([`CalError::ImplausibleResult`]).
+//! [`MAX_CORRECTION_RAD`](crate::control::angle_correction::MAX_CORRECTION_RAD)
+//! ([`CalError::ImplausibleResult`]).
 
 use super::common::{check_input, latch, CalError, CalInput, CalStep};
 use crate::angle::MechanicalAngle;
-use crate::control::angle_correction::{AngleCorrection, CORRECTION_BINS, MAX_CORRECTION_RAD};
+use crate::control::angle_correction::{AngleCorrection, CORRECTION_BINS};
 use core::f32::consts::TAU;
 
 /// Harmonics of the reading fitted.
@@ -147,87 +173,247 @@ enum Phase {
     Settle { dir: i8, since: u32 },
     /// Holding `iq_a` and recording in `dir` since period `since`.
     Record { dir: i8, since: u32, iq_a: f32 },
-    /// Eliminating column `col` of `dir`'s fit.
-    Solve { dir: i8, col: usize },
+    /// Solving `dir`'s fit, a step a period.
+    Solve { dir: i8 },
+    /// The correction's peak over its points from `at` (still turning in
+    /// `dir`); its scale at `CORRECTION_BINS`.
+    Peak { dir: i8, at: usize },
+    /// The correction's points from `at`, quantised.
+    Fill { dir: i8, at: usize },
 }
 
-/// The normal equations of the fit.
+/// Entries of the normal equations as kept: row `i` holds columns
+/// `i .. N` of the (symmetric) matrix, then its right-hand side.
+const TRI: usize = N * (N + 1) / 2 + N;
+
+/// Block entries folded into the sums a period.
+const FOLD: usize = 6;
+
+/// `f64` multiply-subtracts a period in the solve.
+const MADDS: usize = 4;
+
+/// Correction points computed a period.
+const BINS_A_PERIOD: usize = 8;
+
+/// Where row `i` starts in the kept entries.
+const fn row_start(i: usize) -> usize {
+    i * (N + 1) - i * i.saturating_sub(1) / 2
+}
+
+/// Where entry `(i, j)` is kept (`i <= j <= N`; `j = N` is the
+/// right-hand side).
+const fn at(i: usize, j: usize) -> usize {
+    row_start(i) + j.saturating_sub(i)
+}
+
+/// The solve's place.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Stage {
+    /// Folding the block from entry `at`, once more after the last sample.
+    Fold { at: usize },
+    /// Column `col`'s pivot checked and replaced by its reciprocal.
+    Pivot { col: usize },
+    /// Column `col` taken out of row `row`, from its entry `from` on.
+    Eliminate { col: usize, row: usize, from: usize },
+    /// Unknown `col` solved (from 0) and taken out of rows `from ..` above.
+    Substitute { col: usize, from: usize },
+}
+
+/// The fit's normal equations: the recent samples' sums in `f32`, the
+/// rest in `f64`.
 #[derive(Clone, Copy, Debug, PartialEq)]
 struct Fit {
-    ata: [[f64; N]; N],
-    aty: [f64; N],
+    /// The samples since each entry was last folded.
+    block: [f32; TRI],
+    /// The folded sums; solved in place (the pivots become their
+    /// reciprocals, the right-hand sides the unknowns).
+    sums: [f64; TRI],
+    /// The entry the next fold starts at.
+    fold_at: usize,
+    stage: Stage,
 }
 
 impl Fit {
     const ZERO: Self = Self {
-        ata: [[0.0; N]; N],
-        aty: [0.0; N],
+        block: [0.0; TRI],
+        sums: [0.0; TRI],
+        fold_at: 0,
+        stage: Stage::Fold { at: 0 },
     };
 
-    /// Add one sample: `u` at scaled time `tau` and reading angle `r`.
-    fn add(&mut self, tau: f32, r: MechanicalAngle, u: f64) {
-        let row = basis(tau, r);
-        for (i, (line, y)) in self.ata.iter_mut().zip(self.aty.iter_mut()).enumerate() {
-            let ri = row.get(i).copied().unwrap_or(0.0);
-            for (a, rj) in line.iter_mut().zip(row.iter()).skip(i) {
-                *a += ri * rj;
+    /// Add one sample: `y` at scaled time `tau` and reading angle `r`.
+    fn add(&mut self, tau: f32, r: MechanicalAngle, y: f32) {
+        let b = basis(tau, r);
+        for (i, bi) in b.iter().enumerate() {
+            let line = self.block.get_mut(row_start(i)..row_start(i + 1));
+            let Some((rhs, upper)) = line.and_then(|l| l.split_last_mut()) else {
+                continue;
+            };
+            for (a, bj) in upper.iter_mut().zip(b.iter().skip(i)) {
+                *a += bi * bj;
             }
-            *y += ri * u;
+            *rhs += bi * y;
         }
     }
 
-    /// Eliminate column `col` below the diagonal (the lower triangle is
-    /// read from the upper, which is what is accumulated).
-    fn eliminate(&mut self, col: usize) -> Result<(), CalError> {
-        let singular = CalError::MechanicsIllConditioned;
-        let pivot_row = *self.ata.get(col).ok_or(singular)?;
-        let pivot = pivot_row.get(col).copied().unwrap_or(0.0);
-        if !(pivot.is_finite() && pivot.abs() > 1e-12) {
-            return Err(singular);
+    /// Move [`FOLD`] entries of the block from `at` into the sums.
+    fn fold(&mut self, at: usize) {
+        let end = (at + FOLD).min(TRI);
+        let (Some(sums), Some(block)) = (self.sums.get_mut(at..end), self.block.get_mut(at..end))
+        else {
+            return;
+        };
+        for (s, b) in sums.iter_mut().zip(block.iter_mut()) {
+            *s += f64::from(*b);
+            *b = 0.0;
         }
-        let y_col = self.aty.get(col).copied().unwrap_or(0.0);
-        let rows = self.ata.iter_mut().zip(self.aty.iter_mut());
-        for (i, (line, y)) in rows.enumerate().skip(col + 1) {
-            // The symmetric lower entry.
-            let f = pivot_row.get(i).copied().unwrap_or(0.0) / pivot;
-            for (a, p) in line.iter_mut().zip(pivot_row.iter()).skip(i) {
-                *a -= f * p;
+    }
+
+    /// The recording's fold: the next entries, round the block.
+    fn fold_next(&mut self) {
+        self.fold(self.fold_at);
+        self.fold_at = if self.fold_at + FOLD < TRI {
+            self.fold_at + FOLD
+        } else {
+            0
+        };
+    }
+
+    fn sum(&self, i: usize) -> f64 {
+        self.sums.get(i).copied().unwrap_or(0.0)
+    }
+
+    fn set(&mut self, i: usize, v: f64) {
+        if let Some(s) = self.sums.get_mut(i) {
+            *s = v;
+        }
+    }
+
+    /// One step of the solve; the harmonics after the last.
+    fn solve_step(&mut self) -> Result<Option<[f32; 2 * HARMONICS]>, CalError> {
+        let next = match self.stage {
+            Stage::Fold { at } => {
+                self.fold(at);
+                if at + FOLD < TRI {
+                    Stage::Fold { at: at + FOLD }
+                } else {
+                    Stage::Pivot { col: 0 }
+                }
             }
-            *y -= f * y_col;
+            Stage::Pivot { col } => {
+                self.pivot(col)?;
+                if col + 1 < N {
+                    Stage::Eliminate {
+                        col,
+                        row: col + 1,
+                        from: 0,
+                    }
+                } else {
+                    Stage::Substitute { col, from: 0 }
+                }
+            }
+            Stage::Eliminate { col, row, from } => self.eliminate(col, row, from),
+            Stage::Substitute { col, from } => match self.substitute(col, from) {
+                Some(next) => next,
+                None => return Ok(Some(self.harmonics())),
+            },
+        };
+        self.stage = next;
+        Ok(None)
+    }
+
+    /// Check column `col`'s pivot (every column above it eliminated) and
+    /// keep its reciprocal in its place.
+    fn pivot(&mut self, col: usize) -> Result<(), CalError> {
+        let p = self.sum(at(col, col));
+        if !(p.is_finite() && p.abs() > 1e-12) {
+            return Err(CalError::MechanicsIllConditioned);
         }
+        self.set(at(col, col), 1.0 / p);
         Ok(())
     }
 
-    /// Back substitution after every column is eliminated.
-    fn solve(&self) -> [f64; N] {
-        let mut x = [0.0; N];
-        for i in (0..N).rev() {
-            let (Some(line), Some(y)) = (self.ata.get(i), self.aty.get(i)) else {
-                continue;
-            };
-            let mut s = *y;
-            for (a, xj) in line.iter().zip(x.iter()).skip(i + 1) {
-                s -= a * xj;
-            }
-            let d = line.get(i).copied().unwrap_or(0.0);
-            if let Some(xi) = x.get_mut(i) {
-                *xi = if d != 0.0 { s / d } else { 0.0 };
+    /// Take column `col` out of row `row`'s entries `from ..` (up to
+    /// [`MADDS`] of them): the lower entry is read from the upper, the
+    /// pivot row is row `col`.
+    fn eliminate(&mut self, col: usize, row: usize, from: usize) -> Stage {
+        let f = self.sum(at(col, row)) * self.sum(at(col, col));
+        let len = N + 1 - row;
+        for k in from..(from + MADDS).min(len) {
+            let p = self.sum(at(col, row + k));
+            if let Some(a) = self.sums.get_mut(at(row, row + k)) {
+                *a -= f * p;
             }
         }
-        x
+        if from + MADDS < len {
+            Stage::Eliminate {
+                col,
+                row,
+                from: from + MADDS,
+            }
+        } else if row + 1 < N {
+            Stage::Eliminate {
+                col,
+                row: row + 1,
+                from: 0,
+            }
+        } else {
+            Stage::Pivot { col: col + 1 }
+        }
+    }
+
+    /// Back substitution by columns: unknown `col` (its right-hand side
+    /// over the pivot, at `from` 0), taken out of the right-hand sides of
+    /// rows `from ..` above it (up to [`MADDS`]). `None` after the last.
+    fn substitute(&mut self, col: usize, from: usize) -> Option<Stage> {
+        let x = if from == 0 {
+            let x = self.sum(at(col, N)) * self.sum(at(col, col));
+            self.set(at(col, N), x);
+            x
+        } else {
+            self.sum(at(col, N))
+        };
+        for k in from..(from + MADDS).min(col) {
+            let a = self.sum(at(k, col));
+            if let Some(y) = self.sums.get_mut(at(k, N)) {
+                *y -= a * x;
+            }
+        }
+        if from + MADDS < col {
+            Some(Stage::Substitute {
+                col,
+                from: from + MADDS,
+            })
+        } else if col > 0 {
+            Some(Stage::Substitute {
+                col: col - 1,
+                from: 0,
+            })
+        } else {
+            None
+        }
+    }
+
+    /// The solved harmonics `[s1, c1, s2, c2, ...]`.
+    fn harmonics(&self) -> [f32; 2 * HARMONICS] {
+        let mut h = [0.0f32; 2 * HARMONICS];
+        for (k, v) in h.iter_mut().enumerate() {
+            *v = self.sum(at(4 + k, N)) as f32;
+        }
+        h
     }
 }
 
 /// The fit's regressors at `tau` and reading `r`.
-fn basis(tau: f32, r: MechanicalAngle) -> [f64; N] {
+fn basis(tau: f32, r: MechanicalAngle) -> [f32; N] {
     let (s1, c1) = crate::trig::sin_cos_bits(r.to_bits());
-    let mut row = [0.0f64; N];
-    let (t, t2) = (tau as f64, (tau * tau) as f64);
+    let mut row = [0.0f32; N];
+    let t2 = tau * tau;
     let (head, harmonics) = row.split_at_mut(4);
-    head.copy_from_slice(&[1.0, t, t2, t2 * t]);
+    head.copy_from_slice(&[1.0, tau, t2, t2 * tau]);
     let (mut s, mut c) = (s1, c1);
     for pair in harmonics.chunks_exact_mut(2) {
-        pair.copy_from_slice(&[s as f64, c as f64]);
+        pair.copy_from_slice(&[s, c]);
         // sin/cos of (k + 1) r from k r.
         let (sn, cn) = (s * c1 + c * s1, c * c1 - s * s1);
         s = sn;
@@ -236,23 +422,28 @@ fn basis(tau: f32, r: MechanicalAngle) -> [f64; N] {
     row
 }
 
+/// Radians per bit of a [`MechanicalAngle`].
+const RAD_PER_BIT: f32 = TAU / 4_294_967_296.0;
+
 /// The encoder linearisation routine.
 #[derive(Clone, Copy, Debug)]
 pub struct EncoderCalibration {
     config: EncoderCalConfig,
     phase: Phase,
     period: u32,
-    /// Reading at the recording's start, and the unwrapped travel since
-    /// \[rad\].
-    start: MechanicalAngle,
+    /// The last reading, and the unwrapped travel since the recording's
+    /// start [bits of a turn].
     last: MechanicalAngle,
-    travel_rad: f64,
+    travel: i64,
     /// The hold current's sum and count over the settle's last part.
     iq_sum_a: f32,
     iq_n: u32,
     fit: Fit,
-    /// The forward direction's harmonics.
-    forward: [f32; 2 * HARMONICS],
+    /// The forward direction's harmonics, then both directions' mean.
+    harmonics: [f32; 2 * HARMONICS],
+    /// The correction's peak over the points computed so far \[rad\].
+    peak_rad: f32,
+    /// The correction, built in the last periods.
     correction: AngleCorrection,
     finished: Option<CalStep<()>>,
 }
@@ -264,13 +455,13 @@ impl EncoderCalibration {
             config,
             phase: Phase::Settle { dir: 1, since: 0 },
             period: 0,
-            start: MechanicalAngle::ZERO,
             last: MechanicalAngle::ZERO,
-            travel_rad: 0.0,
+            travel: 0,
             iq_sum_a: 0.0,
             iq_n: 0,
             fit: Fit::ZERO,
-            forward: [0.0; 2 * HARMONICS],
+            harmonics: [0.0; 2 * HARMONICS],
+            peak_rad: 0.0,
             correction: AngleCorrection::NONE,
             finished: None,
         }
@@ -283,7 +474,11 @@ impl EncoderCalibration {
 
     /// The correction learnt ([`AngleCorrection::NONE`] until done).
     pub fn correction(&self) -> &AngleCorrection {
-        &self.correction
+        if matches!(self.finished, Some(CalStep::Done(()))) {
+            &self.correction
+        } else {
+            &AngleCorrection::NONE
+        }
     }
 
     /// Periods stepped so far.
@@ -309,21 +504,7 @@ impl EncoderCalibration {
             return Err(CalError::Timeout);
         }
         let Some(fb) = inp.closed_loop else {
-            // The first period: the speed within the no-load speed's share.
-            let cap = MAX_SHARE_OF_NO_LOAD * self.config.no_load_rad_s_per_v * inp.v_bus_v;
-            if cap > 0.0 && cap < self.config.speed_rad_s {
-                self.config.speed_rad_s = cap;
-                let fit = MAX_RECORD_S * cap / TAU;
-                if fit < self.config.turns as f32 {
-                    self.config.turns = (fit as u8).max(3);
-                }
-                // The bound follows the slower run (at least three turns:
-                // below 3.8 rad/s the default's 12 s was too short).
-                let longer = 2.0 * self.config.planned_s();
-                if longer > self.config.timeout_s {
-                    self.config.timeout_s = longer;
-                }
-            }
+            self.cap_speed(inp.v_bus_v);
             return Ok(self.velocity(1));
         };
         match self.phase {
@@ -333,7 +514,28 @@ impl EncoderCalibration {
             Phase::Record { dir, since, iq_a } => {
                 self.record(dir, since, iq_a, fb.velocity_rad_s, inp.angle)
             }
-            Phase::Solve { dir, col } => self.solve(dir, col),
+            Phase::Solve { dir } => self.solve(dir),
+            Phase::Peak { dir, at } => self.peak(dir, at),
+            Phase::Fill { dir, at } => Ok(self.fill(dir, at)),
+        }
+    }
+
+    /// The first period: the speed within the no-load speed's share.
+    fn cap_speed(&mut self, v_bus_v: f32) {
+        let cap = MAX_SHARE_OF_NO_LOAD * self.config.no_load_rad_s_per_v * v_bus_v;
+        if !(cap > 0.0 && cap < self.config.speed_rad_s) {
+            return;
+        }
+        self.config.speed_rad_s = cap;
+        let fit = MAX_RECORD_S * cap / TAU;
+        if fit < self.config.turns as f32 {
+            self.config.turns = (fit as u8).max(3);
+        }
+        // The bound follows the slower run (at least three turns: below
+        // 3.8 rad/s the default's 12 s was too short).
+        let longer = 2.0 * self.config.planned_s();
+        if longer > self.config.timeout_s {
+            self.config.timeout_s = longer;
         }
     }
 
@@ -368,9 +570,8 @@ impl EncoderCalibration {
         self.iq_sum_a = 0.0;
         self.iq_n = 0;
         self.fit = Fit::ZERO;
-        self.start = reading;
         self.last = reading;
-        self.travel_rad = 0.0;
+        self.travel = 0;
         self.phase = Phase::Record {
             dir,
             since: self.period,
@@ -402,71 +603,114 @@ impl EncoderCalibration {
             iq_a
         };
         self.phase = Phase::Record { dir, since, iq_a };
-        self.travel_rad += reading.diff_radians(self.last) as f64;
+        let step = reading.to_bits().wrapping_sub(self.last.to_bits()) as i32;
+        self.travel = self.travel.wrapping_add(i64::from(step));
         self.last = reading;
         let n = self.period.saturating_sub(since);
         if n.is_multiple_of(2) {
             let tau = 2.0 * n as f32 * c.ts_s / c.record_s() - 1.0;
-            self.fit.add(tau, reading, self.travel_rad);
+            self.fit.add(tau, reading, self.residual_rad(dir, n));
+        } else {
+            self.fit.fold_next();
         }
-        if self.travel_rad.abs() < c.turns as f64 * core::f64::consts::TAU {
+        if self.travel.unsigned_abs() < u64::from(c.turns) << 32 {
             return Ok(CalStep::Torque { iq_a });
         }
-        self.phase = Phase::Solve { dir, col: 0 };
+        self.fit.stage = Stage::Fold { at: 0 };
+        self.phase = Phase::Solve { dir };
         Ok(CalStep::Torque { iq_a })
     }
 
-    /// One column a period; then this direction's harmonics, and the next
-    /// direction or the correction.
-    fn solve(&mut self, dir: i8, col: usize) -> Result<CalStep<()>, CalError> {
-        self.fit.eliminate(col)?;
-        if col + 1 < N {
-            self.phase = Phase::Solve { dir, col: col + 1 };
+    /// The travel less the nominal run's, `dir * speed * t`, at the
+    /// recording's `n`-th period \[rad\]: what is fitted (the nominal
+    /// line only moves the fit's `a` and `b`).
+    fn residual_rad(&self, dir: i8, n: u32) -> f32 {
+        let c = self.config;
+        let per_period = (dir as f32 * c.speed_rad_s * c.ts_s / RAD_PER_BIT) as i32;
+        let nominal = i64::from(n) * i64::from(per_period);
+        self.travel.wrapping_sub(nominal) as f32 * RAD_PER_BIT
+    }
+
+    /// A step of the solve a period; then this direction's harmonics, and
+    /// the next direction or the correction.
+    fn solve(&mut self, dir: i8) -> Result<CalStep<()>, CalError> {
+        let Some(h) = self.fit.solve_step()? else {
             return Ok(self.velocity(dir));
-        }
-        let x = self.fit.solve();
-        let mut h = [0.0f32; 2 * HARMONICS];
-        for (k, v) in h.iter_mut().enumerate() {
-            *v = x.get(4 + k).copied().unwrap_or(0.0) as f32;
-        }
+        };
         if dir > 0 {
-            self.forward = h;
+            self.harmonics = h;
             self.phase = Phase::Settle {
                 dir: -1,
                 since: self.period,
             };
             return Ok(self.velocity(-1));
         }
-        for (v, f) in h.iter_mut().zip(self.forward.iter()) {
+        for (v, f) in self.harmonics.iter_mut().zip(h.iter()) {
             *v = 0.5 * (*v + f);
         }
-        self.correction = table_of(&h)?;
-        Ok(CalStep::Done(()))
+        self.peak_rad = 0.0;
+        self.phase = Phase::Peak { dir, at: 0 };
+        Ok(self.velocity(dir))
+    }
+
+    /// The correction's peak over [`BINS_A_PERIOD`] points; the period
+    /// after the last, the correction's scale (a table of zeros written:
+    /// a period of its own).
+    fn peak(&mut self, dir: i8, at: usize) -> Result<CalStep<()>, CalError> {
+        if at >= CORRECTION_BINS {
+            self.correction = AngleCorrection::with_peak(self.peak_rad)
+                .map_err(|_| CalError::ImplausibleResult)?;
+            self.phase = Phase::Fill { dir, at: 0 };
+            return Ok(self.velocity(dir));
+        }
+        for k in at..(at + BINS_A_PERIOD).min(CORRECTION_BINS) {
+            let e = error_at(&self.harmonics, k);
+            if !e.is_finite() {
+                return Err(CalError::ImplausibleResult);
+            }
+            self.peak_rad = self.peak_rad.max(e.abs());
+        }
+        self.phase = Phase::Peak {
+            dir,
+            at: at + BINS_A_PERIOD,
+        };
+        Ok(self.velocity(dir))
+    }
+
+    /// [`BINS_A_PERIOD`] of the correction's points (finite: the peak's
+    /// pass saw them); done after the last.
+    fn fill(&mut self, dir: i8, at: usize) -> CalStep<()> {
+        for k in at..(at + BINS_A_PERIOD).min(CORRECTION_BINS) {
+            let _ = self.correction.set_rad(k, error_at(&self.harmonics, k));
+        }
+        if at + BINS_A_PERIOD < CORRECTION_BINS {
+            self.phase = Phase::Fill {
+                dir,
+                at: at + BINS_A_PERIOD,
+            };
+            return self.velocity(dir);
+        }
+        CalStep::Done(())
     }
 }
 
-/// The correction table from the harmonics `[s1, c1, s2, c2, ...]`.
-fn table_of(h: &[f32; 2 * HARMONICS]) -> Result<AngleCorrection, CalError> {
-    let mut rad = [0.0f32; CORRECTION_BINS];
-    for (k, v) in rad.iter_mut().enumerate() {
-        let centre = ((2 * k + 1) as u64 * (1u64 << 31) / CORRECTION_BINS as u64) as u32;
-        let (s1, c1) = crate::trig::sin_cos_bits(centre);
-        let (mut s, mut c) = (s1, c1);
-        let mut e = 0.0;
-        for pair in h.chunks_exact(2) {
-            if let [sk, ck] = pair {
-                e += sk * s + ck * c;
-            }
-            let (sn, cn) = (s * c1 + c * s1, c * c1 - s * s1);
-            s = sn;
-            c = cn;
+/// The error with harmonics `h` (`[s1, c1, s2, c2, ...]`) at the centre of
+/// the correction's point `k` \[rad\].
+fn error_at(h: &[f32; 2 * HARMONICS], k: usize) -> f32 {
+    // (2k + 1) / (2 CORRECTION_BINS) turns.
+    let centre = (2 * k as u32 + 1).wrapping_mul((1 << 31) / CORRECTION_BINS as u32);
+    let (s1, c1) = crate::trig::sin_cos_bits(centre);
+    let (mut s, mut c) = (s1, c1);
+    let mut e = 0.0;
+    for pair in h.chunks_exact(2) {
+        if let [sk, ck] = pair {
+            e += sk * s + ck * c;
         }
-        *v = e;
+        let (sn, cn) = (s * c1 + c * s1, c * c1 - s * s1);
+        s = sn;
+        c = cn;
     }
-    match AngleCorrection::from_rad(&rad) {
-        Ok(c) if c.peak_rad() <= MAX_CORRECTION_RAD => Ok(c),
-        _ => Err(CalError::ImplausibleResult),
-    }
+    e
 }
 
 /// A rotor off the speed: stuck (below a tenth of it) or slow.
@@ -554,6 +798,73 @@ mod tests {
         assert_eq!(
             run(&mut EncoderCalibration::new(bad), false),
             CalStep::Failed(CalError::InvalidConfig)
+        );
+    }
+
+    /// The folded, chunked solve against a plain elimination of the same
+    /// sums in `f64`.
+    #[test]
+    fn solves_as_a_plain_elimination() {
+        let mut fit = Fit::ZERO;
+        let (mut a, mut b) = ([[0.0f64; N]; N], [0.0f64; N]);
+        let mut seed = 12345u32;
+        for n in 0..4000u32 {
+            seed = seed.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+            let tau = n as f32 / 2000.0 - 1.0;
+            let r = MechanicalAngle::from_bits(n.wrapping_mul(7_516_193) ^ (seed >> 20));
+            let th = r.to_radians();
+            let noise = (seed >> 8) as f32 / 16_777_216.0 - 0.5;
+            let y = 0.3
+                + 0.8 * tau
+                + 0.002 * libm::sinf(th)
+                + 0.001 * libm::cosf(2.0 * th)
+                + 1e-4 * noise;
+            fit.add(tau, r, y);
+            if n % 2 == 1 {
+                fit.fold_next();
+            }
+            let x = basis(tau, r);
+            for i in 0..N {
+                for j in 0..N {
+                    a[i][j] += x[i] as f64 * x[j] as f64;
+                }
+                b[i] += x[i] as f64 * y as f64;
+            }
+        }
+        fit.stage = Stage::Fold { at: 0 };
+        let mut steps = 0;
+        let h = loop {
+            steps += 1;
+            if let Some(h) = fit.solve_step().unwrap() {
+                break h;
+            }
+        };
+        assert_eq!(steps, 161);
+        for c in 0..N {
+            let pivot = a[c];
+            for r in c + 1..N {
+                let f = a[r][c] / pivot[c];
+                for (v, p) in a[r].iter_mut().zip(pivot).skip(c) {
+                    *v -= f * p;
+                }
+                b[r] -= f * b[c];
+            }
+        }
+        let mut x = [0.0f64; N];
+        for i in (0..N).rev() {
+            let s: f64 = (i + 1..N).map(|j| a[i][j] * x[j]).sum();
+            x[i] = (b[i] - s) / a[i][i];
+        }
+        for (k, v) in h.iter().enumerate() {
+            assert!(
+                (*v as f64 - x[4 + k]).abs() < 1e-7,
+                "{k}: {v} vs {}",
+                x[4 + k]
+            );
+        }
+        assert!(
+            (h[0] - 0.002).abs() < 2e-5 && (h[3] - 0.001).abs() < 2e-5,
+            "{h:?}"
         );
     }
 }

@@ -100,6 +100,43 @@ impl AngleCorrection {
         Ok(c)
     }
 
+    /// An enabled table of zeros with the scale [`Self::from_rad`] picks
+    /// for errors up to `peak_rad`: the start of a table filled a few
+    /// points at a time with [`Self::set_rad`] where [`Self::from_rad`]'s
+    /// whole table at once would take too long (in a control period).
+    /// Refused as [`Self::from_rad`] would refuse a table with that peak.
+    pub fn with_peak(peak_rad: f32) -> Result<Self, AngleCorrectionError> {
+        if !peak_rad.is_finite() {
+            return Err(AngleCorrectionError::NotFinite);
+        }
+        let scale_rad = peak_rad.abs() / FULL_COUNT;
+        // What `peak_rad` of the table filled up to its peak will say.
+        if FULL_COUNT * scale_rad > MAX_CORRECTION_RAD {
+            return Err(AngleCorrectionError::TooLarge);
+        }
+        Ok(Self {
+            enabled: true,
+            scale_rad,
+            table: [0; CORRECTION_BINS],
+        })
+    }
+
+    /// Point `k`'s error \[rad\], quantised as [`Self::from_rad`] does
+    /// (clamped to the scale's peak; `k` beyond the table: nothing).
+    pub fn set_rad(&mut self, k: usize, rad: f32) -> Result<(), AngleCorrectionError> {
+        if !rad.is_finite() {
+            return Err(AngleCorrectionError::NotFinite);
+        }
+        if let Some(t) = self.table.get_mut(k) {
+            *t = if self.scale_rad > 0.0 {
+                libm::roundf(rad / self.scale_rad).clamp(-FULL_COUNT, FULL_COUNT) as i16
+            } else {
+                0
+            };
+        }
+        Ok(())
+    }
+
     /// The error at point `k` \[rad\] (`k` modulo the bins).
     pub fn rad_at(&self, k: usize) -> f32 {
         self.table.get(k % CORRECTION_BINS).copied().unwrap_or(0) as f32 * self.scale_rad
@@ -189,6 +226,29 @@ mod tests {
             // reading instead of the truth (e e' = 2.5e-5), within 4e-5 rad.
             assert!(d.abs() < 4e-5, "{i}: {d}");
         }
+    }
+
+    #[test]
+    fn filled_a_point_at_a_time_as_from_rad() {
+        let rad = eccentric(0.005, 0.0017);
+        let peak = rad.iter().fold(0.0f32, |p, r| p.max(r.abs()));
+        let mut c = AngleCorrection::with_peak(peak).unwrap();
+        for (k, r) in rad.iter().enumerate() {
+            c.set_rad(k, *r).unwrap();
+        }
+        c.set_rad(CORRECTION_BINS, 1.0).unwrap();
+        assert_eq!(Ok(c), AngleCorrection::from_rad(&rad));
+        assert_eq!(c.set_rad(3, f32::NAN), Err(AngleCorrectionError::NotFinite));
+        assert_eq!(
+            AngleCorrection::with_peak(0.1),
+            Err(AngleCorrectionError::TooLarge)
+        );
+        assert_eq!(
+            AngleCorrection::with_peak(f32::INFINITY),
+            Err(AngleCorrectionError::NotFinite)
+        );
+        let zero = AngleCorrection::with_peak(0.0).unwrap();
+        assert_eq!(Ok(zero), AngleCorrection::from_rad(&[0.0; CORRECTION_BINS]));
     }
 
     #[test]
