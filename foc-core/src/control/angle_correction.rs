@@ -153,11 +153,30 @@ impl AngleCorrection {
         c as f32 * self.scale_rad
     }
 
+    /// The largest error the table can hold at its scale \[rad\] (any
+    /// count, `-32768` included): a bound on [`Self::peak_rad`] without
+    /// its scan.
+    pub fn bound_rad(&self) -> f32 {
+        -(i16::MIN as f32) * self.scale_rad
+    }
+
+    /// The error of a full count \[rad\]: the peak of a table scaled to
+    /// its peak ([`Self::from_rad`], [`Self::with_peak`]), without the
+    /// scan of [`Self::peak_rad`].
+    pub fn full_scale_rad(&self) -> f32 {
+        FULL_COUNT * self.scale_rad
+    }
+
     /// Check before installing: a usable scale, a peak within
     /// [`MAX_CORRECTION_RAD`].
     pub fn check(&self) -> Result<(), AngleCorrectionError> {
         if !(self.scale_rad.is_finite() && self.scale_rad >= 0.0) {
             return Err(AngleCorrectionError::BadScale);
+        }
+        // No count can exceed the scale's bound: within the limit, no scan
+        // (the check runs in the interrupt when a linearisation ends).
+        if self.bound_rad() <= MAX_CORRECTION_RAD {
+            return Ok(());
         }
         if self.peak_rad() > MAX_CORRECTION_RAD {
             return Err(AngleCorrectionError::TooLarge);

@@ -105,10 +105,13 @@ impl EncoderRun {
             Some(CalStep::Velocity { rad_s }) => self.post(Command::Velocity { rad_s }),
             Some(CalStep::Torque { iq_a }) => self.post(Command::Torque { iq_a }),
             Some(CalStep::Done(())) => {
-                let c = *self.cal.correction();
-                let out = match stage.set_angle_correction(&c) {
+                // Installed straight from the routine (no copy on the
+                // stack), its peak from its scale (no scan: this period
+                // also runs the stage).
+                let c = self.cal.correction();
+                let out = match stage.set_angle_correction(c) {
                     Ok(()) => EncoderOutcome::Done {
-                        peak_rad: c.peak_rad(),
+                        peak_rad: c.full_scale_rad(),
                         periods: self.cal.elapsed_periods(),
                     },
                     Err(_) => {
