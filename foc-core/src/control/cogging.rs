@@ -90,7 +90,7 @@ impl CoggingMap {
             }
             peak = peak.max(a.abs());
         }
-        let scale_a = peak / FULL_COUNT;
+        let scale_a = scale_for_peak(peak);
         let mut map = Self {
             enabled: true,
             scale_a,
@@ -98,7 +98,7 @@ impl CoggingMap {
         };
         if scale_a > 0.0 {
             for (t, a) in map.table.iter_mut().zip(amps) {
-                *t = round_count(a / scale_a);
+                *t = count_of(*a, scale_a);
             }
         }
         Ok(map)
@@ -152,6 +152,18 @@ impl CoggingMap {
         let b = self.table.get((k + 1) % COGGING_BINS).copied().unwrap_or(0) as f32;
         (a + (b - a) * frac) * self.scale_a
     }
+}
+
+/// The scale \[A per count\] of a map whose largest magnitude is
+/// `peak_a` \[A\] (as [`CoggingMap::from_amps`] chooses it).
+pub(crate) fn scale_for_peak(peak_a: f32) -> f32 {
+    peak_a / FULL_COUNT
+}
+
+/// `a` \[A\] in counts of `scale_a` (`> 0`), as [`CoggingMap::from_amps`]
+/// quantises it.
+pub(crate) fn count_of(a: f32, scale_a: f32) -> i16 {
+    round_count(a / scale_a)
 }
 
 /// `x` rounded to the nearest count within `+-32767`.

@@ -70,28 +70,56 @@ impl CoggingRun {
     /// A calibration on `stage` with the defaults for its motor, pole
     /// pairs and current limit ([`CoggingCalConfig::new`]).
     pub fn for_stage(stage: &CurrentStage, operator: &CommandSlot) -> Self {
-        let c = stage.config();
-        let config = CoggingCalConfig::new(
-            c.angle.pole_pairs,
-            1.0 / c.current.ts_s,
-            c.limits.max_current_a,
-        );
-        Self::new(config, stage, operator)
+        Self::new(defaults(stage), stage, operator)
+    }
+
+    /// [`Self::for_stage`] built in place in `dst`, for the interrupt that
+    /// starts the run. The value is about 6 KB (the routine's tables, the
+    /// stage's map before); `Some(Self::for_stage(..))` was built in a
+    /// temporary on the stack and copied into the `Option` (about 6300
+    /// instructions on the F4). Here the tables are zeroed where they stay
+    /// and the stage's map copied in once (what the thumbv7em build does;
+    /// without `unsafe` it is the optimiser's choice, not a guarantee).
+    pub fn start_in<'a>(
+        dst: &'a mut Option<Self>,
+        stage: &CurrentStage,
+        operator: &CommandSlot,
+    ) -> &'a mut Self {
+        let run = dst.insert(Self::without_before(defaults(stage), stage, operator));
+        run.before = *stage.cogging();
+        run
     }
 
     /// A calibration with `config`, through a private mailbox that starts
     /// as a copy of `operator` (as the identification's does).
     pub fn new(config: CoggingCalConfig, stage: &CurrentStage, operator: &CommandSlot) -> Self {
+        let mut run = Self::without_before(config, stage, operator);
+        run.before = *stage.cogging();
+        run
+    }
+
+    /// All but the stage's map (`before` left empty). The small inputs
+    /// are computed before the value is written, and it is inlined, so
+    /// that the compiler writes it (mostly zeros) straight into its
+    /// destination (not inlined, a kilobyte of it went through a
+    /// temporary).
+    #[inline(always)]
+    fn without_before(
+        config: CoggingCalConfig,
+        stage: &CurrentStage,
+        operator: &CommandSlot,
+    ) -> Self {
         let mut slot = *operator;
         slot.seq = operator.seq.wrapping_add(0x4000_0000);
         slot.command = Command::Disable;
+        let spring = spring_of(stage);
         Self {
             cal: CoggingCalibration::new(config),
             slot,
             last_fb: None,
-            before: *stage.cogging(),
+            before: CoggingMap::EMPTY,
             installed_passes: 0,
-            spring: spring_of(stage),
+            spring,
             posted_dir: 0,
         }
     }
@@ -226,6 +254,17 @@ impl CoggingRun {
     }
 }
 
+/// The calibration's defaults for `stage`'s motor, pole pairs and current
+/// limit.
+fn defaults(stage: &CurrentStage) -> CoggingCalConfig {
+    let c = stage.config();
+    CoggingCalConfig::new(
+        c.angle.pole_pairs,
+        1.0 / c.current.ts_s,
+        c.limits.max_current_a,
+    )
+}
+
 /// The sweep's spring `(kp, kd)` [N m/rad, N m s/rad] for the stage's
 /// rotor: `J w^2` and `2 J w` at [`SWEEP_SPRING_HZ`], within the stage's
 /// impedance limits; `None` when the inertia is unknown.
@@ -241,4 +280,42 @@ fn spring_of(stage: &CurrentStage) -> Option<(f32, f32)> {
     let kp = (j * w * w).min(c.limits.max_kp_nm_per_rad);
     let kd = (2.0 * j * w).min(c.limits.max_kd_nm_s_per_rad);
     (kp > 0.0 && kd > 0.0).then_some((kp, kd))
+}
+
+#[cfg(test)]
+mod tests {
+    extern crate std;
+    use super::*;
+    use crate::control::cogging::COGGING_BINS;
+    use crate::control::MotorParams;
+    use crate::drive::cascade::CascadeConfig;
+    use std::format;
+
+    /// Built in place, the run is the one built by value, whatever the
+    /// destination held.
+    #[test]
+    fn started_in_place_as_built_by_value() {
+        let motor = MotorParams {
+            pole_pairs: 7,
+            r_ohm: 0.2,
+            ld_h: 100e-6,
+            lq_h: 100e-6,
+            flux_linkage_wb: 0.005,
+        };
+        let mut stage = CurrentStage::new(CascadeConfig::for_motor(motor, 20_000.0, 10.0).current);
+        let map = CoggingMap::from_amps(&[0.1; COGGING_BINS]).unwrap();
+        stage.set_cogging(&map).unwrap();
+        let mut operator = CommandSlot::INIT;
+        operator.post(Command::Velocity { rad_s: 1.0 });
+        let by_value = CoggingRun::for_stage(&stage, &operator);
+        let mut empty = None;
+        let mut old = CoggingRun::for_stage(&stage, &CommandSlot::INIT);
+        old.installed_passes = 3;
+        let mut used = Some(old);
+        for dst in [&mut empty, &mut used] {
+            let run = CoggingRun::start_in(dst, &stage, &operator);
+            assert_eq!(format!("{run:?}"), format!("{by_value:?}"));
+            assert_eq!(run.before, map);
+        }
+    }
 }

@@ -648,7 +648,8 @@ impl Lifecycle {
         operator: &CommandSlot,
         out: &mut Output,
     ) {
-        self.cogging = Some(CoggingRun::for_stage(stage, operator));
+        // In place: the run is kilobytes (see `CoggingRun::start_in`).
+        CoggingRun::start_in(&mut self.cogging, stage, operator);
         self.identifier = None;
         self.identify_seq = operator.seq;
         self.phase = LifePhase::Identify;
