@@ -121,7 +121,9 @@ pub struct ModelTolerances {
     pub angle_e_rad: f32,
     /// The bridge's dead time \[s\] as far as it is known (0: none known);
     /// the applied voltage is corrected by `-sgn(i) V_bus t_d f_pwm` per
-    /// phase and the bound widened by one phase's worth.
+    /// phase and the bound widened by one phase's worth. The current stage
+    /// puts the dead time its current loop compensates in place of a 0
+    /// (the compensation is in the duties this check reads).
     pub dead_time_s: f32,
     /// Periods over the bound that trip; 0 disables the check.
     pub trip_periods: u8,

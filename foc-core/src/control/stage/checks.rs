@@ -139,7 +139,20 @@ impl CurrentStage {
 /// The model check of a stage configuration: the current loop's motor and
 /// period, the supervisor's tolerances with the angle sensor's resolution
 /// added (a whole count for a fine sensor, half of one where the stage
-/// interpolates a coarse one).
+/// interpolates a coarse one), and the bridge's dead time: the
+/// tolerances' own, or where they know none (0) the one the current loop
+/// compensates.
+///
+/// The bridge takes up to `4/3 V_bus t_d / T` off the voltage the duties
+/// ask for and the duties carry it back (the compensation, design §31,
+/// outside its band; the PI's integral inside it): a check that did not
+/// know the dead time counted it as a voltage the motor did not follow.
+/// At speed or current its envelope covers that; at standstill with a
+/// current near zero (a speed loop holding a braked rotor) the envelope
+/// shrinks to its noise floor, below the dead time's voltage, and the
+/// slow check tripped `CurrentSenseError` on a healthy drive
+/// (tests/tests/brake_to_standstill.rs). A board that compensates its
+/// dead time has told the stage what it is.
 pub(super) fn model_check(c: &CurrentStageConfig) -> ModelCheck {
     let a = &c.angle;
     let count_e_rad = match a.sensor_counts_per_rev {
@@ -147,6 +160,12 @@ pub(super) fn model_check(c: &CurrentStageConfig) -> ModelCheck {
         n => core::f32::consts::TAU * a.pole_pairs as f32 / n as f32,
     };
     let mut tol = c.supervisor.model;
+    // (Only a dead time the compensation acts on: positive, at most its
+    // share of the period; a NaN tolerance stays NaN, which `sanitized`
+    // makes 0 as before.)
+    if tol.dead_time_s == 0.0 && c.current.dead_time.gains(c.current.ts_s).is_on() {
+        tol.dead_time_s = c.current.dead_time.dead_time_s;
+    }
     // An interpolated coarse sensor (halls) is within its half-count
     // window; a fine one within a count.
     tol.angle_e_rad += match a.interpolation_half_count() {
@@ -155,4 +174,56 @@ pub(super) fn model_check(c: &CurrentStageConfig) -> ModelCheck {
     };
     let coarse = a.interpolation_half_count().is_some();
     ModelCheck::new(c.current.motor, c.current.ts_s, tol, coarse)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::control::dead_time::DeadTimeCompensation;
+    use crate::control::MotorParams;
+    use crate::drive::cascade::CascadeConfig;
+
+    fn config(dead_time: DeadTimeCompensation, model_dead_time_s: f32) -> CurrentStageConfig {
+        let motor = MotorParams {
+            pole_pairs: 7,
+            r_ohm: 0.2,
+            ld_h: 60e-6,
+            lq_h: 60e-6,
+            flux_linkage_wb: 0.005,
+        };
+        let mut c = CascadeConfig::for_motor(motor, 20_000.0, 10.0).current;
+        c.current.dead_time = dead_time;
+        c.supervisor.model.dead_time_s = model_dead_time_s;
+        c
+    }
+
+    /// The check takes the dead time the current loop compensates where
+    /// its tolerances know none; its own is kept; a compensation that is
+    /// off (or a dead time it refuses) gives none; a NaN tolerance stays
+    /// the 0 it always became.
+    #[test]
+    fn the_model_check_knows_the_dead_time_the_loop_compensates() {
+        let dt = |c: &CurrentStageConfig| model_check(c).tolerances().dead_time_s;
+        let board = DeadTimeCompensation::for_current_limit(200e-9, 10.0);
+        assert_eq!(dt(&config(board, 0.0)), 200e-9);
+        assert_eq!(dt(&config(board, 300e-9)), 300e-9);
+        assert_eq!(dt(&config(DeadTimeCompensation::OFF, 0.0)), 0.0);
+        assert_eq!(dt(&config(DeadTimeCompensation::OFF, 200e-9)), 200e-9);
+        // A band of 0 leaves the compensation off: nothing in the duties.
+        let no_band = DeadTimeCompensation {
+            band_a: 0.0,
+            ..board
+        };
+        assert_eq!(dt(&config(no_band, 0.0)), 0.0);
+        // Microseconds given as nanoseconds (the compensation refuses it).
+        let slip = DeadTimeCompensation::for_current_limit(200e-6, 10.0);
+        assert_eq!(dt(&config(slip, 0.0)), 0.0);
+        assert_eq!(dt(&config(board, f32::NAN)), 0.0);
+        // A stage whose permit brings the compensation rebuilds its check.
+        let mut stage = CurrentStage::new(config(DeadTimeCompensation::OFF, 0.0));
+        assert_eq!(stage.model_check().tolerances().dead_time_s, 0.0);
+        let c = config(board, 0.0);
+        stage.set_calibration(&Calibrated::supplied(c.angle, c.current).unwrap());
+        assert_eq!(stage.model_check().tolerances().dead_time_s, 200e-9);
+    }
 }
