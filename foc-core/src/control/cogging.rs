@@ -128,10 +128,29 @@ impl CoggingMap {
         if !(self.scale_a.is_finite() && self.scale_a >= 0.0) {
             return Err(CoggingMapError::BadScale);
         }
+        // No count can exceed the scale's bound: within the limit, no scan
+        // (the check runs in the interrupt when a calibration pass ends).
+        if self.bound_a() <= max_current_a {
+            return Ok(());
+        }
         if self.peak_a() > max_current_a {
             return Err(CoggingMapError::TooLarge);
         }
         Ok(())
+    }
+
+    /// The largest feed-forward the table can hold at its scale \[A\] (any
+    /// count, `-32768` included): a bound on [`Self::peak_a`] without its
+    /// scan.
+    pub fn bound_a(&self) -> f32 {
+        -(i16::MIN as f32) * self.scale_a
+    }
+
+    /// The current of a full count \[A\]: the peak of a map scaled to its
+    /// peak ([`Self::from_amps`], the calibration's), without the scan of
+    /// [`Self::peak_a`].
+    pub fn full_scale_a(&self) -> f32 {
+        FULL_COUNT * self.scale_a
     }
 
     /// The feed-forward q current \[A\] at `theta_e` (0 when off), linear

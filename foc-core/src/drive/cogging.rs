@@ -161,8 +161,10 @@ impl CoggingRun {
             }
             Some(CalStep::Done(())) => {
                 self.install_new_map(stage);
+                // The peak from the map's scale (no scan: this period also
+                // runs the stage).
                 let out = CoggingOutcome::Done {
-                    peak_a: stage.cogging().peak_a(),
+                    peak_a: stage.cogging().full_scale_a(),
                     periods: self.cal.elapsed_periods(),
                 };
                 return self.finish(stage, iq_ref_a, s, out);
