@@ -79,7 +79,7 @@ fn run_bench() -> Result<(Vec<Row>, Vec<String>)> {
         &bench,
         &[],
         "shift=10,align=off",
-        Duration::from_secs(120),
+        Duration::from_secs(900),
         false,
     )?;
     if r.code != Some(0) || !r.lines.iter().any(|l| l.contains("BENCH-DONE")) {

@@ -163,6 +163,16 @@ impl Rig {
         }
     }
 
+    /// The verdict on the last period's configuration change.
+    pub fn last_change(&self) -> Option<Result<(), Refusal>> {
+        self.last_change
+    }
+
+    /// Posts a configuration change for the next period.
+    pub fn set_mailbox(&mut self, change: ConfigChange) {
+        self.mailbox = Some(change);
+    }
+
     /// The drive (its hardware, for the breakdown's parts).
     pub fn drive_mut(&mut self) -> &mut BoardDrive {
         &mut self.drive
@@ -226,6 +236,8 @@ fn scenario(
     });
     report(name, stats);
     let fb = &rig.published;
+    // Every scenario keeps the calibration (a change that revoked it would
+    // fail here, not in the next scenario).
     // Every scenario keeps the calibration (a change that revoked it would
     // fail here, not in the next scenario).
     let ok = fb.mode == expect.mode
@@ -427,6 +439,18 @@ pub fn measure_all(rig: &mut Rig, baseline: u32) -> Stats {
             },
             nothing,
             Expect::running(Mode::Position),
+        ),
+        super::sweeps::drive_run(
+            rig,
+            baseline,
+            "drive period: encoder linearisation, every period of a whole run",
+            |c| c.calibrate_encoder = true,
+        ),
+        super::sweeps::drive_run(
+            rig,
+            baseline,
+            "drive period: anticogging calibration, every period of a whole run",
+            |c| c.calibrate_cogging = true,
         ),
         scenario(
             rig,

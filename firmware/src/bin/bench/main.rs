@@ -40,6 +40,7 @@ use foc_core::{svpwm, transforms, trig};
 mod breakdown;
 mod drive;
 mod registers;
+mod sweeps;
 
 const TICKS_PER_INSTRUCTION: f32 = 172.032;
 
@@ -331,6 +332,10 @@ fn main() -> ! {
     //    triggered on a command (never fires here: the whole ring is
     //    written every run).
     measure_scope(baseline, n, &fbs);
+
+    // 6. The calibration routines' own work in each period of a short run
+    //    (the drive's period through whole runs is among the scenarios).
+    sweeps::measure_sweeps(baseline);
     defmt::println!("BENCH-DONE");
     mission_exit(0)
 }
