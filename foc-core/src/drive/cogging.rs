@@ -153,14 +153,19 @@ impl CoggingRun {
     ) -> (CoggingOutcome, BridgeCommand, Feedback) {
         // A failed read is the stage's fault (it trips below), not the
         // routine's.
-        match self.input(stage, s).map(|inp| self.cal.step(&inp)) {
-            None => {}
-            Some(CalStep::Velocity { rad_s }) => {
-                self.install_new_map(stage);
-                self.post_sweep(rad_s);
+        let step = self.input(stage, s).map(|inp| self.cal.step(&inp));
+        // A pass's map the stage refuses (a routine's share of a larger
+        // limit than the stage's) fails the calibration, the old map back.
+        let step = match step {
+            Some(CalStep::Velocity { .. } | CalStep::Done(())) if !self.install_new_map(stage) => {
+                Some(CalStep::Failed(CalError::ImplausibleResult))
             }
+            other => other,
+        };
+        match step {
+            None => {}
+            Some(CalStep::Velocity { rad_s }) => self.post_sweep(rad_s),
             Some(CalStep::Done(())) => {
-                self.install_new_map(stage);
                 // The peak from the map's scale (no scan: this period also
                 // runs the stage).
                 let out = CoggingOutcome::Done {
@@ -218,13 +223,13 @@ impl CoggingRun {
     }
 
     /// A pass finished: its map goes into the stage (the next pass runs
-    /// with it).
-    fn install_new_map(&mut self, stage: &mut CurrentStage) {
-        if self.cal.passes_done() > self.installed_passes {
-            self.installed_passes = self.cal.passes_done();
-            // Checked by the routine against its share of the limit.
-            let _taken = stage.set_cogging(self.cal.map());
+    /// with it); false when the stage refused it.
+    fn install_new_map(&mut self, stage: &mut CurrentStage) -> bool {
+        if self.cal.passes_done() <= self.installed_passes {
+            return true;
         }
+        self.installed_passes = self.cal.passes_done();
+        stage.set_cogging(self.cal.map()).is_ok()
     }
 
     fn put_back(&mut self, stage: &mut CurrentStage) {
