@@ -238,8 +238,6 @@ fn scenario(
     let fb = &rig.published;
     // Every scenario keeps the calibration (a change that revoked it would
     // fail here, not in the next scenario).
-    // Every scenario keeps the calibration (a change that revoked it would
-    // fail here, not in the next scenario).
     let ok = fb.mode == expect.mode
         && rig.drive.pwm_is_on() == expect.bridge_on
         && rig.status().calibrated
@@ -445,12 +443,14 @@ pub fn measure_all(rig: &mut Rig, baseline: u32) -> Stats {
             baseline,
             "drive period: encoder linearisation, every period of a whole run",
             |c| c.calibrate_encoder = true,
+            6.0,
         ),
         super::sweeps::drive_run(
             rig,
             baseline,
             "drive period: anticogging calibration, every period of a whole run",
             |c| c.calibrate_cogging = true,
+            24.0,
         ),
         scenario(
             rig,

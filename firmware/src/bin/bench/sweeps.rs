@@ -19,6 +19,8 @@ use foc_core::angle::{ElectricalAngle, MechanicalAngle};
 use foc_core::calibration::cogging::{CoggingCalConfig, CoggingCalibration};
 use foc_core::calibration::encoder::{EncoderCalConfig, EncoderCalibration};
 use foc_core::calibration::{CalInput, CalStep, ClosedLoopFeedback};
+use foc_core::control::angle_correction::AngleCorrection;
+use foc_core::control::cogging::CoggingMap;
 use foc_core::control::Command;
 use foc_core::drive::{ConfigChange, Progress};
 use foc_core::frames::{Abc, Dq};
@@ -206,7 +208,7 @@ fn finish(name: &str, run: &mut Run, end: Option<CalStep<()>>) {
         end
     );
     if end != Some(CalStep::Done(())) {
-        defmt::println!("INFO the sweep did not finish: the bench fails");
+        defmt::println!("BENCH-FAILED {=str}: the sweep did not finish", name);
         super::mission_exit(1);
     }
 }
@@ -217,7 +219,13 @@ fn finish(name: &str, run: &mut Run, end: Option<CalStep<()>>) {
 /// product's worst period while it calibrates. A calibration that fails or
 /// does not end within a minute of emulated time fails the bench. Then
 /// torque 1 A again, as the scenarios before left the drive.
-pub fn drive_run(rig: &mut Rig, baseline: u32, name: &str, ask: fn(&mut ConfigChange)) -> Stats {
+pub fn drive_run(
+    rig: &mut Rig,
+    baseline: u32,
+    name: &str,
+    ask: fn(&mut ConfigChange),
+    planned_s: f32,
+) -> Stats {
     const LIMIT_PERIODS: u32 = 60 * board_support::board::PWM_FREQUENCY_HZ;
     // From standstill: the scenarios before left the rotor turning; it
     // coasts (at most 10 s).
@@ -231,7 +239,8 @@ pub fn drive_run(rig: &mut Rig, baseline: u32, name: &str, ask: fn(&mut ConfigCh
     let mut change = ConfigChange::default();
     ask(&mut change);
     rig.set_mailbox(change);
-    let mut run = Run::new(LIMIT_PERIODS / 3);
+    // The median's 64 samples spread over the planned run.
+    let mut run = Run::new((planned_s * board_support::board::PWM_FREQUENCY_HZ as f32) as u32);
     let mut end = Progress::Idle;
     while run.n < LIMIT_PERIODS {
         board_support::board::sim::step_physics();
@@ -262,6 +271,20 @@ pub fn drive_run(rig: &mut Rig, baseline: u32, name: &str, ask: fn(&mut ConfigCh
     );
     if end != Progress::Done {
         defmt::println!("BENCH-FAILED {=str}: the calibration did not finish", name);
+        super::mission_exit(1);
+    }
+    // The learnt tables out again: the scenarios after run without them.
+    rig.slot.post(Command::Disable);
+    rig.run(4);
+    let cleared = rig.drive_mut().stage_while_disabled().is_some_and(|stage| {
+        stage.set_cogging(&CoggingMap::EMPTY).is_ok()
+            && stage.set_angle_correction(&AngleCorrection::NONE).is_ok()
+    });
+    if !cleared {
+        defmt::println!(
+            "BENCH-FAILED {=str}: the learnt tables were not cleared",
+            name
+        );
         super::mission_exit(1);
     }
     rig.slot.post(Command::Torque { iq_a: 1.0 });
