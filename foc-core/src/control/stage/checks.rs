@@ -152,7 +152,12 @@ impl CurrentStage {
 /// shrinks to its noise floor, below the dead time's voltage, and the
 /// slow check tripped `CurrentSenseError` on a healthy drive
 /// (tests/tests/brake_to_standstill.rs). A board that compensates its
-/// dead time has told the stage what it is.
+/// dead time has told the stage what it is; one that neither compensates
+/// it nor states it in the tolerances (`supervisor.model.dead_time_s`)
+/// still trips the same way: the cause is the bridge's dead time, not the
+/// compensation. Every board's configuration states it (the firmware's
+/// `config::cascade` does); the defaults of `CascadeConfig::for_motor`
+/// (an ideal bridge) do not.
 pub(super) fn model_check(c: &CurrentStageConfig) -> ModelCheck {
     let a = &c.angle;
     let count_e_rad = match a.sensor_counts_per_rev {
